@@ -1,0 +1,166 @@
+"""Line tracks: the observations every later stage consumes, and the ``tracks.json`` format.
+
+``tracks.json`` (documented in docs/formats.md)::
+
+    {"num_frames": 200,
+     "timestamps": [0, 1, ...],          # optional, one per frame (default: frame index)
+     "tracks": [{"id": 0, "frames": [0, 1, 2, 5], "normals": [[nx, ny, nz], ...]}, ...]}
+
+``normals[j]`` is the unit normal of the plane through the viewpoint and the 3D line, in the
+camera frame of frame ``frames[j]``; its sign is arbitrary. Extra keys are ignored.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from omni_sfm.errors import OmniSfmError
+from omni_sfm.fileio import atomic_write_text, dumps_json, read_json
+from omni_sfm.geometry import FloatArray
+
+IntArray = np.ndarray
+
+
+@dataclass(frozen=True)
+class LineTracks:
+    """Observed line normals ("NVs"), flat over all tracks.
+
+    Attributes:
+        num_frames: number of frames ``F`` of the sequence.
+        track_ids: ``(M,)`` int, the id of each track (as in the file).
+        obs_track: ``(K,)`` int, index into ``track_ids`` of each observation.
+        obs_frame: ``(K,)`` int in ``[0, F)``, frame of each observation.
+        obs_normal: ``(K, 3)`` unit normals in that frame's camera frame (sign arbitrary).
+        timestamps: ``(F,)`` time of each frame (frame index or seconds).
+
+    Observations are sorted by (track, frame); a track sees a frame at most once.
+    """
+
+    num_frames: int
+    track_ids: IntArray
+    obs_track: IntArray
+    obs_frame: IntArray
+    obs_normal: FloatArray
+    timestamps: FloatArray
+
+    @property
+    def num_tracks(self) -> int:
+        return int(self.track_ids.shape[0])
+
+    @property
+    def num_observations(self) -> int:
+        return int(self.obs_track.shape[0])
+
+    def visibility(self) -> np.ndarray:
+        """``(M, F)`` bool: track m is observed in frame f."""
+        vis = np.zeros((self.num_tracks, self.num_frames), dtype=bool)
+        vis[self.obs_track, self.obs_frame] = True
+        return vis
+
+    def dense_normals(self) -> FloatArray:
+        """``(M, F, 3)`` normals, NaN where a track is not observed."""
+        out = np.full((self.num_tracks, self.num_frames, 3), np.nan)
+        out[self.obs_track, self.obs_frame] = self.obs_normal
+        return out
+
+    def select_tracks(self, keep: np.ndarray) -> LineTracks:
+        """The tracks at indices ``keep`` (int array or (M,) bool mask), re-indexed."""
+        idx = np.flatnonzero(keep) if np.asarray(keep).dtype == bool else np.asarray(keep)
+        remap = np.full(self.num_tracks, -1)
+        remap[idx] = np.arange(len(idx))
+        sel = remap[self.obs_track] >= 0
+        return LineTracks(self.num_frames, self.track_ids[idx], remap[self.obs_track[sel]],
+                          self.obs_frame[sel], self.obs_normal[sel], self.timestamps)
+
+    def to_json_dict(self) -> dict[str, Any]:
+        tracks = []
+        for m in range(self.num_tracks):
+            sel = self.obs_track == m
+            tracks.append({"id": int(self.track_ids[m]),
+                           "frames": self.obs_frame[sel].tolist(),
+                           "normals": np.round(self.obs_normal[sel], 15).tolist()})
+        return {"num_frames": self.num_frames, "timestamps": self.timestamps.tolist(),
+                "tracks": tracks}
+
+
+def make_tracks(num_frames: int, track_ids: IntArray, obs_track: IntArray, obs_frame: IntArray,
+                obs_normal: FloatArray, timestamps: FloatArray | None = None,
+                source: str = "tracks") -> LineTracks:
+    """Validate and sort observations into a :class:`LineTracks` (errors name ``source``)."""
+    if isinstance(num_frames, bool) or not isinstance(num_frames, int | np.integer) \
+            or num_frames < 1:
+        raise OmniSfmError(f"{source}: 'num_frames' must be a positive integer, got {num_frames!r}")
+    n = np.asarray(obs_normal, dtype=np.float64).reshape(-1, 3)
+    t = np.asarray(obs_track, dtype=np.int64)
+    f = np.asarray(obs_frame, dtype=np.int64)
+    if not np.isfinite(n).all():
+        raise OmniSfmError(f"{source}: normals must be finite (found NaN or inf)")
+    norms = np.linalg.norm(n, axis=1)
+    bad = np.flatnonzero(np.abs(norms - 1.0) > 1e-3)
+    if bad.size:
+        raise OmniSfmError(f"{source}: normals must be unit vectors; observation of track "
+                           f"{int(track_ids[t[bad[0]]])} has length {norms[bad[0]]:.6g}")
+    out = np.flatnonzero((f < 0) | (f >= num_frames))
+    if out.size:
+        raise OmniSfmError(f"{source}: frame index {int(f[out[0]])} of track "
+                           f"{int(track_ids[t[out[0]]])} is outside [0, {num_frames})")
+    order = np.lexsort((f, t))
+    t, f, n = t[order], f[order], n[order] / norms[order, None]
+    dup = np.flatnonzero((np.diff(t) == 0) & (np.diff(f) == 0))
+    if dup.size:
+        raise OmniSfmError(f"{source}: track {int(track_ids[t[dup[0]]])} lists frame "
+                           f"{int(f[dup[0]])} twice")
+    ts = np.arange(num_frames, dtype=np.float64) if timestamps is None else \
+        np.asarray(timestamps, dtype=np.float64)
+    if ts.shape != (num_frames,) or not np.isfinite(ts).all():
+        raise OmniSfmError(f"{source}: 'timestamps' must be {num_frames} finite numbers")
+    return LineTracks(int(num_frames), np.asarray(track_ids, dtype=np.int64), t, f, n, ts)
+
+
+def read_tracks(path: Path | str) -> LineTracks:
+    """Read and validate a ``tracks.json`` file; defects become one-line OmniSfmErrors."""
+    path = Path(path)
+    data = read_json(path, "tracks file")
+    if not isinstance(data, dict) or "tracks" not in data or "num_frames" not in data:
+        raise OmniSfmError(f"{path}: tracks file needs keys 'num_frames' and 'tracks'")
+    tracks = data["tracks"]
+    if not isinstance(tracks, list):
+        raise OmniSfmError(f"{path}: 'tracks' must be a list")
+    ids, ot, of, on = [], [], [], []
+    for k, tr in enumerate(tracks):
+        if not isinstance(tr, dict) or not {"frames", "normals"} <= tr.keys():
+            raise OmniSfmError(f"{path}: track #{k} needs keys 'frames' and 'normals'")
+        tid = tr.get("id", k)
+        try:
+            fr = np.asarray(tr["frames"], dtype=np.float64).reshape(-1)
+            nv = np.asarray(tr["normals"], dtype=np.float64)
+        except (TypeError, ValueError):
+            raise OmniSfmError(f"{path}: track {tid}: 'frames' and 'normals' must be numbers") \
+                from None
+        if nv.ndim != 2 or nv.shape[1] != 3 or nv.shape[0] != fr.shape[0]:
+            raise OmniSfmError(f"{path}: track {tid}: needs one [nx, ny, nz] per frame, got "
+                               f"{fr.shape[0]} frames and normals of shape {nv.shape}")
+        if not np.all(fr == np.round(fr)):
+            raise OmniSfmError(f"{path}: track {tid}: frame indices must be integers")
+        if not isinstance(tid, int) or isinstance(tid, bool):
+            raise OmniSfmError(f"{path}: track #{k}: 'id' must be an integer, got {tid!r}")
+        ids.append(tid)
+        ot.append(np.full(fr.shape[0], k))
+        of.append(fr.astype(np.int64))
+        on.append(nv)
+    if len(set(ids)) != len(ids):
+        raise OmniSfmError(f"{path}: track ids must be unique")
+    if not ids:
+        raise OmniSfmError(f"{path}: no tracks")
+    return make_tracks(data["num_frames"], np.asarray(ids), np.concatenate(ot),
+                       np.concatenate(of), np.concatenate(on, axis=0).reshape(-1, 3),
+                       data.get("timestamps"), source=str(path))
+
+
+def write_tracks(path: Path | str, tracks: LineTracks) -> None:
+    """Write ``tracks`` as ``tracks.json`` (atomically)."""
+    atomic_write_text(Path(path), dumps_json(tracks.to_json_dict()))

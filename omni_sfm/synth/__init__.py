@@ -1,0 +1,1 @@
+"""Synthetic data with exact ground truth: simulated line observations and rendered video."""

@@ -1,0 +1,96 @@
+"""The shared foundation: geometry, trajectories and TUM files, errors, tracks, simulation."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from omni_sfm.errors import OmniSfmError
+from omni_sfm.evaluate import trajectory_errors, umeyama
+from omni_sfm.geometry import rotation_angle, rotvec_to_matrix
+from omni_sfm.lines.tracks import read_tracks, write_tracks
+from omni_sfm.poses import Trajectory, read_tum, write_tum
+from omni_sfm.synth.simulate import SimulationOptions, simulate
+
+
+def _random_traj(n: int, seed: int) -> Trajectory:
+    rng = np.random.default_rng(seed)
+    return Trajectory(np.arange(n, dtype=float), rotvec_to_matrix(rng.normal(size=(n, 3))),
+                      rng.normal(size=(n, 3)))
+
+
+def test_tum_round_trip(tmp_path):
+    tr = _random_traj(7, 0)
+    write_tum(tmp_path / "t.tum", tr)
+    back = read_tum(tmp_path / "t.tum")
+    np.testing.assert_allclose(back.positions, tr.positions, atol=1e-15)
+    assert rotation_angle(np.swapaxes(back.rotations, 1, 2) @ tr.rotations).max() < 1e-12
+
+
+@pytest.mark.parametrize("text,msg", [("0 1 2 3\n", "expected 8 numbers"),
+                                      ("0 1 2 3 0 0 0 x\n", "not a number"),
+                                      ("0 1 2 3 0 0 0 0\n", "zero quaternion"),
+                                      ("# only a comment\n", "no poses")])
+def test_tum_errors(tmp_path, text, msg):
+    p = tmp_path / "bad.tum"
+    p.write_text(text)
+    with pytest.raises(OmniSfmError, match=msg):
+        read_tum(p)
+
+
+def test_umeyama_recovers_similarity():
+    rng = np.random.default_rng(1)
+    x = rng.normal(size=(20, 3))
+    R = rotvec_to_matrix(np.array([0.3, -0.2, 0.9]))
+    y = 2.5 * x @ R.T + np.array([1.0, -2.0, 0.5])
+    sim = umeyama(x, y)
+    assert sim.scale == pytest.approx(2.5)
+    np.testing.assert_allclose(sim.apply_points(x), y, atol=1e-12)
+
+
+def test_errors_zero_for_similar_trajectory():
+    gt = _random_traj(10, 2)
+    R = rotvec_to_matrix(np.array([0.1, 0.2, 0.3]))
+    est = Trajectory(gt.timestamps, R @ gt.rotations, 0.5 * gt.positions @ R.T + 3.0)
+    err = trajectory_errors(est, gt)
+    assert err.rot_max_deg < 1e-10 and err.ate_rel < 1e-12 and err.paper_trans.max() < 1e-12
+
+
+def test_simulated_normals_are_orthogonal_to_lines():
+    sim = simulate(SimulationOptions(num_views=8, num_parallel=3, num_other=3, seed=3))
+    tr, gt = sim.tracks, sim.groundtruth
+    n_world = np.einsum("kij,kj->ki", gt.rotations[tr.obs_frame], tr.obs_normal)
+    d = sim.line_directions[tr.obs_track]
+    to_line = sim.line_points[tr.obs_track] - gt.positions[tr.obs_frame]
+    assert np.abs(np.sum(n_world * d, axis=1)).max() < 1e-12
+    assert np.abs(np.sum(n_world * to_line, axis=1)).max() < 1e-12
+    np.testing.assert_allclose(gt.rotations[0], np.eye(3), atol=1e-12)
+
+
+def test_partial_visibility_window():
+    sim = simulate(SimulationOptions(num_views=120, num_parallel=10, num_other=10,
+                                     visible_frames=30, seed=4))
+    counts = sim.tracks.visibility().sum(axis=1)
+    assert counts.max() <= 30 and counts.min() >= 29
+
+
+def test_tracks_round_trip_and_errors(tmp_path):
+    sim = simulate(SimulationOptions(num_views=5, num_parallel=3, num_other=3, seed=5))
+    write_tracks(tmp_path / "tracks.json", sim.tracks)
+    back = read_tracks(tmp_path / "tracks.json")
+    np.testing.assert_allclose(back.obs_normal, sim.tracks.obs_normal, atol=1e-14)
+    data = json.loads((tmp_path / "tracks.json").read_text())
+    data["tracks"][1]["normals"][0] = [1.0, 1.0, 0.0]
+    (tmp_path / "bad.json").write_text(json.dumps(data))
+    with pytest.raises(OmniSfmError, match="unit vectors"):
+        read_tracks(tmp_path / "bad.json")
+    (tmp_path / "broken.json").write_text("{")
+    with pytest.raises(OmniSfmError, match="malformed tracks file"):
+        read_tracks(tmp_path / "broken.json")
+    data["tracks"][1]["normals"][0] = [0.0, 0.0, 1.0]
+    data["tracks"][1]["frames"][0] = 99
+    (tmp_path / "range.json").write_text(json.dumps(data))
+    with pytest.raises(OmniSfmError, match="outside"):
+        read_tracks(tmp_path / "range.json")
