@@ -59,7 +59,9 @@ def umeyama(src: FloatArray, dst: FloatArray, *, with_scale: bool = True) -> Sim
     return Similarity(R, mu_d - scale * R @ mu_s, scale)
 
 
-def associate(est: Trajectory, gt: Trajectory, *, tol: float = 1e-6) -> tuple[Trajectory, Trajectory]:
+def associate(
+    est: Trajectory, gt: Trajectory, *, tol: float = 1e-6
+) -> tuple[Trajectory, Trajectory]:
     """The frames present in both trajectories (timestamps equal within ``tol``), in order."""
     idx = np.searchsorted(gt.timestamps, est.timestamps)
     idx = np.clip(idx, 0, len(gt) - 1)

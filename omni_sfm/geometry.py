@@ -80,7 +80,7 @@ def angle_between(a: ArrayLike, b: ArrayLike, *, unsigned_lines: bool = False) -
 
 
 def quat_xyzw_from_matrix(R: ArrayLike) -> FloatArray:
-    """Rotation matrices ``(N, 3, 3)`` -> unit quaternions ``(N, 4)`` as ``qx qy qz qw``, qw >= 0."""
+    """Rotation matrices ``(N, 3, 3)`` -> quaternions ``(N, 4)``: ``qx qy qz qw``, qw >= 0."""
     from scipy.spatial.transform import Rotation
 
     q = Rotation.from_matrix(np.asarray(R, dtype=np.float64)).as_quat()
