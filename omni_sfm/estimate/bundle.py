@@ -1,0 +1,460 @@
+"""Line bundle adjustment: all poses and lines refined jointly from the observed NVs.
+
+Model. A 3D line with unit direction ``d`` through point ``p`` (world) and a camera with
+world_from_cam rotation ``R`` and centre ``c`` span a plane whose normal, in the camera frame, is
+``u = R^T ((p - c) x d)`` (normalised: ``n = u / |u|``). An observation is a unit normal
+``n_obs`` of arbitrary sign. Its residual is the 2-vector ``e = B^T n`` where ``B`` (3x2) is an
+orthonormal basis of the plane perpendicular to ``n_obs``: ``|e| = sin(angle(n, +-n_obs))``, so
+the squared residual does not depend on either sign, and for small errors ``e`` is the angular
+error (radians) in two tangent directions, the quantity the NV noise perturbs.
+
+Parameters (minimal, updated on the manifold at each step):
+- pose ``k``: rotation increment ``w`` with ``R <- R exp([w]x)`` (camera-frame perturbation) and
+  centre increment ``dc`` (6 DOF);
+- line: direction moves in the plane perpendicular to ``d`` (2 DOF, ``d <- normalise(d + a e1 +
+  b e2)``) and the point moves in that plane too (2 DOF), 4 DOF in all, as Plücker lines have.
+
+Gauge (7 DOF: rotation, translation, scale): the first estimated frame's pose is held fixed,
+and the scale by holding one coordinate of the camera centre farthest from it (the one with the
+largest magnitude). The cost is gauge invariant, so the estimate is the same up to a similarity
+whatever coordinate is held; callers rescale to their convention afterwards.
+
+Solver: Levenberg-Marquardt with an analytic Jacobian assembled as a ``scipy.sparse`` matrix (10
+non-zeros per residual row), normal equations solved by sparse LU; robust loss by iteratively
+reweighted least squares (Huber or Cauchy on the residual norm) with the scale set from the
+noise level, estimated robustly (median of residual norms) unless given. After convergence,
+tracks whose RMS residual is far above the noise are flagged as outliers, removed, and the
+problem solved again.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from enum import StrEnum
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from omni_sfm.errors import OmniSfmError
+from omni_sfm.geometry import FloatArray, normalize, rotvec_to_matrix, skew
+from omni_sfm.lines.tracks import LineTracks
+
+# median of the norm of a 2D isotropic Gaussian with unit std-dev per axis (Rayleigh median)
+_RAYLEIGH_MEDIAN = float(np.sqrt(2.0 * np.log(2.0)))
+_SIGMA_FLOOR = 1e-9
+
+
+class RobustLoss(StrEnum):
+    """Robust loss on the residual norm (angle, radians)."""
+
+    LINEAR = "linear"
+    HUBER = "huber"
+    CAUCHY = "cauchy"
+
+
+@dataclass(frozen=True, kw_only=True)
+class BundleOptions:
+    loss: RobustLoss = RobustLoss.HUBER
+    """Robust loss applied to each observation's residual norm."""
+    loss_scale: float = 3.0
+    """Loss scale in units of the per-axis noise std-dev (quadratic below, robust above)."""
+    noise_deg: float | None = None
+    """Known per-axis angular noise of the NVs in degrees; None: estimated from the residuals."""
+    max_iterations: int = 100
+    """Levenberg-Marquardt iterations per solve."""
+    tolerance: float = 1e-12
+    """Stop when the relative decrease of the cost falls below this."""
+    reject_outliers: bool = True
+    """Flag tracks whose residuals are far above the noise, drop them and solve again."""
+    outlier_threshold: float = 3.0
+    """A track is an outlier if its RMS residual norm exceeds this many times the expected
+    RMS for its noise (sqrt(2) sigma)."""
+    max_rounds: int = 4
+    """Solve / re-estimate the noise / reject outliers rounds at most."""
+    min_observations: int = 3
+    """Tracks with fewer observations in the estimated frames take no part."""
+
+
+@dataclass(frozen=True)
+class BundleResult:
+    """Refined poses and lines.
+
+    Attributes:
+        rotations: ``(F, 3, 3)`` world_from_cam (NaN for frames not estimated).
+        positions: ``(F, 3)`` camera centres in the world (NaN for frames not estimated); the
+            world and the scale are those of the initial values (first estimated frame fixed).
+        line_directions: ``(M, 3)`` unit directions (world; NaN for tracks not used).
+        line_points: ``(M, 3)`` the point of each line closest to the world origin.
+        frames: ``(F,)`` bool, frames estimated.
+        used_tracks: ``(M,)`` bool, tracks in the final solve (not outliers, enough views).
+        outlier_tracks: ``(M,)`` bool, tracks rejected as outliers.
+        sigma_deg: robust estimate of the per-axis NV noise after the solve, degrees.
+        track_rms_deg: ``(M,)`` RMS residual angle of each track at the solution (all tracks,
+            outliers included; NaN where the track has no line), degrees.
+        rms_initial_deg: RMS residual angle over the final inlier observations at the start.
+        rms_final_deg: the same at the solution.
+        iterations: LM iterations in all rounds.
+        time_ms: wall time of the whole adjustment.
+    """
+
+    rotations: FloatArray
+    positions: FloatArray
+    line_directions: FloatArray
+    line_points: FloatArray
+    frames: np.ndarray
+    used_tracks: np.ndarray
+    outlier_tracks: np.ndarray
+    sigma_deg: float
+    track_rms_deg: FloatArray
+    rms_initial_deg: float
+    rms_final_deg: float
+    iterations: int
+    time_ms: float
+    history: list[dict[str, float]] = field(default_factory=list)
+
+
+def _tangent_basis(n: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Two unit vectors ``(..., 3)`` completing unit ``n`` to an orthonormal basis."""
+    helper = np.where(np.abs(n[..., :1]) < 0.6, np.array([1.0, 0.0, 0.0]),
+                      np.array([0.0, 1.0, 0.0]))
+    e1 = normalize(np.cross(n, helper))
+    e2 = np.cross(n, e1)
+    return e1, e2
+
+
+def triangulate_lines(tracks: LineTracks, rotations: FloatArray, positions: FloatArray,
+                      frames: np.ndarray | None = None,
+                      min_observations: int = 2) -> tuple[FloatArray, FloatArray, np.ndarray]:
+    """Lines from known poses: the 3D line lying closest to all the planes of its observations.
+
+    Each observation in a frame ``k`` with pose ``(R_k, c_k)`` gives the world plane through
+    ``c_k`` with normal ``R_k n``. The direction is the unit vector most orthogonal to all the
+    normals (smallest eigenvector of ``sum n n^T``); the point solves ``n . x = n . c_k`` in least
+    squares, with ``d . x = 0``.
+
+    Returns ``(directions (M,3), points (M,3), ok (M,))``; not ok (NaN) where a track has fewer
+    than ``min_observations`` observations in ``frames`` or its planes do not fix a line.
+    """
+    F, M = tracks.num_frames, tracks.num_tracks
+    use = np.ones(F, bool) if frames is None else np.asarray(frames, bool)
+    use = use & np.isfinite(positions).all(1) & np.isfinite(rotations).all((1, 2))
+    sel = use[tracks.obs_frame]
+    t, f = tracks.obs_track[sel], tracks.obs_frame[sel]
+    n_w = np.einsum("kij,kj->ki", rotations[f], tracks.obs_normal[sel])
+    cnt = np.bincount(t, minlength=M)
+    A = np.zeros((M, 3, 3))
+    np.add.at(A, t, n_w[:, :, None] * n_w[:, None, :])
+    evals, evecs = np.linalg.eigh(A + np.eye(3) * 1e-300)
+    d = evecs[:, :, 0]
+    ok = (cnt >= max(2, min_observations)) & (evals[:, 1] > 1e-12 * np.maximum(evals[:, 2], 1e-300))
+    # point: minimise sum (n.x - n.c)^2 subject to d.x = 0 via the normal equations + d d^T
+    b = np.zeros((M, 3))
+    np.add.at(b, t, n_w * np.sum(n_w * positions[f], axis=1, keepdims=True))
+    N = A + d[:, :, None] * d[:, None, :] * np.maximum(evals[:, 2:3, None], 1.0)
+    with np.errstate(all="ignore"):
+        p = np.linalg.solve(N[ok], b[ok][..., None])[..., 0] if ok.any() else np.zeros((0, 3))
+    dirs = np.full((M, 3), np.nan)
+    pts = np.full((M, 3), np.nan)
+    dirs[ok], pts[ok] = d[ok], p - np.sum(p * d[ok], 1, keepdims=True) * d[ok]
+    return dirs, pts, ok
+
+
+def observation_residuals(tracks: LineTracks, rotations: FloatArray, positions: FloatArray,
+                          line_directions: FloatArray, line_points: FloatArray) -> FloatArray:
+    """``(K,)`` angle (radians, in [0, pi/2]) between each observed NV and the predicted one.
+
+    NaN where the frame's pose or the track's line is undefined.
+    """
+    f, t = tracks.obs_frame, tracks.obs_track
+    u = np.einsum("kji,kj->ki", rotations[f],
+                  np.cross(line_points[t] - positions[f], line_directions[t]))
+    c = np.abs(np.sum(normalize(u) * tracks.obs_normal, axis=1))
+    s = np.linalg.norm(np.cross(normalize(u), tracks.obs_normal), axis=1)
+    return np.arctan2(s, c)
+
+
+def _loss_weights(s: FloatArray, loss: RobustLoss, scale: float) -> tuple[FloatArray, FloatArray]:
+    """Robust cost rho(s) and its derivative (the IRLS weight) for squared norms ``s``."""
+    f2 = scale * scale
+    if loss == RobustLoss.LINEAR:
+        return s, np.ones_like(s)
+    if loss == RobustLoss.HUBER:
+        r = np.sqrt(s)
+        inl = s <= f2
+        rho = np.where(inl, s, 2.0 * scale * r - f2)
+        w = np.where(inl, 1.0, scale / np.maximum(r, 1e-300))
+        return rho, w
+    return f2 * np.log1p(s / f2), 1.0 / (1.0 + s / f2)
+
+
+class _Problem:
+    """The LM problem on the active frames and tracks (everything else stays as given)."""
+
+    def __init__(self, tracks: LineTracks, frames: np.ndarray, active: np.ndarray,
+                 fixed_frame: int, scale_frame: int, scale_axis: int) -> None:
+        self.tracks = tracks
+        F, M = tracks.num_frames, tracks.num_tracks
+        sel = frames[tracks.obs_frame] & active[tracks.obs_track]
+        self.f = tracks.obs_frame[sel]
+        self.t = tracks.obs_track[sel]
+        self.B1, self.B2 = _tangent_basis(tracks.obs_normal[sel])
+        # column indices of the free parameters; -1 marks a parameter held fixed (the gauge)
+        pose_col = np.full((F, 6), -1)
+        free_frames = np.flatnonzero(frames)
+        free_frames = free_frames[free_frames != fixed_frame]
+        pose_col[free_frames] = np.arange(6 * len(free_frames)).reshape(-1, 6)
+        pose_col[scale_frame, 3 + scale_axis] = -1
+        n_pose = 6 * len(free_frames)
+        keep = pose_col >= 0
+        remap = np.full(n_pose, -1)
+        remap[np.sort(pose_col[keep])] = np.arange(keep.sum())
+        pose_col[keep] = remap[pose_col[keep]]
+        n_pose = int(keep.sum())
+        line_col = np.full((M, 4), -1)
+        act = np.flatnonzero(active)
+        line_col[act] = n_pose + np.arange(4 * len(act)).reshape(-1, 4)
+        self.pose_col, self.line_col = pose_col, line_col
+        self.num_params = n_pose + 4 * len(act)
+        cols = np.concatenate([pose_col[self.f], line_col[self.t]], axis=1)  # (K, 10)
+        self.rows = np.repeat(np.arange(2 * len(self.f)), 10)
+        self.cols = np.repeat(cols, 2, axis=0).ravel()
+        self.valid_cols = self.cols >= 0
+
+    def residuals(self, R: FloatArray, c: FloatArray, d: FloatArray,
+                  p: FloatArray) -> tuple[FloatArray, FloatArray]:
+        f, t = self.f, self.t
+        u = np.einsum("kji,kj->ki", R[f], np.cross(p[t] - c[f], d[t]))
+        n = u / np.linalg.norm(u, axis=1, keepdims=True)
+        e = np.stack([np.sum(self.B1 * n, 1), np.sum(self.B2 * n, 1)], axis=1)
+        return e, u
+
+    def jacobian(self, R: FloatArray, c: FloatArray, d: FloatArray, p: FloatArray,
+                 u: FloatArray, sqrt_w: FloatArray) -> sp.csr_matrix:
+        f, t = self.f, self.t
+        Rk = R[f]
+        nu = np.linalg.norm(u, axis=1)
+        n = u / nu[:, None]
+        B = np.stack([self.B1, self.B2], axis=1)  # (K, 2, 3)
+        # d e / d u = B^T (I - n n^T) / |u|
+        A = (B - np.sum(B * n[:, None, :], axis=2, keepdims=True) * n[:, None, :]) / \
+            nu[:, None, None]
+        J_rot = A @ skew(u)
+        J_c = A @ (np.swapaxes(Rk, 1, 2) @ skew(d[t]))
+        e1, e2 = _tangent_basis(d[t])
+        pc = p[t] - c[f]
+        V = np.stack([np.cross(pc, e1), np.cross(pc, e2), np.cross(e1, d[t]),
+                      np.cross(e2, d[t])], axis=1)  # (K, 4, 3) world
+        V_cam = np.einsum("kji,kaj->kai", Rk, V)
+        J_line = A @ np.swapaxes(V_cam, 1, 2)  # (K, 2, 4)
+        J = np.concatenate([J_rot, J_c, J_line], axis=2) * sqrt_w[:, None, None]
+        vals = J.reshape(-1)
+        ok = self.valid_cols
+        return sp.csr_matrix((vals[ok], (self.rows[ok], self.cols[ok])),
+                             shape=(2 * len(f), self.num_params))
+
+    def retract(self, R: FloatArray, c: FloatArray, d: FloatArray, p: FloatArray,
+                dx: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+        pc = self.pose_col
+        dpose = np.where(pc >= 0, dx[np.maximum(pc, 0)], 0.0)
+        R2 = R.copy()
+        moved = np.any(pc >= 0, axis=1)
+        R2[moved] = R[moved] @ rotvec_to_matrix(dpose[moved, :3])
+        c2 = c + dpose[:, 3:]
+        lc = self.line_col
+        act = lc[:, 0] >= 0
+        dl = dx[lc[act]]
+        e1, e2 = _tangent_basis(d[act])
+        d2, p2 = d.copy(), p.copy()
+        d2[act] = normalize(d[act] + dl[:, :1] * e1 + dl[:, 1:2] * e2)
+        q = p[act] + dl[:, 2:3] * e1 + dl[:, 3:4] * e2
+        p2[act] = q - np.sum(q * d2[act], 1, keepdims=True) * d2[act]
+        return R2, c2, d2, p2
+
+
+def _robust_sigma(angles: FloatArray) -> float:
+    """Per-axis noise std-dev (radians) from residual norms, robust to outliers."""
+    a = angles[np.isfinite(angles)]
+    if a.size == 0:
+        return _SIGMA_FLOOR
+    return max(float(np.median(a)) / _RAYLEIGH_MEDIAN, _SIGMA_FLOOR)
+
+
+_State = tuple[FloatArray, FloatArray, FloatArray, FloatArray]
+
+
+def _levenberg_marquardt(prob: _Problem, state: _State, loss: RobustLoss, scale: float,
+                         max_iterations: int, tolerance: float) -> tuple[_State, int]:
+    def cost_of(e: FloatArray) -> float:
+        return 0.5 * float(np.sum(_loss_weights(np.sum(e * e, 1), loss, scale)[0]))
+
+    e, u = prob.residuals(*state)
+    cost = cost_of(e)
+    lam = 1e-4
+    it = 0
+    for it in range(1, max_iterations + 1):  # noqa: B007
+        _, w = _loss_weights(np.sum(e * e, 1), loss, scale)
+        sw = np.sqrt(w)
+        J = prob.jacobian(*state, u, sw)
+        r = (e * sw[:, None]).ravel()
+        H = (J.T @ J).tocsc()
+        g = J.T @ r
+        diag = H.diagonal()
+        diag = np.maximum(diag, 1e-12 * max(float(diag.max(initial=0.0)), 1e-30))
+        improved = False
+        for _ in range(12):
+            try:
+                dx = spla.splu((H + sp.diags(lam * diag)).tocsc()).solve(-g)
+            except RuntimeError:  # singular: damp more
+                lam *= 10.0
+                continue
+            new_state = prob.retract(*state, dx)
+            e_new, u_new = prob.residuals(*new_state)
+            new_cost = cost_of(e_new)
+            if np.isfinite(new_cost) and new_cost <= cost:
+                improved = True
+                break
+            lam *= 10.0
+        if not improved:
+            break
+        rel = (cost - new_cost) / max(cost, 1e-300)
+        state, e, u, cost = new_state, e_new, u_new, new_cost
+        lam = max(lam / 10.0, 1e-12)
+        if rel < tolerance or cost <= 1e-300:
+            break
+    return state, it
+
+
+def bundle_adjust(tracks: LineTracks, rotations: FloatArray, positions: FloatArray,
+                  line_directions: FloatArray, line_points: FloatArray, *,
+                  frames: np.ndarray | None = None,
+                  options: BundleOptions = BundleOptions()) -> BundleResult:
+    """Refine poses and lines jointly from all observations (partial tracks allowed).
+
+    Args:
+        tracks: the observations; only (track, frame) pairs present give residuals.
+        rotations: ``(F, 3, 3)`` initial world_from_cam.
+        positions: ``(F, 3)`` initial camera centres.
+        line_directions: ``(M, 3)`` initial unit line directions (world); NaN rows: tracks that
+            take no part (they are triangulated from the initial poses if possible).
+        line_points: ``(M, 3)`` a point of each initial line (world).
+        frames: ``(F,)`` bool, the frames to estimate (default: all with finite poses).
+        options: see :class:`BundleOptions`.
+
+    Raises:
+        OmniSfmError: fewer than 3 estimable frames or no usable track.
+    """
+    t0 = time.perf_counter()
+    F, M = tracks.num_frames, tracks.num_tracks
+    R = np.array(rotations, dtype=np.float64)
+    c = np.array(positions, dtype=np.float64)
+    if R.shape != (F, 3, 3) or c.shape != (F, 3):
+        raise ValueError(f"poses must be ({F},3,3) and ({F},3); got {R.shape=} {c.shape=}")
+    d = np.array(line_directions, dtype=np.float64)
+    p = np.array(line_points, dtype=np.float64)
+    if d.shape != (M, 3) or p.shape != (M, 3):
+        raise ValueError(f"lines must be ({M},3); got {d.shape=} {p.shape=}")
+    fr: np.ndarray = np.isfinite(c).all(1) & np.isfinite(R).all((1, 2))
+    if frames is not None:
+        fr &= np.asarray(frames, bool)
+    missing = ~(np.isfinite(d).all(1) & np.isfinite(p).all(1))
+    if missing.any():
+        d2, p2, ok = triangulate_lines(tracks, R, c, fr)
+        d[missing], p[missing] = d2[missing], p2[missing]
+    d = normalize(d)
+    p = p - np.sum(p * d, 1, keepdims=True) * d
+    line_ok = np.isfinite(d).all(1) & np.isfinite(p).all(1)
+    outlier = np.zeros(M, bool)
+
+    def active_tracks() -> np.ndarray:
+        cnt = np.bincount(tracks.obs_track[fr[tracks.obs_frame]], minlength=M)
+        return line_ok & ~outlier & (cnt >= options.min_observations)
+
+    # frames need observations of active tracks to be determined
+    act = active_tracks()
+    per_frame = np.bincount(tracks.obs_frame[act[tracks.obs_track]], minlength=F)
+    fr &= per_frame >= 3
+    if fr.sum() < 3:
+        raise OmniSfmError(f"bundle adjustment needs at least 3 frames that see 3 lines or more; "
+                           f"got {int(fr.sum())}")
+    fixed = int(np.flatnonzero(fr)[0])
+    dist = np.linalg.norm(np.where(fr[:, None], c - c[fixed], 0.0), axis=1)
+    scale_frame = int(np.argmax(dist))
+    scale_axis = int(np.argmax(np.abs(c[scale_frame] - c[fixed])))
+    if dist[scale_frame] <= 0:
+        raise OmniSfmError("bundle adjustment: all initial camera centres coincide; the scale "
+                           "is undefined")
+
+    obs_in = fr[tracks.obs_frame]
+
+    def angles_now() -> FloatArray:
+        a = np.full(tracks.num_observations, np.nan)
+        a[obs_in] = observation_residuals(tracks, R, c, d, p)[obs_in]
+        return a
+
+    ang0 = angles_now()
+    sigma = np.radians(options.noise_deg) if options.noise_deg else \
+        _robust_sigma(ang0[act[tracks.obs_track] & obs_in])
+    iterations = 0
+    history: list[dict[str, float]] = []
+    for _round in range(max(1, options.max_rounds)):
+        act = active_tracks()
+        if not act.any():
+            raise OmniSfmError("bundle adjustment: no track with enough observations remains")
+        prob = _Problem(tracks, fr, act, fixed, scale_frame, scale_axis)
+        (R, c, d, p), it = _levenberg_marquardt(prob, (R, c, d, p), options.loss,
+                                                options.loss_scale * sigma,
+                                                options.max_iterations, options.tolerance)
+        iterations += it
+        ang = angles_now()
+        old_sigma = sigma
+        if not options.noise_deg:
+            sigma = _robust_sigma(ang[act[tracks.obs_track]])
+        rms = _track_rms(tracks, ang, M)
+        new_out = np.zeros(M, bool)
+        if options.reject_outliers:
+            new_out = act & (rms > options.outlier_threshold * np.sqrt(2.0) * sigma)
+            # never reject so many that the problem falls apart
+            if new_out.sum() > 0.5 * act.sum():
+                worst = np.argsort(-np.where(new_out, rms, -np.inf))[: int(0.5 * act.sum())]
+                new_out = np.zeros(M, bool)
+                new_out[worst] = True
+        history.append({"round": float(_round), "sigma_deg": float(np.degrees(sigma)),
+                        "iterations": float(it), "new_outliers": float(new_out.sum())})
+        outlier |= new_out
+        if not new_out.any() and abs(sigma - old_sigma) <= 0.1 * old_sigma:
+            break
+    act = active_tracks()
+    ang = angles_now()
+    used_obs = act[tracks.obs_track] & obs_in
+    rms_final = float(np.degrees(np.sqrt(np.mean(ang[used_obs] ** 2))))
+    rms_initial = float(np.degrees(np.sqrt(np.nanmean(ang0[used_obs] ** 2))))
+    R_out = np.where(fr[:, None, None], R, np.nan)
+    c_out = np.where(fr[:, None], c, np.nan)
+    return BundleResult(R_out, c_out, np.where(act[:, None], d, np.nan),
+                        np.where(act[:, None], p, np.nan), fr, act, outlier,
+                        float(np.degrees(sigma)), np.degrees(_track_rms(tracks, ang, M)),
+                        rms_initial, rms_final, iterations,
+                        (time.perf_counter() - t0) * 1e3, history)
+
+
+def _track_rms(tracks: LineTracks, ang: FloatArray, M: int) -> FloatArray:
+    ok = np.isfinite(ang)
+    cnt = np.bincount(tracks.obs_track[ok], minlength=M)
+    ss = np.bincount(tracks.obs_track[ok], weights=ang[ok] ** 2, minlength=M)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(cnt > 0, np.sqrt(ss / np.maximum(cnt, 1)), np.nan)
+
+
+def oracle(tracks: LineTracks, rotations: FloatArray, positions: FloatArray,
+           line_directions: FloatArray, line_points: FloatArray, *,
+           options: BundleOptions = BundleOptions(reject_outliers=False)) -> BundleResult:
+    """The maximum-likelihood floor: the same least squares started from the ground truth.
+
+    Pass the true poses (world_from_cam) and the true lines (world) of the clean tracks; the
+    result is the best estimate the data allows with this cost, the reference the estimator's
+    errors are compared against.
+    """
+    return bundle_adjust(tracks, rotations, positions, line_directions, line_points,
+                         options=options)
