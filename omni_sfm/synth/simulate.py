@@ -9,14 +9,16 @@ World = the first camera's frame.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
+from pathlib import Path
 
 import numpy as np
 
 from omni_sfm.errors import OmniSfmError
+from omni_sfm.fileio import atomic_write_text, dumps_json
 from omni_sfm.geometry import FloatArray, normalize, rotvec_to_matrix
-from omni_sfm.lines.tracks import LineTracks, make_tracks
-from omni_sfm.poses import Trajectory
+from omni_sfm.lines.tracks import LineTracks, make_tracks, write_tracks
+from omni_sfm.poses import Trajectory, write_tum
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -99,6 +101,13 @@ def simulate(opts: SimulationOptions) -> Simulation:
         raise OmniSfmError(f"need at least 3 views, got {opts.num_views}")
     if opts.num_parallel < 0 or opts.num_other < 0 or opts.num_parallel + opts.num_other < 1:
         raise OmniSfmError("need a positive number of lines")
+    if not opts.noise_deg >= 0:
+        raise OmniSfmError(f"noise must be >= 0 degrees, got {opts.noise_deg}")
+    if not 0 <= opts.outlier_fraction < 1:
+        raise OmniSfmError(f"outlier fraction must be in [0, 1), got {opts.outlier_fraction}")
+    if opts.visible_frames is not None and not 3 <= opts.visible_frames <= opts.num_views:
+        raise OmniSfmError(f"visible frames must be in [3, {opts.num_views}] (the number of "
+                           f"views), got {opts.visible_frames}")
     rng = np.random.default_rng(opts.seed)
     gt = smooth_path(opts.num_views, opts.path_length, opts.rotation_deg, rng)
     F, P, Q = opts.num_views, opts.num_parallel, opts.num_other
@@ -158,3 +167,29 @@ def simulate(opts: SimulationOptions) -> Simulation:
     mm, ff = np.nonzero(vis)
     tracks = make_tracks(F, np.arange(M), mm, ff, n_cam[mm, ff], source="simulation")
     return Simulation(tracks, gt, pts, dirs, np.arange(M) < P, outlier, v)
+
+
+def write_simulation(directory: Path, sim: Simulation, opts: SimulationOptions) -> list[Path]:
+    """Write ``tracks.json``, ``groundtruth.tum`` and ``lines.json`` into ``directory``.
+
+    ``lines.json`` holds the true 3D lines (world = first camera): per track id its point,
+    unit direction, whether it belongs to the parallel family and whether it is an outlier
+    track, plus the options of the simulation. Returns the paths written.
+    """
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    write_tracks(directory / "tracks.json", sim.tracks)
+    write_tum(directory / "groundtruth.tum", sim.groundtruth)
+    lines = {
+        "world": "first camera (world_from_cam of frame 0 is the identity)",
+        "options": {k: (list(v) if isinstance(v, tuple) else v)
+                    for k, v in asdict(opts).items()},
+        "parallel_direction": sim.parallel_direction,
+        "lines": [{"id": int(i), "point": pt, "direction": dr, "parallel": bool(par),
+                   "outlier": bool(out)}
+                  for i, pt, dr, par, out in zip(sim.tracks.track_ids, sim.line_points,
+                                                  sim.line_directions, sim.parallel,
+                                                  sim.outlier, strict=True)],
+    }
+    atomic_write_text(directory / "lines.json", dumps_json(lines))
+    return [directory / n for n in ("tracks.json", "groundtruth.tum", "lines.json")]
