@@ -3,12 +3,10 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike
 
-from omni_sfm.cameras.base import CameraModel, as_points
+from omni_sfm.cameras.base import CameraModel, ColmapExport, colmap_export_plain
 from omni_sfm.geometry import FloatArray
 
 
@@ -24,15 +22,22 @@ class EquirectangularCamera(CameraModel):
 
     model = "equirectangular"
 
-    def rays_from_pixels(self, uv: ArrayLike) -> FloatArray:
-        p = as_points(uv, 2, "uv")
-        lon = 2.0 * np.pi * (p[:, 0] + 0.5) / self.width - np.pi
-        lat = np.pi * (p[:, 1] + 0.5) / self.height - np.pi / 2.0
+    def _rays_block(self, uv: FloatArray) -> FloatArray:
+        lon = uv[:, 0] + 0.5
+        lon *= 2.0 * np.pi / self.width
+        lon -= np.pi
+        lat = uv[:, 1] + 0.5
+        lat *= np.pi / self.height
+        lat -= np.pi / 2.0
         c = np.cos(lat)
-        return np.stack([c * np.sin(lon), np.sin(lat), c * np.cos(lon)], axis=1)
+        out = np.empty((len(uv), 3))
+        np.multiply(c, np.sin(lon), out=out[:, 0])
+        np.sin(lat, out=out[:, 1])
+        np.multiply(c, np.cos(lon), out=out[:, 2])
+        return out
 
-    def pixels_from_rays(self, rays: ArrayLike) -> FloatArray:
-        d = as_points(rays, 3, "rays")
+    def _pixels_block(self, rays: FloatArray) -> FloatArray:
+        d = rays
         with np.errstate(invalid="ignore", divide="ignore"):
             n = np.linalg.norm(d, axis=1)
             lon = np.arctan2(d[:, 0], d[:, 2])
@@ -48,10 +53,11 @@ class EquirectangularCamera(CameraModel):
     def valid_mask(self) -> np.ndarray:
         return np.ones((self.height, self.width), dtype=bool)
 
-    def to_pycolmap(self) -> Any:
+    def colmap_export(self) -> ColmapExport:
         import pycolmap
 
-        return pycolmap.Camera(
+        cam = pycolmap.Camera(
             model="EQUIRECTANGULAR", width=self.width, height=self.height,
             params=[float(self.width), float(self.height)],
         )
+        return colmap_export_plain(cam, self.width, self.height)

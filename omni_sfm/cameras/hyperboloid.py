@@ -6,9 +6,15 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import ArrayLike
 
-from omni_sfm.cameras.base import CameraModel, as_points
+from omni_sfm.cameras.base import (
+    MASK_TOL,
+    CameraModel,
+    ColmapExport,
+    radius_ok,
+    unit_input_rays,
+    unit_rows,
+)
 from omni_sfm.geometry import FloatArray
 
 
@@ -18,10 +24,16 @@ class HyperboloidCamera(CameraModel):
 
     The mirror's outer focus is the origin (the single viewpoint), the lens centre is at
     ``(0, 0, -2 gamma)`` and the image plane at focal length ``f`` along +Z, so the mirror axis
-    is the camera's +Z and the image centre sees -Z (the camera's own reflection).
-    ``f, alpha, beta`` and the pixel pitch ``px, py`` share one length unit.
+    is the camera's +Z and the image centre sees -Z (the camera's own reflection). Camera frame:
+    ``x`` along image ``u``, ``y`` along image ``v``, ``z`` the mirror axis (up, towards the
+    mirror). ``f, alpha, beta`` and the pixel pitch ``px, py`` share one length unit.
     ``inner_radius``/``outer_radius`` (px around ``(cx, cy)``) bound the valid annulus; None
-    means no bound beyond the mirror's own geometry.
+    means no bound beyond the mirror's own geometry (image radius ``< f alpha / beta``).
+
+    Pixel -> ray is eq. (1)-(2); ray -> pixel intersects the ray with the mirror (focal polar
+    form ``s = alpha^2 / (beta - gamma d_z)``) and projects through the lens. Equivalent form:
+    ``x = F d_x / (xi - d_z)``, ``F = f alpha^2 / (gamma^2 + beta^2)``,
+    ``xi = 2 gamma beta / (gamma^2 + beta^2)``: the unified model with ``d_z`` negated.
     """
 
     model = "hyperboloid"
@@ -35,6 +47,9 @@ class HyperboloidCamera(CameraModel):
     inner_radius: float | None = None
     outer_radius: float | None = None
 
+    def _check(self) -> None:
+        self._positive("px", "py", "f", "alpha", "beta")
+
     @property
     def gamma(self) -> float:
         return math.sqrt(self.alpha**2 + self.beta**2)
@@ -45,47 +60,76 @@ class HyperboloidCamera(CameraModel):
         e = self.gamma / self.beta
         return 2 * e / (1 + e * e)
 
-    def _radius_ok(self, uv: FloatArray) -> np.ndarray:
-        r = np.hypot(uv[:, 0] - self.cx, uv[:, 1] - self.cy)
-        ok = np.ones(len(uv), dtype=bool)
-        if self.inner_radius is not None:
-            ok &= r >= self.inner_radius
-        if self.outer_radius is not None:
-            ok &= r <= self.outer_radius
-        return ok
+    @property
+    def unified_focal(self) -> float:
+        """``F = f alpha^2 / (gamma^2 + beta^2)`` of the equivalent unified model (length unit)."""
+        return self.f * self.alpha**2 / (self.gamma**2 + self.beta**2)
 
-    def rays_from_pixels(self, uv: ArrayLike) -> FloatArray:
+    def _rays_block(self, uv: FloatArray) -> FloatArray:
         """Eq. (1)-(2) of the paper, normalised; NaN outside the mask or beyond the mirror."""
-        p = as_points(uv, 2, "uv")
-        x = (p[:, 0] - self.cx) * self.px
-        y = (p[:, 1] - self.cy) * self.py
-        rho2 = x * x + y * y
+        u, v = uv[:, 0], uv[:, 1]
+        x = u - self.cx
+        x *= self.px
+        y = v - self.cy
+        y *= self.py
+        rho2 = x * x
+        rho2 += y * y
         a2, b2, g, f = self.alpha**2, self.beta**2, self.gamma, self.f
-        den = a2 * f * f - b2 * rho2
+        den = rho2 * (-b2)
+        den += a2 * f * f
         with np.errstate(divide="ignore", invalid="ignore"):
-            lam = a2 * (f * g + self.beta * np.sqrt(rho2 + f * f)) / den
-            r = np.stack([lam * x, lam * y, lam * f - 2.0 * g], axis=1)
-            r /= np.linalg.norm(r, axis=1, keepdims=True)
-        ok = (den > 0) & self._radius_ok(p) & np.isfinite(p).all(axis=1)
+            lam = rho2 + f * f
+            np.sqrt(lam, out=lam)
+            lam *= self.beta
+            lam += f * g
+            lam *= a2
+            lam /= den
+            z = lam * f
+            z -= 2.0 * g
+            x *= lam
+            y *= lam
+            r = unit_rows(x, y, z)
+        ok = (den > 0) & radius_ok(u, v, self.cx, self.cy, self.inner_radius, self.outer_radius)
         r[~ok] = np.nan
         return r
 
-    def pixels_from_rays(self, rays: ArrayLike) -> FloatArray:
+    def _pixels_block(self, rays: FloatArray) -> FloatArray:
         """Mirror point ``s d`` with ``s = alpha^2 / (beta - gamma d_z)`` (focal polar form of
         the mirror's sheet around the origin), then the pinhole through ``(0, 0, -2 gamma)``."""
-        d = as_points(rays, 3, "rays")
+        dx, dy, dz = unit_input_rays(rays)
+        g = self.gamma
         with np.errstate(divide="ignore", invalid="ignore"):
-            d = d / np.linalg.norm(d, axis=1, keepdims=True)
-            den = self.beta - self.gamma * d[:, 2]
+            den = self.beta - g * dz
             s = self.alpha**2 / den
-            zc = s * d[:, 2] + 2.0 * self.gamma
-            x = self.f * s * d[:, 0] / zc
-            y = self.f * s * d[:, 1] / zc
-            uv = np.stack([x / self.px + self.cx, y / self.py + self.cy], axis=1)
-        ok = (den > 0) & (zc > 0) & np.isfinite(uv).all(axis=1)
-        ok &= self._radius_ok(np.where(ok[:, None], uv, 0.0))
-        # beyond the mirror's own image (eq. 2's denominator) nothing is imaged
-        rho2 = ((uv[:, 0] - self.cx) * self.px) ** 2 + ((uv[:, 1] - self.cy) * self.py) ** 2
-        ok &= self.alpha**2 * self.f**2 - self.beta**2 * np.where(ok, rho2, 0.0) > 0
+            zc = s * dz
+            zc += 2.0 * g
+            k = self.f * s / zc
+            uv = np.empty((len(rays), 2))
+            np.multiply(dx, k / self.px, out=uv[:, 0])
+            uv[:, 0] += self.cx
+            np.multiply(dy, k / self.py, out=uv[:, 1])
+            uv[:, 1] += self.cy
+            # beyond the mirror's own image (eq. 2's denominator) nothing is imaged
+            rho2 = (k * dx) ** 2 + (k * dy) ** 2
+            ok = (den > 0) & (zc > 0) & (self.alpha**2 * self.f**2 - self.beta**2 * rho2 > 0)
+        ok &= radius_ok(uv[:, 0], uv[:, 1], self.cx, self.cy, self.inner_radius, self.outer_radius,
+                        MASK_TOL)
         uv[~ok] = np.nan
         return uv
+
+    def colmap_export(self) -> ColmapExport:
+        """COLMAP ``EUCM`` with ``beta = 1`` (exact), in a frame rotated 180 deg about ``y`` and
+        with the image mirrored left-right (the mirror makes our map a reflection)."""
+        import pycolmap
+
+        xi = self.unified_xi
+        fx = self.unified_focal / self.px / (1.0 + xi)
+        fy = self.unified_focal / self.py / (1.0 + xi)
+        cam = pycolmap.Camera(
+            model="EUCM", width=self.width, height=self.height,
+            params=[fx, fy, (self.width - 1 - self.cx) + 0.5, self.cy + 0.5, xi / (1.0 + xi), 1.0],
+        )
+        return ColmapExport(
+            camera=cam, colmap_cam_from_cam=np.diag([-1.0, 1.0, -1.0]), flip_u=True,
+            width=self.width, height=self.height,
+        )
