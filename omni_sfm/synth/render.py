@@ -1,0 +1,438 @@
+"""Rendered omnidirectional video with exact ground truth (Open3D ray casting).
+
+Every pixel is rendered from the rays the camera model gives for ``S x S`` sub-pixel positions
+(``rays_from_pixels``), so any omni-sfm camera model renders exactly and its valid mask is
+respected (outside it the image is black). Shading: Lambert diffuse light from the scene's point
+lights with a soft distance falloff, a direction-dependent ambient term (so that two faces of a
+box never look the same), emissive light panels and windows, no shadows; optional procedural
+texture (multi-octave value noise fixed to the surfaces, so point features are trackable);
+a little seeded Gaussian sensor noise; sRGB-like gamma and 8-bit output.
+
+Output of :func:`render_sequence` (documented in docs/rendering.md): ``images/NNNNNN.png`` or
+``video.mp4``, ``camera.yaml``, ``groundtruth.tum``, ``scene.ply``, ``lines3d.json``,
+``render.json``.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass
+from enum import StrEnum
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from omni_sfm.cameras import (
+    CameraModel,
+    EquirectangularCamera,
+    HyperboloidCamera,
+    load_camera,
+    write_camera_yaml,
+)
+from omni_sfm.errors import OmniSfmError
+from omni_sfm.fileio import atomic_output_dir, atomic_write_text, dumps_json
+from omni_sfm.geometry import FloatArray
+from omni_sfm.poses import Trajectory, write_tum
+from omni_sfm.synth.paths import Mount, PathOptions, camera_path
+from omni_sfm.synth.scenes import (
+    MATERIAL_ALBEDO,
+    MATERIAL_EMISSION,
+    MATERIAL_TEXTURED,
+    Scene,
+    SceneName,
+    make_scene,
+    open3d_module,
+    write_lines3d,
+)
+
+
+class CameraKind(StrEnum):
+    HYPERBOLOID = "hyperboloid"
+    EQUIRECTANGULAR = "equirectangular"
+
+
+class Preset(StrEnum):
+    SMALL = "small"
+    PAPER = "paper"
+
+
+@dataclass(frozen=True)
+class PresetSize:
+    frames: int
+    hyperboloid: tuple[int, int]
+    equirectangular: tuple[int, int]
+
+
+PRESETS = {
+    Preset.SMALL: PresetSize(12, (320, 240), (320, 160)),
+    Preset.PAPER: PresetSize(200, (800, 600), (1600, 800)),
+}
+
+
+def hyperboloid_camera(width: int = 800, height: int = 600) -> HyperboloidCamera:
+    """The paper's camera file (800 x 600, px 0.01, f 8, alpha 14, beta 19.4, mask 48..290 px),
+    its pixel pitch, centre and mask scaled to ``width x height``."""
+    _check_size(width, height)
+    s = min(width / 800.0, height / 600.0)
+    return HyperboloidCamera(
+        width=width, height=height, cx=width / 2.0, cy=height / 2.0, px=0.01 / s, py=0.01 / s,
+        f=8.0, alpha=14.0, beta=19.4, inner_radius=48.0 * s, outer_radius=290.0 * s,
+    )
+
+
+def _check_size(width: int, height: int) -> None:
+    for name, v in (("width", width), ("height", height)):
+        if isinstance(v, bool) or not isinstance(v, int | np.integer) or v <= 0:
+            raise OmniSfmError(f"image {name} must be a positive integer, got {v!r}")
+
+
+def make_camera(camera: str | Path | CameraModel = CameraKind.HYPERBOLOID, *,
+                width: int | None = None, height: int | None = None,
+                preset: Preset = Preset.PAPER) -> CameraModel:
+    """A camera model from a kind name (``hyperboloid``, ``equirectangular``; size from the
+    preset unless given), a camera file path, or a model (returned as is)."""
+    if isinstance(camera, CameraModel):
+        if width is not None or height is not None:
+            raise OmniSfmError("image size cannot be changed for a given camera model")
+        return camera
+    name = str(camera)
+    kinds = [k.value for k in CameraKind]
+    if name in kinds:
+        kind = CameraKind(name)
+        dw, dh = getattr(PRESETS[Preset(preset)], kind.value)
+        if width is None and height is None:
+            width, height = dw, dh
+        elif width is None or height is None:
+            # keep the preset's aspect ratio
+            if height is not None:
+                _check_size(1, height)
+                width = max(1, round(height * dw / dh))
+            elif width is not None:
+                _check_size(width, 1)
+                height = max(1, round(width * dh / dw))
+        assert width is not None and height is not None
+        _check_size(width, height)
+        if kind == CameraKind.HYPERBOLOID:
+            return hyperboloid_camera(width, height)
+        return EquirectangularCamera(width=width, height=height)
+    path = Path(name)
+    if path.suffix.lower() not in (".yaml", ".yml") and not path.exists():
+        raise OmniSfmError(
+            f"unknown camera {name!r}: give one of {', '.join(kinds)} or a camera YAML file"
+        )
+    if width is not None or height is not None:
+        raise OmniSfmError(f"{path}: --width/--height cannot be combined with a camera file")
+    return load_camera(path)
+
+
+def default_mount(camera: CameraModel) -> Mount:
+    """Robot mount (camera +Z up) for mirror cameras, hand-held (-Y up) for the others."""
+    return Mount.ROBOT if camera.model == CameraKind.HYPERBOLOID else Mount.HANDHELD
+
+
+@dataclass(frozen=True, kw_only=True)
+class ShadingOptions:
+    supersample: int = 2
+    """Sub-pixel rays per pixel along each axis (S x S rays, box filter)."""
+    textured: bool = False
+    """Procedural surface texture, for point features."""
+    noise_sigma: float = 1.0
+    """Std-dev of the Gaussian sensor noise, 8-bit grey levels."""
+    exposure: float = 1.0
+    """Linear radiance multiplier before the gamma curve."""
+    seed: int = 0
+    """Seeds the texture pattern and the sensor noise."""
+
+
+_AMBIENT = 0.16
+_AMBIENT_TILT = 0.07
+_AMBIENT_DIR = np.array([0.32, 0.55, 0.77]) / np.linalg.norm([0.32, 0.55, 0.77])
+_FALLOFF = 1.0  # m: irradiance = power * cos / (d^2 + _FALLOFF^2)
+_TEX_WAVELENGTHS = (0.55, 0.23, 0.1, 0.045)  # m
+_TEX_WEIGHTS = (0.45, 0.3, 0.17, 0.08)
+_TEX_AMPLITUDE = 0.45
+_TEX_TABLE = 256
+
+
+class Renderer:
+    """Renders frames of one scene through one camera model.
+
+    The camera's sub-pixel rays are computed once; each frame rotates them into the world and
+    casts them with Open3D. Images are ``(height, width, 3)`` uint8 RGB.
+    """
+
+    def __init__(self, scene: Scene, camera: CameraModel,
+                 options: ShadingOptions | None = None) -> None:
+        self.o3d = open3d_module()
+        self.scene = scene
+        self.camera = camera
+        self.options = o = options or ShadingOptions()
+        if not (isinstance(o.supersample, int) and 1 <= o.supersample <= 8):
+            raise OmniSfmError(f"supersample must be an integer 1..8, got {o.supersample!r}")
+        if not o.noise_sigma >= 0:
+            raise OmniSfmError(f"noise sigma must be >= 0, got {o.noise_sigma}")
+        self.raycaster = scene.raycasting_scene()
+        self.materials = scene.materials.astype(np.int64)
+        self.mask = camera.valid_mask()
+        self.pixel_index = np.flatnonzero(self.mask.ravel())
+        self.rays_cam = self._subpixel_rays()
+        self.light_pos = scene.light_positions
+        self.light_power = scene.light_power
+        rng = np.random.default_rng([o.seed, 9120])
+        self.tex_tables = rng.random((len(_TEX_WAVELENGTHS), _TEX_TABLE, _TEX_TABLE))
+        self.tex_offsets = rng.uniform(0, 50.0, size=(len(MATERIAL_ALBEDO), 3, 2))
+
+    def _subpixel_rays(self) -> FloatArray:
+        """``(S*S, P, 3)`` float32 rays of the ``P`` valid pixels at S x S sub-pixel positions;
+        a sub-pixel ray outside the model's domain falls back to the pixel centre's ray."""
+        S = self.options.supersample
+        w = self.camera.width
+        u = (self.pixel_index % w).astype(np.float64)
+        v = (self.pixel_index // w).astype(np.float64)
+        centre = self.camera.rays_from_pixels(np.stack([u, v], axis=1))
+        offs = (np.arange(S) + 0.5) / S - 0.5
+        out = np.empty((S * S, len(u), 3), dtype=np.float32)
+        k = 0
+        for dv in offs:
+            for du in offs:
+                r = self.camera.rays_from_pixels(np.stack([u + du, v + dv], axis=1))
+                bad = ~np.isfinite(r).all(axis=1)
+                r[bad] = centre[bad]
+                out[k] = r
+                k += 1
+        return np.asarray(out)
+
+    def cast(self, world_from_cam: FloatArray, position: FloatArray,
+             rays_cam: FloatArray) -> dict[str, np.ndarray]:
+        """Cast ``(..., 3)`` camera-frame rays from ``position``; Open3D's result as numpy."""
+        d = rays_cam.reshape(-1, 3) @ np.asarray(world_from_cam, dtype=np.float32).T
+        rays = np.empty((len(d), 6), dtype=np.float32)
+        rays[:, :3] = np.asarray(position, dtype=np.float32)
+        rays[:, 3:] = d
+        res = self.raycaster.cast_rays(self.o3d.core.Tensor(rays))
+        return {
+            "t_hit": res["t_hit"].numpy(),
+            "primitive_ids": res["primitive_ids"].numpy(),
+            "normals": res["primitive_normals"].numpy(),
+            "dirs": d,
+        }
+
+    def radiance(self, world_from_cam: FloatArray, position: FloatArray) -> FloatArray:
+        """``(P, 3)`` linear radiance of the valid pixels (box-filtered sub-pixel samples)."""
+        S2 = self.rays_cam.shape[0]
+        P = self.rays_cam.shape[1]
+        hit = self.cast(world_from_cam, position, self.rays_cam)
+        t = hit["t_hit"]
+        ok = np.isfinite(t)
+        tri = np.where(ok, hit["primitive_ids"], 0).astype(np.int64)
+        mat = self.materials[tri]
+        d = hit["dirs"]
+        n = hit["normals"].astype(np.float32)
+        # the side of the surface facing the camera
+        n *= -np.sign(np.einsum("ij,ij->i", n, d))[:, None]
+        pts = np.asarray(position, dtype=np.float32) + np.where(ok, t, 0)[:, None] * d
+        irr = _AMBIENT + _AMBIENT_TILT * (n @ _AMBIENT_DIR.astype(np.float32))
+        for lp, lw in zip(self.light_pos.astype(np.float32), self.light_power, strict=True):
+            to_l = lp - pts
+            d2 = np.einsum("ij,ij->i", to_l, to_l)
+            cos = np.einsum("ij,ij->i", n, to_l) / np.sqrt(d2)
+            irr += np.float32(lw) * np.maximum(cos, 0) / (d2 + _FALLOFF**2)
+        albedo = MATERIAL_ALBEDO.astype(np.float32)[mat]
+        if self.options.textured:
+            albedo *= self._texture(pts, n, mat)[:, None]
+        rad = albedo * irr[:, None] + MATERIAL_EMISSION.astype(np.float32)[mat]
+        rad[~ok] = 0.0
+        return np.asarray(rad.reshape(S2, P, 3).mean(axis=0))
+
+    def _texture(self, pts: np.ndarray, n: np.ndarray, mat: np.ndarray) -> np.ndarray:
+        """Albedo factor (around 1) from value noise in the surface's two tangent coordinates."""
+        axis = np.argmax(np.abs(n), axis=1)
+        ia = np.array([[1, 2], [0, 2], [0, 1]])[axis]
+        rows = np.arange(len(pts))
+        uv = np.stack([pts[rows, ia[:, 0]], pts[rows, ia[:, 1]]], axis=1).astype(np.float64)
+        uv += self.tex_offsets[mat, axis]
+        val = np.zeros(len(pts), dtype=np.float64)
+        for k, (lam, w) in enumerate(zip(_TEX_WAVELENGTHS, _TEX_WEIGHTS, strict=True)):
+            val += w * _value_noise(uv / lam, self.tex_tables[k])
+        # val in [0, 1], mean 0.5; a contrast curve makes blotches with defined borders
+        f = np.tanh(4.0 * (val - 0.5))
+        factor = 1.0 + _TEX_AMPLITUDE * f
+        return np.where(MATERIAL_TEXTURED[mat], factor, 1.0).astype(np.float32)
+
+    def render(self, world_from_cam: FloatArray, position: FloatArray,
+               frame_index: int = 0) -> np.ndarray:
+        """``(height, width, 3)`` uint8 RGB image of the camera at this pose.
+
+        ``world_from_cam``: ``(3, 3)`` rotation of the camera's ray frame; ``position``: ``(3,)``
+        camera centre (world, metres). ``frame_index`` seeds this frame's sensor noise.
+        """
+        o = self.options
+        rad = self.radiance(world_from_cam, position)
+        val = 255.0 * np.clip(rad * o.exposure, 0.0, 1.0) ** (1 / 2.2)
+        if o.noise_sigma > 0:
+            rng = np.random.default_rng([o.seed, 5077, int(frame_index)])
+            val += rng.normal(0.0, o.noise_sigma, size=val.shape)
+        img = np.zeros((self.camera.height * self.camera.width, 3), dtype=np.uint8)
+        img[self.pixel_index] = np.clip(np.rint(val), 0, 255).astype(np.uint8)
+        return img.reshape(self.camera.height, self.camera.width, 3)
+
+    def depth_along_rays(self, world_from_cam: FloatArray, position: FloatArray,
+                         rays_cam: FloatArray) -> FloatArray:
+        """Distance (m, along each unit ray) to the first surface; inf where nothing is hit."""
+        r = np.asarray(rays_cam, dtype=np.float32).reshape(-1, 3)
+        r = r / np.linalg.norm(r, axis=1, keepdims=True)
+        return np.asarray(self.cast(world_from_cam, position, r)["t_hit"], dtype=np.float64)
+
+
+def _value_noise(uv: FloatArray, table: FloatArray) -> FloatArray:
+    """2D value noise in [0, 1] with quintic interpolation; ``uv`` in lattice units."""
+    m = table.shape[0] - 1
+    f = np.floor(uv)
+    fr = uv - f
+    i = f.astype(np.int64) & m
+    j = (i + 1) & m
+    w = fr * fr * fr * (fr * (fr * 6 - 15) + 10)
+    a = table[i[:, 0], i[:, 1]]
+    b = table[j[:, 0], i[:, 1]]
+    c = table[i[:, 0], j[:, 1]]
+    d = table[j[:, 0], j[:, 1]]
+    top = a + (b - a) * w[:, 0]
+    bot = c + (d - c) * w[:, 0]
+    return np.asarray(top + (bot - top) * w[:, 1])
+
+
+@dataclass(frozen=True, kw_only=True)
+class RenderOptions:
+    scene: SceneName = SceneName.CORRIDOR
+    """Which scene to render."""
+    camera: str = CameraKind.HYPERBOLOID.value
+    """A camera kind (``hyperboloid``, ``equirectangular``) or a camera YAML file."""
+    preset: Preset = Preset.PAPER
+    """Default frame count and image size: ``small`` (tests) or ``paper`` (the paper's size)."""
+    frames: int | None = None
+    """Number of frames; None: the preset's."""
+    width: int | None = None
+    """Image width in pixels (camera kinds only); None: the preset's."""
+    height: int | None = None
+    """Image height in pixels (camera kinds only); None: the preset's."""
+    textured: bool = False
+    """Add procedural surface texture (point features) to the line-rich scene."""
+    seed: int = 0
+    """Seeds the path, the texture and the sensor noise."""
+    video: bool = False
+    """Write ``video.mp4`` (mp4v) instead of PNG frames."""
+    supersample: int = 2
+    """Sub-pixel rays per pixel along each axis."""
+    noise_sigma: float = 1.0
+    """Sensor noise std-dev, 8-bit grey levels."""
+    path_length: float = 1.5
+    """Camera path length, metres."""
+    mount: Mount | None = None
+    """Camera mount; None: robot for the hyperboloid camera, hand-held otherwise."""
+    fps: float = 15.0
+    """Frame rate written into ``video.mp4``."""
+
+
+@dataclass(frozen=True)
+class RenderSetup:
+    """Everything needed to render a sequence: scene, camera, trajectory and the renderer."""
+
+    scene: Scene
+    camera: CameraModel
+    groundtruth: Trajectory
+    renderer: Renderer
+    mount: Mount
+
+
+def prepare(options: RenderOptions) -> RenderSetup:
+    """Check ``options`` and build the scene, camera, trajectory and renderer."""
+    o = options
+    scene = make_scene(o.scene)
+    try:
+        preset = Preset(o.preset)
+    except ValueError:
+        raise OmniSfmError(
+            f"unknown preset {o.preset!r} (known: {', '.join(p.value for p in Preset)})"
+        ) from None
+    frames = o.frames if o.frames is not None else PRESETS[preset].frames
+    if isinstance(frames, bool) or not isinstance(frames, int) or frames <= 0:
+        raise OmniSfmError(f"number of frames must be a positive integer, got {frames!r}")
+    camera = make_camera(o.camera, width=o.width, height=o.height, preset=preset)
+    mount = Mount(o.mount) if o.mount is not None else default_mount(camera)
+    traj = camera_path(scene, PathOptions(num_frames=frames, path_length=o.path_length,
+                                          mount=mount, seed=o.seed))
+    renderer = Renderer(scene, camera, ShadingOptions(
+        supersample=o.supersample, textured=o.textured, noise_sigma=o.noise_sigma, seed=o.seed))
+    return RenderSetup(scene, camera, traj, renderer, mount)
+
+
+def render_frames(options: RenderOptions) -> tuple[RenderSetup, np.ndarray]:
+    """Render a whole sequence in memory: the setup and ``(N, H, W, 3)`` uint8 RGB images."""
+    setup = prepare(options)
+    gt = setup.groundtruth
+    imgs = np.stack([setup.renderer.render(gt.rotations[k], gt.positions[k], k)
+                     for k in range(len(gt))])
+    return setup, imgs
+
+
+@dataclass(frozen=True)
+class RenderResult:
+    """What :func:`render_sequence` wrote."""
+
+    output: Path
+    camera: CameraModel
+    groundtruth: Trajectory
+    num_frames: int
+    seconds_per_frame: float
+
+
+def render_sequence(output: Path | str, options: RenderOptions | None = None, *,
+                    overwrite: bool = False, progress: bool = True) -> RenderResult:
+    """Render a sequence into ``output`` (complete or absent; see docs/rendering.md)."""
+    import cv2
+    from tqdm import tqdm
+
+    o = options or RenderOptions()
+    output = Path(output)
+    from omni_sfm.fileio import check_output_dir
+
+    check_output_dir(output, overwrite=overwrite)
+    setup = prepare(o)
+    cam, gt = setup.camera, setup.groundtruth
+    n = len(gt)
+    t0 = time.perf_counter()
+    with atomic_output_dir(output, overwrite=overwrite) as tmp:
+        writer = None
+        if o.video:
+            writer = cv2.VideoWriter(str(tmp / "video.mp4"), cv2.VideoWriter.fourcc(*"mp4v"),
+                                     float(o.fps), (cam.width, cam.height))
+            if not writer.isOpened():
+                raise OmniSfmError(f"{output}: OpenCV cannot write an mp4v video here")
+        else:
+            (tmp / "images").mkdir()
+        try:
+            for k in tqdm(range(n), desc=f"render {o.scene}", unit="frame",
+                          disable=not progress, leave=False):
+                img = setup.renderer.render(gt.rotations[k], gt.positions[k], k)
+                bgr = np.ascontiguousarray(img[:, :, ::-1])
+                if writer is not None:
+                    writer.write(bgr)
+                elif not cv2.imwrite(str(tmp / "images" / f"{k:06d}.png"), bgr):
+                    raise OmniSfmError(f"{output}: could not write frame {k}")
+        finally:
+            if writer is not None:
+                writer.release()
+        seconds = (time.perf_counter() - t0) / n
+        write_camera_yaml(tmp / "camera.yaml", cam)
+        write_tum(tmp / "groundtruth.tum", gt)
+        setup.scene.write_ply(tmp / "scene.ply")
+        write_lines3d(tmp / "lines3d.json", setup.scene.lines)
+        meta: dict[str, Any] = {
+            k: (v.value if isinstance(v, StrEnum) else v) for k, v in asdict(o).items()
+        }
+        meta.update(mount=setup.mount.value, num_frames=n, width=cam.width, height=cam.height,
+                    world="scene frame: metres, +Z up, floor at z=0",
+                    path_length_m=gt.path_length(), seconds_per_frame=seconds)
+        atomic_write_text(tmp / "render.json", dumps_json(meta))
+    return RenderResult(output, cam, gt, n, seconds)
