@@ -360,8 +360,7 @@ class CameraModel(ABC):
         """Readable several-line description: model, size, parameters, field of view."""
         p = self.params()
         lines = [f"model: {p.pop('model')}", f"size: {p.pop('width')} x {p.pop('height')} px"]
-        for k, v in p.items():
-            lines.append(f"{k}: {v}")
+        lines.extend(f"{k}: {v}" for k, v in p.items() if v is not None)
         r = self._coarse_rays()
         if r.size:
             ang = np.degrees(np.arccos(np.clip(r[:, 2], -1, 1)))

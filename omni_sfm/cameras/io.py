@@ -9,6 +9,7 @@ from typing import Any
 
 import yaml
 
+from omni_sfm.cameras import formats
 from omni_sfm.cameras.base import CameraModel
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.fileio import atomic_write_text
@@ -67,10 +68,17 @@ def camera_from_dict(data: dict[str, Any], path: Path | str = "<camera>") -> Cam
             kwargs[f.name] = None
         elif f.name in ("width", "height"):
             kwargs[f.name] = _number(path, f.name, val, integer=True)
-        elif isinstance(val, list):
+        elif "tuple" in str(f.type):
+            if not isinstance(val, list):
+                raise OmniSfmError(f"{path}: key {f.name!r} must be a list of numbers, got {val!r}")
             kwargs[f.name] = tuple(_number(path, f"{f.name}[{i}]", v) for i, v in enumerate(val))
         else:
             kwargs[f.name] = _number(path, f.name, val)
+    if flat:
+        known = ", ".join(f.name for f in fields(cls))
+        raise OmniSfmError(
+            f"{path}: unknown key {next(iter(flat))!r} for model {name!r} (known: {known}, mask)"
+        )
     for key in ("width", "height"):
         if kwargs.get(key, 1) <= 0:
             raise OmniSfmError(f"{path}: key {key!r} must be positive, got {kwargs[key]}")
@@ -80,20 +88,58 @@ def camera_from_dict(data: dict[str, Any], path: Path | str = "<camera>") -> Cam
         raise OmniSfmError(f"{path}: invalid {name!r} camera: {exc}") from None
 
 
+def _read_text(path: Path) -> str:
+    try:
+        return path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise OmniSfmError(f"{path}: camera file not found") from None
+    except IsADirectoryError:
+        raise OmniSfmError(f"{path}: camera file is a directory") from None
+    except UnicodeDecodeError:
+        raise OmniSfmError(f"{path}: camera file is not UTF-8 text") from None
+    except OSError as exc:
+        raise OmniSfmError(f"{path}: cannot read camera file: {exc.strerror}") from None
+
+
+def _parse_yaml(path: Path, text: str) -> Any:
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise OmniSfmError(f"{path}: not valid YAML: {str(exc).splitlines()[0]}") from None
+
+
 def read_camera_yaml(path: Path) -> CameraModel:
     """Read an omni-sfm camera YAML file."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise OmniSfmError(f"{path}: camera file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise OmniSfmError(f"{path}: cannot read camera file: {exc}") from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise OmniSfmError(f"{path}: not valid YAML: {str(exc).splitlines()[0]}") from None
-    return camera_from_dict(data, path)
+    return camera_from_dict(_parse_yaml(path, _read_text(path)), path)
+
+
+def camera_dict_from_file(path: Path | str) -> dict[str, Any]:
+    """The omni-sfm camera keys of any supported camera file, format detected from content:
+    OpenCV FileStorage (``%YAML:1.0`` or ``<opencv_storage>``), OCamCalib
+    ``calib_results.txt``, COLMAP ``cameras.txt``, Kalibr camchain YAML, omni-sfm YAML."""
+    path = Path(path)
+    text = _read_text(path)
+    head = text.lstrip()[:200]
+    if head.startswith("%YAML:1") or "<opencv_storage>" in head:
+        return formats.read_opencv_storage(path)
+    if formats.OCAM_MARKER in text.lower():
+        return formats.read_ocamcalib(path, text)
+    if formats.looks_like_colmap(text):
+        return formats.read_colmap_cameras_txt(path, text)
+    data = _parse_yaml(path, text)
+    if isinstance(data, dict) and "model" in data:
+        return data
+    if isinstance(data, dict) and (
+        "camera_model" in data
+        or any(isinstance(v, dict) and "camera_model" in v for v in data.values())
+    ):
+        return formats.read_kalibr(path, data)
+    raise OmniSfmError(
+        f"{path}: unrecognised camera file: expected an omni-sfm camera YAML (key 'model'), an "
+        "OpenCV FileStorage file, a Kalibr camchain, OCamCalib calib_results.txt or COLMAP "
+        "cameras.txt"
+    )
 
 
 def write_camera_yaml(path: Path, camera: CameraModel) -> None:
@@ -107,5 +153,9 @@ def write_camera_yaml(path: Path, camera: CameraModel) -> None:
 
 
 def load_camera(path: Path | str) -> CameraModel:
-    """Load any camera file omni-sfm reads (see docs/cameras.md)."""
-    return read_camera_yaml(Path(path))
+    """Load any camera file omni-sfm reads, unchanged as the tools write it (format detected
+    from the content, see :func:`camera_dict_from_file` and docs/cameras.md).
+
+    Raises OmniSfmError (one line naming the file and key) for unreadable or invalid files."""
+    path = Path(path)
+    return camera_from_dict(camera_dict_from_file(path), path)
