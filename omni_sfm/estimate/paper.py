@@ -1,0 +1,269 @@
+"""The paper's estimator: poses of every view of a window from its parallel family and the other
+lines (METHOD.md §3-§5), with the choice of the second view and degeneracy checks.
+
+Input: a window of :class:`~omni_sfm.lines.tracks.LineTracks` in which every track is observed in
+every frame, and the parallel family found by :func:`omni_sfm.vanishing.detect_parallel_family`.
+
+Output conventions (:class:`PaperSolution`):
+
+- ``rotations`` are world_from_cam, world = the camera of frame 0 (``rotations[0] = I``).
+- ``positions`` are camera centres in the world, ``positions[0] = 0``. Scale as in the paper
+  (eq. 18): the component of the second view's position perpendicular to the parallel direction
+  has length 1, ``|positions[c] - (positions[c] . v) v| = 1``.
+- Overall sign: NVs of arbitrary sign cannot distinguish the scene from its point reflection
+  through the first camera (``positions -> -positions``, line points likewise, same rotations:
+  every normal is reproduced exactly). Pass ``side_rays`` (a ray towards each observed segment)
+  to fix it by cheirality; otherwise the convention is that ``positions[c]`` has a non-negative
+  component along the first in-plane basis vector ``a`` of
+  :func:`omni_sfm.estimate.translation.plane_basis` (``sign_from_rays = False``).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from omni_sfm.errors import OmniSfmError
+from omni_sfm.estimate.rotation import estimate_rotations
+from omni_sfm.estimate.translation import (
+    estimate_plane,
+    estimate_vertical,
+    in_plane_parallax,
+    line_directions,
+    line_parallax,
+    resolve_sign,
+    triangulate_lines,
+)
+from omni_sfm.geometry import FloatArray
+from omni_sfm.lines.tracks import LineTracks
+from omni_sfm.vanishing import ParallelFamily, chain_signs, vpv_per_frame
+
+
+@dataclass(frozen=True, kw_only=True)
+class PaperOptions:
+    """Options of :func:`estimate_paper`."""
+
+    rotation_grid: int = 64
+    """Coarse grid points of the rotation search over ``phi_c`` in ``[-pi, pi)`` (5.6 deg)."""
+    rotation_starts: int = 2
+    """Lowest grid minima polished by Brent's method."""
+    rotation_xtol: float = 1e-12
+    """Absolute tolerance of the polishing, radians."""
+    second_view: int | None = None
+    """The second view ``c``; ``None`` chooses it: for the rotation the view whose line normals
+    changed most against view 0 (rotation-invariant proxy), for the translation the view with the
+    largest in-plane parallax of the parallel lines."""
+    min_parallax_deg: float = 0.25
+    """Degenerate motion: if no view shows a median in-plane parallax of the parallel lines (or
+    a median parallax of the other lines' planes) of at least this against view 0, raise."""
+    max_plane_ratio: float = 0.3
+    """Degenerate motion: raise if the two eigenvalues of the in-plane cost ``S`` are closer than
+    this ratio (the in-plane direction of travel is not determined by the data)."""
+    irls_iter: int = 2
+    """Reweighting rounds of the translation steps (0: the plain algebraic residuals)."""
+    rerun_rotation: bool = True
+    """Re-solve the rotation with a better-conditioned second view when the solved rotations
+    show one (much larger parallax of the non-parallel lines than the proxy's choice)."""
+
+
+@dataclass(frozen=True)
+class PaperSolution:
+    """Poses and lines of one window by the paper's method.
+
+    Attributes:
+        rotations: ``(F, 3, 3)`` world_from_cam, world = frame 0's camera (``rotations[0] = I``).
+        positions: ``(F, 3)`` camera centres in the world, ``positions[0] = 0``; the in-plane
+            part (perpendicular to ``parallel_direction``) of ``positions[second_view]`` has
+            length 1 (eq. 18).
+        second_view: the ``c`` of the translation (scale and in-plane direction).
+        rotation_second_view: the ``c`` of the rotation search.
+        line_directions: ``(M, 3)`` world unit direction of every track's 3D line (parallel
+            members: ``parallel_direction``).
+        line_points: ``(M, 3)`` the point of each 3D line closest to the world origin.
+        parallel_direction: ``(3,)`` ``v`` in the world (frame 0's VPV).
+        parallel: ``(M,)`` bool, the family members used.
+        sign_from_rays: the overall sign of the translation was fixed by ``side_rays``.
+        timings_ms: ``rotation``, ``translation_plane``, ``translation_vertical``, ``total``.
+        costs: ``E_rot``, ``E_t1``, ``E_t`` (weighted sums of squared residuals, ~ rad^2), and
+            ``plane_ratio`` (the in-plane conditioning, small is good).
+    """
+
+    rotations: FloatArray
+    positions: FloatArray
+    second_view: int
+    rotation_second_view: int
+    line_directions: FloatArray
+    line_points: FloatArray
+    parallel_direction: FloatArray
+    parallel: np.ndarray
+    sign_from_rays: bool
+    timings_ms: dict[str, float]
+    costs: dict[str, float]
+
+
+def _proxy_second_view(normals: FloatArray) -> int:
+    """View whose pairwise angles between line planes changed most against view 0.
+
+    Angles between the NVs of two lines seen in one view do not depend on the camera rotation,
+    only on its position: their change is a rotation-free measure of the motion. ``normals
+    (F, M, 3)``.
+    """
+    G = np.abs(np.einsum("fmi,fni->fmn", normals, normals))
+    ang = np.arccos(np.clip(G, 0.0, 1.0))
+    M = normals.shape[1]
+    iu = np.triu_indices(M, 1)
+    change = np.abs(ang[:, iu[0], iu[1]] - ang[:1, iu[0], iu[1]])
+    score = np.median(change, axis=1)
+    score[0] = -np.inf
+    return int(np.argmax(score))
+
+
+def _check_inputs(tracks: LineTracks, family: ParallelFamily,
+                  weights: FloatArray | None) -> FloatArray:
+    F, M = tracks.num_frames, tracks.num_tracks
+    if F < 3:
+        raise OmniSfmError(f"the paper's method needs at least 3 frames, got {F}")
+    members = np.asarray(family.members)
+    if members.shape != (M,) or members.dtype != bool:
+        raise OmniSfmError(f"family.members must be a bool array of shape ({M},), got "
+                           f"{members.dtype} {members.shape}")
+    if np.asarray(family.vpv).shape != (F, 3):
+        raise OmniSfmError(f"family.vpv must have shape ({F}, 3), got {family.vpv.shape}")
+    vis = tracks.visibility()
+    missing = np.flatnonzero(~vis.all(axis=1))
+    if missing.size:
+        m = int(missing[0])
+        raise OmniSfmError(
+            f"the paper's method needs every track in every frame of the window; track "
+            f"{int(tracks.track_ids[m])} is missing in {int((~vis[m]).sum())} of {F} frames "
+            f"({missing.size} tracks incomplete): estimate windows of fully seen tracks")
+    w = np.ones(M) if weights is None else np.asarray(weights, dtype=np.float64)
+    if w.shape != (M,) or not np.isfinite(w).all() or (w < 0).any():
+        raise OmniSfmError(f"weights must be {M} finite non-negative numbers, got shape {w.shape}")
+    n_par = int(np.count_nonzero(members & (w > 0)))
+    n_oth = int(np.count_nonzero(~members & (w > 0)))
+    if n_par < 3:
+        raise OmniSfmError(f"the paper's method needs at least 3 parallel lines, got {n_par}")
+    if n_oth < 3:
+        raise OmniSfmError(f"the paper's method needs at least 3 lines that are not parallel to "
+                           f"the family, got {n_oth}")
+    return w
+
+
+def estimate_paper(tracks: LineTracks, family: ParallelFamily,
+                   options: PaperOptions | None = None, *,
+                   weights: FloatArray | None = None,
+                   side_rays: FloatArray | None = None) -> PaperSolution:
+    """Poses of every frame of a window by the paper's method (METHOD.md §4-§5).
+
+    Args:
+        tracks: the window; every track observed in every frame, at least 3 frames.
+        family: its parallel family (``members`` over these tracks; ``vpv`` rows over these
+            frames give the VPV sign, the VPV itself is recomputed from the weighted members).
+        options: see :class:`PaperOptions`.
+        weights: ``(M,)`` non-negative per-track weights (0 ignores a track), e.g. to
+            down-weight suspected outliers.
+        side_rays: ``(K, 3)`` optional unit rays in the camera frame, one per observation (in
+            ``tracks``' order), pointing at a point of the observed segment; they fix the
+            overall sign of the translation by cheirality.
+
+    Raises:
+        OmniSfmError: fewer than 3 frames, parallel or non-parallel lines; a track missing from
+            a frame; degenerate motion (no parallax across the parallel lines).
+    """
+    opts = options or PaperOptions()
+    t_start = time.perf_counter()
+    w = _check_inputs(tracks, family, weights)
+    F, M = tracks.num_frames, tracks.num_tracks
+    members = np.asarray(family.members, dtype=bool)
+    normals = tracks.dense_normals().transpose(1, 0, 2)                  # (F, M, 3)
+    par = np.flatnonzero(members & (w > 0))
+    oth = np.flatnonzero(~members & (w > 0))
+    if opts.second_view is not None and not 1 <= opts.second_view < F:
+        raise OmniSfmError(f"second_view must be in [1, {F}), got {opts.second_view}")
+
+    # VPV from the weighted members (eq. 5), sign as the family's (or chained)
+    vpv, _ = vpv_per_frame(normals[:, par].transpose(1, 0, 2), np.ones((len(par), F), bool),
+                           w[par])
+    ref = np.asarray(family.vpv, dtype=np.float64)
+    vpv = chain_signs(vpv, ref if np.isfinite(ref).all(axis=1).any() else None)
+
+    # rotation
+    t0 = time.perf_counter()
+    c_rot = opts.second_view if opts.second_view is not None else \
+        _proxy_second_view(normals[:, np.concatenate([par, oth])])
+    rot = estimate_rotations(normals[:, oth], vpv, w[oth], c_rot, num_grid=opts.rotation_grid,
+                             num_starts=opts.rotation_starts, xtol=opts.rotation_xtol)
+    R = rot.rotations
+    m_world = np.einsum("fij,fmj->fmi", R, normals)
+    lp = np.median(line_parallax(m_world[:, oth]), axis=1)
+    if np.max(lp) < np.radians(opts.min_parallax_deg):
+        raise OmniSfmError(
+            f"degenerate motion: the non-parallel lines show at most "
+            f"{np.degrees(np.max(lp)):.3g} deg of parallax (min_parallax_deg="
+            f"{opts.min_parallax_deg:g}); the camera barely moved")
+    if opts.second_view is None and opts.rerun_rotation:
+        best = int(np.argmax(lp))
+        if best != c_rot and lp[best] > 1.5 * lp[c_rot]:
+            c_rot = best
+            rot = estimate_rotations(normals[:, oth], vpv, w[oth], c_rot,
+                                     num_grid=opts.rotation_grid,
+                                     num_starts=opts.rotation_starts, xtol=opts.rotation_xtol)
+            R = rot.rotations
+            m_world = np.einsum("fij,fmj->fmi", R, normals)
+    v = vpv[0]
+    t1 = time.perf_counter()
+
+    # translation (a): in the plane perpendicular to v
+    pp = np.median(in_plane_parallax(m_world[:, par], v), axis=1)
+    if np.max(pp) < np.radians(opts.min_parallax_deg):
+        raise OmniSfmError(
+            f"degenerate motion: no motion across the parallel lines (their in-plane parallax "
+            f"is at most {np.degrees(np.max(pp)):.3g} deg, min_parallax_deg="
+            f"{opts.min_parallax_deg:g}); the paper's method cannot fix the scale, e.g. when "
+            f"the camera moves along the parallel lines")
+    c = opts.second_view if opts.second_view is not None else int(np.argmax(pp))
+    plane = estimate_plane(m_world[:, par], v, w[par], c, irls_iter=opts.irls_iter)
+    if plane.ratio > opts.max_plane_ratio:
+        raise OmniSfmError(
+            f"degenerate motion: the in-plane direction of travel is undetermined (eigenvalue "
+            f"ratio {plane.ratio:.3g} > max_plane_ratio={opts.max_plane_ratio:g})")
+    t2 = time.perf_counter()
+
+    # translation (b): along v
+    d_oth = line_directions(m_world[:, oth])
+    vert = estimate_vertical(m_world[:, oth], d_oth, v, plane.positions, w[oth], c,
+                             irls_iter=opts.irls_iter)
+    positions = plane.positions + vert.omega[:, None] * v
+    t3 = time.perf_counter()
+    if not np.isfinite(positions).all():
+        bad = np.flatnonzero(~np.isfinite(positions).all(axis=1))
+        raise OmniSfmError(f"the position of frame(s) {bad[:5].tolist()} is undetermined by the "
+                           f"lines (too few with parallax)")
+
+    dirs = line_directions(m_world)
+    dirs[members] = v
+    points = triangulate_lines(m_world, dirs, positions)
+    sign_from_rays = False
+    if side_rays is not None:
+        rays = np.asarray(side_rays, dtype=np.float64)
+        if rays.shape != (tracks.num_observations, 3):
+            raise OmniSfmError(f"side_rays must have shape ({tracks.num_observations}, 3), got "
+                               f"{rays.shape}")
+        dense = np.zeros((F, M, 3))
+        dense[tracks.obs_frame, tracks.obs_track] = rays
+        rays_w = np.einsum("fij,fmj->fmi", R, dense)
+        sel = np.zeros((F, M), dtype=bool)
+        sel[:, w > 0] = True
+        if resolve_sign(rays_w, positions, points, dirs, sel) < 0:
+            positions, points = -positions, -points
+        sign_from_rays = True
+    t4 = time.perf_counter()
+    timings = {"rotation": (t1 - t0) * 1e3, "translation_plane": (t2 - t1) * 1e3,
+               "translation_vertical": (t3 - t2) * 1e3, "total": (t4 - t_start) * 1e3}
+    costs = {"E_rot": rot.cost, "E_t1": plane.cost, "E_t": vert.cost,
+             "plane_ratio": plane.ratio}
+    return PaperSolution(R, positions, c, rot.second_view, dirs, points, v, members.copy(),
+                         sign_from_rays, timings, costs)

@@ -1,0 +1,259 @@
+"""Rotation of every view from the VPVs and the non-parallel lines (METHOD.md §4).
+
+Conventions: ``world_from_cam`` rotations ``R_k`` (a normal ``n`` seen in view ``k`` is
+``R_k n`` in the world), world = the camera of view 0, so the paper's ``R_c^T`` is our ``R_c``.
+
+1. ``A_k`` rotates the VPV ``v_k`` of view ``k`` onto ``v = v_0`` (eq. 7-9).
+2. ``R_k = R_v(phi_k) A_k`` with ``R_v`` the rotation about ``v`` (eq. 10). For a trial angle
+   ``phi_c`` of the second view ``c`` each non-parallel line gets the direction
+   ``d_i = n_i0 x R_c n_ic`` (eq. 12); every other view's ``phi_k`` then minimises
+   ``e_k(phi) = sum_i w_i ((R_k n_ik) . d_i)^2`` (eq. 13), a trigonometric polynomial of degree 2
+   whose global minimum :func:`trig2_minimize` finds exactly, vectorised over views.
+3. ``E_rot(phi_c) = sum_k min e_k`` (eq. 14) is minimised globally over the circle by
+   :func:`omni_sfm.estimate.search.global_minimize_1d`.
+
+Every formula is invariant to the (arbitrary) sign of each normal: the residuals are squared and
+``d_i``'s sign cancels in them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from omni_sfm.errors import OmniSfmError
+from omni_sfm.estimate.search import global_minimize_1d
+from omni_sfm.geometry import FloatArray, normalize, skew
+
+
+def rotation_aligning(a: FloatArray, b: FloatArray) -> FloatArray:
+    """The smallest rotations ``(..., 3, 3)`` taking unit vectors ``a`` onto ``b`` (``R a = b``).
+
+    Defined for ``a . b > -1`` (the rotation axis is ``a x b``, the angle ``arccos(a . b)``,
+    eq. 8-9); exactly antiparallel pairs are rotated by pi about an axis perpendicular to ``a``.
+    """
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    a, b = np.broadcast_arrays(a, b)
+    w = np.cross(a, b)
+    c = np.sum(a * b, axis=-1)
+    K = skew(w)
+    eye = np.broadcast_to(np.eye(3), K.shape)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        R = eye + K + (K @ K) / (1.0 + c)[..., None, None]
+    anti = c <= -1.0 + 1e-12
+    if np.any(anti):
+        # rotation by pi about an axis u perpendicular to a: 2 u u^T - I
+        aa = a[anti]
+        helper = np.where(np.abs(aa[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+        u = normalize(np.cross(aa, helper))
+        R[anti] = 2.0 * u[:, :, None] * u[:, None, :] - np.eye(3)
+    return R
+
+
+def trig2_eval(coef: FloatArray, phi: FloatArray) -> FloatArray:
+    """``a1 cos p + b1 sin p + a2 cos 2p + b2 sin 2p`` for ``coef (..., 4) = (a1, b1, a2, b2)``."""
+    return (coef[..., 0] * np.cos(phi) + coef[..., 1] * np.sin(phi)
+            + coef[..., 2] * np.cos(2 * phi) + coef[..., 3] * np.sin(2 * phi))
+
+
+def trig2_minimize(coef: FloatArray, *, max_iter: int = 80) -> FloatArray:
+    """Global minimiser ``phi`` (radians, ``(...,)``) of the degree-2 trigonometric polynomial.
+
+    ``f(phi) = a1 cos phi + b1 sin phi + a2 cos 2phi + b2 sin 2phi`` with ``coef (..., 4)``.
+
+    Exact method: with ``x = (cos phi, sin phi)``, ``f = x^T A x + 2 b^T x`` where
+    ``A = [[a2, b2], [b2, -a2]]`` (eigenvalues ``+-rho``) and ``b = (a1, b1) / 2``. The global
+    minimum on the unit circle is the stationary point ``(A - mu I) x = -b`` with the Lagrange
+    multiplier ``mu <= -rho`` (the trust-region condition); in A's eigenbasis, with
+    ``s = -rho - mu >= 0``, it solves the secular equation
+    ``p^2 / (2 rho + s)^2 + q^2 / s^2 = 1`` whose left side falls monotonically, so the root
+    is unique and bracketed by ``[max(|q|, |p| - 2 rho), |p| + |q|]``. It is found by Newton's
+    method on ``g(s)^(-1/2) - 1`` (nearly linear) safeguarded by bisection, all problems at once.
+    The "hard case" ``q = 0, |p| <= 2 rho`` has ``s = 0`` and is handled explicitly. This is
+    equivalent to the paper's quartic (the secular equation multiplied out is a quartic in ``s``)
+    without its spurious roots.
+    """
+    coef = np.asarray(coef, dtype=np.float64)
+    a1, b1, a2, b2 = (coef[..., j] for j in range(4))
+    rho = np.hypot(a2, b2)
+    half = 0.5 * np.arctan2(b2, a2)
+    e1 = np.stack([np.cos(half), np.sin(half)], -1)      # eigenvector of +rho
+    e2 = np.stack([-np.sin(half), np.cos(half)], -1)     # eigenvector of -rho
+    bb = 0.5 * np.stack([a1, b1], -1)
+    p = np.sum(bb * e1, -1)
+    q = np.sum(bb * e2, -1)
+    ap, aq = np.abs(p), np.abs(q)
+    lo = np.maximum(aq, np.maximum(ap - 2.0 * rho, 0.0))
+    hi = ap + aq
+    hard = (aq <= 1e-300) | (hi <= 0)
+
+    def g_and_dg(s: FloatArray) -> tuple[FloatArray, FloatArray]:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u, w = 2.0 * rho + s, s
+            g = p * p / (u * u) + q * q / (w * w)
+            dg = -2.0 * p * p / (u * u * u) - 2.0 * q * q / (w * w * w)
+        return g, dg
+
+    s = 0.5 * (lo + hi)
+    active = ~hard & (hi > lo)
+    s = np.where(active, s, np.where(hard, 0.0, lo))
+    for _ in range(max_iter):
+        if not np.any(active):
+            break
+        g, dg = g_and_dg(s)
+        h = 1.0 / np.sqrt(g) - 1.0                      # increasing in s, root where g = 1
+        # shrink the bracket with the sign of h
+        lo = np.where(active & (h < 0), s, lo)
+        hi = np.where(active & (h > 0), s, hi)
+        dh = -0.5 * g ** -1.5 * dg
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s_new = s - h / dh
+        bad = ~np.isfinite(s_new) | (s_new <= lo) | (s_new >= hi)
+        s_new = np.where(bad, 0.5 * (lo + hi), s_new)
+        done = active & ((np.abs(s_new - s) <= 4e-16 * np.maximum(s, 1e-300)) | (h == 0)
+                         | (hi - lo <= 4e-16 * hi))
+        s = np.where(active, s_new, s)
+        active &= ~done
+
+    with np.errstate(divide="ignore", invalid="ignore"):
+        y1 = np.where(hard, np.where(rho > 0, -p / (2.0 * rho), 0.0), -p / (2.0 * rho + s))
+        y1 = np.clip(y1, -1.0, 1.0)
+        y2_hard = np.sqrt(np.maximum(1.0 - y1 * y1, 0.0)) * np.where(q > 0, -1.0, 1.0)
+        y2 = np.where(hard, y2_hard, -q / s)
+    y = normalize(np.stack([y1, y2], -1))
+    x = y[..., :1] * e1 + y[..., 1:] * e2
+    phi = np.arctan2(x[..., 1], x[..., 0])
+    return np.where(np.isfinite(phi), phi, 0.0)
+
+
+@dataclass(frozen=True)
+class RotationProblem:
+    """The rotation problem of one window, prepared for fast evaluation of ``E_rot(phi_c)``.
+
+    Attributes:
+        v: ``(3,)`` the parallel direction in the world (= view 0's VPV).
+        align: ``(F, 3, 3)`` ``A_k`` with ``A_k v_k = v``.
+        w_par, w_perp, w_cross: ``(F, Q, 3)`` parts of ``w = A_k n_ik`` of the non-parallel lines:
+            ``R_v(phi) w = w_par + cos(phi) w_perp + sin(phi) w_cross``.
+        weights: ``(Q,)`` per-line weights.
+        second_view: ``c``.
+    """
+
+    v: FloatArray
+    align: FloatArray
+    w_par: FloatArray
+    w_perp: FloatArray
+    w_cross: FloatArray
+    weights: FloatArray
+    second_view: int
+
+    @classmethod
+    def build(cls, normals: FloatArray, vpv: FloatArray, weights: FloatArray,
+              second_view: int) -> RotationProblem:
+        """``normals (F, Q, 3)`` of the non-parallel lines (camera frames), ``vpv (F, 3)``."""
+        v = vpv[0]
+        align = rotation_aligning(vpv, np.broadcast_to(v, vpv.shape))
+        align[0] = np.eye(3)
+        w = np.einsum("fij,fqj->fqi", align, normals)
+        w_par = np.einsum("fq,i->fqi", w @ v, v)
+        w_perp = w - w_par
+        w_cross = np.cross(v, w)
+        return cls(v, align, w_par, w_perp, w_cross, np.asarray(weights, dtype=np.float64),
+                   int(second_view))
+
+    def directions(self, phi_c: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """``d_i`` (eq. 12) for trial angles ``phi_c (G,)``: ``(G, Q, 3)``, validity ``(G, Q)``."""
+        c = self.second_view
+        cs, sn = np.cos(phi_c)[:, None, None], np.sin(phi_c)[:, None, None]
+        m_c = self.w_par[c] + cs * self.w_perp[c] + sn * self.w_cross[c]
+        n0 = self.w_par[0] + self.w_perp[0]
+        d = np.cross(n0, m_c)
+        norm = np.linalg.norm(d, axis=-1)
+        ok = norm > 1e-12
+        d = d / np.where(ok, norm, 1.0)[..., None]
+        return d, ok
+
+    def view_fit(self, phi_c: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Each view's best ``phi_k`` and cost ``e_k`` for trial ``phi_c (G,)``: two ``(G, F)``."""
+        d, ok = self.directions(phi_c)
+        wt = self.weights[None, :] * ok                                   # (G, Q)
+        a = np.einsum("fqj,gqj->gfq", self.w_perp, d)
+        b = np.einsum("fqj,gqj->gfq", self.w_cross, d)
+        cc = np.einsum("fqj,gqj->gfq", self.w_par, d)
+        wq = wt[:, None, :]
+        coef = np.stack([np.sum(wq * 2 * a * cc, -1), np.sum(wq * 2 * b * cc, -1),
+                         np.sum(wq * 0.5 * (a * a - b * b), -1), np.sum(wq * a * b, -1)], -1)
+        phi = trig2_minimize(coef)
+        r = a * np.cos(phi)[..., None] + b * np.sin(phi)[..., None] + cc
+        e = np.sum(wq * r * r, -1)
+        return phi, e
+
+    def cost(self, phi_c: FloatArray) -> FloatArray:
+        """``E_rot(phi_c)`` (eq. 14) for ``phi_c (G,)``, views 0 and ``c`` excluded (zero)."""
+        _, e = self.view_fit(np.atleast_1d(phi_c))
+        keep = np.ones(e.shape[1], dtype=bool)
+        keep[[0, self.second_view]] = False
+        return np.sum(e[:, keep], axis=1)
+
+    def rotations(self, phi: FloatArray) -> FloatArray:
+        """``R_k = R_v(phi_k) A_k`` for ``phi (F,)``: ``(F, 3, 3)`` world_from_cam."""
+        from omni_sfm.geometry import rotation_about_axis
+
+        return rotation_about_axis(self.v, phi) @ self.align
+
+
+@dataclass(frozen=True)
+class RotationResult:
+    """Rotations of a window.
+
+    Attributes:
+        rotations: ``(F, 3, 3)`` world_from_cam, ``rotations[0] = I``.
+        phi: ``(F,)`` angle about ``v`` of each view (radians), ``phi[0] = 0``.
+        second_view: the ``c`` used.
+        cost: ``E_rot`` at the solution (sum of squared sines of angles, weighted).
+        view_costs: ``(F,)`` each view's ``e_k``.
+        num_evals: cost evaluations of the 1-DOF search.
+    """
+
+    rotations: FloatArray
+    phi: FloatArray
+    second_view: int
+    cost: float
+    view_costs: FloatArray
+    num_evals: int
+
+
+def estimate_rotations(normals: FloatArray, vpv: FloatArray, weights: FloatArray,
+                       second_view: int, *, num_grid: int = 64, num_starts: int = 3,
+                       xtol: float = 1e-12) -> RotationResult:
+    """Rotations of all views (METHOD.md §4).
+
+    Args:
+        normals: ``(F, Q, 3)`` unit normals of the non-parallel lines in each camera frame
+            (any sign), every line seen in every view.
+        vpv: ``(F, 3)`` unit VPV of each view in its camera frame, signs consistent over views.
+        weights: ``(Q,)`` non-negative line weights (0 drops a line).
+        second_view: the view ``c`` whose angle is searched (``1 <= c < F``).
+        num_grid, num_starts, xtol: the global 1-DOF search (see ``global_minimize_1d``).
+    """
+    F, Q = normals.shape[:2]
+    if F < 3:
+        raise OmniSfmError(f"rotation needs at least 3 views, got {F}")
+    if not 1 <= second_view < F:
+        raise OmniSfmError(f"second view must be in [1, {F}), got {second_view}")
+    if int(np.count_nonzero(weights > 0)) < 3:
+        raise OmniSfmError("rotation needs at least 3 non-parallel lines with positive weight")
+    prob = RotationProblem.build(normals, vpv, weights, second_view)
+    res = global_minimize_1d(prob.cost, -np.pi, np.pi, num_grid=num_grid, periodic=True,
+                             num_starts=num_starts, xtol=xtol)
+    phi_all, e = prob.view_fit(np.array([res.x]))
+    phi = phi_all[0].copy()
+    phi[0] = 0.0
+    phi[second_view] = res.x
+    e = e[0].copy()
+    e[[0, second_view]] = 0.0
+    R = prob.rotations(phi)
+    R[0] = np.eye(3)
+    return RotationResult(R, phi, second_view, float(res.fx), e, res.num_evals)

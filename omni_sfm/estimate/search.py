@@ -1,0 +1,145 @@
+"""Global minimisation of a 1-DOF cost: a coarse grid that finds the basins, then Brent polishing.
+
+The paper searches its 1-DOF costs (METHOD.md §4-§5) exhaustively on a fixed fine grid. Here a
+coarse grid, evaluated in one vectorised call, brackets every local minimum it sees; the few best
+brackets are polished by Brent's method (parabolic interpolation with golden-section safeguard)
+to a tolerance near machine precision. The grid only has to be finer than the narrowest basin
+that could hold the global minimum, so the search is as global as the exhaustive one and much
+more precise.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import brent
+
+from omni_sfm.geometry import FloatArray
+
+VectorCost = Callable[[FloatArray], FloatArray]
+"""A cost evaluated at many parameter values at once: ``(G,) -> (G,)``."""
+
+
+@dataclass(frozen=True)
+class SearchResult:
+    """Outcome of :func:`global_minimize_1d`.
+
+    Attributes:
+        x: the minimiser (for a periodic search, wrapped into ``[lo, hi)``).
+        fx: the cost at ``x``.
+        num_evals: cost evaluations in total (grid points count one each).
+        grid_x: ``(G,)`` the coarse grid.
+        grid_f: ``(G,)`` the cost on the coarse grid (to inspect the landscape).
+    """
+
+    x: float
+    fx: float
+    num_evals: int
+    grid_x: FloatArray
+    grid_f: FloatArray
+
+
+def global_minimize_1d(cost: VectorCost, lo: float, hi: float, *, num_grid: int = 64,
+                       periodic: bool = False, num_starts: int = 3, xtol: float = 1e-12,
+                       max_iter: int = 200) -> SearchResult:
+    """Global minimum of ``cost`` on ``[lo, hi]`` (or the circle ``[lo, hi)`` if ``periodic``).
+
+    Args:
+        cost: vectorised cost ``(G,) -> (G,)``; non-finite values count as ``+inf``.
+        lo, hi: the search interval.
+        num_grid: coarse grid points (for a periodic search they are spaced ``(hi-lo)/num_grid``
+            and ``hi`` is not sampled, being ``lo``).
+        periodic: the cost has period ``hi - lo``.
+        num_starts: how many of the lowest grid minima are polished.
+        xtol: absolute tolerance on ``x`` of the polishing (Brent also stops at ~1e-11).
+        max_iter: iteration cap of each polishing run.
+
+    Returns:
+        the best polished minimum, never worse than the best grid point.
+    """
+    if not hi > lo or num_grid < 3 or num_starts < 1:
+        raise ValueError(f"bad search set-up: {lo=} {hi=} {num_grid=} {num_starts=}")
+    if periodic:
+        xs = lo + (hi - lo) * np.arange(num_grid) / num_grid
+    else:
+        xs = np.linspace(lo, hi, num_grid)
+    fs = np.asarray(cost(xs), dtype=np.float64)
+    if fs.shape != xs.shape:
+        raise ValueError(f"cost returned shape {fs.shape}, expected {xs.shape}")
+    fs = np.where(np.isfinite(fs), fs, np.inf)
+    if periodic:
+        prev, nxt = np.roll(fs, 1), np.roll(fs, -1)
+        is_min = (fs <= prev) & (fs <= nxt)
+    else:
+        prev = np.concatenate([[np.inf], fs[:-1]])
+        nxt = np.concatenate([fs[1:], [np.inf]])
+        is_min = (fs <= prev) & (fs <= nxt)
+    cand = np.flatnonzero(is_min & np.isfinite(fs))
+    step = xs[1] - xs[0]
+    best_x, best_f = float(xs[int(np.argmin(fs))]), float(np.min(fs))
+    evals = num_grid
+    if not np.isfinite(best_f):
+        return SearchResult(best_x, best_f, evals, xs, fs)
+
+    count = [0]
+
+    def scalar(x: float) -> float:
+        count[0] += 1
+        val = float(np.asarray(cost(np.array([x], dtype=np.float64)))[0])
+        return val if np.isfinite(val) else np.inf
+
+    for g in cand[np.argsort(fs[cand], kind="stable")][:num_starts]:
+        x0 = float(xs[g])
+        a, c = x0 - step, x0 + step
+        if not periodic:
+            a, c = max(a, lo), min(c, hi)
+        fa = fs[(g - 1) % num_grid] if (periodic or g > 0) else np.inf
+        fc = fs[(g + 1) % num_grid] if (periodic or g < num_grid - 1) else np.inf
+        if a == x0 or c == x0:
+            # a minimum at the end of a closed interval: polish on the one-sided bracket
+            x, f = _golden_edge(scalar, x0, a if a != x0 else c, xtol, max_iter)
+        elif fs[g] < fa and fs[g] < fc:
+            x, f, _, _ = brent(scalar, brack=(a, x0, c), tol=xtol, maxiter=max_iter,
+                               full_output=True)
+        else:
+            # a plateau on the grid: a bounded golden-section search over the bracket
+            x, f = _golden(scalar, a, c, xtol, max_iter)
+        if f < best_f and (periodic or lo <= x <= hi):
+            best_x, best_f = float(x), float(f)
+    evals += count[0]
+    if periodic:
+        best_x = lo + float(np.mod(best_x - lo, hi - lo))
+    return SearchResult(best_x, best_f, evals, xs, fs)
+
+
+_INV_PHI = (np.sqrt(5.0) - 1.0) / 2.0
+
+
+def _golden(f: Callable[[float], float], a: float, b: float, xtol: float,
+            max_iter: int) -> tuple[float, float]:
+    """Golden-section minimum of ``f`` on ``[a, b]``."""
+    c, d = b - _INV_PHI * (b - a), a + _INV_PHI * (b - a)
+    fc, fd = f(c), f(d)
+    for _ in range(max_iter):
+        if abs(b - a) < xtol:
+            break
+        if fc < fd:
+            b, d, fd = d, c, fc
+            c = b - _INV_PHI * (b - a)
+            fc = f(c)
+        else:
+            a, c, fc = c, d, fd
+            d = a + _INV_PHI * (b - a)
+            fd = f(d)
+    return (c, fc) if fc < fd else (d, fd)
+
+
+def _golden_edge(f: Callable[[float], float], x0: float, x1: float, xtol: float,
+                 max_iter: int) -> tuple[float, float]:
+    """Minimum near the interval end ``x0`` on the segment towards ``x1``."""
+    lo, hi = min(x0, x1), max(x0, x1)
+    x, fx = _golden(f, lo, hi, xtol, max_iter)
+    f0 = f(x0)
+    return (x, fx) if fx < f0 else (x0, f0)
