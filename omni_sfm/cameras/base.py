@@ -127,9 +127,13 @@ class MonotoneInverse:
         object.__setattr__(self, "y0", y0)
         object.__setattr__(self, "y1", y1)
 
-    def __call__(self, y: FloatArray) -> FloatArray:
+    def __call__(self, y: FloatArray, *, clamp: bool = False) -> FloatArray:
+        """``x`` with ``g(x) = y``; out-of-range ``y`` gives NaN, or with ``clamp`` the nearest
+        end of ``[0, x_max]`` (a start point for a caller's own iteration)."""
         with np.errstate(invalid="ignore"):
             t = (y - self.y0) * (self.size / (self.y1 - self.y0))
+            if clamp:
+                np.clip(t, 0.0, self.size, out=t)
             bad = ~((t >= 0) & (t <= self.size))
             t[bad] = 0.0
             i = np.minimum(t.astype(np.intp), self.size - 1)

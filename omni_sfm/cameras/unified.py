@@ -84,31 +84,30 @@ class UnifiedCamera(CameraModel):
 
     @cached_property
     def r_max(self) -> float:
-        """Largest undistorted radius of the model's domain (``inf`` if unbounded): the end of
-        the radial polynomial's monotone part, and ``1/sqrt(xi^2 - 1)`` for ``xi > 1``."""
+        """Largest undistorted radius of the model's domain (``inf`` if unbounded):
+        ``1/sqrt(xi^2 - 1)`` for ``xi > 1``; with distortion also the end of the radial
+        polynomial's monotone part and the radius whose distorted image lies 4x as far from the
+        principal point as the farthest image corner (the distortion is inverted up to there)."""
         lim = math.inf if self.xi <= 1.0 else 1.0 / math.sqrt(self.xi**2 - 1.0)
-        if self.k1 != 0.0 or self.k2 != 0.0:
-            hi = min(lim, 1e3)
-            mono = first_nonincreasing(self._dradial, hi)
-            if mono < hi:
-                lim = mono
-        return lim
-
-    @cached_property
-    def _radial_inverse(self) -> MonotoneInverse:
+        if not self.has_distortion:
+            return lim
+        hi = min(lim, 1e3)
+        mono = first_nonincreasing(self._dradial, hi) if self.k1 or self.k2 else hi
         corners = np.array([[0, 0], [self.width - 1, 0], [0, self.height - 1],
                             [self.width - 1, self.height - 1]], dtype=np.float64)
         yd = (corners[:, 1] - self.cy) / self.fy
         xd = (corners[:, 0] - self.cx - self.skew * yd) / self.fx
         need = 4.0 * float(np.hypot(xd, yd).max()) + 1.0
-        hi = self.r_max
-        if not math.isfinite(hi):
-            hi = 1.0
-            while self._radial(np.array([hi]))[0] < need and hi < 1e6:
-                hi *= 2.0
+        r = 1.0 / 16.0
+        while r < mono and self._radial(np.array([r]))[0] < need:
+            r *= 2.0
+        return min(r, mono)
+
+    @cached_property
+    def _radial_inverse(self) -> MonotoneInverse:
         # with tangential terms the 2-D Newton refines the table's start point anyway
         steps = 2 if self.p1 == 0.0 and self.p2 == 0.0 else 0
-        return MonotoneInverse(self._radial, self._dradial, hi, newton_steps=steps)
+        return MonotoneInverse(self._radial, self._dradial, self.r_max, newton_steps=steps)
 
     def _distort(self, x: FloatArray, y: FloatArray) -> tuple[FloatArray, FloatArray]:
         r2 = x * x + y * y
@@ -124,7 +123,7 @@ class UnifiedCamera(CameraModel):
         k1, k2, p1, p2 = self.k1, self.k2, self.p1, self.p2
         with np.errstate(divide="ignore", invalid="ignore"):
             rd = np.hypot(xd, yd)
-            s = self._radial_inverse(rd) / rd
+            s = self._radial_inverse(rd, clamp=True) / rd
             s[rd == 0] = 1.0
             x, y = xd * s, yd * s
             for _ in range(NEWTON_MAX):
