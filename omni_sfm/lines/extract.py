@@ -1,0 +1,483 @@
+"""Straight-line extraction in omnidirectional images (METHOD.md §2, paper Sec. III).
+
+Canny edges -> corner rejection by the eigenvalue ratio of the local second-moment matrix ->
+sub-pixel edge positions -> connected edge segments -> unit rays through the camera model ->
+a great-circle (plane through the viewpoint) fit per segment by RANSAC -> the paper's test:
+a segment is a straight line if more than half of its points satisfy ``(r . n)^2 < l_th``
+(eq. 3). The plane's unit normal ``n`` is the line's NV in the camera frame (sign arbitrary).
+
+Everything is vectorised over pixels and segments: RANSAC scores all hypotheses of all segments
+at once and the least-squares refits use batched 3x3 scatter matrices.
+
+Thresholds that are angles on the sphere are set in *pixels* and converted with the camera's
+local angular pixel scale (the angle between the rays of neighbouring pixels), so the same
+defaults work for a 800x600 hyperboloid image and a 1600x800 equirectangular one.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from omni_sfm.cameras.base import CameraModel
+from omni_sfm.errors import OmniSfmError
+from omni_sfm.geometry import FloatArray
+
+IntArray = np.ndarray
+
+
+@dataclass(frozen=True, kw_only=True)
+class ExtractionOptions:
+    """Parameters of :class:`LineExtractor`; pixel units unless stated."""
+
+    blur_sigma: float = 1.0
+    """Gaussian pre-smoothing before edge detection (px); 0 disables it."""
+    canny_low: float = 20.0
+    """Canny hysteresis low threshold on the L2 magnitude of the 3x3 Sobel gradient of the
+    smoothed 8-bit image (a sharp step of ``s`` grey levels gives about ``4 s`` before
+    smoothing, about ``2.5 s`` after a 1 px blur)."""
+    canny_high: float = 50.0
+    """Canny hysteresis high threshold (same units as ``canny_low``)."""
+    corner_ratio: float = 10.0
+    """Keep an edge point if the larger/smaller eigenvalue ratio of the local second-moment
+    matrix is at least this (the paper's 10); lower ratios are corners or junctions."""
+    tensor_sigma: float = 1.5
+    """Gaussian window of the second-moment matrix (px)."""
+    min_points: int = 20
+    """Fewest edge points of a segment and of an accepted line (about its length in px)."""
+    line_threshold_px: float = 1.0
+    """``l_th`` of eq. (3) as a distance from the great circle in pixels at that point:
+    ``(r . n)^2 < (line_threshold_px * s(p))^2`` with ``s(p)`` the local angle per pixel."""
+    ransac_hypotheses: int = 16
+    """RANSAC hypotheses (pairs of points) per segment and round."""
+    refine_iterations: int = 3
+    """Least-squares refits on the inliers after RANSAC."""
+    peel_rounds: int = 3
+    """Rounds of peeling: the outliers of an accepted segment (and, see ``peel_min_points``,
+    of a rejected long one) are re-segmented and fitted again, so one edge chain can hold
+    several lines."""
+    peel_min_points: int = 60
+    """A segment that fails the more-than-half test still yields its best line if that line
+    has at least this many inliers (long lines joined by a smooth bend); 0 disables."""
+    max_gap_px: float = 4.0
+    """A line's inliers are split where consecutive points along the circle are further apart
+    than this (px); pieces shorter than ``min_points`` are dropped."""
+    merge_angle_deg: float = 0.3
+    """Merge two lines of one frame whose normals agree within this angle and whose arcs do not
+    overlap (a line split by an occluder or by the equirectangular seam)."""
+    merge_gap_deg: float = 20.0
+    """Largest gap along the great circle between two pieces that are merged (degrees)."""
+    mask_erode_px: int = 4
+    """Erode the valid mask by this much, so the mask border (mirror rim, the camera's own
+    reflection, the image border) gives no edges."""
+    seed: int = 0
+    """Seed of the RANSAC sampler (results are deterministic for a given image)."""
+
+
+@dataclass(frozen=True)
+class ExtractedLines:
+    """The straight lines of one image.
+
+    Attributes:
+        normals: ``(L, 3)`` unit NVs in the camera frame (sign arbitrary).
+        offsets: ``(L + 1,)`` line ``l`` owns points ``offsets[l]:offsets[l + 1]``.
+        points_uv: ``(P, 2)`` sub-pixel inlier edge points (OpenCV pixels), ordered along each
+            line.
+        point_rays: ``(P, 3)`` their unit rays.
+        endpoint_rays: ``(L, 2, 3)`` unit rays of the two ends, projected onto the great circle.
+        endpoint_uv: ``(L, 2, 2)`` pixels of the two extreme inlier points.
+        num_support: ``(L,)`` inlier count.
+        residual_px: ``(L,)`` RMS distance of the inliers from the great circle, in pixels.
+        arc_deg: ``(L,)`` angle subtended by the line at the viewpoint, degrees.
+        num_edge_points: Canny edge points inside the mask.
+        num_corner_points: edge points rejected as corner-like.
+        num_segments: connected segments with at least ``min_points`` points (first round).
+        num_rejected: segments that failed the straightness test.
+    """
+
+    normals: FloatArray
+    offsets: IntArray
+    points_uv: FloatArray
+    point_rays: FloatArray
+    endpoint_rays: FloatArray
+    endpoint_uv: FloatArray
+    num_support: IntArray
+    residual_px: FloatArray
+    arc_deg: FloatArray
+    num_edge_points: int
+    num_corner_points: int
+    num_segments: int
+    num_rejected: int
+
+    @property
+    def num_lines(self) -> int:
+        return int(self.normals.shape[0])
+
+    def line_of_point(self) -> IntArray:
+        """``(P,)`` index of the line owning each point."""
+        return np.repeat(np.arange(self.num_lines), np.diff(self.offsets))
+
+
+def angular_pixel_scale(camera: CameraModel) -> np.ndarray:
+    """``(H, W)`` float32: angle (rad) between a pixel's ray and its right/lower neighbour's,
+    the larger of the two; NaN where the pixel or both neighbours are invalid."""
+    r = camera.pixel_grid_rays()
+    with np.errstate(invalid="ignore"):
+        du = np.full(r.shape[:2], np.nan)
+        dv = np.full(r.shape[:2], np.nan)
+        du[:, :-1] = np.linalg.norm(r[:, 1:] - r[:, :-1], axis=2)
+        dv[:-1, :] = np.linalg.norm(r[1:, :] - r[:-1, :], axis=2)
+        du[:, -1] = du[:, -2]
+        dv[-1, :] = dv[-2, :]
+        s = np.fmax(du, dv)
+    return s.astype(np.float32)
+
+
+def _scatter(rays: FloatArray, weight: np.ndarray, seg: IntArray, nseg: int) -> FloatArray:
+    """``(S, 3, 3)`` sums of ``w r r^T`` per segment (``seg`` need not be sorted)."""
+    outer = (rays[:, :, None] * rays[:, None, :]).reshape(-1, 9) * weight[:, None]
+    out = np.zeros((nseg, 9))
+    for k in (0, 1, 2, 4, 5, 8):
+        out[:, k] = np.bincount(seg, weights=outer[:, k], minlength=nseg)
+    out[:, 3], out[:, 6], out[:, 7] = out[:, 1], out[:, 2], out[:, 5]
+    return out.reshape(nseg, 3, 3)
+
+
+def _smallest_eigvec(m: FloatArray) -> FloatArray:
+    """``(S, 3, 3)`` symmetric -> ``(S, 3)`` unit eigenvectors of the smallest eigenvalue."""
+    _, vec = np.linalg.eigh(m)
+    return vec[:, :, 0]
+
+
+class LineExtractor:
+    """Straight-line extractor for one camera (per-camera tables are computed once).
+
+    ``mask``: optional ``(H, W)`` array, nonzero where the image may be used (combined with the
+    camera's valid mask).
+    """
+
+    def __init__(self, camera: CameraModel, options: ExtractionOptions | None = None,
+                 mask: np.ndarray | None = None) -> None:
+        self.camera = camera
+        self.options = options or ExtractionOptions()
+        o = self.options
+        if o.min_points < 3:
+            raise ValueError(f"min_points must be at least 3, got {o.min_points}")
+        if o.canny_low > o.canny_high:
+            raise ValueError(f"canny_low {o.canny_low} exceeds canny_high {o.canny_high}")
+        h, w = camera.height, camera.width
+        valid = camera.valid_mask()
+        if mask is not None:
+            mask = np.asarray(mask)
+            if mask.shape != (h, w):
+                raise OmniSfmError(f"mask is {mask.shape[1]}x{mask.shape[0]} px but the camera "
+                                   f"is {w}x{h} px")
+            valid &= mask > 0
+        self.scale = angular_pixel_scale(camera)
+        valid &= np.isfinite(self.scale)
+        e = int(o.mask_erode_px)
+        if e > 0:
+            padded = cv2.copyMakeBorder(valid.astype(np.uint8), e, e, e, e,
+                                        cv2.BORDER_CONSTANT, value=0)
+            k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * e + 1, 2 * e + 1))
+            valid = cv2.erode(padded, k)[e:-e, e:-e] > 0
+        self.search_mask = valid.astype(np.uint8) * 255
+        rad = max(1, int(np.ceil(1.5 * o.tensor_sigma)))
+        wy, wx = np.mgrid[-rad : rad + 1, -rad : rad + 1]
+        self._win_dy, self._win_dx = wy.ravel(), wx.ravel()
+        g = np.exp(-(wx**2 + wy**2).ravel() / (2.0 * o.tensor_sigma**2))
+        self._win_w = (g / g.sum()).astype(np.float32)
+
+    # -- public ---------------------------------------------------------------------------
+    def extract(self, image: np.ndarray) -> ExtractedLines:
+        """Lines of one ``(H, W)`` 8-bit grey image (a colour image is converted)."""
+        gray = self._gray(image)
+        uv, pix, counts = self._edge_points(gray)
+        return self._fit_lines(uv, pix, counts)
+
+    # -- stages ---------------------------------------------------------------------------
+    def _gray(self, image: np.ndarray) -> np.ndarray:
+        img = np.asarray(image)
+        if img.ndim == 3 and img.shape[2] in (3, 4):
+            img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY if img.shape[2] == 3
+                               else cv2.COLOR_BGRA2GRAY)
+        if img.ndim != 2:
+            raise ValueError(f"image must be (H, W) or (H, W, 3), got {img.shape=}")
+        if img.shape != (self.camera.height, self.camera.width):
+            raise OmniSfmError(f"image is {img.shape[1]}x{img.shape[0]} px but the camera is "
+                               f"{self.camera.width}x{self.camera.height} px")
+        if img.dtype != np.uint8:
+            img = np.clip(img, 0, 255).astype(np.uint8)
+        return img
+
+    def _edge_points(self, gray: np.ndarray) -> tuple[FloatArray, IntArray, dict[str, int]]:
+        """Line-like edge points: sub-pixel ``(N, 2)`` and integer ``(N, 2)`` (x, y) pixels."""
+        o = self.options
+        img = cv2.GaussianBlur(gray, (0, 0), o.blur_sigma) if o.blur_sigma > 0 else gray
+        dx = cv2.Sobel(img, cv2.CV_16S, 1, 0, ksize=3)
+        dy = cv2.Sobel(img, cv2.CV_16S, 0, 1, ksize=3)
+        edges = cv2.Canny(dx, dy, o.canny_low, o.canny_high, L2gradient=True)
+        ys, xs = np.nonzero(cv2.bitwise_and(edges, self.search_mask))
+        n_edge = len(xs)
+        h, w = gray.shape
+        # second-moment matrix over a Gaussian window, evaluated only at the edge points
+        yy = np.clip(ys[:, None] + self._win_dy, 0, h - 1)
+        xx = np.clip(xs[:, None] + self._win_dx, 0, w - 1)
+        wx = dx[yy, xx].astype(np.float32)
+        wy = dy[yy, xx].astype(np.float32)
+        a = (wx * wx) @ self._win_w
+        b = (wy * wy) @ self._win_w
+        c = (wx * wy) @ self._win_w
+        half_tr = 0.5 * (a + b)
+        disc = np.sqrt(np.maximum(0.25 * (a - b) ** 2 + c * c, 0.0))
+        lmax, lmin = half_tr + disc, np.maximum(half_tr - disc, 0.0)
+        keep = lmax >= o.corner_ratio * lmin
+        ys, xs = ys[keep], xs[keep]
+        # sub-pixel: vertex of the parabola through the gradient magnitude across the edge
+        gx = dx[ys, xs].astype(np.float32)
+        gy = dy[ys, xs].astype(np.float32)
+        m0 = np.hypot(gx, gy)
+        gn = np.where(m0 > 0, m0, 1.0)
+        ux, uy = gx / gn, gy / gn
+        mp = _bilinear_magnitude(dx, dy, xs + ux, ys + uy)
+        mm = _bilinear_magnitude(dx, dy, xs - ux, ys - uy)
+        den = mp - 2.0 * m0 + mm
+        with np.errstate(divide="ignore", invalid="ignore"):
+            off = np.where(den < 0, 0.5 * (mm - mp) / den, 0.0)
+        off = np.clip(off, -0.5, 0.5)
+        uv = np.stack([xs + off * ux, ys + off * uy], 1).astype(np.float64)
+        return uv, np.stack([xs, ys], 1), {"edge": n_edge, "corner": int((~keep).sum())}
+
+    def _segments(self, pix: IntArray, idx: IntArray) -> tuple[IntArray, IntArray, IntArray]:
+        """8-connected segments of the points ``pix[idx]`` with at least ``min_points`` points.
+
+        Returns the kept indices sorted by segment, their segment (0..S-1) and the counts.
+        """
+        p = pix[idx]
+        x0, y0 = p.min(axis=0)
+        x1, y1 = p.max(axis=0)
+        img = np.zeros((y1 - y0 + 1, x1 - x0 + 1), np.uint8)
+        img[p[:, 1] - y0, p[:, 0] - x0] = 1
+        n, lab_img = cv2.connectedComponents(img, connectivity=8, ltype=cv2.CV_32S)
+        lab = lab_img[p[:, 1] - y0, p[:, 0] - x0]
+        area = np.bincount(lab, minlength=n)
+        sel = area[lab] >= self.options.min_points
+        idx, lab = idx[sel], lab[sel]
+        order = np.argsort(lab, kind="stable")
+        idx, lab = idx[order], lab[order]
+        _, seg, cnt = np.unique(lab, return_inverse=True, return_counts=True)
+        return idx, seg, cnt
+
+    def _fit_lines(self, uv: FloatArray, pix: IntArray, counts: dict[str, int]) -> ExtractedLines:
+        o = self.options
+        rng = np.random.default_rng(o.seed)
+        rays = self.camera.rays_from_pixels(uv) if len(uv) else np.zeros((0, 3))
+        ok = np.isfinite(rays).all(axis=1)
+        uv, pix, rays = uv[ok], pix[ok], rays[ok]
+        # angle (rad) per pixel at each point; l_th of eq. (3) is (line_threshold_px * scale)^2
+        scale = self.scale[pix[:, 1], pix[:, 0]].astype(np.float64)
+        tol = o.line_threshold_px * scale
+        pool = np.arange(len(uv))
+        piece_idx: list[IntArray] = []
+        piece_lab: list[IntArray] = []
+        piece_n: list[FloatArray] = []
+        n_pieces = n_segments = n_rejected = 0
+        for rnd in range(max(1, o.peel_rounds)):
+            if len(pool) < o.min_points:
+                break
+            idx, seg, cnt = self._segments(pix, pool)
+            if len(idx) == 0:
+                break
+            nseg = len(cnt)
+            normals, inl = self._ransac(rays[idx], tol[idx], seg, cnt, rng)
+            n_in = np.bincount(seg, weights=inl, minlength=nseg)
+            accept = (2 * n_in > cnt) & (n_in >= o.min_points)
+            take = accept | ((n_in >= o.peel_min_points) if o.peel_min_points > 0 else accept)
+            if rnd == 0:
+                n_segments, n_rejected = nseg, int((~accept).sum())
+            # outliers of taken segments go back to the pool for the next round
+            out = take[seg] & ~inl
+            n_out = np.bincount(seg[out], minlength=nseg)
+            pool = idx[out & (n_out[seg] >= o.min_points)]
+            sel = take[seg] & inl
+            pi, pl, pn = self._split_gaps(idx[sel], seg[sel], normals, rays, scale)
+            piece_idx.append(pi)
+            piece_lab.append(pl + n_pieces)
+            piece_n.append(pn)
+            n_pieces += len(pn)
+        if not piece_idx:
+            return self._package(np.zeros(0, np.int64), np.zeros(0, np.int64), rays, uv, scale,
+                                 counts, n_segments, n_rejected)
+        idx = np.concatenate(piece_idx)
+        lab = np.concatenate(piece_lab)
+        lab = self._merge(idx, lab, np.concatenate(piece_n), rays)
+        return self._package(idx, lab, rays, uv, scale, counts, n_segments, n_rejected)
+
+    def _ransac(self, rays: FloatArray, tol: FloatArray, seg: IntArray, cnt: IntArray,
+                rng: np.random.Generator) -> tuple[FloatArray, np.ndarray]:
+        """Great circle per segment: MSAC over pair hypotheses, then LS refits on inliers.
+
+        ``rays`` sorted by segment ``seg`` (0..S-1) with counts ``cnt``. Returns ``(S, 3)``
+        normals and the ``(N,)`` inlier mask of the final fit.
+        """
+        o = self.options
+        nseg = len(cnt)
+        start = np.concatenate([[0], np.cumsum(cnt)[:-1]])
+        nh = max(1, o.ransac_hypotheses)
+        ia = start[:, None] + (rng.random((nseg, nh)) * cnt[:, None]).astype(np.int64)
+        ib = start[:, None] + (rng.random((nseg, nh)) * cnt[:, None]).astype(np.int64)
+        hyp = np.cross(rays[ia], rays[ib])  # (S, H, 3)
+        hn = np.linalg.norm(hyp, axis=2, keepdims=True)
+        degenerate = hn[..., 0] < 1e-9
+        hyp = (hyp / np.where(hn > 0, hn, 1.0)).astype(np.float32)
+        r32 = rays.astype(np.float32)
+        d = np.einsum("nk,nhk->nh", r32, hyp[seg])
+        t2 = (tol * tol).astype(np.float32)[:, None]
+        cost = np.minimum(d * d, t2) / t2  # truncated quadratic (MSAC)
+        seg_cost = np.add.reduceat(cost, start, axis=0)
+        seg_cost[degenerate] = np.inf
+        best = np.argmin(seg_cost, axis=1)
+        n = hyp[np.arange(nseg), best].astype(np.float64)
+        inl = np.abs(np.einsum("nk,nk->n", rays, n[seg])) < tol
+        for _ in range(max(1, o.refine_iterations)):
+            n_new = _smallest_eigvec(_scatter(rays, inl.astype(np.float64), seg, nseg))
+            good = np.bincount(seg, weights=inl, minlength=nseg) >= 3
+            n = np.where(good[:, None], n_new, n)
+            inl = np.abs(np.einsum("nk,nk->n", rays, n[seg])) < tol
+        return n, inl
+
+    def _split_gaps(self, idx: IntArray, seg: IntArray, normals: FloatArray, rays: FloatArray,
+                    scale: FloatArray) -> tuple[IntArray, IntArray, FloatArray]:
+        """Cut each segment's inliers where consecutive points along the great circle are more
+        than ``max_gap_px`` apart; drop pieces under ``min_points``.
+
+        Returns the kept point indices, a piece label per point (0..P-1) and ``(P, 3)`` the
+        normal of each piece (its segment's).
+        """
+        o = self.options
+        if len(idx) == 0:
+            return idx, seg, np.zeros((0, 3))
+        t = _arc_parameter(rays[idx], normals[seg], seg, normals.shape[0])
+        order = np.lexsort((t, seg))
+        idx, seg, t = idx[order], seg[order], t[order]
+        lim = o.max_gap_px * scale[idx[1:]]
+        cut = (np.diff(seg) != 0) | (np.diff(t) > lim)
+        piece = np.concatenate([[0], np.cumsum(cut)])
+        keep = np.bincount(piece)[piece] >= o.min_points
+        idx, seg, piece = idx[keep], seg[keep], piece[keep]
+        used, piece = np.unique(piece, return_inverse=True)
+        piece_seg = np.zeros(len(used), np.int64)
+        piece_seg[piece] = seg
+        return idx, piece, normals[piece_seg]
+
+    def _merge(self, idx: IntArray, lab: IntArray, normals: FloatArray,
+               rays: FloatArray) -> IntArray:
+        """Join pieces of one great circle (normals within ``merge_angle_deg``, arcs disjoint and
+        at most ``merge_gap_deg`` apart). Returns the new label per point (0..L-1)."""
+        o = self.options
+        used, lab = np.unique(lab, return_inverse=True)
+        nl = len(used)
+        if nl < 2 or o.merge_angle_deg <= 0:
+            return lab
+        normals = normals[used]
+        cosang = np.abs(normals @ normals.T)
+        cand = np.argwhere(np.triu(cosang > np.cos(np.radians(o.merge_angle_deg)), 1))
+        if len(cand) == 0:
+            return lab
+        parent = np.arange(nl)
+
+        def find(i: int) -> int:
+            while parent[i] != i:
+                parent[i] = parent[parent[i]]
+                i = parent[i]
+            return int(i)
+
+        max_gap = np.radians(o.merge_gap_deg)
+        for i, j in cand:
+            ni = normals[i]
+            ri, rj = rays[idx[lab == i]], rays[idx[lab == j]]
+            e1 = ri.mean(axis=0)
+            e1 -= (e1 @ ni) * ni
+            e1 /= np.linalg.norm(e1)
+            e2 = np.cross(ni, e1)
+            ti = np.arctan2(ri @ e2, ri @ e1)
+            tj = np.arctan2(rj @ e2, rj @ e1)
+            gap = max(tj.min() - ti.max(), ti.min() - tj.max())
+            if 0 <= gap <= max_gap:
+                parent[find(int(i))] = find(int(j))
+        roots = np.array([find(i) for i in range(nl)])
+        _, new = np.unique(roots, return_inverse=True)
+        return new[lab]
+
+    def _package(self, idx: IntArray, lab: IntArray, rays: FloatArray, uv: FloatArray,
+                 scale: FloatArray, counts: dict[str, int], n_segments: int,
+                 n_rejected: int) -> ExtractedLines:
+        nl = int(lab.max()) + 1 if len(lab) else 0
+        if nl == 0:
+            z3 = np.zeros((0, 3))
+            return ExtractedLines(
+                normals=z3, offsets=np.zeros(1, np.int64), points_uv=np.zeros((0, 2)),
+                point_rays=z3, endpoint_rays=np.zeros((0, 2, 3)),
+                endpoint_uv=np.zeros((0, 2, 2)), num_support=np.zeros(0, np.int64),
+                residual_px=np.zeros(0), arc_deg=np.zeros(0), num_edge_points=counts["edge"],
+                num_corner_points=counts["corner"], num_segments=n_segments,
+                num_rejected=n_rejected)
+        # final normals: least squares on all points of each (merged) line
+        normals = _smallest_eigvec(_scatter(rays[idx], np.ones(len(idx)), lab, nl))
+        r = rays[idx]
+        t = _arc_parameter(r, normals[lab], lab, nl)
+        order = np.lexsort((t, lab))
+        idx, lab, t, r = idx[order], lab[order], t[order], r[order]
+        sizes = np.bincount(lab, minlength=nl)
+        offsets = np.concatenate([[0], np.cumsum(sizes)])
+        first, last = offsets[:-1], offsets[1:] - 1
+        ends = np.stack([r[first], r[last]], 1)
+        ends -= np.einsum("lek,lk->le", ends, normals)[..., None] * normals[:, None, :]
+        ends /= np.linalg.norm(ends, axis=2, keepdims=True)
+        px = np.abs(np.einsum("nk,nk->n", r, normals[lab])) / scale[idx]
+        resid = np.sqrt(np.bincount(lab, weights=px * px, minlength=nl) / sizes)
+        arc = np.degrees(t[last] - t[first])
+        return ExtractedLines(
+            normals=normals, offsets=offsets, points_uv=uv[idx], point_rays=r,
+            endpoint_rays=ends, endpoint_uv=np.stack([uv[idx[first]], uv[idx[last]]], 1),
+            num_support=sizes.astype(np.int64), residual_px=resid, arc_deg=arc,
+            num_edge_points=counts["edge"], num_corner_points=counts["corner"],
+            num_segments=n_segments, num_rejected=n_rejected)
+
+
+def _arc_parameter(r: FloatArray, n: FloatArray, group: IntArray, ngroup: int) -> FloatArray:
+    """Angle of each ray along its great circle (normal ``n`` per row), measured from the mean
+    direction of its group, in ``(-pi, pi]``."""
+    mean = np.zeros((ngroup, 3))
+    for k in range(3):
+        mean[:, k] = np.bincount(group, weights=r[:, k], minlength=ngroup)
+    e1 = mean[group]
+    e1 -= np.einsum("nk,nk->n", e1, n)[:, None] * n
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    e2 = np.cross(n, e1)
+    return np.arctan2(np.einsum("nk,nk->n", r, e2), np.einsum("nk,nk->n", r, e1))
+
+
+def _bilinear_magnitude(dx: np.ndarray, dy: np.ndarray, x: np.ndarray,
+                        y: np.ndarray) -> np.ndarray:
+    """Gradient magnitude bilinearly interpolated at points ``(x, y)`` (clamped to the image)."""
+    h, w = dx.shape
+    x = np.clip(x, 0, w - 1.001)
+    y = np.clip(y, 0, h - 1.001)
+    x0 = x.astype(np.int64)
+    y0 = y.astype(np.int64)
+    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
+    yy = np.stack([y0, y0, y0 + 1, y0 + 1], 1)
+    xx = np.stack([x0, x0 + 1, x0, x0 + 1], 1)
+    m = np.hypot(dx[yy, xx].astype(np.float32), dy[yy, xx].astype(np.float32))
+    wts = np.concatenate([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy], 1)
+    return np.asarray((m * wts).sum(axis=1), dtype=np.float32)
+
+
+def extract_lines(image: np.ndarray, camera: CameraModel,
+                  options: ExtractionOptions | None = None,
+                  mask: np.ndarray | None = None) -> ExtractedLines:
+    """One-off extraction; build a :class:`LineExtractor` once for a sequence instead."""
+    return LineExtractor(camera, options, mask).extract(image)

@@ -1,0 +1,290 @@
+"""Line tracking between consecutive frames (METHOD.md §2, paper Fig. 6), and beyond.
+
+The paper's rule: sample points at constant intervals on each line of frame ``t``, track them
+into frame ``t+1`` with KLT, snap each to the nearest edge point there, and take the line of
+``t+1`` that receives the most points as the correspondence; if several lines of ``t`` claim the
+same line, the one with more points wins. Lines that find no partner end; unclaimed lines of
+``t+1`` start new tracks. No point-to-point matching is needed, so the aperture problem of KLT
+along an edge does no harm: a point that slides along its edge still lands on the right line.
+
+Added to the paper (docs/frontend.md says why):
+- a forward-backward KLT check and a snap radius, so points lost by KLT do not vote;
+- a vote quorum (absolute and as a share of the samples) and a limit on the change of the NV
+  between consecutive frames, which reject a partner found by a few stray points;
+- pieces of one line (split by an occluder, or re-joined after one) are kept in one track: a
+  losing claimant whose NV equals the winner's is merged into the winner's track, and a second
+  partner with the same NV as the first is added to the same track; where a track has two
+  observations in one frame the better-supported one is kept;
+- tracks seen in fewer than ``min_track_frames`` frames are dropped.
+Every frame is fully re-detected (extraction runs on every frame), so new lines start tracks as
+soon as they appear.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from scipy.spatial import cKDTree
+
+from omni_sfm.geometry import FloatArray
+from omni_sfm.lines.extract import ExtractedLines
+
+IntArray = np.ndarray
+
+
+@dataclass(frozen=True, kw_only=True)
+class TrackingOptions:
+    """Parameters of :class:`LineTracker`; pixels unless stated."""
+
+    sample_spacing_px: float = 5.0
+    """Interval between the points sampled on a line (along its edge points)."""
+    max_samples_per_line: int = 40
+    """At most this many samples per line (the interval grows on long lines)."""
+    klt_window: int = 15
+    """KLT window size (square, px)."""
+    klt_levels: int = 3
+    """KLT pyramid levels above the full image."""
+    klt_min_eig: float = 1e-5
+    """KLT's minimum-eigenvalue threshold (OpenCV ``minEigThreshold``); kept low because points
+    on a straight edge are ill-conditioned along it, which the snapping tolerates."""
+    fb_max_px: float = 1.0
+    """Forward-backward check: tracked forward and back, a point must return within this
+    distance of where it started, measured across the edge (along it KLT is free to slide)."""
+    snap_radius_px: float = 3.0
+    """A tracked point votes for the line whose edge point is nearest, if within this radius."""
+    min_votes: int = 3
+    """Fewest votes for a correspondence."""
+    min_vote_fraction: float = 0.25
+    """Fewest votes as a share of the line's samples."""
+    max_normal_step_deg: float = 10.0
+    """Largest angle between the NVs of a line in consecutive frames."""
+    merge_angle_deg: float = 0.5
+    """Two pieces whose NVs agree within this angle are one line (one track)."""
+    min_track_frames: int = 3
+    """Tracks seen in fewer frames are dropped."""
+
+
+@dataclass(frozen=True)
+class TrackedObservations:
+    """All observations of all tracks, flat (the tracker's output before ``LineTracks``).
+
+    Attributes:
+        track: ``(K,)`` track index 0..M-1, sorted by (track, frame).
+        frame: ``(K,)`` processed-frame index.
+        normal: ``(K, 3)`` unit NVs (camera frame of that frame).
+        endpoint_rays: ``(K, 2, 3)`` unit rays of the two ends of the observed piece.
+        support: ``(K,)`` number of edge points of the observed line.
+        line_index: ``(K,)`` index of the line in that frame's :class:`ExtractedLines`.
+        num_frames: number of processed frames.
+        matched: ``(F,)`` lines of frame f that continued a track from frame f-1.
+        started: ``(F,)`` lines of frame f that started a new track.
+        ended: ``(F,)`` tracks of frame f-1 that found no partner in frame f.
+    """
+
+    track: IntArray
+    frame: IntArray
+    normal: FloatArray
+    endpoint_rays: FloatArray
+    support: IntArray
+    line_index: IntArray
+    num_frames: int
+    matched: IntArray
+    started: IntArray
+    ended: IntArray
+
+    @property
+    def num_tracks(self) -> int:
+        return int(self.track.max()) + 1 if len(self.track) else 0
+
+
+def _unsigned_angle_deg(a: FloatArray, b: FloatArray) -> FloatArray:
+    c = np.abs(np.einsum("nk,nk->n", a, b))
+    return np.degrees(np.arccos(np.clip(c, 0.0, 1.0)))
+
+
+class LineTracker:
+    """Feed frames in order with :meth:`add_frame`; :meth:`finish` returns the tracks."""
+
+    def __init__(self, options: TrackingOptions | None = None) -> None:
+        self.options = options or TrackingOptions()
+        o = self.options
+        self._win = (int(o.klt_window), int(o.klt_window))
+        self._criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.01)
+        self._prev_pyr: np.ndarray | None = None
+        self._prev_lines: ExtractedLines | None = None
+        self._prev_track: IntArray = np.zeros(0, np.int64)
+        self._next_id = 0
+        self._parent: dict[int, int] = {}
+        self._frame = 0
+        self._obs: list[tuple[IntArray, int, ExtractedLines]] = []
+        self._matched: list[int] = []
+        self._started: list[int] = []
+        self._ended: list[int] = []
+
+    # -- public ---------------------------------------------------------------------------
+    def add_frame(self, image: np.ndarray, lines: ExtractedLines) -> IntArray:
+        """Track into this frame (8-bit grey ``image`` and its lines). Returns ``(L,)`` the
+        (provisional) track id of each line."""
+        pyr = np.ascontiguousarray(image)
+        nl = lines.num_lines
+        track = np.full(nl, -1, np.int64)
+        if self._prev_lines is not None and self._prev_pyr is not None and nl \
+                and self._prev_lines.num_lines:
+            track = self._associate(self._prev_pyr, pyr, self._prev_lines, lines)
+            n_matched = int((track >= 0).sum())
+            self._ended.append(int(len(np.setdiff1d(self._prev_track, track))))
+        else:
+            n_matched = 0
+            self._ended.append(len(self._prev_track))
+        new = track < 0
+        track[new] = self._next_id + np.arange(int(new.sum()))
+        self._next_id += int(new.sum())
+        self._matched.append(n_matched)
+        self._started.append(int(new.sum()))
+        self._obs.append((track.copy(), self._frame, lines))
+        self._prev_pyr, self._prev_lines, self._prev_track = pyr, lines, track
+        self._frame += 1
+        return track
+
+    def skip_frame(self) -> None:
+        """A frame that could not be read: nothing observed; tracking bridges it."""
+        self._matched.append(0)
+        self._started.append(0)
+        self._ended.append(0)
+        self._frame += 1
+
+    def finish(self) -> TrackedObservations:
+        """Merge joined tracks, keep one observation per (track, frame), drop short tracks,
+        and number tracks 0..M-1 in order of their first frame."""
+        o = self.options
+        if not self._obs:
+            z = np.zeros(0, np.int64)
+            return TrackedObservations(z, z, np.zeros((0, 3)), np.zeros((0, 2, 3)), z, z,
+                                       self._frame, np.asarray(self._matched, np.int64),
+                                       np.asarray(self._started, np.int64),
+                                       np.asarray(self._ended, np.int64))
+        tr = np.concatenate([self._root_many(t) for t, _, _ in self._obs])
+        fr = np.concatenate([np.full(len(t), f) for t, f, _ in self._obs])
+        li = np.concatenate([np.arange(len(t)) for t, _, _ in self._obs])
+        nrm = np.concatenate([ln.normals for _, _, ln in self._obs]).reshape(-1, 3)
+        ends = np.concatenate([ln.endpoint_rays for _, _, ln in self._obs]).reshape(-1, 2, 3)
+        sup = np.concatenate([ln.num_support for _, _, ln in self._obs]).astype(np.int64)
+        # one observation per (track, frame): the best supported
+        order = np.lexsort((-sup, fr, tr))
+        tr, fr, li, nrm, ends, sup = (a[order] for a in (tr, fr, li, nrm, ends, sup))
+        first = np.ones(len(tr), bool)
+        first[1:] = (tr[1:] != tr[:-1]) | (fr[1:] != fr[:-1])
+        tr, fr, li, nrm, ends, sup = (a[first] for a in (tr, fr, li, nrm, ends, sup))
+        _, tidx, nfr = np.unique(tr, return_inverse=True, return_counts=True)
+        keep = nfr[tidx] >= o.min_track_frames
+        tr, fr, li, nrm, ends, sup = (a[keep] for a in (tr, fr, li, nrm, ends, sup))
+        # renumber by first frame, then by old id
+        uniq, tidx = np.unique(tr, return_inverse=True)
+        first_frame = np.full(len(uniq), np.iinfo(np.int64).max)
+        np.minimum.at(first_frame, tidx, fr)
+        rank = np.empty(len(uniq), np.int64)
+        rank[np.lexsort((uniq, first_frame))] = np.arange(len(uniq))
+        tr = rank[tidx]
+        order = np.lexsort((fr, tr))
+        return TrackedObservations(
+            track=tr[order], frame=fr[order], normal=np.asarray(nrm[order], np.float64),
+            endpoint_rays=np.asarray(ends[order], np.float64),
+            support=sup[order], line_index=li[order], num_frames=self._frame,
+            matched=np.asarray(self._matched, np.int64),
+            started=np.asarray(self._started, np.int64), ended=np.asarray(self._ended, np.int64))
+
+    # -- internals ------------------------------------------------------------------------
+    def _root(self, t: int) -> int:
+        p = self._parent
+        while p.get(t, t) != t:
+            p[t] = p.get(p[t], p[t])
+            t = p[t]
+        return t
+
+    def _root_many(self, t: IntArray) -> IntArray:
+        return np.array([self._root(int(x)) for x in t], np.int64) if self._parent else t
+
+    def _union(self, a: int, b: int) -> None:
+        ra, rb = self._root(a), self._root(b)
+        if ra != rb:
+            self._parent[max(ra, rb)] = min(ra, rb)
+
+    def _samples(self, lines: ExtractedLines) -> tuple[FloatArray, FloatArray, IntArray,
+                                                        IntArray]:
+        """Points at constant intervals on each line: ``(S, 2)`` pixels, ``(S, 2)`` unit
+        tangents of the edge there, ``(S,)`` line index, ``(L,)`` samples per line."""
+        o = self.options
+        n = np.diff(lines.offsets)
+        step = np.maximum(o.sample_spacing_px, n / max(1, o.max_samples_per_line))
+        k = np.maximum(1, np.floor(n / step)).astype(np.int64)
+        line = np.repeat(np.arange(len(n)), k)
+        within = np.arange(len(line)) - np.repeat(np.cumsum(k) - k, k)
+        pos = lines.offsets[line] + ((within + 0.5) * n[line] / k[line]).astype(np.int64)
+        lo = np.maximum(pos - 2, lines.offsets[line])
+        hi = np.minimum(pos + 2, lines.offsets[line + 1] - 1)
+        tangent = lines.points_uv[hi] - lines.points_uv[lo]
+        tn = np.linalg.norm(tangent, axis=1, keepdims=True)
+        tangent = np.where(tn > 0, tangent / np.where(tn > 0, tn, 1.0), 0.0)
+        return lines.points_uv[pos], tangent, line, k
+
+    def _associate(self, pyr0: np.ndarray, pyr1: np.ndarray, prev: ExtractedLines,
+                   cur: ExtractedLines) -> IntArray:
+        """Track ids for the lines of ``cur`` (-1 where a new track starts)."""
+        o = self.options
+        s0, tangent, owner, nsamp = self._samples(prev)
+        p0 = s0.astype(np.float32).reshape(-1, 1, 2)
+        kw = dict(winSize=self._win, maxLevel=o.klt_levels, criteria=self._criteria,
+                  minEigThreshold=o.klt_min_eig)
+        p1, st, _ = cv2.calcOpticalFlowPyrLK(pyr0, pyr1, p0, None, **kw)  # type: ignore[call-overload]
+        pb, st2, _ = cv2.calcOpticalFlowPyrLK(pyr1, pyr0, p1, None, **kw)  # type: ignore[call-overload]
+        ok = (st.ravel() > 0) & (st2.ravel() > 0)
+        # only the part across the edge counts: sliding along it (aperture) is harmless
+        back = (pb - p0).reshape(-1, 2)
+        ok &= np.abs(back[:, 0] * tangent[:, 1] - back[:, 1] * tangent[:, 0]) < o.fb_max_px
+        p1 = p1.reshape(-1, 2)
+        tree = cKDTree(cur.points_uv)
+        dist, nearest = tree.query(p1[ok], distance_upper_bound=o.snap_radius_px)
+        hit = np.isfinite(dist)
+        i = owner[ok][hit]
+        j = cur.line_of_point()[nearest[hit]]
+        n_cur = cur.num_lines
+        track = np.full(n_cur, -1, np.int64)
+        if len(i) == 0:
+            return track
+        pair, votes = np.unique(i * n_cur + j, return_counts=True)
+        pi, pj = pair // n_cur, pair % n_cur
+        need = np.maximum(o.min_votes, o.min_vote_fraction * nsamp[pi])
+        step = _unsigned_angle_deg(prev.normals[pi], cur.normals[pj])
+        good = (votes >= need) & (step <= o.max_normal_step_deg)
+        pi, pj, votes = pi[good], pj[good], votes[good]
+        if len(pi) == 0:
+            return track
+        # each previous line's best partner (most votes) ...
+        order = np.lexsort((-votes, pi))
+        first = np.ones(len(pi), bool)
+        first[1:] = pi[order][1:] != pi[order][:-1]
+        bi, bj, bv = pi[order][first], pj[order][first], votes[order][first]
+        # ... and each current line goes to the claimant with most votes
+        order = np.lexsort((-bv, bj))
+        win = np.ones(len(bj), bool)
+        win[1:] = bj[order][1:] != bj[order][:-1]
+        wi, wj = bi[order][win], bj[order][win]
+        track[wj] = self._prev_track[wi]
+        cos_m = np.cos(np.radians(o.merge_angle_deg))
+        # losers that are pieces of the winner's line: one track
+        winner_of = np.full(n_cur, -1, np.int64)
+        winner_of[wj] = wi
+        for li, lj in zip(bi[order][~win], bj[order][~win], strict=True):
+            w = winner_of[lj]
+            if abs(prev.normals[li] @ prev.normals[w]) > cos_m:
+                self._union(int(self._prev_track[li]), int(self._prev_track[w]))
+        # a second partner of a line with the same NV as the first: another piece, same track
+        partner = np.full(prev.num_lines, -1, np.int64)
+        partner[wi] = wj
+        for li, lj in zip(pi, pj, strict=True):
+            if track[lj] < 0 and partner[li] >= 0 and \
+                    abs(cur.normals[lj] @ cur.normals[partner[li]]) > cos_m:
+                track[lj] = self._prev_track[li]
+        return track

@@ -1,0 +1,195 @@
+"""Synthetic omnidirectional images of a box-shaped room with exact 3D line ground truth.
+
+A ray caster: every pixel's rays (``supersample`` x ``supersample`` sub-pixel rays, averaged for
+anti-aliasing) hit the inside of an axis-aligned box; each face has a grey level and may hold
+axis-aligned rectangles ("doors", "windows") of another grey. The straight edges of the picture
+are exactly the box edges and the rectangles' edges, returned as 3D segments.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from omni_sfm.cameras import CameraModel, EquirectangularCamera, HyperboloidCamera
+from omni_sfm.geometry import normalize
+
+
+def hyperboloid_camera() -> HyperboloidCamera:
+    """The paper-like 800x600 hyperboloid camera of the project's tests."""
+    return HyperboloidCamera(width=800, height=600, cx=400, cy=300, px=0.01, py=0.01, f=8,
+                             alpha=14, beta=19.4, inner_radius=48, outer_radius=290)
+
+
+def equirect_camera() -> EquirectangularCamera:
+    return EquirectangularCamera(width=1600, height=800)
+
+
+# world z up; the equirectangular camera's +Y is down and +Z its image centre
+EQUIRECT_WORLD_FROM_CAM = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+
+
+@dataclass(frozen=True)
+class Rect:
+    """An axis-aligned rectangle on face ``(axis, side)``: ``side`` 0 = the box's low face."""
+
+    axis: int
+    side: int
+    lo: tuple[float, float]  # low corner in the face's two other axes (ascending axis order)
+    hi: tuple[float, float]
+    grey: float
+
+
+@dataclass(frozen=True)
+class Room:
+    lo: tuple[float, float, float] = (-2.0, -1.5, -1.2)
+    hi: tuple[float, float, float] = (3.0, 1.5, 1.3)
+    greys: tuple[float, ...] = (110.0, 160.0, 90.0, 185.0, 60.0, 215.0)  # -x +x -y +y -z +z
+    rects: tuple[Rect, ...] = field(default_factory=lambda: (
+        Rect(0, 1, (-0.5, -1.2), (0.4, 0.9), 40.0),     # door, far wall
+        Rect(1, 0, (-1.0, -1.2), (-0.1, 0.8), 230.0),   # door, right wall
+        Rect(1, 1, (0.5, -0.2), (1.8, 0.7), 30.0),      # window, left wall
+        Rect(1, 0, (1.0, -0.3), (2.2, 0.6), 200.0),     # window, right wall
+        Rect(0, 0, (-0.8, -0.4), (0.6, 0.5), 215.0),    # picture, back wall
+        Rect(2, 0, (-1.0, -0.6), (1.5, 0.6), 120.0),    # carpet
+    ))
+
+    def segments(self) -> np.ndarray:
+        """``(S, 2, 3)`` the 3D straight edges of the rendered picture (world)."""
+        lo, hi = np.array(self.lo), np.array(self.hi)
+        segs = []
+        for a in range(3):  # box edges parallel to axis a
+            b, c = [k for k in range(3) if k != a]
+            for vb in (lo[b], hi[b]):
+                for vc in (lo[c], hi[c]):
+                    p, q = np.zeros(3), np.zeros(3)
+                    p[a], q[a] = lo[a], hi[a]
+                    p[b] = q[b] = vb
+                    p[c] = q[c] = vc
+                    segs.append((p, q))
+        for r in self.rects:
+            b, c = [k for k in range(3) if k != r.axis]
+            w = (lo if r.side == 0 else hi)[r.axis]
+            corners = []
+            for vb, vc in ((r.lo[0], r.lo[1]), (r.hi[0], r.lo[1]), (r.hi[0], r.hi[1]),
+                           (r.lo[0], r.hi[1])):
+                p = np.zeros(3)
+                p[r.axis], p[b], p[c] = w, vb, vc
+                corners.append(p)
+            for k in range(4):
+                segs.append((corners[k], corners[(k + 1) % 4]))
+        return np.array(segs)
+
+    def line_ids(self) -> np.ndarray:
+        """``(S,)`` one id per distinct infinite 3D line: segments lying on one line (a door's
+        bottom edge on the floor's edge) share the id of the first of them."""
+        seg = self.segments()
+        d = normalize(seg[:, 1] - seg[:, 0])
+        ids = np.arange(len(seg))
+        for i in range(len(seg)):
+            for j in range(i):
+                off = seg[i, 0] - seg[j, 0]
+                if abs(d[i] @ d[j]) > 1 - 1e-9 and \
+                        np.linalg.norm(off - (off @ d[j]) * d[j]) < 1e-9:
+                    ids[i] = ids[j]
+                    break
+        return ids
+
+    def shade(self, origin: np.ndarray, dirs: np.ndarray) -> np.ndarray:
+        """Grey level seen along world rays ``dirs (N, 3)`` from ``origin`` inside the box."""
+        lo, hi = np.array(self.lo), np.array(self.hi)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            bound = np.where(dirs > 0, hi, lo)
+            tk = (bound - origin) / dirs
+        tk[~np.isfinite(tk) | (tk <= 0)] = np.inf
+        axis = np.argmin(tk, axis=1)
+        t = tk[np.arange(len(dirs)), axis]
+        side = (dirs[np.arange(len(dirs)), axis] > 0).astype(int)
+        hit = origin + t[:, None] * dirs
+        grey = np.asarray(self.greys)[2 * axis + side]
+        for r in self.rects:
+            b, c = [k for k in range(3) if k != r.axis]
+            on = (axis == r.axis) & (side == r.side)
+            on &= (hit[:, b] > r.lo[0]) & (hit[:, b] < r.hi[0])
+            on &= (hit[:, c] > r.lo[1]) & (hit[:, c] < r.hi[1])
+            grey = np.where(on, r.grey, grey)
+        return grey
+
+
+def subpixel_rays(camera: CameraModel, supersample: int) -> np.ndarray:
+    """``(H, W, s*s, 3)`` rays of the sub-pixel samples (NaN where invalid)."""
+    s = supersample
+    off = (np.arange(s) + 0.5) / s - 0.5
+    ou, ov = np.meshgrid(off, off)
+    v, u = np.mgrid[0 : camera.height, 0 : camera.width]
+    uu = (u[..., None] + ou.ravel()).ravel()
+    vv = (v[..., None] + ov.ravel()).ravel()
+    r = camera.rays_from_pixels(np.stack([uu, vv], 1))
+    return r.reshape(camera.height, camera.width, s * s, 3)
+
+
+def render(camera: CameraModel, room: Room, world_from_cam: np.ndarray, position: np.ndarray,
+           supersample: int = 3, rays: np.ndarray | None = None, background: float = 0.0,
+           noise: float = 0.0, seed: int = 0) -> np.ndarray:
+    """8-bit grey image of ``room`` from a camera at ``position`` with rotation
+    ``world_from_cam``; invalid pixels get ``background``. ``rays`` may pass a cached
+    :func:`subpixel_rays` table."""
+    if rays is None:
+        rays = subpixel_rays(camera, supersample)
+    h, w, ss, _ = rays.shape
+    flat = rays.reshape(-1, 3)
+    ok = np.isfinite(flat).all(axis=1)
+    grey = np.full(len(flat), np.nan)
+    grey[ok] = room.shade(np.asarray(position, float), flat[ok] @ np.asarray(world_from_cam).T)
+    g = grey.reshape(h, w, ss)
+    img = np.nanmean(np.where(np.isfinite(g), g, np.nan), axis=2) if ss > 1 else g[..., 0]
+    img = np.where(np.isfinite(img), img, background)
+    if noise > 0:
+        img = img + np.random.default_rng(seed).normal(0.0, noise, img.shape)
+    return np.clip(np.round(img), 0, 255).astype(np.uint8)
+
+
+def true_normals(segments: np.ndarray, world_from_cam: np.ndarray,
+                 position: np.ndarray) -> np.ndarray:
+    """``(S, 3)`` unit NVs in the camera frame of the 3D ``segments`` ``(S, 2, 3)``."""
+    p = (segments - position) @ np.asarray(world_from_cam)  # cam = R^T (x - t)
+    return normalize(np.cross(p[:, 0], p[:, 1]))
+
+
+def nv_errors_deg(normals: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per extracted normal: smallest unsigned angle (deg) to any true NV, and its index."""
+    if len(normals) == 0:
+        return np.zeros(0), np.zeros(0, int)
+    c = np.abs(normals @ truth.T)
+    best = np.argmax(c, axis=1)
+    ang = np.degrees(np.arccos(np.clip(c[np.arange(len(normals)), best], 0.0, 1.0)))
+    return ang, best
+
+
+def label_lines(lines, segments: np.ndarray, line_ids: np.ndarray, world_from_cam: np.ndarray,
+                position: np.ndarray, max_deg: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
+    """True line id of each extracted line (-1 if none) and the NV error (deg) to it.
+
+    A line matches a segment if their NVs agree within ``max_deg`` and the extracted line's
+    middle point lies on the segment's arc (within 1 deg), so coplanar segments are told apart.
+    """
+    nl = lines.num_lines
+    if nl == 0:
+        return np.zeros(0, int), np.zeros(0)
+    tn = true_normals(segments, world_from_cam, position)
+    c = np.abs(lines.normals @ tn.T)
+    ang = np.degrees(np.arccos(np.clip(c, 0.0, 1.0)))  # (L, S)
+    mid = lines.point_rays[(lines.offsets[:-1] + lines.offsets[1:]) // 2]
+    p = (segments - position) @ np.asarray(world_from_cam)
+    a, b = normalize(p[:, 0]), normalize(p[:, 1])
+    n = normalize(np.cross(a, b))
+    s1 = np.einsum("lsk,sk->ls", np.cross(a[None], mid[:, None]), n)
+    s2 = np.einsum("lsk,sk->ls", np.cross(mid[:, None], b[None]), n)
+    tol = np.sin(np.radians(1.0))
+    inside = (s1 > -tol) & (s2 > -tol)
+    cost = np.where(inside & (ang < max_deg), ang, np.inf)
+    best = np.argmin(cost, axis=1)
+    err = cost[np.arange(nl), best]
+    lab = np.where(np.isfinite(err), line_ids[best], -1)
+    return lab, np.where(np.isfinite(err), err, ang.min(axis=1))
