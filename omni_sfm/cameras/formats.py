@@ -77,8 +77,10 @@ def read_opencv_storage(path: Path) -> dict[str, Any]:
 
     try:
         fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
-    except cv2.error as exc:
-        msg = str(exc).strip().splitlines()[-1] if str(exc).strip() else "parse error"
+    except (cv2.error, SystemError) as exc:
+        # cv2 reports parse errors as cv2.error (or SystemError wrapping it): keep one line
+        lines = [ln for ln in str(exc).splitlines() if "error:" in ln] or ["parse error"]
+        msg = lines[-1].split("error:", 1)[-1].strip()
         raise OmniSfmError(f"{path}: not a readable OpenCV FileStorage file: {msg}") from None
     try:
         if not fs.isOpened():

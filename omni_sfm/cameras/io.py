@@ -121,7 +121,7 @@ def camera_dict_from_file(path: Path | str) -> dict[str, Any]:
     path = Path(path)
     text = _read_text(path)
     head = text.lstrip()[:200]
-    if head.startswith("%YAML:1") or "<opencv_storage>" in head:
+    if head.startswith("%YAML:1") or "<opencv_storage>" in head or "!!opencv-matrix" in text:
         return formats.read_opencv_storage(path)
     if formats.OCAM_MARKER in text.lower():
         return formats.read_ocamcalib(path, text)
@@ -130,6 +130,8 @@ def camera_dict_from_file(path: Path | str) -> dict[str, Any]:
     data = _parse_yaml(path, text)
     if isinstance(data, dict) and "model" in data:
         return data
+    if isinstance(data, dict) and ("K" in data or "camera_matrix" in data):
+        return formats.read_opencv_storage(path)
     if isinstance(data, dict) and (
         "camera_model" in data
         or any(isinstance(v, dict) and "camera_model" in v for v in data.values())
