@@ -151,7 +151,8 @@ _AMBIENT_DIR = np.array([0.32, 0.55, 0.77]) / np.linalg.norm([0.32, 0.55, 0.77])
 _FALLOFF = 1.0  # m: irradiance = power * cos / (d^2 + _FALLOFF^2)
 _TEX_WAVELENGTHS = (0.55, 0.23, 0.1, 0.045)  # m
 _TEX_WEIGHTS = (0.45, 0.3, 0.17, 0.08)
-_TEX_AMPLITUDE = 0.45
+_TEX_AMPLITUDE = 0.3
+_TEX_SPOTS = ((0.3, 0.1, 0.3), (0.12, 0.12, 0.33))  # cell size (m), radius range (cells)
 _TEX_TABLE = 256
 
 
@@ -180,7 +181,8 @@ class Renderer:
         self.light_pos = scene.light_positions
         self.light_power = scene.light_power
         rng = np.random.default_rng([o.seed, 9120])
-        self.tex_tables = rng.random((len(_TEX_WAVELENGTHS), _TEX_TABLE, _TEX_TABLE))
+        self.tex_tables = rng.random(
+            (len(_TEX_WAVELENGTHS) + len(_TEX_SPOTS), _TEX_TABLE, _TEX_TABLE))
         self.tex_offsets = rng.uniform(0, 50.0, size=(len(MATERIAL_ALBEDO), 3, 2))
 
     def _subpixel_rays(self) -> FloatArray:
@@ -255,9 +257,11 @@ class Renderer:
         val = np.zeros(len(pts), dtype=np.float64)
         for k, (lam, w) in enumerate(zip(_TEX_WAVELENGTHS, _TEX_WEIGHTS, strict=True)):
             val += w * _value_noise(uv / lam, self.tex_tables[k])
-        # val in [0, 1], mean 0.5; a contrast curve makes blotches with defined borders
-        f = np.tanh(4.0 * (val - 0.5))
-        factor = 1.0 + _TEX_AMPLITUDE * f
+        # soft blotches (val in [0, 1], mean 0.5) plus sharp spots: the spots make point
+        # features that are well localised at every image scale
+        factor = 1.0 + _TEX_AMPLITUDE * np.tanh(3.0 * (val - 0.5))
+        for k, (cell, rmin, rmax) in enumerate(_TEX_SPOTS):
+            factor *= _spots(uv / cell, self.tex_tables[len(_TEX_WAVELENGTHS) + k], rmin, rmax)
         return np.where(MATERIAL_TEXTURED[mat], factor, 1.0).astype(np.float32)
 
     def render(self, world_from_cam: FloatArray, position: FloatArray,
@@ -285,6 +289,59 @@ class Renderer:
         return np.asarray(self.cast(world_from_cam, position, r)["t_hit"], dtype=np.float64)
 
 
+@dataclass(frozen=True)
+class LineSamples:
+    """Points of the true 3D segments that a frame sees, and their pixels.
+
+    Attributes:
+        uv: ``(M, 2)`` pixels (OpenCV convention) of the visible sample points.
+        segment: ``(M,)`` index of the segment (into the scene's ``lines``) of each point.
+        points: ``(M, 3)`` the sample points (world, metres).
+    """
+
+    uv: FloatArray
+    segment: np.ndarray
+    points: FloatArray
+
+
+def visible_line_samples(renderer: Renderer, world_from_cam: FloatArray, position: FloatArray,
+                         *, spacing: float = 0.01, mask_margin_px: int = 4,
+                         occlusion_tol: float = 0.03) -> LineSamples:
+    """Sample the scene's true segments every ``spacing`` metres and keep the points this
+    camera pose sees: imaged by the model, at least ``mask_margin_px`` inside the valid mask
+    (and the image), and not occluded (the ray to the point hits nothing more than
+    ``occlusion_tol`` metres before it). Segment endpoints are left out."""
+    import cv2
+
+    cam = renderer.camera
+    lines = renderer.scene.lines
+    seg_len = lines.lengths
+    counts = np.maximum(2, np.ceil(seg_len / spacing).astype(np.int64)) - 1
+    seg = np.repeat(np.arange(len(lines)), counts)
+    # parameter of each point along its segment, strictly inside (0, 1)
+    first = np.cumsum(counts) - counts
+    k = np.arange(len(seg)) - first[seg] + 1
+    a = (k / (counts[seg] + 1))[:, None]
+    pts = lines.starts[seg] + a * (lines.ends[seg] - lines.starts[seg])
+    R = np.asarray(world_from_cam, dtype=np.float64)
+    rays = (pts - np.asarray(position, dtype=np.float64)) @ R
+    dist = np.linalg.norm(rays, axis=1)
+    uv = cam.pixels_from_rays(rays)
+    ok = np.isfinite(uv).all(axis=1) & (dist > 1e-6)
+    mask: np.ndarray = renderer.mask.astype(np.uint8)
+    if mask_margin_px > 0:
+        ker = np.ones((2 * mask_margin_px + 1, 2 * mask_margin_px + 1), np.uint8)
+        mask = np.asarray(cv2.erode(mask, ker, borderType=cv2.BORDER_CONSTANT, borderValue=0))
+    ui = np.rint(np.where(ok[:, None], uv, -1)).astype(np.int64)
+    ok &= (ui[:, 0] >= 0) & (ui[:, 0] < cam.width) & (ui[:, 1] >= 0) & (ui[:, 1] < cam.height)
+    idx = np.flatnonzero(ok)
+    ok[idx] = mask[ui[idx, 1], ui[idx, 0]] > 0
+    idx = np.flatnonzero(ok)
+    hit = renderer.depth_along_rays(R, position, rays[idx])
+    ok[idx] = hit > dist[idx] - occlusion_tol
+    return LineSamples(uv[ok], seg[ok], pts[ok])
+
+
 def _value_noise(uv: FloatArray, table: FloatArray) -> FloatArray:
     """2D value noise in [0, 1] with quintic interpolation; ``uv`` in lattice units."""
     m = table.shape[0] - 1
@@ -300,6 +357,26 @@ def _value_noise(uv: FloatArray, table: FloatArray) -> FloatArray:
     top = a + (b - a) * w[:, 0]
     bot = c + (d - c) * w[:, 0]
     return np.asarray(top + (bot - top) * w[:, 1])
+
+
+def _spots(uv: FloatArray, table: FloatArray, rmin: float, rmax: float) -> FloatArray:
+    """Albedo factor of one random disc per lattice cell (``uv`` in cell units): radius in
+    ``[rmin, rmax]`` cells, dark (x0.35) or light (x1.6), from the hashed ``table``."""
+    m = table.shape[0] - 1
+    f = np.floor(uv)
+    fr = uv - f
+    i = f.astype(np.int64) & m
+    h = table[i[:, 0], i[:, 1]]
+    # derive the disc's parameters from the single hash value of the cell
+    h2 = (h * 7919.0) % 1.0
+    h3 = (h * 104729.0) % 1.0
+    h4 = (h * 1299709.0) % 1.0
+    r = rmin + (rmax - rmin) * h
+    cx = r + (1 - 2 * r) * h2
+    cy = r + (1 - 2 * r) * h3
+    dist = np.hypot(fr[:, 0] - cx, fr[:, 1] - cy)
+    inside = dist < r
+    return np.where(inside, np.where(h4 < 0.5, 0.35, 1.6), 1.0)
 
 
 @dataclass(frozen=True, kw_only=True)
