@@ -76,6 +76,7 @@ class TrackedObservations:
         normal: ``(K, 3)`` unit NVs (camera frame of that frame).
         endpoint_rays: ``(K, 2, 3)`` unit rays of the two ends of the observed piece.
         support: ``(K,)`` number of edge points of the observed line.
+        arc_deg: ``(K,)`` angle the observed piece subtends at the viewpoint, degrees.
         line_index: ``(K,)`` index of the line in that frame's :class:`ExtractedLines`.
         num_frames: number of processed frames.
         matched: ``(F,)`` lines of frame f that continued a track from frame f-1.
@@ -88,6 +89,7 @@ class TrackedObservations:
     normal: FloatArray
     endpoint_rays: FloatArray
     support: IntArray
+    arc_deg: FloatArray
     line_index: IntArray
     num_frames: int
     matched: IntArray
@@ -161,37 +163,45 @@ class LineTracker:
         o = self.options
         if not self._obs:
             z = np.zeros(0, np.int64)
-            return TrackedObservations(z, z, np.zeros((0, 3)), np.zeros((0, 2, 3)), z, z,
+            return TrackedObservations(z, z, np.zeros((0, 3)), np.zeros((0, 2, 3)), z,
+                                       np.zeros(0), z,
                                        self._frame, np.asarray(self._matched, np.int64),
                                        np.asarray(self._started, np.int64),
                                        np.asarray(self._ended, np.int64))
-        tr = np.concatenate([self._root_many(t) for t, _, _ in self._obs])
-        fr = np.concatenate([np.full(len(t), f) for t, f, _ in self._obs])
-        li = np.concatenate([np.arange(len(t)) for t, _, _ in self._obs])
-        nrm = np.concatenate([ln.normals for _, _, ln in self._obs]).reshape(-1, 3)
-        ends = np.concatenate([ln.endpoint_rays for _, _, ln in self._obs]).reshape(-1, 2, 3)
-        sup = np.concatenate([ln.num_support for _, _, ln in self._obs]).astype(np.int64)
+        c: dict[str, np.ndarray] = {
+            "tr": np.concatenate([self._root_many(t) for t, _, _ in self._obs]),
+            "fr": np.concatenate([np.full(len(t), f) for t, f, _ in self._obs]),
+            "li": np.concatenate([np.arange(len(t)) for t, _, _ in self._obs]),
+            "nrm": np.concatenate([ln.normals for _, _, ln in self._obs]).reshape(-1, 3),
+            "ends": np.concatenate([ln.endpoint_rays for _, _, ln in self._obs]
+                                   ).reshape(-1, 2, 3),
+            "sup": np.concatenate([ln.num_support for _, _, ln in self._obs]).astype(np.int64),
+            "arc": np.concatenate([ln.arc_deg for _, _, ln in self._obs]).astype(np.float64),
+        }
+
+        def take(sel: np.ndarray) -> None:
+            for k in c:
+                c[k] = c[k][sel]
+
         # one observation per (track, frame): the best supported
-        order = np.lexsort((-sup, fr, tr))
-        tr, fr, li, nrm, ends, sup = (a[order] for a in (tr, fr, li, nrm, ends, sup))
+        take(np.lexsort((-c["sup"], c["fr"], c["tr"])))
+        tr, fr = c["tr"], c["fr"]
         first = np.ones(len(tr), bool)
         first[1:] = (tr[1:] != tr[:-1]) | (fr[1:] != fr[:-1])
-        tr, fr, li, nrm, ends, sup = (a[first] for a in (tr, fr, li, nrm, ends, sup))
-        _, tidx, nfr = np.unique(tr, return_inverse=True, return_counts=True)
-        keep = nfr[tidx] >= o.min_track_frames
-        tr, fr, li, nrm, ends, sup = (a[keep] for a in (tr, fr, li, nrm, ends, sup))
+        take(first)
+        _, tidx, nfr = np.unique(c["tr"], return_inverse=True, return_counts=True)
+        take(nfr[tidx] >= o.min_track_frames)
         # renumber by first frame, then by old id
-        uniq, tidx = np.unique(tr, return_inverse=True)
+        uniq, tidx = np.unique(c["tr"], return_inverse=True)
         first_frame = np.full(len(uniq), np.iinfo(np.int64).max)
-        np.minimum.at(first_frame, tidx, fr)
+        np.minimum.at(first_frame, tidx, c["fr"])
         rank = np.empty(len(uniq), np.int64)
         rank[np.lexsort((uniq, first_frame))] = np.arange(len(uniq))
-        tr = rank[tidx]
-        order = np.lexsort((fr, tr))
+        c["tr"] = rank[tidx]
+        take(np.lexsort((c["fr"], c["tr"])))
         return TrackedObservations(
-            track=tr[order], frame=fr[order], normal=np.asarray(nrm[order], np.float64),
-            endpoint_rays=np.asarray(ends[order], np.float64),
-            support=sup[order], line_index=li[order], num_frames=self._frame,
+            track=c["tr"], frame=c["fr"], normal=c["nrm"], endpoint_rays=c["ends"],
+            support=c["sup"], arc_deg=c["arc"], line_index=c["li"], num_frames=self._frame,
             matched=np.asarray(self._matched, np.int64),
             started=np.asarray(self._started, np.int64), ended=np.asarray(self._ended, np.int64))
 

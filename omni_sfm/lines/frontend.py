@@ -1,0 +1,177 @@
+"""The front end: frames -> straight lines -> line tracks (METHOD.md §2).
+
+``track_lines(frames, camera, options, mask)`` extracts the lines of every frame
+(:mod:`omni_sfm.lines.extract`), tracks them from frame to frame (:mod:`omni_sfm.lines.track`)
+and returns a :class:`FrontEndResult` whose ``tracks`` (:class:`LineTracks`) the parallel-line
+detection and the estimator consume. Frames come from :func:`omni_sfm.lines.video.read_frames`
+or any iterable of ``(index, timestamp, image)``.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+from omni_sfm.cameras.base import CameraModel
+from omni_sfm.errors import OmniSfmError
+from omni_sfm.geometry import FloatArray
+from omni_sfm.lines.extract import ExtractionOptions, LineExtractor
+from omni_sfm.lines.track import LineTracker, TrackingOptions
+from omni_sfm.lines.tracks import LineTracks, make_tracks
+from omni_sfm.lines.video import to_gray
+
+IntArray = np.ndarray
+
+
+@dataclass(frozen=True, kw_only=True)
+class FrontEndOptions:
+    """Options of :func:`track_lines`."""
+
+    extraction: ExtractionOptions = field(default_factory=ExtractionOptions)
+    """Line extraction (per frame)."""
+    tracking: TrackingOptions = field(default_factory=TrackingOptions)
+    """Frame-to-frame tracking."""
+    progress: bool = True
+    """Show a progress bar on stderr."""
+
+
+@dataclass(frozen=True)
+class FrontEndResult:
+    """Line tracks of a sequence and what it took to get them.
+
+    Attributes:
+        tracks: the observations (``F`` = frames read; timestamps from the source).
+        obs_endpoint_rays: ``(K, 2, 3)`` unit rays of the ends of each observation (aligned with
+            ``tracks.obs_*``), for drawing.
+        obs_support: ``(K,)`` edge points of each observation.
+        obs_arc_deg: ``(K,)`` angle each observation subtends at the viewpoint, degrees.
+        frame_numbers: ``(F,)`` index of each frame in the source (image or video frame).
+        lines_extracted: ``(F,)`` lines found per frame.
+        segments_rejected: ``(F,)`` edge segments that failed the straightness test, per frame.
+        lines_continued: ``(F,)`` lines that continued a track from the previous frame.
+        tracks_started: ``(F,)`` lines that started a new track.
+        timings_ms: per-frame milliseconds of each stage: ``read``, ``extract``, ``track``
+            (``(F,)`` each) and ``finish`` (one value).
+        frames_skipped: source indices of frames that could not be decoded.
+    """
+
+    tracks: LineTracks
+    obs_endpoint_rays: FloatArray
+    obs_support: IntArray
+    obs_arc_deg: FloatArray
+    frame_numbers: IntArray
+    lines_extracted: IntArray
+    segments_rejected: IntArray
+    lines_continued: IntArray
+    tracks_started: IntArray
+    timings_ms: dict[str, FloatArray]
+    frames_skipped: tuple[int, ...]
+
+    def track_lengths(self) -> IntArray:
+        """``(M,)`` frames each track is seen in."""
+        return np.bincount(self.tracks.obs_track, minlength=self.tracks.num_tracks)
+
+    def track_mean_support(self) -> FloatArray:
+        """``(M,)`` mean edge-point support of each track's observations."""
+        n = np.maximum(self.track_lengths(), 1)
+        return np.bincount(self.tracks.obs_track, weights=self.obs_support,
+                           minlength=self.tracks.num_tracks) / n
+
+    def summary(self) -> dict[str, Any]:
+        """Counts and median timings, as plain numbers (for ``report.json``)."""
+        lengths = self.track_lengths()
+        t = self.timings_ms
+
+        def med(a: np.ndarray) -> float:
+            return float(np.median(a)) if len(a) else 0.0
+
+        return {
+            "frames": int(self.tracks.num_frames),
+            "frames_skipped": list(self.frames_skipped),
+            "tracks": int(self.tracks.num_tracks),
+            "observations": int(self.tracks.num_observations),
+            "track_length_frames": {
+                "median": med(lengths), "min": int(lengths.min()) if len(lengths) else 0,
+                "max": int(lengths.max()) if len(lengths) else 0},
+            "lines_per_frame_median": med(self.lines_extracted),
+            "lines_extracted_total": int(self.lines_extracted.sum()),
+            "segments_rejected_total": int(self.segments_rejected.sum()),
+            "lines_continued_per_frame_median": med(self.lines_continued[1:]),
+            "tracks_started_total": int(self.tracks_started.sum()),
+            "timings_ms_per_frame_median": {k: med(v) for k, v in t.items() if k != "finish"},
+            "timings_ms_total": {k: float(np.sum(v)) for k, v in t.items()},
+        }
+
+
+def track_lines(frames: Iterable[tuple[int, float, np.ndarray]], camera: CameraModel,
+                options: FrontEndOptions | None = None,
+                mask: np.ndarray | None = None) -> FrontEndResult:
+    """Extract and track the straight lines of a frame sequence.
+
+    Args:
+        frames: ``(index, timestamp, image)`` in order, e.g. a
+            :class:`~omni_sfm.lines.video.FrameSource`; its ``skipped`` list (if any) is
+            reported in ``frames_skipped``.
+        camera: the calibrated camera; images must be ``camera.width x camera.height``.
+        options: extraction/tracking options.
+        mask: optional ``(H, W)`` array, nonzero where the image may be used.
+    """
+    o = options or FrontEndOptions()
+    extractor = LineExtractor(camera, o.extraction, mask)
+    tracker = LineTracker(o.tracking)
+    numbers: list[int] = []
+    stamps: list[float] = []
+    n_lines: list[int] = []
+    n_rej: list[int] = []
+    t_read: list[float] = []
+    t_ext: list[float] = []
+    t_trk: list[float] = []
+    total = len(frames) if hasattr(frames, "__len__") else None  # type: ignore[arg-type]
+    it = iter(frames)
+    with tqdm(total=total, desc="lines", unit="frame", disable=not o.progress,
+              leave=False) as bar:
+        while True:
+            t0 = time.perf_counter()
+            try:
+                number, stamp, image = next(it)
+            except StopIteration:
+                break
+            t1 = time.perf_counter()
+            gray = to_gray(image)
+            lines = extractor.extract(gray)
+            t2 = time.perf_counter()
+            tracker.add_frame(gray, lines)
+            t3 = time.perf_counter()
+            numbers.append(int(number))
+            stamps.append(float(stamp))
+            n_lines.append(lines.num_lines)
+            n_rej.append(lines.num_rejected)
+            t_read.append(t1 - t0)
+            t_ext.append(t2 - t1)
+            t_trk.append(t3 - t2)
+            bar.update(1)
+            bar.set_postfix(lines=lines.num_lines, refresh=False)
+    if not numbers:
+        raise OmniSfmError("no frames could be read (nothing to track)")
+    t4 = time.perf_counter()
+    obs = tracker.finish()
+    ids = np.arange(obs.num_tracks)
+    tracks = make_tracks(len(numbers), ids, obs.track, obs.frame, obs.normal,
+                         np.asarray(stamps), source="front end")
+    t5 = time.perf_counter()
+    skipped = tuple(int(s) for s in getattr(frames, "skipped", ()))
+    ms = 1000.0
+    return FrontEndResult(
+        tracks=tracks, obs_endpoint_rays=obs.endpoint_rays, obs_support=obs.support,
+        obs_arc_deg=obs.arc_deg, frame_numbers=np.asarray(numbers, np.int64),
+        lines_extracted=np.asarray(n_lines, np.int64),
+        segments_rejected=np.asarray(n_rej, np.int64), lines_continued=obs.matched,
+        tracks_started=obs.started,
+        timings_ms={"read": ms * np.asarray(t_read), "extract": ms * np.asarray(t_ext),
+                    "track": ms * np.asarray(t_trk), "finish": np.asarray([ms * (t5 - t4)])},
+        frames_skipped=skipped)
