@@ -297,11 +297,19 @@ class CameraModel(ABC):
 
     @cached_property
     def _grid_rays(self) -> FloatArray:
-        v, u = np.mgrid[0 : self.height, 0 : self.width].astype(np.float64)
-        uv = np.stack([u.ravel(), v.ravel()], axis=1)
-        rays = self.rays_from_pixels(uv).reshape(self.height, self.width, 3)
-        rays.flags.writeable = False
-        return rays
+        # block by image rows: the pixel coordinates of one block are built in the cache too
+        h, w = self.height, self.width
+        rows = max(1, BLOCK_ROWS // w)
+        out = np.empty((h, w, 3), dtype=np.float64)
+        uv = np.empty((rows * w, 2), dtype=np.float64)
+        uv[:, 0] = np.tile(np.arange(w, dtype=np.float64), rows)
+        row_of = np.repeat(np.arange(rows, dtype=np.float64), w)
+        for v0 in range(0, h, rows):
+            n = min(rows, h - v0)
+            np.add(row_of[: n * w], v0, out=uv[: n * w, 1])
+            out[v0 : v0 + n] = self._rays_block(uv[: n * w]).reshape(n, w, 3)
+        out.flags.writeable = False
+        return out
 
     @cached_property
     def _valid(self) -> np.ndarray:

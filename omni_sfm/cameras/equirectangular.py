@@ -10,6 +10,15 @@ from omni_sfm.cameras.base import CameraModel, ColmapExport, colmap_export_plain
 from omni_sfm.geometry import FloatArray
 
 
+def _sin_cos(a: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """``(sin a, cos a)`` for ``|a| <= pi`` via ``t = tan(a/2)`` (``a = +-pi`` gives ``t ~ 1e16``,
+    still exact to rounding)."""
+    t = np.tan(0.5 * a)
+    t2 = t * t
+    inv = 1.0 / (1.0 + t2)
+    return 2.0 * t * inv, (1.0 - t2) * inv
+
+
 @dataclass(frozen=True, kw_only=True)
 class EquirectangularCamera(CameraModel):
     """Longitude along ``u``, latitude along ``v``; COLMAP's axes and pixel convention.
@@ -29,11 +38,13 @@ class EquirectangularCamera(CameraModel):
         lat = uv[:, 1] + 0.5
         lat *= np.pi / self.height
         lat -= np.pi / 2.0
-        c = np.cos(lat)
+        # sin and cos from tan(angle/2): numpy's float64 tan is vectorised, sin/cos are not
+        sin_lon, cos_lon = _sin_cos(lon)
+        sin_lat, cos_lat = _sin_cos(lat)
         out = np.empty((len(uv), 3))
-        np.multiply(c, np.sin(lon), out=out[:, 0])
-        np.sin(lat, out=out[:, 1])
-        np.multiply(c, np.cos(lon), out=out[:, 2])
+        np.multiply(cos_lat, sin_lon, out=out[:, 0])
+        out[:, 1] = sin_lat
+        np.multiply(cos_lat, cos_lon, out=out[:, 2])
         return out
 
     def _pixels_block(self, rays: FloatArray) -> FloatArray:

@@ -74,16 +74,20 @@ class OpenCVFisheyeCamera(CameraModel):
         u, v = uv[:, 0], uv[:, 1]
         mx = (u - self.cx) / self.fx
         my = (v - self.cy) / self.fy
-        td = np.hypot(mx, my)
+        td = np.sqrt(mx * mx + my * my)
         theta = self._inverse(td)
         out = np.empty((len(uv), 3))
         with np.errstate(invalid="ignore", divide="ignore"):
-            s = np.sin(theta)
+            # sin and cos from tan(theta/2): numpy's float64 tan is vectorised, sin/cos are not
+            t = np.tan(0.5 * theta)
+            t2 = t * t
+            inv = 1.0 / (1.0 + t2)
+            s = 2.0 * t * inv
             s /= td
             s[td == 0] = 1.0
             np.multiply(mx, s, out=out[:, 0])
             np.multiply(my, s, out=out[:, 1])
-            np.cos(theta, out=out[:, 2])
+            np.multiply(1.0 - t2, inv, out=out[:, 2])
         ok = np.isfinite(theta)
         ok &= radius_ok(u, v, self.cx, self.cy, self.inner_radius, self.outer_radius)
         out[~ok] = np.nan

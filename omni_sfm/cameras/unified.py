@@ -122,7 +122,7 @@ class UnifiedCamera(CameraModel):
         NaN where it does not reproduce ``(xd, yd)`` or leaves the monotone domain."""
         k1, k2, p1, p2 = self.k1, self.k2, self.p1, self.p2
         with np.errstate(divide="ignore", invalid="ignore"):
-            rd = np.hypot(xd, yd)
+            rd = np.sqrt(xd * xd + yd * yd)
             s = self._radial_inverse(rd, clamp=True) / rd
             s[rd == 0] = 1.0
             x, y = xd * s, yd * s
