@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import pickle
 from pathlib import Path
 
 import numpy as np
@@ -127,6 +128,16 @@ def test_grid_rays_cached_and_consistent_with_valid_mask(name: str) -> None:
     np.testing.assert_array_equal(mask, np.isfinite(grid).all(axis=2))
     mask[:] = False  # a copy: the camera's cache is unaffected
     assert cam.valid_mask().any()
+
+
+def test_pickling_drops_the_caches() -> None:
+    cam = CAMERAS["opencv_fisheye"]
+    cam.pixel_grid_rays()
+    data = pickle.dumps(cam)
+    assert len(data) < 2000
+    again = pickle.loads(data)
+    assert again == cam
+    np.testing.assert_array_equal(again.pixel_grid_rays(), cam.pixel_grid_rays())
 
 
 def test_shapes_are_checked() -> None:

@@ -260,6 +260,11 @@ class CameraModel(ABC):
                 raise ValueError(f"key {key!r} must be a positive integer, got {val!r}")
         self._check()
 
+    def __getstate__(self) -> dict[str, Any]:
+        # pickle the parameters only, not the cached pixel grid (30 MB at 1600 x 800) and tables
+        names = {f.name for f in fields(self)}
+        return {k: v for k, v in self.__dict__.items() if k in names}
+
     def _check(self) -> None:  # noqa: B027 (optional hook, most models override it)
         """Raise ValueError naming the key if a parameter is out of its domain."""
 
