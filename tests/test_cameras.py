@@ -268,3 +268,12 @@ def test_constructor_rejects_bad_parameters(cls: type, kwargs: dict, key: str) -
         cls(width=10, height=10, **kwargs)
     with pytest.raises(ValueError, match="'width'"):
         EquirectangularCamera(width=0, height=10)
+    with pytest.raises(ValueError, match="'fx' must be a number"):
+        EUCMCamera(width=10, height=10, fx=[1.0, 2.0], fy=1, cx=0, cy=0, alpha=0.5, beta=1)
+
+
+def test_numpy_parameters_become_plain_numbers() -> None:
+    cam = OCamCamera(width=np.int64(20), height=10, cx=np.float32(5.5), cy=5.0,
+                     pol=np.array([-8.0, 0.0, 0.01]))
+    assert type(cam.width) is int and type(cam.cx) is float
+    assert cam.pol == (-8.0, 0.0, 0.01)

@@ -207,6 +207,9 @@ BAD_FILES = {
     "typo_key": ("model: equirectangular\nwidth: 10\nheight: 10\nwidht: 3\n", "key 'widht'"),
     "bad_list": ("model: ocam\nwidth: 10\nheight: 10\ncx: 5\ncy: 5\npol: [-3, zero]\n",
                  "key 'pol[1]'"),
+    "bad_mask": ("model: hyperboloid\nwidth: 10\nheight: 10\ncx: 5\ncy: 5\npx: 1\npy: 1\n"
+                 "f: 1\nalpha: 1\nbeta: 1\nmask: {inner: 3}\n", "key 'mask.inner'"),
+    "model_list": ("model: [eucm]\nwidth: 10\nheight: 10\n", "unknown camera model"),
     "not_yaml": ("model: [unclosed\n", "not valid YAML"),
     "unrecognised": ("just some words\n", "unrecognised camera file"),
     "kalibr_fov": ("cam0:\n  camera_model: pinhole\n  distortion_model: fov\n"
@@ -277,6 +280,14 @@ def test_cli_bad_input_exits_2_with_one_line(
     assert all(str(path) in e for e in err)
     assert not (tmp_path / "o.yaml").exists()
     assert main(["camera", "show", str(tmp_path / "nope.yaml")]) == 2
+
+
+def test_numpy_scalars_write_as_plain_yaml(tmp_path: Path) -> None:
+    cam = EUCMCamera(width=64, height=48, fx=np.float64(30.5), fy=np.float32(30.0), cx=32.0,
+                     cy=24.0, alpha=np.float64(0.6), beta=1.0)
+    write_camera_yaml(tmp_path / "c.yaml", cam)
+    assert "numpy" not in (tmp_path / "c.yaml").read_text()
+    assert load_camera(tmp_path / "c.yaml").params() == cam.params()
 
 
 def test_hyperboloid_xi_matches_issue_formula() -> None:

@@ -248,6 +248,16 @@ class CameraModel(ABC):
     def __post_init__(self) -> None:
         for f in fields(self):
             val = getattr(self, f.name)
+            # numpy scalars and sequences become plain Python numbers and tuples
+            if isinstance(val, np.generic):
+                val = val.item()
+            elif isinstance(val, list | np.ndarray):
+                val = tuple(np.asarray(val).ravel().tolist())
+            elif isinstance(val, tuple):
+                val = tuple(v.item() if isinstance(v, np.generic) else v for v in val)
+            object.__setattr__(self, f.name, val)
+            if isinstance(val, tuple) and "tuple" not in str(f.type):
+                raise ValueError(f"key {f.name!r} must be a number, got {val!r}")
             vals = val if isinstance(val, tuple) else (val,)
             for x in vals:
                 if isinstance(x, bool) or not isinstance(x, int | float | type(None)):
@@ -348,10 +358,10 @@ class CameraModel(ABC):
         out: dict[str, Any] = {"model": self.model}
         for f in fields(self):
             val = getattr(self, f.name)
-            if isinstance(val, np.ndarray):
+            if isinstance(val, np.ndarray | np.generic):
                 val = val.tolist()
             elif isinstance(val, tuple):
-                val = [v.tolist() if isinstance(v, np.ndarray) else v for v in val]
+                val = [v.tolist() if isinstance(v, np.ndarray | np.generic) else v for v in val]
             out[f.name] = val
         return out
 

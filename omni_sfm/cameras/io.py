@@ -43,7 +43,7 @@ def camera_from_dict(data: dict[str, Any], path: Path | str = "<camera>") -> Cam
     name = data.get("model")
     if name is None:
         raise OmniSfmError(f"{path}: missing key 'model' (one of {', '.join(sorted(MODELS))})")
-    if name not in MODELS:
+    if not isinstance(name, str) or name not in MODELS:
         raise OmniSfmError(
             f"{path}: unknown camera model {name!r} (known: {', '.join(sorted(MODELS))})"
         )
@@ -53,6 +53,10 @@ def camera_from_dict(data: dict[str, Any], path: Path | str = "<camera>") -> Cam
     mask = flat.pop("mask", None)
     if isinstance(mask, dict):
         for k, v in mask.items():
+            if k not in ("inner_radius", "outer_radius"):
+                raise OmniSfmError(
+                    f"{path}: unknown key 'mask.{k}' (mask takes inner_radius, outer_radius)"
+                )
             flat[k] = v
     elif mask is not None:
         raise OmniSfmError(f"{path}: key 'mask' must be a mapping, got {mask!r}")
