@@ -26,13 +26,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from omni_sfm.errors import OmniSfmError
-from omni_sfm.estimate.rotation import estimate_rotations
+from omni_sfm.estimate.rotation import RotationProblem, estimate_rotations, polish_angles
 from omni_sfm.estimate.translation import (
     estimate_plane,
     estimate_vertical,
     in_plane_parallax,
     line_directions,
     line_parallax,
+    normal_residuals,
     resolve_sign,
     triangulate_lines,
 )
@@ -49,8 +50,9 @@ class PaperOptions:
     """Coarse grid points of the rotation search over ``phi_c`` in ``[-pi, pi)`` (5.6 deg)."""
     rotation_starts: int = 2
     """Lowest grid minima polished by Brent's method."""
-    rotation_xtol: float = 1e-12
-    """Absolute tolerance of the polishing, radians."""
+    rotation_xtol: float = 1e-9
+    """Absolute tolerance (radians) of the Brent polishing of ``phi_c`` (6e-8 deg; the joint
+    polish, if on, then converges to machine precision anyway)."""
     second_view: int | None = None
     """The second view ``c``; ``None`` chooses it: for the rotation the view whose line normals
     changed most against view 0 (rotation-invariant proxy), for the translation the view with the
@@ -61,6 +63,13 @@ class PaperOptions:
     max_plane_ratio: float = 0.3
     """Degenerate motion: raise if the two eigenvalues of the in-plane cost ``S`` are closer than
     this ratio (the in-plane direction of travel is not determined by the data)."""
+    rotation_softening: float = 0.1
+    """``s0`` of :class:`~omni_sfm.estimate.rotation.RotationProblem`: lines with less parallax
+    than about ``asin(s0)`` between views 0 and ``c`` fade out of ``E_rot`` (0: the paper's
+    cost exactly; noise-free results are exact either way)."""
+    polish_rotation: bool = True
+    """Also solve the angles about ``v`` with all views jointly (``polish_angles``) and keep
+    whichever rotations give the full model (all lines triangulated) the smaller RMS angle."""
     irls_iter: int = 2
     """Reweighting rounds of the translation steps (0: the plain algebraic residuals)."""
     rerun_rotation: bool = True
@@ -85,9 +94,14 @@ class PaperSolution:
         parallel_direction: ``(3,)`` ``v`` in the world (frame 0's VPV).
         parallel: ``(M,)`` bool, the family members used.
         sign_from_rays: the overall sign of the translation was fixed by ``side_rays``.
-        timings_ms: ``rotation``, ``translation_plane``, ``translation_vertical``, ``total``.
-        costs: ``E_rot``, ``E_t1``, ``E_t`` (weighted sums of squared residuals, ~ rad^2), and
-            ``plane_ratio`` (the in-plane conditioning, small is good).
+        timings_ms: ``rotation`` (search and polish), ``translation`` (all of §5 for every
+            rotation candidate, plus line triangulation), ``translation_plane`` and
+            ``translation_vertical`` (the chosen candidate's steps a and b), ``total``.
+        costs: ``E_rot`` (eq. 14 at the search's minimum), ``E_rot_all_views`` (after the joint
+            polish, NaN if off), ``E_t1``, ``E_t`` (weighted sums of squared residuals, ~ rad^2),
+            ``plane_ratio`` (in-plane conditioning, small is good), ``rms_deg`` (RMS angle
+            between observed and modelled NVs of all used tracks) and ``polished_rotation``
+            (1.0 if the jointly polished rotations were kept).
     """
 
     rotations: FloatArray
@@ -190,14 +204,15 @@ def estimate_paper(tracks: LineTracks, family: ParallelFamily,
     ref = np.asarray(family.vpv, dtype=np.float64)
     vpv = chain_signs(vpv, ref if np.isfinite(ref).all(axis=1).any() else None)
 
-    # rotation
+    # rotation: the paper's search, then (optionally) all views jointly; when both are at hand,
+    # the full model (lines triangulated from all views) decides which explains the normals best
     t0 = time.perf_counter()
     c_rot = opts.second_view if opts.second_view is not None else \
         _proxy_second_view(normals[:, np.concatenate([par, oth])])
     rot = estimate_rotations(normals[:, oth], vpv, w[oth], c_rot, num_grid=opts.rotation_grid,
-                             num_starts=opts.rotation_starts, xtol=opts.rotation_xtol)
-    R = rot.rotations
-    m_world = np.einsum("fij,fmj->fmi", R, normals)
+                             num_starts=opts.rotation_starts, xtol=opts.rotation_xtol,
+                             softening=opts.rotation_softening, polish=False)
+    m_world = np.einsum("fij,fmj->fmi", rot.rotations, normals)
     lp = np.median(line_parallax(m_world[:, oth]), axis=1)
     if np.max(lp) < np.radians(opts.min_parallax_deg):
         raise OmniSfmError(
@@ -210,42 +225,32 @@ def estimate_paper(tracks: LineTracks, family: ParallelFamily,
             c_rot = best
             rot = estimate_rotations(normals[:, oth], vpv, w[oth], c_rot,
                                      num_grid=opts.rotation_grid,
-                                     num_starts=opts.rotation_starts, xtol=opts.rotation_xtol)
-            R = rot.rotations
-            m_world = np.einsum("fij,fmj->fmi", R, normals)
+                                     num_starts=opts.rotation_starts, xtol=opts.rotation_xtol,
+                                     softening=opts.rotation_softening, polish=False)
+    candidates = [rot.rotations]
+    polished_cost = float("nan")
+    if opts.polish_rotation:
+        prob = RotationProblem.build(normals[:, oth], vpv, w[oth], c_rot)
+        phi, _, polished_cost = polish_angles(prob, rot.phi.copy())
+        R_pol = prob.rotations(phi)
+        R_pol[0] = np.eye(3)
+        candidates.insert(0, R_pol)
     v = vpv[0]
     t1 = time.perf_counter()
 
-    # translation (a): in the plane perpendicular to v
-    pp = np.median(in_plane_parallax(m_world[:, par], v), axis=1)
-    if np.max(pp) < np.radians(opts.min_parallax_deg):
-        raise OmniSfmError(
-            f"degenerate motion: no motion across the parallel lines (their in-plane parallax "
-            f"is at most {np.degrees(np.max(pp)):.3g} deg, min_parallax_deg="
-            f"{opts.min_parallax_deg:g}); the paper's method cannot fix the scale, e.g. when "
-            f"the camera moves along the parallel lines")
-    c = opts.second_view if opts.second_view is not None else int(np.argmax(pp))
-    plane = estimate_plane(m_world[:, par], v, w[par], c, irls_iter=opts.irls_iter)
-    if plane.ratio > opts.max_plane_ratio:
-        raise OmniSfmError(
-            f"degenerate motion: the in-plane direction of travel is undetermined (eigenvalue "
-            f"ratio {plane.ratio:.3g} > max_plane_ratio={opts.max_plane_ratio:g})")
-    t2 = time.perf_counter()
-
-    # translation (b): along v
-    d_oth = line_directions(m_world[:, oth])
-    vert = estimate_vertical(m_world[:, oth], d_oth, v, plane.positions, w[oth], c,
-                             irls_iter=opts.irls_iter)
-    positions = plane.positions + vert.omega[:, None] * v
+    best_sol: _Translation | None = None
+    for k, R in enumerate(candidates):
+        try:
+            sol = _translate(R, normals, v, members, par, oth, w, opts)
+        except OmniSfmError:
+            if k == len(candidates) - 1 and best_sol is None:
+                raise
+            continue
+        if best_sol is None or sol.rms < best_sol.rms:
+            best_sol = sol
+    assert best_sol is not None
+    R, positions, dirs, points = best_sol.R, best_sol.positions, best_sol.dirs, best_sol.points
     t3 = time.perf_counter()
-    if not np.isfinite(positions).all():
-        bad = np.flatnonzero(~np.isfinite(positions).all(axis=1))
-        raise OmniSfmError(f"the position of frame(s) {bad[:5].tolist()} is undetermined by the "
-                           f"lines (too few with parallax)")
-
-    dirs = line_directions(m_world)
-    dirs[members] = v
-    points = triangulate_lines(m_world, dirs, positions)
     sign_from_rays = False
     if side_rays is not None:
         rays = np.asarray(side_rays, dtype=np.float64)
@@ -261,9 +266,66 @@ def estimate_paper(tracks: LineTracks, family: ParallelFamily,
             positions, points = -positions, -points
         sign_from_rays = True
     t4 = time.perf_counter()
-    timings = {"rotation": (t1 - t0) * 1e3, "translation_plane": (t2 - t1) * 1e3,
-               "translation_vertical": (t3 - t2) * 1e3, "total": (t4 - t_start) * 1e3}
-    costs = {"E_rot": rot.cost, "E_t1": plane.cost, "E_t": vert.cost,
-             "plane_ratio": plane.ratio}
-    return PaperSolution(R, positions, c, rot.second_view, dirs, points, v, members.copy(),
-                         sign_from_rays, timings, costs)
+    timings = {"rotation": (t1 - t0) * 1e3, "translation": (t3 - t1) * 1e3,
+               "translation_plane": best_sol.ms_plane,
+               "translation_vertical": best_sol.ms_vertical, "total": (t4 - t_start) * 1e3}
+    costs = {"E_rot": rot.cost, "E_rot_all_views": polished_cost, "E_t1": best_sol.cost_plane,
+             "E_t": best_sol.cost_vertical, "plane_ratio": best_sol.ratio,
+             "rms_deg": float(np.degrees(best_sol.rms)),
+             "polished_rotation": float(opts.polish_rotation and best_sol.R is candidates[0])}
+    return PaperSolution(R, positions, best_sol.c, rot.second_view, dirs, points, v,
+                         members.copy(), sign_from_rays, timings, costs)
+
+
+@dataclass(frozen=True)
+class _Translation:
+    R: FloatArray
+    positions: FloatArray
+    dirs: FloatArray
+    points: FloatArray
+    c: int
+    cost_plane: float
+    cost_vertical: float
+    ratio: float
+    rms: float
+    ms_plane: float
+    ms_vertical: float
+
+
+def _translate(R: FloatArray, normals: FloatArray, v: FloatArray, members: np.ndarray,
+               par: np.ndarray, oth: np.ndarray, w: FloatArray,
+               opts: PaperOptions) -> _Translation:
+    """METHOD.md §5 for given rotations, then all lines triangulated and the model's RMS angle."""
+    t1 = time.perf_counter()
+    m_world = np.einsum("fij,fmj->fmi", R, normals)
+    pp = np.median(in_plane_parallax(m_world[:, par], v), axis=1)
+    if np.max(pp) < np.radians(opts.min_parallax_deg):
+        raise OmniSfmError(
+            f"degenerate motion: no motion across the parallel lines (their in-plane parallax "
+            f"is at most {np.degrees(np.max(pp)):.3g} deg, min_parallax_deg="
+            f"{opts.min_parallax_deg:g}); the paper's method cannot fix the scale, e.g. when "
+            f"the camera moves along the parallel lines")
+    c = opts.second_view if opts.second_view is not None else int(np.argmax(pp))
+    plane = estimate_plane(m_world[:, par], v, w[par], c, irls_iter=opts.irls_iter)
+    if plane.ratio > opts.max_plane_ratio:
+        raise OmniSfmError(
+            f"degenerate motion: the in-plane direction of travel is undetermined (eigenvalue "
+            f"ratio {plane.ratio:.3g} > max_plane_ratio={opts.max_plane_ratio:g})")
+    t2 = time.perf_counter()
+    d_oth = line_directions(m_world[:, oth])
+    vert = estimate_vertical(m_world[:, oth], d_oth, v, plane.positions, w[oth], c,
+                             irls_iter=opts.irls_iter)
+    positions = plane.positions + vert.omega[:, None] * v
+    t3 = time.perf_counter()
+    if not np.isfinite(positions).all():
+        bad = np.flatnonzero(~np.isfinite(positions).all(axis=1))
+        raise OmniSfmError(f"the position of frame(s) {bad[:5].tolist()} is undetermined by the "
+                           f"lines (too few with parallax)")
+    dirs = line_directions(m_world)
+    dirs[members] = v
+    points = triangulate_lines(m_world, dirs, positions)
+    used = w > 0
+    ang = normal_residuals(m_world[:, used], dirs[used], points[used], positions)
+    rms = float(np.sqrt(np.average(ang ** 2, weights=np.broadcast_to(w[used], ang.shape))))
+    return _Translation(R, positions, dirs, points, c, plane.cost, vert.cost, plane.ratio, rms,
+                        (t2 - t1) * 1e3, (t3 - t2) * 1e3)

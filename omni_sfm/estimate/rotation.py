@@ -69,7 +69,7 @@ def trig2_minimize(coef: FloatArray, *, max_iter: int = 80) -> FloatArray:
     multiplier ``mu <= -rho`` (the trust-region condition); in A's eigenbasis, with
     ``s = -rho - mu >= 0``, it solves the secular equation
     ``p^2 / (2 rho + s)^2 + q^2 / s^2 = 1`` whose left side falls monotonically, so the root
-    is unique and bracketed by ``[max(|q|, |p| - 2 rho), |p| + |q|]``. It is found by Newton's
+    is unique and bracketed by ``[max(|q|, |p| - 2 rho), sqrt(p^2 + q^2)]``. It is found by Newton's
     method on ``g(s)^(-1/2) - 1`` (nearly linear) safeguarded by bisection, all problems at once.
     The "hard case" ``q = 0, |p| <= 2 rho`` has ``s = 0`` and is handled explicitly. This is
     equivalent to the paper's quartic (the secular equation multiplied out is a quartic in ``s``)
@@ -86,7 +86,7 @@ def trig2_minimize(coef: FloatArray, *, max_iter: int = 80) -> FloatArray:
     q = np.sum(bb * e2, -1)
     ap, aq = np.abs(p), np.abs(q)
     lo = np.maximum(aq, np.maximum(ap - 2.0 * rho, 0.0))
-    hi = ap + aq
+    hi = np.hypot(ap, aq)                     # g(hi) <= (p^2 + q^2) / hi^2 = 1
     hard = (aq <= 1e-300) | (hi <= 0)
 
     def g_and_dg(s: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -96,9 +96,10 @@ def trig2_minimize(coef: FloatArray, *, max_iter: int = 80) -> FloatArray:
             dg = -2.0 * p * p / (u * u * u) - 2.0 * q * q / (w * w * w)
         return g, dg
 
-    s = 0.5 * (lo + hi)
+    # h(s) = g^(-1/2) - 1 is increasing and concave in s, so Newton's iterates from any point
+    # land left of the root and then climb to it monotonically; bisection guards round-off
     active = ~hard & (hi > lo)
-    s = np.where(active, s, np.where(hard, 0.0, lo))
+    s = np.where(active, hi, np.where(hard, 0.0, lo))
     for _ in range(max_iter):
         if not np.any(active):
             break
@@ -110,10 +111,13 @@ def trig2_minimize(coef: FloatArray, *, max_iter: int = 80) -> FloatArray:
         dh = -0.5 * g ** -1.5 * dg
         with np.errstate(divide="ignore", invalid="ignore"):
             s_new = s - h / dh
-        bad = ~np.isfinite(s_new) | (s_new <= lo) | (s_new >= hi)
+        # an overshoot to the left restarts from the lower bound (left of the root, where the
+        # concave h makes Newton climb monotonically); anything else odd bisects
+        s_new = np.where(np.isfinite(s_new) & (s_new <= lo) & (lo > 0), lo, s_new)
+        bad = ~np.isfinite(s_new) | (s_new < lo) | (s_new >= hi) | ((s_new == lo) & (lo <= 0))
         s_new = np.where(bad, 0.5 * (lo + hi), s_new)
-        done = active & ((np.abs(s_new - s) <= 4e-16 * np.maximum(s, 1e-300)) | (h == 0)
-                         | (hi - lo <= 4e-16 * hi))
+        done = active & ((np.abs(s_new - s) <= 1e-13 * np.maximum(s, 1e-300)) | (h == 0)
+                         | (hi - lo <= 1e-13 * hi))
         s = np.where(active, s_new, s)
         active &= ~done
 
@@ -139,6 +143,10 @@ class RotationProblem:
             ``R_v(phi) w = w_par + cos(phi) w_perp + sin(phi) w_cross``.
         weights: ``(Q,)`` per-line weights.
         second_view: ``c``.
+        softening: ``s0``: each line's residuals are weighted by ``s^2 / (s^2 + s0^2)`` with
+            ``s = |n_i0 x R_c n_ic|`` the sine of its parallax between views 0 and ``c``: a line
+            seen with little parallax has an ill-defined ``d_i`` (eq. 12) whose normalised
+            residuals jump with ``phi_c``; softened, they fade smoothly (0: the paper's cost).
     """
 
     v: FloatArray
@@ -148,10 +156,11 @@ class RotationProblem:
     w_cross: FloatArray
     weights: FloatArray
     second_view: int
+    softening: float = 0.1
 
     @classmethod
     def build(cls, normals: FloatArray, vpv: FloatArray, weights: FloatArray,
-              second_view: int) -> RotationProblem:
+              second_view: int, softening: float = 0.1) -> RotationProblem:
         """``normals (F, Q, 3)`` of the non-parallel lines (camera frames), ``vpv (F, 3)``."""
         v = vpv[0]
         align = rotation_aligning(vpv, np.broadcast_to(v, vpv.shape))
@@ -161,10 +170,10 @@ class RotationProblem:
         w_perp = w - w_par
         w_cross = np.cross(v, w)
         return cls(v, align, w_par, w_perp, w_cross, np.asarray(weights, dtype=np.float64),
-                   int(second_view))
+                   int(second_view), float(softening))
 
     def directions(self, phi_c: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """``d_i`` (eq. 12) for trial angles ``phi_c (G,)``: ``(G, Q, 3)``, validity ``(G, Q)``."""
+        """``d_i`` (eq. 12) for trial ``phi_c (G,)``: ``(G, Q, 3)``, weight factors ``(G, Q)``."""
         c = self.second_view
         cs, sn = np.cos(phi_c)[:, None, None], np.sin(phi_c)[:, None, None]
         m_c = self.w_par[c] + cs * self.w_perp[c] + sn * self.w_cross[c]
@@ -173,7 +182,8 @@ class RotationProblem:
         norm = np.linalg.norm(d, axis=-1)
         ok = norm > 1e-12
         d = d / np.where(ok, norm, 1.0)[..., None]
-        return d, ok
+        s2 = norm * norm
+        return d, ok * (s2 / (s2 + self.softening ** 2))
 
     def view_fit(self, phi_c: FloatArray) -> tuple[FloatArray, FloatArray]:
         """Each view's best ``phi_k`` and cost ``e_k`` for trial ``phi_c (G,)``: two ``(G, F)``."""
@@ -204,6 +214,74 @@ class RotationProblem:
         return rotation_about_axis(self.v, phi) @ self.align
 
 
+def polish_angles(prob: RotationProblem, phi: FloatArray, *, max_iter: int = 30,
+                  tol: float = 1e-13) -> tuple[FloatArray, FloatArray, float]:
+    """Joint least squares over all views: the angles ``phi_k`` (``phi_0 = 0`` fixed) and every
+    non-parallel line's direction ``d_i``, minimising ``sum_ik w_i ((R_k n_ik) . d_i)^2``.
+
+    The paper's ``d_i`` come from views 0 and ``c`` only; with noise, all views determine them
+    much better. Levenberg-Marquardt from the paper's solution; ``d_i`` has 2 tangent DOF; the
+    per-view angles are eliminated by their (diagonal) Schur complement, leaving a ``2Q x 2Q``
+    system. Returns ``phi (F,)``, ``d (Q, 3)`` and the final cost.
+    """
+    F, Q = prob.w_par.shape[:2]
+    W = prob.weights
+
+    def state(ph: FloatArray) -> tuple[FloatArray, FloatArray]:
+        cs, sn = np.cos(ph)[:, None, None], np.sin(ph)[:, None, None]
+        m = prob.w_par + cs * prob.w_perp + sn * prob.w_cross
+        dm = cs * prob.w_cross - sn * prob.w_perp
+        return m, dm
+
+    m, dm = state(phi)
+    d = np.linalg.eigh(np.einsum("q,fqi,fqj->qij", np.ones(Q), m, m))[1][:, :, 0]
+    cost = float(np.sum(W * np.einsum("fqi,qi->fq", m, d) ** 2))
+    lam = 1e-6
+    for _ in range(max_iter):
+        helper = np.where(np.abs(d[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+        e1 = np.cross(d, helper)
+        e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+        e2 = np.cross(d, e1)
+        r = np.einsum("fqi,qi->fq", m, d)
+        jp = np.einsum("fqi,qi->fq", dm, d)                                # d r / d phi_k
+        jd = np.stack([np.einsum("fqi,qi->fq", m, e1), np.einsum("fqi,qi->fq", m, e2)], -1)
+        jp[0] = 0.0                                                         # phi_0 is fixed
+        hpp = np.sum(W * jp * jp, 1)
+        hpd = W[None, :, None] * jp[..., None] * jd                        # (F, Q, 2)
+        hdd = np.einsum("q,fqa,fqb->qab", W, jd, jd)
+        gp = np.sum(W * jp * r, 1)
+        gd = np.einsum("q,fqa,fq->qa", W, jd, r)
+        inv_p = np.where(hpp > 0, 1.0 / (hpp * (1 + lam) + 1e-300), 0.0)
+        red = -np.einsum("f,fqa,fsb->qasb", inv_p, hpd, hpd)
+        idx = np.arange(Q)
+        red[idx, :, idx, :] += hdd * (1 + lam) + np.eye(2) * 1e-15
+        rhs = gd - np.einsum("f,fqa,f->qa", inv_p, hpd, gp)
+        try:
+            step_d = -np.linalg.solve(red.reshape(2 * Q, 2 * Q), rhs.reshape(2 * Q)).reshape(Q, 2)
+        except np.linalg.LinAlgError:
+            break
+        step_p = -inv_p * (gp + np.einsum("fqa,qa->f", hpd, step_d))
+        phi_new = phi + step_p
+        phi_new[0] = 0.0
+        d_new = d + step_d[:, :1] * e1 + step_d[:, 1:] * e2
+        d_new /= np.linalg.norm(d_new, axis=1, keepdims=True)
+        m_new, dm_new = state(phi_new)
+        cost_new = float(np.sum(W * np.einsum("fqi,qi->fq", m_new, d_new) ** 2))
+        if cost_new <= cost:
+            small = np.max(np.abs(step_p)) < tol and np.max(np.abs(step_d)) < tol
+            phi, d, m, dm = phi_new, d_new, m_new, dm_new
+            improvement = cost - cost_new
+            cost = cost_new
+            lam = max(lam / 10, 1e-12)
+            if small or improvement <= 1e-15 * max(cost, 1e-300):
+                break
+        else:
+            lam *= 10
+            if lam > 1e8:
+                break
+    return phi, d, cost
+
+
 @dataclass(frozen=True)
 class RotationResult:
     """Rotations of a window.
@@ -215,6 +293,7 @@ class RotationResult:
         cost: ``E_rot`` at the solution (sum of squared sines of angles, weighted).
         view_costs: ``(F,)`` each view's ``e_k``.
         num_evals: cost evaluations of the 1-DOF search.
+        polished_cost: the joint all-view cost after :func:`polish_angles` (NaN if not run).
     """
 
     rotations: FloatArray
@@ -223,11 +302,13 @@ class RotationResult:
     cost: float
     view_costs: FloatArray
     num_evals: int
+    polished_cost: float = float("nan")
 
 
 def estimate_rotations(normals: FloatArray, vpv: FloatArray, weights: FloatArray,
                        second_view: int, *, num_grid: int = 64, num_starts: int = 3,
-                       xtol: float = 1e-12) -> RotationResult:
+                       xtol: float = 1e-12, softening: float = 0.1,
+                       polish: bool = True) -> RotationResult:
     """Rotations of all views (METHOD.md §4).
 
     Args:
@@ -237,6 +318,8 @@ def estimate_rotations(normals: FloatArray, vpv: FloatArray, weights: FloatArray
         weights: ``(Q,)`` non-negative line weights (0 drops a line).
         second_view: the view ``c`` whose angle is searched (``1 <= c < F``).
         num_grid, num_starts, xtol: the global 1-DOF search (see ``global_minimize_1d``).
+        softening: see :class:`RotationProblem` (0: the paper's exact cost).
+        polish: finish with :func:`polish_angles` (all views jointly).
     """
     F, Q = normals.shape[:2]
     if F < 3:
@@ -245,7 +328,7 @@ def estimate_rotations(normals: FloatArray, vpv: FloatArray, weights: FloatArray
         raise OmniSfmError(f"second view must be in [1, {F}), got {second_view}")
     if int(np.count_nonzero(weights > 0)) < 3:
         raise OmniSfmError("rotation needs at least 3 non-parallel lines with positive weight")
-    prob = RotationProblem.build(normals, vpv, weights, second_view)
+    prob = RotationProblem.build(normals, vpv, weights, second_view, softening)
     res = global_minimize_1d(prob.cost, -np.pi, np.pi, num_grid=num_grid, periodic=True,
                              num_starts=num_starts, xtol=xtol)
     phi_all, e = prob.view_fit(np.array([res.x]))
@@ -254,6 +337,9 @@ def estimate_rotations(normals: FloatArray, vpv: FloatArray, weights: FloatArray
     phi[second_view] = res.x
     e = e[0].copy()
     e[[0, second_view]] = 0.0
+    polished = float("nan")
+    if polish:
+        phi, _, polished = polish_angles(prob, phi)
     R = prob.rotations(phi)
     R[0] = np.eye(3)
-    return RotationResult(R, phi, second_view, float(res.fx), e, res.num_evals)
+    return RotationResult(R, phi, second_view, float(res.fx), e, res.num_evals, polished)

@@ -253,6 +253,21 @@ def triangulate_lines(world_normals: FloatArray, directions: FloatArray,
     return np.linalg.solve(A, rhs[..., None])[..., 0]
 
 
+def normal_residuals(world_normals: FloatArray, directions: FloatArray, points: FloatArray,
+                     positions: FloatArray) -> FloatArray:
+    """``(F, L)`` angle (rad) between each observed world normal and the one the model predicts.
+
+    The predicted NV of line ``l`` (``points``, ``directions`` ``(L, 3)``) from the camera at
+    ``positions[k]`` is ``(x_l - t_k) x d_l`` normalised; the angle ignores the normals' signs.
+    """
+    rel = points[None] - positions[:, None]
+    pred = np.cross(rel, directions[None])
+    pred /= np.maximum(np.linalg.norm(pred, axis=-1, keepdims=True), 1e-300)
+    s = np.linalg.norm(np.cross(world_normals, pred), axis=-1)
+    c = np.abs(np.sum(world_normals * pred, -1))
+    return np.arctan2(s, c)
+
+
 def resolve_sign(rays_in_world: FloatArray, origins: FloatArray, points: FloatArray,
                  directions: FloatArray, mask: np.ndarray | None = None) -> float:
     """+1 or -1: the sign of the reconstruction that puts the lines in front of the rays.

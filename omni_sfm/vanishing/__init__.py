@@ -3,9 +3,11 @@
 The NV ``n`` of a line is orthogonal to the line's direction, so the NVs of parallel lines seen
 in one frame are coplanar and orthogonal to the family's direction ``v_k`` in that camera frame
 (eq. 4). Three tracks are tested for parallelism on the frames they share: per frame the smallest
-eigenvalue of ``sum n n^T`` is ``min_|v|=1 sum (n . v)^2`` (eq. 5-6). Passing triples are merged,
-each merged group is verified (trimmed of tracks that do not fit the group's per-frame VPV) and
-grown (tracks that fit are added), and the largest group is the parallel family. Its VPV is then
+eigenvalue of ``sum n n^T`` is ``min_|v|=1 sum (n . v)^2`` (eq. 5-6), averaged over the shared
+frames. The passing triples (below ``p_th`` and a noise-adaptive threshold), best first, seed
+groups: each group is trimmed of tracks that do not fit its per-frame VPV and grown by tracks that
+do (noise-normalised leave-one-out residuals), until stable; the largest group is the parallel
+family, and the others (Manhattan scenes) are returned too. Its VPV is then
 recomputed in every frame from all the members seen there (eq. 5) and its sign chained through
 time, so that ``v_k`` points the same way in the world in every frame.
 
@@ -47,7 +49,21 @@ class VanishingOptions:
     """Smallest group reported as a family (the method needs 3 parallel lines)."""
     max_families: int = 3
     """At most this many families are returned by :func:`detect_parallel_families`."""
-    max_refine_iter: int = 20
+    outlier_factor: float = 4.0
+    """A track only stays in a family if its mean squared (noise-normalised) residual is at most
+    this times the family's noise level (the median squared residual of the members / 0.455,
+    the median of a chi-square with 1 degree of freedom)."""
+    seed_factor: float = 20.0
+    """Triples seed families if their mean is at most this times the lower quartile of the
+    means below ``p_th`` (a noise-adaptive eq. 6; see ``_seed_threshold``)."""
+    max_seeds: int = 30
+    """At most this many seed triples are grown into groups (best first)."""
+    frame_outlier_factor: float = 40.0
+    """... and no frame's squared residual exceeds this times the noise level (6.3 sigma): the
+    paper asks eq. (6) to hold in every frame."""
+    min_noise_deg: float = 0.01
+    """Floor of the noise level (deg) used by the two factors above (noise-free data)."""
+    max_refine_iter: int = 100
     """Rounds of trimming and growing a group against its own VPV."""
     seed: int = 0
     """Seed of the random triples."""
@@ -166,13 +182,40 @@ def _triple_eigs(n1: FloatArray, n2: FloatArray, n3: FloatArray) -> tuple[FloatA
     c = np.sum(n2 * n3, -1)
     p = a * a + b * b + c * c
     q = 2.0 * a * b * c
-    r = np.sqrt(np.maximum(p / 3.0, 1e-300))
-    arg = np.clip(q / (2.0 * r ** 3), -1.0, 1.0)
-    th = np.arccos(arg) / 3.0
-    mu = 2.0 * r[..., None] * np.cos(th[..., None] - 2.0 * np.pi * np.arange(3) / 3.0)
-    mu.sort(axis=-1)
-    lam = 1.0 + mu
-    return np.maximum(lam[..., 0], 0.0), lam[..., 1]
+    r = np.sqrt(np.maximum(p / 3.0, 1e-100))
+    th = np.arccos(np.clip(q / (2.0 * r ** 3), -1.0, 1.0)) / 3.0      # in [0, pi/3]
+    # roots 2 r cos(th - 2 pi k / 3): k = 2 is the smallest, k = 1 the middle one
+    lam_min = 1.0 + 2.0 * r * np.cos(th + 2.0 * np.pi / 3.0)
+    lam_mid = 1.0 + 2.0 * r * np.cos(th - 2.0 * np.pi / 3.0)
+    return np.maximum(lam_min, 0.0), lam_mid
+
+
+def _smallest_eigvec3(S: FloatArray) -> FloatArray:
+    """Unit eigenvectors ``(K, 3)`` of the smallest eigenvalue of symmetric PSD ``S (K, 3, 3)``.
+
+    Closed form (much faster than a batched ``eigh`` for many small matrices): the eigenvalue
+    by the trigonometric formula, the vector as the largest cross product of two rows of
+    ``S - lambda I``.
+    """
+    a, b, c = S[:, 0, 0], S[:, 1, 1], S[:, 2, 2]
+    d, e, f = S[:, 0, 1], S[:, 0, 2], S[:, 1, 2]
+    tr = (a + b + c) / 3.0
+    a0, b0, c0 = a - tr, b - tr, c - tr
+    p = np.sqrt(np.maximum((a0 * a0 + b0 * b0 + c0 * c0 + 2.0 * (d * d + e * e + f * f)) / 6.0,
+                           1e-200))
+    det = a0 * (b0 * c0 - f * f) - d * (d * c0 - f * e) + e * (d * f - b0 * e)
+    th = np.arccos(np.clip(det / (2.0 * p ** 3), -1.0, 1.0)) / 3.0
+    lam = tr + 2.0 * p * np.cos(th + 2.0 * np.pi / 3.0)
+    a1, b1, c1 = a - lam, b - lam, c - lam
+    # rows r0 = (a1, d, e), r1 = (d, b1, f), r2 = (e, f, c1) and their cross products
+    x01 = np.stack([d * f - e * b1, e * d - a1 * f, a1 * b1 - d * d], 1)
+    x02 = np.stack([d * c1 - e * f, e * e - a1 * c1, a1 * f - d * e], 1)
+    x12 = np.stack([b1 * c1 - f * f, f * e - d * c1, d * f - b1 * e], 1)
+    cand = np.stack([x01, x02, x12], 1)
+    norms = np.einsum("kij,kij->ki", cand, cand)
+    best = np.argmax(norms, axis=1)
+    k = np.arange(S.shape[0])
+    return cand[k, best] / np.sqrt(np.maximum(norms[k, best], 1e-300))[:, None]
 
 
 def _draw_triples(vis: np.ndarray, opts: VanishingOptions,
@@ -205,10 +248,11 @@ def _draw_triples(vis: np.ndarray, opts: VanishingOptions,
     return np.unique(out, axis=0)
 
 
-def _passing_triples(normals: FloatArray, vis: np.ndarray, triples: np.ndarray,
-                     opts: VanishingOptions, chunk: int = 2000) -> np.ndarray:
-    """Bool ``(T,)``: the triple's NVs are coplanar (eq. 6) on average over its shared frames."""
-    out = np.zeros(len(triples), dtype=bool)
+def _triple_means(normals: FloatArray, vis: np.ndarray, triples: np.ndarray,
+                  opts: VanishingOptions, chunk: int = 2000) -> FloatArray:
+    """``(T,)`` mean over the shared frames of ``min_v sum_i (n_i . v)^2`` (eq. 5-6) of each
+    triple; ``inf`` where fewer than ``min_shared_frames`` frames test it (``min_spread``)."""
+    out = np.full(len(triples), np.inf)
     for s in range(0, len(triples), chunk):
         t = triples[s:s + chunk]
         n1, n2, n3 = normals[t[:, 0]], normals[t[:, 1]], normals[t[:, 2]]
@@ -216,78 +260,124 @@ def _passing_triples(normals: FloatArray, vis: np.ndarray, triples: np.ndarray,
         lam_min, lam_mid = _triple_eigs(n1, n2, n3)
         use = shared & (lam_mid >= opts.min_spread)
         cnt = use.sum(1)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            mean = np.where(use, lam_min, 0.0).sum(1) / cnt
-        out[s:s + chunk] = (cnt >= opts.min_shared_frames) & (mean <= opts.p_th)
+        mean = np.where(use, lam_min, 0.0).sum(1) / np.maximum(cnt, 1)
+        out[s:s + chunk] = np.where(cnt >= opts.min_shared_frames, mean, np.inf)
     return out
 
 
-def _components(M: int, triples: np.ndarray) -> list[np.ndarray]:
-    """Connected groups of tracks linked by passing triples (union-find), largest first."""
-    parent = np.arange(M)
+def _seed_threshold(means: FloatArray, opts: VanishingOptions) -> float:
+    """Noise-adaptive threshold on a triple's mean: ``min(p_th, seed_factor * q25)``.
 
-    def find(x: int) -> int:
-        while parent[x] != x:
-            parent[x] = parent[parent[x]]
-            x = int(parent[x])
-        return x
+    ``q25`` is the lower quartile of the means that pass ``p_th``: parallel triples have the
+    smallest means (about the noise variance), so as long as they are a quarter of the passing
+    ones it measures the noise; accidental near-coplanar triples lie far above.
+    """
+    cand = means[means <= opts.p_th]
+    if cand.size == 0:
+        return opts.p_th
+    q = float(np.quantile(cand, 0.25))
+    return min(opts.p_th, max(opts.seed_factor * q, np.radians(opts.min_noise_deg) ** 2))
 
-    for a, b, c in triples:
-        ra, rb, rc = find(int(a)), find(int(b)), find(int(c))
-        parent[rb] = ra
-        parent[find(rc)] = ra
-    roots = np.array([find(m) for m in range(M)])
-    used = np.unique(triples) if len(triples) else np.zeros(0, dtype=np.int64)
-    groups = [np.intersect1d(np.flatnonzero(roots == r), used) for r in np.unique(roots[used])]
-    groups.sort(key=len, reverse=True)
-    return groups
+
+def _quad_inv(T: FloatArray, n: FloatArray) -> FloatArray:
+    """``n^T T^-1 n`` for symmetric ``T (K, 3, 3)`` and ``n (K, 3)`` (adjugate formula)."""
+    a, b, c = T[:, 0, 0], T[:, 1, 1], T[:, 2, 2]
+    d, e, f = T[:, 0, 1], T[:, 0, 2], T[:, 1, 2]
+    A00, A11, A22 = b * c - f * f, a * c - e * e, a * b - d * d
+    A01, A02, A12 = e * f - d * c, d * f - e * b, d * e - a * f
+    det = a * A00 + d * A01 + e * A02
+    x, y, z = n[:, 0], n[:, 1], n[:, 2]
+    num = A00 * x * x + A11 * y * y + A22 * z * z + 2.0 * (A01 * x * y + A02 * x * z + A12 * y * z)
+    return num / np.where(np.abs(det) > 1e-300, det, 1e-300)
 
 
 def _track_residuals(normals: FloatArray, vis: np.ndarray, members: np.ndarray,
-                     opts: VanishingOptions) -> tuple[FloatArray, FloatArray, np.ndarray]:
-    """Leave-one-out residual of every track against the members' VPV.
+                     opts: VanishingOptions) -> tuple[FloatArray, FloatArray, FloatArray,
+                                                      np.ndarray, np.ndarray]:
+    """Leave-one-out residuals of every track against the members' VPV, noise-normalised.
 
-    Returns the ``(M,)`` mean ``(n . v)^2`` over the frames where at least 2 *other* members
-    define the VPV (NaN where fewer than ``min_shared_frames`` such frames), the VPV of all
-    members ``(F, 3)`` and the member count per frame ``(F,)``.
+    A member's normal is tested against the VPV of the *other* members seen in that frame, any
+    other track against the VPV of all members. The squared residual ``(n . v)^2`` is divided by
+    ``1 + n^T S^+ n`` (``S = sum n n^T`` of the lines defining ``v``, ``S^+`` its inverse across
+    ``v``): the variance that ``v``'s own error adds, large where ``v`` rests on 2 nearby
+    normals. Every normalised residual then has the same variance (that of ``n . v_true``).
+
+    Returns ``(M, F)`` normalised squared residuals, ``(M, F)`` usable mask (at least 2 other
+    members define the VPV), ``(M,)`` mean over usable frames (NaN where fewer than
+    ``min_shared_frames``), the VPV of all members ``(F, 3)`` and the member count ``(F,)``.
     """
     mask = vis & members[:, None]
-    v_all, count = vpv_per_frame(normals, mask)
-    resid_all = np.einsum("mfi,fi->mf", np.where(vis[..., None], normals, 0.0),
-                          np.nan_to_num(v_all)) ** 2
-    res = resid_all.copy()
-    # members: recompute with themselves left out where they are observed (VPV of the others)
     n_mask = np.where(mask[..., None], normals, 0.0)
     S = np.einsum("mfi,mfj->fij", n_mask, n_mask)
-    for m in np.flatnonzero(members):
-        Sm = S - np.einsum("fi,fj->fij", n_mask[m], n_mask[m])
-        _, vecs = np.linalg.eigh(Sm[vis[m]])
-        res[m, vis[m]] = np.einsum("fi,fi->f", normals[m, vis[m]], vecs[:, :, 0]) ** 2
+    count = mask.sum(0)
+    v_all = np.full((vis.shape[1], 3), np.nan)
+    okf = count >= 2
+    if np.any(okf):
+        v_all[okf] = _smallest_eigvec3(S[okf])
     others = count[None, :] - mask.astype(np.int64)
     usable = vis & (others >= 2)
+    res = np.zeros(vis.shape)
+    mm, ff = np.nonzero(usable)
+    n = normals[mm, ff]
+    own = mask[mm, ff]
+    Sm = S[ff] - own[:, None, None] * (n[:, :, None] * n[:, None, :])
+    vecs = _smallest_eigvec3(Sm)
+    r2 = np.einsum("ki,ki->k", n, vecs) ** 2
+    trace = np.trace(Sm, axis1=1, axis2=2)
+    T = Sm + trace[:, None, None] * (vecs[:, :, None] * vecs[:, None, :])
+    factor = 1.0 + np.maximum(_quad_inv(T, n), 0.0)
+    res[mm, ff] = r2 / factor
     cnt = usable.sum(1)
     with np.errstate(invalid="ignore", divide="ignore"):
         mean = np.where(usable, res, 0.0).sum(1) / cnt
     mean[cnt < opts.min_shared_frames] = np.nan
-    return mean, v_all, count
+    return res, usable, mean, v_all, count
+
+
+def _noise_level(res: FloatArray, usable: np.ndarray, members: np.ndarray,
+                 opts: VanishingOptions) -> float:
+    """Robust variance of one residual ``n . v`` of the members (rad^2)."""
+    sel = usable & members[:, None]
+    med = float(np.median(res[sel])) / 0.455 if np.any(sel) else 0.0
+    return max(med, np.radians(opts.min_noise_deg) ** 2)
+
+
+def _fits(res: FloatArray, usable: np.ndarray, mean: FloatArray, s2: float,
+          opts: VanishingOptions) -> np.ndarray:
+    """``(M,)`` bool: the track fits the family (mean and every frame below the thresholds)."""
+    worst = np.where(usable, res, 0.0).max(axis=1)
+    return (mean <= min(opts.p_th, opts.outlier_factor * s2)) & \
+        (worst <= opts.frame_outlier_factor * s2)
 
 
 def _refine_group(normals: FloatArray, vis: np.ndarray, group: np.ndarray,
-                  allowed: np.ndarray, opts: VanishingOptions) -> np.ndarray:
-    """Trim a group to tracks that fit its VPV, then grow it by every allowed track that fits."""
+                  allowed: np.ndarray, opts: VanishingOptions, noise: float = 0.0) -> np.ndarray:
+    """Trim a group to tracks that fit its VPV, then grow it by every allowed track that fits.
+
+    A track trimmed twice is not let back in (no oscillation at the threshold). ``noise`` is a
+    floor of the noise level (from all seed triples): a small group's own estimate is unreliable.
+    """
     M = vis.shape[0]
     members = np.zeros(M, dtype=bool)
     members[group] = True
+    trimmed = np.zeros(M, dtype=np.int64)
     for _ in range(opts.max_refine_iter):
-        resid, _, _ = _track_residuals(normals, vis, members, opts)
-        bad = members & ~(resid <= opts.p_th)
+        res, usable, mean, _, _ = _track_residuals(normals, vis, members, opts)
+        s2 = max(_noise_level(res, usable, members, opts), noise)
+        fit = _fits(res, usable, mean, s2, opts)
+        bad = members & ~fit
         if np.any(bad):
-            worst = np.flatnonzero(bad)[np.argmax(np.nan_to_num(resid[bad], nan=np.inf))]
-            members[worst] = False
+            # drop the worst offender only: it may have biased the others' residuals
+            score = np.nan_to_num(mean / min(opts.p_th, opts.outlier_factor * s2), nan=np.inf)
+            worst_frame = np.where(usable, res, 0.0).max(axis=1) / (opts.frame_outlier_factor * s2)
+            score = np.maximum(score, worst_frame)
+            drop = np.flatnonzero(bad)[np.argmax(score[bad])]
+            members[drop] = False
+            trimmed[drop] += 1
             if members.sum() < 3:
                 return members
             continue
-        grow = allowed & ~members & (resid <= opts.p_th)
+        grow = allowed & ~members & (trimmed < 2) & fit
         if not np.any(grow):
             break
         members |= grow
@@ -296,7 +386,7 @@ def _refine_group(normals: FloatArray, vis: np.ndarray, group: np.ndarray,
 
 def _family(normals: FloatArray, vis: np.ndarray, members: np.ndarray,
             opts: VanishingOptions) -> ParallelFamily:
-    resid, v, count = _track_residuals(normals, vis, members, opts)
+    _, _, resid, v, count = _track_residuals(normals, vis, members, opts)
     v = chain_signs(v)
     mask = vis & members[:, None]
     r = np.einsum("mfi,fi->mf", np.where(mask[..., None], normals, 0.0), np.nan_to_num(v)) ** 2
@@ -320,14 +410,24 @@ def detect_parallel_families(tracks: LineTracks,
     triples = _draw_triples(vis, opts, rng)
     if len(triples) == 0:
         return []
-    passing = triples[_passing_triples(normals, vis, triples, opts)]
+    means = _triple_means(normals, vis, triples, opts)
+    thresh = _seed_threshold(means, opts)
+    order = np.argsort(means)
+    order = order[means[order] <= thresh]
+    # the noise level of one residual, from the seeds (mostly parallel triples): mean lambda_min
+    # of a parallel triple ~ the variance of n . v
+    noise = 0.5 * float(np.median(means[order])) if order.size else 0.0
     families: list[ParallelFamily] = []
     taken = np.zeros(tracks.num_tracks, dtype=bool)
-    for group in _components(tracks.num_tracks, passing):
-        group = group[~taken[group]]
-        if len(group) < opts.min_family_size:
+    tried = 0
+    for t in order:
+        seed = triples[t]
+        if taken[seed].any():
             continue
-        members = _refine_group(normals, vis, group, ~taken, opts)
+        tried += 1
+        if tried > opts.max_seeds or len(families) >= opts.max_families:
+            break
+        members = _refine_group(normals, vis, seed, ~taken, opts, noise)
         if members.sum() < opts.min_family_size:
             continue
         families.append(_family(normals, vis, members, opts))
