@@ -130,6 +130,22 @@ def test_grid_rays_cached_and_consistent_with_valid_mask(name: str) -> None:
     assert cam.valid_mask().any()
 
 
+@pytest.mark.parametrize("name", sorted(CAMERAS))
+def test_nan_and_inf_inputs_give_nan_rows(name: str) -> None:
+    cam = CAMERAS[name]
+    uv = np.array([[np.nan, 10.0], [10.0, np.inf], [cam.width / 2, cam.height / 2 + 0.3]])
+    rays = cam.rays_from_pixels(uv)
+    assert np.isnan(rays[:2]).all()
+    d = np.array([[np.nan, 0.0, 1.0], [0.0, np.inf, 1.0], [0.0, 0.0, 0.0]])
+    assert np.isnan(cam.pixels_from_rays(d)).all()
+
+
+def test_in_image_frame() -> None:
+    cam = CAMERAS["equirectangular"]
+    uv = np.array([[-0.5, 0.0], [-0.51, 0.0], [319.49, 159.49], [319.5, 0.0], [np.nan, 0.0]])
+    np.testing.assert_array_equal(cam.in_image(uv), [True, False, True, False, False])
+
+
 def test_pickling_drops_the_caches() -> None:
     cam = CAMERAS["opencv_fisheye"]
     cam.pixel_grid_rays()

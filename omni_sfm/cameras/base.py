@@ -50,9 +50,9 @@ def unit_rows(x: FloatArray, y: FloatArray, z: FloatArray) -> FloatArray:
         inv += z * z
         np.sqrt(inv, out=inv)
         np.divide(1.0, inv, out=inv)
-    np.multiply(x, inv, out=out[:, 0])
-    np.multiply(y, inv, out=out[:, 1])
-    np.multiply(z, inv, out=out[:, 2])
+        np.multiply(x, inv, out=out[:, 0])
+        np.multiply(y, inv, out=out[:, 1])
+        np.multiply(z, inv, out=out[:, 2])
     return out
 
 

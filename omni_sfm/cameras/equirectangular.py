@@ -39,12 +39,14 @@ class EquirectangularCamera(CameraModel):
         lat *= np.pi / self.height
         lat -= np.pi / 2.0
         # sin and cos from tan(angle/2): numpy's float64 tan is vectorised, sin/cos are not
-        sin_lon, cos_lon = _sin_cos(lon)
-        sin_lat, cos_lat = _sin_cos(lat)
+        with np.errstate(invalid="ignore"):
+            sin_lon, cos_lon = _sin_cos(lon)
+            sin_lat, cos_lat = _sin_cos(lat)
         out = np.empty((len(uv), 3))
         np.multiply(cos_lat, sin_lon, out=out[:, 0])
         out[:, 1] = sin_lat
         np.multiply(cos_lat, cos_lon, out=out[:, 2])
+        out[~(np.isfinite(uv[:, 0]) & np.isfinite(uv[:, 1]))] = np.nan
         return out
 
     def _pixels_block(self, rays: FloatArray) -> FloatArray:
@@ -58,7 +60,7 @@ class EquirectangularCamera(CameraModel):
              (lat + np.pi / 2.0) * self.height / np.pi - 0.5],
             axis=1,
         )
-        uv[~(n > 0)] = np.nan
+        uv[~((n > 0) & np.isfinite(n))] = np.nan
         return uv
 
     def valid_mask(self) -> np.ndarray:
