@@ -9,7 +9,7 @@ centres are unchanged.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -80,3 +80,226 @@ def projection_centres(reconstruction: Any) -> dict[str, FloatArray]:
     """Camera centre of every registered image, by image name (world frame)."""
     return {img.name: np.asarray(img.projection_center())
             for img in reconstruction.images.values() if img.has_pose}
+
+
+# --- the init model layout (written by ``omni-sfm init``, read by ``omni-sfm refine``) ---------
+
+SPARSE_DIR = "sparse"
+IMAGES_DIR = "images_colmap"
+CAMERA_FILE = "camera.yaml"
+TRAJECTORY_FILE = "trajectory.tum"
+MANIFEST_FILE = "colmap.json"
+
+
+@dataclass(frozen=True)
+class InitModel:
+    """An init directory read back (see :func:`write_init_model`).
+
+    Attributes:
+        camera: the omni-sfm camera the poses refer to (``camera.yaml``).
+        trajectory: ``(N,)`` poses world_from_cam of our ray frame (``trajectory.tum``).
+        image_names: ``(N,)`` image name of each pose, in trajectory order.
+        reconstruction: the ``pycolmap.Reconstruction`` of ``sparse/``.
+        directory: the init directory.
+    """
+
+    camera: CameraModel
+    trajectory: Trajectory
+    image_names: tuple[str, ...]
+    reconstruction: Any
+    directory: Path
+
+
+def write_init_model(directory: Path, camera: CameraModel, traj: Trajectory,
+                     image_names: Sequence[str], images: Iterable[np.ndarray] | None = None,
+                     *, text: bool = False) -> ColmapSeed:
+    """Write the COLMAP side of an init directory (docs/colmap.md, "Init directory").
+
+    Writes ``DIR/sparse/`` (COLMAP binary model; also text with ``text``): the camera in its exact
+    COLMAP model, one posed image per trajectory frame (image ids 1..N in trajectory order, named
+    ``image_names``); ``DIR/camera.yaml`` (the omni-sfm camera the poses refer to);
+    ``DIR/trajectory.tum`` (the poses, world_from_cam of our ray frame) unless the caller has
+    written it already; ``DIR/colmap.json`` (image name and timestamp of every pose, the frame map
+    and the image flip); and, when ``images`` is given, ``DIR/images_colmap/<name>``: each image
+    ``(H, W[, 3])`` (RGB if 3 channels) as COLMAP must see it, mirrored where the camera export
+    says so. ``images`` yields one array per name, in order.
+
+    Use inside :func:`omni_sfm.fileio.atomic_output_dir` so the directory appears complete or not
+    at all. Returns the seeded model.
+    """
+    import cv2
+
+    from omni_sfm.cameras import write_camera_yaml
+    from omni_sfm.fileio import atomic_write_text, dumps_json
+    from omni_sfm.poses import write_tum
+
+    directory = Path(directory)
+    names = [str(n) for n in image_names]
+    for n in names:
+        if not n or Path(n).is_absolute() or ".." in Path(n).parts:
+            raise OmniSfmError(f"image name {n!r} must be a relative path inside the folder")
+    seed = build_reconstruction(camera, traj, names)
+    write_reconstruction(seed, directory / SPARSE_DIR, text=text)
+    write_camera_yaml(directory / CAMERA_FILE, camera)
+    if not (directory / TRAJECTORY_FILE).exists():
+        write_tum(directory / TRAJECTORY_FILE, traj)
+    manifest = {
+        "image_names": names,
+        "timestamps": traj.timestamps,
+        "camera_model": seed.export.camera.model_name,
+        "colmap_cam_from_cam": seed.export.colmap_cam_from_cam,
+        "flip_u": seed.export.flip_u,
+        "note": "image id k+1 in sparse/ is row k of trajectory.tum; COLMAP sees images_colmap/",
+    }
+    atomic_write_text(directory / MANIFEST_FILE, dumps_json(manifest))
+    if images is not None:
+        count = 0
+        for name, img in zip(names, images, strict=False):
+            out = seed.export.image_to_colmap(img)
+            if out.ndim == 3 and out.shape[2] == 3:
+                out = np.ascontiguousarray(out[:, :, ::-1])
+            path = directory / IMAGES_DIR / name
+            path.parent.mkdir(parents=True, exist_ok=True)
+            if not cv2.imwrite(str(path), out):
+                raise OmniSfmError(f"{path}: OpenCV cannot write this image")
+            count += 1
+        if count != len(names):
+            raise ValueError(f"got {count} images for {len(names)} image names")
+    return seed
+
+
+def read_init_model(directory: Path) -> InitModel:
+    """Read and check an init directory written by :func:`write_init_model`.
+
+    OmniSfmError (one line) when the model, camera or trajectory is missing or inconsistent, or
+    the camera has no exact COLMAP model."""
+    import pycolmap
+
+    from omni_sfm.cameras import load_camera
+    from omni_sfm.fileio import read_json
+    from omni_sfm.poses import read_tum
+
+    directory = Path(directory)
+    if not directory.is_dir():
+        raise OmniSfmError(f"{directory}: init directory not found")
+    sparse = directory / SPARSE_DIR
+    if not (sparse / "cameras.bin").is_file() and not (sparse / "cameras.txt").is_file():
+        raise OmniSfmError(f"{sparse}: no COLMAP model (cameras.bin / cameras.txt) in the init "
+                           "directory")
+    camera = load_camera(directory / CAMERA_FILE)
+    export = camera.colmap_export()
+    traj = read_tum(directory / TRAJECTORY_FILE)
+    try:
+        rec = pycolmap.Reconstruction(str(sparse))
+    except Exception as exc:  # pycolmap raises plain RuntimeError/ValueError on bad files
+        raise OmniSfmError(f"{sparse}: cannot read the COLMAP model: {exc}") from None
+    if rec.num_cameras() != 1:
+        raise OmniSfmError(f"{sparse}: expected one camera, found {rec.num_cameras()}")
+    cam = next(iter(rec.cameras.values()))
+    if cam.model_name != export.camera.model_name or (cam.width, cam.height) != (
+            export.width, export.height):
+        raise OmniSfmError(
+            f"{sparse}: camera {cam.model_name} {cam.width}x{cam.height} differs from "
+            f"{directory / CAMERA_FILE} ({export.camera.model_name} "
+            f"{export.width}x{export.height})")
+    ids = sorted(rec.images)
+    if ids != list(range(1, len(traj) + 1)):
+        raise OmniSfmError(f"{sparse}: image ids must be 1..{len(traj)} (one per pose of "
+                           f"{directory / TRAJECTORY_FILE}), got {len(ids)} images")
+    names = tuple(rec.images[i].name for i in ids)
+    manifest_path = directory / MANIFEST_FILE
+    if manifest_path.is_file():
+        manifest = read_json(manifest_path, "COLMAP manifest")
+        if list(manifest.get("image_names", [])) != list(names):
+            raise OmniSfmError(f"{manifest_path}: image_names differ from the model's images")
+    centres = np.asarray([rec.images[i].projection_center() for i in ids])
+    if not np.allclose(centres, traj.positions, atol=1e-6 * max(1.0, traj.path_length())):
+        raise OmniSfmError(f"{sparse}: projection centres differ from the camera centres in "
+                           f"{directory / TRAJECTORY_FILE}")
+    return InitModel(camera, traj, names, rec, directory)
+
+
+def seed_for_database(camera: CameraModel, traj: Trajectory, image_names: Sequence[str],
+                      database_path: Path) -> ColmapSeed:
+    """The seeded model with the camera, rig, frame and image ids of an existing database.
+
+    Every name must be an image of the database, all of one camera whose model and size equal
+    ``camera``'s exact COLMAP model (its parameters are set to the exact ones). The images are
+    posed from ``traj`` (row k is ``image_names[k]``); rigs and frames are the database's, so
+    ``pycolmap.triangulate_points`` and the mapper accept the model. OmniSfmError otherwise."""
+    import pycolmap
+
+    database_path = Path(database_path)
+    if not database_path.is_file():
+        raise OmniSfmError(f"{database_path}: COLMAP database not found")
+    names = [str(n) for n in image_names]
+    if len(names) != len(traj):
+        raise ValueError(f"{len(names)=} differs from the {len(traj)} poses")
+    export = camera.colmap_export()
+    with pycolmap.Database.open(str(database_path)) as db:
+        db_images = {im.name: im for im in db.read_all_images()}
+        cams = {c.camera_id: c for c in db.read_all_cameras()}
+        rigs = {r.rig_id: r for r in db.read_all_rigs()}
+        frames = {f.frame_id: f for f in db.read_all_frames()}
+    missing = [n for n in names if n not in db_images]
+    if missing:
+        raise OmniSfmError(f"{database_path}: {len(missing)} posed images are not in the "
+                           f"database (first: {missing[0]!r})")
+    cam_ids = {db_images[n].camera_id for n in names}
+    if len(cam_ids) != 1:
+        raise OmniSfmError(f"{database_path}: the posed images use {len(cam_ids)} cameras; "
+                           "omni-sfm seeds one shared camera")
+    cam_id = cam_ids.pop()
+    db_cam = cams[cam_id]
+    if db_cam.model_name != export.camera.model_name or (db_cam.width, db_cam.height) != (
+            export.width, export.height):
+        raise OmniSfmError(
+            f"{database_path}: camera {cam_id} is {db_cam.model_name} {db_cam.width}x"
+            f"{db_cam.height}, the seed needs {export.camera.model_name} "
+            f"{export.width}x{export.height}")
+    rec = pycolmap.Reconstruction()
+    cam = export.camera
+    cam.camera_id = cam_id
+    rec.add_camera(cam)
+    R_cw, t_cw = colmap_cam_from_world(export, traj)
+    used_rigs: set[int] = set()
+    for k, name in enumerate(names):
+        db_im = db_images[name]
+        frame = frames.get(db_im.frame_id)
+        if frame is None or len(frame.data_ids) != 1:
+            raise OmniSfmError(f"{database_path}: image {name!r} is not alone in a frame of its "
+                               "own (multi-camera rigs are not seeded)")
+        if frame.rig_id not in used_rigs:
+            rec.add_rig(rigs[frame.rig_id])
+            used_rigs.add(frame.rig_id)
+        frame.rig_from_world = pycolmap.Rigid3d(np.hstack([R_cw[k], t_cw[k, :, None]]))
+        rec.add_frame(frame)
+        image = pycolmap.Image(name=name, camera_id=cam_id, image_id=db_im.image_id)
+        image.frame_id = db_im.frame_id
+        rec.add_image(image)
+    return ColmapSeed(rec, export, tuple(names))
+
+
+def trajectory_from_reconstruction(reconstruction: Any, export: ColmapExport,
+                                   image_names: Sequence[str],
+                                   timestamps: FloatArray) -> tuple[Trajectory, np.ndarray]:
+    """Our poses (world_from_cam of our ray frame) of the named images of a COLMAP model.
+
+    Returns the trajectory of the registered images among ``image_names`` (with their
+    ``timestamps``) and the ``(len(image_names),)`` bool mask of which were registered."""
+    by_name = {im.name: im for im in reconstruction.images.values()}
+    ok = np.zeros(len(image_names), dtype=bool)
+    R_wc, c_w = [], []
+    for k, name in enumerate(image_names):
+        im = by_name.get(name)
+        if im is None or not im.has_pose:
+            continue
+        ok[k] = True
+        R_colmap_cw = np.asarray(im.cam_from_world().rotation.matrix())
+        # ours: cam_from_world = colmap_cam_from_cam^T @ colmap's cam_from_world
+        R_wc.append((export.colmap_cam_from_cam.T @ R_colmap_cw).T)
+        c_w.append(np.asarray(im.projection_center()))
+    ts = np.asarray(timestamps, dtype=np.float64)[ok]
+    if not ok.any():
+        return Trajectory(ts, np.zeros((0, 3, 3)), np.zeros((0, 3))), ok
+    return Trajectory(ts, np.asarray(R_wc), np.asarray(c_w)), ok

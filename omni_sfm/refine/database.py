@@ -1,0 +1,172 @@
+"""COLMAP's side of refinement before any geometry: the images COLMAP sees, the database, SIFT
+features with the camera's valid mask, and sequential matching with geometric verification.
+
+All work is done by pycolmap (its own threads); this module only prepares the inputs and never
+re-extracts features or re-matches pairs that the database already holds.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from omni_sfm.cameras.base import CameraModel, ColmapExport
+from omni_sfm.errors import OmniSfmError
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
+
+
+def list_images(folder: Path) -> list[str]:
+    """Sorted names of the image files directly in ``folder`` (OmniSfmError if none)."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise OmniSfmError(f"{folder}: image folder not found")
+    names = sorted(p.name for p in folder.iterdir()
+                   if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+    if not names:
+        raise OmniSfmError(f"{folder}: no images ({', '.join(IMAGE_SUFFIXES)}) in the folder")
+    return names
+
+
+def check_image_names(folder: Path, available: Sequence[str], model_names: Sequence[str],
+                      model: Path) -> None:
+    """OmniSfmError unless every image of the model is in the folder."""
+    have = set(available)
+    missing = [n for n in model_names if n not in have]
+    if missing:
+        raise OmniSfmError(
+            f"{folder}: {len(missing)} of the {len(model_names)} images of {model} are missing "
+            f"(first: {missing[0]!r}); give the frames the init directory was made from")
+
+
+def write_colmap_images(src: Path, dst: Path, names: Sequence[str], export: ColmapExport,
+                        *, progress: bool = False) -> None:
+    """Write ``src/<name>`` as COLMAP must see it to ``dst/<name>`` (mirrored where the camera
+    export says so), checking every image's size against the camera. Images that exist already
+    are rewritten (cheap next to SIFT)."""
+    import cv2
+    from tqdm import tqdm
+
+    dst.mkdir(parents=True, exist_ok=True)
+    for name in tqdm(names, desc="refine: images for COLMAP", unit="img", disable=not progress,
+                     leave=False):
+        img = cv2.imread(str(src / name), cv2.IMREAD_UNCHANGED)
+        if img is None:
+            raise OmniSfmError(f"{src / name}: OpenCV cannot read this image")
+        if img.shape[:2] != (export.height, export.width):
+            raise OmniSfmError(
+                f"{src / name}: image is {img.shape[1]}x{img.shape[0]} px, the camera is "
+                f"{export.width}x{export.height} px")
+        if not cv2.imwrite(str(dst / name), export.image_to_colmap(img)):
+            raise OmniSfmError(f"{dst / name}: OpenCV cannot write this image")
+
+
+def write_mask(path: Path, camera: CameraModel, export: ColmapExport, erode_px: int) -> None:
+    """COLMAP's camera mask (0 = ignore) of the valid pixels, eroded by ``erode_px`` so that the
+    strong edges at a mirror's rim or a mask's border give no features, mirrored like the
+    images."""
+    import cv2
+
+    mask: np.ndarray = np.where(camera.valid_mask(), 255, 0).astype(np.uint8)
+    if erode_px > 0:
+        k = 2 * erode_px + 1
+        mask = cv2.erode(mask, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k)),
+                         borderType=cv2.BORDER_CONSTANT, borderValue=0)
+    if not cv2.imwrite(str(path), export.image_to_colmap(mask)):
+        raise OmniSfmError(f"{path}: OpenCV cannot write the mask image")
+
+
+@dataclass(frozen=True)
+class DatabaseState:
+    """What the database holds after features and matching.
+
+    Attributes:
+        camera_id: the shared camera of the images.
+        extracted: names whose features were extracted in this run.
+        reused: names whose features the database held already.
+        num_keypoints: keypoints of all images.
+        verified_pairs: image pairs with a verified two-view geometry.
+        inlier_matches: matches that passed geometric verification.
+    """
+
+    camera_id: int
+    extracted: tuple[str, ...]
+    reused: tuple[str, ...]
+    num_keypoints: int
+    verified_pairs: int
+    inlier_matches: int
+
+
+def _shared_camera_id(db: Any, names: Sequence[str], export: ColmapExport,
+                      path: Path) -> int:
+    """The camera of the images already in the database, or a new one with the exact model."""
+    known = {im.name: im for im in db.read_all_images()}
+    ids = {known[n].camera_id for n in names if n in known}
+    if len(ids) > 1:
+        raise OmniSfmError(f"{path}: the images use {len(ids)} cameras; refine needs one")
+    if ids:
+        cam_id = ids.pop()
+        cam = db.read_camera(cam_id)
+        if cam.model_name != export.camera.model_name or (cam.width, cam.height) != (
+                export.width, export.height):
+            raise OmniSfmError(
+                f"{path}: camera {cam_id} is {cam.model_name} {cam.width}x{cam.height}, the init "
+                f"model needs {export.camera.model_name} {export.width}x{export.height}")
+        # the exact parameters, whatever the database held (features do not depend on them)
+        exact = export.camera
+        exact.camera_id = cam_id
+        db.update_camera(exact)
+        return int(cam_id)
+    return int(db.write_camera(export.camera))
+
+
+def extract_and_match(database: Path, image_dir: Path, mask_path: Path, names: Sequence[str],
+                      export: ColmapExport, *, max_features: int, overlap: int,
+                      num_threads: int) -> DatabaseState:
+    """SIFT features of ``names`` (one shared camera, the exact model, the camera mask) and
+    sequential matching with geometric verification, skipping what ``database`` holds."""
+    import pycolmap
+
+    with pycolmap.Database.open(str(database)) as db:
+        cam_id = _shared_camera_id(db, names, export, database)
+        known = {im.name: im.image_id for im in db.read_all_images()}
+        done = {n for n in names if n in known and db.exists_keypoints(known[n])
+                and db.exists_descriptors(known[n])}
+    todo = [n for n in names if n not in done]
+    if todo:
+        reader = pycolmap.ImageReaderOptions()
+        reader.existing_camera_id = cam_id
+        reader.camera_mask_path = str(mask_path)
+        extraction = pycolmap.FeatureExtractionOptions()
+        extraction.num_threads = num_threads
+        extraction.use_gpu = False
+        extraction.sift.max_num_features = max_features
+        pycolmap.extract_features(str(database), str(image_dir), image_names=list(todo),
+                                  camera_mode=pycolmap.CameraMode.SINGLE, reader_options=reader,
+                                  extraction_options=extraction, device=pycolmap.Device.cpu)
+    matching = pycolmap.FeatureMatchingOptions()
+    matching.num_threads = num_threads
+    matching.use_gpu = False
+    pairing = pycolmap.SequentialPairingOptions()
+    pairing.overlap = overlap
+    pairing.num_threads = num_threads
+    # pairs matched before are skipped by COLMAP's matcher cache
+    pycolmap.match_sequential(str(database), matching_options=matching, pairing_options=pairing,
+                              device=pycolmap.Device.cpu)
+    with pycolmap.Database.open(str(database)) as db:
+        state = DatabaseState(
+            camera_id=cam_id, extracted=tuple(todo), reused=tuple(sorted(done)),
+            num_keypoints=int(db.num_keypoints()),
+            verified_pairs=int(db.num_verified_image_pairs()),
+            inlier_matches=int(db.num_inlier_matches()),
+        )
+        names_in_db = {im.name for im in db.read_all_images()}
+    missing = [n for n in names if n not in names_in_db]
+    if missing:
+        raise OmniSfmError(f"{database}: COLMAP did not import {len(missing)} images "
+                           f"(first: {missing[0]!r})")
+    return state

@@ -1,0 +1,519 @@
+"""``omni-sfm refine``: COLMAP refinement seeded by the line-based poses, never worse than them.
+
+Stages (all SfM work is pycolmap's; docs/colmap.md):
+
+1. images: the frames as COLMAP must see them (``images_colmap/``, mirrored where the camera
+   export says so) and the camera's valid mask as COLMAP's camera mask;
+2. features: SIFT, one shared camera with the exact COLMAP model; images that already have
+   features in the database are not extracted again;
+3. matching: sequential pairs and geometric verification;
+4. triangulation: ``pycolmap.triangulate_points`` with the line-based poses held fixed;
+5. mapper (only when the folder holds frames the line stage did not pose): COLMAP's incremental
+   mapper continues from the triangulated model, the seeded frames held fixed;
+6. bundle adjustment: poses and points free, intrinsics fixed, gauge fixed
+   (``TWO_CAMS_FROM_WORLD``), robust loss, in rounds with outlier filtering; frames with too few
+   observations stay fixed;
+7. acceptance: the adjusted model is mapped back onto the input's frame and scale (a similarity
+   fitted to the trusted frames), and each frame keeps its line-based pose unless it has enough
+   observations and a plausible change; if the whole model is too weak, every input pose is
+   kept. The output model is made consistent with ``trajectory.tum``.
+"""
+
+from __future__ import annotations
+
+import shutil
+import sys
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from omni_sfm.export.colmap import (
+    IMAGES_DIR,
+    SPARSE_DIR,
+    TRAJECTORY_FILE,
+    InitModel,
+    colmap_cam_from_world,
+    read_init_model,
+    seed_for_database,
+    trajectory_from_reconstruction,
+)
+from omni_sfm.fileio import atomic_output_dir, atomic_write_text, dumps_json
+from omni_sfm.geometry import FloatArray, rotation_angle
+from omni_sfm.poses import Trajectory, write_tum
+from omni_sfm.refine.database import (
+    check_image_names,
+    extract_and_match,
+    list_images,
+    write_colmap_images,
+    write_mask,
+)
+
+DATABASE_FILE = "database.db"
+MASK_FILE = "camera_mask.png"
+REPORT_FILE = "report.json"
+
+
+@dataclass(frozen=True, kw_only=True)
+class RefineOptions:
+    max_features: int = 8192
+    """SIFT features per image at most."""
+    overlap: int = 10
+    """Sequential matching: each frame is matched with this many following frames (COLMAP's
+    ``overlap``, with its quadratic overlap on)."""
+    mask_erosion_px: int = 3
+    """The valid mask is shrunk by this many pixels so the rim of the mirror gives no features."""
+    num_threads: int = -1
+    """Threads for pycolmap's extraction, matching and bundle adjustment (-1: all cores)."""
+    register_missing: bool = True
+    """Run COLMAP's mapper to register frames of the image folder that the init did not pose."""
+    ba_rounds: int = 2
+    """Bundle adjustment rounds (each followed by filtering points with large errors)."""
+    ba_max_iterations: int = 100
+    """Ceres iterations per round at most."""
+    loss_scale_px: float = 1.0
+    """Scale of the robust (soft L1) loss on reprojection errors, pixels."""
+    max_reprojection_error_px: float = 4.0
+    """Observations with a larger error are removed after each round."""
+    min_triangulation_angle_deg: float = 1.5
+    """Points seen under a smaller angle are removed after each round."""
+    min_points: int = 100
+    """Fewer 3D points than this: the images cannot be trusted, every input pose is kept."""
+    min_observations: int = 40
+    """A frame with fewer triangulated observations keeps its input pose (and is held fixed in
+    the adjustment)."""
+    max_rotation_change_deg: float = 5.0
+    """A frame whose adjusted rotation differs more from its input keeps its input pose."""
+    max_position_change: float = 0.05
+    """A frame whose adjusted centre moves more than this fraction of the input path length keeps
+    its input pose."""
+    max_mean_reprojection_error_px: float = 2.0
+    """An adjusted model with a larger mean reprojection error is not trusted at all."""
+    text: bool = False
+    """Also write the output model as COLMAP text files."""
+
+
+@dataclass(frozen=True)
+class RefineResult:
+    """What :func:`refine` wrote and decided.
+
+    Attributes:
+        output: the output directory.
+        trajectory: ``(N,)`` poses world_from_cam of our ray frame (``trajectory.tum``).
+        input_trajectory: the init's poses.
+        refined: ``(N,)`` bool, the frame's pose comes from the adjustment (else kept from input).
+        report: the content of ``report.json``.
+    """
+
+    output: Path
+    trajectory: Trajectory
+    input_trajectory: Trajectory
+    refined: np.ndarray
+    report: dict[str, Any]
+
+
+class _Stages:
+    """Per-stage wall time and a stage-level progress bar (pycolmap's calls report nothing)."""
+
+    def __init__(self, names: list[str], progress: bool) -> None:
+        from tqdm import tqdm
+
+        self.times: dict[str, float] = {}
+        self.bar = tqdm(total=len(names), desc="refine", unit="stage", disable=not progress,
+                        leave=False, file=sys.stderr)
+
+    @contextmanager
+    def stage(self, name: str) -> Iterator[None]:
+        self.bar.set_description(f"refine: {name}")
+        t0 = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.times[name] = round(time.perf_counter() - t0, 3)
+            self.bar.update(1)
+
+    def close(self) -> None:
+        self.bar.close()
+
+
+def model_statistics(rec: Any) -> dict[str, Any]:
+    """``colmap model_analyzer``'s numbers for a pycolmap Reconstruction."""
+    return {
+        "cameras": int(rec.num_cameras()),
+        "images": int(rec.num_images()),
+        "registered_images": int(rec.num_reg_images()),
+        "points": int(rec.num_points3D()),
+        "observations": int(rec.compute_num_observations()),
+        "mean_track_length": float(rec.compute_mean_track_length()),
+        "mean_observations_per_image": float(rec.compute_mean_observations_per_reg_image()),
+        "mean_reprojection_error_px": float(rec.compute_mean_reprojection_error()),
+    }
+
+
+def _observations(rec: Any, image_ids: list[int]) -> np.ndarray:
+    return np.asarray([rec.images[i].num_points3D if i in rec.images and
+                       rec.images[i].has_pose else 0 for i in image_ids], dtype=np.int64)
+
+
+def _bundle_adjust(rec: Any, fixed_frames: set[int], opts: RefineOptions) -> dict[str, Any]:
+    """Rounds of BA (poses and points free, intrinsics and ``fixed_frames`` fixed, gauge fixed)
+    each followed by removing observations with large errors or small triangulation angles."""
+    import pycolmap
+
+    rounds = []
+    for _ in range(opts.ba_rounds):
+        config = pycolmap.BundleAdjustmentConfig()
+        for image_id in rec.reg_image_ids():
+            config.add_image(image_id)
+        for cam_id in rec.cameras:
+            config.set_constant_cam_intrinsics(cam_id)
+        for frame_id in fixed_frames:
+            if rec.exists_frame(frame_id) and rec.frame(frame_id).has_pose:
+                config.set_constant_rig_from_world_pose(frame_id)
+        # with fewer than two fixed frames the similarity gauge must be fixed explicitly
+        if len(fixed_frames) < 2:
+            config.fix_gauge(pycolmap.BundleAdjustmentGauge.TWO_CAMS_FROM_WORLD)
+        ba = pycolmap.BundleAdjustmentOptions()
+        ba.refine_focal_length = False
+        ba.refine_principal_point = False
+        ba.refine_extra_params = False
+        ba.refine_sensor_from_rig = False
+        ba.print_summary = False
+        ba.ceres.loss_function_type = pycolmap.LossFunctionType.SOFT_L1
+        ba.ceres.loss_function_scale = opts.loss_scale_px
+        ba.ceres.solver_options.max_num_iterations = opts.ba_max_iterations
+        ba.ceres.solver_options.num_threads = opts.num_threads
+        before = float(rec.compute_mean_reprojection_error())
+        summary = pycolmap.create_default_bundle_adjuster(ba, config, rec).solve()
+        removed = pycolmap.ObservationManager(rec).filter_all_points3D(
+            opts.max_reprojection_error_px, opts.min_triangulation_angle_deg)
+        rounds.append({
+            "mean_reprojection_error_before_px": before,
+            "mean_reprojection_error_after_px": float(rec.compute_mean_reprojection_error()),
+            "termination": str(summary.termination_type).rsplit(".", 1)[-1],
+            "usable": bool(summary.is_solution_usable()),
+            "removed_observations": int(removed),
+            "points": int(rec.num_points3D()),
+        })
+    return {"rounds": rounds}
+
+
+def _align_to_input(ref: Trajectory, inp: Trajectory) -> tuple[FloatArray, FloatArray, float]:
+    """Similarity ``x_in = s R x_ref + t`` mapping the adjusted frames onto the input's.
+
+    ``R`` is the chordal mean of the per-frame rotation differences (well defined even for a
+    straight path, where centres alone leave a rotation free), then ``s`` and ``t`` by least
+    squares on the centres."""
+    M = np.einsum("nij,nkj->ik", inp.rotations, ref.rotations)
+    U, _, Vt = np.linalg.svd(M)
+    R = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+    a = ref.positions @ R.T
+    a0, b0 = a.mean(0), inp.positions.mean(0)
+    den = float(((a - a0) ** 2).sum())
+    s = float(((a - a0) * (inp.positions - b0)).sum() / den) if den > 1e-18 else 1.0
+    if not s > 0:
+        s = 1.0
+    return R, b0 - s * a0, s
+
+
+def _apply(R: FloatArray, t: FloatArray, s: float, traj: Trajectory) -> Trajectory:
+    return Trajectory(traj.timestamps.copy(), R[None] @ traj.rotations,
+                      s * traj.positions @ R.T + t)
+
+
+def _set_poses(rec: Any, seed_export: Any, image_ids: list[int], traj: Trajectory) -> None:
+    """Set the COLMAP poses of ``image_ids`` (their frames) to ``traj`` (our convention)."""
+    import pycolmap
+
+    R_cw, t_cw = colmap_cam_from_world(seed_export, traj)
+    for k, image_id in enumerate(image_ids):
+        frame = rec.frame(rec.images[image_id].frame_id)
+        frame.rig_from_world = pycolmap.Rigid3d(np.hstack([R_cw[k], t_cw[k, :, None]]))
+
+
+def _frame_timestamps(all_names: list[str], init: InitModel) -> tuple[FloatArray | None, str]:
+    """Timestamps for every image of the folder, when the input's timestamps are an affine
+    function of the image's position in the sorted folder (frame index or constant frame rate);
+    otherwise None and the reason."""
+    index = {n: k for k, n in enumerate(all_names)}
+    x = np.asarray([index[n] for n in init.image_names], dtype=np.float64)
+    y = init.trajectory.timestamps
+    if len(x) < 2:
+        return None, "fewer than two input poses"
+    A = np.stack([x, np.ones_like(x)], 1)
+    coef, *_ = np.linalg.lstsq(A, y, rcond=None)
+    if np.abs(A @ coef - y).max() > 1e-6 * max(1.0, float(np.abs(y).max())):
+        return None, "input timestamps are not an affine function of the frame index"
+    return coef[0] * np.arange(len(all_names)) + coef[1], "affine in the frame index"
+
+
+def refine(init_dir: Path, images_dir: Path, output: Path,
+           options: RefineOptions | None = None, *, database: Path | None = None,
+           overwrite: bool = False, progress: bool = True) -> RefineResult:
+    """Refine the poses of ``init_dir`` with COLMAP on the frames in ``images_dir``.
+
+    Args:
+        init_dir: an init directory (:func:`omni_sfm.export.colmap.write_init_model`).
+        images_dir: the frames (as recorded, not mirrored), names as in the init model; frames
+            the init did not pose may be there too (the mapper stage tries to register them).
+        output: the output directory (complete or absent): ``sparse/``, ``trajectory.tum``,
+            ``report.json``, ``images_colmap/``, ``camera_mask.png`` and ``database.db``
+            (unless ``database`` is given).
+        database: a COLMAP database to use and keep (created if missing); features and matches
+            it holds are reused.
+
+    Raises OmniSfmError (one line) for a bad init directory or image folder.
+    """
+    import pycolmap
+
+    o = options or RefineOptions()
+    init_dir, images_dir, output = Path(init_dir), Path(images_dir), Path(output)
+    init = read_init_model(init_dir)
+    camera = init.camera
+    export = camera.colmap_export()
+    all_names = list_images(images_dir)
+    check_image_names(images_dir, all_names, init.image_names, init_dir / SPARSE_DIR)
+    posed = set(init.image_names)
+    unposed = [n for n in all_names if n not in posed]
+    register = o.register_missing and bool(unposed)
+    names = list(all_names) if register else list(init.image_names)
+    stage_names = ["images", "features and matching", "triangulation", "mapper",
+                   "bundle adjustment", "acceptance and output"]
+    stages = _Stages(stage_names, progress)
+    inp = init.trajectory
+    path_length = inp.path_length()
+    report: dict[str, Any] = {
+        "input": {"init": str(init_dir), "images": str(images_dir),
+                  "database": str(database) if database else DATABASE_FILE},
+        "camera": {"model": camera.model, "colmap_model": export.camera.model_name,
+                   "image_mirrored_for_colmap": export.flip_u},
+        "frames": {"input_poses": len(inp), "images_in_folder": len(all_names),
+                   "unposed_in_folder": len(unposed)},
+        "options": asdict(o),
+    }
+    prev_level = pycolmap.logging.minloglevel
+    if not progress:
+        pycolmap.logging.minloglevel = 2
+    try:
+        with atomic_output_dir(output, overwrite=overwrite) as tmp:
+            db_path = Path(database) if database else tmp / DATABASE_FILE
+            work = tmp / ".work"
+            work.mkdir()
+            with stages.stage("images"):
+                write_colmap_images(images_dir, tmp / IMAGES_DIR, names, export,
+                                    progress=progress)
+                write_mask(tmp / MASK_FILE, camera, export, o.mask_erosion_px)
+            with stages.stage("features and matching"):
+                state = extract_and_match(db_path, tmp / IMAGES_DIR, tmp / MASK_FILE, names,
+                                          export, max_features=o.max_features,
+                                          overlap=o.overlap, num_threads=o.num_threads)
+            report["features"] = {"extracted_images": len(state.extracted),
+                                  "reused_images": len(state.reused),
+                                  "keypoints": state.num_keypoints}
+            report["matching"] = {"verified_pairs": state.verified_pairs,
+                                  "inlier_matches": state.inlier_matches}
+            seed = seed_for_database(camera, inp, init.image_names, db_path)
+            image_ids = [seed.reconstruction.find_image_with_name(n).image_id
+                         for n in init.image_names]
+            with stages.stage("triangulation"):
+                rec = pycolmap.triangulate_points(seed.reconstruction, str(db_path),
+                                                  str(tmp / IMAGES_DIR), str(work / "tri"),
+                                                  clear_points=True, refine_intrinsics=False)
+            report["triangulation"] = model_statistics(rec)
+            with stages.stage("mapper"):
+                rec, report["mapper"] = _register_missing(
+                    rec, register, unposed, db_path, tmp / IMAGES_DIR, work, o)
+            obs0 = _observations(rec, image_ids)
+            weak = obs0 < o.min_observations
+            fixed = {rec.images[i].frame_id for i, w in zip(image_ids, weak, strict=True) if w}
+            trusted_model = rec.num_points3D() >= o.min_points and (~weak).sum() >= 3
+            with stages.stage("bundle adjustment"):
+                if trusted_model:
+                    report["bundle_adjustment"] = _bundle_adjust(rec, fixed, o)
+                    report["bundle_adjustment"]["held_fixed_frames"] = int(len(fixed))
+                    report["bundle_adjustment"]["after"] = model_statistics(rec)
+                else:
+                    report["bundle_adjustment"] = {
+                        "skipped": f"too few points ({rec.num_points3D()} < {o.min_points}) "
+                                   f"or well-observed frames ({int((~weak).sum())} < 3)"}
+            with stages.stage("acceptance and output"):
+                traj, refined, decisions = _accept(rec, seed.export, init, image_ids, obs0,
+                                                   trusted_model, o, path_length)
+                report.update(decisions)
+                final_ids = image_ids
+                ts_all, ts_why = _frame_timestamps(all_names, init)
+                added = [n for n in unposed if (im := rec.find_image_with_name(n)) is not None
+                         and im.has_pose]
+                if added and decisions["alignment_to_input"] is not None:
+                    a = decisions["alignment_to_input"]
+                    R, t, s = np.asarray(a["rotation"]), np.asarray(a["translation"]), a["scale"]
+                    if ts_all is not None:
+                        idx = {n: k for k, n in enumerate(all_names)}
+                        new, _ = trajectory_from_reconstruction(
+                            rec, seed.export, added, ts_all[[idx[n] for n in added]])
+                        new = _apply(R, t, s, new)
+                        traj, refined = _merge(traj, refined, new)
+                        final_ids = image_ids + [rec.find_image_with_name(n).image_id
+                                                 for n in added]
+                    report["mapper"]["added_to_trajectory"] = ts_all is not None
+                    report["mapper"]["timestamps"] = ts_why
+                final = _final_model(rec, seed.export, decisions, image_ids, init, traj,
+                                     added if ts_all is not None else [])
+                report["model"] = model_statistics(final)
+                report["summary"] = final.summary()
+                (tmp / SPARSE_DIR).mkdir()
+                final.write_binary(str(tmp / SPARSE_DIR))
+                if o.text:
+                    final.write_text(str(tmp / SPARSE_DIR))
+                write_tum(tmp / TRAJECTORY_FILE, traj)
+                report["trajectory_frames"] = len(final_ids)
+            shutil.rmtree(work, ignore_errors=True)
+            report["timings_s"] = dict(stages.times)
+            atomic_write_text(tmp / REPORT_FILE, dumps_json(report))
+    finally:
+        stages.close()
+        pycolmap.logging.minloglevel = prev_level
+    return RefineResult(output, traj, inp, refined, report)
+
+
+def _register_missing(rec: Any, register: bool, unposed: list[str], db_path: Path,
+                      image_dir: Path, work: Path, o: RefineOptions) -> tuple[Any, dict[str, Any]]:
+    """COLMAP's incremental mapper continuing from ``rec`` with its frames fixed."""
+    import pycolmap
+
+    if not register:
+        return rec, {"skipped": "every frame of the folder has an input pose" if not unposed
+                     else "disabled"}
+    seeded = work / "seeded"
+    seeded.mkdir()
+    rec.write_binary(str(seeded))
+    opts = pycolmap.IncrementalPipelineOptions()
+    opts.fix_existing_frames = True
+    opts.ba_refine_focal_length = False
+    opts.ba_refine_principal_point = False
+    opts.ba_refine_extra_params = False
+    opts.multiple_models = False
+    opts.num_threads = o.num_threads
+    out = work / "mapper"
+    out.mkdir()
+    try:
+        models = pycolmap.incremental_mapping(str(db_path), str(image_dir), str(out), opts,
+                                              input_path=str(seeded))
+    except Exception as exc:  # pycolmap raises RuntimeError when the mapper gives up
+        return rec, {"failed": str(exc).splitlines()[0][:200]}
+    best = max(models.values(), key=lambda r: r.num_reg_images(), default=None)
+    if best is None or best.num_reg_images() < rec.num_reg_images():
+        return rec, {"failed": "the mapper returned no model containing the seeded frames"}
+    names = {im.name for im in best.images.values() if im.has_pose}
+    got = [n for n in unposed if n in names]
+    return best, {"registered": got, "not_registered": [n for n in unposed if n not in names]}
+
+
+def _merge(traj: Trajectory, refined: np.ndarray, new: Trajectory
+           ) -> tuple[Trajectory, np.ndarray]:
+    ts = np.concatenate([traj.timestamps, new.timestamps])
+    order = np.argsort(ts, kind="stable")
+    merged = Trajectory(ts[order], np.concatenate([traj.rotations, new.rotations])[order],
+                        np.concatenate([traj.positions, new.positions])[order])
+    return merged, np.concatenate([refined, np.ones(len(new), dtype=bool)])[order]
+
+
+def _accept(rec: Any, export: Any, init: InitModel, image_ids: list[int], obs0: np.ndarray,
+            trusted_model: bool, o: RefineOptions, path_length: float
+            ) -> tuple[Trajectory, np.ndarray, dict[str, Any]]:
+    """Per frame: the adjusted pose (mapped onto the input's frame) or the input pose, and why."""
+    inp = init.trajectory
+    n = len(inp)
+    reasons: dict[str, str] = {}
+    ba_mean = float(rec.compute_mean_reprojection_error())
+    if not trusted_model or ba_mean > o.max_mean_reprojection_error_px:
+        why = ("too few points or well-observed frames for a trustworthy adjustment"
+               if not trusted_model else
+               f"mean reprojection error {ba_mean:.2f} px > {o.max_mean_reprojection_error_px}")
+        return inp, np.zeros(n, dtype=bool), {
+            "kept_input_for_all": why, "refined_frames": 0, "kept_frames": {},
+            "alignment_to_input": None, "pose_changes": None}
+    ref, ok = trajectory_from_reconstruction(rec, export, init.image_names, inp.timestamps)
+    full_R, full_c = inp.rotations.copy(), inp.positions.copy()
+    full_R[ok], full_c[ok] = ref.rotations, ref.positions
+    adjusted = Trajectory(inp.timestamps.copy(), full_R, full_c)
+    obs = _observations(rec, image_ids)
+    cand = ok & (obs0 >= o.min_observations) & (obs >= o.min_observations)
+    scale_len = path_length if path_length > 0 else 1.0
+    rot_change = pos_change = np.zeros(n)
+    use = cand.copy()
+    R = np.eye(3)
+    t = np.zeros(3)
+    s = 1.0
+    for _ in range(3):  # fit, drop implausible frames, fit again on the rest
+        if use.sum() < 3:
+            break
+        R, t, s = _align_to_input(adjusted.subset(use), inp.subset(use))
+        aligned = _apply(R, t, s, adjusted)
+        rot_change = np.degrees(rotation_angle(np.swapaxes(inp.rotations, 1, 2)
+                                               @ aligned.rotations))
+        pos_change = np.linalg.norm(aligned.positions - inp.positions, axis=1) / scale_len
+        new_use = cand & (rot_change <= o.max_rotation_change_deg) & (
+            pos_change <= o.max_position_change)
+        if np.array_equal(new_use, use):
+            break
+        use = new_use
+    if use.sum() < 3:
+        return inp, np.zeros(n, dtype=bool), {
+            "kept_input_for_all": "fewer than three frames with a plausible adjusted pose",
+            "refined_frames": 0, "kept_frames": {}, "alignment_to_input": None,
+            "pose_changes": None}
+    aligned = _apply(R, t, s, adjusted)
+    for k, name in enumerate(init.image_names):
+        if use[k]:
+            continue
+        if not ok[k]:
+            reasons[name] = "not registered in the COLMAP model"
+        elif obs0[k] < o.min_observations or obs[k] < o.min_observations:
+            reasons[name] = (f"{int(min(obs0[k], obs[k]))} observations < "
+                             f"{o.min_observations}")
+        elif rot_change[k] > o.max_rotation_change_deg:
+            reasons[name] = f"rotation changed {rot_change[k]:.2f} deg (implausible)"
+        else:
+            reasons[name] = f"centre moved {100 * pos_change[k]:.2f}% of the path (implausible)"
+    rot = np.where(use[:, None, None], aligned.rotations, inp.rotations)
+    pos = np.where(use[:, None], aligned.positions, inp.positions)
+    traj = Trajectory(inp.timestamps.copy(), rot, pos)
+    changes = {
+        "rotation_deg_median": float(np.median(rot_change[use])),
+        "rotation_deg_max": float(rot_change[use].max()),
+        "position_fraction_of_path_median": float(np.median(pos_change[use])),
+        "position_fraction_of_path_max": float(pos_change[use].max()),
+    }
+    return traj, use, {
+        "kept_input_for_all": None, "refined_frames": int(use.sum()), "kept_frames": reasons,
+        "alignment_to_input": {"rotation": R, "translation": t, "scale": s,
+                               "rotation_deg": float(np.degrees(rotation_angle(R)))},
+        "pose_changes": changes}
+
+
+def _final_model(rec: Any, export: Any, decisions: dict[str, Any], image_ids: list[int],
+                 init: InitModel, traj: Trajectory, added: list[str]) -> Any:
+    """The adjusted model mapped onto the input's frame, with every seeded frame at its
+    ``trajectory.tum`` pose (kept frames back at their input pose) and point errors updated.
+    Frames registered by the mapper stay when they are in the trajectory, otherwise they are
+    deregistered."""
+    import pycolmap
+
+    a = decisions["alignment_to_input"]
+    if a is not None:
+        rot = pycolmap.Rotation3d(np.asarray(a["rotation"]))
+        rec.transform(pycolmap.Sim3d(float(a["scale"]), rot, np.asarray(a["translation"])))
+    by_ts = {float(ts): k for k, ts in enumerate(traj.timestamps)}
+    idx = [by_ts[float(ts)] for ts in init.trajectory.timestamps]
+    _set_poses(rec, export, image_ids, traj.subset(np.asarray(idx, dtype=np.intp)))
+    keep = {rec.find_image_with_name(n).image_id for n in added}
+    for image_id in list(rec.reg_image_ids()):
+        if image_id not in image_ids and image_id not in keep:
+            rec.deregister_frame(rec.images[image_id].frame_id)
+    rec.update_point_3d_errors()
+    return rec

@@ -1,0 +1,54 @@
+"""A stand-in for the line-based init on rendered sequences: ground truth with realistic errors.
+
+Used by the tests and ``scripts/bench_refine.py`` until ``omni-sfm init --images`` writes init
+directories itself; both go through :func:`omni_sfm.export.colmap.write_init_model`, so refinement
+sees the same layout either way.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from omni_sfm.cameras import load_camera
+from omni_sfm.export.colmap import write_init_model
+from omni_sfm.fileio import atomic_output_dir
+from omni_sfm.geometry import rotvec_to_matrix
+from omni_sfm.poses import Trajectory, read_tum, write_tum
+from omni_sfm.refine.database import list_images
+
+
+def perturb(gt: Trajectory, *, rotation_deg: float = 0.3, position_fraction: float = 0.005,
+            seed: int = 0) -> Trajectory:
+    """``gt`` with independent per-frame errors: a rotation about a random axis with RMS angle
+    ``rotation_deg`` (deg) applied in the camera frame, and a centre offset with RMS length
+    ``position_fraction`` of the path length. Frame 0 is perturbed too."""
+    rng = np.random.default_rng(seed)
+    n = len(gt)
+    dR = rotvec_to_matrix(np.radians(rotation_deg) * rng.normal(size=(n, 3)) / np.sqrt(3))
+    dc = position_fraction * gt.path_length() * rng.normal(size=(n, 3)) / np.sqrt(3)
+    return Trajectory(gt.timestamps.copy(), gt.rotations @ dR, gt.positions + dc)
+
+
+def write_perturbed_init(render_dir: Path, init_dir: Path, *, rotation_deg: float = 0.3,
+                         position_fraction: float = 0.005, seed: int = 0,
+                         frames: np.ndarray | None = None, overwrite: bool = False
+                         ) -> Trajectory:
+    """An init directory for a rendered sequence (``omni-sfm render`` output): the perturbed
+    ground truth of ``frames`` (indices; default all) as ``trajectory.tum`` and the COLMAP model
+    (no ``images_colmap/``: refine writes its own). Returns the perturbed poses."""
+    render_dir = Path(render_dir)
+    camera = load_camera(render_dir / "camera.yaml")
+    gt = read_tum(render_dir / "groundtruth.tum")
+    names = list_images(render_dir / "images")
+    if len(names) != len(gt):
+        raise ValueError(f"{render_dir}: {len(names)} images for {len(gt)} poses")
+    traj = perturb(gt, rotation_deg=rotation_deg, position_fraction=position_fraction, seed=seed)
+    if frames is not None:
+        traj = traj.subset(np.asarray(frames))
+        names = [names[k] for k in np.asarray(frames)]
+    with atomic_output_dir(Path(init_dir), overwrite=overwrite) as tmp:
+        write_tum(tmp / "trajectory.tum", traj)
+        write_init_model(tmp, camera, traj, names)
+    return traj
