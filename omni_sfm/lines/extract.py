@@ -34,10 +34,14 @@ class ExtractionOptions:
 
     blur_sigma: float = 1.0
     """Gaussian pre-smoothing before edge detection (px); 0 disables it."""
+    gamma: float = 1.0
+    """Decode the image's transfer curve before edge detection, ``I_lin = 255 (I/255)^gamma``
+    (2.2 for sRGB-encoded video: blur mixes light linearly, so edges are located where they
+    are in linear intensity); 1 uses the values as they are."""
     canny_low: float = 20.0
     """Canny hysteresis low threshold on the L2 magnitude of the 3x3 Sobel gradient of the
-    smoothed 8-bit image (a sharp step of ``s`` grey levels gives about ``4 s`` before
-    smoothing, about ``2.5 s`` after a 1 px blur)."""
+    smoothed image (grey levels; a sharp step of ``s`` grey levels gives ``4 s`` unsmoothed,
+    about ``2.5 s`` after a 1 px blur)."""
     canny_high: float = 50.0
     """Canny hysteresis high threshold (same units as ``canny_low``)."""
     corner_ratio: float = 10.0
@@ -45,7 +49,7 @@ class ExtractionOptions:
     matrix is at least this (the paper's 10); lower ratios are corners or junctions."""
     tensor_sigma: float = 1.5
     """Gaussian window of the second-moment matrix (px)."""
-    min_points: int = 20
+    min_points: int = 40
     """Fewest edge points of a segment and of an accepted line (about its length in px)."""
     line_threshold_px: float = 1.0
     """``l_th`` of eq. (3) as a distance from the great circle in pixels at that point:
@@ -184,6 +188,8 @@ class LineExtractor:
             k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * e + 1, 2 * e + 1))
             valid = cv2.erode(padded, k)[e:-e, e:-e] > 0
         self.search_mask = valid.astype(np.uint8) * 255
+        self._lut = None if o.gamma == 1.0 else \
+            (255.0 * (np.arange(256) / 255.0) ** o.gamma).astype(np.float32)
         rad = max(1, int(np.ceil(1.5 * o.tensor_sigma)))
         wy, wx = np.mgrid[-rad : rad + 1, -rad : rad + 1]
         self._win_dy, self._win_dx = wy.ravel(), wx.ravel()
@@ -215,18 +221,27 @@ class LineExtractor:
     def _edge_points(self, gray: np.ndarray) -> tuple[FloatArray, IntArray, dict[str, int]]:
         """Line-like edge points: sub-pixel ``(N, 2)`` and integer ``(N, 2)`` (x, y) pixels."""
         o = self.options
-        img = cv2.GaussianBlur(gray, (0, 0), o.blur_sigma) if o.blur_sigma > 0 else gray
-        dx = cv2.Sobel(img, cv2.CV_16S, 1, 0, ksize=3)
-        dy = cv2.Sobel(img, cv2.CV_16S, 0, 1, ksize=3)
-        edges = cv2.Canny(dx, dy, o.canny_low, o.canny_high, L2gradient=True)
+        # float pipeline: rounding the smoothed image to 8 bits would cost sub-pixel accuracy
+        img = self._lut[gray] if self._lut is not None else gray.astype(np.float32)
+        if o.blur_sigma > 0:
+            k = 2 * int(np.ceil(2.0 * o.blur_sigma)) + 1
+            img = cv2.GaussianBlur(img, (k, k), o.blur_sigma)
+        dx = cv2.Sobel(img, cv2.CV_32F, 1, 0, ksize=3)
+        dy = cv2.Sobel(img, cv2.CV_32F, 0, 1, ksize=3)
+        # Canny wants 16-bit gradients: scale by 8 (|Sobel| <= 1020) to keep 1/8 resolution
+        dx16 = np.empty(dx.shape, np.int16)
+        dy16 = np.empty(dy.shape, np.int16)
+        np.multiply(dx, 8.0, out=dx16, casting="unsafe")
+        np.multiply(dy, 8.0, out=dy16, casting="unsafe")
+        edges = cv2.Canny(dx16, dy16, 8.0 * o.canny_low, 8.0 * o.canny_high, L2gradient=True)
         ys, xs = np.nonzero(cv2.bitwise_and(edges, self.search_mask))
         n_edge = len(xs)
         h, w = gray.shape
         # second-moment matrix over a Gaussian window, evaluated only at the edge points
         yy = np.clip(ys[:, None] + self._win_dy, 0, h - 1)
         xx = np.clip(xs[:, None] + self._win_dx, 0, w - 1)
-        wx = dx[yy, xx].astype(np.float32)
-        wy = dy[yy, xx].astype(np.float32)
+        wx = dx[yy, xx]
+        wy = dy[yy, xx]
         a = (wx * wx) @ self._win_w
         b = (wy * wy) @ self._win_w
         c = (wx * wy) @ self._win_w
@@ -236,8 +251,8 @@ class LineExtractor:
         keep = lmax >= o.corner_ratio * lmin
         ys, xs = ys[keep], xs[keep]
         # sub-pixel: vertex of the parabola through the gradient magnitude across the edge
-        gx = dx[ys, xs].astype(np.float32)
-        gy = dy[ys, xs].astype(np.float32)
+        gx = dx[ys, xs]
+        gy = dy[ys, xs]
         m0 = np.hypot(gx, gy)
         gn = np.where(m0 > 0, m0, 1.0)
         ux, uy = gx / gn, gy / gn
@@ -471,7 +486,7 @@ def _bilinear_magnitude(dx: np.ndarray, dy: np.ndarray, x: np.ndarray,
     fx, fy = (x - x0)[:, None], (y - y0)[:, None]
     yy = np.stack([y0, y0, y0 + 1, y0 + 1], 1)
     xx = np.stack([x0, x0 + 1, x0, x0 + 1], 1)
-    m = np.hypot(dx[yy, xx].astype(np.float32), dy[yy, xx].astype(np.float32))
+    m = np.hypot(dx[yy, xx], dy[yy, xx])
     wts = np.concatenate([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy], 1)
     return np.asarray((m * wts).sum(axis=1), dtype=np.float32)
 

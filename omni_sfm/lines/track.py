@@ -52,6 +52,9 @@ class TrackingOptions:
     fb_max_px: float = 1.0
     """Forward-backward check: tracked forward and back, a point must return within this
     distance of where it started, measured across the edge (along it KLT is free to slide)."""
+    flow_neighbours: int = 8
+    """Samples KLT cannot track (the window holds a single ideal straight edge) move with the
+    median flow of this many nearest tracked samples; 0 drops them."""
     snap_radius_px: float = 3.0
     """A tracked point votes for the line whose edge point is nearest, if within this radius."""
     min_votes: int = 3
@@ -254,6 +257,15 @@ class LineTracker:
         back = (pb - p0).reshape(-1, 2)
         ok &= np.abs(back[:, 0] * tangent[:, 1] - back[:, 1] * tangent[:, 0]) < o.fb_max_px
         p1 = p1.reshape(-1, 2)
+        # KLT gives up on points whose window holds one ideal straight edge (a singular
+        # system); predict them with the median flow of the nearest tracked samples instead
+        lost = np.flatnonzero(st.ravel() == 0)
+        if o.flow_neighbours > 0 and len(lost) and ok.sum() >= 3:
+            good = np.flatnonzero(ok)
+            _, nb = cKDTree(s0[good]).query(s0[lost], k=min(o.flow_neighbours, len(good)))
+            flow = (p1[good] - s0[good])[nb.reshape(len(lost), -1)]
+            p1[lost] = s0[lost] + np.median(flow, axis=1)
+            ok[lost] = True
         tree = cKDTree(cur.points_uv)
         dist, nearest = tree.query(p1[ok], distance_upper_bound=o.snap_radius_px)
         hit = np.isfinite(dist)
