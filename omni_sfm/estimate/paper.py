@@ -58,8 +58,10 @@ class PaperOptions:
     changed most against view 0 (rotation-invariant proxy), for the translation the view with the
     largest in-plane parallax of the parallel lines."""
     min_parallax_deg: float = 0.25
-    """Degenerate motion: if no view shows a median in-plane parallax of the parallel lines (or
-    a median parallax of the other lines' planes) of at least this against view 0, raise."""
+    """Degenerate motion: raise if no view shows at least this (median over lines, against view
+    0) of: change of the angles between line planes (rotation-free: the camera barely moved),
+    parallax of the other lines' planes, or in-plane parallax of the parallel lines (no motion
+    across them)."""
     max_plane_ratio: float = 0.3
     """Degenerate motion: raise if the two eigenvalues of the in-plane cost ``S`` are closer than
     this ratio (the in-plane direction of travel is not determined by the data)."""
@@ -117,8 +119,8 @@ class PaperSolution:
     costs: dict[str, float]
 
 
-def _proxy_second_view(normals: FloatArray) -> int:
-    """View whose pairwise angles between line planes changed most against view 0.
+def _motion_scores(normals: FloatArray) -> FloatArray:
+    """``(F,)`` median change (rad) of the pairwise angles between line planes against view 0.
 
     Angles between the NVs of two lines seen in one view do not depend on the camera rotation,
     only on its position: their change is a rotation-free measure of the motion. ``normals
@@ -130,8 +132,8 @@ def _proxy_second_view(normals: FloatArray) -> int:
     iu = np.triu_indices(M, 1)
     change = np.abs(ang[:, iu[0], iu[1]] - ang[:1, iu[0], iu[1]])
     score = np.median(change, axis=1)
-    score[0] = -np.inf
-    return int(np.argmax(score))
+    score[0] = 0.0
+    return score
 
 
 def _check_inputs(tracks: LineTracks, family: ParallelFamily,
@@ -207,8 +209,13 @@ def estimate_paper(tracks: LineTracks, family: ParallelFamily,
     # rotation: the paper's search, then (optionally) all views jointly; when both are at hand,
     # the full model (lines triangulated from all views) decides which explains the normals best
     t0 = time.perf_counter()
-    c_rot = opts.second_view if opts.second_view is not None else \
-        _proxy_second_view(normals[:, np.concatenate([par, oth])])
+    motion = _motion_scores(normals[:, np.concatenate([par, oth])])
+    if np.max(motion) < np.radians(opts.min_parallax_deg):
+        raise OmniSfmError(
+            f"degenerate motion: the camera barely moved (the angles between line planes change "
+            f"by at most {np.degrees(np.max(motion)):.3g} deg, min_parallax_deg="
+            f"{opts.min_parallax_deg:g})")
+    c_rot = opts.second_view if opts.second_view is not None else int(np.argmax(motion))
     rot = estimate_rotations(normals[:, oth], vpv, w[oth], c_rot, num_grid=opts.rotation_grid,
                              num_starts=opts.rotation_starts, xtol=opts.rotation_xtol,
                              softening=opts.rotation_softening, polish=False)
