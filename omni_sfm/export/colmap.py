@@ -89,6 +89,26 @@ IMAGES_DIR = "images_colmap"
 CAMERA_FILE = "camera.yaml"
 TRAJECTORY_FILE = "trajectory.tum"
 MANIFEST_FILE = "colmap.json"
+MASK_FILE = "camera_mask.png"
+MASK_EROSION_PX = 3
+
+
+def write_colmap_mask(path: Path, camera: CameraModel, erode_px: int = MASK_EROSION_PX) -> None:
+    """COLMAP's camera mask (``ImageReaderOptions.camera_mask_path``; 0 = ignore) of the valid
+    pixels, shrunk by ``erode_px`` so that the strong edges at a mirror's rim or a mask's border
+    give no features, and mirrored like the images COLMAP sees."""
+    import cv2
+
+    export = camera.colmap_export()
+    mask: np.ndarray = np.where(camera.valid_mask(), 255, 0).astype(np.uint8)
+    if erode_px > 0:
+        k = 2 * erode_px + 1
+        mask = cv2.erode(mask, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k)),
+                         borderType=cv2.BORDER_CONSTANT, borderValue=0)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if not cv2.imwrite(str(path), export.image_to_colmap(mask)):
+        raise OmniSfmError(f"{path}: OpenCV cannot write the mask image")
 
 
 @dataclass(frozen=True)
@@ -119,10 +139,12 @@ def write_init_model(directory: Path, camera: CameraModel, traj: Trajectory,
     COLMAP model, one posed image per trajectory frame (image ids 1..N in trajectory order, named
     ``image_names``); ``DIR/camera.yaml`` (the omni-sfm camera the poses refer to);
     ``DIR/trajectory.tum`` (the poses, world_from_cam of our ray frame) unless the caller has
-    written it already; ``DIR/colmap.json`` (image name and timestamp of every pose, the frame map
-    and the image flip); and, when ``images`` is given, ``DIR/images_colmap/<name>``: each image
-    ``(H, W[, 3])`` (RGB if 3 channels) as COLMAP must see it, mirrored where the camera export
-    says so. ``images`` yields one array per name, in order.
+    written it already; ``DIR/camera_mask.png`` (COLMAP's camera mask of the valid pixels,
+    :func:`write_colmap_mask`); ``DIR/colmap.json`` (image name and timestamp of every pose, the
+    frame map and the image flip); and, when ``images`` is given,
+    ``DIR/images_colmap/<name>``: each image ``(H, W[, 3])`` (RGB if 3 channels) as COLMAP must
+    see it, mirrored where the camera export says so. ``images`` yields one array per name, in
+    order.
 
     Use inside :func:`omni_sfm.fileio.atomic_output_dir` so the directory appears complete or not
     at all. Returns the seeded model.
@@ -141,6 +163,7 @@ def write_init_model(directory: Path, camera: CameraModel, traj: Trajectory,
     seed = build_reconstruction(camera, traj, names)
     write_reconstruction(seed, directory / SPARSE_DIR, text=text)
     write_camera_yaml(directory / CAMERA_FILE, camera)
+    write_colmap_mask(directory / MASK_FILE, camera)
     if not (directory / TRAJECTORY_FILE).exists():
         write_tum(directory / TRAJECTORY_FILE, traj)
     manifest = {

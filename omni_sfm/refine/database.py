@@ -12,9 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from omni_sfm.cameras.base import CameraModel, ColmapExport
+from omni_sfm.cameras.base import ColmapExport
 from omni_sfm.errors import OmniSfmError
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
@@ -63,21 +61,6 @@ def write_colmap_images(src: Path, dst: Path, names: Sequence[str], export: Colm
                 f"{export.width}x{export.height} px")
         if not cv2.imwrite(str(dst / name), export.image_to_colmap(img)):
             raise OmniSfmError(f"{dst / name}: OpenCV cannot write this image")
-
-
-def write_mask(path: Path, camera: CameraModel, export: ColmapExport, erode_px: int) -> None:
-    """COLMAP's camera mask (0 = ignore) of the valid pixels, eroded by ``erode_px`` so that the
-    strong edges at a mirror's rim or a mask's border give no features, mirrored like the
-    images."""
-    import cv2
-
-    mask: np.ndarray = np.where(camera.valid_mask(), 255, 0).astype(np.uint8)
-    if erode_px > 0:
-        k = 2 * erode_px + 1
-        mask = cv2.erode(mask, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k)),
-                         borderType=cv2.BORDER_CONSTANT, borderValue=0)
-    if not cv2.imwrite(str(path), export.image_to_colmap(mask)):
-        raise OmniSfmError(f"{path}: OpenCV cannot write the mask image")
 
 
 @dataclass(frozen=True)

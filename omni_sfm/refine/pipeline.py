@@ -34,6 +34,7 @@ import numpy as np
 
 from omni_sfm.export.colmap import (
     IMAGES_DIR,
+    MASK_FILE,
     SPARSE_DIR,
     TRAJECTORY_FILE,
     InitModel,
@@ -41,6 +42,7 @@ from omni_sfm.export.colmap import (
     read_init_model,
     seed_for_database,
     trajectory_from_reconstruction,
+    write_colmap_mask,
 )
 from omni_sfm.fileio import atomic_output_dir, atomic_write_text, dumps_json
 from omni_sfm.geometry import FloatArray, rotation_angle
@@ -50,11 +52,9 @@ from omni_sfm.refine.database import (
     extract_and_match,
     list_images,
     write_colmap_images,
-    write_mask,
 )
 
 DATABASE_FILE = "database.db"
-MASK_FILE = "camera_mask.png"
 REPORT_FILE = "report.json"
 
 
@@ -306,7 +306,7 @@ def refine(init_dir: Path, images_dir: Path, output: Path,
             with stages.stage("images"):
                 write_colmap_images(images_dir, tmp / IMAGES_DIR, names, export,
                                     progress=progress)
-                write_mask(tmp / MASK_FILE, camera, export, o.mask_erosion_px)
+                write_colmap_mask(tmp / MASK_FILE, camera, o.mask_erosion_px)
             with stages.stage("features and matching"):
                 state = extract_and_match(db_path, tmp / IMAGES_DIR, tmp / MASK_FILE, names,
                                           export, max_features=o.max_features,

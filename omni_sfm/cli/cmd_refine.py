@@ -1,0 +1,75 @@
+"""``omni-sfm refine``: COLMAP refinement of the line-based poses (docs/colmap.md)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any
+
+
+def add_parser(sub: Any) -> None:
+    from omni_sfm.refine import RefineOptions
+
+    d = RefineOptions()
+    p = sub.add_parser(
+        "refine",
+        help="refine the line-based poses with COLMAP (pycolmap), never worse than its input",
+        description=(
+            "SIFT features with the camera's valid mask, sequential matching, triangulation with "
+            "the line-based poses fixed, COLMAP's mapper for frames the init missed, bundle "
+            "adjustment with the gauge fixed; frames it cannot improve keep their input pose. "
+            "Writes sparse/, trajectory.tum, report.json, images_colmap/, camera_mask.png and "
+            "database.db into OUTPUT (see docs/colmap.md)."
+        ),
+    )
+    p.add_argument("--input", "-i", type=Path, required=True,
+                   help="init directory (sparse/, camera.yaml, trajectory.tum)")
+    p.add_argument("--images", type=Path, required=True,
+                   help="folder of the frames as recorded (names as in the init model)")
+    p.add_argument("--output", "-o", type=Path, required=True, help="output folder")
+    p.add_argument("--overwrite", action="store_true", help="replace a non-empty OUTPUT")
+    p.add_argument("--database", type=Path, default=None,
+                   help="COLMAP database to use and keep (features and matches in it are "
+                        "reused); default: a new OUTPUT/database.db")
+    p.add_argument("--text", action="store_true", help="also write sparse/ as COLMAP text")
+    p.add_argument("--overlap", type=int, default=d.overlap,
+                   help="sequential matching overlap (default: %(default)s)")
+    p.add_argument("--max-features", type=int, default=d.max_features,
+                   help="SIFT features per image (default: %(default)s)")
+    p.add_argument("--no-mapper", action="store_true",
+                   help="do not try to register frames the init did not pose")
+    p.add_argument("--threads", type=int, default=d.num_threads,
+                   help="pycolmap threads, -1 = all cores (default: %(default)s)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from omni_sfm.errors import OmniSfmError
+    from omni_sfm.refine import RefineOptions, refine
+
+    for key in ("overlap", "max_features"):
+        if getattr(args, key) <= 0:
+            raise OmniSfmError(f"--{key.replace('_', '-')} must be positive, got "
+                               f"{getattr(args, key)}")
+    opts = RefineOptions(overlap=args.overlap, max_features=args.max_features,
+                         register_missing=not args.no_mapper, num_threads=args.threads,
+                         text=args.text)
+    res = refine(args.input, args.images, args.output, opts, database=args.database,
+                 overwrite=args.overwrite, progress=sys.stderr.isatty())
+    r = res.report
+    n = len(res.input_trajectory)
+    ba = r.get("bundle_adjustment", {})
+    rounds = ba.get("rounds") or []
+    err = (f", mean reprojection error {rounds[0]['mean_reprojection_error_before_px']:.3f} -> "
+           f"{rounds[-1]['mean_reprojection_error_after_px']:.3f} px" if rounds else "")
+    print(f"refined {r['refined_frames']} of {n} input poses "
+          f"({r['model']['points']} points, {r['model']['observations']} observations{err}) "
+          f"into {res.output}")
+    if r.get("kept_input_for_all"):
+        print(f"kept every input pose: {r['kept_input_for_all']}")
+    elif r.get("kept_frames"):
+        print(f"kept the input pose of {len(r['kept_frames'])} frames (see report.json)")
+    times = ", ".join(f"{k} {v:.1f} s" for k, v in r["timings_s"].items())
+    print(f"time: {times}")
+    return 0

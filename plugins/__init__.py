@@ -1,0 +1,1 @@
+"""Plugins shipped with omni-sfm, registered through entry points (see omni_sfm.registry)."""
