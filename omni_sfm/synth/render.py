@@ -159,8 +159,11 @@ _TEX_TABLE = 256
 class Renderer:
     """Renders frames of one scene through one camera model.
 
-    The camera's sub-pixel rays are computed once; each frame rotates them into the world and
-    casts them with Open3D. Images are ``(height, width, 3)`` uint8 RGB.
+    Adaptive supersampling: each frame first casts one ray per valid pixel centre; pixels whose
+    8-neighbourhood sees more than one flat surface (the edges) are re-rendered from ``S x S``
+    sub-pixel rays and box-filtered, the others keep the centre sample (lighting is smooth
+    within a surface, and the texture is pre-filtered to the pixel footprint). All rays come
+    from the camera model and are computed once. Images are ``(height, width, 3)`` uint8 RGB.
     """
 
     def __init__(self, scene: Scene, camera: CameraModel,
@@ -175,24 +178,40 @@ class Renderer:
             raise OmniSfmError(f"noise sigma must be >= 0, got {o.noise_sigma}")
         self.raycaster = scene.raycasting_scene()
         self.materials = scene.materials.astype(np.int64)
+        self.surfaces = scene.surfaces.astype(np.int32)
         self.mask = camera.valid_mask()
         self.pixel_index = np.flatnonzero(self.mask.ravel())
-        self.rays_cam = self._subpixel_rays()
-        self.light_pos = scene.light_positions
-        self.light_power = scene.light_power
+        self.centre_rays, self.pixel_angle = self._centre_rays()
+        self.sub_rays = self._subpixel_rays() if o.supersample > 1 else None
+        self.wrap_u = camera.model == CameraKind.EQUIRECTANGULAR
+        self.light_pos = scene.light_positions.astype(np.float32)
+        self.light_power = scene.light_power.astype(np.float32)
         rng = np.random.default_rng([o.seed, 9120])
         self.tex_tables = rng.random(
             (len(_TEX_WAVELENGTHS) + len(_TEX_SPOTS), _TEX_TABLE, _TEX_TABLE))
         self.tex_offsets = rng.uniform(0, 50.0, size=(len(MATERIAL_ALBEDO), 3, 2))
 
+    def _pixel_uv(self) -> tuple[FloatArray, FloatArray]:
+        w = self.camera.width
+        return ((self.pixel_index % w).astype(np.float64),
+                (self.pixel_index // w).astype(np.float64))
+
+    def _centre_rays(self) -> tuple[FloatArray, FloatArray]:
+        """``(P, 3)`` float32 rays of the valid pixel centres, ``(P,)`` pixel size (rad)."""
+        u, v = self._pixel_uv()
+        centre = self.camera.rays_from_pixels(np.stack([u, v], axis=1))
+        size = np.zeros(len(u))
+        for du, dv in ((0.5, 0.0), (-0.5, 0.0), (0.0, 0.5), (0.0, -0.5)):
+            r = self.camera.rays_from_pixels(np.stack([u + du, v + dv], axis=1))
+            step = 2.0 * np.linalg.norm(r - centre, axis=1)
+            size = np.fmax(size, step)
+        return centre.astype(np.float32), size.astype(np.float32)
+
     def _subpixel_rays(self) -> FloatArray:
         """``(S*S, P, 3)`` float32 rays of the ``P`` valid pixels at S x S sub-pixel positions;
         a sub-pixel ray outside the model's domain falls back to the pixel centre's ray."""
         S = self.options.supersample
-        w = self.camera.width
-        u = (self.pixel_index % w).astype(np.float64)
-        v = (self.pixel_index // w).astype(np.float64)
-        centre = self.camera.rays_from_pixels(np.stack([u, v], axis=1))
+        u, v = self._pixel_uv()
         offs = (np.arange(S) + 0.5) / S - 0.5
         out = np.empty((S * S, len(u), 3), dtype=np.float32)
         k = 0
@@ -200,7 +219,7 @@ class Renderer:
             for du in offs:
                 r = self.camera.rays_from_pixels(np.stack([u + du, v + dv], axis=1))
                 bad = ~np.isfinite(r).all(axis=1)
-                r[bad] = centre[bad]
+                r[bad] = self.centre_rays[bad]
                 out[k] = r
                 k += 1
         return np.asarray(out)
@@ -220,11 +239,11 @@ class Renderer:
             "dirs": d,
         }
 
-    def radiance(self, world_from_cam: FloatArray, position: FloatArray) -> FloatArray:
-        """``(P, 3)`` linear radiance of the valid pixels (box-filtered sub-pixel samples)."""
-        S2 = self.rays_cam.shape[0]
-        P = self.rays_cam.shape[1]
-        hit = self.cast(world_from_cam, position, self.rays_cam)
+    def _shade(self, world_from_cam: FloatArray, position: FloatArray, rays_cam: FloatArray,
+               ray_angle: FloatArray) -> tuple[FloatArray, np.ndarray]:
+        """Linear radiance ``(M, 3)`` and surface id ``(M,)`` (-1: nothing hit) of ``(M, 3)``
+        unit rays whose samples stand for ``ray_angle`` (rad) wide pixels or sub-pixels."""
+        hit = self.cast(world_from_cam, position, rays_cam)
         t = hit["t_hit"]
         ok = np.isfinite(t)
         tri = np.where(ok, hit["primitive_ids"], 0).astype(np.int64)
@@ -232,23 +251,66 @@ class Renderer:
         d = hit["dirs"]
         n = hit["normals"].astype(np.float32)
         # the side of the surface facing the camera
-        n *= -np.sign(np.einsum("ij,ij->i", n, d))[:, None]
-        pts = np.asarray(position, dtype=np.float32) + np.where(ok, t, 0)[:, None] * d
+        cos_view = np.einsum("ij,ij->i", n, d)
+        n *= -np.sign(cos_view)[:, None]
+        tt = np.where(ok, t, 0).astype(np.float32)
+        pts = np.asarray(position, dtype=np.float32) + tt[:, None] * d
         irr = _AMBIENT + _AMBIENT_TILT * (n @ _AMBIENT_DIR.astype(np.float32))
-        for lp, lw in zip(self.light_pos.astype(np.float32), self.light_power, strict=True):
+        for lp, lw in zip(self.light_pos, self.light_power, strict=True):
             to_l = lp - pts
             d2 = np.einsum("ij,ij->i", to_l, to_l)
             cos = np.einsum("ij,ij->i", n, to_l) / np.sqrt(d2)
-            irr += np.float32(lw) * np.maximum(cos, 0) / (d2 + _FALLOFF**2)
+            irr += lw * np.maximum(cos, 0) / (d2 + np.float32(_FALLOFF**2))
         albedo = MATERIAL_ALBEDO.astype(np.float32)[mat]
         if self.options.textured:
-            albedo *= self._texture(pts, n, mat)[:, None]
+            # size of the sample's footprint on the surface, metres
+            foot = tt * ray_angle / np.maximum(np.abs(cos_view), 0.25)
+            albedo *= self._texture(pts, n, mat, foot)[:, None]
         rad = albedo * irr[:, None] + MATERIAL_EMISSION.astype(np.float32)[mat]
         rad[~ok] = 0.0
-        return np.asarray(rad.reshape(S2, P, 3).mean(axis=0))
+        sid = np.where(ok, self.surfaces[tri], -1)
+        return rad, sid
 
-    def _texture(self, pts: np.ndarray, n: np.ndarray, mat: np.ndarray) -> np.ndarray:
-        """Albedo factor (around 1) from value noise in the surface's two tangent coordinates."""
+    def _edge_pixels(self, sid: np.ndarray) -> np.ndarray:
+        """``(P,)`` bool: valid pixels with a neighbour (8-neighbourhood) on another surface."""
+        H, W = self.camera.height, self.camera.width
+        flat = np.full(H * W, -2, dtype=np.int32)
+        flat[self.pixel_index] = sid
+        img = flat.reshape(H, W)
+        edge = np.zeros((H, W), dtype=bool)
+
+        def mark(a: slice, b: slice, c: slice, d: slice) -> None:
+            x, y = img[a, b], img[c, d]
+            diff = (x != y) & (x != -2) & (y != -2)
+            edge[a, b] |= diff
+            edge[c, d] |= diff
+
+        full = slice(None)
+        mark(full, slice(0, W - 1), full, slice(1, W))
+        mark(slice(0, H - 1), full, slice(1, H), full)
+        mark(slice(0, H - 1), slice(0, W - 1), slice(1, H), slice(1, W))
+        mark(slice(0, H - 1), slice(1, W), slice(1, H), slice(0, W - 1))
+        if self.wrap_u:  # the equirectangular image is periodic in u
+            mark(full, slice(W - 1, W), full, slice(0, 1))
+        return edge.ravel()[self.pixel_index]
+
+    def radiance(self, world_from_cam: FloatArray, position: FloatArray) -> FloatArray:
+        """``(P, 3)`` linear radiance of the valid pixels (adaptively supersampled)."""
+        rad, sid = self._shade(world_from_cam, position, self.centre_rays, self.pixel_angle)
+        if self.sub_rays is not None:
+            S2 = self.sub_rays.shape[0]
+            idx = np.flatnonzero(self._edge_pixels(sid))
+            sub = self.sub_rays[:, idx].reshape(-1, 3)
+            angle = np.tile(self.pixel_angle[idx] / self.options.supersample, S2)
+            rs, _ = self._shade(world_from_cam, position, sub, angle)
+            rad[idx] = rs.reshape(S2, len(idx), 3).mean(axis=0)
+        return rad
+
+    def _texture(self, pts: np.ndarray, n: np.ndarray, mat: np.ndarray,
+                 foot: np.ndarray) -> np.ndarray:
+        """Albedo factor (around 1) from value noise and spots in the surface's two tangent
+        coordinates, pre-filtered to the sample's footprint ``foot`` (m): octaves finer than
+        the footprint fade to their mean and spot borders are blurred over it."""
         axis = np.argmax(np.abs(n), axis=1)
         ia = np.array([[1, 2], [0, 2], [0, 1]])[axis]
         rows = np.arange(len(pts))
@@ -256,12 +318,14 @@ class Renderer:
         uv += self.tex_offsets[mat, axis]
         val = np.zeros(len(pts), dtype=np.float64)
         for k, (lam, w) in enumerate(zip(_TEX_WAVELENGTHS, _TEX_WEIGHTS, strict=True)):
-            val += w * _value_noise(uv / lam, self.tex_tables[k])
+            keep = np.clip((lam / 2 - foot) / (lam / 4), 0.0, 1.0)
+            val += w * (0.5 + keep * (_value_noise(uv / lam, self.tex_tables[k]) - 0.5))
         # soft blotches (val in [0, 1], mean 0.5) plus sharp spots: the spots make point
         # features that are well localised at every image scale
         factor = 1.0 + _TEX_AMPLITUDE * np.tanh(3.0 * (val - 0.5))
         for k, (cell, rmin, rmax) in enumerate(_TEX_SPOTS):
-            factor *= _spots(uv / cell, self.tex_tables[len(_TEX_WAVELENGTHS) + k], rmin, rmax)
+            factor *= _spots(uv / cell, foot / cell, self.tex_tables[len(_TEX_WAVELENGTHS) + k],
+                             rmin, rmax)
         return np.where(MATERIAL_TEXTURED[mat], factor, 1.0).astype(np.float32)
 
     def render(self, world_from_cam: FloatArray, position: FloatArray,
@@ -359,9 +423,11 @@ def _value_noise(uv: FloatArray, table: FloatArray) -> FloatArray:
     return np.asarray(top + (bot - top) * w[:, 1])
 
 
-def _spots(uv: FloatArray, table: FloatArray, rmin: float, rmax: float) -> FloatArray:
-    """Albedo factor of one random disc per lattice cell (``uv`` in cell units): radius in
-    ``[rmin, rmax]`` cells, dark (x0.35) or light (x1.6), from the hashed ``table``."""
+def _spots(uv: FloatArray, foot: FloatArray, table: FloatArray, rmin: float,
+           rmax: float) -> FloatArray:
+    """Albedo factor of one random disc per lattice cell (``uv`` and the footprint ``foot`` in
+    cell units): radius in ``[rmin, rmax]`` cells, dark (x0.35) or light (x1.6), from the
+    hashed ``table``; the border is blurred over the footprint."""
     m = table.shape[0] - 1
     f = np.floor(uv)
     fr = uv - f
@@ -375,8 +441,9 @@ def _spots(uv: FloatArray, table: FloatArray, rmin: float, rmax: float) -> Float
     cx = r + (1 - 2 * r) * h2
     cy = r + (1 - 2 * r) * h3
     dist = np.hypot(fr[:, 0] - cx, fr[:, 1] - cy)
-    inside = dist < r
-    return np.where(inside, np.where(h4 < 0.5, 0.35, 1.6), 1.0)
+    fp = np.maximum(foot, 1e-6)
+    inside = np.clip((r - dist) / fp + 0.5, 0.0, 1.0) * np.minimum(1.0, (2 * r / fp) ** 2)
+    return 1.0 + inside * (np.where(h4 < 0.5, 0.35, 1.6) - 1.0)
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -162,6 +162,7 @@ class Scene:
         vertices: ``(V, 3)`` mesh vertices (world, metres).
         triangles: ``(T, 3)`` int32 vertex indices.
         materials: ``(T,)`` int :class:`Material` of each triangle.
+        surfaces: ``(T,)`` int id of the flat rectangle each triangle belongs to.
         lines: the true 3D line segments.
         light_positions: ``(K, 3)`` point lights (world, metres).
         light_power: ``(K,)`` light strengths (irradiance ``power / (d^2 + 1 m^2)`` at distance d).
@@ -174,6 +175,7 @@ class Scene:
     vertices: FloatArray
     triangles: np.ndarray
     materials: np.ndarray
+    surfaces: np.ndarray
     lines: LineSegments3D
     light_positions: FloatArray
     light_power: FloatArray
@@ -283,6 +285,7 @@ class _Builder:
             vertices=quads.reshape(-1, 3),
             triangles=tris,
             materials=mats,
+            surfaces=np.concatenate([np.arange(n), np.arange(n)]),
             lines=lines,
             light_positions=np.stack([p for p, _ in self.lights]),
             light_power=np.array([w for _, w in self.lights], dtype=np.float64),
