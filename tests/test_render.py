@@ -209,21 +209,33 @@ def test_render_command_writes_every_file(tmp_path):
     assert cam == make_camera("hyperboloid", preset=Preset.SMALL)
     gt = read_tum(out / "groundtruth.tum")
     assert len(gt) == 3 and np.array_equal(gt.timestamps, [0, 1, 2])
+    # omni-sfm's world: the first camera (identity pose), metres
+    np.testing.assert_allclose(gt.rotations[0], np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(gt.positions[0], 0, atol=1e-12)
     setup = prepare(RenderOptions(scene=SceneName.ROOM, preset=Preset.SMALL, frames=3, seed=4))
-    np.testing.assert_allclose(gt.positions, setup.groundtruth.positions, atol=1e-12)
-    np.testing.assert_allclose(gt.rotations, setup.groundtruth.rotations, atol=1e-12)
-    rendered = setup.renderer.render(gt.rotations[1], gt.positions[1], 1)
+    R_ws, t_ws = setup.world_from_scene()
+    sg = setup.groundtruth
+    np.testing.assert_allclose(gt.positions, sg.positions @ R_ws.T + t_ws, atol=1e-9)
+    np.testing.assert_allclose(gt.rotations, R_ws @ sg.rotations, atol=1e-9)
+    assert abs(gt.path_length() - sg.path_length()) < 1e-9
+    rendered = setup.renderer.render(sg.rotations[1], sg.positions[1], 1)
     assert np.array_equal(cv2.imread(str(pngs[1]))[:, :, ::-1], rendered)
     import open3d as o3d
 
     mesh = o3d.io.read_triangle_mesh(str(out / "scene.ply"))
     assert len(mesh.triangles) == len(setup.scene.triangles)
-    np.testing.assert_allclose(np.asarray(mesh.vertices), setup.scene.vertices, atol=1e-6)
+    np.testing.assert_allclose(np.asarray(mesh.vertices),
+                               setup.scene.vertices @ R_ws.T + t_ws, atol=1e-5)
     lines = read_lines3d(out / "lines3d.json")
-    np.testing.assert_allclose(lines.starts, setup.scene.lines.starts)
     assert lines.kinds == setup.scene.lines.kinds
+    # the file's lines seen from the file's poses are the scene's lines seen by the renderer
+    rays_file = (lines.starts - gt.positions[2]) @ gt.rotations[2]
+    rays_scene = (setup.scene.lines.starts - sg.positions[2]) @ sg.rotations[2]
+    np.testing.assert_allclose(rays_file, rays_scene, atol=1e-9)
     meta = json.loads((out / "render.json").read_text())
     assert meta["num_frames"] == 3 and meta["mount"] == "robot"
+    np.testing.assert_allclose(np.array(meta["up_in_world"]), R_ws[:, 2])
+    np.testing.assert_allclose(np.array(meta["world_from_scene"])[:3, :3], R_ws)
 
 
 def test_render_video(tmp_path):

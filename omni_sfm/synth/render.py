@@ -133,8 +133,8 @@ def default_mount(camera: CameraModel) -> Mount:
 
 @dataclass(frozen=True, kw_only=True)
 class ShadingOptions:
-    supersample: int = 2
-    """Sub-pixel rays per pixel along each axis (S x S rays, box filter)."""
+    supersample: int = 3
+    """Sub-pixel rays per edge pixel along each axis (S x S rays, box filter)."""
     textured: bool = False
     """Procedural surface texture, for point features."""
     noise_sigma: float = 1.0
@@ -466,8 +466,8 @@ class RenderOptions:
     """Seeds the path, the texture and the sensor noise."""
     video: bool = False
     """Write ``video.mp4`` (mp4v) instead of PNG frames."""
-    supersample: int = 2
-    """Sub-pixel rays per pixel along each axis."""
+    supersample: int = 3
+    """Sub-pixel rays per edge pixel along each axis (1: no anti-aliasing)."""
     noise_sigma: float = 1.0
     """Sensor noise std-dev, 8-bit grey levels."""
     path_length: float = 1.5
@@ -480,13 +480,33 @@ class RenderOptions:
 
 @dataclass(frozen=True)
 class RenderSetup:
-    """Everything needed to render a sequence: scene, camera, trajectory and the renderer."""
+    """Everything needed to render a sequence: scene, camera, trajectory and the renderer.
+
+    ``scene`` and ``groundtruth`` are in the scene frame (metres, +Z up, floor at z = 0), where
+    the renderer works. The files of :func:`render_sequence` use omni-sfm's world instead, the
+    first camera's frame (still metres): see :meth:`world_from_scene`.
+    """
 
     scene: Scene
     camera: CameraModel
     groundtruth: Trajectory
     renderer: Renderer
     mount: Mount
+
+    def world_from_scene(self) -> tuple[FloatArray, FloatArray]:
+        """``(R (3, 3), t (3,))`` with ``x_world = R @ x_scene + t``, world = first camera."""
+        R0, c0 = self.groundtruth.rotations[0], self.groundtruth.positions[0]
+        return R0.T, -R0.T @ c0
+
+    def groundtruth_in_world(self) -> Trajectory:
+        """The trajectory in the first camera's frame (the first pose is the identity)."""
+        R, t = self.world_from_scene()
+        gt = self.groundtruth
+        return Trajectory(gt.timestamps.copy(), R @ gt.rotations, gt.positions @ R.T + t)
+
+    def scene_in_world(self) -> Scene:
+        """The scene (mesh, lines, lights) in the first camera's frame."""
+        return self.scene.transformed(*self.world_from_scene())
 
 
 def prepare(options: RenderOptions) -> RenderSetup:
@@ -568,15 +588,23 @@ def render_sequence(output: Path | str, options: RenderOptions | None = None, *,
             if writer is not None:
                 writer.release()
         seconds = (time.perf_counter() - t0) / n
+        R_ws, t_ws = setup.world_from_scene()
+        world_scene = setup.scene_in_world()
+        up = R_ws[:, 2]
         write_camera_yaml(tmp / "camera.yaml", cam)
-        write_tum(tmp / "groundtruth.tum", gt)
-        setup.scene.write_ply(tmp / "scene.ply")
-        write_lines3d(tmp / "lines3d.json", setup.scene.lines)
+        write_tum(tmp / "groundtruth.tum", setup.groundtruth_in_world())
+        world_scene.write_ply(tmp / "scene.ply")
+        write_lines3d(tmp / "lines3d.json", world_scene.lines,
+                      frame="world = first camera's ray frame, metres", up=up)
         meta: dict[str, Any] = {
             k: (v.value if isinstance(v, StrEnum) else v) for k, v in asdict(o).items()
         }
+        world_from_scene = np.eye(4)
+        world_from_scene[:3, :3], world_from_scene[:3, 3] = R_ws, t_ws
         meta.update(mount=setup.mount.value, num_frames=n, width=cam.width, height=cam.height,
-                    world="scene frame: metres, +Z up, floor at z=0",
+                    world="first camera's ray frame, metres",
+                    world_from_scene=world_from_scene,
+                    scene_frame="metres, +Z up, floor at z=0", up_in_world=up,
                     path_length_m=gt.path_length(), seconds_per_frame=seconds)
         atomic_write_text(tmp / "render.json", dumps_json(meta))
     return RenderResult(output, cam, gt, n, seconds)

@@ -15,7 +15,7 @@ group 0 is the most populated one) and a kind naming what it is.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from enum import IntEnum, StrEnum
 from pathlib import Path
 from typing import Any
@@ -108,11 +108,20 @@ class LineSegments3D:
     def lengths(self) -> FloatArray:
         return np.asarray(np.linalg.norm(self.ends - self.starts, axis=1))
 
-    def to_json(self) -> dict[str, Any]:
-        """The ``lines3d.json`` document (see docs/rendering.md)."""
+    def transformed(self, rotation: FloatArray, translation: FloatArray) -> LineSegments3D:
+        """The segments in another frame: ``x' = rotation @ x + translation``."""
+        R, t = np.asarray(rotation), np.asarray(translation)
+        return replace(self, starts=self.starts @ R.T + t, ends=self.ends @ R.T + t,
+                       group_directions=self.group_directions @ R.T)
+
+    def to_json(self, frame: str = "scene frame: metres, +Z up, floor at z=0",
+                up: FloatArray | None = None) -> dict[str, Any]:
+        """The ``lines3d.json`` document (see docs/rendering.md); ``frame`` describes the
+        coordinate frame, ``up`` (optional) is the unit up direction in it."""
         counts = np.bincount(self.groups, minlength=len(self.group_directions))
         return {
-            "frame": "world (scene frame: metres, +Z up, floor at z=0)",
+            "frame": frame,
+            **({"up": np.asarray(up).tolist()} if up is not None else {}),
             "groups": [
                 {"id": g, "direction": d.tolist(), "count": int(c)}
                 for g, (d, c) in enumerate(zip(self.group_directions, counts, strict=True))
@@ -131,9 +140,9 @@ def open3d_module() -> Any:
     return importlib.import_module("open3d")
 
 
-def write_lines3d(path: Path, lines: LineSegments3D) -> None:
-    """Write ``lines`` as ``lines3d.json`` (atomically)."""
-    atomic_write_text(Path(path), dumps_json(lines.to_json()))
+def write_lines3d(path: Path, lines: LineSegments3D, **kwargs: Any) -> None:
+    """Write ``lines`` as ``lines3d.json`` (atomically); ``kwargs`` go to ``to_json``."""
+    atomic_write_text(Path(path), dumps_json(lines.to_json(**kwargs)))
 
 
 def read_lines3d(path: Path) -> LineSegments3D:
@@ -182,6 +191,15 @@ class Scene:
     walkway: FloatArray
     walkway_halfwidth: float
     ceiling_height: float
+
+    def transformed(self, rotation: FloatArray, translation: FloatArray) -> Scene:
+        """The scene in another frame: ``x' = rotation @ x + translation`` (mesh, lines, lights,
+        walkway; ``ceiling_height`` keeps its meaning in the scene frame)."""
+        R, t = np.asarray(rotation), np.asarray(translation)
+        return replace(self, vertices=self.vertices @ R.T + t,
+                       lines=self.lines.transformed(R, t),
+                       light_positions=self.light_positions @ R.T + t,
+                       walkway=self.walkway @ R.T + t)
 
     def to_open3d(self) -> Any:
         """A legacy ``open3d.geometry.TriangleMesh`` with per-vertex material colours."""
