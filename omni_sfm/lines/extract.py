@@ -47,7 +47,7 @@ class ExtractionOptions:
     corner_ratio: float = 10.0
     """Keep an edge point if the larger/smaller eigenvalue ratio of the local second-moment
     matrix is at least this (the paper's 10); lower ratios are corners or junctions."""
-    tensor_sigma: float = 1.5
+    tensor_sigma: float = 1.0
     """Gaussian window of the second-moment matrix (px)."""
     min_points: int = 40
     """Fewest edge points of a segment and of an accepted line (about its length in px)."""
@@ -56,7 +56,7 @@ class ExtractionOptions:
     ``(r . n)^2 < (line_threshold_px * s(p))^2`` with ``s(p)`` the local angle per pixel."""
     ransac_hypotheses: int = 16
     """RANSAC hypotheses (pairs of points) per segment and round."""
-    refine_iterations: int = 3
+    refine_iterations: int = 2
     """Least-squares refits on the inliers after RANSAC."""
     peel_rounds: int = 3
     """Rounds of peeling: the outliers of an accepted segment (and, see ``peel_min_points``,
@@ -141,12 +141,13 @@ def angular_pixel_scale(camera: CameraModel) -> np.ndarray:
 
 def _scatter(rays: FloatArray, weight: np.ndarray, seg: IntArray, nseg: int) -> FloatArray:
     """``(S, 3, 3)`` sums of ``w r r^T`` per segment (``seg`` need not be sorted)."""
-    outer = (rays[:, :, None] * rays[:, None, :]).reshape(-1, 9) * weight[:, None]
-    out = np.zeros((nseg, 9))
-    for k in (0, 1, 2, 4, 5, 8):
-        out[:, k] = np.bincount(seg, weights=outer[:, k], minlength=nseg)
-    out[:, 3], out[:, 6], out[:, 7] = out[:, 1], out[:, 2], out[:, 5]
-    return out.reshape(nseg, 3, 3)
+    out = np.empty((nseg, 3, 3))
+    x, y, z = rays[:, 0] * weight, rays[:, 1] * weight, rays[:, 2] * weight
+    for (i, j), v in (((0, 0), x * rays[:, 0]), ((0, 1), x * rays[:, 1]),
+                      ((0, 2), x * rays[:, 2]), ((1, 1), y * rays[:, 1]),
+                      ((1, 2), y * rays[:, 2]), ((2, 2), z * rays[:, 2])):
+        out[:, i, j] = out[:, j, i] = np.bincount(seg, weights=v, minlength=nseg)
+    return out
 
 
 def _smallest_eigvec(m: FloatArray) -> FloatArray:
@@ -192,7 +193,13 @@ class LineExtractor:
             (255.0 * (np.arange(256) / 255.0) ** o.gamma).astype(np.float32)
         rad = max(1, int(np.ceil(1.5 * o.tensor_sigma)))
         wy, wx = np.mgrid[-rad : rad + 1, -rad : rad + 1]
-        self._win_dy, self._win_dx = wy.ravel(), wx.ravel()
+        self._win_flat = (wy * w + wx).ravel().astype(np.int32)
+        # edge points need a full tensor window and bilinear neighbours inside the image
+        b = rad + 2
+        self.search_mask[:b] = 0
+        self.search_mask[-b:] = 0
+        self.search_mask[:, :b] = 0
+        self.search_mask[:, -b:] = 0
         g = np.exp(-(wx**2 + wy**2).ravel() / (2.0 * o.tensor_sigma**2))
         self._win_w = (g / g.sum()).astype(np.float32)
 
@@ -234,14 +241,17 @@ class LineExtractor:
         np.multiply(dx, 8.0, out=dx16, casting="unsafe")
         np.multiply(dy, 8.0, out=dy16, casting="unsafe")
         edges = cv2.Canny(dx16, dy16, 8.0 * o.canny_low, 8.0 * o.canny_high, L2gradient=True)
-        ys, xs = np.nonzero(cv2.bitwise_and(edges, self.search_mask))
-        n_edge = len(xs)
-        h, w = gray.shape
-        # second-moment matrix over a Gaussian window, evaluated only at the edge points
-        yy = np.clip(ys[:, None] + self._win_dy, 0, h - 1)
-        xx = np.clip(xs[:, None] + self._win_dx, 0, w - 1)
-        wx = dx[yy, xx]
-        wy = dy[yy, xx]
+        nz = cv2.findNonZero(cv2.bitwise_and(edges, self.search_mask))
+        pix = np.zeros((0, 2), np.int32) if nz is None else nz.reshape(-1, 2)
+        n_edge = len(pix)
+        w = gray.shape[1]
+        flat = pix[:, 1] * np.int32(w) + pix[:, 0]
+        fdx, fdy = dx.ravel(), dy.ravel()
+        # second-moment matrix over a Gaussian window, evaluated only at the edge points (the
+        # search mask keeps them far enough from the image border for the window)
+        win = flat[:, None] + self._win_flat
+        wx = fdx[win]
+        wy = fdy[win]
         a = (wx * wx) @ self._win_w
         b = (wy * wy) @ self._win_w
         c = (wx * wy) @ self._win_w
@@ -249,21 +259,22 @@ class LineExtractor:
         disc = np.sqrt(np.maximum(0.25 * (a - b) ** 2 + c * c, 0.0))
         lmax, lmin = half_tr + disc, np.maximum(half_tr - disc, 0.0)
         keep = lmax >= o.corner_ratio * lmin
-        ys, xs = ys[keep], xs[keep]
+        pix, flat = pix[keep], flat[keep]
         # sub-pixel: vertex of the parabola through the gradient magnitude across the edge
-        gx = dx[ys, xs]
-        gy = dy[ys, xs]
-        m0 = np.hypot(gx, gy)
+        gx, gy = fdx[flat], fdy[flat]
+        mag = cv2.magnitude(dx, dy)
+        m0 = mag.ravel()[flat]
         gn = np.where(m0 > 0, m0, 1.0)
         ux, uy = gx / gn, gy / gn
-        mp = _bilinear_magnitude(dx, dy, xs + ux, ys + uy)
-        mm = _bilinear_magnitude(dx, dy, xs - ux, ys - uy)
+        xs, ys = pix[:, 0], pix[:, 1]
+        mp = _bilinear(mag, xs + ux, ys + uy)
+        mm = _bilinear(mag, xs - ux, ys - uy)
         den = mp - 2.0 * m0 + mm
         with np.errstate(divide="ignore", invalid="ignore"):
             off = np.where(den < 0, 0.5 * (mm - mp) / den, 0.0)
         off = np.clip(off, -0.5, 0.5)
         uv = np.stack([xs + off * ux, ys + off * uy], 1).astype(np.float64)
-        return uv, np.stack([xs, ys], 1), {"edge": n_edge, "corner": int((~keep).sum())}
+        return uv, pix, {"edge": n_edge, "corner": int((~keep).sum())}
 
     def _segments(self, pix: IntArray, idx: IntArray) -> tuple[IntArray, IntArray, IntArray]:
         """8-connected segments of the points ``pix[idx]`` with at least ``min_points`` points.
@@ -475,20 +486,19 @@ def _arc_parameter(r: FloatArray, n: FloatArray, group: IntArray, ngroup: int) -
     return np.arctan2(np.einsum("nk,nk->n", r, e2), np.einsum("nk,nk->n", r, e1))
 
 
-def _bilinear_magnitude(dx: np.ndarray, dy: np.ndarray, x: np.ndarray,
-                        y: np.ndarray) -> np.ndarray:
-    """Gradient magnitude bilinearly interpolated at points ``(x, y)`` (clamped to the image)."""
-    h, w = dx.shape
+def _bilinear(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """``img`` bilinearly interpolated at points ``(x, y)`` (clamped to the image)."""
+    h, w = img.shape
     x = np.clip(x, 0, w - 1.001)
     y = np.clip(y, 0, h - 1.001)
     x0 = x.astype(np.int64)
     y0 = y.astype(np.int64)
-    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
-    yy = np.stack([y0, y0, y0 + 1, y0 + 1], 1)
-    xx = np.stack([x0, x0 + 1, x0, x0 + 1], 1)
-    m = np.hypot(dx[yy, xx], dy[yy, xx])
-    wts = np.concatenate([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy], 1)
-    return np.asarray((m * wts).sum(axis=1), dtype=np.float32)
+    fx, fy = x - x0, y - y0
+    i = y0 * w + x0
+    f = img.ravel()
+    top = f[i] * (1 - fx) + f[i + 1] * fx
+    bot = f[i + w] * (1 - fx) + f[i + w + 1] * fx
+    return np.asarray(top * (1 - fy) + bot * fy, dtype=np.float32)
 
 
 def extract_lines(image: np.ndarray, camera: CameraModel,

@@ -38,20 +38,23 @@ IntArray = np.ndarray
 class TrackingOptions:
     """Parameters of :class:`LineTracker`; pixels unless stated."""
 
-    sample_spacing_px: float = 5.0
+    sample_spacing_px: float = 8.0
     """Interval between the points sampled on a line (along its edge points)."""
-    max_samples_per_line: int = 40
+    max_samples_per_line: int = 16
     """At most this many samples per line (the interval grows on long lines)."""
-    klt_window: int = 15
+    klt_window: int = 11
     """KLT window size (square, px)."""
-    klt_levels: int = 3
+    klt_levels: int = 2
     """KLT pyramid levels above the full image."""
+    klt_iterations: int = 10
+    """KLT iterations per pyramid level."""
     klt_min_eig: float = 1e-5
     """KLT's minimum-eigenvalue threshold (OpenCV ``minEigThreshold``); kept low because points
     on a straight edge are ill-conditioned along it, which the snapping tolerates."""
     fb_max_px: float = 1.0
     """Forward-backward check: tracked forward and back, a point must return within this
-    distance of where it started, measured across the edge (along it KLT is free to slide)."""
+    distance of where it started, measured across the edge (along it KLT is free to slide);
+    0 skips the backward pass (about half the tracking time)."""
     flow_neighbours: int = 8
     """Samples KLT cannot track (the window holds a single ideal straight edge) move with the
     median flow of this many nearest tracked samples; 0 drops them."""
@@ -116,7 +119,8 @@ class LineTracker:
         self.options = options or TrackingOptions()
         o = self.options
         self._win = (int(o.klt_window), int(o.klt_window))
-        self._criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.01)
+        self._criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS,
+                          int(o.klt_iterations), 0.01)
         self._prev_pyr: np.ndarray | None = None
         self._prev_lines: ExtractedLines | None = None
         self._prev_track: IntArray = np.zeros(0, np.int64)
@@ -251,11 +255,13 @@ class LineTracker:
         kw = dict(winSize=self._win, maxLevel=o.klt_levels, criteria=self._criteria,
                   minEigThreshold=o.klt_min_eig)
         p1, st, _ = cv2.calcOpticalFlowPyrLK(pyr0, pyr1, p0, None, **kw)  # type: ignore[call-overload]
-        pb, st2, _ = cv2.calcOpticalFlowPyrLK(pyr1, pyr0, p1, None, **kw)  # type: ignore[call-overload]
-        ok = (st.ravel() > 0) & (st2.ravel() > 0)
-        # only the part across the edge counts: sliding along it (aperture) is harmless
-        back = (pb - p0).reshape(-1, 2)
-        ok &= np.abs(back[:, 0] * tangent[:, 1] - back[:, 1] * tangent[:, 0]) < o.fb_max_px
+        ok = st.ravel() > 0
+        if o.fb_max_px > 0:
+            pb, st2, _ = cv2.calcOpticalFlowPyrLK(pyr1, pyr0, p1, None, **kw)  # type: ignore[call-overload]
+            ok &= st2.ravel() > 0
+            # only the part across the edge counts: sliding along it (aperture) is harmless
+            back = (pb - p0).reshape(-1, 2)
+            ok &= np.abs(back[:, 0] * tangent[:, 1] - back[:, 1] * tangent[:, 0]) < o.fb_max_px
         p1 = p1.reshape(-1, 2)
         # KLT gives up on points whose window holds one ideal straight edge (a singular
         # system); predict them with the median flow of the nearest tracked samples instead
