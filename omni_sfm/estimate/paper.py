@@ -35,6 +35,7 @@ from omni_sfm.estimate.translation import (
     line_parallax,
     normal_residuals,
     resolve_sign,
+    translation_all_views,
     triangulate_lines,
 )
 from omni_sfm.geometry import FloatArray
@@ -50,9 +51,13 @@ class PaperOptions:
     """Coarse grid points of the rotation search over ``phi_c`` in ``[-pi, pi)`` (5.6 deg)."""
     rotation_starts: int = 2
     """Lowest grid minima polished by Brent's method."""
-    rotation_xtol: float = 1e-9
-    """Absolute tolerance (radians) of the Brent polishing of ``phi_c`` (6e-8 deg; the joint
-    polish, if on, then converges to machine precision anyway)."""
+    rotation_xtol: float | None = None
+    """Absolute tolerance (radians) of the Brent polishing of ``phi_c``; ``None``: 1e-6 when
+    ``polish_rotation`` is on (the joint polish then converges to machine precision anyway),
+    else 1e-10."""
+    rotation_search_views: int = 40
+    """With ``polish_rotation``, the 1-DOF search evaluates ``E_rot`` on at most this many views
+    (evenly spread); the joint polish then uses all of them."""
     second_view: int | None = None
     """The second view ``c``; ``None`` chooses it: for the rotation the view whose line normals
     changed most against view 0 (rotation-invariant proxy), for the translation the view with the
@@ -72,6 +77,9 @@ class PaperOptions:
     polish_rotation: bool = True
     """Also solve the angles about ``v`` with all views jointly (``polish_angles``) and keep
     whichever rotations give the full model (all lines triangulated) the smaller RMS angle."""
+    polish_translation: bool = True
+    """Also solve the positions with all views at once (``translation_all_views``, given the
+    rotations) and keep them if they explain the normals better (smaller RMS angle)."""
     irls_iter: int = 2
     """Reweighting rounds of the translation steps (0: the plain algebraic residuals)."""
     rerun_rotation: bool = True
@@ -209,6 +217,9 @@ def estimate_paper(tracks: LineTracks, family: ParallelFamily,
     # rotation: the paper's search, then (optionally) all views jointly; when both are at hand,
     # the full model (lines triangulated from all views) decides which explains the normals best
     t0 = time.perf_counter()
+    xtol = opts.rotation_xtol if opts.rotation_xtol is not None else \
+        (1e-6 if opts.polish_rotation else 1e-10)
+    search_views = opts.rotation_search_views if opts.polish_rotation else None
     motion = _motion_scores(normals[:, np.concatenate([par, oth])])
     if np.max(motion) < np.radians(opts.min_parallax_deg):
         raise OmniSfmError(
@@ -217,8 +228,9 @@ def estimate_paper(tracks: LineTracks, family: ParallelFamily,
             f"{opts.min_parallax_deg:g})")
     c_rot = opts.second_view if opts.second_view is not None else int(np.argmax(motion))
     rot = estimate_rotations(normals[:, oth], vpv, w[oth], c_rot, num_grid=opts.rotation_grid,
-                             num_starts=opts.rotation_starts, xtol=opts.rotation_xtol,
-                             softening=opts.rotation_softening, polish=False)
+                             num_starts=opts.rotation_starts, xtol=xtol,
+                             softening=opts.rotation_softening, polish=False,
+                             search_views=search_views)
     m_world = np.einsum("fij,fmj->fmi", rot.rotations, normals)
     lp = np.median(line_parallax(m_world[:, oth]), axis=1)
     if np.max(lp) < np.radians(opts.min_parallax_deg):
@@ -232,8 +244,9 @@ def estimate_paper(tracks: LineTracks, family: ParallelFamily,
             c_rot = best
             rot = estimate_rotations(normals[:, oth], vpv, w[oth], c_rot,
                                      num_grid=opts.rotation_grid,
-                                     num_starts=opts.rotation_starts, xtol=opts.rotation_xtol,
-                                     softening=opts.rotation_softening, polish=False)
+                                     num_starts=opts.rotation_starts, xtol=xtol,
+                                     softening=opts.rotation_softening, polish=False,
+                             search_views=search_views)
     candidates = [rot.rotations]
     polished_cost = float("nan")
     if opts.polish_rotation:
@@ -279,7 +292,8 @@ def estimate_paper(tracks: LineTracks, family: ParallelFamily,
     costs = {"E_rot": rot.cost, "E_rot_all_views": polished_cost, "E_t1": best_sol.cost_plane,
              "E_t": best_sol.cost_vertical, "plane_ratio": best_sol.ratio,
              "rms_deg": float(np.degrees(best_sol.rms)),
-             "polished_rotation": float(opts.polish_rotation and best_sol.R is candidates[0])}
+             "polished_rotation": float(opts.polish_rotation and best_sol.R is candidates[0]),
+             "polished_translation": float(best_sol.all_views)}
     return PaperSolution(R, positions, best_sol.c, rot.second_view, dirs, points, v,
                          members.copy(), sign_from_rays, timings, costs)
 
@@ -297,6 +311,7 @@ class _Translation:
     rms: float
     ms_plane: float
     ms_vertical: float
+    all_views: bool
 
 
 def _translate(R: FloatArray, normals: FloatArray, v: FloatArray, members: np.ndarray,
@@ -332,7 +347,19 @@ def _translate(R: FloatArray, normals: FloatArray, v: FloatArray, members: np.nd
     dirs[members] = v
     points = triangulate_lines(m_world, dirs, positions)
     used = w > 0
-    ang = normal_residuals(m_world[:, used], dirs[used], points[used], positions)
-    rms = float(np.sqrt(np.average(ang ** 2, weights=np.broadcast_to(w[used], ang.shape))))
+
+    def rms_of(pos: FloatArray, pts: FloatArray) -> float:
+        ang = normal_residuals(m_world[:, used], dirs[used], pts[used], pos)
+        return float(np.sqrt(np.average(ang ** 2, weights=np.broadcast_to(w[used], ang.shape))))
+
+    rms = rms_of(positions, points)
+    all_views = False
+    if opts.polish_translation:
+        pos2, _, _ = translation_all_views(m_world, dirs, w, irls_iter=1, reference=positions)
+        if np.isfinite(pos2).all():
+            pts2 = triangulate_lines(m_world, dirs, pos2)
+            rms2 = rms_of(pos2, pts2)
+            if rms2 < rms:
+                positions, points, rms, all_views = pos2, pts2, rms2, True
     return _Translation(R, positions, dirs, points, c, plane.cost, vert.cost, plane.ratio, rms,
-                        (t2 - t1) * 1e3, (t3 - t2) * 1e3)
+                        (t2 - t1) * 1e3, (t3 - t2) * 1e3, all_views)

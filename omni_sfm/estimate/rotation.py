@@ -70,7 +70,8 @@ def trig2_minimize(coef: FloatArray, *, max_iter: int = 80) -> FloatArray:
     ``s = -rho - mu >= 0``, it solves the secular equation
     ``p^2 / (2 rho + s)^2 + q^2 / s^2 = 1`` whose left side falls monotonically, so the root
     is unique and bracketed by ``[max(|q|, |p| - 2 rho), sqrt(p^2 + q^2)]``. It is found by Newton's
-    method on ``g(s)^(-1/2) - 1`` (nearly linear) safeguarded by bisection, all problems at once.
+    method on ``g(s)^(-1/2) - 1`` (concave, so Newton from the lower bound climbs monotonically),
+    all problems at once.
     The "hard case" ``q = 0, |p| <= 2 rho`` has ``s = 0`` and is handled explicitly. This is
     equivalent to the paper's quartic (the secular equation multiplied out is a quartic in ``s``)
     without its spurious roots.
@@ -89,37 +90,21 @@ def trig2_minimize(coef: FloatArray, *, max_iter: int = 80) -> FloatArray:
     hi = np.hypot(ap, aq)                     # g(hi) <= (p^2 + q^2) / hi^2 = 1
     hard = (aq <= 1e-300) | (hi <= 0)
 
-    def g_and_dg(s: FloatArray) -> tuple[FloatArray, FloatArray]:
-        with np.errstate(divide="ignore", invalid="ignore"):
-            u, w = 2.0 * rho + s, s
-            g = p * p / (u * u) + q * q / (w * w)
-            dg = -2.0 * p * p / (u * u * u) - 2.0 * q * q / (w * w * w)
-        return g, dg
-
-    # h(s) = g^(-1/2) - 1 is increasing and concave in s, so Newton's iterates from any point
-    # land left of the root and then climb to it monotonically; bisection guards round-off
-    active = ~hard & (hi > lo)
-    s = np.where(active, hi, np.where(hard, 0.0, lo))
+    # h(s) = g(s)^(-1/2) - 1 is increasing and concave in s (Moré-Sorensen), and h(lo) <= 0:
+    # Newton's iterates from lo climb monotonically to the root, no safeguard needed
+    s = np.where(hard, 1.0, np.maximum(lo, 1e-300))
+    p2, q2 = p * p, q * q
     for _ in range(max_iter):
-        if not np.any(active):
-            break
-        g, dg = g_and_dg(s)
-        h = 1.0 / np.sqrt(g) - 1.0                      # increasing in s, root where g = 1
-        # shrink the bracket with the sign of h
-        lo = np.where(active & (h < 0), s, lo)
-        hi = np.where(active & (h > 0), s, hi)
-        dh = -0.5 * g ** -1.5 * dg
+        u = 2.0 * rho + s
+        g = p2 / (u * u) + q2 / (s * s)
+        dg = -2.0 * (p2 / (u * u * u) + q2 / (s * s * s))
         with np.errstate(divide="ignore", invalid="ignore"):
-            s_new = s - h / dh
-        # an overshoot to the left restarts from the lower bound (left of the root, where the
-        # concave h makes Newton climb monotonically); anything else odd bisects
-        s_new = np.where(np.isfinite(s_new) & (s_new <= lo) & (lo > 0), lo, s_new)
-        bad = ~np.isfinite(s_new) | (s_new < lo) | (s_new >= hi) | ((s_new == lo) & (lo <= 0))
-        s_new = np.where(bad, 0.5 * (lo + hi), s_new)
-        done = active & ((np.abs(s_new - s) <= 1e-13 * np.maximum(s, 1e-300)) | (h == 0)
-                         | (hi - lo <= 1e-13 * hi))
-        s = np.where(active, s_new, s)
-        active &= ~done
+            step = 2.0 * (g - g * np.sqrt(g)) / dg
+        step = np.where(hard | ~np.isfinite(step), 0.0, step)
+        s = np.minimum(s + step, hi)
+        if not np.any(np.abs(step) > 1e-14 * s):
+            break
+    s = np.where(hard, 0.0, s)
 
     with np.errstate(divide="ignore", invalid="ignore"):
         y1 = np.where(hard, np.where(rho > 0, -p / (2.0 * rho), 0.0), -p / (2.0 * rho + s))
@@ -308,7 +293,7 @@ class RotationResult:
 def estimate_rotations(normals: FloatArray, vpv: FloatArray, weights: FloatArray,
                        second_view: int, *, num_grid: int = 64, num_starts: int = 3,
                        xtol: float = 1e-12, softening: float = 0.1,
-                       polish: bool = True) -> RotationResult:
+                       polish: bool = True, search_views: int | None = None) -> RotationResult:
     """Rotations of all views (METHOD.md §4).
 
     Args:
@@ -320,6 +305,10 @@ def estimate_rotations(normals: FloatArray, vpv: FloatArray, weights: FloatArray
         num_grid, num_starts, xtol: the global 1-DOF search (see ``global_minimize_1d``).
         softening: see :class:`RotationProblem` (0: the paper's exact cost).
         polish: finish with :func:`polish_angles` (all views jointly).
+        search_views: evaluate ``E_rot`` during the search on at most this many views (evenly
+            spread, always with views 0 and ``c``): the cost over hundreds of views is very
+            redundant for locating ``phi_c``. ``None``: all views. Every view's angle is then
+            solved at the found ``phi_c``.
     """
     F, Q = normals.shape[:2]
     if F < 3:
@@ -329,7 +318,13 @@ def estimate_rotations(normals: FloatArray, vpv: FloatArray, weights: FloatArray
     if int(np.count_nonzero(weights > 0)) < 3:
         raise OmniSfmError("rotation needs at least 3 non-parallel lines with positive weight")
     prob = RotationProblem.build(normals, vpv, weights, second_view, softening)
-    res = global_minimize_1d(prob.cost, -np.pi, np.pi, num_grid=num_grid, periodic=True,
+    search = prob
+    if search_views is not None and max(search_views, 3) < F:
+        idx = np.unique(np.concatenate([np.linspace(0, F - 1, max(search_views, 3)).round(),
+                                        [0, second_view]]).astype(np.int64))
+        search = RotationProblem.build(normals[idx], vpv[idx], weights,
+                                       int(np.searchsorted(idx, second_view)), softening)
+    res = global_minimize_1d(search.cost, -np.pi, np.pi, num_grid=num_grid, periodic=True,
                              num_starts=num_starts, xtol=xtol)
     phi_all, e = prob.view_fit(np.array([res.x]))
     phi = phi_all[0].copy()
@@ -342,4 +337,4 @@ def estimate_rotations(normals: FloatArray, vpv: FloatArray, weights: FloatArray
         phi, _, polished = polish_angles(prob, phi)
     R = prob.rotations(phi)
     R[0] = np.eye(3)
-    return RotationResult(R, phi, second_view, float(res.fx), e, res.num_evals, polished)
+    return RotationResult(R, phi, second_view, float(e.sum()), e, res.num_evals, polished)

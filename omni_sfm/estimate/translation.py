@@ -240,6 +240,80 @@ def estimate_vertical(world_normals: FloatArray, directions: FloatArray, v: Floa
     return VerticalResult(omega, max(cost, 0.0))
 
 
+def _tangent_bases(d: FloatArray) -> FloatArray:
+    """``(L, 3, 2)`` orthonormal bases of the planes perpendicular to the unit ``d (L, 3)``."""
+    helper = np.where(np.abs(d[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    e1 = np.cross(d, helper)
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    e2 = np.cross(d, e1)
+    return np.stack([e1, e2], -1)
+
+
+def translation_all_views(world_normals: FloatArray, directions: FloatArray,
+                          weights: FloatArray, *, irls_iter: int = 3,
+                          reference: FloatArray | None = None) -> tuple[FloatArray, FloatArray,
+                                                                        float]:
+    """Positions and line points from all views at once, given rotations and line directions.
+
+    Every observation says the camera lies in the line's plane: ``m_lk . (x_l - t_k) = 0`` with
+    ``x_l = B_l z_l`` (``B_l`` spans the plane perpendicular to ``d_l``, ``z_l`` 2 unknowns) and
+    ``t_0 = 0``. Homogeneous and linear: each view's ``t_k`` is eliminated by its 3x3 normal
+    equations, leaving a ``2L x 2L`` quadratic form in ``z`` whose eigenvector of the smallest
+    eigenvalue is the least-squares solution up to scale (and sign: the point reflection).
+    Residuals are reweighted by the inverse squared camera-line distance (``irls_iter`` rounds),
+    making them angles, as in the paper's costs.
+
+    Args:
+        world_normals: ``(F, L, 3)`` world normals of every line in every view.
+        directions: ``(L, 3)`` unit line directions.
+        weights: ``(L,)`` non-negative weights.
+        reference: ``(F, 3)`` positions whose scale and sign to adopt (least-squares scale).
+
+    Returns ``positions (F, 3)``, ``points (L, 3)`` (closest to the origin) and the final
+    weighted cost.
+    """
+    m = world_normals
+    F, L = m.shape[:2]
+    B = _tangent_bases(directions)
+    y = np.einsum("fli,lia->fla", m, B)                                   # m . B_l
+    w = np.broadcast_to(np.asarray(weights, dtype=np.float64)[None, :], (F, L)).copy()
+    z = np.zeros((L, 2))
+    T = np.zeros((F, 3, 2 * L))
+    cost = np.inf
+    for it in range(irls_iter + 1):
+        H = np.einsum("fl,fli,flj->fij", w, m, m)
+        G = np.einsum("fl,fla,fli->flai", w, y, m)                        # (F, L, 2, 3)
+        ridge = 1e-12 * np.trace(H[1:], axis1=1, axis2=2)[:, None, None] * np.eye(3)
+        Hinv = np.linalg.inv(H[1:] + ridge)
+        Z = -np.einsum("flai,fij,fnbj->lanb", G[1:], Hinv, G[1:])
+        diag = np.einsum("fl,fla,flb->lab", w, y, y)
+        idx = np.arange(L)
+        Z[idx, :, idx, :] += diag
+        vals, vecs = np.linalg.eigh(Z.reshape(2 * L, 2 * L))
+        z = vecs[:, 0].reshape(L, 2)
+        cost = float(max(vals[0], 0.0))
+        # t_k = H_k^-1 sum_l w m (m . B_l z_l)
+        T = np.zeros((F, 3, 2 * L))
+        T[1:] = np.einsum("fij,flaj->fila", Hinv, G[1:]).reshape(F - 1, 3, 2 * L)
+        if it == irls_iter:
+            break
+        pos = T @ z.reshape(-1)
+        pts = np.einsum("lia,la->li", B, z)
+        rel = pts[None] - pos[:, None]
+        rel -= np.sum(rel * directions[None], -1, keepdims=True) * directions[None]
+        dist2 = np.sum(rel * rel, -1)
+        scale = float(np.median(dist2[:, weights > 0]))
+        w = np.asarray(weights, dtype=np.float64)[None, :] * scale / np.maximum(dist2,
+                                                                              1e-6 * scale)
+    pos = T @ z.reshape(-1)
+    pts = np.einsum("lia,la->li", B, z)
+    if reference is not None:
+        k = float(np.sum(pos * reference) / max(float(np.sum(pos * pos)), 1e-300))
+        pos, pts = pos * k, pts * k
+        cost *= k * k
+    return pos, pts, cost
+
+
 def triangulate_lines(world_normals: FloatArray, directions: FloatArray,
                       positions: FloatArray) -> FloatArray:
     """``(L, 3)`` point of each line closest to the world origin, from all views.
