@@ -45,8 +45,10 @@ class ExtractionOptions:
     canny_high: float = 50.0
     """Canny hysteresis high threshold (same units as ``canny_low``)."""
     corner_ratio: float = 10.0
-    """Keep an edge point if the larger/smaller eigenvalue ratio of the local second-moment
-    matrix is at least this (the paper's 10); lower ratios are corners or junctions."""
+    """Keep an edge point if the ratio of the principal RMS gradients in a small window (the
+    square root of the eigenvalue ratio of the second-moment matrix, linear in intensity like
+    the Hessian eigenvalues of the paper) is at least this (the paper's 10); lower ratios are
+    corners, junctions and line ends."""
     tensor_sigma: float = 1.0
     """Gaussian window of the second-moment matrix (px)."""
     min_points: int = 40
@@ -258,7 +260,7 @@ class LineExtractor:
         half_tr = 0.5 * (a + b)
         disc = np.sqrt(np.maximum(0.25 * (a - b) ** 2 + c * c, 0.0))
         lmax, lmin = half_tr + disc, np.maximum(half_tr - disc, 0.0)
-        keep = lmax >= o.corner_ratio * lmin
+        keep = lmax >= o.corner_ratio**2 * lmin
         pix, flat = pix[keep], flat[keep]
         # sub-pixel: vertex of the parabola through the gradient magnitude across the edge
         gx, gy = fdx[flat], fdy[flat]
