@@ -210,7 +210,10 @@ def read_init_model(directory: Path) -> InitModel:
         raise OmniSfmError(f"{sparse}: no COLMAP model (cameras.bin / cameras.txt) in the init "
                            "directory")
     camera = load_camera(directory / CAMERA_FILE)
-    export = camera.colmap_export()
+    try:
+        export = camera.colmap_export()
+    except OmniSfmError as exc:
+        raise OmniSfmError(f"{directory / CAMERA_FILE}: {exc}") from None
     traj = read_tum(directory / TRAJECTORY_FILE)
     try:
         rec = pycolmap.Reconstruction(str(sparse))

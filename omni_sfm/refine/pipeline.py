@@ -248,7 +248,10 @@ def _frame_timestamps(all_names: list[str], init: InitModel) -> tuple[FloatArray
     coef, *_ = np.linalg.lstsq(A, y, rcond=None)
     if np.abs(A @ coef - y).max() > 1e-6 * max(1.0, float(np.abs(y).max())):
         return None, "input timestamps are not an affine function of the frame index"
-    return coef[0] * np.arange(len(all_names)) + coef[1], "affine in the frame index"
+    ts = coef[0] * np.arange(len(all_names)) + coef[1]
+    if np.array_equal(y, np.round(y)) and np.allclose(coef, np.round(coef), atol=1e-9):
+        ts = np.round(ts)  # frame indices stay integers
+    return ts, "affine in the frame index"
 
 
 def refine(init_dir: Path, images_dir: Path, output: Path,

@@ -1,0 +1,206 @@
+"""COLMAP refinement seeded by line-based poses: better on texture, never worse than its input.
+
+The "line-based init" here is the rendered ground truth with realistic errors (0.3 deg rotation,
+0.5 % of the path in position, fixed seed), written through the same ``write_init_model`` that
+``omni-sfm init`` uses. Sequences are small (400 x 300, supersample 1) to keep the file fast.
+"""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pycolmap
+import pytest
+
+from omni_sfm.cameras import load_camera
+from omni_sfm.cli import main
+from omni_sfm.evaluate import trajectory_errors
+from omni_sfm.export.colmap import (
+    IMAGES_DIR,
+    projection_centres,
+    read_init_model,
+    write_init_model,
+)
+from omni_sfm.fileio import read_json
+from omni_sfm.poses import Trajectory, read_tum
+from omni_sfm.refine import RefineOptions, refine
+from omni_sfm.refine.synthetic import perturb, write_perturbed_init
+from omni_sfm.synth.render import RenderOptions, render_sequence
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "docs" / "examples" / "cameras"
+MISSING = (6, 13)  # frames the "line stage" did not pose: the mapper should register them
+
+
+def _render(root: Path, name: str, **kw) -> Path:
+    out = root / name
+    render_sequence(out, RenderOptions(camera="hyperboloid", width=400, height=300,
+                                       supersample=1, preset="small", seed=3, **kw),
+                    progress=False)
+    return out
+
+
+@pytest.fixture(scope="module")
+def room(tmp_path_factory) -> Path:
+    return _render(tmp_path_factory.mktemp("room"), "room", scene="room", frames=20,
+                   textured=True)
+
+
+@pytest.fixture(scope="module")
+def room_refined(room, tmp_path_factory):
+    work = tmp_path_factory.mktemp("refine")
+    gt = read_tum(room / "groundtruth.tum")
+    frames = np.array([k for k in range(len(gt)) if k not in MISSING])
+    init = write_perturbed_init(room, work / "init", frames=frames, seed=1)
+    res = refine(work / "init", room / "images", work / "out", RefineOptions(overlap=5),
+                 progress=False)
+    return work, gt, init, res
+
+
+def _on(traj: Trajectory, ts: np.ndarray) -> Trajectory:
+    idx = np.searchsorted(traj.timestamps, ts)
+    assert np.allclose(traj.timestamps[idx], ts)
+    return traj.subset(idx)
+
+
+def test_init_model_layout_round_trip(room, tmp_path):
+    cam = load_camera(room / "camera.yaml")
+    gt = read_tum(room / "groundtruth.tum").subset(np.arange(4))
+    names = [f"{k:06d}.png" for k in range(4)]
+    imgs = [cv2.imread(str(room / "images" / n))[:, :, ::-1] for n in names]
+    write_init_model(tmp_path, cam, gt, names, imgs, text=True)
+    init = read_init_model(tmp_path)
+    assert init.image_names == tuple(names)
+    np.testing.assert_allclose(init.trajectory.positions, gt.positions, atol=1e-12)
+    centres = projection_centres(pycolmap.Reconstruction(str(tmp_path / "sparse")))
+    for k, n in enumerate(names):
+        np.testing.assert_allclose(centres[n], gt.positions[k], atol=1e-9)
+    assert (tmp_path / "sparse" / "images.txt").is_file()
+    # COLMAP sees the hyperboloid's images mirrored left-right, RGB written as BGR files
+    seen = cv2.imread(str(tmp_path / IMAGES_DIR / names[1]))
+    np.testing.assert_array_equal(seen, imgs[1][:, ::-1, ::-1])
+    mask = cv2.imread(str(tmp_path / "camera_mask.png"), cv2.IMREAD_GRAYSCALE)
+    valid = cam.valid_mask()[:, ::-1]
+    assert mask.shape == valid.shape and not mask[~valid].any()
+    assert (mask[valid] > 0).mean() > 0.9
+
+
+def test_refine_improves_a_perturbed_seed_on_a_textured_room(room_refined):
+    work, gt, init, res = room_refined
+    r = res.report
+    before = trajectory_errors(init, gt)
+    after_all = trajectory_errors(res.trajectory, gt)
+    after = trajectory_errors(_on(res.trajectory, init.timestamps), gt)
+    assert after.ate_rel < before.ate_rel
+    assert after.ate_rel < 0.0025, after.ate_rel
+    assert after.rot_mean_deg < 0.5 * before.rot_mean_deg
+    assert r["refined_frames"] >= 0.8 * len(init)
+    # the mapper registered the frames the seed lacked, and they are good too
+    assert sorted(r["mapper"]["registered"]) == [f"{k:06d}.png" for k in MISSING]
+    assert after_all.num_common == len(gt) and after_all.ate_rel < 0.0025
+    ba = r["bundle_adjustment"]["rounds"]
+    assert ba[-1]["mean_reprojection_error_after_px"] < ba[0]["mean_reprojection_error_before_px"]
+    assert r["model"]["mean_reprojection_error_px"] < 1.0
+    assert set(r["timings_s"]) >= {"features and matching", "triangulation", "bundle adjustment"}
+
+
+def test_refined_model_opens_in_pycolmap_and_matches_the_trajectory(room_refined):
+    work, gt, init, res = room_refined
+    out = work / "out"
+    rec = pycolmap.Reconstruction(str(out / "sparse"))
+    report = read_json(out / "report.json")
+    stats = report["model"]
+    assert rec.num_reg_images() == stats["registered_images"] == len(gt)
+    assert rec.num_points3D() == stats["points"] > 100
+    assert stats["observations"] == rec.compute_num_observations()
+    assert "num_points3D" in report["summary"]
+    traj = read_tum(out / "trajectory.tum")
+    centres = projection_centres(rec)
+    for k, ts in enumerate(traj.timestamps):
+        np.testing.assert_allclose(centres[f"{round(ts):06d}.png"], traj.positions[k], atol=1e-6)
+
+
+def test_cli_reuses_the_features_of_a_database(room, room_refined, tmp_path, capsys):
+    """A second seed of the same frames: nothing is extracted again, and it improves too."""
+    work, gt, _, _ = room_refined
+    db = tmp_path / "database.db"
+    shutil.copy(work / "out" / "database.db", db)
+    init = write_perturbed_init(room, tmp_path / "init", seed=2)
+    rc = main(["refine", "--input", str(tmp_path / "init"), "--images", str(room / "images"),
+               "--output", str(tmp_path / "out"), "--database", str(db), "--overlap", "5"])
+    assert rc == 0
+    assert "refined" in capsys.readouterr().out
+    report = read_json(tmp_path / "out" / "report.json")
+    assert report["features"] == {"extracted_images": 0, "reused_images": len(gt),
+                                  "keypoints": report["features"]["keypoints"]}
+    assert not (tmp_path / "out" / "database.db").exists()  # the given database is used
+    out = read_tum(tmp_path / "out" / "trajectory.tum")
+    assert trajectory_errors(out, gt).ate_rel < trajectory_errors(init, gt).ate_rel
+
+
+def test_refine_keeps_the_input_on_a_texture_poor_corridor(tmp_path):
+    corridor = _render(tmp_path, "corridor", scene="corridor", frames=16)
+    init = write_perturbed_init(corridor, tmp_path / "init", seed=4)
+    res = refine(tmp_path / "init", corridor / "images", tmp_path / "out",
+                 RefineOptions(overlap=5), progress=False)
+    gt = read_tum(corridor / "groundtruth.tum")
+    kept = ~res.refined
+    assert kept.sum() >= 0.5 * len(init)
+    # kept means the input pose itself (up to the TUM file's quaternion round trip)
+    np.testing.assert_allclose(res.trajectory.positions[kept], init.positions[kept], atol=1e-12)
+    np.testing.assert_allclose(res.trajectory.rotations[kept], init.rotations[kept], atol=1e-12)
+    assert trajectory_errors(res.trajectory, gt).ate_rel <= trajectory_errors(init, gt).ate_rel
+    r = res.report
+    assert r["kept_input_for_all"] or r["kept_frames"]
+
+
+# --- bad input: one line, exit code 2 -------------------------------------------------------
+
+
+@pytest.fixture()
+def tiny_init(tmp_path):
+    from omni_sfm.synth.render import hyperboloid_camera
+
+    cam = hyperboloid_camera(160, 120)
+    gt = perturb(Trajectory(np.arange(3.0), np.repeat(np.eye(3)[None], 3, 0),
+                            np.array([[0.0, 0, 0], [0.1, 0, 0], [0.2, 0, 0]])), seed=0)
+    names = [f"{k:06d}.png" for k in range(3)]
+    write_init_model(tmp_path / "init", cam, gt, names)
+    (tmp_path / "images").mkdir()
+    for n in names:
+        cv2.imwrite(str(tmp_path / "images" / n), np.zeros((120, 160, 3), np.uint8))
+    return tmp_path
+
+
+def _refine_cli(tmp, capsys, init="init", images="images"):
+    rc = main(["refine", "--input", str(tmp / init), "--images", str(tmp / images),
+               "--output", str(tmp / "out")])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2
+    assert err.startswith("omni-sfm: error: ") and "\n" not in err
+    assert not (tmp / "out").exists()
+    return err
+
+
+def test_bad_input_init_without_model(tiny_init, capsys):
+    shutil.rmtree(tiny_init / "init" / "sparse")
+    assert "no COLMAP model" in _refine_cli(tiny_init, capsys)
+
+
+def test_bad_input_images_do_not_match_names(tiny_init, capsys):
+    (tiny_init / "images" / "000001.png").rename(tiny_init / "images" / "frame1.png")
+    assert "'000001.png'" in _refine_cli(tiny_init, capsys)
+
+
+def test_bad_input_images_do_not_match_size(tiny_init, capsys):
+    cv2.imwrite(str(tiny_init / "images" / "000002.png"), np.zeros((100, 160, 3), np.uint8))
+    err = _refine_cli(tiny_init, capsys)
+    assert "000002.png" in err and "160x100" in err
+
+
+def test_bad_input_camera_without_exact_colmap_model(tiny_init, capsys):
+    shutil.copy(EXAMPLES / "double_sphere.yaml", tiny_init / "init" / "camera.yaml")
+    err = _refine_cli(tiny_init, capsys)
+    assert "camera.yaml" in err and "no exact COLMAP model" in err
