@@ -74,6 +74,10 @@ class PaperOptions:
     """``s0`` of :class:`~omni_sfm.estimate.rotation.RotationProblem`: lines with less parallax
     than about ``asin(s0)`` between views 0 and ``c`` fade out of ``E_rot`` (0: the paper's
     cost exactly; noise-free results are exact either way)."""
+    rotation_rival_factor: float = 1.5
+    """With ``polish_rotation``, other local minima of ``E_rot`` (all views) up to this factor
+    above the best are polished too, and the full model picks the winner (noise can make the
+    basins of ``E_rot`` compete)."""
     polish_rotation: bool = True
     """Also solve the angles about ``v`` with all views jointly (``polish_angles``) and keep
     whichever rotations give the full model (all lines triangulated) the smaller RMS angle."""
@@ -247,14 +251,24 @@ def estimate_paper(tracks: LineTracks, family: ParallelFamily,
                                      num_starts=opts.rotation_starts, xtol=xtol,
                                      softening=opts.rotation_softening, polish=False,
                              search_views=search_views)
-    candidates = [rot.rotations]
-    polished_cost = float("nan")
+    # candidates: the search's minimum, then (if polishing) every local minimum of E_rot within
+    # a factor of the best, polished with all views; the full model decides among them
+    prob = RotationProblem.build(normals[:, oth], vpv, w[oth], c_rot)
+    starts = [rot.phi]
     if opts.polish_rotation:
-        prob = RotationProblem.build(normals[:, oth], vpv, w[oth], c_rot)
-        phi, _, polished_cost = polish_angles(prob, rot.phi.copy())
-        R_pol = prob.rotations(phi)
-        R_pol[0] = np.eye(3)
-        candidates.insert(0, R_pol)
+        starts += [phi for phi, f in zip(rot.other_minima, rot.other_costs, strict=True)
+                   if f <= opts.rotation_rival_factor * rot.cost]
+    candidates: list[FloatArray] = []
+    polished_cost = float("nan")
+    for k, phi0 in enumerate(starts):
+        if opts.polish_rotation:
+            phi, _, cost_k = polish_angles(prob, phi0.copy())
+            if k == 0:
+                polished_cost = cost_k
+            R_pol = prob.rotations(phi)
+            R_pol[0] = np.eye(3)
+            candidates.append(R_pol)
+    candidates.append(rot.rotations)
     v = vpv[0]
     t1 = time.perf_counter()
 
@@ -292,7 +306,7 @@ def estimate_paper(tracks: LineTracks, family: ParallelFamily,
     costs = {"E_rot": rot.cost, "E_rot_all_views": polished_cost, "E_t1": best_sol.cost_plane,
              "E_t": best_sol.cost_vertical, "plane_ratio": best_sol.ratio,
              "rms_deg": float(np.degrees(best_sol.rms)),
-             "polished_rotation": float(opts.polish_rotation and best_sol.R is candidates[0]),
+             "polished_rotation": float(best_sol.R is not candidates[-1]),
              "polished_translation": float(best_sol.all_views)}
     return PaperSolution(R, positions, best_sol.c, rot.second_view, dirs, points, v,
                          members.copy(), sign_from_rays, timings, costs)

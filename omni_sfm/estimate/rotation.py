@@ -192,6 +192,16 @@ class RotationProblem:
         keep[[0, self.second_view]] = False
         return np.sum(e[:, keep], axis=1)
 
+    def angles_at(self, phi_c: float) -> tuple[FloatArray, FloatArray]:
+        """Every view's angle ``(F,)`` (``phi_0 = 0``, ``phi_c``) and cost ``e_k`` ``(F,)``."""
+        phi_all, e = self.view_fit(np.array([phi_c]))
+        phi = phi_all[0].copy()
+        phi[0] = 0.0
+        phi[self.second_view] = phi_c
+        e = e[0].copy()
+        e[[0, self.second_view]] = 0.0
+        return phi, e
+
     def rotations(self, phi: FloatArray) -> FloatArray:
         """``R_k = R_v(phi_k) A_k`` for ``phi (F,)``: ``(F, 3, 3)`` world_from_cam."""
         from omni_sfm.geometry import rotation_about_axis
@@ -279,6 +289,9 @@ class RotationResult:
         view_costs: ``(F,)`` each view's ``e_k``.
         num_evals: cost evaluations of the 1-DOF search.
         polished_cost: the joint all-view cost after :func:`polish_angles` (NaN if not run).
+        other_minima: ``(F,)`` angles of every view at the search's other local minima of
+            ``E_rot`` (higher, unpolished): alternatives when noise makes basins compete.
+        other_costs: ``E_rot`` (all views) at each of ``other_minima``.
     """
 
     rotations: FloatArray
@@ -288,6 +301,8 @@ class RotationResult:
     view_costs: FloatArray
     num_evals: int
     polished_cost: float = float("nan")
+    other_minima: tuple[FloatArray, ...] = ()
+    other_costs: tuple[float, ...] = ()
 
 
 def estimate_rotations(normals: FloatArray, vpv: FloatArray, weights: FloatArray,
@@ -326,15 +341,12 @@ def estimate_rotations(normals: FloatArray, vpv: FloatArray, weights: FloatArray
                                        int(np.searchsorted(idx, second_view)), softening)
     res = global_minimize_1d(search.cost, -np.pi, np.pi, num_grid=num_grid, periodic=True,
                              num_starts=num_starts, xtol=xtol)
-    phi_all, e = prob.view_fit(np.array([res.x]))
-    phi = phi_all[0].copy()
-    phi[0] = 0.0
-    phi[second_view] = res.x
-    e = e[0].copy()
-    e[[0, second_view]] = 0.0
+    phi, e = prob.angles_at(res.x)
     polished = float("nan")
     if polish:
         phi, _, polished = polish_angles(prob, phi)
     R = prob.rotations(phi)
     R[0] = np.eye(3)
-    return RotationResult(R, phi, second_view, float(e.sum()), e, res.num_evals, polished)
+    others = [prob.angles_at(x) for x, _ in res.minima[1:]]
+    return RotationResult(R, phi, second_view, float(e.sum()), e, res.num_evals, polished,
+                          tuple(p for p, _ in others), tuple(float(c.sum()) for _, c in others))

@@ -32,6 +32,8 @@ class SearchResult:
         num_evals: cost evaluations in total (grid points count one each).
         grid_x: ``(G,)`` the coarse grid.
         grid_f: ``(G,)`` the cost on the coarse grid (to inspect the landscape).
+        minima: every polished local minimum ``(x, fx)``, lowest first (``x`` wrapped like
+            ``x``); the first is ``(x, fx)``.
     """
 
     x: float
@@ -39,6 +41,7 @@ class SearchResult:
     num_evals: int
     grid_x: FloatArray
     grid_f: FloatArray
+    minima: tuple[tuple[float, float], ...] = ()
 
 
 def global_minimize_1d(cost: VectorCost, lo: float, hi: float, *, num_grid: int = 64,
@@ -81,7 +84,8 @@ def global_minimize_1d(cost: VectorCost, lo: float, hi: float, *, num_grid: int 
     best_x, best_f = float(xs[int(np.argmin(fs))]), float(np.min(fs))
     evals = num_grid
     if not np.isfinite(best_f):
-        return SearchResult(best_x, best_f, evals, xs, fs)
+        return SearchResult(best_x, best_f, evals, xs, fs, ((best_x, best_f),))
+    found: list[tuple[float, float]] = [(best_x, best_f)]
 
     count = [0]
 
@@ -106,12 +110,23 @@ def global_minimize_1d(cost: VectorCost, lo: float, hi: float, *, num_grid: int 
         else:
             # a plateau on the grid: a bounded golden-section search over the bracket
             x, f = _golden(scalar, a, c, xtol, max_iter)
-        if f < best_f and (periodic or lo <= x <= hi):
-            best_x, best_f = float(x), float(f)
+        if periodic or lo <= x <= hi:
+            found.append((float(x), float(f)))
     evals += count[0]
     if periodic:
-        best_x = lo + float(np.mod(best_x - lo, hi - lo))
-    return SearchResult(best_x, best_f, evals, xs, fs)
+        found = [(lo + float(np.mod(x - lo, hi - lo)), f) for x, f in found]
+    found.sort(key=lambda xf: xf[1])
+    # drop the raw grid point if polishing found the same basin
+    minima: list[tuple[float, float]] = []
+    for x, f in found:
+        if all(_dist(x, y, lo, hi, periodic) > 0.5 * step for y, _ in minima):
+            minima.append((x, f))
+    return SearchResult(minima[0][0], minima[0][1], evals, xs, fs, tuple(minima))
+
+
+def _dist(x: float, y: float, lo: float, hi: float, periodic: bool) -> float:
+    d = abs(x - y)
+    return min(d, (hi - lo) - d) if periodic else d
 
 
 _INV_PHI = (np.sqrt(5.0) - 1.0) / 2.0
