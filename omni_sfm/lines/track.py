@@ -44,7 +44,7 @@ class TrackingOptions:
     """At most this many samples per line (the interval grows on long lines)."""
     klt_window: int = 11
     """KLT window size (square, px)."""
-    klt_levels: int = 2
+    klt_levels: int = 3
     """KLT pyramid levels above the full image."""
     klt_iterations: int = 10
     """KLT iterations per pyramid level."""
