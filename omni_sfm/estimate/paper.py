@@ -21,7 +21,7 @@ Output conventions (:class:`PaperSolution`):
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -129,6 +129,15 @@ class PaperSolution:
     sign_from_rays: bool
     timings_ms: dict[str, float]
     costs: dict[str, float]
+
+    def reflected(self) -> PaperSolution:
+        """The point reflection through the first camera: positions and line points negated.
+
+        It reproduces every (unsigned) normal exactly as well, so where no ``side_rays`` fixed
+        the sign, chaining windows or comparing with other estimates must allow for it (e.g. a
+        least-squares similarity whose scale may be negative).
+        """
+        return replace(self, positions=-self.positions, line_points=-self.line_points)
 
 
 def _motion_scores(normals: FloatArray) -> FloatArray:

@@ -247,7 +247,8 @@ def polish_angles(prob: RotationProblem, phi: FloatArray, *, max_iter: int = 30,
         gp = np.sum(W * jp * r, 1)
         gd = np.einsum("q,fqa,fq->qa", W, jd, r)
         inv_p = np.where(hpp > 0, 1.0 / (hpp * (1 + lam) + 1e-300), 0.0)
-        red = -np.einsum("f,fqa,fsb->qasb", inv_p, hpd, hpd)
+        red = -((inv_p[:, None] * hpd.reshape(F, 2 * Q)).T @ hpd.reshape(F, 2 * Q)).reshape(
+            Q, 2, Q, 2)
         idx = np.arange(Q)
         red[idx, :, idx, :] += hdd * (1 + lam) + np.eye(2) * 1e-15
         rhs = gd - np.einsum("f,fqa,f->qa", inv_p, hpd, gp)

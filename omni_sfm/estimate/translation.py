@@ -103,9 +103,10 @@ def _plane_system(h: FloatArray, w: FloatArray, c: int) -> tuple[FloatArray, Flo
     L = jh0[:, :, None] * hc[:, None, :] / np.where(ok, den, 1.0)[:, None, None]
     z = np.einsum("fpi,pij->fpj", h, L)                                # y_kp = z_kp . u
     w = w * ok[None, :]
-    H = np.einsum("fp,fpi,fpj->fij", w, h, h)
-    Zh = np.einsum("fp,fpi,fpj->fij", w, h, z)                         # sum w h z^T
-    Zz = np.einsum("fp,fpi,fpj->fij", w, z, z)
+    wh = (w[..., None] * h).transpose(0, 2, 1)
+    H = wh @ h
+    Zh = wh @ z                                                         # sum w h z^T
+    Zz = (w[..., None] * z).transpose(0, 2, 1) @ z
     det = H[:, 0, 0] * H[:, 1, 1] - H[:, 0, 1] * H[:, 1, 0]
     good = np.abs(det) > 1e-14 * np.maximum(np.trace(H, axis1=1, axis2=2) ** 2, 1e-300)
     Hinv = np.zeros_like(H)
@@ -281,11 +282,13 @@ def translation_all_views(world_normals: FloatArray, directions: FloatArray,
     T = np.zeros((F, 3, 2 * L))
     cost = np.inf
     for it in range(irls_iter + 1):
-        H = np.einsum("fl,fli,flj->fij", w, m, m)
-        G = np.einsum("fl,fla,fli->flai", w, y, m)                        # (F, L, 2, 3)
+        H = (w[..., None] * m).transpose(0, 2, 1) @ m
+        G = (w[..., None, None] * y[..., :, None]) * m[..., None, :]    # (F, L, 2, 3)
         ridge = 1e-12 * np.trace(H[1:], axis1=1, axis2=2)[:, None, None] * np.eye(3)
         Hinv = np.linalg.inv(H[1:] + ridge)
-        Z = -np.einsum("flai,fij,fnbj->lanb", G[1:], Hinv, G[1:])
+        GH = (G[1:].reshape(F - 1, 2 * L, 3) @ Hinv).reshape(F - 1, L, 2, 3)
+        Z = -(GH.transpose(1, 2, 0, 3).reshape(2 * L, -1)
+              @ G[1:].transpose(0, 3, 1, 2).reshape(-1, 2 * L)).reshape(L, 2, L, 2)
         diag = np.einsum("fl,fla,flb->lab", w, y, y)
         idx = np.arange(L)
         Z[idx, :, idx, :] += diag
@@ -294,7 +297,7 @@ def translation_all_views(world_normals: FloatArray, directions: FloatArray,
         cost = float(max(vals[0], 0.0))
         # t_k = H_k^-1 sum_l w m (m . B_l z_l)
         T = np.zeros((F, 3, 2 * L))
-        T[1:] = np.einsum("fij,flaj->fila", Hinv, G[1:]).reshape(F - 1, 3, 2 * L)
+        T[1:] = Hinv @ G[1:].reshape(F - 1, 2 * L, 3).transpose(0, 2, 1)
         if it == irls_iter:
             break
         pos = T @ z.reshape(-1)
