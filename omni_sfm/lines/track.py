@@ -42,8 +42,11 @@ class TrackingOptions:
     """Interval between the points sampled on a line (along its edge points)."""
     max_samples_per_line: int = 16
     """At most this many samples per line (the interval grows on long lines)."""
+    klt_scale: float = 0.5
+    """KLT runs on the images resized by this factor (0.5: a quarter of the pixels, 4x faster;
+    the tracked points only need to land within ``snap_radius_px`` of their line)."""
     klt_window: int = 11
-    """KLT window size (square, px)."""
+    """KLT window size (square, px of the resized image)."""
     klt_levels: int = 3
     """KLT pyramid levels above the full image."""
     klt_iterations: int = 10
@@ -136,7 +139,9 @@ class LineTracker:
     def add_frame(self, image: np.ndarray, lines: ExtractedLines) -> IntArray:
         """Track into this frame (8-bit grey ``image`` and its lines). Returns ``(L,)`` the
         (provisional) track id of each line."""
-        pyr = np.ascontiguousarray(image)
+        sc = self.options.klt_scale
+        pyr = np.ascontiguousarray(image) if sc == 1.0 else \
+            cv2.resize(image, None, fx=sc, fy=sc, interpolation=cv2.INTER_AREA)
         nl = lines.num_lines
         track = np.full(nl, -1, np.int64)
         if self._prev_lines is not None and self._prev_pyr is not None and nl \
@@ -251,7 +256,9 @@ class LineTracker:
         """Track ids for the lines of ``cur`` (-1 where a new track starts)."""
         o = self.options
         s0, tangent, owner, nsamp = self._samples(prev)
-        p0 = s0.astype(np.float32).reshape(-1, 1, 2)
+        # KLT runs on images scaled by klt_scale (pixel centres map as (x + 0.5) s - 0.5)
+        sc = o.klt_scale
+        p0 = ((s0 + 0.5) * sc - 0.5).astype(np.float32).reshape(-1, 1, 2)
         kw = dict(winSize=self._win, maxLevel=o.klt_levels, criteria=self._criteria,
                   minEigThreshold=o.klt_min_eig)
         p1, st, _ = cv2.calcOpticalFlowPyrLK(pyr0, pyr1, p0, None, **kw)  # type: ignore[call-overload]
@@ -261,8 +268,9 @@ class LineTracker:
             ok &= st2.ravel() > 0
             # only the part across the edge counts: sliding along it (aperture) is harmless
             back = (pb - p0).reshape(-1, 2)
-            ok &= np.abs(back[:, 0] * tangent[:, 1] - back[:, 1] * tangent[:, 0]) < o.fb_max_px
-        p1 = p1.reshape(-1, 2)
+            ok &= np.abs(back[:, 0] * tangent[:, 1] - back[:, 1] * tangent[:, 0]) \
+                < o.fb_max_px * sc
+        p1 = (p1.reshape(-1, 2).astype(np.float64) + 0.5) / sc - 0.5
         # KLT gives up on points whose window holds one ideal straight edge (a singular
         # system); predict them with the median flow of the nearest tracked samples instead
         lost = np.flatnonzero(st.ravel() == 0)
