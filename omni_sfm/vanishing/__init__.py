@@ -42,14 +42,14 @@ class VanishingOptions:
     (the three planes are distinct there: two identical normals would pass any third one)."""
     min_shared_frames: int = 3
     """Frames a triple (or a track and a family) must share, with ``min_spread``, to be tested."""
-    max_triples: int = 6000
+    max_triples: int = 3000
     """All triples are tested when there are at most this many; otherwise this many random
     triples of tracks that share frames are drawn."""
     min_family_size: int = 3
     """Smallest group reported as a family (the method needs 3 parallel lines)."""
     max_families: int = 3
     """At most this many families are returned by :func:`detect_parallel_families`."""
-    outlier_factor: float = 4.0
+    outlier_factor: float = 8.0
     """A track only stays in a family if its mean squared (noise-normalised) residual is at most
     this times the family's noise level (the median squared residual of the members / 0.455,
     the median of a chi-square with 1 degree of freedom)."""
@@ -245,7 +245,8 @@ def _draw_triples(vis: np.ndarray, opts: VanishingOptions,
     k = np.argmax(key, axis=1)
     good = key[np.arange(len(i)), k] > 0
     out = np.sort(np.stack([i[good], j[good], k[good]], 1), axis=1)
-    return np.unique(out, axis=0)
+    key = np.unique((out[:, 0] * M + out[:, 1]) * M + out[:, 2])
+    return np.stack([key // (M * M), (key // M) % M, key % M], 1)
 
 
 def _triple_means(normals: FloatArray, vis: np.ndarray, triples: np.ndarray,
@@ -414,10 +415,10 @@ def detect_parallel_families(tracks: LineTracks,
     thresh = _seed_threshold(means, opts)
     order = np.argsort(means)
     order = order[means[order] <= thresh]
-    # the noise level of one residual, from the seeds (mostly parallel triples): mean lambda_min
-    # of a parallel triple ~ the variance of n . v
-    noise = 0.5 * float(np.median(means[order])) if order.size else 0.0
-    families: list[ParallelFamily] = []
+    # the noise level of one residual, from the seeds (mostly parallel triples): the mean
+    # lambda_min of a parallel triple estimates the variance of n . v
+    noise = float(np.median(means[order])) if order.size else 0.0
+    groups: list[np.ndarray] = []
     taken = np.zeros(tracks.num_tracks, dtype=bool)
     tried = 0
     for t in order:
@@ -425,15 +426,45 @@ def detect_parallel_families(tracks: LineTracks,
         if taken[seed].any():
             continue
         tried += 1
-        if tried > opts.max_seeds or len(families) >= opts.max_families:
+        if tried > opts.max_seeds:
             break
         members = _refine_group(normals, vis, seed, ~taken, opts, noise)
         if members.sum() < opts.min_family_size:
             continue
-        families.append(_family(normals, vis, members, opts))
+        groups.append(members)
         taken |= members
+    groups = _merge_groups(normals, vis, groups, opts, noise)
+    families = [_family(normals, vis, g, opts) for g in groups]
     families.sort(key=lambda f: f.size, reverse=True)
     return families[:opts.max_families]
+
+
+def _merge_groups(normals: FloatArray, vis: np.ndarray, groups: list[np.ndarray],
+                  opts: VanishingOptions, noise: float) -> list[np.ndarray]:
+    """Merge groups of one direction that grew apart (partial tracks: two seeds in different
+    stretches of the sequence): two groups merge if, refined together, at least 90% of their
+    tracks stay; the merged group is then grown again."""
+    groups = list(groups)
+    merged = True
+    while merged and len(groups) > 1:
+        merged = False
+        for a in range(len(groups)):
+            for b in range(a + 1, len(groups)):
+                union = groups[a] | groups[b]
+                both = _refine_group(normals, vis, np.flatnonzero(union), union, opts, noise)
+                if both.sum() >= 0.9 * union.sum():
+                    others = np.zeros_like(union)
+                    for k, g in enumerate(groups):
+                        if k not in (a, b):
+                            others |= g
+                    groups[a] = _refine_group(normals, vis, np.flatnonzero(both), ~others, opts,
+                                              noise)
+                    del groups[b]
+                    merged = True
+                    break
+            if merged:
+                break
+    return [g for g in groups if g.sum() >= opts.min_family_size]
 
 
 def detect_parallel_family(tracks: LineTracks,
