@@ -69,7 +69,7 @@ def test_folder_tracks(sequence, folder_result):
     # measured with 1 grey level of noise: median 0.006 deg, no false observation
     assert np.median(err) < 0.03 and np.mean(err > 0.5) <= 0.03
     assert res.obs_endpoint_rays.shape == (tr.num_observations, 2, 3)
-    assert set(res.timings_ms) == {"read", "extract", "track", "finish"}
+    assert {"read", "extract", "track", "finish"} <= set(res.timings_ms)
     s = res.summary()
     assert s["frames"] == NFRAMES and s["tracks"] == tr.num_tracks
     assert s["lines_extracted_total"] == int(res.lines_extracted.sum())
