@@ -238,11 +238,15 @@ def test_render_command_writes_every_file(tmp_path):
     np.testing.assert_allclose(np.array(meta["world_from_scene"])[:3, :3], R_ws)
 
 
-def test_render_video(tmp_path):
+def test_render_video_with_a_camera_object(tmp_path):
     out = tmp_path / "vid"
-    res = render_sequence(out, RenderOptions(camera="equirectangular", preset=Preset.SMALL,
-                                             frames=4, video=True), progress=False)
-    assert res.num_frames == 4
+    cam = make_camera("equirectangular", width=200, height=100)
+    res = render_sequence(out, RenderOptions(camera=cam, preset=Preset.SMALL, frames=4,
+                                             video=True), progress=False)
+    assert res.num_frames == 4 and res.camera == cam
+    gt = read_tum(out / "groundtruth.tum")
+    np.testing.assert_allclose(gt.positions, res.groundtruth.positions, atol=1e-12)
+    assert json.loads((out / "render.json").read_text())["mount"] == "handheld"
     assert not (out / "images").exists()
     cap = cv2.VideoCapture(str(out / "video.mp4"))
     n = 0
@@ -295,5 +299,9 @@ def test_library_errors():
         make_camera("some.yaml", width=100)
     with pytest.raises(OmniSfmError, match="exceeds the"):
         camera_path(make_scene("room"), PathOptions(path_length=20.0))
+    with pytest.raises(OmniSfmError, match="unknown mount"):
+        prepare(RenderOptions(preset=Preset.SMALL, mount="tripod"))  # type: ignore[arg-type]
+    with pytest.raises(OmniSfmError, match="noise sigma"):
+        prepare(RenderOptions(preset=Preset.SMALL, noise_sigma=-1.0))
     with pytest.raises(OmniSfmError, match="unknown preset"):
         prepare(RenderOptions(preset="huge"))  # type: ignore[arg-type]

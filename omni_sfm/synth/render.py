@@ -1,12 +1,14 @@
 """Rendered omnidirectional video with exact ground truth (Open3D ray casting).
 
-Every pixel is rendered from the rays the camera model gives for ``S x S`` sub-pixel positions
-(``rays_from_pixels``), so any omni-sfm camera model renders exactly and its valid mask is
-respected (outside it the image is black). Shading: Lambert diffuse light from the scene's point
-lights with a soft distance falloff, a direction-dependent ambient term (so that two faces of a
-box never look the same), emissive light panels and windows, no shadows; optional procedural
-texture (multi-octave value noise fixed to the surfaces, so point features are trackable);
-a little seeded Gaussian sensor noise; sRGB-like gamma and 8-bit output.
+Every pixel is rendered from the rays the camera model gives (``rays_from_pixels``) at its
+centre and, where a surface edge crosses it, at ``S x S`` sub-pixel positions (adaptive
+supersampling), so any omni-sfm camera model renders exactly and its valid mask is respected
+(outside it the image is black). The renderer works in the scene's frame (metres, +Z up); the
+files use the first camera's frame (see :class:`RenderSetup`). Shading: Lambert diffuse light
+from the scene's point lights with a soft distance falloff, a direction-dependent ambient term
+(so that two faces of a box never look the same), emissive light panels and windows, no
+shadows; optional procedural texture (value noise and spots fixed to the surfaces, so point
+features are trackable); a little seeded Gaussian sensor noise; gamma 1/2.2 and 8-bit output.
 
 Output of :func:`render_sequence` (documented in docs/rendering.md): ``images/NNNNNN.png`` or
 ``video.mp4``, ``camera.yaml``, ``groundtruth.tum``, ``scene.ply``, ``lines3d.json``,
@@ -16,7 +18,7 @@ Output of :func:`render_sequence` (documented in docs/rendering.md): ``images/NN
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass, fields
 from enum import StrEnum
 from pathlib import Path
 from typing import Any
@@ -450,8 +452,8 @@ def _spots(uv: FloatArray, foot: FloatArray, table: FloatArray, rmin: float,
 class RenderOptions:
     scene: SceneName = SceneName.CORRIDOR
     """Which scene to render."""
-    camera: str = CameraKind.HYPERBOLOID.value
-    """A camera kind (``hyperboloid``, ``equirectangular``) or a camera YAML file."""
+    camera: str | Path | CameraModel = CameraKind.HYPERBOLOID.value
+    """A camera kind (``hyperboloid``, ``equirectangular``), a camera file, or a model."""
     preset: Preset = Preset.PAPER
     """Default frame count and image size: ``small`` (tests) or ``paper`` (the paper's size)."""
     frames: int | None = None
@@ -523,7 +525,12 @@ def prepare(options: RenderOptions) -> RenderSetup:
     if isinstance(frames, bool) or not isinstance(frames, int) or frames <= 0:
         raise OmniSfmError(f"number of frames must be a positive integer, got {frames!r}")
     camera = make_camera(o.camera, width=o.width, height=o.height, preset=preset)
-    mount = Mount(o.mount) if o.mount is not None else default_mount(camera)
+    try:
+        mount = Mount(o.mount) if o.mount is not None else default_mount(camera)
+    except ValueError:
+        raise OmniSfmError(
+            f"unknown mount {o.mount!r} (known: {', '.join(m.value for m in Mount)})"
+        ) from None
     traj = camera_path(scene, PathOptions(num_frames=frames, path_length=o.path_length,
                                           mount=mount, seed=o.seed))
     renderer = Renderer(scene, camera, ShadingOptions(
@@ -542,7 +549,8 @@ def render_frames(options: RenderOptions) -> tuple[RenderSetup, np.ndarray]:
 
 @dataclass(frozen=True)
 class RenderResult:
-    """What :func:`render_sequence` wrote."""
+    """What :func:`render_sequence` wrote; ``groundtruth`` as in ``groundtruth.tum`` (world =
+    first camera, metres)."""
 
     output: Path
     camera: CameraModel
@@ -597,8 +605,15 @@ def render_sequence(output: Path | str, options: RenderOptions | None = None, *,
         write_lines3d(tmp / "lines3d.json", world_scene.lines,
                       frame="world = first camera's ray frame, metres", up=up)
         meta: dict[str, Any] = {
-            k: (v.value if isinstance(v, StrEnum) else v) for k, v in asdict(o).items()
+            f.name: getattr(o, f.name) for f in fields(o)
         }
+        for k, v in meta.items():
+            if isinstance(v, StrEnum):
+                meta[k] = v.value
+            elif isinstance(v, CameraModel):
+                meta[k] = v.model
+            elif isinstance(v, Path):
+                meta[k] = str(v)
         world_from_scene = np.eye(4)
         world_from_scene[:3, :3], world_from_scene[:3, 3] = R_ws, t_ws
         meta.update(mount=setup.mount.value, num_frames=n, width=cam.width, height=cam.height,
@@ -607,4 +622,4 @@ def render_sequence(output: Path | str, options: RenderOptions | None = None, *,
                     scene_frame="metres, +Z up, floor at z=0", up_in_world=up,
                     path_length_m=gt.path_length(), seconds_per_frame=seconds)
         atomic_write_text(tmp / "render.json", dumps_json(meta))
-    return RenderResult(output, cam, gt, n, seconds)
+    return RenderResult(output, cam, setup.groundtruth_in_world(), n, seconds)

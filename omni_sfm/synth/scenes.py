@@ -273,7 +273,6 @@ class _Builder:
         R = rotation_about_axis([0.0, 0.0, 1.0], np.radians(yaw_deg))
         ex, ey, ez = R[:, 0] * 2 * h[0], R[:, 1] * 2 * h[1], R[:, 2] * 2 * h[2]
         o = c - (ex + ey + ez) / 2
-        far = o + ex + ey + ez
         self.rect(o, ey, ex, mat)  # bottom
         self.rect(o + ez, ex, ey, top_mat if top_mat is not None else mat)  # top
         self.rect(o, ex, ez, mat)
@@ -286,7 +285,6 @@ class _Builder:
         for p, q in ((o, o + ex), (o, o + ey), (o + ex, o + ex + ey), (o + ey, o + ex + ey)):
             self.line(p, q, kind)
             self.line(p + ez, q + ez, kind)
-        del far
 
     def light(self, pos: ArrayLike, power: float) -> None:
         self.lights.append((np.asarray(pos, dtype=np.float64), power))
