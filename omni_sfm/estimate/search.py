@@ -14,7 +14,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import brent
 
 from omni_sfm.geometry import FloatArray
 
@@ -56,7 +55,7 @@ def global_minimize_1d(cost: VectorCost, lo: float, hi: float, *, num_grid: int 
             and ``hi`` is not sampled, being ``lo``).
         periodic: the cost has period ``hi - lo``.
         num_starts: how many of the lowest grid minima are polished.
-        xtol: absolute tolerance on ``x`` of the polishing (Brent also stops at ~1e-11).
+        xtol: absolute tolerance on ``x`` of the polishing.
         max_iter: iteration cap of each polishing run.
 
     Returns:
@@ -105,8 +104,7 @@ def global_minimize_1d(cost: VectorCost, lo: float, hi: float, *, num_grid: int 
             # a minimum at the end of a closed interval: polish on the one-sided bracket
             x, f = _golden_edge(scalar, x0, a if a != x0 else c, xtol, max_iter)
         elif fs[g] < fa and fs[g] < fc:
-            x, f, _, _ = brent(scalar, brack=(a, x0, c), tol=xtol, maxiter=max_iter,
-                               full_output=True)
+            x, f = _brent(scalar, a, x0, c, float(fs[g]), xtol, max_iter)
         else:
             # a plateau on the grid: a bounded golden-section search over the bracket
             x, f = _golden(scalar, a, c, xtol, max_iter)
@@ -130,6 +128,65 @@ def _dist(x: float, y: float, lo: float, hi: float, periodic: bool) -> float:
 
 
 _INV_PHI = (np.sqrt(5.0) - 1.0) / 2.0
+_CGOLD = 1.0 - _INV_PHI
+
+
+def _brent(f: Callable[[float], float], a: float, x: float, b: float, fx: float, xtol: float,
+           max_iter: int) -> tuple[float, float]:
+    """Brent's minimisation in the bracket ``a < x < b`` with ``f(x) = fx`` below both ends.
+
+    Parabolic interpolation through the three best points, golden section where the parabola
+    is not trusted (Brent 1973, as in Numerical Recipes' ``brent``); the bracket's known value
+    is reused, so no evaluation is spent re-bracketing. ``xtol`` is absolute.
+    """
+    w = v = x
+    fw = fv = fx
+    d = e = 0.0
+    for _ in range(max_iter):
+        xm = 0.5 * (a + b)
+        tol1 = max(xtol, 4e-16 * abs(x))
+        tol2 = 2.0 * tol1
+        if abs(x - xm) <= tol2 - 0.5 * (b - a):
+            break
+        golden = True
+        if abs(e) > tol1:
+            r = (x - w) * (fx - fv)
+            q = (x - v) * (fx - fw)
+            p = (x - v) * q - (x - w) * r
+            q = 2.0 * (q - r)
+            if q > 0.0:
+                p = -p
+            q = abs(q)
+            etemp, e = e, d
+            if abs(p) < abs(0.5 * q * etemp) and q * (a - x) < p < q * (b - x):
+                d = p / q
+                u = x + d
+                if u - a < tol2 or b - u < tol2:
+                    d = tol1 if xm >= x else -tol1
+                golden = False
+        if golden:
+            e = (a - x) if x >= xm else (b - x)
+            d = _CGOLD * e
+        u = x + d if abs(d) >= tol1 else x + (tol1 if d >= 0 else -tol1)
+        fu = f(u)
+        if fu <= fx:
+            if u >= x:
+                a = x
+            else:
+                b = x
+            v, w, x = w, x, u
+            fv, fw, fx = fw, fx, fu
+        else:
+            if u < x:
+                a = u
+            else:
+                b = u
+            if fu <= fw or w == x:
+                v, w = w, u
+                fv, fw = fw, fu
+            elif fu <= fv or v in (x, w):
+                v, fv = u, fu
+    return x, fx
 
 
 def _golden(f: Callable[[float], float], a: float, b: float, xtol: float,

@@ -37,6 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from omni_sfm.errors import OmniSfmError
+from omni_sfm.estimate.rotation import cross3
 from omni_sfm.geometry import FloatArray, normalize
 
 
@@ -69,7 +70,7 @@ def in_plane_parallax(world_normals: FloatArray, v: FloatArray) -> FloatArray:
 def line_parallax(world_normals: FloatArray) -> FloatArray:
     """``(F, Q)`` angle (rad) between each line's plane (its NV) in view 0 and in view k."""
     n0 = world_normals[:1]
-    s = np.linalg.norm(np.cross(world_normals, n0), axis=-1)
+    s = np.linalg.norm(cross3(world_normals, n0), axis=-1)
     c = np.abs(np.sum(world_normals * n0, -1))
     return np.arctan2(s, c)
 
@@ -244,9 +245,9 @@ def estimate_vertical(world_normals: FloatArray, directions: FloatArray, v: Floa
 def _tangent_bases(d: FloatArray) -> FloatArray:
     """``(L, 3, 2)`` orthonormal bases of the planes perpendicular to the unit ``d (L, 3)``."""
     helper = np.where(np.abs(d[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
-    e1 = np.cross(d, helper)
+    e1 = cross3(d, helper)
     e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
-    e2 = np.cross(d, e1)
+    e2 = cross3(d, e1)
     return np.stack([e1, e2], -1)
 
 
@@ -338,9 +339,9 @@ def normal_residuals(world_normals: FloatArray, directions: FloatArray, points: 
     ``positions[k]`` is ``(x_l - t_k) x d_l`` normalised; the angle ignores the normals' signs.
     """
     rel = points[None] - positions[:, None]
-    pred = np.cross(rel, directions[None])
+    pred = cross3(rel, directions[None])
     pred /= np.maximum(np.linalg.norm(pred, axis=-1, keepdims=True), 1e-300)
-    s = np.linalg.norm(np.cross(world_normals, pred), axis=-1)
+    s = np.linalg.norm(cross3(world_normals, pred), axis=-1)
     c = np.abs(np.sum(world_normals * pred, -1))
     return np.arctan2(s, c)
 
