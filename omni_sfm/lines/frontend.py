@@ -135,7 +135,7 @@ def track_lines(frames: Iterable[tuple[int, float, np.ndarray]], camera: CameraM
     t_trk: list[float] = []
     c_ext: list[float] = []
     c_trk: list[float] = []
-    total = len(frames) if hasattr(frames, "__len__") else None  # type: ignore[arg-type]
+    total = (len(frames) or None) if hasattr(frames, "__len__") else None  # type: ignore[arg-type]
     it = iter(frames)
     with tqdm(total=total, desc="lines", unit="frame", disable=not o.progress,
               leave=False) as bar:
