@@ -156,6 +156,7 @@ _TEX_WEIGHTS = (0.45, 0.3, 0.17, 0.08)
 _TEX_AMPLITUDE = 0.3
 _TEX_SPOTS = ((0.3, 0.1, 0.3), (0.12, 0.12, 0.33))  # cell size (m), radius range (cells)
 _TEX_TABLE = 256
+_SUBRAY_CACHE_BYTES = 64 * 2**20
 
 
 class Renderer:
@@ -184,7 +185,10 @@ class Renderer:
         self.mask = camera.valid_mask()
         self.pixel_index = np.flatnonzero(self.mask.ravel())
         self.centre_rays, self.pixel_angle = self._centre_rays()
-        self.sub_rays = self._subpixel_rays() if o.supersample > 1 else None
+        # sub-pixel rays are kept when they fit in _SUBRAY_CACHE_BYTES, else made per frame
+        S2 = o.supersample**2
+        cache = o.supersample > 1 and S2 * len(self.pixel_index) * 12 <= _SUBRAY_CACHE_BYTES
+        self.sub_rays = self._subpixel_rays(np.arange(len(self.pixel_index))) if cache else None
         self.wrap_u = camera.model == CameraKind.EQUIRECTANGULAR
         self.light_pos = scene.light_positions.astype(np.float32)
         self.light_power = scene.light_power.astype(np.float32)
@@ -209,11 +213,12 @@ class Renderer:
             size = np.fmax(size, step)
         return centre.astype(np.float32), size.astype(np.float32)
 
-    def _subpixel_rays(self) -> FloatArray:
-        """``(S*S, P, 3)`` float32 rays of the ``P`` valid pixels at S x S sub-pixel positions;
-        a sub-pixel ray outside the model's domain falls back to the pixel centre's ray."""
+    def _subpixel_rays(self, idx: np.ndarray) -> FloatArray:
+        """``(S*S, len(idx), 3)`` float32 rays of the valid pixels ``idx`` at S x S sub-pixel
+        positions; a sub-pixel ray outside the model's domain falls back to the centre's ray."""
         S = self.options.supersample
         u, v = self._pixel_uv()
+        u, v = u[idx], v[idx]
         offs = (np.arange(S) + 0.5) / S - 0.5
         out = np.empty((S * S, len(u), 3), dtype=np.float32)
         k = 0
@@ -221,7 +226,7 @@ class Renderer:
             for du in offs:
                 r = self.camera.rays_from_pixels(np.stack([u + du, v + dv], axis=1))
                 bad = ~np.isfinite(r).all(axis=1)
-                r[bad] = self.centre_rays[bad]
+                r[bad] = self.centre_rays[idx[bad]]
                 out[k] = r
                 k += 1
         return np.asarray(out)
@@ -299,10 +304,11 @@ class Renderer:
     def radiance(self, world_from_cam: FloatArray, position: FloatArray) -> FloatArray:
         """``(P, 3)`` linear radiance of the valid pixels (adaptively supersampled)."""
         rad, sid = self._shade(world_from_cam, position, self.centre_rays, self.pixel_angle)
-        if self.sub_rays is not None:
-            S2 = self.sub_rays.shape[0]
+        if self.options.supersample > 1:
+            S2 = self.options.supersample**2
             idx = np.flatnonzero(self._edge_pixels(sid))
-            sub = self.sub_rays[:, idx].reshape(-1, 3)
+            sub = (self.sub_rays[:, idx] if self.sub_rays is not None
+                   else self._subpixel_rays(idx)).reshape(-1, 3)
             angle = np.tile(self.pixel_angle[idx] / self.options.supersample, S2)
             rs, _ = self._shade(world_from_cam, position, sub, angle)
             rad[idx] = rs.reshape(S2, len(idx), 3).mean(axis=0)
