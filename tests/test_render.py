@@ -71,7 +71,8 @@ def test_five_point_on_sift_matches_agrees_with_ground_truth(camera, size, scene
         rays1, rays2 = _sift_rays(setup, imgs[i], imgs[j])
         assert len(rays1) > 100, "too few SIFT matches on a textured render"
         opts = pycolmap.RANSACOptions()
-        # rays overload: the threshold is on the unit sphere (radians), about 1/3 px here
+        # rays overload: the threshold is an angle on the unit sphere (radians; checked on
+        # synthetic rays), 0.3 to 0.5 px at these sizes
         opts.max_error = 0.003
         opts.random_seed = 0
         res = pycolmap.estimate_relative_pose(rays1, rays2, opts)
