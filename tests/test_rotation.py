@@ -173,3 +173,19 @@ def test_bad_inputs() -> None:
         estimate_rotations(normals, vpv, np.array([1.0, 0.0, 1.0]), 2)
     with pytest.raises(OmniSfmError, match="at least 3 views"):
         estimate_rotations(normals[:2], vpv[:2], np.ones(3), 1)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_search_finds_the_global_minimum_of_e_rot(seed: int) -> None:
+    """With noise E_rot(phi_c) has several local minima; the coarse grid + Brent search must
+    return the lowest one, as a dense brute-force scan of the same cost does."""
+    sim = simulate(SimulationOptions(num_views=12, num_parallel=4, num_other=6, noise_deg=1.0,
+                                     seed=seed))
+    normals, vpv = _gt_inputs(sim)
+    res = estimate_rotations(normals, vpv, np.ones(6), 11, polish=False, xtol=1e-10)
+    prob = RotationProblem.build(normals, vpv, np.ones(6), 11)
+    grid = np.linspace(-np.pi, np.pi, 20001)
+    brute = prob.cost(grid)
+    found = prob.cost(np.array([res.phi[11]]))[0]
+    assert found <= brute.min() + 1e-12
+    assert res.num_evals < 64 + 2 * 3 * 40
