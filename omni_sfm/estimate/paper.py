@@ -227,8 +227,7 @@ def estimate_paper(tracks: LineTracks, family: ParallelFamily,
     ref = np.asarray(family.vpv, dtype=np.float64)
     vpv = chain_signs(vpv, ref if np.isfinite(ref).all(axis=1).any() else None)
 
-    # rotation: the paper's search, then (optionally) all views jointly; when both are at hand,
-    # the full model (lines triangulated from all views) decides which explains the normals best
+    # rotation: the paper's global 1-DOF search over phi_c (METHOD.md §4)
     t0 = time.perf_counter()
     xtol = opts.rotation_xtol if opts.rotation_xtol is not None else \
         (1e-6 if opts.polish_rotation else 1e-10)
@@ -259,7 +258,7 @@ def estimate_paper(tracks: LineTracks, family: ParallelFamily,
                                      num_grid=opts.rotation_grid,
                                      num_starts=opts.rotation_starts, xtol=xtol,
                                      softening=opts.rotation_softening, polish=False,
-                             search_views=search_views)
+                                     search_views=search_views)
     # candidates: the search's minimum, then (if polishing) every local minimum of E_rot within
     # a factor of the best, polished with all views; the full model decides among them
     prob = RotationProblem.build(normals[:, oth], vpv, w[oth], c_rot)
