@@ -27,8 +27,9 @@ from omni_sfm.errors import OmniSfmError
 from omni_sfm.fileio import atomic_write_text, dumps_json, read_json
 from omni_sfm.geometry import FloatArray, rotation_about_axis
 
-BAND_OFFSET = 0.002
-"""Distance (m) of decorative bands in front of the surface they lie on."""
+BAND_OFFSET = 0.0005
+"""Distance (m) of decorative bands in front of the surface they lie on (0.5 mm: far below a
+pixel at any distance the cameras see, far above the ray caster's float32 resolution)."""
 
 
 class SceneName(StrEnum):
@@ -382,33 +383,43 @@ class _Wall:
         # the winding does not matter for rendering (shading uses the visible side)
         b.rect_lines(o, e1, e2, mat, kind, edges)
 
+    def line(self, b: _Builder, s0: float, z0: float, s1: float, z1: float, kind: str) -> None:
+        """A segment on the wall's band plane, from ``(s0, z0)`` to ``(s1, z1)``."""
+        b.line(self.point(s0, z0), self.point(s1, z1), kind)
+
     def door(self, b: _Builder, s0: float, width: float, height: float = 2.05,
              frame: float = 0.07) -> None:
         """Door leaf inside a frame (jambs and head); its outer and inner edges are lines."""
         s1 = s0 + width
-        self.band(b, s0, s0 + frame, 0.0, height, Material.DOOR_FRAME, "door_frame", "123")
-        self.band(b, s1 - frame, s1, 0.0, height, Material.DOOR_FRAME, "door_frame", "123")
+        self.band(b, s0, s0 + frame, 0.0, height, Material.DOOR_FRAME, "door_frame", "")
+        self.band(b, s1 - frame, s1, 0.0, height, Material.DOOR_FRAME, "door_frame", "")
         self.band(b, s0 + frame, s1 - frame, height - frame, height, Material.DOOR_FRAME,
-                  "door_frame", "02")
+                  "door_frame", "")
         self.band(b, s0 + frame, s1 - frame, 0.0, height - frame, Material.DOOR, "door", "")
+        # outer edges (wall | frame) and inner edges (frame | door leaf)
+        hi, si0, si1 = height - frame, s0 + frame, s1 - frame
+        for a0, c0, a1, c1 in ((s0, 0, s0, height), (s1, 0, s1, height), (s0, height, s1, height),
+                               (si0, 0, si0, hi), (si1, 0, si1, hi), (si0, hi, si1, hi)):
+            self.line(b, a0, c0, a1, c1, "door_frame")
 
     def window(self, b: _Builder, s0: float, width: float, z0: float, height: float,
                frame: float = 0.06, bar: float = 0.04) -> None:
-        """Window: glass (emissive) in a frame with a vertical mullion and a transom."""
+        """Window: glass (emissive) in a frame with a vertical mullion and a transom. Lines: the
+        frame's outer edges and the four panes' edges (frame | glass)."""
         s1, z1 = s0 + width, z0 + height
         sm, zm = s0 + width / 2, z0 + 0.6 * height
         kind = "window_frame"
-        self.band(b, s0, s1, z0, z0 + frame, Material.WINDOW_FRAME, kind, "02")
-        self.band(b, s0, s1, z1 - frame, z1, Material.WINDOW_FRAME, kind, "02")
-        self.band(b, s0, s0 + frame, z0 + frame, z1 - frame, Material.WINDOW_FRAME, kind, "13")
-        self.band(b, s1 - frame, s1, z0 + frame, z1 - frame, Material.WINDOW_FRAME, kind, "13")
+        mat = Material.WINDOW_FRAME
+        self.band(b, s0, s1, z0, z0 + frame, mat, kind, "0")
+        self.band(b, s0, s1, z1 - frame, z1, mat, kind, "2")
+        self.band(b, s0, s0 + frame, z0 + frame, z1 - frame, mat, kind, "")
+        self.band(b, s1 - frame, s1, z0 + frame, z1 - frame, mat, kind, "")
+        self.line(b, s0, z0, s0, z1, kind)
+        self.line(b, s1, z0, s1, z1, kind)
         # mullion and transom, split so that no two bands overlap
-        self.band(b, sm - bar / 2, sm + bar / 2, z0 + frame, z1 - frame, Material.WINDOW_FRAME,
-                  kind, "")
-        self.band(b, s0 + frame, sm - bar / 2, zm - bar / 2, zm + bar / 2, Material.WINDOW_FRAME,
-                  kind, "")
-        self.band(b, sm + bar / 2, s1 - frame, zm - bar / 2, zm + bar / 2, Material.WINDOW_FRAME,
-                  kind, "")
+        self.band(b, sm - bar / 2, sm + bar / 2, z0 + frame, z1 - frame, mat, kind, "")
+        self.band(b, s0 + frame, sm - bar / 2, zm - bar / 2, zm + bar / 2, mat, kind, "")
+        self.band(b, sm + bar / 2, s1 - frame, zm - bar / 2, zm + bar / 2, mat, kind, "")
         for a0, a1 in ((s0 + frame, sm - bar / 2), (sm + bar / 2, s1 - frame)):
             for c0, c1 in ((z0 + frame, zm - bar / 2), (zm + bar / 2, z1 - frame)):
                 self.band(b, a0, a1, c0, c1, Material.WINDOW, kind, "0123")
