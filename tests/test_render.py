@@ -237,6 +237,12 @@ def test_render_command_writes_every_file(tmp_path):
     assert meta["num_frames"] == 3 and meta["mount"] == "robot"
     np.testing.assert_allclose(np.array(meta["up_in_world"]), R_ws[:, 2])
     np.testing.assert_allclose(np.array(meta["world_from_scene"])[:3, :3], R_ws)
+    # the written camera file renders the same frames
+    again = tmp_path / "again"
+    assert cli_main(["render", "--output", str(again), "--camera", str(out / "camera.yaml"),
+                     "--frames", "3", "--scene", "room", "--seed", "4"]) == 0
+    assert np.array_equal(cv2.imread(str(again / "images" / "000002.png")),
+                          cv2.imread(str(pngs[2])))
 
 
 def test_render_video_with_a_camera_object(tmp_path):
