@@ -10,9 +10,9 @@ Stages (all SfM work is pycolmap's; docs/colmap.md):
 4. triangulation: ``pycolmap.triangulate_points`` with the line-based poses held fixed;
 5. mapper (only when the folder holds frames the line stage did not pose): COLMAP's incremental
    mapper continues from the triangulated model, the seeded frames held fixed;
-6. bundle adjustment: poses and points free, intrinsics fixed, gauge fixed
-   (``TWO_CAMS_FROM_WORLD``), robust loss, in rounds with outlier filtering; frames with too few
-   observations stay fixed;
+6. bundle adjustment: poses and points free, intrinsics fixed, the gauge fixed by weak position
+   priors at the input's camera centres (COLMAP's pose-prior adjuster), robust loss, in rounds
+   with outlier filtering; frames with too few observations stay fixed;
 7. acceptance: the adjusted model is mapped back onto the input's frame and scale (a similarity
    fitted to the trusted frames), and each frame keeps its line-based pose unless it has enough
    observations and a plausible change; if the whole model is too weak, every input pose is
@@ -75,6 +75,9 @@ class RefineOptions:
     """Bundle adjustment rounds (each followed by filtering points with large errors)."""
     ba_max_iterations: int = 100
     """Ceres iterations per round at most."""
+    prior_position_sigma: float = 0.02
+    """Standard deviation of the position priors (the input's camera centres) that fix the
+    adjustment's gauge, as a fraction of the input path length; weak next to the images."""
     loss_scale_px: float = 1.0
     """Scale of the robust (soft L1) loss on reprojection errors, pixels."""
     max_reprojection_error_px: float = 4.0
@@ -159,9 +162,31 @@ def _observations(rec: Any, image_ids: list[int]) -> np.ndarray:
                        rec.images[i].has_pose else 0 for i in image_ids], dtype=np.int64)
 
 
-def _bundle_adjust(rec: Any, fixed_frames: set[int], opts: RefineOptions) -> dict[str, Any]:
-    """Rounds of BA (poses and points free, intrinsics and ``fixed_frames`` fixed, gauge fixed)
-    each followed by removing observations with large errors or small triangulation angles."""
+def _position_priors(rec: Any, image_ids: list[int], inp: Trajectory,
+                     sigma: float) -> list[Any]:
+    """COLMAP position priors (camera centres, isotropic ``sigma``) from the input poses."""
+    import pycolmap
+
+    priors = []
+    for k, image_id in enumerate(image_ids):
+        prior = pycolmap.PosePrior()
+        prior.corr_data_id = rec.images[image_id].data_id
+        prior.position = inp.positions[k]
+        prior.position_covariance = np.eye(3) * sigma**2
+        prior.coordinate_system = pycolmap.PosePriorCoordinateSystem.CARTESIAN
+        priors.append(prior)
+    return priors
+
+
+def _bundle_adjust(rec: Any, fixed_frames: set[int], priors: list[Any],
+                   opts: RefineOptions) -> dict[str, Any]:
+    """Rounds of BA (poses and points free, intrinsics and ``fixed_frames`` fixed) each followed
+    by removing observations with large errors or small triangulation angles.
+
+    The gauge (position, rotation, scale) is fixed by the input's camera centres as position
+    priors (COLMAP's pose-prior bundle adjuster); COLMAP's ``TWO_CAMS_FROM_WORLD`` gauge fixes
+    one coordinate of the second image's centre, which for neighbouring video frames leaves the
+    scale nearly free (it collapsed on the 100-frame room)."""
     import pycolmap
 
     rounds = []
@@ -174,9 +199,6 @@ def _bundle_adjust(rec: Any, fixed_frames: set[int], opts: RefineOptions) -> dic
         for frame_id in fixed_frames:
             if rec.exists_frame(frame_id) and rec.frame(frame_id).has_pose:
                 config.set_constant_rig_from_world_pose(frame_id)
-        # with fewer than two fixed frames the similarity gauge must be fixed explicitly
-        if len(fixed_frames) < 2:
-            config.fix_gauge(pycolmap.BundleAdjustmentGauge.TWO_CAMS_FROM_WORLD)
         ba = pycolmap.BundleAdjustmentOptions()
         ba.refine_focal_length = False
         ba.refine_principal_point = False
@@ -187,13 +209,18 @@ def _bundle_adjust(rec: Any, fixed_frames: set[int], opts: RefineOptions) -> dic
         ba.ceres.loss_function_scale = opts.loss_scale_px
         ba.ceres.solver_options.max_num_iterations = opts.ba_max_iterations
         ba.ceres.solver_options.num_threads = opts.num_threads
+        rec.update_point_3d_errors()
         before = float(rec.compute_mean_reprojection_error())
-        summary = pycolmap.create_default_bundle_adjuster(ba, config, rec).solve()
+        adjuster = pycolmap.create_pose_prior_bundle_adjuster(
+            ba, pycolmap.PosePriorBundleAdjustmentOptions(), config, priors, rec)
+        summary = adjuster.solve()
+        rec.update_point_3d_errors()
+        after = float(rec.compute_mean_reprojection_error())
         removed = pycolmap.ObservationManager(rec).filter_all_points3D(
             opts.max_reprojection_error_px, opts.min_triangulation_angle_deg)
         rounds.append({
             "mean_reprojection_error_before_px": before,
-            "mean_reprojection_error_after_px": float(rec.compute_mean_reprojection_error()),
+            "mean_reprojection_error_after_px": after,
             "termination": str(summary.termination_type).rsplit(".", 1)[-1],
             "usable": bool(summary.is_solution_usable()),
             "removed_observations": int(removed),
@@ -336,7 +363,9 @@ def refine(init_dir: Path, images_dir: Path, output: Path,
             trusted_model = rec.num_points3D() >= o.min_points and (~weak).sum() >= 3
             with stages.stage("bundle adjustment"):
                 if trusted_model:
-                    report["bundle_adjustment"] = _bundle_adjust(rec, fixed, o)
+                    priors = _position_priors(rec, image_ids, inp,
+                                              o.prior_position_sigma * max(path_length, 1e-9))
+                    report["bundle_adjustment"] = _bundle_adjust(rec, fixed, priors, o)
                     report["bundle_adjustment"]["held_fixed_frames"] = int(len(fixed))
                     report["bundle_adjustment"]["after"] = model_statistics(rec)
                 else:
