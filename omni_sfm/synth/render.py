@@ -238,7 +238,7 @@ class Renderer:
         rays = np.empty((len(d), 6), dtype=np.float32)
         rays[:, :3] = np.asarray(position, dtype=np.float32)
         rays[:, 3:] = d
-        res = self.raycaster.cast_rays(self.o3d.core.Tensor(rays))
+        res = self.raycaster.cast_rays(self.o3d.core.Tensor.from_numpy(rays))
         return {
             "t_hit": res["t_hit"].numpy(),
             "primitive_ids": res["primitive_ids"].numpy(),
