@@ -84,6 +84,18 @@ class PaperOptions:
     polish_translation: bool = True
     """Also solve the positions with all views at once (``translation_all_views``, given the
     rotations) and keep them if they explain the normals better (smaller RMS angle)."""
+    robust_rounds: int = 6
+    """Up to this many re-solves with Cauchy track weights from each track's RMS angle (tracks
+    that switched to another line, i.e. wrong correspondences). Only runs when some track's
+    RMS exceeds ``robust_trigger`` times the robust scale (1.4826 x the median track RMS), so
+    clean data costs nothing extra; stops when the weights settle. 0: plain least squares as
+    in the paper."""
+    robust_factor: float = 2.0
+    """Scale of the Cauchy weights ``1 / (1 + (r / (factor * scale))^2)``."""
+    robust_trigger: float = 3.0
+    """Reweighting starts only if some track's RMS exceeds this times the robust scale."""
+    robust_min_scale_deg: float = 1e-3
+    """Floor of the robust scale, degrees (noise-free data)."""
     irls_iter: int = 2
     """Reweighting rounds of the translation steps (0: the plain algebraic residuals)."""
     rerun_rotation: bool = True
@@ -115,7 +127,10 @@ class PaperSolution:
             polish, NaN if off), ``E_t1``, ``E_t`` (weighted sums of squared residuals, ~ rad^2),
             ``plane_ratio`` (in-plane conditioning, small is good), ``rms_deg`` (RMS angle
             between observed and modelled NVs of all used tracks) and ``polished_rotation``
-            (1.0 if the jointly polished rotations were kept).
+            (1.0 if the jointly polished rotations were kept), ``polished_translation`` (1.0 if
+            the all-view positions were kept), ``robust_rounds`` (reweighted re-solves run).
+        weights: ``(M,)`` the effective track weights of the final solve: the caller's times
+            the robust (Cauchy) weights; small values mark suspected outlier tracks.
     """
 
     rotations: FloatArray
@@ -129,6 +144,7 @@ class PaperSolution:
     sign_from_rays: bool
     timings_ms: dict[str, float]
     costs: dict[str, float]
+    weights: FloatArray
 
     def reflected(self) -> PaperSolution:
         """The point reflection through the first camera: positions and line points negated.
@@ -212,14 +228,54 @@ def estimate_paper(tracks: LineTracks, family: ParallelFamily,
     """
     opts = options or PaperOptions()
     t_start = time.perf_counter()
-    w = _check_inputs(tracks, family, weights)
+    w_user = _check_inputs(tracks, family, weights)
+    if side_rays is not None and np.asarray(side_rays).shape != (tracks.num_observations, 3):
+        raise OmniSfmError(f"side_rays must have shape ({tracks.num_observations}, 3), got "
+                           f"{np.asarray(side_rays).shape}")
+    F = tracks.num_frames
+    if opts.second_view is not None and not 1 <= opts.second_view < F:
+        raise OmniSfmError(f"second_view must be in [1, {F}), got {opts.second_view}")
+    normals = tracks.dense_normals().transpose(1, 0, 2)                  # (F, M, 3)
+    w = w_user
+    sol = _solve_once(tracks, family, opts, w, side_rays)
+    timings = dict(sol.timings_ms)
+    rounds = 0
+    for _ in range(opts.robust_rounds):
+        # per-track RMS angle under the current solution -> Cauchy weights (robust to tracks
+        # that switched to another line); skipped when every track fits (clean data)
+        m = np.einsum("fij,fmj->fmi", sol.rotations, normals)
+        ang = normal_residuals(m, sol.line_directions, sol.line_points, sol.positions)
+        rt = np.nan_to_num(np.sqrt(np.mean(ang ** 2, axis=0)), nan=np.pi / 2)
+        scale = max(1.4826 * float(np.median(rt[w_user > 0])),
+                    np.radians(opts.robust_min_scale_deg))
+        if rounds == 0 and np.all(rt[w_user > 0] <= opts.robust_trigger * scale):
+            break
+        w_new = w_user / (1.0 + (rt / (opts.robust_factor * scale)) ** 2)
+        if rounds > 0 and np.max(np.abs(w_new - w)) < 0.05:
+            break
+        try:
+            new = _solve_once(tracks, family, opts, w_new, side_rays)
+        except OmniSfmError:
+            break
+        for k, val in new.timings_ms.items():
+            timings[k] = timings.get(k, 0.0) + val
+        sol, w = new, w_new
+        rounds += 1
+    timings["total"] = (time.perf_counter() - t_start) * 1e3
+    costs = dict(sol.costs)
+    costs["robust_rounds"] = float(rounds)
+    return replace(sol, timings_ms=timings, costs=costs, weights=w)
+
+
+def _solve_once(tracks: LineTracks, family: ParallelFamily, opts: PaperOptions, w: FloatArray,
+                side_rays: FloatArray | None) -> PaperSolution:
+    """One weighted solve (inputs already checked)."""
+    t_start = time.perf_counter()
     F, M = tracks.num_frames, tracks.num_tracks
     members = np.asarray(family.members, dtype=bool)
     normals = tracks.dense_normals().transpose(1, 0, 2)                  # (F, M, 3)
     par = np.flatnonzero(members & (w > 0))
     oth = np.flatnonzero(~members & (w > 0))
-    if opts.second_view is not None and not 1 <= opts.second_view < F:
-        raise OmniSfmError(f"second_view must be in [1, {F}), got {opts.second_view}")
 
     # VPV from the weighted members (eq. 5), sign as the family's (or chained)
     vpv, _ = vpv_per_frame(normals[:, par].transpose(1, 0, 2), np.ones((len(par), F), bool),
@@ -296,9 +352,6 @@ def estimate_paper(tracks: LineTracks, family: ParallelFamily,
     sign_from_rays = False
     if side_rays is not None:
         rays = np.asarray(side_rays, dtype=np.float64)
-        if rays.shape != (tracks.num_observations, 3):
-            raise OmniSfmError(f"side_rays must have shape ({tracks.num_observations}, 3), got "
-                               f"{rays.shape}")
         dense = np.zeros((F, M, 3))
         dense[tracks.obs_frame, tracks.obs_track] = rays
         rays_w = np.einsum("fij,fmj->fmi", R, dense)
@@ -317,7 +370,7 @@ def estimate_paper(tracks: LineTracks, family: ParallelFamily,
              "polished_rotation": float(best_sol.R is not candidates[-1]),
              "polished_translation": float(best_sol.all_views)}
     return PaperSolution(R, positions, best_sol.c, rot.second_view, dirs, points, v,
-                         members.copy(), sign_from_rays, timings, costs)
+                         members.copy(), sign_from_rays, timings, costs, w.copy())
 
 
 @dataclass(frozen=True)
