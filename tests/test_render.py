@@ -129,6 +129,32 @@ def test_true_lines_land_on_canny_edges(camera, size, scene, frame):
         assert np.mean(dw < 1.0) < np.mean(d < 1.0) - 0.1
 
 
+def _gradient(img: np.ndarray) -> np.ndarray:
+    """Gradient magnitude (grey levels per px, Sobel after a 1 px blur), max over 3 x 3."""
+    g = cv2.GaussianBlur(cv2.cvtColor(img, cv2.COLOR_RGB2GRAY).astype(np.float32), (0, 0), 1.0)
+    mag = np.hypot(cv2.Sobel(g, cv2.CV_32F, 1, 0), cv2.Sobel(g, cv2.CV_32F, 0, 1))
+    return cv2.dilate(mag, np.ones((3, 3), np.uint8))
+
+
+def test_texture_keeps_the_lines():
+    """--textured adds gradients everywhere but the true lines keep their contrast."""
+    med = {}
+    for textured in (False, True):
+        setup = prepare(RenderOptions(scene="corridor", preset=Preset.SMALL, width=640,
+                                      height=480, seed=2, textured=textured))
+        gt = setup.groundtruth
+        img = _frames(setup, (4,))[4]
+        grad = _gradient(img)
+        uv = np.rint(visible_line_samples(setup.renderer, gt.rotations[4],
+                                          gt.positions[4]).uv).astype(np.int64)
+        mask = cv2.erode(setup.camera.valid_mask().astype(np.uint8), np.ones((9, 9), np.uint8))
+        med[textured] = (np.median(grad[uv[:, 1], uv[:, 0]]), np.median(grad[mask > 0]))
+    (line_plain, all_plain), (line_tex, all_tex) = med[False], med[True]
+    assert all_tex > 5 * all_plain  # the texture is there
+    assert line_tex > 0.8 * line_plain  # the lines are as strong as without it
+    assert line_tex > 1.5 * all_tex  # and stand out of the texture
+
+
 def test_same_seed_same_images_other_seed_other_images():
     opts = RenderOptions(scene=SceneName.ROOM, camera="equirectangular", preset=Preset.SMALL,
                          frames=3, textured=True, seed=5)
