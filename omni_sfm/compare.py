@@ -1,0 +1,501 @@
+"""Line-based against point-based initialization on the same sequence (``omni-sfm compare``).
+
+An *initializer* is a plugin registered in the entry-point group ``omni_sfm.initializers``
+(:mod:`omni_sfm.registry`): a callable ``(sequence: SequenceInput, options: dict) ->
+InitializerResult``. The core never imports one by name. omni-sfm ships four (package
+``plugins.initializers``): ``lines``, ``five-point``, ``colmap`` and ``upright-3pt``
+(docs/comparison.md).
+
+:func:`compare` runs the chosen initializers on one sequence, evaluates each trajectory against
+ground truth with :func:`omni_sfm.evaluate.trajectory_errors` and writes, into one output folder
+that appears complete or not at all:
+
+- ``results.json``: ``{"initializers": {NAME: {"status": "ok"|"failed", "reason"?,
+  "trajectory": "trajectories/NAME.tum" | null, "registered": fraction of the frames,
+  "rot_max_deg", "rot_mean_deg", "ate_rel", "rpe", "time_s", ...}}}``;
+- ``trajectories/NAME.tum``: the poses each initializer registered (world_from_cam, TUM);
+- ``report.md``: the table; ``trajectories.png`` (top view over ground truth) and
+  ``errors.png`` (rotation and position error per frame).
+
+A failure is recorded with its reason, never dropped. The figures in ``results.json`` are
+exactly what :func:`evaluate_trajectory` computes from the written TUM file
+(``tests/test_compare.py`` recomputes them).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+import traceback
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+
+from omni_sfm.cameras.base import CameraModel
+from omni_sfm.errors import OmniSfmError
+from omni_sfm.evaluate import associate, trajectory_errors
+from omni_sfm.fileio import atomic_output_dir, atomic_write_text, dumps_json, read_json
+from omni_sfm.geometry import FloatArray
+from omni_sfm.lines.tracks import LineTracks
+from omni_sfm.poses import Trajectory, read_tum, write_tum
+from omni_sfm.registry import INITIALIZERS, available, load
+
+DEFAULT_INITIALIZERS = ("lines", "five-point", "colmap", "upright-3pt")
+"""The initializers :func:`compare` runs when none are named (those installed)."""
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
+
+
+@dataclass(frozen=True)
+class PointObservations:
+    """Point feature tracks of a sequence, as pixels and unit rays.
+
+    Attributes:
+        obs_track: ``(K,)`` int track id of each observation.
+        obs_frame: ``(K,)`` int frame index (0..F-1) of each observation.
+        obs_uv: ``(K, 2)`` pixel of each observation (OpenCV convention), in the image of
+            :attr:`SequenceInput.camera`.
+        obs_ray: ``(K, 3)`` unit ray of each observation in the camera frame.
+    """
+
+    obs_track: np.ndarray
+    obs_frame: np.ndarray
+    obs_uv: FloatArray
+    obs_ray: FloatArray
+
+    def __post_init__(self) -> None:
+        k = self.obs_track.shape[0]
+        if self.obs_frame.shape != (k,) or self.obs_uv.shape != (k, 2) or \
+                self.obs_ray.shape != (k, 3):
+            raise ValueError(f"inconsistent point observations: {self.obs_track.shape=} "
+                             f"{self.obs_frame.shape=} {self.obs_uv.shape=} "
+                             f"{self.obs_ray.shape=}")
+
+    @property
+    def num_observations(self) -> int:
+        return int(self.obs_track.shape[0])
+
+
+@dataclass(frozen=True)
+class SequenceInput:
+    """What an initializer gets: the frames of one sequence and its camera.
+
+    Either ``images`` (real or rendered frames: every initializer extracts its own features)
+    or precomputed observations (a simulation: ``line_tracks`` and/or ``points``), or both.
+
+    Attributes:
+        timestamps: ``(F,)`` timestamp of each frame (frame index for an image folder), the
+            timestamps the trajectories are written with.
+        camera: the calibrated camera model of every frame.
+        images: ``F`` image files in frame order, or None.
+        line_tracks: line observations (unit normals) of the ``F`` frames, or None.
+        points: point observations (pixels and rays) of the ``F`` frames, or None.
+        name: a label for reports.
+    """
+
+    timestamps: FloatArray
+    camera: CameraModel
+    images: tuple[Path, ...] | None = None
+    line_tracks: LineTracks | None = None
+    points: PointObservations | None = None
+    name: str = "sequence"
+
+    def __post_init__(self) -> None:
+        f = self.timestamps.shape[0]
+        if self.timestamps.shape != (f,) or f < 3:
+            raise OmniSfmError(f"a sequence needs at least 3 frames, got {self.timestamps.shape}")
+        if self.images is not None and len(self.images) != f:
+            raise ValueError(f"{len(self.images)} images for {f} timestamps")
+        if self.line_tracks is not None and self.line_tracks.num_frames != f:
+            raise ValueError(f"line tracks have {self.line_tracks.num_frames} frames, not {f}")
+        if self.images is None and self.line_tracks is None and self.points is None:
+            raise ValueError("a sequence needs images or precomputed observations")
+
+    @property
+    def num_frames(self) -> int:
+        return int(self.timestamps.shape[0])
+
+    def read_gray(self, k: int) -> np.ndarray:
+        """Frame ``k`` as an ``(H, W)`` uint8 grey image (checked against the camera size)."""
+        import cv2
+
+        if self.images is None:
+            raise OmniSfmError(f"{self.name}: this sequence has no images")
+        img = cv2.imread(str(self.images[k]), cv2.IMREAD_GRAYSCALE)
+        if img is None:
+            raise OmniSfmError(f"{self.images[k]}: OpenCV cannot read this image")
+        if img.shape != (self.camera.height, self.camera.width):
+            raise OmniSfmError(f"{self.images[k]}: image is {img.shape[1]}x{img.shape[0]} px, "
+                               f"the camera is {self.camera.width}x{self.camera.height} px")
+        return img
+
+
+def sequence_from_folder(images: Path, camera: CameraModel) -> SequenceInput:
+    """The image files of a folder (sorted by name; timestamp = index in that order)."""
+    images = Path(images)
+    if not images.is_dir():
+        raise OmniSfmError(f"{images}: not a folder of images")
+    files = sorted(p for p in images.iterdir()
+                   if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+    if len(files) < 3:
+        raise OmniSfmError(f"{images}: {len(files)} images; need at least 3 "
+                           f"({', '.join(IMAGE_SUFFIXES)})")
+    return SequenceInput(np.arange(len(files), dtype=np.float64), camera, images=tuple(files),
+                         name=images.name)
+
+
+@dataclass(frozen=True)
+class InitializerResult:
+    """What an initializer returns.
+
+    Attributes:
+        trajectory: world_from_cam of the frames it registered (timestamps of the sequence),
+            any world and scale; None when it failed before registering anything.
+        status: ``"ok"`` or ``"failed"``.
+        reason: why it failed (one line), or a note; empty when there is nothing to say.
+        reflection_ambiguous: True when the data determine the positions only up to the point
+            reflection through the first camera (line normals alone, METHOD.md); the comparison
+            then evaluates the branch nearer the ground truth and says so.
+        info: JSON-ready details (counts, options used).
+    """
+
+    trajectory: Trajectory | None
+    status: str = "ok"
+    reason: str = ""
+    reflection_ambiguous: bool = False
+    info: dict[str, Any] = field(default_factory=dict)
+
+
+def failed(reason: str, **info: Any) -> InitializerResult:
+    """An :class:`InitializerResult` for a failure."""
+    return InitializerResult(None, "failed", reason, info=dict(info))
+
+
+class Initializer(Protocol):
+    """The plugin interface of the ``omni_sfm.initializers`` entry-point group."""
+
+    def __call__(self, sequence: SequenceInput,
+                 options: Mapping[str, Any]) -> InitializerResult: ...
+
+
+def known_initializers() -> list[str]:
+    """Names of the installed initializers."""
+    return sorted(available(INITIALIZERS))
+
+
+def parse_initializer_names(text: str | Sequence[str] | None) -> list[str]:
+    """Checked initializer names from ``"a,b"`` or a list; None: the default ones installed."""
+    known = known_initializers()
+    if text is None:
+        names = [n for n in DEFAULT_INITIALIZERS if n in known]
+    else:
+        items = text.split(",") if isinstance(text, str) else list(text)
+        names = [n.strip() for n in items if n.strip()]
+    if not names:
+        raise OmniSfmError(f"no initializer named (known: {', '.join(known) or 'none'})")
+    for n in names:
+        if n not in known:
+            raise OmniSfmError(f"unknown initializer {n!r} (known: {', '.join(known)})")
+    if len(set(names)) != len(names):
+        raise OmniSfmError(f"initializer named twice in {','.join(names)}")
+    return names
+
+
+def run_initializer(name: str, sequence: SequenceInput,
+                    options: Mapping[str, Any] | None = None) -> tuple[InitializerResult, float]:
+    """Run one initializer; any exception becomes a failed result with its one-line reason.
+
+    Returns the result and the wall time in seconds.
+    """
+    fn = load(INITIALIZERS, name)
+    t0 = time.perf_counter()
+    try:
+        res = fn(sequence, dict(options or {}))
+    except OmniSfmError as exc:
+        res = failed(str(exc))
+    except Exception as exc:  # a crash of one initializer must not lose the others' results
+        tb = traceback.extract_tb(exc.__traceback__)
+        where = f" ({Path(tb[-1].filename).name}:{tb[-1].lineno})" if tb else ""
+        res = failed(f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
+                     f"{where}")
+    return res, time.perf_counter() - t0
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """Errors of one trajectory against ground truth (see :mod:`omni_sfm.evaluate`).
+
+    Attributes:
+        registered: fraction of the sequence's frames in the trajectory that have ground truth.
+        metrics: ``rot_max_deg``, ``rot_mean_deg``, ``ate_rel``, ``rpe``, ``frames_compared``.
+        timestamps: ``(N,)`` the compared frames.
+        rot_deg: ``(N,)`` rotation error relative to the first compared frame, degrees.
+        pos_err_rel: ``(N,)`` camera-centre error after the similarity alignment, divided by
+            the ground-truth path length.
+        aligned: the estimate after the similarity alignment onto the ground truth.
+    """
+
+    registered: float
+    metrics: dict[str, float]
+    timestamps: FloatArray
+    rot_deg: FloatArray
+    pos_err_rel: FloatArray
+    aligned: Trajectory
+
+
+def evaluate_trajectory(est: Trajectory, gt: Trajectory, num_frames: int) -> Evaluation:
+    """Errors of ``est`` against ``gt``; ``num_frames``: frames of the sequence.
+
+    Raises:
+        OmniSfmError: fewer than 3 frames in common with the ground truth.
+    """
+    e = trajectory_errors(est, gt)
+    ea, ga = associate(est, gt)
+    aligned = e.alignment.apply(ea)
+    pos = np.linalg.norm(aligned.positions - ga.positions, axis=1) / ga.path_length()
+    m = {"rot_max_deg": e.rot_max_deg, "rot_mean_deg": e.rot_mean_deg, "ate_rel": e.ate_rel,
+         "rpe": e.rpe_rel, "frames_compared": e.num_common}
+    return Evaluation(e.num_common / num_frames, m, ea.timestamps, e.rot_deg, pos, aligned)
+
+
+def match_gt_frames(sequence: SequenceInput, gt: Trajectory, gt_name: str = "ground truth"
+                    ) -> int:
+    """Frames of the sequence that have a ground-truth pose; OmniSfmError when fewer than 3."""
+    probe = Trajectory(sequence.timestamps.copy(),
+                       np.broadcast_to(np.eye(3), (sequence.num_frames, 3, 3)).copy(),
+                       np.zeros((sequence.num_frames, 3)))
+    try:
+        e, _ = associate(probe, gt)
+    except OmniSfmError:
+        raise OmniSfmError(
+            f"{gt_name}: no timestamp matches a frame (frames have timestamps "
+            f"{sequence.timestamps[0]:g}..{sequence.timestamps[-1]:g}, the ground truth "
+            f"{gt.timestamps[0]:g}..{gt.timestamps[-1]:g})") from None
+    if len(e) < 3:
+        raise OmniSfmError(f"{gt_name}: only {len(e)} timestamps match a frame; need 3")
+    return len(e)
+
+
+@dataclass(frozen=True)
+class ComparisonResult:
+    """What :func:`compare` wrote.
+
+    Attributes:
+        output: the output folder.
+        results: the content of ``results.json``.
+        evaluations: the evaluation of each initializer that produced a trajectory.
+    """
+
+    output: Path
+    results: dict[str, Any]
+    evaluations: dict[str, Evaluation]
+
+
+def run_comparison(sequence: SequenceInput, gt: Trajectory, names: Sequence[str],
+                   options: Mapping[str, Mapping[str, Any]] | None = None,
+                   progress: bool = False
+                   ) -> tuple[dict[str, Any], dict[str, Trajectory], dict[str, Evaluation]]:
+    """Run and evaluate ``names`` on ``sequence`` (nothing written).
+
+    Returns ``results`` (the ``results.json`` content, trajectory paths
+    ``trajectories/NAME.tum``), the trajectories written for each initializer that has one,
+    and their evaluations.
+    """
+    from tqdm import tqdm
+
+    options = options or {}
+    entries: dict[str, Any] = {}
+    trajs: dict[str, Trajectory] = {}
+    evals: dict[str, Evaluation] = {}
+    for name in tqdm(names, desc="compare", unit="initializer", disable=not progress):
+        res, dt = run_initializer(name, sequence, options.get(name, {}))
+        entry: dict[str, Any] = {"status": res.status}
+        traj = res.trajectory
+        notes = [res.reason] if res.reason else []
+        ev: Evaluation | None = None
+        if traj is not None and len(traj):
+            if res.reflection_ambiguous:
+                from omni_sfm.estimate.pipeline import match_reflection
+
+                try:
+                    chosen = match_reflection(traj, gt)
+                except OmniSfmError:
+                    chosen = traj
+                if chosen is not traj:
+                    notes.append("positions reflected through the first camera (normals alone "
+                                 "cannot tell the two branches apart; the branch nearer the "
+                                 "ground truth is evaluated)")
+                traj = chosen
+            try:
+                ev = evaluate_trajectory(traj, gt, sequence.num_frames)
+            except OmniSfmError as exc:
+                entry["status"] = "failed"
+                notes.append(f"cannot evaluate {len(traj)} registered frames: {exc}")
+        elif res.status == "ok":
+            entry["status"] = "failed"
+            notes.append("returned no poses")
+        if entry["status"] == "failed" and not notes:
+            notes.append("failed without a reason")
+        if notes:
+            entry["reason"] = "; ".join(notes)
+        if traj is not None and len(traj):
+            entry["trajectory"] = f"trajectories/{name}.tum"
+            trajs[name] = traj
+        else:
+            entry["trajectory"] = None
+        if ev is not None:
+            evals[name] = ev
+            entry["registered"] = ev.registered
+            entry.update({k: ev.metrics[k] for k in ("rot_max_deg", "rot_mean_deg", "ate_rel",
+                                                     "rpe")})
+            entry["frames_compared"] = int(ev.metrics["frames_compared"])
+        else:
+            entry["registered"] = 0.0 if traj is None else len(traj) / sequence.num_frames
+            entry.update({k: None for k in ("rot_max_deg", "rot_mean_deg", "ate_rel", "rpe")})
+            entry["frames_compared"] = 0
+        entry["frames_registered"] = 0 if traj is None else len(traj)
+        entry["time_s"] = dt
+        if res.info:
+            entry["info"] = res.info
+        entries[name] = entry
+    results = {"initializers": entries, "sequence": {"name": sequence.name,
+                                                      "frames": sequence.num_frames,
+                                                      "camera": sequence.camera.model}}
+    return results, trajs, evals
+
+
+def compare(sequence: SequenceInput, gt: Trajectory, output: Path,
+            names: Sequence[str] | None = None, *,
+            options: Mapping[str, Mapping[str, Any]] | None = None, overwrite: bool = False,
+            plots: bool = True, progress: bool = False) -> ComparisonResult:
+    """Run the initializers ``names`` on ``sequence``, evaluate and write ``output``.
+
+    Raises:
+        OmniSfmError: ground truth matching fewer than 3 frames, an unknown initializer, an
+            output folder that exists and is not empty (unless ``overwrite``).
+    """
+    chosen = parse_initializer_names(names if names is None or isinstance(names, str)
+                                     else list(names))
+    match_gt_frames(sequence, gt)
+    output = Path(output)
+    with atomic_output_dir(output, overwrite=overwrite) as tmp:
+        results, trajs, evals = run_comparison(sequence, gt, chosen, options, progress)
+        (tmp / "trajectories").mkdir()
+        for name, traj in trajs.items():
+            write_tum(tmp / results["initializers"][name]["trajectory"], traj)
+        atomic_write_text(tmp / "results.json", dumps_json(results))
+        atomic_write_text(tmp / "report.md", report_markdown(results))
+        if plots:
+            plot_trajectories(tmp / "trajectories.png", evals, gt)
+            plot_errors(tmp / "errors.png", evals)
+    return ComparisonResult(output, results, evals)
+
+
+def _fmt(x: Any, digits: int = 3, pct: bool = False) -> str:
+    if x is None or (isinstance(x, float) and not math.isfinite(x)):
+        return "-"
+    return f"{100 * x:.{digits}f} %" if pct else f"{x:.{digits}f}"
+
+
+def table_rows(entries: Mapping[str, Mapping[str, Any]]) -> list[str]:
+    """Markdown table (header included) of the ``initializers`` entries of results.json."""
+    rows = ["| initializer | status | registered | rot max (deg) | rot mean (deg) | ATE / path "
+            "| RPE | time (s) |",
+            "|---|---|---|---|---|---|---|---|"]
+    for name, e in entries.items():
+        rows.append(f"| {name} | {e['status']} | {_fmt(e.get('registered'), 0, pct=True)} | "
+                    f"{_fmt(e.get('rot_max_deg'))} | {_fmt(e.get('rot_mean_deg'))} | "
+                    f"{_fmt(e.get('ate_rel'), 2, pct=True)} | {_fmt(e.get('rpe'))} | "
+                    f"{_fmt(e.get('time_s'), 1)} |")
+    return rows
+
+
+def report_markdown(results: Mapping[str, Any]) -> str:
+    """``report.md``: the table, the reasons of failures and notes."""
+    seq = results.get("sequence", {})
+    entries = results["initializers"]
+    lines = [f"# Initializers on {seq.get('name', 'the sequence')}", "",
+             f"{seq.get('frames', '?')} frames, camera `{seq.get('camera', '?')}`. Rotation error "
+             "relative to the first frame; ATE = RMSE of camera centres after similarity "
+             "alignment, over the ground-truth path length; RPE = mean relative step error over "
+             "the mean step (omni_sfm.evaluate). Errors are over the registered frames.", ""]
+    lines += table_rows(entries)
+    notes = [f"- `{n}`: {e['reason']}" for n, e in entries.items() if e.get("reason")]
+    if notes:
+        lines += ["", "Notes and reasons:", "", *notes]
+    lines += ["", "![trajectories](trajectories.png)", "", "![errors](errors.png)", ""]
+    return "\n".join(lines)
+
+
+COLOURS = {"lines": "tab:red", "five-point": "tab:blue", "colmap": "tab:green",
+           "upright-3pt": "tab:orange"}
+
+
+def _top_axes(gt: Trajectory) -> tuple[int, int]:
+    """The two world axes of the ground truth's largest spread (the "top view")."""
+    spread = gt.positions.std(0)
+    a, b = np.argsort(spread)[::-1][:2]
+    return int(min(a, b)), int(max(a, b))
+
+
+def plot_trajectories(path: Path, evals: Mapping[str, Evaluation], gt: Trajectory) -> None:
+    """Top view (the two axes of largest ground-truth spread) of each aligned trajectory."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    i, j = _top_axes(gt)
+    fig, ax = plt.subplots(figsize=(6, 4.5), dpi=100)
+    ax.plot(gt.positions[:, i], gt.positions[:, j], "k-", lw=2.5, alpha=0.4,
+            label="ground truth")
+    for name, ev in evals.items():
+        p = ev.aligned.positions
+        ax.plot(p[:, i], p[:, j], ".-", ms=3, lw=1, color=COLOURS.get(name),
+                label=f"{name} (ATE {100 * ev.metrics['ate_rel']:.2f} %)")
+    ax.set_xlabel(f"world {'xyz'[i]} (m)")
+    ax.set_ylabel(f"world {'xyz'[j]} (m)")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.legend(fontsize=8)
+    ax.set_title("trajectories after similarity alignment (top view)")
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
+def plot_errors(path: Path, evals: Mapping[str, Evaluation]) -> None:
+    """Rotation error and aligned position error per frame."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (a1, a2) = plt.subplots(2, 1, figsize=(6, 5), dpi=100, sharex=True)
+    for name, ev in evals.items():
+        a1.plot(ev.timestamps, ev.rot_deg, ".-", ms=3, lw=1, color=COLOURS.get(name),
+                label=name)
+        a2.plot(ev.timestamps, 100 * ev.pos_err_rel, ".-", ms=3, lw=1, color=COLOURS.get(name),
+                label=name)
+    a1.set_ylabel("rotation error (deg)")
+    a2.set_ylabel("position error (% of path)")
+    a2.set_xlabel("frame timestamp")
+    a1.legend(fontsize=8)
+    a1.set_title("error per frame")
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
+def recompute_results(output: Path, gt: Trajectory, num_frames: int) -> dict[str, dict[str, Any]]:
+    """The figures of ``output/results.json`` recomputed from its TUM files (for checks)."""
+    res = read_json(Path(output) / "results.json")
+    out: dict[str, dict[str, Any]] = {}
+    for name, e in res["initializers"].items():
+        if e.get("trajectory") is None or e["rot_max_deg"] is None:
+            continue
+        ev = evaluate_trajectory(read_tum(Path(output) / e["trajectory"]), gt, num_frames)
+        out[name] = {"registered": ev.registered, **ev.metrics}
+    return out

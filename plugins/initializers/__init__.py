@@ -1,0 +1,12 @@
+"""omni-sfm's initializer plugins (entry-point group ``omni_sfm.initializers``).
+
+Each is a callable ``(sequence: omni_sfm.compare.SequenceInput, options: dict) ->
+omni_sfm.compare.InitializerResult`` (docs/comparison.md):
+
+- ``lines``: omni-sfm's line front end and estimator (:mod:`.lines`);
+- ``five-point``: point rays, pycolmap's five-point LO-RANSAC, chained with scale carried by
+  triangulated points (:mod:`.five_point`);
+- ``colmap``: pycolmap's incremental mapper with the exact camera model (:mod:`.colmap`);
+- ``upright-3pt``: PoseLib's upright three-point solver on point rays turned so that omni-sfm's
+  vanishing direction is the solver's up axis (:mod:`.upright`).
+"""

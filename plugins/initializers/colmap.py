@@ -1,0 +1,152 @@
+"""``colmap``: pycolmap's incremental mapping on the same frames with the exact camera model.
+
+The camera goes to COLMAP through :meth:`omni_sfm.cameras.base.CameraModel.colmap_export`
+(images mirrored left-right where the export says ``flip_u``, e.g. the hyperboloid), COLMAP's
+SIFT with the camera's valid mask, sequential matching, geometric verification and
+``pycolmap.incremental_mapping`` with the intrinsics held fixed. Poses of the largest model
+come back to omni-sfm's ray frame: ``cam_from_world = colmap_cam_from_cam^T @
+cam_from_world_colmap``. A simulated sequence gives its point observations as keypoints (pixels
+of the sequence's camera) and its tracks as matches.
+
+Options: ``max_features`` (4000), ``overlap`` (sequential matching, 10), ``init_min_tri_angle``
+(degrees, COLMAP's default 16), ``seed`` (0), ``threads`` (1).
+"""
+
+from __future__ import annotations
+
+import tempfile
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from omni_sfm.compare import InitializerResult, PointObservations, SequenceInput, failed
+from omni_sfm.poses import Trajectory
+
+
+def _frame_name(k: int) -> str:
+    return f"{k:06d}.png"
+
+
+def _database_from_points(db_path: Path, seq: SequenceInput, pts: PointObservations,
+                          export: Any, overlap: int) -> None:
+    """Keypoints of the given observations, matches between frames ``overlap`` apart or less
+    that share a track, COLMAP's geometric verification."""
+    import pycolmap
+
+    with pycolmap.Database.open(str(db_path)) as db:
+        cam_id = db.write_camera(export.camera)
+        rig = pycolmap.Rig()
+        sensor = pycolmap.sensor_t(pycolmap.SensorType.CAMERA, cam_id)
+        rig.add_ref_sensor(sensor)
+        rig_id = db.write_rig(rig)
+        ids: list[int] = []
+        per_frame: list[np.ndarray] = []
+        for k in range(seq.num_frames):
+            sel = np.flatnonzero(pts.obs_frame == k)
+            iid = db.write_image(pycolmap.Image(name=_frame_name(k), camera_id=cam_id))
+            frame = pycolmap.Frame()
+            frame.rig_id = rig_id
+            frame.add_data_id(pycolmap.data_t(sensor, iid))
+            db.write_frame(frame)
+            db.write_keypoints(iid, export.pixels_to_colmap(pts.obs_uv[sel]).astype(np.float32))
+            ids.append(iid)
+            per_frame.append(pts.obs_track[sel])
+        for a in range(seq.num_frames):
+            for b in range(a + 1, min(seq.num_frames, a + overlap + 1)):
+                _, ia, ib = np.intersect1d(per_frame[a], per_frame[b], return_indices=True)
+                if len(ia):
+                    db.write_matches(ids[a], ids[b], np.stack([ia, ib], 1).astype(np.uint32))
+    pycolmap.geometric_verification(str(db_path))
+
+
+def _database_from_images(db_path: Path, work: Path, seq: SequenceInput, export: Any,
+                          options: Mapping[str, Any]) -> None:
+    import cv2
+
+    from omni_sfm.export.colmap import write_colmap_mask
+    from omni_sfm.refine.database import extract_and_match
+
+    img_dir = work / "images"
+    img_dir.mkdir()
+    assert seq.images is not None
+    for k, src in enumerate(seq.images):
+        img = cv2.imread(str(src), cv2.IMREAD_UNCHANGED)
+        if img is None or img.shape[:2] != (export.height, export.width):
+            raise ValueError(f"{src}: unreadable or not {export.width}x{export.height} px")
+        cv2.imwrite(str(img_dir / _frame_name(k)), export.image_to_colmap(img))
+    write_colmap_mask(work / "mask.png", seq.camera)
+    extract_and_match(db_path, img_dir, work / "mask.png",
+                      [_frame_name(k) for k in range(seq.num_frames)], export,
+                      max_features=int(options.get("max_features", 4000)),
+                      overlap=int(options.get("overlap", 10)),
+                      num_threads=int(options.get("threads", 1)))
+
+
+def colmap(sequence: SequenceInput, options: Mapping[str, Any]) -> InitializerResult:
+    """The ``colmap`` initializer (module docstring)."""
+    import pycolmap
+
+    export = sequence.camera.colmap_export()
+    C = np.asarray(export.colmap_cam_from_cam)
+    prev_level = pycolmap.logging.minloglevel
+    pycolmap.logging.minloglevel = 2
+    try:
+        with tempfile.TemporaryDirectory(prefix="omni_sfm_colmap_") as tmp:
+            work = Path(tmp)
+            db_path = work / "database.db"
+            if sequence.images is not None:
+                _database_from_images(db_path, work, sequence, export, options)
+                source = "COLMAP SIFT"
+            elif sequence.points is not None:
+                _database_from_points(db_path, sequence, sequence.points, export,
+                                      int(options.get("overlap", 10)))
+                source = "given"
+            else:
+                return failed("the sequence has neither images nor point observations")
+            opts = pycolmap.IncrementalPipelineOptions()
+            opts.ba_refine_focal_length = False
+            opts.ba_refine_principal_point = False
+            opts.ba_refine_extra_params = False
+            opts.random_seed = int(options.get("seed", 0))
+            opts.num_threads = int(options.get("threads", 1))
+            if "init_min_tri_angle" in options:
+                opts.mapper.init_min_tri_angle = float(options["init_min_tri_angle"])
+            out = work / "sparse"
+            out.mkdir()
+            try:
+                models = pycolmap.incremental_mapping(str(db_path), str(work), str(out), opts)
+            except Exception as exc:  # the mapper raises when it gives up
+                return failed(f"COLMAP's mapper failed: {str(exc).splitlines()[0][:200]}")
+            with pycolmap.Database.open(str(db_path)) as db:
+                verified = int(db.num_verified_image_pairs())
+    finally:
+        pycolmap.logging.minloglevel = prev_level
+    best = max(models.values(), key=lambda r: r.num_reg_images(), default=None)
+    info: dict[str, Any] = {"features": source, "verified_pairs": verified,
+                            "models": len(models)}
+    if best is None or best.num_reg_images() == 0:
+        return failed(f"COLMAP's mapper built no model ({verified} verified image pairs)",
+                      **info)
+    frames, Rs, cs = [], [], []
+    for im in best.images.values():
+        if not im.has_pose:
+            continue
+        k = int(Path(im.name).stem)
+        cw = im.cam_from_world()
+        R_cw = np.asarray(cw.rotation.matrix())
+        t_cw = np.asarray(cw.translation, float)
+        frames.append(k)
+        Rs.append(R_cw.T @ C)
+        cs.append(-R_cw.T @ t_cw)
+    order = np.argsort(frames)
+    fr = np.asarray(frames)[order]
+    traj = Trajectory(sequence.timestamps[fr].copy(), np.asarray(Rs)[order],
+                      np.asarray(cs)[order])
+    info.update({"points3D": int(best.num_points3D()), "registered": int(len(fr))})
+    if len(fr) < 3:
+        return InitializerResult(traj, "failed", f"COLMAP registered {len(fr)} frames", info=info)
+    reason = "" if len(fr) == sequence.num_frames else \
+        f"COLMAP registered {len(fr)} of {sequence.num_frames} frames"
+    return InitializerResult(traj, "ok", reason, info=info)
