@@ -194,8 +194,9 @@ class Renderer:
         self.light_power = scene.light_power.astype(np.float32)
         rng = np.random.default_rng([o.seed, 9120])
         self.tex_tables = rng.random(
-            (len(_TEX_WAVELENGTHS) + len(_TEX_SPOTS), _TEX_TABLE, _TEX_TABLE))
-        self.tex_offsets = rng.uniform(0, 50.0, size=(len(MATERIAL_ALBEDO), 3, 2))
+            (len(_TEX_WAVELENGTHS) + len(_TEX_SPOTS), _TEX_TABLE, _TEX_TABLE)).astype(np.float32)
+        self.tex_offsets = rng.uniform(0, 50.0, size=(len(MATERIAL_ALBEDO), 3, 2)).astype(
+            np.float32)
 
     def _pixel_uv(self) -> tuple[FloatArray, FloatArray]:
         w = self.camera.width
@@ -322,18 +323,19 @@ class Renderer:
         axis = np.argmax(np.abs(n), axis=1)
         ia = np.array([[1, 2], [0, 2], [0, 1]])[axis]
         rows = np.arange(len(pts))
-        uv = np.stack([pts[rows, ia[:, 0]], pts[rows, ia[:, 1]]], axis=1).astype(np.float64)
+        uv = np.stack([pts[rows, ia[:, 0]], pts[rows, ia[:, 1]]], axis=1).astype(np.float32)
         uv += self.tex_offsets[mat, axis]
-        val = np.zeros(len(pts), dtype=np.float64)
+        val = np.zeros(len(pts), dtype=np.float32)
         for k, (lam, w) in enumerate(zip(_TEX_WAVELENGTHS, _TEX_WEIGHTS, strict=True)):
             keep = np.clip((lam / 2 - foot) / (lam / 4), 0.0, 1.0)
-            val += w * (0.5 + keep * (_value_noise(uv / lam, self.tex_tables[k]) - 0.5))
+            noise = _value_noise(uv * np.float32(1 / lam), self.tex_tables[k])
+            val += np.float32(w) * (0.5 + keep * (noise - 0.5))
         # soft blotches (val in [0, 1], mean 0.5) plus sharp spots: the spots make point
         # features that are well localised at every image scale
-        factor = 1.0 + _TEX_AMPLITUDE * np.tanh(3.0 * (val - 0.5))
+        factor = 1.0 + np.float32(_TEX_AMPLITUDE) * np.tanh(3.0 * (val - 0.5))
         for k, (cell, rmin, rmax) in enumerate(_TEX_SPOTS):
-            factor *= _spots(uv / cell, foot / cell, self.tex_tables[len(_TEX_WAVELENGTHS) + k],
-                             rmin, rmax)
+            factor *= _spots(uv * np.float32(1 / cell), foot * np.float32(1 / cell),
+                             self.tex_tables[len(_TEX_WAVELENGTHS) + k], rmin, rmax)
         return np.where(MATERIAL_TEXTURED[mat], factor, 1.0).astype(np.float32)
 
     def render(self, world_from_cam: FloatArray, position: FloatArray,
@@ -414,7 +416,7 @@ def visible_line_samples(renderer: Renderer, world_from_cam: FloatArray, positio
     return LineSamples(uv[ok], seg[ok], pts[ok])
 
 
-def _value_noise(uv: FloatArray, table: FloatArray) -> FloatArray:
+def _value_noise(uv: np.ndarray, table: np.ndarray) -> np.ndarray:
     """2D value noise in [0, 1] with quintic interpolation; ``uv`` in lattice units."""
     m = table.shape[0] - 1
     f = np.floor(uv)
@@ -431,8 +433,8 @@ def _value_noise(uv: FloatArray, table: FloatArray) -> FloatArray:
     return np.asarray(top + (bot - top) * w[:, 1])
 
 
-def _spots(uv: FloatArray, foot: FloatArray, table: FloatArray, rmin: float,
-           rmax: float) -> FloatArray:
+def _spots(uv: np.ndarray, foot: np.ndarray, table: np.ndarray, rmin: float,
+           rmax: float) -> np.ndarray:
     """Albedo factor of one random disc per lattice cell (``uv`` and the footprint ``foot`` in
     cell units): radius in ``[rmin, rmax]`` cells, dark (x0.35) or light (x1.6), from the
     hashed ``table``; the border is blurred over the footprint."""
@@ -440,7 +442,7 @@ def _spots(uv: FloatArray, foot: FloatArray, table: FloatArray, rmin: float,
     f = np.floor(uv)
     fr = uv - f
     i = f.astype(np.int64) & m
-    h = table[i[:, 0], i[:, 1]]
+    h = table[i[:, 0], i[:, 1]].astype(np.float64)
     # derive the disc's parameters from the single hash value of the cell
     h2 = (h * 7919.0) % 1.0
     h3 = (h * 104729.0) % 1.0
