@@ -1,0 +1,546 @@
+"""Dense mapping from known poses: rectified virtual views, SGBM depth, 3-view check, TSDF.
+
+Input: a poses folder (``init`` or ``refine`` output: ``trajectory.tum``, ``camera.yaml``) and
+the frames. For every keyframe ``k`` two stereo pairs are formed with the frame before and the
+frame after it whose baseline is closest to the stereo baseline ``B``; each pair is seen
+through a rig of four rectified pinhole views (:mod:`omni_sfm.dense.views`), matched with
+``cv2.StereoSGBM`` (:mod:`omni_sfm.dense.stereo`); a depth is kept only where the other pair
+(a third view) confirms it; the kept depths are fused in a TSDF (:mod:`omni_sfm.dense.fusion`)
+whose zero level set gives ``dense.ply`` and ``mesh.ply``.
+
+Scale. Line-based poses have an arbitrary scale, so nothing here assumes metres: ``B`` is a
+parallax angle times the scene's median depth, and that depth is measured first by stereo on
+the middle frame with growing frame offsets (disparity is ``f b / z``, so the offset whose
+median disparity reaches the target parallax gives both). The voxel size is the pixel
+footprint at the median depth. The outputs are in the poses' unit, or in metres when a known
+distance (first-to-last camera distance, or camera height above the floor) fixes the scale.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from omni_sfm.cameras import CameraModel, load_camera, write_camera_yaml
+from omni_sfm.dense.fusion import TsdfFusion
+from omni_sfm.dense.stereo import StereoOptions, consistent, rig_depth
+from omni_sfm.dense.views import (
+    StereoRig,
+    ViewGeometry,
+    remap_tables,
+    sample_views,
+    stereo_rig,
+    view_geometry,
+)
+from omni_sfm.errors import OmniSfmError
+from omni_sfm.fileio import atomic_output_dir, atomic_write_text, check_output_dir, dumps_json
+from omni_sfm.geometry import FloatArray, normalize
+from omni_sfm.poses import Trajectory, read_tum, write_tum
+from omni_sfm.synth.scenes import open3d_module
+
+TRAJECTORY_FILE = "trajectory.tum"
+CAMERA_FILE = "camera.yaml"
+LINES_FILE = "lines3d.json"
+
+
+@dataclass(frozen=True, kw_only=True)
+class DenseOptions:
+    """Options of :func:`dense_map`; lengths are relative to the scene, never absolute."""
+
+    keyframe_step: int | None = None
+    """Frames between keyframes; None: half the frame offset of the stereo baseline."""
+    known_distance: float | None = None
+    """Distance between the first and last camera centres (e.g. metres): makes the map metric."""
+    camera_height: float | None = None
+    """Camera height above the floor (e.g. metres): makes the map metric (floor found in the
+    dense points)."""
+    up_in_camera: tuple[float, float, float] | None = None
+    """The camera's up axis in its ray frame (for ``camera_height``); None: ``+z`` for the
+    hyperboloid (robot mount, mirror axis up), ``-y`` otherwise (OpenCV's hand-held convention)."""
+    parallax: float = 0.2
+    """Stereo baseline as a fraction of the scene's median depth (the parallax angle, rad)."""
+    near_ratio: float = 0.25
+    """Closest depth measured, as a fraction of the median depth (sets SGBM's disparity range)."""
+    resolution_scale: float = 1.0
+    """Virtual view pixels per camera pixel (angle); < 1 is faster and coarser."""
+    fov_along_deg: float = 110.0
+    """Field of view of each virtual view along the baseline, deg (90 across it)."""
+    voxel_pixels: float = 1.0
+    """TSDF voxel size in pixel footprints at the median depth."""
+    min_weight: float = 3.0
+    """TSDF weight (number of depth observations) a surface point needs to be output."""
+    max_depth_ratio: float = 8.0
+    """Depths beyond this many median depths are not fused."""
+    stereo: StereoOptions = field(default_factory=StereoOptions)
+    """Matching and filtering."""
+
+
+@dataclass(frozen=True)
+class DenseInput:
+    """Poses, camera and the image file of every pose.
+
+    Attributes:
+        trajectory: the poses (world_from_cam, pose units).
+        camera: the camera model the poses refer to.
+        image_paths: one image file per pose, in trajectory order.
+        lines: the 3D lines document of the poses folder (``lines3d.json``), or None.
+    """
+
+    trajectory: Trajectory
+    camera: CameraModel
+    image_paths: tuple[Path, ...]
+    lines: dict[str, Any] | None
+
+
+@dataclass(frozen=True)
+class KeyframeStats:
+    """What one keyframe gave: sources (frame indices), depth share, timings (s)."""
+
+    frame: int
+    sources: tuple[int, ...]
+    baselines: tuple[float, ...]
+    view_pixels: int
+    depth_pixels: int
+    seconds_depth: float
+    seconds_fusion: float
+
+    @property
+    def depth_share(self) -> float:
+        return self.depth_pixels / self.view_pixels if self.view_pixels else 0.0
+
+
+@dataclass(frozen=True)
+class DenseResult:
+    """The fused map, in output units (see ``scale``).
+
+    Attributes:
+        points: ``(N, 3)`` dense surface points (world).
+        colors: ``(N, 3)`` RGB in [0, 1].
+        mesh: legacy ``open3d.geometry.TriangleMesh``.
+        trajectory: the poses in output units.
+        scale: output units per pose unit.
+        median_depth: the scene's median depth, output units.
+        voxel_size: TSDF voxel, output units.
+        keyframes: per keyframe statistics.
+        report: the ``report.json`` document.
+    """
+
+    points: FloatArray
+    colors: FloatArray
+    mesh: Any
+    trajectory: Trajectory
+    scale: float
+    median_depth: float
+    voxel_size: float
+    keyframes: tuple[KeyframeStats, ...]
+    report: dict[str, Any]
+
+
+def read_dense_input(poses_dir: Path, images: Path, camera_file: Path | None = None
+                     ) -> DenseInput:
+    """Poses folder + frames -> :class:`DenseInput`; every defect is a one-line OmniSfmError.
+
+    Images are found by the poses folder's ``colmap.json`` image names when present, else by
+    file stems equal to the integer timestamps (``000012.png`` for timestamp 12), else in order
+    when the folder holds exactly one image per pose."""
+    from omni_sfm.fileio import read_json
+    from omni_sfm.refine.database import list_images
+
+    poses_dir, images = Path(poses_dir), Path(images)
+    if not poses_dir.is_dir():
+        raise OmniSfmError(f"{poses_dir}: poses folder not found")
+    tum = poses_dir / TRAJECTORY_FILE
+    if not tum.is_file():
+        raise OmniSfmError(f"{tum}: no trajectory (need the output folder of init or refine)")
+    traj = read_tum(tum)
+    if len(traj) < 3:
+        raise OmniSfmError(f"{tum}: {len(traj)} poses, dense mapping needs at least 3")
+    cam_file = Path(camera_file) if camera_file is not None else poses_dir / CAMERA_FILE
+    if not cam_file.is_file():
+        raise OmniSfmError(f"{cam_file}: camera file not found (give --camera FILE)")
+    camera = load_camera(cam_file)
+    names = list_images(images)
+    manifest = poses_dir / "colmap.json"
+    chosen: list[str] | None = None
+    if manifest.is_file():
+        m = read_json(manifest, "colmap manifest")
+        listed = m.get("image_names") if isinstance(m, dict) else None
+        if isinstance(listed, list) and len(listed) == len(traj):
+            chosen = [str(n) for n in listed]
+    if chosen is None:
+        by_stem: dict[int, str] = {}
+        for n in names:
+            stem = Path(n).stem
+            if stem.isdigit():
+                by_stem.setdefault(int(stem), n)
+        ts = traj.timestamps
+        if np.all(ts == np.round(ts)) and all(int(t) in by_stem for t in ts):
+            chosen = [by_stem[int(t)] for t in ts]
+        elif len(names) == len(traj):
+            chosen = names
+        else:
+            raise OmniSfmError(
+                f"{images}: cannot match {len(names)} images to the {len(traj)} poses of {tum} "
+                "(need image stems equal to the timestamps, colmap.json names, or one image "
+                "per pose)")
+    missing = [n for n in chosen if not (images / n).is_file()]
+    if missing:
+        raise OmniSfmError(f"{images}: {len(missing)} of {len(chosen)} images are missing "
+                           f"(first: {missing[0]!r})")
+    lines = None
+    if (poses_dir / LINES_FILE).is_file():
+        doc = read_json(poses_dir / LINES_FILE, "lines3d file")
+        lines = doc if isinstance(doc, dict) else None
+    return DenseInput(traj, camera, tuple(images / n for n in chosen), lines)
+
+
+class _Frames:
+    """Images by frame index, read on demand (RGB uint8), a few kept."""
+
+    def __init__(self, paths: tuple[Path, ...], camera: CameraModel) -> None:
+        self.paths = paths
+        self.camera = camera
+        self._cache: dict[int, np.ndarray] = {}
+
+    def __call__(self, k: int) -> np.ndarray:
+        import cv2
+
+        if k not in self._cache:
+            img = cv2.imread(str(self.paths[k]), cv2.IMREAD_COLOR)
+            if img is None:
+                raise OmniSfmError(f"{self.paths[k]}: OpenCV cannot read this image")
+            if img.shape[:2] != (self.camera.height, self.camera.width):
+                raise OmniSfmError(
+                    f"{self.paths[k]}: image is {img.shape[1]}x{img.shape[0]} px, the camera is "
+                    f"{self.camera.width}x{self.camera.height}")
+            if len(self._cache) > 24:
+                self._cache.pop(next(iter(self._cache)))
+            self._cache[k] = np.ascontiguousarray(img[:, :, ::-1])
+        return self._cache[k]
+
+
+@dataclass
+class _PairDepth:
+    rig: StereoRig
+    depth: FloatArray          # (V, H, W) view z, NaN where none
+    colors: np.ndarray         # (V, H, W, 3) uint8 reference views
+    valid: np.ndarray          # (V, H, W) reference views inside the camera's valid region
+
+
+class _Matcher:
+    """Stereo of frame pairs through rectified rigs."""
+
+    def __init__(self, inp: DenseInput, geometry: ViewGeometry, num_disparities: int,
+                 opts: StereoOptions) -> None:
+        import cv2
+
+        self.inp = inp
+        self.geometry = geometry
+        self.num_disparities = num_disparities
+        self.opts = opts
+        self.frames = _Frames(inp.image_paths, inp.camera)
+        self.valid = inp.camera.valid_mask()
+        self._cv2 = cv2
+
+    def pair(self, ref: int, src: int) -> _PairDepth:
+        traj, cam, cv2 = self.inp.trajectory, self.inp.camera, self._cv2
+        rig = stereo_rig(self.geometry, traj.positions[ref], traj.positions[src],
+                         traj.rotations[ref])
+        views = []
+        for k in (ref, src):
+            tables = remap_tables(cam, self.geometry, rig.world_from_views, traj.rotations[k])
+            views.append(sample_views(self.frames(k), tables, self.valid))
+        (ref_rgb, ref_ok), (src_rgb, src_ok) = views
+        grey = [np.stack([cv2.cvtColor(v, cv2.COLOR_RGB2GRAY) for v in rgb])
+                for rgb in (ref_rgb, src_rgb)]
+        depth = rig_depth(rig, grey[0], ref_ok, grey[1], src_ok, self.num_disparities,
+                          self.opts)
+        return _PairDepth(rig, depth, ref_rgb, ref_ok)
+
+
+def _num_disparities(geometry: ViewGeometry, opts: DenseOptions) -> int:
+    """SGBM's disparity range: the median depth at ``parallax`` has disparity ``f parallax``,
+    the nearest measured depth (``near_ratio`` of it) ``f parallax / near_ratio``."""
+    d = geometry.focal * opts.parallax / opts.near_ratio
+    return int(16 * max(2, math.ceil(d / 16.0)))
+
+
+@dataclass(frozen=True)
+class BaselineCalibration:
+    """The scene's depth scale in pose units, measured by stereo on one frame.
+
+    Attributes:
+        frame: the frame measured.
+        median_depth: median view depth of its stereo points, pose units.
+        baseline: the stereo baseline ``parallax * median_depth``, pose units.
+        frame_offset: typical frame offset that gives ``baseline``.
+        trials: ``(offset, baseline, median disparity px, depth share)`` per trial.
+    """
+
+    frame: int
+    median_depth: float
+    baseline: float
+    frame_offset: int
+    trials: tuple[tuple[int, float, float, float], ...]
+
+
+def calibrate_baseline(matcher: _Matcher, opts: DenseOptions) -> BaselineCalibration:
+    """Stereo on the middle frame with frame offsets 1, 2, 4, ... until the median disparity
+    reaches the target parallax; OmniSfmError when no offset gives depth (no baseline)."""
+    traj = matcher.inp.trajectory
+    n = len(traj)
+    m = n // 2
+    f = matcher.geometry.focal
+    target = opts.parallax * f
+    trials: list[tuple[int, float, float, float]] = []
+    best: tuple[float, float] | None = None
+    o = 1
+    while o <= n - 1:
+        src = m + o if m + o < n else m - o
+        if src < 0:
+            break
+        b = float(np.linalg.norm(traj.positions[src] - traj.positions[m]))
+        if b > 0:
+            pd = matcher.pair(m, src)
+            z = pd.depth[np.isfinite(pd.depth)]
+            share = z.size / max(int(pd.valid.sum()), 1)
+            if z.size >= 200:
+                med_z = float(np.median(z))
+                disp = f * b / med_z
+                trials.append((o, b, disp, share))
+                best = (med_z, b)
+                if disp >= target:
+                    break
+            else:
+                trials.append((o, b, 0.0, share))
+        o *= 2
+    if best is None:
+        raise OmniSfmError(
+            "no stereo depth on the middle frame at any frame offset: the camera barely moves "
+            "(not enough baseline for stereo) or the images have no texture")
+    med_z = best[0]
+    if trials[-1][2] < 2.0:
+        raise OmniSfmError(
+            f"not enough baseline for stereo: at the largest frame offset the median disparity "
+            f"is {trials[-1][2]:.2f} px (need the camera to move a few percent of the scene depth)")
+    baseline = opts.parallax * med_z
+    steps = np.linalg.norm(np.diff(traj.positions, axis=0), axis=1)
+    per_frame = float(np.median(steps)) if steps.size else 0.0
+    offset = max(1, round(baseline / per_frame)) if per_frame > 0 else 1
+    return BaselineCalibration(m, med_z, baseline, int(offset), tuple(trials))
+
+
+def _sources(traj: Trajectory, k: int, baseline: float) -> list[tuple[int, float]]:
+    """Two source frames for keyframe ``k``: before and after it, baseline closest to
+    ``baseline`` (at least half of it); one side missing: two from the other (B and 2B)."""
+    dist = np.linalg.norm(traj.positions - traj.positions[k], axis=1)
+    idx = np.arange(len(traj))
+    picks: list[tuple[int, float]] = []
+    for side in (idx < k, idx > k):
+        cand = np.flatnonzero(side & (dist >= 0.5 * baseline))
+        if cand.size:
+            j = int(cand[np.argmin(np.abs(dist[cand] - baseline))])
+            picks.append((j, float(dist[j])))
+    if len(picks) == 1:
+        j0 = picks[0][0]
+        cand = np.flatnonzero((np.sign(idx - k) == np.sign(j0 - k)) & (idx != j0)
+                              & (dist >= 0.5 * baseline))
+        if cand.size:
+            j = int(cand[np.argmin(np.abs(dist[cand] - 2 * baseline))])
+            picks.append((j, float(dist[j])))
+    return picks
+
+
+def _floor_scale(points: FloatArray, traj: Trajectory, up_in_camera: FloatArray, height: float,
+                 bin_size: float) -> tuple[float, dict[str, Any]]:
+    """Scale from the camera height: the floor is the most populated horizontal slab of dense
+    points below the cameras (up = the cameras' mean up axis), refined by a plane fit."""
+    up = normalize((traj.rotations @ up_in_camera).mean(axis=0))
+    c0 = traj.positions.mean(axis=0)
+    h = (points - c0) @ up
+    below = h < -2 * bin_size
+    if below.sum() < 100:
+        raise OmniSfmError("--camera-height: too few dense points below the cameras to find "
+                           "the floor")
+    hb = h[below]
+    edges = np.arange(hb.min(), 0.0 + bin_size, bin_size)
+    if edges.size < 2:
+        raise OmniSfmError("--camera-height: no floor below the cameras in the dense points")
+    counts, edges = np.histogram(hb, bins=edges)
+    i = int(np.argmax(counts))
+    lo, hi = edges[max(i - 1, 0)], edges[min(i + 2, len(edges) - 1)]
+    slab = points[below][(hb >= lo) & (hb <= hi)]
+    centre = slab.mean(axis=0)
+    normal = np.linalg.svd(slab - centre, full_matrices=False)[2][2]
+    if normal @ up < 0:
+        normal = -normal
+    tilt = float(np.degrees(np.arccos(np.clip(normal @ up, -1, 1))))
+    heights = (traj.positions - centre) @ normal
+    h_cam = float(np.median(heights))
+    if not h_cam > 0:
+        raise OmniSfmError("--camera-height: the floor found is not below the cameras")
+    return height / h_cam, {"floor_points": int(slab.shape[0]), "floor_tilt_deg": tilt,
+                            "camera_height_pose_units": h_cam}
+
+
+def dense_map(inp: DenseInput, opts: DenseOptions | None = None, *,
+              progress: bool = False) -> DenseResult:
+    """Dense map of ``inp`` (see the module docstring); OmniSfmError for impossible input."""
+    from tqdm import tqdm
+
+    opts = opts or DenseOptions()
+    if opts.known_distance is not None and opts.camera_height is not None:
+        raise OmniSfmError("give either --known-distance or --camera-height, not both")
+    for name in ("known_distance", "camera_height"):
+        val = getattr(opts, name)
+        if val is not None and not val > 0:
+            raise OmniSfmError(f"--{name.replace('_', '-')} must be > 0, got {val}")
+    if opts.keyframe_step is not None and opts.keyframe_step < 1:
+        raise OmniSfmError(f"--keyframe-step must be >= 1, got {opts.keyframe_step}")
+    traj, cam = inp.trajectory, inp.camera
+    geometry = view_geometry(cam, resolution_scale=opts.resolution_scale,
+                             fov_along_deg=opts.fov_along_deg)
+    matcher = _Matcher(inp, geometry, _num_disparities(geometry, opts), opts.stereo)
+    t0 = time.perf_counter()
+    calib = calibrate_baseline(matcher, opts)
+    t_calib = time.perf_counter() - t0
+    step = opts.keyframe_step or max(1, calib.frame_offset // 2)
+    keyframes = list(range(0, len(traj), step))
+    voxel = opts.voxel_pixels * calib.median_depth / geometry.focal
+    fusion = TsdfFusion(voxel, max_depth=opts.max_depth_ratio * calib.median_depth)
+    stats: list[KeyframeStats] = []
+    warnings: list[str] = []
+    for k in tqdm(keyframes, desc="dense", unit="keyframe", disable=not progress, leave=False):
+        srcs = _sources(traj, k, calib.baseline)
+        if len(srcs) < 2:
+            warnings.append(f"frame {k}: fewer than two frames with enough baseline, skipped")
+            continue
+        t1 = time.perf_counter()
+        pa, pb = (matcher.pair(k, j) for j, _ in srcs)
+        ok_a = consistent(pa.rig, pa.depth, pb.rig, pb.depth, opts.stereo)
+        ok_b = consistent(pb.rig, pb.depth, pa.rig, pa.depth, opts.stereo)
+        da = np.where(ok_a, pa.depth, np.nan)
+        db = np.where(ok_b, pb.depth, np.nan)
+        t2 = time.perf_counter()
+        for pd, d in ((pa, da), (pb, db)):
+            fusion.integrate_rig(pd.rig, d, pd.colors, traj.positions[k])
+        t3 = time.perf_counter()
+        view_px = int(pa.valid.sum() + pb.valid.sum())
+        stats.append(KeyframeStats(k, tuple(j for j, _ in srcs), tuple(b for _, b in srcs),
+                                   view_px, int(ok_a.sum() + ok_b.sum()), t2 - t1, t3 - t2))
+    if not stats:
+        raise OmniSfmError("no keyframe had two frames with enough baseline for stereo")
+    t4 = time.perf_counter()
+    points, colors = fusion.point_cloud(opts.min_weight)
+    mesh = fusion.mesh(opts.min_weight)
+    t_extract = time.perf_counter() - t4
+    if points.shape[0] == 0:
+        raise OmniSfmError("stereo gave no surface seen often enough: too little texture or "
+                           "baseline (see the per-frame depth shares with a lower --min-weight)")
+    scale = 1.0
+    scale_info: dict[str, Any] = {"source": "poses", "unit": "pose units (arbitrary scale of the "
+                              "input poses)"}
+    if opts.known_distance is not None:
+        first_last = float(np.linalg.norm(traj.positions[-1] - traj.positions[0]))
+        if not first_last > 0:
+            raise OmniSfmError("--known-distance: the first and last cameras coincide")
+        scale = opts.known_distance / first_last
+        scale_info = {"source": "known_distance", "unit": "unit of --known-distance",
+                      "first_last_pose_units": first_last, "known_distance": opts.known_distance}
+    elif opts.camera_height is not None:
+        up_cam = np.asarray(opts.up_in_camera if opts.up_in_camera is not None else
+                            ((0.0, 0.0, 1.0) if cam.model == "hyperboloid" else (0.0, -1.0, 0.0)),
+                            dtype=np.float64)
+        scale, info = _floor_scale(points, traj, normalize(up_cam), opts.camera_height,
+                                   2 * voxel)
+        scale_info = {"source": "camera_height", "unit": "unit of --camera-height",
+                      "camera_height": opts.camera_height, **info}
+    scale_info["factor"] = scale
+    points = points * scale
+    mesh.scale(scale, center=np.zeros(3))
+    out_traj = Trajectory(traj.timestamps.copy(), traj.rotations.copy(), traj.positions * scale)
+    shares = np.array([s.depth_share for s in stats])
+    poor = [s.frame for s in stats if s.depth_share < 0.05]
+    if poor:
+        warnings.append(f"{len(poor)} keyframes got depth on under 5% of their view pixels "
+                        f"(texture-poor or little parallax): {poor[:10]}")
+    report = {
+        "scale": scale_info,
+        "median_depth": calib.median_depth * scale,
+        "stereo_baseline": calib.baseline * scale,
+        "voxel_size": voxel * scale,
+        "calibration": {"frame": calib.frame, "frame_offset": calib.frame_offset,
+                        "trials": [{"offset": o, "baseline": b * scale, "median_disparity_px": d,
+                                    "depth_share": s} for o, b, d, s in calib.trials]},
+        "views": {"focal_px": geometry.focal, "width": geometry.width,
+                  "height": geometry.height, "per_pair": 4,
+                  "num_disparities": matcher.num_disparities},
+        "keyframe_step": step,
+        "num_keyframes": len(stats),
+        "num_points": int(points.shape[0]),
+        "num_triangles": int(len(mesh.triangles)),
+        "depth_share": {"median": float(np.median(shares)), "min": float(shares.min()),
+                        "max": float(shares.max())},
+        "seconds": {"calibration": t_calib,
+                    "depth_per_keyframe": float(np.median([s.seconds_depth for s in stats])),
+                    "fusion_per_keyframe": float(np.median([s.seconds_fusion for s in stats])),
+                    "depth_total": float(sum(s.seconds_depth for s in stats)),
+                    "fusion_total": float(sum(s.seconds_fusion for s in stats)),
+                    "extraction": t_extract},
+        "frames": [{"frame": s.frame, "timestamp": float(traj.timestamps[s.frame]),
+                    "image": inp.image_paths[s.frame].name, "sources": list(s.sources),
+                    "baselines": [b * scale for b in s.baselines],
+                    "view_pixels": s.view_pixels, "depth_pixels": s.depth_pixels,
+                    "depth_share": s.depth_share, "seconds_depth": s.seconds_depth,
+                    "seconds_fusion": s.seconds_fusion} for s in stats],
+        "warnings": warnings,
+        "note": "depth_share: share of the keyframe's virtual-view pixels inside the camera's "
+                "valid region whose depth passed SGBM, the texture test and the 3-view check; "
+                "directions within fov_along/2 of the motion are not covered by the views",
+    }
+    return DenseResult(points, colors, mesh, out_traj, scale, calib.median_depth * scale,
+                       voxel * scale, tuple(stats), report)
+
+
+def scaled_lines(doc: dict[str, Any], scale: float) -> dict[str, Any]:
+    """A ``lines3d.json`` document with its endpoints multiplied by ``scale``."""
+    out = dict(doc)
+    out["segments"] = [
+        {**s, "start": [scale * float(x) for x in s["start"]],
+         "end": [scale * float(x) for x in s["end"]]} for s in doc.get("segments", [])]
+    return out
+
+
+def write_dense(output: Path, inp: DenseInput, res: DenseResult, *, overwrite: bool = False
+                ) -> None:
+    """Write ``dense.ply``, ``mesh.ply``, ``trajectory.tum`` (output units), ``camera.yaml``,
+    ``lines3d.json`` (when the input had one) and ``report.json`` (complete or not at all)."""
+    o3d = open3d_module()
+    with atomic_output_dir(Path(output), overwrite=overwrite) as tmp:
+        pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(res.points))
+        pcd.colors = o3d.utility.Vector3dVector(res.colors)
+        if not o3d.io.write_point_cloud(str(tmp / "dense.ply"), pcd):
+            raise OmniSfmError(f"{output}: Open3D could not write dense.ply")
+        if not o3d.io.write_triangle_mesh(str(tmp / "mesh.ply"), res.mesh):
+            raise OmniSfmError(f"{output}: Open3D could not write mesh.ply")
+        write_tum(tmp / TRAJECTORY_FILE, res.trajectory)
+        write_camera_yaml(tmp / CAMERA_FILE, inp.camera)
+        if inp.lines is not None:
+            atomic_write_text(tmp / LINES_FILE, dumps_json(scaled_lines(inp.lines, res.scale)))
+        atomic_write_text(tmp / "report.json", dumps_json(res.report))
+
+
+def run_dense(poses_dir: Path, images: Path, output: Path, opts: DenseOptions | None = None, *,
+              camera_file: Path | None = None, overwrite: bool = False,
+              progress: bool = False) -> DenseResult:
+    """Read, map and write (the ``omni-sfm dense`` command)."""
+    check_output_dir(Path(output), overwrite=overwrite)
+    inp = read_dense_input(poses_dir, images, camera_file)
+    res = dense_map(inp, opts, progress=progress)
+    write_dense(output, inp, res, overwrite=overwrite)
+    return res
