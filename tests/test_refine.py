@@ -156,6 +156,22 @@ def test_refine_keeps_the_input_on_a_texture_poor_corridor(tmp_path):
     assert r["kept_input_for_all"] or r["kept_frames"]
 
 
+def test_refine_improves_an_equirectangular_seed(tmp_path):
+    """The camera whose COLMAP image is not mirrored and whose frame is COLMAP's own."""
+    out = tmp_path / "eq"
+    render_sequence(out, RenderOptions(scene="room", camera="equirectangular", width=384,
+                                       height=192, frames=10, textured=True, supersample=1,
+                                       preset="small", seed=3), progress=False)
+    init = write_perturbed_init(out, tmp_path / "init", seed=5)
+    res = refine(tmp_path / "init", out / "images", tmp_path / "out", RefineOptions(overlap=4),
+                 progress=False)
+    gt = read_tum(out / "groundtruth.tum")
+    before, after = trajectory_errors(init, gt), trajectory_errors(res.trajectory, gt)
+    assert res.report["refined_frames"] == len(gt)
+    assert after.ate_rel < 0.5 * before.ate_rel
+    assert after.rot_mean_deg < 0.5 * before.rot_mean_deg
+
+
 # --- bad input: one line, exit code 2 -------------------------------------------------------
 
 
