@@ -21,8 +21,13 @@ import numpy as np
 from omni_sfm.compare import InitializerResult, SequenceInput
 from omni_sfm.geometry import FloatArray
 
-from .points import ChainOptions, RelPose, angular_resolution_rad, chain_relative_poses, \
-    point_tracks
+from .points import (
+    ChainOptions,
+    RelPose,
+    angular_resolution_rad,
+    chain_relative_poses,
+    point_tracks,
+)
 
 
 def ransac_threshold(seq: SequenceInput, options: Mapping[str, Any]) -> float:
