@@ -94,3 +94,28 @@ def test_tracks_round_trip_and_errors(tmp_path):
     (tmp_path / "range.json").write_text(json.dumps(data))
     with pytest.raises(OmniSfmError, match="outside"):
         read_tracks(tmp_path / "range.json")
+
+
+def test_atomic_outputs_have_ordinary_permissions(tmp_path):
+    import os
+    import stat
+
+    from omni_sfm.fileio import atomic_output_dir, atomic_write_text
+
+    old = os.umask(0o022)
+    try:
+        with atomic_output_dir(tmp_path / "out") as d:
+            atomic_write_text(d / "a.txt", "x")
+    finally:
+        os.umask(old)
+    assert stat.S_IMODE((tmp_path / "out").stat().st_mode) == 0o755
+    assert stat.S_IMODE((tmp_path / "out" / "a.txt").stat().st_mode) == 0o644
+
+
+def test_atomic_output_dir_leaves_nothing_on_failure(tmp_path):
+    from omni_sfm.fileio import atomic_output_dir
+
+    with pytest.raises(RuntimeError), atomic_output_dir(tmp_path / "out") as d:
+        (d / "partial.txt").write_text("half")
+        raise RuntimeError("boom")
+    assert list(tmp_path.iterdir()) == []
