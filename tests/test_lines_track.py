@@ -79,18 +79,27 @@ def test_tracks_keep_identity_equirectangular():
     assert (np.bincount(obs.track) == 4).sum() >= 25
 
 
+def _blank_frame_2(k, img):
+    return np.full_like(img, 128) if k == 2 else img
+
+
 def test_lines_that_vanish_end_and_new_lines_start():
-    """A blank frame in the middle: every track ends there and new ones start after it."""
-    cam = hyperboloid_camera()
-
-    def paint(k, img):
-        return np.full_like(img, 128) if k == 2 else img
-
-    obs, _ = _run(cam, _poses(5), paint=paint, trk=TrackingOptions(min_track_frames=1))
+    """A blank frame in the middle, revival off: every track ends there, new ones start."""
+    obs, _ = _run(hyperboloid_camera(), _poses(5), paint=_blank_frame_2,
+                  trk=TrackingOptions(min_track_frames=1, max_gap_frames=0))
     assert obs.started[2] == 0 and obs.started[3] >= 25 and obs.matched[3] == 0
     for m in range(obs.num_tracks):
         fr = obs.frame[obs.track == m]
         assert not (fr.min() < 2 < fr.max()), fr
+
+
+def test_lost_tracks_are_revived_after_a_gap():
+    """The same blank frame with revival on: the tracks of frame 1 go on in frame 3."""
+    obs, truth = _run(hyperboloid_camera(), _poses(5), paint=_blank_frame_2)
+    assert obs.revived[3] >= 25 and obs.started[3] <= 3
+    assert _purity(obs, truth) > 0.95
+    spans = [np.unique(obs.frame[obs.track == m]).tolist() for m in range(obs.num_tracks)]
+    assert sum(s == [0, 1, 3, 4] for s in spans) >= 25
 
 
 def test_occlusion_split_stays_one_track():

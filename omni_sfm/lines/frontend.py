@@ -55,6 +55,7 @@ class FrontEndResult:
         segments_rejected: ``(F,)`` edge segments that failed the straightness test, per frame.
         lines_continued: ``(F,)`` lines that continued a track from the previous frame.
         tracks_started: ``(F,)`` lines that started a new track.
+        tracks_revived: ``(F,)`` lines that continued a track lost in an earlier frame.
         timings_ms: per-frame wall-clock milliseconds of each stage: ``read``, ``extract``,
             ``track`` (``(F,)`` each) and ``finish`` (one value); ``extract_cpu`` and
             ``track_cpu``: CPU time of the calling thread (equal to the work done when OpenCV
@@ -71,6 +72,7 @@ class FrontEndResult:
     segments_rejected: IntArray
     lines_continued: IntArray
     tracks_started: IntArray
+    tracks_revived: IntArray
     timings_ms: dict[str, FloatArray]
     frames_skipped: tuple[int, ...]
 
@@ -105,6 +107,7 @@ class FrontEndResult:
             "segments_rejected_total": int(self.segments_rejected.sum()),
             "lines_continued_per_frame_median": med(self.lines_continued[1:]),
             "tracks_started_total": int(self.tracks_started.sum()),
+            "tracks_revived_total": int(self.tracks_revived.sum()),
             "timings_ms_per_frame_median": {k: med(v) for k, v in t.items() if k != "finish"},
             "timings_ms_total": {k: float(np.sum(v)) for k, v in t.items()},
         }
@@ -177,7 +180,7 @@ def track_lines(frames: Iterable[tuple[int, float, np.ndarray]], camera: CameraM
         obs_arc_deg=obs.arc_deg, frame_numbers=np.asarray(numbers, np.int64),
         lines_extracted=np.asarray(n_lines, np.int64),
         segments_rejected=np.asarray(n_rej, np.int64), lines_continued=obs.matched,
-        tracks_started=obs.started,
+        tracks_started=obs.started, tracks_revived=obs.revived,
         timings_ms={"read": ms * np.asarray(t_read), "extract": ms * np.asarray(t_ext),
                     "track": ms * np.asarray(t_trk), "finish": np.asarray([ms * (t5 - t4)]),
                     "extract_cpu": ms * np.asarray(c_ext), "track_cpu": ms * np.asarray(c_trk)},

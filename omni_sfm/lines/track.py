@@ -71,6 +71,9 @@ class TrackingOptions:
     """Largest angle between the NVs of a line in consecutive frames."""
     merge_angle_deg: float = 0.5
     """Two pieces whose NVs agree within this angle are one line (one track)."""
+    max_gap_frames: int = 2
+    """A track lost for up to this many frames is picked up again by a line that found no
+    partner (KLT and votes from the frame where the track was last seen); 0 disables."""
     min_track_frames: int = 3
     """Tracks seen in fewer frames are dropped."""
 
@@ -91,6 +94,7 @@ class TrackedObservations:
         matched: ``(F,)`` lines of frame f that continued a track from frame f-1.
         started: ``(F,)`` lines of frame f that started a new track.
         ended: ``(F,)`` tracks of frame f-1 that found no partner in frame f.
+        revived: ``(F,)`` lines of frame f that continued a track lost in an earlier frame.
     """
 
     track: IntArray
@@ -104,6 +108,7 @@ class TrackedObservations:
     matched: IntArray
     started: IntArray
     ended: IntArray
+    revived: IntArray
 
     @property
     def num_tracks(self) -> int:
@@ -134,6 +139,9 @@ class LineTracker:
         self._matched: list[int] = []
         self._started: list[int] = []
         self._ended: list[int] = []
+        self._revived: list[int] = []
+        # (klt image, lines, track ids) of the last max_gap_frames + 1 frames
+        self._history: list[tuple[np.ndarray, ExtractedLines, IntArray]] = []
 
     # -- public ---------------------------------------------------------------------------
     def add_frame(self, image: np.ndarray, lines: ExtractedLines) -> IntArray:
@@ -147,11 +155,12 @@ class LineTracker:
         if self._prev_lines is not None and self._prev_pyr is not None and nl \
                 and self._prev_lines.num_lines:
             track = self._associate(self._prev_pyr, pyr, self._prev_lines, lines)
-            n_matched = int((track >= 0).sum())
-            self._ended.append(int(len(np.setdiff1d(self._prev_track, track))))
+        n_matched = int((track >= 0).sum())
+        self._ended.append(int(len(np.setdiff1d(self._prev_track, track))))
+        if nl and self.options.max_gap_frames > 0 and len(self._history) > 1:
+            self._revived.append(self._revive(pyr, lines, track))
         else:
-            n_matched = 0
-            self._ended.append(len(self._prev_track))
+            self._revived.append(0)
         new = track < 0
         track[new] = self._next_id + np.arange(int(new.sum()))
         self._next_id += int(new.sum())
@@ -159,6 +168,8 @@ class LineTracker:
         self._started.append(int(new.sum()))
         self._obs.append((track.copy(), self._frame, lines))
         self._prev_pyr, self._prev_lines, self._prev_track = pyr, lines, track
+        self._history.append((pyr, lines, track))
+        del self._history[: -(self.options.max_gap_frames + 1)]
         self._frame += 1
         return track
 
@@ -167,6 +178,7 @@ class LineTracker:
         self._matched.append(0)
         self._started.append(0)
         self._ended.append(0)
+        self._revived.append(0)
         self._frame += 1
 
     def finish(self) -> TrackedObservations:
@@ -179,7 +191,8 @@ class LineTracker:
                                        np.zeros(0), z,
                                        self._frame, np.asarray(self._matched, np.int64),
                                        np.asarray(self._started, np.int64),
-                                       np.asarray(self._ended, np.int64))
+                                       np.asarray(self._ended, np.int64),
+                                       np.asarray(self._revived, np.int64))
         c: dict[str, np.ndarray] = {
             "tr": np.concatenate([self._root_many(t) for t, _, _ in self._obs]),
             "fr": np.concatenate([np.full(len(t), f) for t, f, _ in self._obs]),
@@ -215,7 +228,8 @@ class LineTracker:
             track=c["tr"], frame=c["fr"], normal=c["nrm"], endpoint_rays=c["ends"],
             support=c["sup"], arc_deg=c["arc"], line_index=c["li"], num_frames=self._frame,
             matched=np.asarray(self._matched, np.int64),
-            started=np.asarray(self._started, np.int64), ended=np.asarray(self._ended, np.int64))
+            started=np.asarray(self._started, np.int64), ended=np.asarray(self._ended, np.int64),
+            revived=np.asarray(self._revived, np.int64))
 
     # -- internals ------------------------------------------------------------------------
     def _root(self, t: int) -> int:
@@ -251,20 +265,29 @@ class LineTracker:
         tangent = np.where(tn > 0, tangent / np.where(tn > 0, tn, 1.0), 0.0)
         return lines.points_uv[pos], tangent, line, k
 
-    def _associate(self, pyr0: np.ndarray, pyr1: np.ndarray, prev: ExtractedLines,
-                   cur: ExtractedLines) -> IntArray:
-        """Track ids for the lines of ``cur`` (-1 where a new track starts)."""
+    def _votes(self, img0: np.ndarray, img1: np.ndarray, prev: ExtractedLines,
+               cur: ExtractedLines, prev_keep: np.ndarray | None = None,
+               max_step_deg: float | None = None) -> tuple[IntArray, IntArray, IntArray]:
+        """KLT + snapping votes from lines of ``prev`` (those in ``prev_keep``) to lines of
+        ``cur``: the pairs ``(i, j)`` that pass the quorum and the NV-step limit, and their
+        votes."""
         o = self.options
         s0, tangent, owner, nsamp = self._samples(prev)
+        if prev_keep is not None:
+            sel = prev_keep[owner]
+            s0, tangent, owner = s0[sel], tangent[sel], owner[sel]
+        z = np.zeros(0, np.int64)
+        if len(s0) == 0:
+            return z, z, z
         # KLT runs on images scaled by klt_scale (pixel centres map as (x + 0.5) s - 0.5)
         sc = o.klt_scale
         p0 = ((s0 + 0.5) * sc - 0.5).astype(np.float32).reshape(-1, 1, 2)
         kw = dict(winSize=self._win, maxLevel=o.klt_levels, criteria=self._criteria,
                   minEigThreshold=o.klt_min_eig)
-        p1, st, _ = cv2.calcOpticalFlowPyrLK(pyr0, pyr1, p0, None, **kw)  # type: ignore[call-overload]
+        p1, st, _ = cv2.calcOpticalFlowPyrLK(img0, img1, p0, None, **kw)  # type: ignore[call-overload]
         ok = st.ravel() > 0
         if o.fb_max_px > 0:
-            pb, st2, _ = cv2.calcOpticalFlowPyrLK(pyr1, pyr0, p1, None, **kw)  # type: ignore[call-overload]
+            pb, st2, _ = cv2.calcOpticalFlowPyrLK(img1, img0, p1, None, **kw)  # type: ignore[call-overload]
             ok &= st2.ravel() > 0
             # only the part across the edge counts: sliding along it (aperture) is harmless
             back = (pb - p0).reshape(-1, 2)
@@ -285,34 +308,47 @@ class LineTracker:
         hit = np.isfinite(dist)
         i = owner[ok][hit]
         j = cur.line_of_point()[nearest[hit]]
-        n_cur = cur.num_lines
-        track = np.full(n_cur, -1, np.int64)
         if len(i) == 0:
-            return track
+            return z, z, z
+        n_cur = cur.num_lines
         pair, votes = np.unique(i * n_cur + j, return_counts=True)
         pi, pj = pair // n_cur, pair % n_cur
         need = np.maximum(o.min_votes, o.min_vote_fraction * nsamp[pi])
         step = _unsigned_angle_deg(prev.normals[pi], cur.normals[pj])
-        good = (votes >= need) & (step <= o.max_normal_step_deg)
-        pi, pj, votes = pi[good], pj[good], votes[good]
-        if len(pi) == 0:
-            return track
-        # each previous line's best partner (most votes) ...
+        lim = o.max_normal_step_deg if max_step_deg is None else max_step_deg
+        good = (votes >= need) & (step <= lim)
+        return pi[good], pj[good], votes[good]
+
+    @staticmethod
+    def _assign(pi: IntArray, pj: IntArray,
+                votes: IntArray) -> tuple[IntArray, IntArray, IntArray, IntArray]:
+        """The paper's rule: each previous line's best partner (most votes), and each current
+        line to the claimant with most votes. Returns winners ``(wi, wj)`` and the losing
+        claims ``(li, lj)``."""
         order = np.lexsort((-votes, pi))
         first = np.ones(len(pi), bool)
         first[1:] = pi[order][1:] != pi[order][:-1]
         bi, bj, bv = pi[order][first], pj[order][first], votes[order][first]
-        # ... and each current line goes to the claimant with most votes
         order = np.lexsort((-bv, bj))
         win = np.ones(len(bj), bool)
         win[1:] = bj[order][1:] != bj[order][:-1]
-        wi, wj = bi[order][win], bj[order][win]
+        return bi[order][win], bj[order][win], bi[order][~win], bj[order][~win]
+
+    def _associate(self, img0: np.ndarray, img1: np.ndarray, prev: ExtractedLines,
+                   cur: ExtractedLines) -> IntArray:
+        """Track ids for the lines of ``cur`` (-1 where a new track starts)."""
+        o = self.options
+        track = np.full(cur.num_lines, -1, np.int64)
+        pi, pj, votes = self._votes(img0, img1, prev, cur)
+        if len(pi) == 0:
+            return track
+        wi, wj, li_, lj_ = self._assign(pi, pj, votes)
         track[wj] = self._prev_track[wi]
         cos_m = np.cos(np.radians(o.merge_angle_deg))
         # losers that are pieces of the winner's line: one track
-        winner_of = np.full(n_cur, -1, np.int64)
+        winner_of = np.full(cur.num_lines, -1, np.int64)
         winner_of[wj] = wi
-        for li, lj in zip(bi[order][~win], bj[order][~win], strict=True):
+        for li, lj in zip(li_, lj_, strict=True):
             w = winner_of[lj]
             if abs(prev.normals[li] @ prev.normals[w]) > cos_m:
                 self._union(int(self._prev_track[li]), int(self._prev_track[w]))
@@ -324,3 +360,29 @@ class LineTracker:
                     abs(cur.normals[lj] @ cur.normals[partner[li]]) > cos_m:
                 track[lj] = self._prev_track[li]
         return track
+
+    def _revive(self, img: np.ndarray, cur: ExtractedLines, track: IntArray) -> int:
+        """Give lines of ``cur`` that found no partner the tracks that were lost in the last
+        ``max_gap_frames`` frames (KLT and votes from the frame where each was last seen).
+        Returns how many were revived."""
+        o = self.options
+        revived = 0
+        active = set(self._prev_track.tolist()) | set(track[track >= 0].tolist())
+        # most recent first: the history holds frames t-2, t-3, ... (t-1 is the previous frame)
+        for gap, (img0, lines0, track0) in enumerate(reversed(self._history[:-1]), start=2):
+            free = track < 0
+            if not free.any():
+                break
+            dormant = np.array([t not in active for t in track0.tolist()], bool)
+            if not dormant.any():
+                continue
+            pi, pj, votes = self._votes(img0, img, lines0, cur, prev_keep=dormant,
+                                        max_step_deg=o.max_normal_step_deg * gap)
+            sel = free[pj]
+            if not sel.any():
+                continue
+            wi, wj, _, _ = self._assign(pi[sel], pj[sel], votes[sel])
+            track[wj] = track0[wi]
+            active |= set(track0[wi].tolist())
+            revived += len(wj)
+        return revived
