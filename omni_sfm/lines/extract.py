@@ -1,6 +1,6 @@
 """Straight-line extraction in omnidirectional images (METHOD.md §2, paper Sec. III).
 
-Canny edges -> corner rejection by the eigenvalue ratio of the local second-moment matrix ->
+Canny edges -> corner rejection by the ratio of the principal gradients in a small window ->
 sub-pixel edge positions -> connected edge segments -> unit rays through the camera model ->
 a great-circle (plane through the viewpoint) fit per segment by RANSAC -> the paper's test:
 a segment is a straight line if more than half of its points satisfy ``(r . n)^2 < l_th``
@@ -52,7 +52,8 @@ class ExtractionOptions:
     tensor_sigma: float = 1.0
     """Gaussian window of the second-moment matrix (px)."""
     min_points: int = 40
-    """Fewest edge points of a segment and of an accepted line (about its length in px)."""
+    """Fewest edge points of a segment and of an accepted line (about its length in px); short
+    lines carry most of the false NVs (docs/frontend.md)."""
     line_threshold_px: float = 1.0
     """``l_th`` of eq. (3) as a distance from the great circle in pixels at that point:
     ``(r . n)^2 < (line_threshold_px * s(p))^2`` with ``s(p)`` the local angle per pixel."""
