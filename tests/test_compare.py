@@ -1,0 +1,172 @@
+"""``omni-sfm compare`` and the sweep: results.json is what the written trajectories give,
+failures are kept with their reasons, bad input is one line and exit code 2, and the sweep gives
+the same results on a Dask cluster as on the local process pool."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from omni_sfm.cli import main
+from omni_sfm.compare import compare, evaluate_trajectory, recompute_results
+from omni_sfm.poses import Trajectory, read_tum, write_tum
+
+ROOT = Path(__file__).resolve().parents[1]
+KEYS = {"status", "trajectory", "registered", "rot_max_deg", "rot_mean_deg", "ate_rel", "rpe",
+        "time_s"}
+
+sys.path.insert(0, str(Path(__file__).parent))
+from test_initializers import simulated  # noqa: E402
+
+
+def check_results_match_trajectories(out: Path, gt: Trajectory, num_frames: int) -> dict:
+    """Every figure of results.json equals its recomputation from the TUM files."""
+    res = json.loads((out / "results.json").read_text())
+    again = recompute_results(out, gt, num_frames)
+    for name, e in res["initializers"].items():
+        assert set(e) >= KEYS, (name, sorted(e))
+        assert e["status"] in ("ok", "failed")
+        if e["status"] == "failed":
+            assert e.get("reason"), f"{name} failed without a reason"
+        if e["status"] == "ok":
+            assert (out / e["trajectory"]).is_file()
+            for k in ("registered", "rot_max_deg", "rot_mean_deg", "ate_rel", "rpe"):
+                assert e[k] == pytest.approx(again[name][k], rel=1e-9, abs=1e-12), (name, k)
+            ev = evaluate_trajectory(read_tum(out / e["trajectory"]), gt, num_frames)
+            assert e["rot_max_deg"] == pytest.approx(float(ev.rot_deg.max()), abs=1e-9)
+    return res
+
+
+def test_compare_simulation_results_recomputed(tmp_path: Path) -> None:
+    seq, gt = simulated(noise_deg=0.1)
+    thr = {"max_error_rad": 3 * np.radians(0.1)}
+    out = tmp_path / "cmp"
+    r = compare(seq, gt, out, ["lines", "five-point", "upright-3pt"],
+                options={"five-point": thr, "upright-3pt": thr})
+    res = check_results_match_trajectories(out, gt, seq.num_frames)
+    assert set(res["initializers"]) == {"lines", "five-point", "upright-3pt"}
+    assert all(e["status"] == "ok" for e in res["initializers"].values())
+    assert r.results == res
+    report = (out / "report.md").read_text()
+    for name in res["initializers"]:
+        assert f"| {name} | ok |" in report
+    for png in ("trajectories.png", "errors.png"):
+        img = cv2.imread(str(out / png))
+        assert img is not None and img.shape[0] > 100
+    # a hand-edited figure would no longer match its trajectory
+    e = res["initializers"]["lines"]
+    tum = read_tum(out / e["trajectory"])
+    moved = Trajectory(tum.timestamps, tum.rotations,
+                       tum.positions + np.linspace(0, 0.2, len(tum))[:, None])
+    write_tum(out / e["trajectory"], moved)
+    assert recompute_results(out, gt, seq.num_frames)["lines"]["ate_rel"] != \
+        pytest.approx(e["ate_rel"], rel=1e-6)
+
+
+def test_failure_kept_with_reason(tmp_path: Path) -> None:
+    seq, gt = simulated(num_points=8)
+    compare(seq, gt, tmp_path / "cmp", ["lines", "five-point"], plots=False)
+    res = check_results_match_trajectories(tmp_path / "cmp", gt, seq.num_frames)
+    fp = res["initializers"]["five-point"]
+    assert fp["status"] == "failed" and fp["trajectory"] is None and fp["registered"] == 0
+    assert "correspondences" in fp["reason"] or "points" in fp["reason"]
+    assert res["initializers"]["lines"]["status"] == "ok"
+    assert "| five-point | failed |" in (tmp_path / "cmp" / "report.md").read_text()
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory: pytest.TempPathFactory):
+    """A tiny rendered textured corridor (paper's camera, 400 x 300, 10 frames)."""
+    from omni_sfm.synth.render import RenderOptions, render_sequence
+
+    out = tmp_path_factory.mktemp("tiny") / "seq"
+    return render_sequence(out, RenderOptions(scene="corridor", camera="hyperboloid",
+                                              frames=10, width=400, height=300, textured=True,
+                                              seed=4), progress=False)
+
+
+def test_cli_every_initializer_on_rendered_sequence(tiny, tmp_path: Path,
+                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    d = tiny.output
+    out = tmp_path / "cmp"
+    rc = main(["compare", "--images", str(d / "images"), "--camera", str(d / "camera.yaml"),
+               "--groundtruth", str(d / "groundtruth.tum"), "--output", str(out)])
+    assert rc == 0
+    gt = read_tum(d / "groundtruth.tum")
+    res = check_results_match_trajectories(out, gt, 10)
+    assert set(res["initializers"]) == {"lines", "five-point", "colmap", "upright-3pt"}
+    printed = capsys.readouterr().out
+    for name, e in res["initializers"].items():
+        assert name in printed
+        if e["status"] == "ok":
+            # textured, 400 x 300: every initializer that runs must be near the truth
+            assert e["rot_max_deg"] < 2.0 and e["ate_rel"] < 0.05, (name, e)
+    # point features abound here: the point-based standards must work
+    assert res["initializers"]["five-point"]["status"] == "ok"
+    assert res["initializers"]["colmap"]["status"] == "ok"
+    # refuses to overwrite without --overwrite
+    rc = main(["compare", "--images", str(d / "images"), "--camera", str(d / "camera.yaml"),
+               "--groundtruth", str(d / "groundtruth.tum"), "--output", str(out),
+               "--initializers", "lines"])
+    assert rc == 2
+
+
+def _one_line_error(capsys: pytest.CaptureFixture[str], argv: list[str], *needles: str) -> None:
+    rc = main(argv)
+    err = capsys.readouterr().err
+    assert rc == 2
+    assert len(err.strip().splitlines()) == 1, err
+    assert err.startswith("omni-sfm: error: ")
+    for n in needles:
+        assert n in err, err
+
+
+def test_bad_input_exit_2(tiny, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    d = tiny.output
+    gt = read_tum(d / "groundtruth.tum")
+    shifted = tmp_path / "shifted.tum"
+    write_tum(shifted, Trajectory(gt.timestamps + 1000.5, gt.rotations, gt.positions))
+    base = ["compare", "--images", str(d / "images"), "--camera", str(d / "camera.yaml"),
+            "--groundtruth", str(d / "groundtruth.tum")]
+    _one_line_error(capsys, [*base[:-1], str(shifted), "-o", str(tmp_path / "a")],
+                    "no timestamp matches a frame")
+    _one_line_error(capsys, [*base, "-o", str(tmp_path / "b"), "--initializers",
+                             "lines,sift-magic"], "unknown initializer 'sift-magic'", "five-point")
+    bad_cam = tmp_path / "camera.yaml"
+    bad_cam.write_text("model: hyperboloid\nwidth: 400\n")
+    _one_line_error(capsys, ["compare", "--images", str(d / "images"), "--camera", str(bad_cam),
+                             "--groundtruth", str(d / "groundtruth.tum"),
+                             "-o", str(tmp_path / "c")], str(bad_cam))
+    for name in "abc":
+        assert not (tmp_path / name).exists()
+
+
+def _sweep_module():
+    spec = importlib.util.spec_from_file_location("compare_init", ROOT / "scripts" /
+                                                  "compare_init.py")
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod  # so that run_task pickles by reference
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_sweep_dask_equals_process_pool() -> None:
+    distributed = pytest.importorskip("distributed")
+    sweep = _sweep_module()
+    tasks = sweep.make_tasks(["sim"], [0, 1], [0.16], 10, 40, ["five-point", "upright-3pt"])
+    local = sweep.run_all(tasks, None, 1)
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
+                                  dashboard_address=None) as cluster:
+        remote = sweep.run_all(tasks, cluster.scheduler_address, 1)
+    assert [r["task"] for r in local] == tasks == [r["task"] for r in remote]
+    for a, b in zip(local, remote, strict=True):
+        assert sweep.comparable(a["results"]) == sweep.comparable(b["results"])
+        assert a["tum"] == b["tum"]
+        assert all(e["status"] == "ok" for e in a["results"]["initializers"].values())
