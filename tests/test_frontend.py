@@ -73,6 +73,11 @@ def test_folder_tracks(sequence, folder_result):
     s = res.summary()
     assert s["frames"] == NFRAMES and s["tracks"] == tr.num_tracks
     assert s["lines_extracted_total"] == int(res.lines_extracted.sum())
+    pf = res.per_frame()
+    assert pf["frame"] == list(range(NFRAMES)) and len(pf["lines_extracted"]) == NFRAMES
+    import json
+
+    json.dumps({"summary": s, "per_frame": pf})  # plain JSON types only
 
 
 def test_lossless_video_gives_the_same_tracks(sequence, folder_result):

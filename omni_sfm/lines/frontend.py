@@ -86,6 +86,20 @@ class FrontEndResult:
         return np.bincount(self.tracks.obs_track, weights=self.obs_support,
                            minlength=self.tracks.num_tracks) / n
 
+    def per_frame(self) -> dict[str, list[Any]]:
+        """Per-frame counts and times as plain lists (for ``report.json``)."""
+        return {
+            "frame": self.frame_numbers.tolist(),
+            "timestamp": self.tracks.timestamps.tolist(),
+            "lines_extracted": self.lines_extracted.tolist(),
+            "segments_rejected": self.segments_rejected.tolist(),
+            "lines_continued": self.lines_continued.tolist(),
+            "tracks_started": self.tracks_started.tolist(),
+            "tracks_revived": self.tracks_revived.tolist(),
+            "extract_ms": np.round(self.timings_ms["extract"], 3).tolist(),
+            "track_ms": np.round(self.timings_ms["track"], 3).tolist(),
+        }
+
     def summary(self) -> dict[str, Any]:
         """Counts and median timings, as plain numbers (for ``report.json``)."""
         lengths = self.track_lengths()
