@@ -54,6 +54,10 @@ class ExtractionOptions:
     min_points: int = 40
     """Fewest edge points of a segment and of an accepted line (about its length in px); short
     lines carry most of the false NVs (docs/frontend.md)."""
+    min_arc_px: float = 20.0
+    """Fewest pixels a line's arc spans, measured with the larger side of the local pixel
+    (``s(p)`` below): near the poles of an equirectangular image many pixels span a tiny
+    angle and give a poorly determined NV."""
     line_threshold_px: float = 1.0
     """``l_th`` of eq. (3) as a distance from the great circle in pixels at that point:
     ``(r . n)^2 < (line_threshold_px * s(p))^2`` with ``s(p)`` the local angle per pixel."""
@@ -467,7 +471,17 @@ class LineExtractor:
         ends /= np.linalg.norm(ends, axis=2, keepdims=True)
         px = np.abs(np.einsum("nk,nk->n", r, normals[lab])) / scale[idx]
         resid = np.sqrt(np.bincount(lab, weights=px * px, minlength=nl) / sizes)
-        arc = np.degrees(t[last] - t[first])
+        arc_rad = t[last] - t[first]
+        # the arc in units of the local pixel size: far below the point count where pixels are
+        # much narrower one way than the other (near the poles of an equirectangular image)
+        mean_scale = np.bincount(lab, weights=scale[idx], minlength=nl) / sizes
+        short = arc_rad / mean_scale < self.options.min_arc_px
+        if short.any():
+            keep = ~short[lab]
+            _, new = np.unique(lab[keep], return_inverse=True)
+            return self._package(idx[keep], new, rays, uv, scale, counts, n_segments,
+                                 n_rejected)
+        arc = np.degrees(arc_rad)
         return ExtractedLines(
             normals=normals, offsets=offsets, points_uv=uv[idx], point_rays=r,
             endpoint_rays=ends, endpoint_uv=np.stack([uv[idx[first]], uv[idx[last]]], 1),
