@@ -40,8 +40,9 @@ class TsdfFusion:
         uint8 RGB, ``intrinsic (3, 3)``, pose ``world_from_view`` / ``centre`` (world)."""
         o3d = self._o3d
         d = np.nan_to_num(depth, nan=0.0).astype(np.float32)
+        d[d >= self.max_depth] = 0.0
         if not (d > 0).any():
-            return
+            return  # Open3D refuses a frame that touches no block
         view_from_world = np.eye(4)
         view_from_world[:3, :3] = world_from_view.T
         view_from_world[:3, 3] = -world_from_view.T @ centre
@@ -50,9 +51,14 @@ class TsdfFusion:
             np.ascontiguousarray(color, dtype=np.float32) / 255.0))
         k = o3d.core.Tensor(intrinsic, o3d.core.float64)
         e = o3d.core.Tensor(view_from_world, o3d.core.float64)
-        blocks = self.grid.compute_unique_block_coordinates(
-            dt, k, e, depth_scale=1.0, depth_max=self.max_depth,
-            trunc_voxel_multiplier=self.trunc_voxels)
+        try:
+            blocks = self.grid.compute_unique_block_coordinates(
+                dt, k, e, depth_scale=1.0, depth_max=self.max_depth,
+                trunc_voxel_multiplier=self.trunc_voxels)
+        except RuntimeError as exc:  # a few stray depths may touch no block: nothing to fuse
+            if "No block is touched" in str(exc):
+                return
+            raise
         self.grid.integrate(blocks, dt, ct, k, e, depth_scale=1.0, depth_max=self.max_depth,
                             trunc_voxel_multiplier=self.trunc_voxels)
 

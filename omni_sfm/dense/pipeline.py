@@ -74,6 +74,8 @@ class DenseOptions:
     """TSDF voxel size in pixel footprints at the median depth."""
     min_weight: float = 3.0
     """TSDF weight (number of depth observations) a surface point needs to be output."""
+    min_points: int = 1000
+    """Fewer fused surface points than this is an error (nothing usable was seen)."""
     max_depth_ratio: float = 8.0
     """Depths beyond this many median depths are not fused."""
     stereo: StereoOptions = field(default_factory=StereoOptions)
@@ -439,9 +441,10 @@ def dense_map(inp: DenseInput, opts: DenseOptions | None = None, *,
     points, colors = fusion.point_cloud(opts.min_weight)
     mesh = fusion.mesh(opts.min_weight)
     t_extract = time.perf_counter() - t4
-    if points.shape[0] == 0:
-        raise OmniSfmError("stereo gave no surface seen often enough: too little texture or "
-                           "baseline (see the per-frame depth shares with a lower --min-weight)")
+    if points.shape[0] < opts.min_points:
+        raise OmniSfmError(f"stereo gave {points.shape[0]} surface points confirmed by enough "
+                           "views: too little texture or baseline for stereo, or poses that do "
+                           "not fit the images")
     scale = 1.0
     scale_info: dict[str, Any] = {"source": "poses", "unit": "pose units (arbitrary scale of the "
                               "input poses)"}
