@@ -181,7 +181,8 @@ def _position_priors(rec: Any, image_ids: list[int], inp: Trajectory,
 def _bundle_adjust(rec: Any, fixed_frames: set[int], priors: list[Any],
                    opts: RefineOptions) -> dict[str, Any]:
     """Rounds of BA (poses and points free, intrinsics and ``fixed_frames`` fixed) each followed
-    by removing observations with large errors or small triangulation angles.
+    by removing observations with large errors or small triangulation angles (the reported
+    error after a round is after that filtering).
 
     The gauge (position, rotation, scale) is fixed by the input's camera centres as position
     priors (COLMAP's pose-prior bundle adjuster); COLMAP's ``TWO_CAMS_FROM_WORLD`` gauge fixes
@@ -215,12 +216,13 @@ def _bundle_adjust(rec: Any, fixed_frames: set[int], priors: list[Any],
             ba, pycolmap.PosePriorBundleAdjustmentOptions(), config, priors, rec)
         summary = adjuster.solve()
         rec.update_point_3d_errors()
-        after = float(rec.compute_mean_reprojection_error())
+        # a few points end up where the camera model does not image them (error ~1e150):
+        # the mean is taken after they are filtered
         removed = pycolmap.ObservationManager(rec).filter_all_points3D(
             opts.max_reprojection_error_px, opts.min_triangulation_angle_deg)
         rounds.append({
             "mean_reprojection_error_before_px": before,
-            "mean_reprojection_error_after_px": after,
+            "mean_reprojection_error_after_px": float(rec.compute_mean_reprojection_error()),
             "termination": str(summary.termination_type).rsplit(".", 1)[-1],
             "usable": bool(summary.is_solution_usable()),
             "removed_observations": int(removed),
@@ -380,21 +382,22 @@ def refine(init_dir: Path, images_dir: Path, output: Path,
                 ts_all, ts_why = _frame_timestamps(all_names, init)
                 added = [n for n in unposed if (im := rec.find_image_with_name(n)) is not None
                          and im.has_pose]
-                if added and decisions["alignment_to_input"] is not None:
-                    a = decisions["alignment_to_input"]
+                a = decisions["alignment_to_input"]
+                if not added or a is None or ts_all is None:
+                    added = []  # without the alignment or timestamps they cannot be placed
+                else:
                     R, t, s = np.asarray(a["rotation"]), np.asarray(a["translation"]), a["scale"]
-                    if ts_all is not None:
-                        idx = {n: k for k, n in enumerate(all_names)}
-                        new, _ = trajectory_from_reconstruction(
-                            rec, seed.export, added, ts_all[[idx[n] for n in added]])
-                        new = _apply(R, t, s, new)
-                        traj, refined = _merge(traj, refined, new)
-                        final_ids = image_ids + [rec.find_image_with_name(n).image_id
-                                                 for n in added]
-                    report["mapper"]["added_to_trajectory"] = ts_all is not None
-                    report["mapper"]["timestamps"] = ts_why
-                final = _final_model(rec, seed.export, decisions, image_ids, init, traj,
-                                     added if ts_all is not None else [])
+                    idx = {n: k for k, n in enumerate(all_names)}
+                    new, _ = trajectory_from_reconstruction(
+                        rec, seed.export, added, ts_all[[idx[n] for n in added]])
+                    traj, refined = _merge(traj, refined, _apply(R, t, s, new))
+                    final_ids = image_ids + [rec.find_image_with_name(n).image_id
+                                             for n in added]
+                if register:
+                    report["mapper"]["added_to_trajectory"] = added
+                    report["mapper"]["timestamps"] = ts_why if a is not None else (
+                        "not placed: the adjusted model was not trusted")
+                final = _final_model(rec, seed.export, decisions, image_ids, init, traj, added)
                 report["model"] = model_statistics(final)
                 report["summary"] = final.summary()
                 (tmp / SPARSE_DIR).mkdir()
