@@ -143,8 +143,9 @@ def sequence_from_folder(images: Path, camera: CameraModel) -> SequenceInput:
     if len(files) < 3:
         raise OmniSfmError(f"{images}: {len(files)} images; need at least 3 "
                            f"({', '.join(IMAGE_SUFFIXES)})")
+    name = images.resolve().parent.name if images.name == "images" else images.name
     return SequenceInput(np.arange(len(files), dtype=np.float64), camera, images=tuple(files),
-                         name=images.name)
+                         name=name)
 
 
 @dataclass(frozen=True)

@@ -37,7 +37,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 KINDS = ("sim", "corridor-hyperboloid", "corridor-hyperboloid-textured",
          "room-equirectangular-textured")
-RENDER = {
+RENDER: dict[str, dict[str, Any]] = {
     "corridor-hyperboloid": {"scene": "corridor", "camera": "hyperboloid", "textured": False},
     "corridor-hyperboloid-textured": {"scene": "corridor", "camera": "hyperboloid",
                                       "textured": True},

@@ -170,3 +170,15 @@ def test_sweep_dask_equals_process_pool() -> None:
         assert sweep.comparable(a["results"]) == sweep.comparable(b["results"])
         assert a["tum"] == b["tum"]
         assert all(e["status"] == "ok" for e in a["results"]["initializers"].values())
+
+
+def test_five_point_with_klt_tracks(tiny) -> None:
+    from omni_sfm.compare import run_initializer, sequence_from_folder
+
+    seq = sequence_from_folder(tiny.output / "images", tiny.camera)
+    res, _ = run_initializer("five-point", seq, {"features": "klt"})
+    assert res.status == "ok", res.reason
+    assert res.info["features"] == "klt"
+    assert res.trajectory is not None
+    ev = evaluate_trajectory(res.trajectory, read_tum(tiny.output / "groundtruth.tum"), 10)
+    assert ev.metrics["rot_max_deg"] < 2.0 and ev.metrics["ate_rel"] < 0.05, ev.metrics

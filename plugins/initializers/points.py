@@ -48,8 +48,9 @@ def sift_tracks(seq: SequenceInput, max_features: int = 4000, ratio: float = 0.8
                 ) -> PointObservations:
     """SIFT keypoints of every frame (inside the camera's valid mask), matched between
     consecutive frames (Lowe's ratio test, mutual best), chained into tracks."""
-    import cv2
+    import cv2 as cv2_typed
 
+    cv2: Any = cv2_typed  # OpenCV's stubs lack some overloads used here
     sift = cv2.SIFT_create(nfeatures=max_features)
     matcher = cv2.BFMatcher(cv2.NORM_L2)
     mask = _mask(seq.camera)
@@ -85,10 +86,11 @@ def klt_tracks(seq: SequenceInput, max_corners: int = 2000, min_distance: float 
                fb_max_px: float = 1.0) -> PointObservations:
     """Shi-Tomasi corners tracked by pyramidal KLT with a forward-backward check; new corners
     are added away from the tracked ones whenever fewer than 70 % of ``max_corners`` remain."""
-    import cv2
+    import cv2 as cv2_typed
 
+    cv2: Any = cv2_typed
     mask = _mask(seq.camera)
-    lk = {"winSize": (15, 15), "maxLevel": 3,
+    lk: dict[str, Any] = {"winSize": (15, 15), "maxLevel": 3,
           "criteria": (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01)}
     tr: list[np.ndarray] = []
     fr: list[np.ndarray] = []
