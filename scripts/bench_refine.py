@@ -2,13 +2,15 @@
 camera, 800 x 600, 100 frames. Prints the per-stage times and the ATE before and after.
 
     .venv/bin/python scripts/bench_refine.py --work /tmp/bench_refine
+    .venv/bin/python scripts/bench_refine.py --work /tmp/bench_corridor --scene corridor
     .venv/bin/python scripts/bench_refine.py --work /tmp/bench_refine --init LINE_INIT_DIR
 
 Without ``--init`` the seed is the ground truth with realistic errors (0.3 deg rotation noise and
 0.5 % of the path position noise, fixed seed), written as an init directory by
 ``omni_sfm.refine.synthetic.write_perturbed_init``; with ``--init`` an existing init directory
 (e.g. from ``omni-sfm init``) of the same frames is refined instead. The rendering is reused when
-``WORK/render`` exists. ATE is after a similarity alignment, relative to the path length.
+``WORK/render`` exists. The room is rendered with texture, the corridor without (texture-poor).
+ATE is after a similarity alignment, relative to the path length.
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ from omni_sfm.synth.render import RenderOptions, render_sequence
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--work", type=Path, required=True, help="working folder (render reused)")
+    p.add_argument("--scene", choices=["room", "corridor"], default="room")
     p.add_argument("--frames", type=int, default=100)
     p.add_argument("--width", type=int, default=800)
     p.add_argument("--height", type=int, default=600)
@@ -42,9 +45,10 @@ def main() -> int:
     render = args.work / "render"
     if not (render / "groundtruth.tum").is_file():
         t0 = time.perf_counter()
-        render_sequence(render, RenderOptions(scene="room", camera="hyperboloid",
+        render_sequence(render, RenderOptions(scene=args.scene, camera="hyperboloid",
                                               width=args.width, height=args.height,
-                                              frames=args.frames, textured=True),
+                                              frames=args.frames,
+                                              textured=args.scene == "room"),
                         progress=sys.stderr.isatty())
         print(f"render: {time.perf_counter() - t0:.1f} s")
     gt = read_tum(render / "groundtruth.tum")
@@ -65,7 +69,8 @@ def main() -> int:
     before = trajectory_errors(init, gt)
     after = trajectory_errors(res.trajectory, gt)
     ba = r["bundle_adjustment"].get("rounds") or [{}]
-    print(f"case: textured room, hyperboloid {args.width}x{args.height}, {len(gt)} frames, "
+    scene = "textured room" if args.scene == "room" else "texture-poor corridor"
+    print(f"case: {scene}, hyperboloid {args.width}x{args.height}, {len(gt)} frames, "
           f"path {gt.path_length():.2f} m; seed: {kind}")
     print(f"frames: {len(init)} seeded, {r['refined_frames']} refined, "
           f"{len(r['kept_frames'])} kept ({r['kept_input_for_all'] or 'per frame'})")
