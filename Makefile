@@ -8,11 +8,12 @@ STAMP := $(VENV)/.installed
 setup: $(STAMP)
 
 $(STAMP): pyproject.toml
-	@# Open3D's wheel needs libusb-1.0 at import time (Debian package libusb-1.0-0)
-	@if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then \
-	  echo "installing Debian package libusb-1.0-0"; \
+	@# Open3D's wheel needs libusb-1.0 at import time (Debian package libusb-1.0-0);
+	@# tests/test_view.py opens the HTML viewer in a headless browser (Debian package chromium)
+	@if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0' || ! command -v chromium >/dev/null 2>&1; then \
+	  echo "installing Debian packages libusb-1.0-0 chromium"; \
 	  SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
-	  $$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq libusb-1.0-0; \
+	  $$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq libusb-1.0-0 chromium; \
 	fi
 	$(PY) -m venv $(VENV)
 	$(VENV)/bin/python -m pip install -q --upgrade pip
