@@ -66,6 +66,9 @@ def run(args: argparse.Namespace) -> int:
     print(f"refined {r['refined_frames']} of {n} input poses "
           f"({r['model']['points']} points, {r['model']['observations']} observations{err}) "
           f"into {res.output}")
+    added = r.get("mapper", {}).get("added_to_trajectory")
+    if added:
+        print(f"COLMAP's mapper registered {len(added)} frames the init did not pose")
     if r.get("kept_input_for_all"):
         print(f"kept every input pose: {r['kept_input_for_all']}")
     elif r.get("kept_frames"):
