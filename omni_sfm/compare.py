@@ -119,14 +119,18 @@ class SequenceInput:
         return int(self.timestamps.shape[0])
 
     def read_gray(self, k: int) -> np.ndarray:
-        """Frame ``k`` as an ``(H, W)`` uint8 grey image (checked against the camera size)."""
+        """Frame ``k`` as an ``(H, W)`` uint8 grey image (checked against the camera size),
+        converted like :func:`omni_sfm.lines.video.read_frames` does."""
         import cv2
 
         if self.images is None:
             raise OmniSfmError(f"{self.name}: this sequence has no images")
-        img = cv2.imread(str(self.images[k]), cv2.IMREAD_GRAYSCALE)
-        if img is None:
+        from omni_sfm.lines.video import to_gray
+
+        raw = cv2.imread(str(self.images[k]), cv2.IMREAD_UNCHANGED)
+        if raw is None:
             raise OmniSfmError(f"{self.images[k]}: OpenCV cannot read this image")
+        img = to_gray(raw)  # as omni-sfm's front end reads frames
         if img.shape != (self.camera.height, self.camera.width):
             raise OmniSfmError(f"{self.images[k]}: image is {img.shape[1]}x{img.shape[0]} px, "
                                f"the camera is {self.camera.width}x{self.camera.height} px")
