@@ -23,6 +23,7 @@ soon as they appear.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import numpy as np
@@ -140,6 +141,8 @@ class LineTracker:
         self._started: list[int] = []
         self._ended: list[int] = []
         self._revived: list[int] = []
+        # KD-tree of the current frame's support points (shared by the step and the revival)
+        self._tree: tuple[ExtractedLines | None, Any, IntArray] = (None, None, np.zeros(0))
         # (klt image, lines, track ids) of the last max_gap_frames + 1 frames
         self._history: list[tuple[np.ndarray, ExtractedLines, IntArray]] = []
 
@@ -303,11 +306,13 @@ class LineTracker:
             flow = (p1[good] - s0[good])[nb.reshape(len(lost), -1)]
             p1[lost] = s0[lost] + np.median(flow, axis=1)
             ok[lost] = True
-        tree = cKDTree(cur.points_uv)
+        if self._tree[0] is not cur:
+            self._tree = (cur, cKDTree(cur.points_uv), cur.line_of_point())
+        _, tree, line_of = self._tree
         dist, nearest = tree.query(p1[ok], distance_upper_bound=o.snap_radius_px)
         hit = np.isfinite(dist)
         i = owner[ok][hit]
-        j = cur.line_of_point()[nearest[hit]]
+        j = line_of[nearest[hit]]
         if len(i) == 0:
             return z, z, z
         n_cur = cur.num_lines
