@@ -34,6 +34,7 @@ from dataclasses import dataclass, field
 from enum import StrEnum
 
 import numpy as np
+import scipy.linalg
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
@@ -63,9 +64,16 @@ class BundleOptions:
     noise_deg: float | None = None
     """Known per-axis angular noise of the NVs in degrees; None: estimated from the residuals."""
     max_iterations: int = 100
-    """Levenberg-Marquardt iterations per solve."""
-    tolerance: float = 1e-12
-    """Stop when the relative decrease of the cost falls below this."""
+    """Levenberg-Marquardt iterations per solve (long chains converge slowly along their
+    drift modes)."""
+    tolerance: float = 1e-10
+    """Stop the final solve when the relative decrease of the cost falls below this."""
+    robust_tolerance: float = 1e-4
+    """The same for the robust rounds (reweighting converges slowly; they only need to find
+    the outliers and the basin)."""
+    final_loss: RobustLoss | None = RobustLoss.LINEAR
+    """Loss of a last solve on the inlier tracks (None: none). Plain least squares is the
+    maximum-likelihood estimate for Gaussian NV noise once the outlier tracks are gone."""
     reject_outliers: bool = True
     """Flag tracks whose residuals are far above the noise, drop them and solve again."""
     outlier_threshold: float = 3.0
@@ -189,54 +197,48 @@ def _loss_weights(s: FloatArray, loss: RobustLoss, scale: float) -> tuple[FloatA
     return f2 * np.log1p(s / f2), 1.0 / (1.0 + s / f2)
 
 
+_State = tuple[FloatArray, FloatArray, FloatArray, FloatArray]
+_Blocks = tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]
+
+
 class _Problem:
-    """The LM problem on the active frames and tracks (everything else stays as given)."""
+    """The LM problem on the active frames and tracks (everything else stays as given).
+
+    Free parameters: 6 per estimated frame except the fixed one (whose 6 are held), minus the
+    one held coordinate of the scale frame; 4 per active track. Held parameters keep zero
+    Jacobian columns and an identity block in the normal equations.
+    """
 
     def __init__(self, tracks: LineTracks, frames: np.ndarray, active: np.ndarray,
                  fixed_frame: int, scale_frame: int, scale_axis: int) -> None:
-        self.tracks = tracks
         F, M = tracks.num_frames, tracks.num_tracks
         sel = frames[tracks.obs_frame] & active[tracks.obs_track]
+        self.F, self.M = F, M
         self.f = tracks.obs_frame[sel]
         self.t = tracks.obs_track[sel]
-        self.B1, self.B2 = _tangent_basis(tracks.obs_normal[sel])
-        # column indices of the free parameters; -1 marks a parameter held fixed (the gauge)
-        pose_col = np.full((F, 6), -1)
-        free_frames = np.flatnonzero(frames)
-        free_frames = free_frames[free_frames != fixed_frame]
-        pose_col[free_frames] = np.arange(6 * len(free_frames)).reshape(-1, 6)
-        pose_col[scale_frame, 3 + scale_axis] = -1
-        n_pose = 6 * len(free_frames)
-        keep = pose_col >= 0
-        remap = np.full(n_pose, -1)
-        remap[np.sort(pose_col[keep])] = np.arange(keep.sum())
-        pose_col[keep] = remap[pose_col[keep]]
-        n_pose = int(keep.sum())
-        line_col = np.full((M, 4), -1)
-        act = np.flatnonzero(active)
-        line_col[act] = n_pose + np.arange(4 * len(act)).reshape(-1, 4)
-        self.pose_col, self.line_col = pose_col, line_col
-        self.num_params = n_pose + 4 * len(act)
-        cols = np.concatenate([pose_col[self.f], line_col[self.t]], axis=1)  # (K, 10)
-        self.rows = np.repeat(np.arange(2 * len(self.f)), 10)
-        self.cols = np.repeat(cols, 2, axis=0).ravel()
-        self.valid_cols = self.cols >= 0
+        self.B = np.stack(_tangent_basis(tracks.obs_normal[sel]), axis=1)  # (K, 2, 3)
+        pose_free = np.zeros((F, 6), bool)
+        pose_free[frames] = True
+        pose_free[fixed_frame] = False
+        pose_free[scale_frame, 3 + scale_axis] = False
+        self.pose_free = pose_free
+        self.line_free = np.repeat(np.asarray(active, bool)[:, None], 4, axis=1)
 
     def residuals(self, R: FloatArray, c: FloatArray, d: FloatArray,
                   p: FloatArray) -> tuple[FloatArray, FloatArray]:
         f, t = self.f, self.t
         u = np.einsum("kji,kj->ki", R[f], np.cross(p[t] - c[f], d[t]))
         n = u / np.linalg.norm(u, axis=1, keepdims=True)
-        e = np.stack([np.sum(self.B1 * n, 1), np.sum(self.B2 * n, 1)], axis=1)
-        return e, u
+        return np.einsum("kai,ki->ka", self.B, n), u
 
     def jacobian(self, R: FloatArray, c: FloatArray, d: FloatArray, p: FloatArray,
-                 u: FloatArray, sqrt_w: FloatArray) -> sp.csr_matrix:
+                 u: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Per observation: ``(K, 2, 6)`` d e / d pose and ``(K, 2, 4)`` d e / d line."""
         f, t = self.f, self.t
         Rk = R[f]
         nu = np.linalg.norm(u, axis=1)
         n = u / nu[:, None]
-        B = np.stack([self.B1, self.B2], axis=1)  # (K, 2, 3)
+        B = self.B
         # d e / d u = B^T (I - n n^T) / |u|
         A = (B - np.sum(B * n[:, None, :], axis=2, keepdims=True) * n[:, None, :]) / \
             nu[:, None, None]
@@ -246,25 +248,88 @@ class _Problem:
         pc = p[t] - c[f]
         V = np.stack([np.cross(pc, e1), np.cross(pc, e2), np.cross(e1, d[t]),
                       np.cross(e2, d[t])], axis=1)  # (K, 4, 3) world
-        V_cam = np.einsum("kji,kaj->kai", Rk, V)
-        J_line = A @ np.swapaxes(V_cam, 1, 2)  # (K, 2, 4)
-        J = np.concatenate([J_rot, J_c, J_line], axis=2) * sqrt_w[:, None, None]
-        vals = J.reshape(-1)
-        ok = self.valid_cols
-        return sp.csr_matrix((vals[ok], (self.rows[ok], self.cols[ok])),
-                             shape=(2 * len(f), self.num_params))
+        J_line = A @ np.swapaxes(np.einsum("kji,kaj->kai", Rk, V), 1, 2)
+        J_pose = np.concatenate([J_rot, J_c], axis=2) * self.pose_free[f][:, None, :]
+        return J_pose, J_line
+
+    def normal_equations(self, J_pose: FloatArray, J_line: FloatArray, e: FloatArray,
+                         w: FloatArray) -> _Blocks:
+        """Blocks of ``J^T W J`` and ``J^T W e``: (F,6,6), (M,4,4), (K,6,4), (F,6), (M,4)."""
+        F, M, f, t = self.F, self.M, self.f, self.t
+        wJp = J_pose * w[:, None, None]
+        Hpp = np.zeros((F, 6, 6))
+        np.add.at(Hpp, f, np.swapaxes(wJp, 1, 2) @ J_pose)
+        Hll = np.zeros((M, 4, 4))
+        np.add.at(Hll, t, np.swapaxes(J_line * w[:, None, None], 1, 2) @ J_line)
+        Hpl = np.swapaxes(wJp, 1, 2) @ J_line
+        gp = np.zeros((F, 6))
+        np.add.at(gp, f, np.einsum("kai,ka->ki", wJp, e))
+        gl = np.zeros((M, 4))
+        np.add.at(gl, t, np.einsum("kai,ka->ki", J_line * w[:, None, None], e))
+        return Hpp, Hll, Hpl, gp, gl
+
+    def solve(self, Hpp: FloatArray, Hll: FloatArray, Hpl: FloatArray, gp: FloatArray,
+              gl: FloatArray, lam: float) -> tuple[FloatArray, FloatArray]:
+        """Damped step ``(H + lam diag(H)) dx = -g``: poses eliminated (Schur complement).
+
+        The pose blocks are 6x6 and independent; eliminating them leaves a ``4M x 4M`` system
+        in the lines whose sparse update ``G^T G`` (``G = L_f^-1 H_fl``, one 6x4 block per
+        observation) is formed with scipy.sparse, then solved by dense Cholesky.
+        """
+        F, M, f, t = self.F, self.M, self.f, self.t
+        eye6, eye4 = np.eye(6), np.eye(4)
+        pf, lf = self.pose_free, self.line_free
+        dp_ = np.einsum("fii->fi", Hpp)
+        Hpp = Hpp + (lam * np.maximum(dp_, 1e-12 * max(float(dp_.max(initial=0.0)), 1e-30))
+                     )[:, :, None] * eye6
+        # held parameters: identity rows/columns, so they stay at zero
+        Hpp = Hpp * (pf[:, :, None] & pf[:, None, :]) + (~pf)[:, :, None] * eye6
+        dl_ = np.einsum("mii->mi", Hll)
+        Hll = Hll + (lam * np.maximum(dl_, 1e-12 * max(float(dl_.max(initial=0.0)), 1e-30))
+                     )[:, :, None] * eye4
+        Hll = Hll * (lf[:, :, None] & lf[:, None, :]) + (~lf)[:, :, None] * eye4
+        L = np.linalg.cholesky(Hpp)  # (F, 6, 6)
+        Linv = np.linalg.inv(L)
+        G = Linv[f] @ Hpl  # (K, 6, 4)
+        gpt = np.einsum("fij,fj->fi", Linv, gp)  # L^-1 g_p
+        # only the lines with observations enter the reduced system
+        act = np.flatnonzero(lf[:, 0])
+        Ma = len(act)
+        tc = np.searchsorted(act, t)
+        rows = (6 * f[:, None, None] + np.arange(6)[None, :, None]).repeat(4, axis=2)
+        cols = (4 * tc[:, None, None] + np.arange(4)[None, None, :]).repeat(6, axis=1)
+        Gs = sp.csr_matrix((G.ravel(), (rows.ravel(), cols.ravel())), shape=(6 * F, 4 * Ma))
+        ar = np.repeat(np.arange(Ma), 16)
+        bd = sp.csr_matrix((Hll[act].ravel(), (4 * ar + np.tile(np.repeat(np.arange(4), 4), Ma),
+                                                4 * ar + np.tile(np.arange(4), 4 * Ma))),
+                           shape=(4 * Ma, 4 * Ma))
+        S = (bd - Gs.T @ Gs).tocsc()
+        rhs = -gl[act].ravel() + Gs.T @ gpt.ravel()
+        if 4 * Ma <= 600 or S.nnz > 0.3 * (4 * Ma) ** 2:
+            c_f = scipy.linalg.cho_factor(S.toarray(), check_finite=False)
+            x = scipy.linalg.cho_solve(c_f, rhs, check_finite=False)
+        else:
+            lu = spla.splu(S, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                           options={"SymmetricMode": True})
+            if np.any(lu.U.diagonal() <= 0):
+                raise np.linalg.LinAlgError("reduced system not positive definite")
+            x = lu.solve(rhs)
+        dl = np.zeros((M, 4))
+        dl[act] = x.reshape(Ma, 4)
+        # back substitution: Hpp dp = -gp - Hpl dl
+        r = -gp.copy()
+        np.add.at(r, f, -np.einsum("kij,kj->ki", Hpl, dl[t]))
+        dp = np.einsum("fji,fj->fi", Linv, np.einsum("fij,fj->fi", Linv, r))
+        return dp * pf, dl * lf
 
     def retract(self, R: FloatArray, c: FloatArray, d: FloatArray, p: FloatArray,
-                dx: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-        pc = self.pose_col
-        dpose = np.where(pc >= 0, dx[np.maximum(pc, 0)], 0.0)
+                dpose: FloatArray, dline: FloatArray) -> _State:
         R2 = R.copy()
-        moved = np.any(pc >= 0, axis=1)
+        moved = np.any(self.pose_free, axis=1)
         R2[moved] = R[moved] @ rotvec_to_matrix(dpose[moved, :3])
         c2 = c + dpose[:, 3:]
-        lc = self.line_col
-        act = lc[:, 0] >= 0
-        dl = dx[lc[act]]
+        act = self.line_free[:, 0]
+        dl = dline[act]
         e1, e2 = _tangent_basis(d[act])
         d2, p2 = d.copy(), p.copy()
         d2[act] = normalize(d[act] + dl[:, :1] * e1 + dl[:, 1:2] * e2)
@@ -281,9 +346,6 @@ def _robust_sigma(angles: FloatArray) -> float:
     return max(float(np.median(a)) / _RAYLEIGH_MEDIAN, _SIGMA_FLOOR)
 
 
-_State = tuple[FloatArray, FloatArray, FloatArray, FloatArray]
-
-
 def _levenberg_marquardt(prob: _Problem, state: _State, loss: RobustLoss, scale: float,
                          max_iterations: int, tolerance: float) -> tuple[_State, int]:
     def cost_of(e: FloatArray) -> float:
@@ -295,21 +357,15 @@ def _levenberg_marquardt(prob: _Problem, state: _State, loss: RobustLoss, scale:
     it = 0
     for it in range(1, max_iterations + 1):  # noqa: B007
         _, w = _loss_weights(np.sum(e * e, 1), loss, scale)
-        sw = np.sqrt(w)
-        J = prob.jacobian(*state, u, sw)
-        r = (e * sw[:, None]).ravel()
-        H = (J.T @ J).tocsc()
-        g = J.T @ r
-        diag = H.diagonal()
-        diag = np.maximum(diag, 1e-12 * max(float(diag.max(initial=0.0)), 1e-30))
+        blocks = prob.normal_equations(*prob.jacobian(*state, u), e, w)
         improved = False
         for _ in range(12):
             try:
-                dx = spla.splu((H + sp.diags(lam * diag)).tocsc()).solve(-g)
-            except RuntimeError:  # singular: damp more
+                dpose, dline = prob.solve(*blocks, lam)
+            except np.linalg.LinAlgError:  # not positive definite: damp more
                 lam *= 10.0
                 continue
-            new_state = prob.retract(*state, dx)
+            new_state = prob.retract(*state, dpose, dline)
             e_new, u_new = prob.residuals(*new_state)
             new_cost = cost_of(e_new)
             if np.isfinite(new_cost) and new_cost <= cost:
@@ -329,6 +385,7 @@ def _levenberg_marquardt(prob: _Problem, state: _State, loss: RobustLoss, scale:
 def bundle_adjust(tracks: LineTracks, rotations: FloatArray, positions: FloatArray,
                   line_directions: FloatArray, line_points: FloatArray, *,
                   frames: np.ndarray | None = None,
+                  scale_frames: np.ndarray | None = None,
                   options: BundleOptions = BundleOptions()) -> BundleResult:
     """Refine poses and lines jointly from all observations (partial tracks allowed).
 
@@ -340,6 +397,8 @@ def bundle_adjust(tracks: LineTracks, rotations: FloatArray, positions: FloatArr
             take no part (they are triangulated from the initial poses if possible).
         line_points: ``(M, 3)`` a point of each initial line (world).
         frames: ``(F,)`` bool, the frames to estimate (default: all with finite poses).
+        scale_frames: ``(F,)`` bool, frames among which the one that holds the scale is chosen
+            (default: all); e.g. the already refined part of a growing chain.
         options: see :class:`BundleOptions`.
 
     Raises:
@@ -355,7 +414,7 @@ def bundle_adjust(tracks: LineTracks, rotations: FloatArray, positions: FloatArr
     p = np.array(line_points, dtype=np.float64)
     if d.shape != (M, 3) or p.shape != (M, 3):
         raise ValueError(f"lines must be ({M},3); got {d.shape=} {p.shape=}")
-    fr: np.ndarray = np.isfinite(c).all(1) & np.isfinite(R).all((1, 2))
+    fr: np.ndarray = np.asarray(np.isfinite(c).all(1) & np.isfinite(R).all((1, 2)))
     if frames is not None:
         fr &= np.asarray(frames, bool)
     missing = ~(np.isfinite(d).all(1) & np.isfinite(p).all(1))
@@ -380,6 +439,8 @@ def bundle_adjust(tracks: LineTracks, rotations: FloatArray, positions: FloatArr
                            f"got {int(fr.sum())}")
     fixed = int(np.flatnonzero(fr)[0])
     dist = np.linalg.norm(np.where(fr[:, None], c - c[fixed], 0.0), axis=1)
+    if scale_frames is not None:
+        dist = np.where(np.asarray(scale_frames, bool), dist, 0.0)
     scale_frame = int(np.argmax(dist))
     scale_axis = int(np.argmax(np.abs(c[scale_frame] - c[fixed])))
     if dist[scale_frame] <= 0:
@@ -405,7 +466,8 @@ def bundle_adjust(tracks: LineTracks, rotations: FloatArray, positions: FloatArr
         prob = _Problem(tracks, fr, act, fixed, scale_frame, scale_axis)
         (R, c, d, p), it = _levenberg_marquardt(prob, (R, c, d, p), options.loss,
                                                 options.loss_scale * sigma,
-                                                options.max_iterations, options.tolerance)
+                                                options.max_iterations,
+                                                max(options.tolerance, options.robust_tolerance))
         iterations += it
         ang = angles_now()
         old_sigma = sigma
@@ -414,17 +476,30 @@ def bundle_adjust(tracks: LineTracks, rotations: FloatArray, positions: FloatArr
         rms = _track_rms(tracks, ang, M)
         new_out = np.zeros(M, bool)
         if options.reject_outliers:
-            new_out = act & (rms > options.outlier_threshold * np.sqrt(2.0) * sigma)
-            # never reject so many that the problem falls apart
-            if new_out.sum() > 0.5 * act.sum():
-                worst = np.argsort(-np.where(new_out, rms, -np.inf))[: int(0.5 * act.sum())]
-                new_out = np.zeros(M, bool)
-                new_out[worst] = True
+            cand = act & (rms > options.outlier_threshold * np.sqrt(2.0) * sigma)
+            if cand.any():
+                # gross outliers first: they bias the others' residuals; at most half the tracks
+                worst = float(np.max(rms[cand]))
+                new_out = cand & (rms >= 0.5 * worst)
+                if new_out.sum() > 0.5 * act.sum():
+                    keep = np.argsort(-np.where(new_out, rms, -np.inf))[: int(0.5 * act.sum())]
+                    new_out = np.zeros(M, bool)
+                    new_out[keep] = True
         history.append({"round": float(_round), "sigma_deg": float(np.degrees(sigma)),
                         "iterations": float(it), "new_outliers": float(new_out.sum())})
         outlier |= new_out
         if not new_out.any() and abs(sigma - old_sigma) <= 0.1 * old_sigma:
             break
+    if options.final_loss is not None:
+        # the maximum-likelihood polish on the inliers (converges fast: no reweighting)
+        act = active_tracks()
+        prob = _Problem(tracks, fr, act, fixed, scale_frame, scale_axis)
+        (R, c, d, p), it = _levenberg_marquardt(prob, (R, c, d, p), options.final_loss,
+                                                options.loss_scale * sigma,
+                                                options.max_iterations, options.tolerance)
+        iterations += it
+        history.append({"round": -1.0, "sigma_deg": float(np.degrees(sigma)),
+                        "iterations": float(it), "new_outliers": 0.0})
     act = active_tracks()
     ang = angles_now()
     used_obs = act[tracks.obs_track] & obs_in

@@ -40,7 +40,10 @@ class SimulationOptions:
     rotation_deg: float = 30.0
     """Amplitude of the smooth rotation about every axis over the sequence, degrees."""
     line_distance: tuple[float, float] = (0.8, 3.0)
-    """Range of distances of lines from the camera path, in path-length units."""
+    """Range of distances of lines from the camera path, in path-length units; with
+    ``visible_frames`` in units of the stretch of path seen while a line is visible
+    (``path_length * visible_frames / num_views``), so lines stay near the part of the path
+    that sees them and can be triangulated from it."""
     seed: int = 0
 
 
@@ -125,9 +128,12 @@ def simulate(opts: SimulationOptions) -> Simulation:
     if opts.visible_frames is None:
         anchor = rng.integers(0, F, size=M)
     else:
-        anchor = np.linspace(0, F - 1, M).round().astype(int)
-        rng.shuffle(anchor)
+        # each kind spread evenly along the path, so that every stretch sees both kinds
+        anchor = np.concatenate([rng.permutation(np.linspace(0, F - 1, n).round().astype(int))
+                                 for n in (P, Q)])
     scale = opts.path_length
+    if opts.visible_frames is not None:
+        scale *= opts.visible_frames / F
     pts = _lines_near_path(M, gt.positions[anchor], dirs,
                            (opts.line_distance[0] * scale, opts.line_distance[1] * scale), rng)
     pts += dirs * rng.uniform(-0.5, 0.5, size=(M, 1)) * scale

@@ -1,0 +1,381 @@
+"""The whole line-based estimator: tracks -> parallel family -> paper's solution(s) -> chaining ->
+bundle adjustment with outlier rejection -> poses of all estimable frames, and a report.
+
+Library entry point :func:`estimate_poses`; :func:`write_init_outputs` writes the documented
+artifacts (``trajectory.tum``, ``report.json``, see docs/formats.md) and is shared by every
+input mode of ``omni-sfm init`` (tracks file now, images later).
+
+Conventions of the result: world = the camera of the first estimated frame (frame 0 whenever it
+is estimated), poses world_from_cam, and the scale set so that the distance between the first
+and the last estimated camera is 1 (the paper's convention, Sec. VII).
+"""
+
+from __future__ import annotations
+
+import time
+from collections import defaultdict
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from omni_sfm import __version__
+from omni_sfm.errors import OmniSfmError
+from omni_sfm.estimate.bundle import (
+    BundleOptions,
+    BundleResult,
+    bundle_adjust,
+    observation_residuals,
+    triangulate_lines,
+)
+from omni_sfm.estimate.paper import PaperOptions, estimate_paper
+from omni_sfm.estimate.windows import (
+    Window,
+    WindowOptions,
+    chain_windows,
+    plan_windows,
+    window_family,
+    window_tracks,
+)
+from omni_sfm.fileio import atomic_write_text, dumps_json
+from omni_sfm.geometry import FloatArray
+from omni_sfm.lines.tracks import LineTracks
+from omni_sfm.poses import Trajectory, write_tum
+from omni_sfm.vanishing import VanishingOptions, detect_parallel_family
+
+SCALE_CONVENTION = ("world = camera of the first estimated frame; distance between the first "
+                    "and the last estimated camera centres = 1")
+
+REFLECTION_NOTE = ("line normals carry no sign, so the camera centres (and lines) are determined "
+                   "only up to a point reflection through the first camera")
+
+
+@dataclass(frozen=True, kw_only=True)
+class EstimationOptions:
+    vanishing: VanishingOptions = field(default_factory=VanishingOptions)
+    """Parallel-family detection and VPVs (METHOD.md §3)."""
+    paper: PaperOptions = field(default_factory=PaperOptions)
+    """The paper's rotation and translation searches (METHOD.md §4-§5)."""
+    windows: WindowOptions = field(default_factory=WindowOptions)
+    """Windows over frames when no set of tracks is seen in every frame."""
+    bundle: BundleOptions = field(default_factory=BundleOptions)
+    """The joint refinement (line bundle adjustment)."""
+    refine: bool = True
+    """Run the bundle adjustment after the paper's method (False: the paper's method alone)."""
+    local_iterations: int = 10
+    """Iterations of the local bundle adjustment after each window is chained."""
+    restart_without_outliers: bool = True
+    """When the refinement flags outlier tracks, solve again from scratch without them and keep
+    the better of the two solutions (robust initialisation)."""
+
+
+@dataclass(frozen=True)
+class EstimationResult:
+    """Poses of the estimated frames, the lines, and how they were obtained.
+
+    Attributes:
+        trajectory: world_from_cam of the estimated frames only (timestamps of the tracks).
+        estimated: ``(F,)`` bool, frames estimated.
+        initial_trajectory: the paper's (chained) solution of the same frames, before
+            refinement, in the same world and scale convention.
+        track_ids: ``(M,)`` the tracks' ids.
+        parallel: ``(M,)`` bool, tracks of the parallel family.
+        parallel_direction: ``(3,)`` unit direction of the family in the world frame.
+        outliers: ``(M,)`` bool, tracks rejected as outliers.
+        used_tracks: ``(M,)`` bool, tracks in the final solution.
+        line_directions: ``(M, 3)`` unit line directions (world), NaN for unused tracks.
+        line_points: ``(M, 3)`` closest point to the world origin of each line, NaN if unused.
+        windows: ``[(start, stop), ...]`` frame windows solved by the paper's method.
+        timings_ms: wall time per stage in milliseconds.
+        residual_rms_initial_deg: RMS angle between observed and predicted NVs over the used
+            observations, at the paper's solution.
+        residual_rms_final_deg: the same after refinement.
+        sigma_deg: robust estimate of the NV noise (per axis) at the solution, degrees.
+        scale_convention: the world and scale of the result, in words.
+        report: the JSON-ready report (see docs/formats.md).
+    """
+
+    trajectory: Trajectory
+    estimated: np.ndarray
+    initial_trajectory: Trajectory
+    track_ids: np.ndarray
+    parallel: np.ndarray
+    parallel_direction: FloatArray
+    outliers: np.ndarray
+    used_tracks: np.ndarray
+    line_directions: FloatArray
+    line_points: FloatArray
+    windows: list[tuple[int, int]]
+    timings_ms: dict[str, float]
+    residual_rms_initial_deg: float
+    residual_rms_final_deg: float
+    sigma_deg: float
+    scale_convention: str
+    report: dict[str, Any]
+
+
+@dataclass
+class _Init:
+    rotations: FloatArray
+    positions: FloatArray
+    frames: np.ndarray
+    windows: list[Window]
+    failures: list[str]
+    members: np.ndarray
+    vpv: FloatArray
+
+
+def _check_counts(tracks: LineTracks, members: np.ndarray) -> None:
+    n_par = int(members.sum())
+    n_other = tracks.num_tracks - n_par
+    if n_par < 3:
+        raise OmniSfmError(f"found {n_par} parallel lines; need at least 3 lines of one "
+                           f"parallel family")
+    if n_other < 3:
+        raise OmniSfmError(f"found {n_par} parallel lines but only {n_other} other lines; need "
+                           f"at least 3 lines not parallel to the family")
+
+
+def _initialise(tracks: LineTracks, options: EstimationOptions,
+                timings: dict[str, float]) -> _Init:
+    """Family, windows, the paper's method per window, chaining (world/scale of the chain)."""
+    t0 = time.perf_counter()
+    family = detect_parallel_family(tracks, options.vanishing)
+    timings["parallel_lines"] += (time.perf_counter() - t0) * 1e3
+    members = np.asarray(family.members, bool)
+    _check_counts(tracks, members)
+    F, M = tracks.num_frames, tracks.num_tracks
+    frame_ok: np.ndarray = np.asarray(np.isfinite(family.vpv).all(1))
+    vis = tracks.visibility()
+    full = vis[:, frame_ok].all(1) if frame_ok.any() else np.zeros(M, bool)
+    if frame_ok.all() and (full & members).sum() >= options.windows.min_parallel and \
+            (full & ~members).sum() >= options.windows.min_other:
+        windows = [Window(0, F, np.flatnonzero(full))]
+    else:
+        windows = plan_windows(tracks, members, frame_ok, options.windows)
+    solutions: list[tuple[FloatArray, FloatArray] | None] = []
+    failures: list[str] = []
+    for w in windows:
+        try:
+            sol = estimate_paper(window_tracks(tracks, w), window_family(family, w),
+                                 options.paper)
+        except OmniSfmError as exc:
+            failures.append(f"frames {w.start}-{w.stop - 1}: {exc}")
+            solutions.append(None)
+            continue
+        for k, v in sol.timings_ms.items():
+            timings[k] += float(v)
+        solutions.append((np.asarray(sol.rotations), np.asarray(sol.positions)))
+    t0 = time.perf_counter()
+    # a few iterations suffice to stop errors from accumulating along the chain
+    local_opts = replace(options.bundle, reject_outliers=False, max_rounds=1,
+                         max_iterations=options.local_iterations,
+                         final_loss=None)
+
+    def refine(R: FloatArray, c: FloatArray, local: np.ndarray,
+               old: np.ndarray) -> tuple[FloatArray, FloatArray, np.ndarray]:
+        try:
+            res = bundle_adjust(tracks, R, c, np.full((M, 3), np.nan), np.full((M, 3), np.nan),
+                                frames=local, scale_frames=old, options=local_opts)
+        except OmniSfmError:
+            return R, c, local
+        return res.rotations, res.positions, res.frames
+
+    R, c, done, chained = chain_windows(F, windows, solutions,
+                                        refine if len(windows) > 1 else None)
+    timings["chaining"] += (time.perf_counter() - t0) * 1e3
+    if done.sum() < 3:
+        why = "; ".join(failures[:3]) if failures else \
+            "no stretch of 3 or more frames sees 3 parallel and 3 other lines in every frame"
+        raise OmniSfmError(f"cannot estimate any frame: {why}")
+    return _Init(R, c, done, [windows[i] for i in chained], failures, members,
+                 np.asarray(family.vpv))
+
+
+def _normalise(R: FloatArray, c: FloatArray, frames: np.ndarray, d: FloatArray,
+               p: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Apply the scale convention: world = first estimated camera, first-to-last distance 1."""
+    idx = np.flatnonzero(frames)
+    R0, c0 = R[idx[0]], c[idx[0]]
+    s = float(np.linalg.norm(c[idx[-1]] - c0))
+    if not s > 0:
+        raise OmniSfmError("the first and last estimated cameras coincide: the scale convention "
+                           "(first-to-last distance = 1) is undefined")
+    R_n = np.einsum("ji,fjk->fik", R0, R)
+    c_n = (c - c0) @ R0 / s
+    d_n = d @ R0
+    p_n = (p - c0) @ R0 / s
+    p_n = p_n - np.sum(p_n * d_n, 1, keepdims=True) * d_n
+    return R_n, c_n, d_n, p_n
+
+
+def _refine(tracks: LineTracks, init: _Init, options: EstimationOptions,
+            timings: dict[str, float]) -> BundleResult:
+    t0 = time.perf_counter()
+    d, p, _ = triangulate_lines(tracks, init.rotations, init.positions, init.frames)
+    res = bundle_adjust(tracks, init.rotations, init.positions, d, p, frames=init.frames,
+                        options=options.bundle)
+    timings["refinement"] += (time.perf_counter() - t0) * 1e3
+    return res
+
+
+def estimate_poses(tracks: LineTracks,
+                   options: EstimationOptions = EstimationOptions()) -> EstimationResult:
+    """Poses of all estimable frames from tracked line normals (see the module docstring).
+
+    Raises:
+        OmniSfmError: fewer than 3 frames, fewer than 3 parallel or 3 other lines, degenerate
+            motion, or no stretch of frames that the paper's method can solve.
+    """
+    t_all = time.perf_counter()
+    F, M = tracks.num_frames, tracks.num_tracks
+    if F < 3:
+        raise OmniSfmError(f"tracks have {F} frames; need at least 3")
+    if M < 6:
+        raise OmniSfmError(f"tracks have {M} lines; need at least 6 (3 parallel and 3 others)")
+    timings: dict[str, float] = defaultdict(float)
+    init = _initialise(tracks, options, timings)
+    outliers = np.zeros(M, bool)
+    if options.refine:
+        ba = _refine(tracks, init, options, timings)
+        if options.restart_without_outliers and ba.outlier_tracks.any():
+            keep = ~ba.outlier_tracks
+            try:
+                sub = tracks.select_tracks(keep)
+                init2 = _initialise(sub, options, timings)
+                ba2 = _refine(sub, init2, options, timings)
+            except OmniSfmError:
+                ba2 = None
+            if ba2 is not None and ba2.frames.sum() >= ba.frames.sum() and \
+                    ba2.rms_final_deg <= ba.rms_final_deg:
+                idx = np.flatnonzero(keep)
+                members2 = np.zeros(M, bool)
+                members2[idx] = init2.members
+                init = _Init(init2.rotations, init2.positions, init2.frames, init2.windows,
+                             init2.failures, members2, init2.vpv)
+                ba = _expand(ba2, idx, M, ba.outlier_tracks)
+        R, c, frames = ba.rotations, ba.positions, ba.frames
+        d, p, used, outliers = ba.line_directions, ba.line_points, ba.used_tracks, \
+            ba.outlier_tracks
+        rms0, rms1, sigma = ba.rms_initial_deg, ba.rms_final_deg, ba.sigma_deg
+    else:
+        R, c, frames = init.rotations, init.positions, init.frames
+        d, p, used = triangulate_lines(tracks, R, c, frames, min_observations=3)
+        ang = observation_residuals(tracks, R, c, d, p)
+        ok = np.isfinite(ang)
+        rms0 = rms1 = float(np.degrees(np.sqrt(np.mean(ang[ok] ** 2)))) if ok.any() else np.nan
+        sigma = float(np.degrees(np.median(ang[ok]) / np.sqrt(2 * np.log(2)))) if ok.any() \
+            else np.nan
+    R_n, c_n, d_n, p_n = _normalise(R, c, frames, d, p)
+    R_i, c_i, _, _ = _normalise(init.rotations, init.positions, frames, d, p)
+    idx = np.flatnonzero(frames)
+    ts = tracks.timestamps
+    traj = Trajectory(ts[idx].copy(), R_n[idx], c_n[idx])
+    traj0 = Trajectory(ts[idx].copy(), R_i[idx], c_i[idx])
+    members = init.members
+    # the family's direction in the world: mean of its refined lines, else the first frame's VPV
+    pd = d_n[members & used]
+    if len(pd):
+        pd = pd * np.sign(pd @ pd[0])[:, None]
+        direction = pd.mean(0) / np.linalg.norm(pd.mean(0))
+    else:
+        v0 = init.vpv[idx[0]]
+        direction = R_n[idx[0]] @ v0
+    timings["total"] = (time.perf_counter() - t_all) * 1e3
+    windows = [(w.start, w.stop) for w in init.windows]
+    report = _report(tracks, frames, members, direction, outliers, used, windows,
+                     init.failures, dict(timings), rms0, rms1, sigma)
+    return EstimationResult(traj, frames, traj0, tracks.track_ids.copy(), members, direction,
+                            outliers, used, d_n, p_n, windows, dict(timings), rms0, rms1,
+                            sigma, SCALE_CONVENTION, report)
+
+
+def _expand(ba: BundleResult, idx: np.ndarray, M: int, first_outliers: np.ndarray) -> BundleResult:
+    """A BundleResult on the tracks ``idx`` of M, expanded back to all M tracks."""
+    def grow(a: np.ndarray, fill: Any) -> np.ndarray:
+        out = np.full((M, *a.shape[1:]), fill, dtype=a.dtype)
+        out[idx] = a
+        return out
+
+    outl = grow(ba.outlier_tracks, False) | first_outliers
+    return BundleResult(ba.rotations, ba.positions, grow(ba.line_directions, np.nan),
+                        grow(ba.line_points, np.nan), ba.frames, grow(ba.used_tracks, False),
+                        outl, ba.sigma_deg, grow(ba.track_rms_deg, np.nan), ba.rms_initial_deg,
+                        ba.rms_final_deg, ba.iterations, ba.time_ms, ba.history)
+
+
+def _report(tracks: LineTracks, frames: np.ndarray, members: np.ndarray, direction: FloatArray,
+            outliers: np.ndarray, used: np.ndarray, windows: list[tuple[int, int]],
+            failures: list[str], timings: dict[str, float], rms0: float, rms1: float,
+            sigma: float) -> dict[str, Any]:
+    ids = tracks.track_ids
+    return {
+        "omni_sfm_version": __version__,
+        "initializer": "lines",
+        "num_frames": tracks.num_frames,
+        "num_frames_estimated": int(frames.sum()),
+        "frames_not_estimated": np.flatnonzero(~frames).tolist(),
+        "num_tracks": tracks.num_tracks,
+        "num_observations": tracks.num_observations,
+        "num_tracks_used": int(used.sum()),
+        "parallel_family": {
+            "track_ids": ids[members].tolist(),
+            "direction": [float(x) for x in direction],
+        },
+        "rejected_tracks": ids[outliers].tolist(),
+        "unused_tracks": ids[~used & ~outliers].tolist(),
+        "windows": [[int(a), int(b) - 1] for a, b in windows],
+        "window_failures": failures,
+        "world": "camera of the first estimated frame (world_from_cam, TUM)",
+        "scale_convention": SCALE_CONVENTION,
+        "reflection_ambiguity": REFLECTION_NOTE,
+        "timings_ms": {k: round(float(v), 3) for k, v in timings.items()},
+        "residuals": {
+            "rms_initial_deg": float(rms0),
+            "rms_final_deg": float(rms1),
+            "noise_sigma_deg": float(sigma),
+        },
+    }
+
+
+def write_init_outputs(directory: Path, result: EstimationResult,
+                       extra: dict[str, Any] | None = None) -> list[Path]:
+    """Write ``trajectory.tum`` and ``report.json`` of ``result`` into ``directory``.
+
+    ``extra`` entries (e.g. the input files) are added to the report. Use inside
+    :func:`omni_sfm.fileio.atomic_output_dir` so that the folder appears complete or not at all.
+    """
+    directory = Path(directory)
+    write_tum(directory / "trajectory.tum", result.trajectory)
+    report = dict(result.report)
+    if extra:
+        report.update(extra)
+    atomic_write_text(directory / "report.json", dumps_json(report))
+    return [directory / "trajectory.tum", directory / "report.json"]
+
+
+def reflect_positions(traj: Trajectory) -> Trajectory:
+    """The point reflection of the camera centres through the first camera (rotations kept).
+
+    Line normals have no sign, so reflecting every camera centre and every line through the
+    first camera leaves all observations unchanged: from NVs alone, the estimate is determined
+    only up to this reflection (and a similarity). Compare with ground truth on the branch that
+    matches it (:func:`match_reflection`).
+    """
+    return Trajectory(traj.timestamps.copy(), traj.rotations.copy(),
+                      2.0 * traj.positions[:1] - traj.positions)
+
+
+def match_reflection(est: Trajectory, gt: Trajectory) -> Trajectory:
+    """``est`` or its reflection (:func:`reflect_positions`), whichever is nearer ``gt``.
+
+    Nearer: smaller mean translation error as the paper defines it. For evaluation only: the
+    data cannot tell the two apart.
+    """
+    from omni_sfm.evaluate import trajectory_errors
+
+    ref = reflect_positions(est)
+    e0 = float(trajectory_errors(est, gt).paper_trans.mean())
+    e1 = float(trajectory_errors(ref, gt).paper_trans.mean())
+    return ref if e1 < e0 else est
