@@ -119,3 +119,23 @@ def test_atomic_output_dir_leaves_nothing_on_failure(tmp_path):
         (d / "partial.txt").write_text("half")
         raise RuntimeError("boom")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_tracks_rays_round_trip_and_checks(tmp_path):
+    from omni_sfm.lines.tracks import make_tracks
+
+    n = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]])
+    r = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 1.0, 0.0]])
+    tr = make_tracks(3, np.array([7]), np.zeros(3, int), np.array([2, 0, 1]), n, obs_ray=r)
+    np.testing.assert_allclose(tr.obs_ray, r[[1, 2, 0]])  # sorted with the normals
+    write_tracks(tmp_path / "t.json", tr)
+    back = read_tracks(tmp_path / "t.json")
+    np.testing.assert_allclose(back.obs_ray, tr.obs_ray)
+    np.testing.assert_allclose(back.select_tracks(np.array([0])).obs_ray, tr.obs_ray)
+    with pytest.raises(OmniSfmError, match="does not lie in its line's plane"):
+        make_tracks(3, np.array([7]), np.zeros(3, int), np.arange(3), n, obs_ray=n)
+    data = json.loads((tmp_path / "t.json").read_text())
+    data["tracks"].append({"id": 8, "frames": [0], "normals": [[0.0, 0.0, 1.0]]})
+    (tmp_path / "mixed.json").write_text(json.dumps(data))
+    with pytest.raises(OmniSfmError, match="all tracks or for none"):
+        read_tracks(tmp_path / "mixed.json")

@@ -4,10 +4,17 @@
 
     {"num_frames": 200,
      "timestamps": [0, 1, ...],          # optional, one per frame (default: frame index)
-     "tracks": [{"id": 0, "frames": [0, 1, 2, 5], "normals": [[nx, ny, nz], ...]}, ...]}
+     "tracks": [{"id": 0, "frames": [0, 1, 2, 5], "normals": [[nx, ny, nz], ...],
+                 "rays": [[rx, ry, rz], ...]},     # optional, see below
+                ...]}
 
 ``normals[j]`` is the unit normal of the plane through the viewpoint and the 3D line, in the
 camera frame of frame ``frames[j]``; its sign is arbitrary. Extra keys are ignored.
+
+``rays[j]`` (optional, all tracks or none) is a unit ray from the viewpoint towards a point of
+the observed segment (e.g. its middle), in the same camera frame. Normals alone determine the
+camera centres only up to a point reflection through the first camera (a plane's normal has no
+side); the rays tell on which side each line is seen, which fixes that sign.
 """
 
 from __future__ import annotations
@@ -36,6 +43,8 @@ class LineTracks:
         obs_frame: ``(K,)`` int in ``[0, F)``, frame of each observation.
         obs_normal: ``(K, 3)`` unit normals in that frame's camera frame (sign arbitrary).
         timestamps: ``(F,)`` time of each frame (frame index or seconds).
+        obs_ray: ``(K, 3)`` unit ray towards a point of each observed segment (camera frame),
+            or None when only normals are known (then the solution has a reflection ambiguity).
 
     Observations are sorted by (track, frame); a track sees a frame at most once.
     """
@@ -46,6 +55,7 @@ class LineTracks:
     obs_frame: IntArray
     obs_normal: FloatArray
     timestamps: FloatArray
+    obs_ray: FloatArray | None = None
 
     @property
     def num_tracks(self) -> int:
@@ -74,22 +84,26 @@ class LineTracks:
         remap[idx] = np.arange(len(idx))
         sel = remap[self.obs_track] >= 0
         return LineTracks(self.num_frames, self.track_ids[idx], remap[self.obs_track[sel]],
-                          self.obs_frame[sel], self.obs_normal[sel], self.timestamps)
+                          self.obs_frame[sel], self.obs_normal[sel], self.timestamps,
+                          None if self.obs_ray is None else self.obs_ray[sel])
 
     def to_json_dict(self) -> dict[str, Any]:
         tracks = []
         for m in range(self.num_tracks):
             sel = self.obs_track == m
-            tracks.append({"id": int(self.track_ids[m]),
-                           "frames": self.obs_frame[sel].tolist(),
-                           "normals": np.round(self.obs_normal[sel], 15).tolist()})
+            entry = {"id": int(self.track_ids[m]),
+                     "frames": self.obs_frame[sel].tolist(),
+                     "normals": np.round(self.obs_normal[sel], 15).tolist()}
+            if self.obs_ray is not None:
+                entry["rays"] = np.round(self.obs_ray[sel], 15).tolist()
+            tracks.append(entry)
         return {"num_frames": self.num_frames, "timestamps": self.timestamps.tolist(),
                 "tracks": tracks}
 
 
 def make_tracks(num_frames: int, track_ids: IntArray, obs_track: IntArray, obs_frame: IntArray,
                 obs_normal: FloatArray, timestamps: FloatArray | None = None,
-                source: str = "tracks") -> LineTracks:
+                source: str = "tracks", obs_ray: FloatArray | None = None) -> LineTracks:
     """Validate and sort observations into a :class:`LineTracks` (errors name ``source``)."""
     if isinstance(num_frames, bool) or not isinstance(num_frames, int | np.integer) \
             or num_frames < 1:
@@ -108,8 +122,22 @@ def make_tracks(num_frames: int, track_ids: IntArray, obs_track: IntArray, obs_f
     if out.size:
         raise OmniSfmError(f"{source}: frame index {int(f[out[0]])} of track "
                            f"{int(track_ids[t[out[0]]])} is outside [0, {num_frames})")
+    rays = None
+    if obs_ray is not None:
+        rays = np.asarray(obs_ray, dtype=np.float64).reshape(-1, 3)
+        if rays.shape != n.shape:
+            raise OmniSfmError(f"{source}: need one ray per normal, got {rays.shape[0]} rays "
+                               f"for {n.shape[0]} normals")
+        rn = np.linalg.norm(rays, axis=1)
+        if not np.isfinite(rays).all() or np.any(np.abs(rn - 1.0) > 1e-3):
+            raise OmniSfmError(f"{source}: rays must be finite unit vectors")
+        if np.any(np.abs(np.sum(rays * n, axis=1)) / norms > 0.05):
+            raise OmniSfmError(f"{source}: a ray does not lie in its line's plane "
+                               "(|ray . normal| > 0.05)")
     order = np.lexsort((f, t))
     t, f, n = t[order], f[order], n[order] / norms[order, None]
+    if rays is not None:
+        rays = rays[order] / np.linalg.norm(rays[order], axis=1, keepdims=True)
     dup = np.flatnonzero((np.diff(t) == 0) & (np.diff(f) == 0))
     if dup.size:
         raise OmniSfmError(f"{source}: track {int(track_ids[t[dup[0]]])} lists frame "
@@ -118,7 +146,7 @@ def make_tracks(num_frames: int, track_ids: IntArray, obs_track: IntArray, obs_f
         np.asarray(timestamps, dtype=np.float64)
     if ts.shape != (num_frames,) or not np.isfinite(ts).all():
         raise OmniSfmError(f"{source}: 'timestamps' must be {num_frames} finite numbers")
-    return LineTracks(int(num_frames), np.asarray(track_ids, dtype=np.int64), t, f, n, ts)
+    return LineTracks(int(num_frames), np.asarray(track_ids, dtype=np.int64), t, f, n, ts, rays)
 
 
 def read_tracks(path: Path | str) -> LineTracks:
@@ -130,7 +158,7 @@ def read_tracks(path: Path | str) -> LineTracks:
     tracks = data["tracks"]
     if not isinstance(tracks, list):
         raise OmniSfmError(f"{path}: 'tracks' must be a list")
-    ids, ot, of, on = [], [], [], []
+    ids, ot, of, on, orays = [], [], [], [], []
     for k, tr in enumerate(tracks):
         if not isinstance(tr, dict) or not {"frames", "normals"} <= tr.keys():
             raise OmniSfmError(f"{path}: track #{k} needs keys 'frames' and 'normals'")
@@ -148,6 +176,15 @@ def read_tracks(path: Path | str) -> LineTracks:
             raise OmniSfmError(f"{path}: track {tid}: frame indices must be integers")
         if not isinstance(tid, int) or isinstance(tid, bool):
             raise OmniSfmError(f"{path}: track #{k}: 'id' must be an integer, got {tid!r}")
+        if "rays" in tr:
+            try:
+                rv = np.asarray(tr["rays"], dtype=np.float64)
+            except (TypeError, ValueError):
+                raise OmniSfmError(f"{path}: track {tid}: 'rays' must be numbers") from None
+            if rv.shape != nv.shape:
+                raise OmniSfmError(f"{path}: track {tid}: needs one ray per normal, got rays "
+                                   f"of shape {rv.shape}")
+            orays.append(rv)
         ids.append(tid)
         ot.append(np.full(fr.shape[0], k))
         of.append(fr.astype(np.int64))
@@ -156,9 +193,12 @@ def read_tracks(path: Path | str) -> LineTracks:
         raise OmniSfmError(f"{path}: track ids must be unique")
     if not ids:
         raise OmniSfmError(f"{path}: no tracks")
+    if orays and len(orays) != len(ids):
+        raise OmniSfmError(f"{path}: 'rays' must be given for all tracks or for none")
     return make_tracks(data["num_frames"], np.asarray(ids), np.concatenate(ot),
                        np.concatenate(of), np.concatenate(on, axis=0).reshape(-1, 3),
-                       data.get("timestamps"), source=str(path))
+                       data.get("timestamps"), source=str(path),
+                       obs_ray=np.concatenate(orays, axis=0) if orays else None)
 
 
 def write_tracks(path: Path | str, tracks: LineTracks) -> None:
