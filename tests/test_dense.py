@@ -108,12 +108,12 @@ def test_dense_room_accuracy_scale_and_files(room: Path, dense_out: Path) -> Non
     pts = sim.apply_points(np.asarray(pcd.points))
     true_mesh = o3d.io.read_triangle_mesh(str(room / "scene.ply"))
     e = evaluate_dense(pts, true_mesh, gt, load_camera(room / "camera.yaml"))
-    # observed: ~200k points, median 1.2-1.6 cm = 0.4-0.5 % of the 3.15 m mean depth,
-    # completeness ~35 %
+    # observed: 174k points, median 1.7 cm = 0.54 % of the 3.15 m mean depth, 86 % of the
+    # points within 2 % of it, completeness 58 %
     assert e.num_points >= 50_000
     assert e.relative_median <= 0.02, e
-    assert e.inlier_share >= 0.8, e
-    assert e.completeness >= 0.2, e
+    assert e.inlier_share >= 0.75, e
+    assert e.completeness >= 0.4, e
     # the mesh lies on the true surface too
     verts = sim.apply_points(np.asarray(mesh.vertices))
     assert evaluate_dense(verts, true_mesh, gt, load_camera(room / "camera.yaml"),
@@ -144,9 +144,12 @@ def test_camera_height_finds_the_floor(room: Path, dense_out: Path) -> None:
     true_height = float(np.median(heights[:, 2]))
     traj = read_tum(dense_out / "trajectory.tum")
     pts = np.asarray(o3d.io.read_point_cloud(str(dense_out / "dense.ply")).points)
-    scale, info = _floor_scale(pts, traj, np.array([0.0, 0.0, 1.0]), true_height, 0.02)
-    assert scale == pytest.approx(1.0, abs=0.02)
+    voxel = json.loads((dense_out / "report.json").read_text())["voxel_size"]
+    scale, info = _floor_scale(pts, traj, np.array([0.0, 0.0, 1.0]), true_height, voxel)
+    assert scale == pytest.approx(1.0, abs=0.01)       # observed within 0.1 %
+    # the floor's normal against the cameras' mean mirror axis (the mount tilts ~1.6 deg here)
     assert info["floor_tilt_deg"] < 3.0
+    assert info["floor_points"] > 5000
 
 
 def _err(capsys: pytest.CaptureFixture[str]) -> str:

@@ -68,9 +68,9 @@ class DenseOptions:
     """Closest depth measured, as a fraction of the median depth (sets SGBM's disparity range)."""
     resolution_scale: float = 1.0
     """Virtual view pixels per camera pixel (angle); < 1 is faster and coarser."""
-    fov_along_deg: float = 110.0
+    fov_along_deg: float = 130.0
     """Field of view of each virtual view along the baseline, deg (90 across it)."""
-    voxel_pixels: float = 1.0
+    voxel_pixels: float = 2.0
     """TSDF voxel size in pixel footprints at the median depth."""
     min_weight: float = 3.0
     """TSDF weight (number of depth observations) a surface point needs to be output."""
@@ -359,34 +359,37 @@ def _sources(traj: Trajectory, k: int, baseline: float) -> list[tuple[int, float
 
 
 def _floor_scale(points: FloatArray, traj: Trajectory, up_in_camera: FloatArray, height: float,
-                 bin_size: float) -> tuple[float, dict[str, Any]]:
-    """Scale from the camera height: the floor is the most populated horizontal slab of dense
-    points below the cameras (up = the cameras' mean up axis), refined by a plane fit."""
+                 tolerance: float) -> tuple[float, dict[str, Any]]:
+    """Scale from the camera height: the floor is the largest plane (RANSAC, inliers within
+    ``tolerance``) among the dense points below the cameras whose normal is within 20 deg of the
+    cameras' mean up axis; a least-squares fit to its inliers gives the camera height."""
+    o3d = open3d_module()
     up = normalize((traj.rotations @ up_in_camera).mean(axis=0))
-    c0 = traj.positions.mean(axis=0)
-    h = (points - c0) @ up
-    below = h < -2 * bin_size
-    if below.sum() < 100:
-        raise OmniSfmError("--camera-height: too few dense points below the cameras to find "
-                           "the floor")
-    hb = h[below]
-    edges = np.arange(hb.min(), 0.0 + bin_size, bin_size)
-    if edges.size < 2:
-        raise OmniSfmError("--camera-height: no floor below the cameras in the dense points")
-    counts, edges = np.histogram(hb, bins=edges)
-    i = int(np.argmax(counts))
-    lo, hi = edges[max(i - 1, 0)], edges[min(i + 2, len(edges) - 1)]
-    slab = points[below][(hb >= lo) & (hb <= hi)]
-    centre = slab.mean(axis=0)
-    normal = np.linalg.svd(slab - centre, full_matrices=False)[2][2]
+    h = (points - traj.positions.mean(axis=0)) @ up
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points[h < -2 * tolerance]))
+    o3d.utility.random.seed(0)
+    floor = None
+    for _ in range(8):
+        if len(pcd.points) < 100:
+            break
+        plane, inliers = pcd.segment_plane(distance_threshold=tolerance, ransac_n=3,
+                                           num_iterations=1000)
+        if abs(np.asarray(plane[:3]) @ up) > math.cos(math.radians(20.0)):
+            floor = np.asarray(pcd.points)[inliers]
+            break
+        pcd = pcd.select_by_index(inliers, invert=True)
+    if floor is None or len(floor) < 100:
+        raise OmniSfmError("--camera-height: no floor (a horizontal plane below the cameras) "
+                           "in the dense points")
+    centre = floor.mean(axis=0)
+    normal = np.linalg.svd(floor - centre, full_matrices=False)[2][2]
     if normal @ up < 0:
         normal = -normal
     tilt = float(np.degrees(np.arccos(np.clip(normal @ up, -1, 1))))
-    heights = (traj.positions - centre) @ normal
-    h_cam = float(np.median(heights))
+    h_cam = float(np.median((traj.positions - centre) @ normal))
     if not h_cam > 0:
         raise OmniSfmError("--camera-height: the floor found is not below the cameras")
-    return height / h_cam, {"floor_points": int(slab.shape[0]), "floor_tilt_deg": tilt,
+    return height / h_cam, {"floor_points": int(len(floor)), "floor_tilt_deg": tilt,
                             "camera_height_pose_units": h_cam}
 
 
@@ -459,8 +462,7 @@ def dense_map(inp: DenseInput, opts: DenseOptions | None = None, *,
         up_cam = np.asarray(opts.up_in_camera if opts.up_in_camera is not None else
                             ((0.0, 0.0, 1.0) if cam.model == "hyperboloid" else (0.0, -1.0, 0.0)),
                             dtype=np.float64)
-        scale, info = _floor_scale(points, traj, normalize(up_cam), opts.camera_height,
-                                   2 * voxel)
+        scale, info = _floor_scale(points, traj, normalize(up_cam), opts.camera_height, voxel)
         scale_info = {"source": "camera_height", "unit": "unit of --camera-height",
                       "camera_height": opts.camera_height, **info}
     scale_info["factor"] = scale

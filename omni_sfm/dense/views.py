@@ -65,7 +65,7 @@ class ViewGeometry:
 
 
 def view_geometry(camera: CameraModel, *, resolution_scale: float = 1.0,
-                  fov_along_deg: float = 110.0) -> ViewGeometry:
+                  fov_along_deg: float = 130.0) -> ViewGeometry:
     """Views whose pixels subtend about the camera's own angle (times ``1/resolution_scale``).
 
     Each view covers 90 deg across the baseline (four views close the circle) and
