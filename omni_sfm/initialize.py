@@ -1,0 +1,188 @@
+"""``omni-sfm init --lines`` on images or video: frames -> line tracks -> poses -> artifacts.
+
+This module only wires the stages together (cameras -> lines -> vanishing/estimate -> export);
+the work is in those stages. Output folder (documented in docs/formats.md and docs/colmap.md),
+complete or absent:
+
+- ``trajectory.tum``: world_from_cam of every estimated frame (timestamps: frame index for
+  image folders, seconds for video);
+- ``tracks.json``: the line tracks (with a ray per observation), so the estimator can be re-run
+  alone with ``omni-sfm init --lines --tracks``;
+- ``report.json``: counts, parallel family, per-stage timings, rejected lines, frames not
+  estimated, the front end's per-frame figures;
+- ``sparse/``, ``camera.yaml``, ``camera_mask.png``, ``colmap.json``, ``images_colmap/``: the
+  COLMAP model seeded with the poses (see docs/colmap.md);
+- ``debug/``: the frames with tracked lines coloured by parallel group (PNGs, or
+  ``debug.mp4``), and ``trajectory.png``: a plot of the estimated trajectory.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from omni_sfm.cameras import CameraModel, load_camera
+from omni_sfm.errors import OmniSfmError
+from omni_sfm.estimate.pipeline import EstimationOptions, EstimationResult, estimate_poses
+from omni_sfm.fileio import atomic_output_dir
+from omni_sfm.geometry import normalize
+from omni_sfm.lines.frontend import FrontEndOptions, FrontEndResult, track_lines
+from omni_sfm.lines.tracks import LineTracks
+from omni_sfm.lines.video import FrameSource, read_frames, read_mask
+from omni_sfm.poses import Trajectory
+
+
+@dataclass(frozen=True, kw_only=True)
+class InitOptions:
+    """Options of :func:`init_from_images`."""
+
+    frontend: FrontEndOptions = field(default_factory=FrontEndOptions)
+    """Line extraction and tracking."""
+    estimation: EstimationOptions = field(default_factory=EstimationOptions)
+    """Parallel family, the paper's searches and the line bundle adjustment."""
+    start: int = 0
+    """First frame (index into the sorted images or the video)."""
+    end: int | None = None
+    """Stop before this frame; None: to the end."""
+    step: int = 1
+    """Use every ``step``-th frame."""
+    debug_view: str = "png"
+    """Debug view of tracked lines: ``png`` (folder ``debug/``), ``mp4`` or ``none``."""
+    colmap: bool = True
+    """Write the COLMAP model seeded with the poses (``sparse/``, ``images_colmap/``)."""
+    colmap_text: bool = False
+    """Also write the COLMAP model as text."""
+    progress: bool = True
+    """Progress bars on stderr."""
+
+
+@dataclass(frozen=True)
+class InitResult:
+    """What :func:`init_from_images` computed and where it wrote it."""
+
+    output: Path
+    camera: CameraModel
+    frontend: FrontEndResult
+    estimation: EstimationResult
+    image_names: tuple[str, ...]
+
+
+def tracks_with_side_rays(fe: FrontEndResult) -> LineTracks:
+    """The front end's tracks with a ray towards the middle of every observed segment.
+
+    The middle ray of the arc between the segment's end rays, projected into the line's plane;
+    it tells on which side of the viewpoint each line lies (see docs/formats.md).
+    """
+    tr = fe.tracks
+    mid = fe.obs_endpoint_rays[:, 0] + fe.obs_endpoint_rays[:, 1]
+    mid -= np.sum(mid * tr.obs_normal, axis=1, keepdims=True) * tr.obs_normal
+    return replace(tr, obs_ray=normalize(mid))
+
+
+def _image_names(source: FrameSource, numbers: np.ndarray) -> list[str]:
+    files = getattr(source, "files", None)
+    if files:
+        return [Path(files[int(n)]).name for n in numbers]
+    return [f"{int(n):06d}.png" for n in numbers]
+
+
+def _frames_of(source: FrameSource, numbers: set[int]) -> Iterator[tuple[int, float, np.ndarray]]:
+    for number, stamp, image in source:
+        if int(number) in numbers:
+            yield int(number), float(stamp), image
+
+
+def plot_trajectory(path: Path, traj: Trajectory, gt: Trajectory | None = None,
+                    title: str = "omni-sfm trajectory") -> None:
+    """PNG: top view and side view of the camera centres (and ground truth, if given)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4.5))
+    p = traj.positions
+    for ax, (i, j), name in zip(axes, [(0, 2), (0, 1)], ["x-z", "x-y"], strict=True):
+        if gt is not None:
+            ax.plot(gt.positions[:, i], gt.positions[:, j], "k--", lw=1, label="ground truth")
+        ax.plot(p[:, i], p[:, j], "-", color="tab:blue", lw=1.5, label="estimated")
+        ax.plot(p[:1, i], p[:1, j], "o", color="tab:green", label="first frame")
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.set_xlabel("xyz"[i])
+        ax.set_ylabel("xyz"[j])
+        ax.set_title(f"{name} plane (world = first camera)")
+        ax.grid(alpha=0.3)
+    axes[0].legend(loc="best", fontsize=8)
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def init_from_images(images: Path | str, camera: Path | str | CameraModel, output: Path | str,
+                     options: InitOptions | None = None, *, mask: Path | str | None = None,
+                     overwrite: bool = False) -> InitResult:
+    """Estimate the camera motion of an image folder or video from its straight lines.
+
+    Raises:
+        OmniSfmError: unreadable input, a camera that does not load or does not match the
+            images, too few lines or no parallel family, degenerate motion.
+    """
+    from omni_sfm.estimate.pipeline import write_init_outputs
+    from omni_sfm.export.colmap import write_init_model
+    from omni_sfm.fileio import check_output_dir
+    from omni_sfm.lines.debug import write_debug_view
+    from omni_sfm.lines.tracks import write_tracks
+
+    o = options or InitOptions()
+    if o.debug_view not in ("png", "mp4", "none"):
+        raise OmniSfmError(f"debug view must be png, mp4 or none, got {o.debug_view!r}")
+    output = Path(output)
+    check_output_dir(output, overwrite=overwrite)
+    cam = camera if isinstance(camera, CameraModel) else load_camera(camera)
+    size = (cam.width, cam.height)
+    user_mask = read_mask(mask, size) if mask is not None else None
+    source = read_frames(images, o.start, o.end, o.step, size=size)
+    fe_opts = replace(o.frontend, progress=o.progress and o.frontend.progress)
+    t0 = time.perf_counter()
+    fe = track_lines(source, cam, fe_opts, user_mask)
+    t1 = time.perf_counter()
+    tracks = tracks_with_side_rays(fe)
+    result = estimate_poses(tracks, o.estimation)
+    t2 = time.perf_counter()
+
+    est_frames = np.flatnonzero(result.estimated)
+    names = _image_names(source, fe.frame_numbers)
+    est_names = [names[f] for f in est_frames]
+    est_numbers = {int(fe.frame_numbers[f]) for f in est_frames}
+    skipped_not_estimated = [names[f] for f in np.flatnonzero(~result.estimated)]
+    with atomic_output_dir(output, overwrite=overwrite) as tmp:
+        extra: dict[str, Any] = {
+            "input": {"images": str(images), "camera": str(camera) if not isinstance(
+                camera, CameraModel) else camera.model, "mask": None if mask is None else
+                str(mask), "start": o.start, "end": o.end, "step": o.step,
+                "timestamps": "seconds" if source.is_video else "frame index"},
+            "front_end": fe.summary(),
+            "front_end_per_frame": fe.per_frame(),
+            "frames_not_estimated_names": skipped_not_estimated,
+            "wall_time_s": {"front_end": t1 - t0, "estimation": t2 - t1},
+        }
+        write_init_outputs(tmp, result, extra=extra)
+        write_tracks(tmp / "tracks.json", tracks)
+        plot_trajectory(tmp / "trajectory.png", result.trajectory)
+        # colour 0: the parallel family, 1: other lines, grey (-1): rejected as outliers
+        groups = np.where(result.outliers, -1, np.where(result.parallel, 0, 1))
+        if o.debug_view != "none":
+            target = tmp / ("debug.mp4" if o.debug_view == "mp4" else "debug")
+            write_debug_view(read_frames(images, o.start, o.end, o.step, size=size), cam, fe,
+                             target, groups=groups)
+        if o.colmap:
+            imgs = (img for _, _, img in _frames_of(
+                read_frames(images, o.start, o.end, o.step, size=size), est_numbers))
+            write_init_model(tmp, cam, result.trajectory, est_names, imgs, text=o.colmap_text)
+    return InitResult(output, cam, fe, result, tuple(est_names))
