@@ -1,12 +1,13 @@
 """Benchmark of ``omni-sfm dense`` on the rendered textured room (docs/dense.md, "Speed").
 
-Renders the room (hyperboloid 800 x 600, 100 frames, textured) once into ``--render`` unless it
-exists, writes the true poses at an arbitrary similarity (scale 0.37, rotated, shifted: what
-line-based poses look like) as a poses folder, runs the dense pipeline with
-``--known-distance`` (the true first-to-last distance) and prints the time per keyframe of depth
-estimation and of fusion (medians), the whole run's wall time, and the accuracy against the
-renderer's mesh after similarity alignment of the trajectory (median distance of the dense
-points to the true surface relative to the mean scene depth, completeness)::
+Renders the room (hyperboloid 800 x 600, 100 frames, textured; ``--scene`` and ``--untextured``
+change that) once into ``--render`` unless it exists, writes the true poses at an arbitrary
+similarity (scale 0.37, rotated, shifted: what line-based poses look like) as a poses folder,
+runs the dense pipeline with ``--known-distance`` (the true first-to-last distance) and prints
+the time per keyframe of depth estimation and of fusion (medians), the whole run's wall and CPU
+time, and the accuracy against the renderer's mesh after similarity alignment of the trajectory
+(median distance of the dense points to the true surface relative to the mean scene depth,
+completeness)::
 
     .venv/bin/python scripts/bench_dense.py --render /tmp/room100 --output /tmp/room100_dense
 """
@@ -14,6 +15,7 @@ points to the true surface relative to the mean scene depth, completeness)::
 from __future__ import annotations
 
 import argparse
+import os
 import shutil
 import time
 from pathlib import Path
@@ -45,11 +47,13 @@ def main() -> None:
     ap.add_argument("--height", type=int, default=600)
     ap.add_argument("--camera", default="hyperboloid")
     ap.add_argument("--keyframe-step", type=int, default=None)
+    ap.add_argument("--scene", default="room", help="room or corridor")
+    ap.add_argument("--untextured", action="store_true", help="render without texture")
     args = ap.parse_args()
     if not (args.render / "groundtruth.tum").is_file():
         t0 = time.perf_counter()
         render_sequence(args.render, RenderOptions(
-            scene="room", camera=args.camera, textured=True, frames=args.frames,
+            scene=args.scene, camera=args.camera, textured=not args.untextured, frames=args.frames,
             width=args.width, height=args.height), progress=True)
         print(f"rendered in {time.perf_counter() - t0:.0f} s")
     gt = read_tum(args.render / "groundtruth.tum")
@@ -59,9 +63,9 @@ def main() -> None:
     shutil.copy(args.render / "camera.yaml", poses / "camera.yaml")
     first_last = float(np.linalg.norm(gt.positions[-1] - gt.positions[0]))
     opts = DenseOptions(known_distance=first_last, keyframe_step=args.keyframe_step)
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     res = run_dense(poses, args.render / "images", args.output, opts, overwrite=True)
-    wall = time.perf_counter() - t0
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     r = res.report
     sec = r["seconds"]
     print(f"frames {len(gt)}, keyframes {r['num_keyframes']} (step {r['keyframe_step']}), "
@@ -71,7 +75,8 @@ def main() -> None:
     print(f"fusion per keyframe (median): {sec['fusion_per_keyframe']:.2f} s "
           f"(total {sec['fusion_total']:.1f} s)")
     print(f"calibration {sec['calibration']:.1f} s, extraction {sec['extraction']:.1f} s, "
-          f"whole run incl. reading and writing {wall:.1f} s")
+          f"whole run incl. reading and writing {wall:.1f} s wall, {cpu:.1f} s CPU "
+          f"(both cores; load average {os.getloadavg()[0]:.1f})")
     print(f"scale factor {res.scale:.4f} (true 1/0.37 = {1 / 0.37:.4f}), median depth "
           f"{res.median_depth:.2f} m, voxel {res.voxel_size * 1000:.1f} mm, depth share "
           f"median {r['depth_share']['median']:.2f} (min {r['depth_share']['min']:.2f})")

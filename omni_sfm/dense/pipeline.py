@@ -28,7 +28,7 @@ import numpy as np
 
 from omni_sfm.cameras import CameraModel, load_camera, write_camera_yaml
 from omni_sfm.dense.fusion import TsdfFusion
-from omni_sfm.dense.stereo import StereoOptions, consistent, rig_depth
+from omni_sfm.dense.stereo import StereoOptions, consistent, depth_along, rig_depth
 from omni_sfm.dense.views import (
     StereoRig,
     ViewGeometry,
@@ -101,18 +101,30 @@ class DenseInput:
 
 @dataclass(frozen=True)
 class KeyframeStats:
-    """What one keyframe gave: sources (frame indices), depth share, timings (s)."""
+    """What one keyframe gave.
+
+    Attributes:
+        frame: keyframe index; ``sources``: the two frames matched; ``baselines``: their
+            distances (pose units).
+        depth_share: share of the frame's valid pixels whose ray has a checked depth in one of
+            the two rigs (nearest view pixel); what the frame contributes to the map.
+        view_pixels, depth_pixels: virtual-view pixels inside the camera's valid region, and
+            those with a checked depth (both rigs).
+        seconds_depth, seconds_fusion: time of depth estimation (views, SGBM, check) and of
+            TSDF integration.
+    """
 
     frame: int
     sources: tuple[int, ...]
     baselines: tuple[float, ...]
+    depth_share: float
     view_pixels: int
     depth_pixels: int
     seconds_depth: float
     seconds_fusion: float
 
     @property
-    def depth_share(self) -> float:
+    def view_share(self) -> float:
         return self.depth_pixels / self.view_pixels if self.view_pixels else 0.0
 
 
@@ -420,6 +432,8 @@ def dense_map(inp: DenseInput, opts: DenseOptions | None = None, *,
     fusion = TsdfFusion(voxel, max_depth=opts.max_depth_ratio * calib.median_depth)
     stats: list[KeyframeStats] = []
     warnings: list[str] = []
+    grid = cam.pixel_grid_rays()[::2, ::2].reshape(-1, 3)   # every 4th pixel: enough for a share
+    frame_rays = grid[np.isfinite(grid[:, 0])]
     for k in tqdm(keyframes, desc="dense", unit="keyframe", disable=not progress, leave=False):
         srcs = _sources(traj, k, calib.baseline)
         if len(srcs) < 2:
@@ -436,8 +450,12 @@ def dense_map(inp: DenseInput, opts: DenseOptions | None = None, *,
             fusion.integrate_rig(pd.rig, d, pd.colors, traj.positions[k])
         t3 = time.perf_counter()
         view_px = int(pa.valid.sum() + pb.valid.sum())
+        rays = traj.rotations[k] @ frame_rays.T
+        has = np.isfinite(depth_along(pa.rig, da, rays.T)[0])
+        has |= np.isfinite(depth_along(pb.rig, db, rays.T)[0])
         stats.append(KeyframeStats(k, tuple(j for j, _ in srcs), tuple(b for _, b in srcs),
-                                   view_px, int(ok_a.sum() + ok_b.sum()), t2 - t1, t3 - t2))
+                                   float(has.mean()), view_px, int(ok_a.sum() + ok_b.sum()),
+                                   t2 - t1, t3 - t2))
     if not stats:
         raise OmniSfmError("no keyframe had two frames with enough baseline for stereo")
     t4 = time.perf_counter()
@@ -472,7 +490,7 @@ def dense_map(inp: DenseInput, opts: DenseOptions | None = None, *,
     shares = np.array([s.depth_share for s in stats])
     poor = [s.frame for s in stats if s.depth_share < 0.05]
     if poor:
-        warnings.append(f"{len(poor)} keyframes got depth on under 5% of their view pixels "
+        warnings.append(f"{len(poor)} keyframes got depth on under 5% of their valid pixels "
                         f"(texture-poor or little parallax): {poor[:10]}")
     report = {
         "scale": scale_info,
@@ -500,16 +518,29 @@ def dense_map(inp: DenseInput, opts: DenseOptions | None = None, *,
         "frames": [{"frame": s.frame, "timestamp": float(traj.timestamps[s.frame]),
                     "image": inp.image_paths[s.frame].name, "sources": list(s.sources),
                     "baselines": [b * scale for b in s.baselines],
+                    "depth_share": s.depth_share, "view_share": s.view_share,
                     "view_pixels": s.view_pixels, "depth_pixels": s.depth_pixels,
-                    "depth_share": s.depth_share, "seconds_depth": s.seconds_depth,
+                    "seconds_depth": s.seconds_depth,
                     "seconds_fusion": s.seconds_fusion} for s in stats],
         "warnings": warnings,
-        "note": "depth_share: share of the keyframe's virtual-view pixels inside the camera's "
-                "valid region whose depth passed SGBM, the texture test and the 3-view check; "
-                "directions within fov_along/2 of the motion are not covered by the views",
+        "backend": {"stereo": "cv2.StereoSGBM (CPU)", "fusion": "open3d VoxelBlockGrid (CPU)",
+                    "pycolmap_cuda": _pycolmap_has_cuda(),
+                    "note": "pycolmap's patch_match_stereo needs CUDA; not used"},
+        "note": "depth_share: share of the keyframe's valid pixels (camera mask) whose ray got "
+                "a depth that passed SGBM, the texture test and the 3-view check; view_share: "
+                "the same over the virtual views' pixels. Directions within (180 - "
+                "fov_along) / 2 deg of the motion are not covered by the views",
     }
     return DenseResult(points, colors, mesh, out_traj, scale, calib.median_depth * scale,
                        voxel * scale, tuple(stats), report)
+
+
+def _pycolmap_has_cuda() -> bool:
+    try:
+        import pycolmap
+    except ImportError:
+        return False
+    return bool(getattr(pycolmap, "has_cuda", False))
 
 
 def scaled_lines(doc: dict[str, Any], scale: float) -> dict[str, Any]:
