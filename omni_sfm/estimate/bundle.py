@@ -79,8 +79,8 @@ class BundleOptions:
     outlier_threshold: float = 3.0
     """A track is an outlier if its RMS residual norm exceeds this many times the expected
     RMS for its noise (sqrt(2) sigma)."""
-    max_rounds: int = 4
-    """Solve / re-estimate the noise / reject outliers rounds at most."""
+    max_rounds: int = 6
+    """Solve / re-estimate the noise / reject (or take back) outlier tracks rounds at most."""
     min_observations: int = 3
     """Tracks with fewer observations in the estimated frames take no part."""
 
@@ -485,10 +485,22 @@ def bundle_adjust(tracks: LineTracks, rotations: FloatArray, positions: FloatArr
                     keep = np.argsort(-np.where(new_out, rms, -np.inf))[: int(0.5 * act.sum())]
                     new_out = np.zeros(M, bool)
                     new_out[keep] = True
+        readmit = np.zeros(M, bool)
+        if options.reject_outliers and outlier.any() and not new_out.any():
+            # tracks rejected while the solution was still off may be fine: refit their lines
+            # to the current poses and take back those that now fit
+            d2, p2, ok2 = triangulate_lines(tracks, R, c, fr, options.min_observations)
+            ang2 = observation_residuals(tracks, R, c, d2, p2)
+            ang2[~obs_in] = np.nan
+            rms2 = _track_rms(tracks, ang2, M)
+            readmit = outlier & ok2 & (rms2 <= options.outlier_threshold * np.sqrt(2.0) * sigma)
+            d[readmit], p[readmit] = d2[readmit], p2[readmit]
+            line_ok[readmit] = True
         history.append({"round": float(_round), "sigma_deg": float(np.degrees(sigma)),
-                        "iterations": float(it), "new_outliers": float(new_out.sum())})
-        outlier |= new_out
-        if not new_out.any() and abs(sigma - old_sigma) <= 0.1 * old_sigma:
+                        "iterations": float(it), "new_outliers": float(new_out.sum()),
+                        "readmitted": float(readmit.sum())})
+        outlier = (outlier | new_out) & ~readmit
+        if not new_out.any() and not readmit.any() and abs(sigma - old_sigma) <= 0.1 * old_sigma:
             break
     if options.final_loss is not None:
         # the maximum-likelihood polish on the inliers (converges fast: no reweighting)

@@ -1,0 +1,142 @@
+"""Line bundle adjustment: analytic Jacobian, convergence to the oracle, partial tracks,
+outlier tracks, line triangulation."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from omni_sfm.errors import OmniSfmError
+from omni_sfm.estimate.bundle import (
+    BundleOptions,
+    _Problem,
+    bundle_adjust,
+    observation_residuals,
+    oracle,
+    triangulate_lines,
+)
+from omni_sfm.evaluate import trajectory_errors
+from omni_sfm.geometry import rotvec_to_matrix
+from omni_sfm.poses import Trajectory
+from omni_sfm.synth.simulate import SimulationOptions, simulate
+
+
+def _traj(sim, res) -> Trajectory:
+    f = res.frames
+    return Trajectory(sim.groundtruth.timestamps[f], res.rotations[f], res.positions[f])
+
+
+def _perturbed(sim, rot_rad: float, pos: float, seed: int):
+    rng = np.random.default_rng(seed)
+    g = sim.groundtruth
+    F = len(g)
+    R = g.rotations @ rotvec_to_matrix(rng.normal(size=(F, 3)) * rot_rad)
+    c = g.positions + rng.normal(size=(F, 3)) * pos
+    R[0], c[0] = g.rotations[0], g.positions[0]
+    return R, c
+
+
+def test_jacobian_matches_finite_differences():
+    sim = simulate(SimulationOptions(num_views=6, num_parallel=3, num_other=4, noise_deg=0.2,
+                                     seed=3))
+    g, tr = sim.groundtruth, sim.tracks
+    F, M = tr.num_frames, tr.num_tracks
+    d = sim.line_directions
+    p = sim.line_points - np.sum(sim.line_points * d, 1, keepdims=True) * d
+    prob = _Problem(tr, np.ones(F, bool), np.ones(M, bool), 0, F - 1, 0)
+    st = (g.rotations, g.positions, d, p)
+    e, u = prob.residuals(*st)
+    Jp, Jl = prob.jacobian(*st, u)
+    h = 1e-7
+    for kind, shape in (("p", (F, 6)), ("l", (M, 4))):
+        for i in range(shape[0]):
+            for j in range(shape[1]):
+                if kind == "p" and not prob.pose_free[i, j]:
+                    continue
+                dp, dl = np.zeros((F, 6)), np.zeros((M, 4))
+                (dp if kind == "p" else dl)[i, j] = h
+                e2, _ = prob.residuals(*prob.retract(*st, dp, dl))
+                num = (e2 - e) / h
+                own = (prob.f if kind == "p" else prob.t) == i
+                ana = np.where(own[:, None], (Jp if kind == "p" else Jl)[:, :, j], 0.0)
+                assert np.abs(num - ana).max() < 1e-5
+
+
+def test_residual_ignores_normal_sign():
+    sim = simulate(SimulationOptions(num_views=5, num_parallel=3, num_other=3, seed=1))
+    g = sim.groundtruth
+    a = observation_residuals(sim.tracks, g.rotations, g.positions, sim.line_directions,
+                              sim.line_points)
+    assert np.abs(a).max() < 1e-7
+
+
+def test_noise_free_converges_exactly_from_perturbed_start():
+    sim = simulate(SimulationOptions(num_views=10, num_parallel=3, num_other=3, seed=4))
+    R, c = _perturbed(sim, 0.02, 0.02, 0)
+    res = bundle_adjust(sim.tracks, R, c, np.full((6, 3), np.nan), np.full((6, 3), np.nan))
+    err = trajectory_errors(_traj(sim, res), sim.groundtruth)
+    assert err.rot_max_deg < 1e-6 and err.paper_trans.max() < 1e-6
+    assert res.rms_final_deg < 1e-6 and not res.outlier_tracks.any()
+
+
+def test_refinement_reaches_the_oracle():
+    sim = simulate(SimulationOptions(num_views=20, noise_deg=0.2, seed=5))
+    g = sim.groundtruth
+    orc = oracle(sim.tracks, g.rotations, g.positions, sim.line_directions, sim.line_points)
+    R, c = _perturbed(sim, 0.02, 0.03, 1)
+    res = bundle_adjust(sim.tracks, R, c, np.full((40, 3), np.nan), np.full((40, 3), np.nan))
+    e_o = trajectory_errors(_traj(sim, orc), g)
+    e_r = trajectory_errors(_traj(sim, res), g)
+    # the same minimum: errors agree far below their size
+    assert abs(e_r.rot_mean_deg - e_o.rot_mean_deg) < 0.01 * e_o.rot_mean_deg
+    assert abs(e_r.paper_trans.mean() - e_o.paper_trans.mean()) < 0.01 * e_o.paper_trans.mean()
+    # and it is much better than the start
+    e_0 = trajectory_errors(Trajectory(g.timestamps, R, c), g)
+    assert e_r.rot_mean_deg < 0.2 * e_0.rot_mean_deg
+    assert 0.05 < res.rms_final_deg < 0.2
+
+
+def test_partial_tracks_use_only_observed_pairs():
+    sim = simulate(SimulationOptions(num_views=60, num_parallel=20, num_other=20,
+                                     visible_frames=20, seed=6))
+    assert not sim.tracks.visibility().all()
+    R, c = _perturbed(sim, 0.005, 0.005, 2)
+    res = bundle_adjust(sim.tracks, R, c, np.full((40, 3), np.nan), np.full((40, 3), np.nan))
+    err = trajectory_errors(_traj(sim, res), sim.groundtruth)
+    assert res.frames.all() and err.rot_max_deg < 1e-6 and err.paper_trans.max() < 1e-6
+
+
+def test_outlier_tracks_are_flagged():
+    sim = simulate(SimulationOptions(num_views=20, noise_deg=0.1, outlier_fraction=0.15,
+                                     seed=7))
+    g = sim.groundtruth
+    R, c = _perturbed(sim, 0.002, 0.002, 3)
+    res = bundle_adjust(sim.tracks, R, c, np.full((40, 3), np.nan), np.full((40, 3), np.nan))
+    assert np.array_equal(res.outlier_tracks, sim.outlier)
+    clean = ~sim.outlier
+    orc = oracle(sim.tracks.select_tracks(clean), g.rotations, g.positions,
+                 sim.line_directions[clean], sim.line_points[clean])
+    e_o = trajectory_errors(_traj(sim, orc), g)
+    e_r = trajectory_errors(_traj(sim, res), g)
+    assert e_r.rot_mean_deg < 1.05 * e_o.rot_mean_deg
+
+
+def test_triangulate_lines_exact():
+    sim = simulate(SimulationOptions(num_views=8, num_parallel=4, num_other=5, seed=8))
+    g = sim.groundtruth
+    d, p, ok = triangulate_lines(sim.tracks, g.rotations, g.positions)
+    assert ok.all()
+    assert np.abs(np.abs(np.sum(d * sim.line_directions, 1)) - 1).max() < 1e-10
+    # the true line's point lies on the triangulated line
+    q = sim.line_points - p
+    assert np.linalg.norm(q - np.sum(q * d, 1, keepdims=True) * d, axis=1).max() < 1e-8
+
+
+def test_too_few_frames():
+    sim = simulate(SimulationOptions(num_views=5, num_parallel=3, num_other=3, seed=1))
+    g = sim.groundtruth
+    frames = np.zeros(5, bool)
+    frames[:2] = True
+    with pytest.raises(OmniSfmError, match="at least 3 frames"):
+        bundle_adjust(sim.tracks, g.rotations, g.positions, sim.line_directions,
+                      sim.line_points, frames=frames, options=BundleOptions())
