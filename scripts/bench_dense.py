@@ -15,6 +15,7 @@ completeness)::
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import shutil
 import time
@@ -30,12 +31,22 @@ from omni_sfm.poses import Trajectory, read_tum, write_tum
 from omni_sfm.synth.render import RenderOptions, render_sequence
 from omni_sfm.synth.scenes import open3d_module
 
+ROTATION = rotvec_to_matrix(np.array([0.3, -0.5, 0.9]))
+SHIFT = np.array([2.0, -1.0, 0.5])
+
 
 def similar_poses(gt: Trajectory, scale: float) -> Trajectory:
     """``gt`` under an arbitrary similarity (fixed rotation and shift, given scale)."""
-    R = rotvec_to_matrix(np.array([0.3, -0.5, 0.9]))
-    t = np.array([2.0, -1.0, 0.5])
-    return Trajectory(gt.timestamps.copy(), R @ gt.rotations, scale * gt.positions @ R.T + t)
+    return Trajectory(gt.timestamps.copy(), ROTATION @ gt.rotations,
+                      scale * gt.positions @ ROTATION.T + SHIFT)
+
+
+def similar_lines(doc: dict, scale: float) -> dict:
+    """A ``lines3d.json`` document under the same similarity (for the view's 3D lines)."""
+    out = dict(doc)
+    out["segments"] = [{**s, **{k: (scale * ROTATION @ np.asarray(s[k]) + SHIFT).tolist()
+                                for k in ("start", "end")}} for s in doc["segments"]]
+    return out
 
 
 def main() -> None:
@@ -61,6 +72,8 @@ def main() -> None:
     poses.mkdir(parents=True, exist_ok=True)
     write_tum(poses / "trajectory.tum", similar_poses(gt, 0.37))
     shutil.copy(args.render / "camera.yaml", poses / "camera.yaml")
+    lines = json.loads((args.render / "lines3d.json").read_text())
+    (poses / "lines3d.json").write_text(json.dumps(similar_lines(lines, 0.37)))
     first_last = float(np.linalg.norm(gt.positions[-1] - gt.positions[0]))
     opts = DenseOptions(known_distance=first_last, keyframe_step=args.keyframe_step)
     t0, c0 = time.perf_counter(), time.process_time()

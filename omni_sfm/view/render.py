@@ -27,7 +27,7 @@ from omni_sfm.view.scene import ViewScene, load_view_scene, upright_from_world
 
 HTML_MAX_POINTS = 150_000
 PNG_MAX_POINTS = 60_000
-AXES_DRAWN = 25
+AXES_DRAWN = 15
 
 
 @dataclass(frozen=True)
@@ -43,7 +43,7 @@ class ViewOutputs:
 def _axis_settings(scene: ViewScene) -> tuple[float, int]:
     """Axis length and pose step for the camera axes drawn (about ``AXES_DRAWN`` poses)."""
     n = len(scene.trajectory)
-    return 0.03 * scene.extent(), max(1, n // AXES_DRAWN)
+    return 0.02 * scene.extent(), max(1, n // AXES_DRAWN)
 
 
 def _subsample(n: int, k: int, seed: int = 0) -> np.ndarray:
@@ -191,7 +191,7 @@ wheel: zoom, double-click: reset. <span id="status">loading</span></div>
   document.getElementById("caption").textContent = D.caption;
   var st;
   function reset() {
-    st = { yaw: -2.2, pitch: 0.6, dist: 2.2 * D.radius, c: D.center.slice() };
+    st = { yaw: -2.2, pitch: 0.6, dist: 1.7 * D.radius, c: D.center.slice() };
   }
   reset();
   function basis() {

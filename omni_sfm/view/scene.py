@@ -38,9 +38,12 @@ class ViewScene:
     sources: dict[str, str]
 
     def extent(self) -> float:
-        """Diagonal of the bounding box of everything drawn (> 0)."""
-        allp = np.concatenate([self.trajectory.positions, self.line_starts, self.line_ends,
-                               self.points])
+        """Diagonal of the bounding box of the trajectory, the lines and the central 98 % of
+        the points (stray points do not count), > 0."""
+        parts = [self.trajectory.positions, self.line_starts, self.line_ends]
+        if len(self.points):
+            parts.append(np.percentile(self.points, [1, 99], axis=0))
+        allp = np.concatenate(parts)
         d = float(np.linalg.norm(allp.max(0) - allp.min(0)))
         return d if d > 0 else 1.0
 
