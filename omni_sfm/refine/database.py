@@ -64,22 +64,31 @@ def write_colmap_images(src: Path, dst: Path, names: Sequence[str], export: Colm
 
 
 @dataclass(frozen=True)
-class DatabaseState:
-    """What the database holds after features and matching.
+class Features:
+    """What feature extraction did.
 
     Attributes:
         camera_id: the shared camera of the images.
         extracted: names whose features were extracted in this run.
         reused: names whose features the database held already.
-        num_keypoints: keypoints of all images.
-        verified_pairs: image pairs with a verified two-view geometry.
-        inlier_matches: matches that passed geometric verification.
+        num_keypoints: keypoints of all images in the database.
     """
 
     camera_id: int
     extracted: tuple[str, ...]
     reused: tuple[str, ...]
     num_keypoints: int
+
+
+@dataclass(frozen=True)
+class Matches:
+    """What the database holds after matching.
+
+    Attributes:
+        verified_pairs: image pairs with a verified two-view geometry.
+        inlier_matches: matches that passed geometric verification.
+    """
+
     verified_pairs: int
     inlier_matches: int
 
@@ -107,11 +116,10 @@ def _shared_camera_id(db: Any, names: Sequence[str], export: ColmapExport,
     return int(db.write_camera(export.camera))
 
 
-def extract_and_match(database: Path, image_dir: Path, mask_path: Path, names: Sequence[str],
-                      export: ColmapExport, *, max_features: int, overlap: int,
-                      num_threads: int) -> DatabaseState:
-    """SIFT features of ``names`` (one shared camera, the exact model, the camera mask) and
-    sequential matching with geometric verification, skipping what ``database`` holds."""
+def extract_features(database: Path, image_dir: Path, mask_path: Path, names: Sequence[str],
+                     export: ColmapExport, *, max_features: int, num_threads: int) -> Features:
+    """SIFT features of ``names`` (one shared camera with the exact model, the camera mask),
+    skipping images whose keypoints and descriptors ``database`` already holds."""
     import pycolmap
 
     with pycolmap.Database.open(str(database)) as db:
@@ -131,25 +139,37 @@ def extract_and_match(database: Path, image_dir: Path, mask_path: Path, names: S
         pycolmap.extract_features(str(database), str(image_dir), image_names=list(todo),
                                   camera_mode=pycolmap.CameraMode.SINGLE, reader_options=reader,
                                   extraction_options=extraction, device=pycolmap.Device.cpu)
+    with pycolmap.Database.open(str(database)) as db:
+        names_in_db = {im.name for im in db.read_all_images()}
+        num_keypoints = int(db.num_keypoints())
+    missing = [n for n in names if n not in names_in_db]
+    if missing:
+        raise OmniSfmError(f"{database}: COLMAP did not import {len(missing)} images "
+                           f"(first: {missing[0]!r})")
+    return Features(cam_id, tuple(todo), tuple(sorted(done)), num_keypoints)
+
+
+def match_sequential(database: Path, *, overlap: int, num_threads: int) -> Matches:
+    """Sequential matching (``overlap`` following frames, by name order) with COLMAP's geometric
+    verification; pairs matched before are skipped by COLMAP's matcher."""
+    import pycolmap
+
     matching = pycolmap.FeatureMatchingOptions()
     matching.num_threads = num_threads
     matching.use_gpu = False
     pairing = pycolmap.SequentialPairingOptions()
     pairing.overlap = overlap
     pairing.num_threads = num_threads
-    # pairs matched before are skipped by COLMAP's matcher cache
     pycolmap.match_sequential(str(database), matching_options=matching, pairing_options=pairing,
                               device=pycolmap.Device.cpu)
     with pycolmap.Database.open(str(database)) as db:
-        state = DatabaseState(
-            camera_id=cam_id, extracted=tuple(todo), reused=tuple(sorted(done)),
-            num_keypoints=int(db.num_keypoints()),
-            verified_pairs=int(db.num_verified_image_pairs()),
-            inlier_matches=int(db.num_inlier_matches()),
-        )
-        names_in_db = {im.name for im in db.read_all_images()}
-    missing = [n for n in names if n not in names_in_db]
-    if missing:
-        raise OmniSfmError(f"{database}: COLMAP did not import {len(missing)} images "
-                           f"(first: {missing[0]!r})")
-    return state
+        return Matches(int(db.num_verified_image_pairs()), int(db.num_inlier_matches()))
+
+
+def extract_and_match(database: Path, image_dir: Path, mask_path: Path, names: Sequence[str],
+                      export: ColmapExport, *, max_features: int, overlap: int,
+                      num_threads: int) -> tuple[Features, Matches]:
+    """:func:`extract_features` then :func:`match_sequential` (one call for other stages)."""
+    feats = extract_features(database, image_dir, mask_path, names, export,
+                             max_features=max_features, num_threads=num_threads)
+    return feats, match_sequential(database, overlap=overlap, num_threads=num_threads)

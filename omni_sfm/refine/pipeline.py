@@ -6,7 +6,7 @@ Stages (all SfM work is pycolmap's; docs/colmap.md):
    export says so) and the camera's valid mask as COLMAP's camera mask;
 2. features: SIFT, one shared camera with the exact COLMAP model; images that already have
    features in the database are not extracted again;
-3. matching: sequential pairs and geometric verification;
+3. matching: sequential pairs and geometric verification (pairs matched before are skipped);
 4. triangulation: ``pycolmap.triangulate_points`` with the line-based poses held fixed;
 5. mapper (only when the folder holds frames the line stage did not pose): COLMAP's incremental
    mapper continues from the triangulated model, the seeded frames held fixed;
@@ -49,8 +49,9 @@ from omni_sfm.geometry import FloatArray, rotation_angle
 from omni_sfm.poses import Trajectory, write_tum
 from omni_sfm.refine.database import (
     check_image_names,
-    extract_and_match,
+    extract_features,
     list_images,
+    match_sequential,
     write_colmap_images,
 )
 
@@ -313,7 +314,7 @@ def refine(init_dir: Path, images_dir: Path, output: Path,
     unposed = [n for n in all_names if n not in posed]
     register = o.register_missing and bool(unposed)
     names = list(all_names) if register else list(init.image_names)
-    stage_names = ["images", "features and matching", "triangulation", "mapper",
+    stage_names = ["images", "features", "matching", "triangulation", "mapper",
                    "bundle adjustment", "acceptance and output"]
     stages = _Stages(stage_names, progress)
     inp = init.trajectory
@@ -339,15 +340,18 @@ def refine(init_dir: Path, images_dir: Path, output: Path,
                 write_colmap_images(images_dir, tmp / IMAGES_DIR, names, export,
                                     progress=progress)
                 write_colmap_mask(tmp / MASK_FILE, camera, o.mask_erosion_px)
-            with stages.stage("features and matching"):
-                state = extract_and_match(db_path, tmp / IMAGES_DIR, tmp / MASK_FILE, names,
-                                          export, max_features=o.max_features,
-                                          overlap=o.overlap, num_threads=o.num_threads)
-            report["features"] = {"extracted_images": len(state.extracted),
-                                  "reused_images": len(state.reused),
-                                  "keypoints": state.num_keypoints}
-            report["matching"] = {"verified_pairs": state.verified_pairs,
-                                  "inlier_matches": state.inlier_matches}
+            with stages.stage("features"):
+                feats = extract_features(db_path, tmp / IMAGES_DIR, tmp / MASK_FILE, names,
+                                         export, max_features=o.max_features,
+                                         num_threads=o.num_threads)
+            report["features"] = {"extracted_images": len(feats.extracted),
+                                  "reused_images": len(feats.reused),
+                                  "keypoints": feats.num_keypoints}
+            with stages.stage("matching"):
+                matches = match_sequential(db_path, overlap=o.overlap,
+                                           num_threads=o.num_threads)
+            report["matching"] = {"verified_pairs": matches.verified_pairs,
+                                  "inlier_matches": matches.inlier_matches}
             seed = seed_for_database(camera, inp, init.image_names, db_path)
             image_ids = [seed.reconstruction.find_image_with_name(n).image_id
                          for n in init.image_names]
