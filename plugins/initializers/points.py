@@ -242,9 +242,9 @@ def chain_relative_poses(seq: SequenceInput, pts: PointObservations,
     """Monocular chain of relative poses (module docstring).
 
     ``relpose(r, k, x_r, x_k)`` returns cam_k_from_cam_r with a unit translation and its
-    inliers, or None. Returns the trajectory of the frames posed before the first failure (world
-    = frame 0, scale = first pair's baseline), the reason of that failure ("" when every frame
-    was posed) and counts.
+    inliers, or None, or raises OmniSfmError saying why the pair cannot be solved. Returns the
+    trajectory of the frames posed before the first failure (world = frame 0, scale = first
+    pair's baseline), the reason of that failure ("" when every frame was posed) and counts.
     """
     F = seq.num_frames
     index = FrameIndex(pts, F)
@@ -263,7 +263,11 @@ def chain_relative_poses(seq: SequenceInput, pts: PointObservations,
             reason = f"frame {k}: {len(ids)} point correspondences with frame {r}; need " \
                      f"{opts.min_matches}"
             break
-        rel = relpose(r, k, xr, xk)
+        try:
+            rel = relpose(r, k, xr, xk)
+        except OmniSfmError as exc:
+            reason = f"frame {k}: {exc}"
+            break
         if rel is None or int(rel[2].sum()) < opts.min_inliers:
             n = 0 if rel is None else int(rel[2].sum())
             reason = f"frame {k}: no relative pose to frame {r} ({n} inliers of {len(ids)})"

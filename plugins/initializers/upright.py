@@ -120,8 +120,10 @@ def upright_3pt(sequence: SequenceInput, options: Mapping[str, Any]) -> Initiali
     iterations = int(options.get("iterations", 500))
 
     def relpose(r: int, k: int, x1: FloatArray, x2: FloatArray) -> RelPose | None:
-        if not (np.isfinite(vpv[r]).all() and np.isfinite(vpv[k]).all()):
-            return None
+        for f in (r, k):
+            if not np.isfinite(vpv[f]).all():
+                raise OmniSfmError(f"no vanishing direction in frame {f} (fewer than 2 tracks "
+                                   f"of the parallel family seen there)")
         A1, A2 = upright_basis(vpv[r]), upright_basis(vpv[k])
         rng = np.random.default_rng(seed + 1000 * k + r)
         res = upright_ransac(x1 @ A1.T, x2 @ A2.T, thr, iterations, rng)
