@@ -152,6 +152,21 @@ def test_camera_height_finds_the_floor(room: Path, dense_out: Path) -> None:
     assert info["floor_points"] > 5000
 
 
+def test_camera_height_cli(room: Path, poses: Path) -> None:
+    """``--camera-height`` end to end (up axis from the camera model, ``--keyframe-step``)."""
+    render = json.loads((room / "render.json").read_text())
+    wfs = np.array(render["world_from_scene"])
+    gt = read_tum(room / "groundtruth.tum")
+    true_height = float(np.median(((gt.positions - wfs[:3, 3]) @ wfs[:3, :3])[:, 2]))
+    out = room.parent / "dense_height"
+    assert cli_main(["dense", "-i", str(poses), "--images", str(room / "images"), "-o", str(out),
+                     "--camera-height", repr(true_height), "--keyframe-step", "4"]) == 0
+    report = json.loads((out / "report.json").read_text())
+    assert report["keyframe_step"] == 4 and report["num_keyframes"] == 6
+    assert report["scale"]["source"] == "camera_height"
+    assert report["scale"]["factor"] == pytest.approx(1 / SCALE, rel=0.01)
+
+
 def _err(capsys: pytest.CaptureFixture[str]) -> str:
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and err.startswith("omni-sfm: error:"), err

@@ -312,7 +312,7 @@ def calibrate_baseline(matcher: _Matcher, opts: DenseOptions) -> BaselineCalibra
     f = matcher.geometry.focal
     target = opts.parallax * f
     trials: list[tuple[int, float, float, float]] = []
-    best: tuple[float, float] | None = None
+    best: tuple[float, float, float] | None = None     # median depth, baseline, disparity
     o = 1
     while o <= n - 1:
         src = m + o if m + o < n else m - o
@@ -327,7 +327,7 @@ def calibrate_baseline(matcher: _Matcher, opts: DenseOptions) -> BaselineCalibra
                 med_z = float(np.median(z))
                 disp = f * b / med_z
                 trials.append((o, b, disp, share))
-                best = (med_z, b)
+                best = (med_z, b, disp)
                 if disp >= target:
                     break
             else:
@@ -338,10 +338,11 @@ def calibrate_baseline(matcher: _Matcher, opts: DenseOptions) -> BaselineCalibra
             "no stereo depth on the middle frame at any frame offset: the camera barely moves "
             "(not enough baseline for stereo) or the images have no texture")
     med_z = best[0]
-    if trials[-1][2] < 2.0:
+    if best[2] < 2.0:
         raise OmniSfmError(
-            f"not enough baseline for stereo: at the largest frame offset the median disparity "
-            f"is {trials[-1][2]:.2f} px (need the camera to move a few percent of the scene depth)")
+            f"not enough baseline for stereo: at the largest frame offset with depth the median "
+            f"disparity is {best[2]:.2f} px (need the camera to move a few percent of the scene "
+            "depth)")
     baseline = opts.parallax * med_z
     steps = np.linalg.norm(np.diff(traj.positions, axis=0), axis=1)
     per_frame = float(np.median(steps)) if steps.size else 0.0
