@@ -124,7 +124,9 @@ def write_markdown(out: Path, rows, free, failures, trials: int, elapsed: float)
         rt = r["refined"][:, 2].mean() / r["oracle"][:, 2].mean()
         cells.append(f"{rr:.3f}, {rt:.3f}")
         L.append("| " + " | ".join(cells) + " |")
-    L += ["", "![errors against noise](img/paper_reproduction.png)", ""]
+    L += ["", "![errors against noise](img/paper_reproduction.png)", "",
+          "Speed (the paper's real case, `scripts/bench_backend.py`) and the known limits at "
+          "the highest noise level: docs/estimator.md.", ""]
     if failures:
         L += ["Trials that raised an error (not in the table):", ""]
         L += [f"- {f}" for f in failures] + [""]
