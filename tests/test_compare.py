@@ -47,10 +47,9 @@ def test_compare_simulation_results_recomputed(tmp_path: Path) -> None:
     seq, gt = simulated(noise_deg=0.1)
     thr = {"max_error_rad": 3 * np.radians(0.1)}
     out = tmp_path / "cmp"
-    r = compare(seq, gt, out, ["lines", "five-point", "upright-3pt"],
-                options={"five-point": thr, "upright-3pt": thr})
+    r = compare(seq, gt, out, ["lines", "five-point"], options={"five-point": thr})
     res = check_results_match_trajectories(out, gt, seq.num_frames)
-    assert set(res["initializers"]) == {"lines", "five-point", "upright-3pt"}
+    assert set(res["initializers"]) == {"lines", "five-point"}
     assert all(e["status"] == "ok" for e in res["initializers"].values())
     assert r.results == res
     report = (out / "report.md").read_text()
@@ -160,7 +159,7 @@ def _sweep_module():
 def test_sweep_dask_equals_process_pool() -> None:
     distributed = pytest.importorskip("distributed")
     sweep = _sweep_module()
-    tasks = sweep.make_tasks(["sim"], [0, 1], [0.16], 10, 40, ["five-point", "upright-3pt"])
+    tasks = sweep.make_tasks(["sim"], [0, 1], [0.16], 10, 40, ["five-point", "colmap"])
     local = sweep.run_all(tasks, None, 1)
     with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
                                   dashboard_address=None) as cluster:
