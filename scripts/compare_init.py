@@ -236,7 +236,7 @@ def summary_tables(done: list[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
-def plot_sweep(done: list[dict[str, Any]], prefix: Path) -> list[Path]:
+def plot_sweep(done: list[dict[str, Any]], prefix: Path | str) -> list[Path]:
     """``<prefix>noise.png`` (simulation: error against noise) and ``<prefix>texture.png``
     (rendered: registered share and ATE per sequence kind)."""
     import matplotlib
@@ -268,9 +268,13 @@ def plot_sweep(done: list[dict[str, Any]], prefix: Path) -> list[Path]:
                 ax.plot(xs, med, "o-", color=COLOURS.get(n), label=n)
         axes[0].set_ylabel("max rotation error (deg)")
         axes[1].set_ylabel("ATE (% of path)")
+        from matplotlib.ticker import NullFormatter
+
         for ax in axes:
             ax.set_xscale("log")
             ax.set_yscale("log")
+            ax.set_xticks(noises, [f"{x:g}" for x in noises])
+            ax.xaxis.set_minor_formatter(NullFormatter())
             ax.set_xlabel("noise on normals and rays (deg)")
             ax.grid(True, which="both", alpha=0.3)
         axes[0].legend(fontsize=8)
@@ -296,17 +300,19 @@ def plot_sweep(done: list[dict[str, Any]], prefix: Path) -> list[Path]:
             axes[1].bar(x, ate, w, color=COLOURS.get(n), label=n)
             for xi, a in zip(x, ate, strict=True):
                 if not np.isfinite(a):
-                    axes[1].text(xi, 0, "failed", rotation=90, ha="center", va="bottom",
-                                 fontsize=7)
+                    axes[1].text(xi, 0.02, "all failed", rotation=90, ha="center", va="bottom",
+                                 fontsize=7, color=COLOURS.get(n),
+                                 transform=axes[1].get_xaxis_transform())
         labels = [k.replace("-", "\n", 1) for k in kinds]
         for ax in axes:
             ax.set_xticks(np.arange(len(kinds)), labels, fontsize=8)
         axes[0].set_ylabel("frames registered (% , mean over seeds)")
         axes[1].set_ylabel("ATE (% of path, median of ok runs)")
         axes[1].set_yscale("log")
-        axes[0].legend(fontsize=8)
+        handles, labs = axes[0].get_legend_handles_labels()
+        fig.legend(handles, labs, loc="lower center", ncol=len(names), fontsize=8)
         fig.suptitle("rendered sequences: texture-poor corridor vs textured scenes")
-        fig.tight_layout()
+        fig.tight_layout(rect=(0, 0.07, 1, 1))
         p = Path(f"{prefix}texture.png")
         fig.savefig(p)
         plt.close(fig)
@@ -339,6 +345,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--workers", type=int, default=2, help="local processes")
     ap.add_argument("--scheduler", default=None,
                     help="Dask scheduler address (tcp://HOST:8786) instead of local processes")
+    ap.add_argument("--replot", action="store_true",
+                    help="only redraw the plots from OUTPUT/sweep.json (into docs/img with --docs)")
     ap.add_argument("--docs", action="store_true",
                     help="rewrite the generated part of docs/comparison.md and its plots")
     a = ap.parse_args(argv)
@@ -354,6 +362,10 @@ def main(argv: list[str] | None = None) -> int:
     for ep in available(INITIALIZERS).values():
         ep.load()
 
+    if a.replot:
+        done = json.loads((a.output / "sweep.json").read_text(encoding="utf-8"))
+        plot_sweep(done, ROOT / "docs" / "img" / "comparison_" if a.docs else f"{a.output}/")
+        return 0
     kinds = [k.strip() for k in a.kinds.split(",") if k.strip()]
     bad = [k for k in kinds if k != "sim" and k not in RENDER]
     if bad:
@@ -388,7 +400,7 @@ def main(argv: list[str] | None = None) -> int:
                  f"![error against texture](img/comparison_texture.png)\n\n{tables}")
         update_docs(ROOT / "docs" / "comparison.md", block)
     else:
-        plot_sweep(done, a.output / "")
+        plot_sweep(done, f"{a.output}/")
     return 0
 
 
