@@ -71,6 +71,8 @@ class BundleOptions:
     robust_tolerance: float = 1e-4
     """The same for the robust rounds (reweighting converges slowly; they only need to find
     the outliers and the basin)."""
+    robust_iterations: int = 30
+    """LM iterations per robust round at most."""
     final_loss: RobustLoss | None = RobustLoss.LINEAR
     """Loss of a last solve on the inlier tracks (None: none). Plain least squares is the
     maximum-likelihood estimate for Gaussian NV noise once the outlier tracks are gone."""
@@ -466,7 +468,8 @@ def bundle_adjust(tracks: LineTracks, rotations: FloatArray, positions: FloatArr
         prob = _Problem(tracks, fr, act, fixed, scale_frame, scale_axis)
         (R, c, d, p), it = _levenberg_marquardt(prob, (R, c, d, p), options.loss,
                                                 options.loss_scale * sigma,
-                                                options.max_iterations,
+                                                min(options.max_iterations,
+                                                    options.robust_iterations),
                                                 max(options.tolerance, options.robust_tolerance))
         iterations += it
         ang = angles_now()
