@@ -140,6 +140,41 @@ def test_cli_reuses_the_features_of_a_database(room, room_refined, tmp_path, cap
     assert trajectory_errors(out, gt).ate_rel < trajectory_errors(init, gt).ate_rel
 
 
+def test_a_large_correction_is_taken_only_where_the_images_back_it(room, room_refined,
+                                                                      tmp_path):
+    """One seeded pose 8 deg off (beyond the 5 deg plausibility bound): its observations fit the
+    corrected pose to sub-pixel error, so the correction is taken, and the report lists it as a
+    large change backed by the images. (Frames with too few observations keep their input: the
+    corridor test.)"""
+    from omni_sfm.geometry import rotation_angle, rotvec_to_matrix
+    from omni_sfm.poses import write_tum
+
+    work, gt, _, _ = room_refined
+    init = perturb(gt, seed=6)
+    bad = 9
+    rot = init.rotations.copy()
+    rot[bad] = rot[bad] @ rotvec_to_matrix(np.radians([0.0, 0.0, 8.0]))
+    write_tum(tmp_path / "init.tum", Trajectory(init.timestamps, rot, init.positions))
+    init = read_tum(tmp_path / "init.tum")
+    names = [f"{k:06d}.png" for k in range(len(init))]
+    (tmp_path / "init").mkdir()
+    write_tum(tmp_path / "init" / "trajectory.tum", init)
+    write_init_model(tmp_path / "init", load_camera(room / "camera.yaml"), init, names)
+    db = tmp_path / "database.db"
+    shutil.copy(work / "out" / "database.db", db)
+    res = refine(tmp_path / "init", room / "images", tmp_path / "out",
+                 RefineOptions(overlap=5), database=db, progress=False)
+    assert res.refined[bad]
+    assert list(res.report["pose_changes"]["large_changes_backed_by_images"]) == [names[bad]]
+
+    def rot_err(traj: Trajectory) -> float:  # frame `bad` relative to frame 0, vs ground truth
+        rel = np.swapaxes(traj.rotations[0], 0, 1) @ traj.rotations[bad]
+        rel_gt = np.swapaxes(gt.rotations[0], 0, 1) @ gt.rotations[bad]
+        return float(np.degrees(rotation_angle(rel_gt.T @ rel)))
+
+    assert rot_err(init) > 7.0 and rot_err(res.trajectory) < 0.5
+
+
 def test_refine_keeps_the_input_on_a_texture_poor_corridor(tmp_path):
     corridor = _render(tmp_path, "corridor", scene="corridor", frames=16)
     init = write_perturbed_init(corridor, tmp_path / "init", seed=4)

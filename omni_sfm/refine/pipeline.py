@@ -91,10 +91,13 @@ class RefineOptions:
     """A frame with fewer triangulated observations keeps its input pose (and is held fixed in
     the adjustment)."""
     max_rotation_change_deg: float = 5.0
-    """A frame whose adjusted rotation differs more from its input keeps its input pose."""
+    """A frame whose adjusted rotation differs more from its input keeps its input pose unless
+    its observations back the change strongly (``max_frame_error_px``)."""
     max_position_change: float = 0.05
-    """A frame whose adjusted centre moves more than this fraction of the input path length keeps
-    its input pose."""
+    """Same for a centre that moves more than this fraction of the input path length."""
+    max_frame_error_px: float = 1.0
+    """A frame may change by more than the bounds above only if its own observations (at least
+    ``min_observations``) have a mean reprojection error at most this (px)."""
     max_mean_reprojection_error_px: float = 2.0
     """An adjusted model with a larger mean reprojection error is not trusted at all."""
     text: bool = False
@@ -461,6 +464,25 @@ def _merge(traj: Trajectory, refined: np.ndarray, new: Trajectory
     return merged, np.concatenate([refined, np.ones(len(new), dtype=bool)])[order]
 
 
+def _frame_errors(rec: Any, image_ids: list[int]) -> np.ndarray:
+    """``(N,)`` mean reprojection error (px) of each image's triangulated observations
+    (inf for an image without any)."""
+    out = np.full(len(image_ids), np.inf)
+    for k, image_id in enumerate(image_ids):
+        if image_id not in rec.images or not rec.images[image_id].has_pose:
+            continue
+        im = rec.images[image_id]
+        obs = [(p.xy, rec.points3D[p.point3D_id].xyz) for p in im.points2D if p.has_point3D()]
+        if not obs:
+            continue
+        uv = np.asarray([o[0] for o in obs])
+        xyz = np.asarray([o[1] for o in obs])
+        T = np.asarray(im.cam_from_world().matrix())
+        proj = np.asarray(rec.cameras[im.camera_id].img_from_cam(xyz @ T[:, :3].T + T[:, 3]))
+        out[k] = float(np.nanmean(np.linalg.norm(proj - uv, axis=1)))
+    return out
+
+
 def _accept(rec: Any, export: Any, init: InitModel, image_ids: list[int], obs0: np.ndarray,
             trusted_model: bool, o: RefineOptions, path_length: float
             ) -> tuple[Trajectory, np.ndarray, dict[str, Any]]:
@@ -481,31 +503,38 @@ def _accept(rec: Any, export: Any, init: InitModel, image_ids: list[int], obs0: 
     full_R[ok], full_c[ok] = ref.rotations, ref.positions
     adjusted = Trajectory(inp.timestamps.copy(), full_R, full_c)
     obs = _observations(rec, image_ids)
+    err = _frame_errors(rec, image_ids)
     cand = ok & (obs0 >= o.min_observations) & (obs >= o.min_observations)
+    # a change beyond the plausible bounds stands only where the frame's own observations
+    # (at least min_observations of them) fit it to a small error: 6 pose parameters against
+    # dozens of sub-pixel observations; otherwise the adjustment is not trusted there
+    strong = cand & (err <= o.max_frame_error_px)
     scale_len = path_length if path_length > 0 else 1.0
     rot_change = pos_change = np.zeros(n)
-    use = cand.copy()
+    small = cand.copy()
     R = np.eye(3)
     t = np.zeros(3)
     s = 1.0
-    for _ in range(3):  # fit, drop implausible frames, fit again on the rest
-        if use.sum() < 3:
+    for _ in range(3):  # fit on the frames that changed little, re-check, fit again
+        if small.sum() < 3:
             break
-        R, t, s = _align_to_input(adjusted.subset(use), inp.subset(use))
+        R, t, s = _align_to_input(adjusted.subset(small), inp.subset(small))
         aligned = _apply(R, t, s, adjusted)
         rot_change = np.degrees(rotation_angle(np.swapaxes(inp.rotations, 1, 2)
                                                @ aligned.rotations))
         pos_change = np.linalg.norm(aligned.positions - inp.positions, axis=1) / scale_len
-        new_use = cand & (rot_change <= o.max_rotation_change_deg) & (
+        new_small = cand & (rot_change <= o.max_rotation_change_deg) & (
             pos_change <= o.max_position_change)
-        if np.array_equal(new_use, use):
+        if np.array_equal(new_small, small):
             break
-        use = new_use
-    if use.sum() < 3:
+        small = new_small
+    if small.sum() < 3 or small.sum() < 0.5 * cand.sum():
         return inp, np.zeros(n, dtype=bool), {
-            "kept_input_for_all": "fewer than three frames with a plausible adjusted pose",
+            "kept_input_for_all": "the adjustment moved most frames implausibly far "
+                                  "(or fewer than three frames changed plausibly)",
             "refined_frames": 0, "kept_frames": {}, "alignment_to_input": None,
             "pose_changes": None}
+    use = small | (cand & strong)
     aligned = _apply(R, t, s, adjusted)
     for k, name in enumerate(init.image_names):
         if use[k]:
@@ -515,14 +544,23 @@ def _accept(rec: Any, export: Any, init: InitModel, image_ids: list[int], obs0: 
         elif obs0[k] < o.min_observations or obs[k] < o.min_observations:
             reasons[name] = (f"{int(min(obs0[k], obs[k]))} observations < "
                              f"{o.min_observations}")
-        elif rot_change[k] > o.max_rotation_change_deg:
-            reasons[name] = f"rotation changed {rot_change[k]:.2f} deg (implausible)"
         else:
-            reasons[name] = f"centre moved {100 * pos_change[k]:.2f}% of the path (implausible)"
+            what = (f"rotation changed {rot_change[k]:.2f} deg"
+                    if rot_change[k] > o.max_rotation_change_deg else
+                    f"centre moved {100 * pos_change[k]:.2f}% of the path")
+            reasons[name] = (f"{what} with weak support ({int(obs[k])} observations, "
+                             f"{err[k]:.2f} px): implausible")
+    large = use & ~small
     rot = np.where(use[:, None, None], aligned.rotations, inp.rotations)
     pos = np.where(use[:, None], aligned.positions, inp.positions)
     traj = Trajectory(inp.timestamps.copy(), rot, pos)
     changes = {
+        "large_changes_backed_by_images": {
+            init.image_names[k]: {"rotation_deg": float(rot_change[k]),
+                                  "position_fraction_of_path": float(pos_change[k]),
+                                  "observations": int(obs[k]),
+                                  "mean_reprojection_error_px": float(err[k])}
+            for k in np.flatnonzero(large)},
         "rotation_deg_median": float(np.median(rot_change[use])),
         "rotation_deg_max": float(rot_change[use].max()),
         "position_fraction_of_path_median": float(np.median(pos_change[use])),
