@@ -298,17 +298,27 @@ class _Problem:
         act = np.flatnonzero(lf[:, 0])
         Ma = len(act)
         tc = np.searchsorted(act, t)
-        rows = (6 * f[:, None, None] + np.arange(6)[None, :, None]).repeat(4, axis=2)
-        cols = (4 * tc[:, None, None] + np.arange(4)[None, None, :]).repeat(6, axis=1)
-        Gs = sp.csr_matrix((G.ravel(), (rows.ravel(), cols.ravel())), shape=(6 * F, 4 * Ma))
         ar = np.repeat(np.arange(Ma), 16)
         bd = sp.csr_matrix((Hll[act].ravel(), (4 * ar + np.tile(np.repeat(np.arange(4), 4), Ma),
                                                 4 * ar + np.tile(np.arange(4), 4 * Ma))),
                            shape=(4 * Ma, 4 * Ma))
-        S = (bd - Gs.T @ Gs).tocsc()
-        rhs = -gl[act].ravel() + Gs.T @ gpt.ravel()
-        if 4 * Ma <= 600 or S.nnz > 0.3 * (4 * Ma) ** 2:
-            c_f = scipy.linalg.cho_factor(S.toarray(), check_finite=False)
+        if len(f) > 0.3 * F * Ma:
+            # most lines seen in most frames: G is dense, one matrix product
+            Gd = np.zeros((F, 6, Ma, 4))
+            Gd[f, :, tc, :] = G
+            Gm = Gd.reshape(6 * F, 4 * Ma)
+            S_dense = bd.toarray() - Gm.T @ Gm
+            rhs = -gl[act].ravel() + Gm.T @ gpt.ravel()
+        else:
+            rows = (6 * f[:, None, None] + np.arange(6)[None, :, None]).repeat(4, axis=2)
+            cols = (4 * tc[:, None, None] + np.arange(4)[None, None, :]).repeat(6, axis=1)
+            Gs = sp.csr_matrix((G.ravel(), (rows.ravel(), cols.ravel())),
+                               shape=(6 * F, 4 * Ma))
+            S = (bd - Gs.T @ Gs).tocsc()
+            rhs = -gl[act].ravel() + Gs.T @ gpt.ravel()
+            S_dense = S.toarray() if 4 * Ma <= 600 or S.nnz > 0.3 * (4 * Ma) ** 2 else None
+        if S_dense is not None:
+            c_f = scipy.linalg.cho_factor(S_dense, check_finite=False)
             x = scipy.linalg.cho_solve(c_f, rhs, check_finite=False)
         else:
             lu = spla.splu(S, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
