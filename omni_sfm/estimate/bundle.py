@@ -83,6 +83,10 @@ class BundleOptions:
     RMS for its noise (sqrt(2) sigma)."""
     max_rounds: int = 6
     """Solve / re-estimate the noise / reject (or take back) outlier tracks rounds at most."""
+    min_spread_sigmas: float = 3.0
+    """Tracks whose plane normals turn by less than this many noise levels (RMS) are left
+    out after the first round: nearly degenerate lines add no information but slow the
+    convergence (0: keep all)."""
     min_observations: int = 3
     """Tracks with fewer observations in the estimated frames take no part."""
 
@@ -438,9 +442,11 @@ def bundle_adjust(tracks: LineTracks, rotations: FloatArray, positions: FloatArr
     line_ok = np.isfinite(d).all(1) & np.isfinite(p).all(1)
     outlier = np.zeros(M, bool)
 
+    weak = np.zeros(M, bool)
+
     def active_tracks() -> np.ndarray:
         cnt = np.bincount(tracks.obs_track[fr[tracks.obs_frame]], minlength=M)
-        return line_ok & ~outlier & (cnt >= options.min_observations)
+        return line_ok & ~outlier & ~weak & (cnt >= options.min_observations)
 
     # frames need observations of active tracks to be determined
     act = active_tracks()
@@ -513,6 +519,11 @@ def bundle_adjust(tracks: LineTracks, rotations: FloatArray, positions: FloatArr
                         "iterations": float(it), "new_outliers": float(new_out.sum()),
                         "readmitted": float(readmit.sum())})
         outlier = (outlier | new_out) & ~readmit
+        if _round == 0 and options.min_spread_sigmas > 0:
+            # lines whose planes barely turn (seen along their own direction) fix almost
+            # nothing but make the problem ill-conditioned: leave them out
+            weak = act & (_plane_spread(tracks, R, fr, M)
+                          < options.min_spread_sigmas * np.sqrt(2.0) * sigma)
         if not new_out.any() and not readmit.any() and abs(sigma - old_sigma) <= 0.1 * old_sigma:
             break
     if options.final_loss is not None:
@@ -537,6 +548,18 @@ def bundle_adjust(tracks: LineTracks, rotations: FloatArray, positions: FloatArr
                         float(np.degrees(sigma)), np.degrees(_track_rms(tracks, ang, M)),
                         rms_initial, rms_final, iterations,
                         (time.perf_counter() - t0) * 1e3, history)
+
+
+def _plane_spread(tracks: LineTracks, R: FloatArray, frames: np.ndarray, M: int) -> FloatArray:
+    """``(M,)`` RMS angle (rad) by which each track's world plane normals turn about its line."""
+    sel = frames[tracks.obs_frame]
+    t = tracks.obs_track[sel]
+    n_w = np.einsum("kij,kj->ki", R[tracks.obs_frame[sel]], tracks.obs_normal[sel])
+    A = np.zeros((M, 3, 3))
+    np.add.at(A, t, n_w[:, :, None] * n_w[:, None, :])
+    cnt = np.maximum(np.bincount(t, minlength=M), 1)
+    ev = np.linalg.eigvalsh(A)
+    return np.arcsin(np.sqrt(np.clip(ev[:, 1] / cnt, 0.0, 1.0)))
 
 
 def _track_rms(tracks: LineTracks, ang: FloatArray, M: int) -> FloatArray:
