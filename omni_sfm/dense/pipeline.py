@@ -28,6 +28,13 @@ import numpy as np
 
 from omni_sfm.cameras import CameraModel, load_camera, write_camera_yaml
 from omni_sfm.dense.fusion import TsdfFusion
+from omni_sfm.dense.relpose import (
+    Features,
+    PairPose,
+    PairPoseOptions,
+    frame_features,
+    pair_pose,
+)
 from omni_sfm.dense.stereo import StereoOptions, consistent, depth_along, rig_depth
 from omni_sfm.dense.views import (
     StereoRig,
@@ -80,6 +87,8 @@ class DenseOptions:
     """Depths beyond this many median depths are not fused."""
     stereo: StereoOptions = field(default_factory=StereoOptions)
     """Matching and filtering."""
+    pair_pose: PairPoseOptions = field(default_factory=PairPoseOptions)
+    """Re-estimating each stereo pair's relative pose from SIFT matches."""
 
 
 @dataclass(frozen=True)
@@ -112,6 +121,7 @@ class KeyframeStats:
             those with a checked depth (both rigs).
         seconds_depth, seconds_fusion: time of depth estimation (views, SGBM, check) and of
             TSDF integration.
+        pair_poses: the source pose used by each of the two pairs (image-based or given).
     """
 
     frame: int
@@ -122,6 +132,7 @@ class KeyframeStats:
     depth_pixels: int
     seconds_depth: float
     seconds_fusion: float
+    pair_poses: tuple[PairPose, ...] = ()
 
     @property
     def view_share(self) -> float:
@@ -244,37 +255,56 @@ class _PairDepth:
     depth: FloatArray          # (V, H, W) view z, NaN where none
     colors: np.ndarray         # (V, H, W, 3) uint8 reference views
     valid: np.ndarray          # (V, H, W) reference views inside the camera's valid region
+    pose: PairPose             # the source pose used
 
 
 class _Matcher:
     """Stereo of frame pairs through rectified rigs."""
 
     def __init__(self, inp: DenseInput, geometry: ViewGeometry, num_disparities: int,
-                 opts: StereoOptions) -> None:
+                 opts: StereoOptions, pose_opts: PairPoseOptions) -> None:
         import cv2
 
         self.inp = inp
         self.geometry = geometry
         self.num_disparities = num_disparities
         self.opts = opts
+        self.pose_opts = pose_opts
         self.frames = _Frames(inp.image_paths, inp.camera)
         self.valid = inp.camera.valid_mask()
+        self._sift_mask = cv2.erode(self.valid.astype(np.uint8) * 255, np.ones((7, 7), np.uint8))
+        self._features: dict[int, Features] = {}
         self._cv2 = cv2
+
+    def features(self, k: int) -> Features:
+        if k not in self._features:
+            if len(self._features) > 24:
+                self._features.pop(next(iter(self._features)))
+            self._features[k] = frame_features(self.frames(k), self.inp.camera,
+                                               self._sift_mask, self.pose_opts)
+        return self._features[k]
 
     def pair(self, ref: int, src: int) -> _PairDepth:
         traj, cam, cv2 = self.inp.trajectory, self.inp.camera, self._cv2
-        rig = stereo_rig(self.geometry, traj.positions[ref], traj.positions[src],
+        if self.pose_opts.enabled:
+            pose = pair_pose(self.features(ref), self.features(src), traj.rotations[ref],
+                             traj.positions[ref], traj.rotations[src], traj.positions[src],
+                             self.pose_opts)
+        else:
+            pose = PairPose(traj.rotations[src], traj.positions[src], False, 0, float("nan"),
+                            float("nan"))
+        rig = stereo_rig(self.geometry, traj.positions[ref], pose.centre_src,
                          traj.rotations[ref])
         views = []
-        for k in (ref, src):
-            tables = remap_tables(cam, self.geometry, rig.world_from_views, traj.rotations[k])
+        for k, rot in ((ref, traj.rotations[ref]), (src, pose.world_from_src)):
+            tables = remap_tables(cam, self.geometry, rig.world_from_views, rot)
             views.append(sample_views(self.frames(k), tables, self.valid))
         (ref_rgb, ref_ok), (src_rgb, src_ok) = views
         grey = [np.stack([cv2.cvtColor(v, cv2.COLOR_RGB2GRAY) for v in rgb])
                 for rgb in (ref_rgb, src_rgb)]
         depth = rig_depth(rig, grey[0], ref_ok, grey[1], src_ok, self.num_disparities,
                           self.opts)
-        return _PairDepth(rig, depth, ref_rgb, ref_ok)
+        return _PairDepth(rig, depth, ref_rgb, ref_ok, pose)
 
 
 def _num_disparities(geometry: ViewGeometry, opts: DenseOptions) -> int:
@@ -423,7 +453,8 @@ def dense_map(inp: DenseInput, opts: DenseOptions | None = None, *,
     traj, cam = inp.trajectory, inp.camera
     geometry = view_geometry(cam, resolution_scale=opts.resolution_scale,
                              fov_along_deg=opts.fov_along_deg)
-    matcher = _Matcher(inp, geometry, _num_disparities(geometry, opts), opts.stereo)
+    matcher = _Matcher(inp, geometry, _num_disparities(geometry, opts), opts.stereo,
+                       opts.pair_pose)
     t0 = time.perf_counter()
     calib = calibrate_baseline(matcher, opts)
     t_calib = time.perf_counter() - t0
@@ -456,7 +487,7 @@ def dense_map(inp: DenseInput, opts: DenseOptions | None = None, *,
         has |= np.isfinite(depth_along(pb.rig, db, rays.T)[0])
         stats.append(KeyframeStats(k, tuple(j for j, _ in srcs), tuple(b for _, b in srcs),
                                    float(has.mean()), view_px, int(ok_a.sum() + ok_b.sum()),
-                                   t2 - t1, t3 - t2))
+                                   t2 - t1, t3 - t2, (pa.pose, pb.pose)))
     if not stats:
         raise OmniSfmError("no keyframe had two frames with enough baseline for stereo")
     t4 = time.perf_counter()
@@ -489,6 +520,8 @@ def dense_map(inp: DenseInput, opts: DenseOptions | None = None, *,
     mesh.scale(scale, center=np.zeros(3))
     out_traj = Trajectory(traj.timestamps.copy(), traj.rotations.copy(), traj.positions * scale)
     shares = np.array([s.depth_share for s in stats])
+    pposes = [p for s in stats for p in s.pair_poses]
+    changes = [p.rotation_change_deg for p in pposes if p.corrected]
     poor = [s.frame for s in stats if s.depth_share < 0.05]
     if poor:
         warnings.append(f"{len(poor)} keyframes got depth on under 5% of their valid pixels "
@@ -505,6 +538,10 @@ def dense_map(inp: DenseInput, opts: DenseOptions | None = None, *,
                   "height": geometry.height, "per_pair": 4,
                   "num_disparities": matcher.num_disparities},
         "keyframe_step": step,
+        "pair_pose": {"enabled": opts.pair_pose.enabled, "pairs": len(pposes),
+                      "corrected": len(changes),
+                      "median_rotation_change_deg": float(np.median(changes)) if changes
+                      else None},
         "num_keyframes": len(stats),
         "num_points": int(points.shape[0]),
         "num_triangles": int(len(mesh.triangles)),
@@ -522,7 +559,11 @@ def dense_map(inp: DenseInput, opts: DenseOptions | None = None, *,
                     "depth_share": s.depth_share, "view_share": s.view_share,
                     "view_pixels": s.view_pixels, "depth_pixels": s.depth_pixels,
                     "seconds_depth": s.seconds_depth,
-                    "seconds_fusion": s.seconds_fusion} for s in stats],
+                    "seconds_fusion": s.seconds_fusion,
+                    "pair_pose": [{"corrected": p.corrected, "inliers": p.inliers,
+                                   "rotation_change_deg": p.rotation_change_deg,
+                                   "direction_change_deg": p.direction_change_deg}
+                                  for p in s.pair_poses]} for s in stats],
         "warnings": warnings,
         "backend": {"stereo": "cv2.StereoSGBM (CPU)", "fusion": "open3d VoxelBlockGrid (CPU)",
                     "pycolmap_cuda": _pycolmap_has_cuda(),
