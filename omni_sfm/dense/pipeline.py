@@ -186,6 +186,8 @@ def read_dense_input(poses_dir: Path, images: Path, camera_file: Path | None = N
     if len(traj) < 3:
         raise OmniSfmError(f"{tum}: {len(traj)} poses, dense mapping needs at least 3")
     cam_file = Path(camera_file) if camera_file is not None else poses_dir / CAMERA_FILE
+    if camera_file is None and not cam_file.is_file():
+        cam_file = _refine_input_camera(poses_dir) or cam_file
     if not cam_file.is_file():
         raise OmniSfmError(f"{cam_file}: camera file not found (give --camera FILE)")
     camera = load_camera(cam_file)
@@ -222,6 +224,22 @@ def read_dense_input(poses_dir: Path, images: Path, camera_file: Path | None = N
         doc = read_json(poses_dir / LINES_FILE, "lines3d file")
         lines = doc if isinstance(doc, dict) else None
     return DenseInput(traj, camera, tuple(images / n for n in chosen), lines)
+
+
+def _refine_input_camera(poses_dir: Path) -> Path | None:
+    """A refine folder has no camera file: the one of the init folder it refined, if any."""
+    from omni_sfm.fileio import read_json
+
+    report = poses_dir / "report.json"
+    if not report.is_file():
+        return None
+    doc = read_json(report, "report")
+    init = doc.get("input", {}).get("init") if isinstance(doc, dict) and \
+        isinstance(doc.get("input"), dict) else None
+    if not isinstance(init, str):
+        return None
+    path = Path(init) if Path(init).is_absolute() else poses_dir / init
+    return path / CAMERA_FILE if (path / CAMERA_FILE).is_file() else None
 
 
 class _Frames:
