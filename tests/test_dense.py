@@ -17,11 +17,13 @@ import pytest
 
 from omni_sfm.cameras import load_camera
 from omni_sfm.cli import main as cli_main
+from omni_sfm.dense import read_dense_input
 from omni_sfm.dense.evaluate import evaluate_dense
 from omni_sfm.dense.pipeline import _floor_scale
+from omni_sfm.dense.relpose import PairPoseOptions, frame_features, pair_pose
 from omni_sfm.dense.views import ViewGeometry, stereo_rig
 from omni_sfm.evaluate import umeyama
-from omni_sfm.geometry import rotvec_to_matrix
+from omni_sfm.geometry import angle_between, rotation_angle, rotvec_to_matrix
 from omni_sfm.poses import Trajectory, read_tum, write_tum
 from omni_sfm.synth.render import RenderOptions, render_sequence
 from omni_sfm.synth.scenes import open3d_module
@@ -165,6 +167,40 @@ def test_camera_height_cli(room: Path, poses: Path) -> None:
     assert report["keyframe_step"] == 4 and report["num_keyframes"] == 6
     assert report["scale"]["source"] == "camera_height"
     assert report["scale"]["factor"] == pytest.approx(1 / SCALE, rel=0.01)
+
+
+def test_pair_pose_undoes_rotation_drift(room: Path) -> None:
+    """A source pose turned by 0.3 deg (line-based drift over a stereo baseline) is put back
+    by the pair's image-based relative pose; exact poses are left alone."""
+    cam = load_camera(room / "camera.yaml")
+    gt = read_tum(room / "groundtruth.tum")
+    mask = cv2.erode(cam.valid_mask().astype(np.uint8) * 255, np.ones((7, 7), np.uint8))
+    opts = PairPoseOptions()
+    feats = {k: frame_features(cv2.imread(str(room / "images" / f"{k:06d}.png"))[:, :, ::-1]
+                               .copy(), cam, mask, opts) for k in (10, 14)}
+    R_ref, c_ref, R_src, c_src = gt.rotations[10], gt.positions[10], gt.rotations[14], \
+        gt.positions[14]
+    exact = pair_pose(feats[10], feats[14], R_ref, c_ref, R_src, c_src, opts)
+    assert not exact.corrected and exact.rotation_change_deg < 0.1 and exact.inliers > 200
+    drift = rotvec_to_matrix(np.radians(0.3) * np.array([0.2, -0.3, 0.93]))
+    fixed = pair_pose(feats[10], feats[14], R_ref, c_ref, R_src @ drift, c_src, opts)
+    assert fixed.corrected
+    assert fixed.rotation_change_deg == pytest.approx(0.3, abs=0.06)
+    assert np.degrees(rotation_angle(fixed.world_from_src.T @ R_src)) < 0.06
+    assert np.linalg.norm(fixed.centre_src - c_ref) == pytest.approx(
+        np.linalg.norm(c_src - c_ref), rel=1e-12)
+    assert np.degrees(angle_between(fixed.centre_src - c_ref, c_src - c_ref)) < 2.0
+
+
+def test_refine_folder_takes_the_init_camera(room: Path, poses: Path, tmp_path: Path) -> None:
+    """A refine output has no camera.yaml; its report names the init folder that has one."""
+    refined = tmp_path / "refine"
+    refined.mkdir()
+    shutil.copy(poses / "trajectory.tum", refined / "trajectory.tum")
+    (refined / "report.json").write_text(json.dumps({"input": {"init": str(poses)}}))
+    inp = read_dense_input(refined, room / "images")
+    assert inp.camera == load_camera(poses / "camera.yaml")
+    assert [p.name for p in inp.image_paths] == [f"{k:06d}.png" for k in range(24)]
 
 
 def _err(capsys: pytest.CaptureFixture[str]) -> str:
