@@ -2,7 +2,8 @@
 
 The camera goes to COLMAP through :meth:`omni_sfm.cameras.base.CameraModel.colmap_export`
 (images mirrored left-right where the export says ``flip_u``, e.g. the hyperboloid), COLMAP's
-SIFT with the camera's valid mask, sequential matching, geometric verification and
+SIFT with the camera's valid mask, sequential matching, geometric verification (seeded,
+single-threaded RANSAC, so that runs are reproducible) and
 ``pycolmap.incremental_mapping`` with the intrinsics held fixed. Poses of the largest model
 come back to omni-sfm's ray frame: ``cam_from_world = colmap_cam_from_cam^T @
 cam_from_world_colmap``. A simulated sequence gives its point observations as keypoints (pixels
@@ -29,59 +30,103 @@ def _frame_name(k: int) -> str:
     return f"{k:06d}.png"
 
 
-def _database_from_points(db_path: Path, seq: SequenceInput, pts: PointObservations,
-                          export: Any, overlap: int) -> None:
-    """Keypoints of the given observations, matches between frames ``overlap`` apart or less
-    that share a track, COLMAP's geometric verification."""
+def _verification(options: Mapping[str, Any]) -> Any:
+    """COLMAP's two-view geometry options with a seeded, single-threaded RANSAC."""
     import pycolmap
 
+    tvg = pycolmap.TwoViewGeometryOptions()
+    tvg.ransac.random_seed = int(options.get("seed", 0))
+    tvg.ransac.num_threads = 1
+    return tvg
+
+
+def _write_rig_frames(db: Any, cam_id: int, names: list[str]) -> list[int]:
+    """Images ``names`` of camera ``cam_id``, one single-camera rig and one frame per image."""
+    import pycolmap
+
+    rig = pycolmap.Rig()
+    sensor = pycolmap.sensor_t(pycolmap.SensorType.CAMERA, cam_id)
+    rig.add_ref_sensor(sensor)
+    rig_id = db.write_rig(rig)
+    ids = []
+    for name in names:
+        iid = db.write_image(pycolmap.Image(name=name, camera_id=cam_id))
+        frame = pycolmap.Frame()
+        frame.rig_id = rig_id
+        frame.add_data_id(pycolmap.data_t(sensor, iid))
+        db.write_frame(frame)
+        ids.append(int(iid))
+    return ids
+
+
+def _database_from_points(db_path: Path, seq: SequenceInput, pts: PointObservations,
+                          export: Any, options: Mapping[str, Any]) -> None:
+    """Keypoints of the given observations, matches between frames ``overlap`` apart or less
+    that share a track, COLMAP's geometric verification (seeded)."""
+    import pycolmap
+
+    overlap = int(options.get("overlap", 10))
     with pycolmap.Database.open(str(db_path)) as db:
-        cam_id = db.write_camera(export.camera)
-        rig = pycolmap.Rig()
-        sensor = pycolmap.sensor_t(pycolmap.SensorType.CAMERA, cam_id)
-        rig.add_ref_sensor(sensor)
-        rig_id = db.write_rig(rig)
-        ids: list[int] = []
+        cam_id = int(db.write_camera(export.camera))
+        ids = _write_rig_frames(db, cam_id, [_frame_name(k) for k in range(seq.num_frames)])
         per_frame: list[np.ndarray] = []
         for k in range(seq.num_frames):
             sel = np.flatnonzero(pts.obs_frame == k)
-            iid = db.write_image(pycolmap.Image(name=_frame_name(k), camera_id=cam_id))
-            frame = pycolmap.Frame()
-            frame.rig_id = rig_id
-            frame.add_data_id(pycolmap.data_t(sensor, iid))
-            db.write_frame(frame)
-            db.write_keypoints(iid, export.pixels_to_colmap(pts.obs_uv[sel]).astype(np.float32))
-            ids.append(iid)
+            db.write_keypoints(ids[k],
+                               export.pixels_to_colmap(pts.obs_uv[sel]).astype(np.float32))
             per_frame.append(pts.obs_track[sel])
         for a in range(seq.num_frames):
             for b in range(a + 1, min(seq.num_frames, a + overlap + 1)):
                 _, ia, ib = np.intersect1d(per_frame[a], per_frame[b], return_indices=True)
                 if len(ia):
                     db.write_matches(ids[a], ids[b], np.stack([ia, ib], 1).astype(np.uint32))
-    pycolmap.geometric_verification(str(db_path))
+    verifier = pycolmap.GeometricVerifierOptions()
+    verifier.num_threads = 1
+    pycolmap.geometric_verification(str(db_path), verifier_options=verifier,
+                                    two_view_geometry_options=_verification(options))
 
 
 def _database_from_images(db_path: Path, work: Path, seq: SequenceInput, export: Any,
                           options: Mapping[str, Any]) -> None:
+    """COLMAP SIFT of the (mirrored where needed) frames with the camera mask, the exact camera
+    shared by all, sequential matching with seeded geometric verification."""
     import cv2
+    import pycolmap
 
     from omni_sfm.export.colmap import write_colmap_mask
-    from omni_sfm.refine.database import extract_and_match
 
     img_dir = work / "images"
     img_dir.mkdir()
+    names = [_frame_name(k) for k in range(seq.num_frames)]
     assert seq.images is not None
-    for k, src in enumerate(seq.images):
+    for name, src in zip(names, seq.images, strict=True):
         img = cv2.imread(str(src), cv2.IMREAD_UNCHANGED)
         if img is None or img.shape[:2] != (export.height, export.width):
             raise ValueError(f"{src}: unreadable or not {export.width}x{export.height} px")
-        cv2.imwrite(str(img_dir / _frame_name(k)), export.image_to_colmap(img))
+        cv2.imwrite(str(img_dir / name), export.image_to_colmap(img))
     write_colmap_mask(work / "mask.png", seq.camera)
-    extract_and_match(db_path, img_dir, work / "mask.png",
-                      [_frame_name(k) for k in range(seq.num_frames)], export,
-                      max_features=int(options.get("max_features", 4000)),
-                      overlap=int(options.get("overlap", 10)),
-                      num_threads=int(options.get("threads", 1)))
+    threads = int(options.get("threads", 1))
+    with pycolmap.Database.open(str(db_path)) as db:
+        cam_id = int(db.write_camera(export.camera))
+    reader = pycolmap.ImageReaderOptions()
+    reader.existing_camera_id = cam_id
+    reader.camera_mask_path = str(work / "mask.png")
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.num_threads = threads
+    extraction.use_gpu = False
+    extraction.sift.max_num_features = int(options.get("max_features", 4000))
+    pycolmap.extract_features(str(db_path), str(img_dir), image_names=names,
+                              camera_mode=pycolmap.CameraMode.SINGLE, reader_options=reader,
+                              extraction_options=extraction, device=pycolmap.Device.cpu)
+    matching = pycolmap.FeatureMatchingOptions()
+    matching.num_threads = threads
+    matching.use_gpu = False
+    pairing = pycolmap.SequentialPairingOptions()
+    pairing.overlap = int(options.get("overlap", 10))
+    pairing.num_threads = threads
+    pycolmap.match_sequential(str(db_path), matching_options=matching, pairing_options=pairing,
+                              verification_options=_verification(options),
+                              device=pycolmap.Device.cpu)
 
 
 def colmap(sequence: SequenceInput, options: Mapping[str, Any]) -> InitializerResult:
@@ -100,8 +145,7 @@ def colmap(sequence: SequenceInput, options: Mapping[str, Any]) -> InitializerRe
                 _database_from_images(db_path, work, sequence, export, options)
                 source = "COLMAP SIFT"
             elif sequence.points is not None:
-                _database_from_points(db_path, sequence, sequence.points, export,
-                                      int(options.get("overlap", 10)))
+                _database_from_points(db_path, sequence, sequence.points, export, options)
                 source = "given"
             else:
                 return failed("the sequence has neither images nor point observations")
