@@ -151,9 +151,18 @@ def run_all(tasks: list[dict[str, Any]], scheduler: str | None, workers: int,
                 if on_done:
                     on_done(r)
     else:
+        import multiprocessing
         from concurrent.futures import as_completed as cf_completed
 
-        with ProcessPoolExecutor(max_workers=workers) as pool:
+        # spawn, not fork: a forked child inherits OpenCV's and BLAS's thread pools half-locked
+        # and deadlocks in its first cv2 call (seen in cv2.setNumThreads)
+        ctx = multiprocessing.get_context("spawn")
+        # spawned children import this script by name to find run_task, with the parent's
+        # sys.path (multiprocessing copies it over)
+        here = str(Path(__file__).resolve().parent)
+        if here not in sys.path:
+            sys.path.insert(0, here)
+        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
             pending = {pool.submit(run_task, t): i for i, t in enumerate(tasks)}
             for f in cf_completed(pending):
                 r = f.result()
