@@ -169,7 +169,7 @@ def _initialise(tracks: LineTracks, options: EstimationOptions,
         solutions.append((np.asarray(sol.rotations), np.asarray(sol.positions)))
     t0 = time.perf_counter()
     # a few iterations suffice to stop errors from accumulating along the chain
-    local_opts = replace(options.bundle, reject_outliers=False, max_rounds=1,
+    local_opts = replace(options.bundle, max_rounds=2,
                          max_iterations=options.local_iterations,
                          final_loss=None)
 
