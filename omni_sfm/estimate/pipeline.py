@@ -270,6 +270,17 @@ def estimate_poses(tracks: LineTracks,
     R_n, c_n, d_n, p_n = _normalise(R, c, frames, d, p)
     R_i, c_i, _, _ = _normalise(init.rotations, init.positions, frames, d, p)
     idx = np.flatnonzero(frames)
+    front, behind = side_votes(tracks, R_n, c_n, d_n, p_n, frames, used)
+    reflection = "unresolved: the tracks carry no rays (" + REFLECTION_NOTE + ")"
+    if front + behind > 0:
+        if behind > front:
+            # every observation is unchanged by the point reflection through the first camera;
+            # the rays say the lines lie on the other side
+            o = c_n[idx[0]].copy()
+            c_n, p_n, c_i = 2.0 * o - c_n, 2.0 * o - p_n, 2.0 * o - c_i
+            front, behind = behind, front
+        reflection = (f"resolved by the observations' rays: {front} see their line in front, "
+                      f"{behind} behind")
     ts = tracks.timestamps
     traj = Trajectory(ts[idx].copy(), R_n[idx], c_n[idx])
     traj0 = Trajectory(ts[idx].copy(), R_i[idx], c_i[idx])
@@ -286,9 +297,35 @@ def estimate_poses(tracks: LineTracks,
     windows = [(w.start, w.stop) for w in init.windows]
     report = _report(tracks, frames, members, direction, outliers, used, windows,
                      init.failures, dict(timings), rms0, rms1, sigma)
+    report["reflection"] = reflection
     return EstimationResult(traj, frames, traj0, tracks.track_ids.copy(), members, direction,
                             outliers, used, d_n, p_n, windows, dict(timings), rms0, rms1,
                             sigma, SCALE_CONVENTION, report)
+
+
+def side_votes(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArray, p: FloatArray,
+               frames: np.ndarray, used: np.ndarray) -> tuple[int, int]:
+    """How many observations see their 3D line in front of / behind the camera.
+
+    For each observation with a ray (``tracks.obs_ray``) of an estimated frame and a used line:
+    the sign of the depth along the ray of its closest approach to the line. ``(0, 0)`` when the
+    tracks carry no rays. ``R (F,3,3)`` world_from_cam, ``c (F,3)`` centres, ``d, p (M,3)``
+    line directions and points (world).
+    """
+    if tracks.obs_ray is None:
+        return 0, 0
+    t, f = tracks.obs_track, tracks.obs_frame
+    ok = frames[f] & used[t]
+    if not ok.any():
+        return 0, 0
+    t, f = t[ok], f[ok]
+    w = np.einsum("kij,kj->ki", R[f], tracks.obs_ray[ok])
+    dd, b = d[t], p[t] - c[f]
+    a = np.sum(w * dd, axis=1)
+    den = 1.0 - a * a
+    good = den > 1e-6  # a ray along its own line says nothing
+    depth = (np.sum(b * w, axis=1) - np.sum(b * dd, axis=1) * a)[good] / den[good]
+    return int(np.sum(depth > 0)), int(np.sum(depth < 0))
 
 
 def _expand(ba: BundleResult, idx: np.ndarray, M: int, first_outliers: np.ndarray) -> BundleResult:
