@@ -25,7 +25,7 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	@# pytest exits 5 when it collected no test; that is not a failure of the suite
-	$(VENV)/bin/python -m pytest -q; rc=$$?; if [ $$rc -eq 5 ]; then rc=0; fi; exit $$rc
+	OPENBLAS_NUM_THREADS=1 $(VENV)/bin/python -m pytest -q; rc=$$?; if [ $$rc -eq 5 ]; then rc=0; fi; exit $$rc
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .

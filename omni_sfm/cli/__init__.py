@@ -10,9 +10,15 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import pkgutil
 import sys
 from collections.abc import Sequence
+
+# The estimator works on many small matrices, where OpenBLAS's thread pool only adds contention
+# (5-10x slower on a busy 2-core machine). Set before any command imports numpy; a value the
+# user exported wins.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 from omni_sfm import __version__
 
