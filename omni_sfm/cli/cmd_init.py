@@ -1,10 +1,10 @@
 """``omni-sfm init``: initial camera poses of a sequence (docs/estimator.md, docs/formats.md).
 
-Input modes form a mutually exclusive group; ``--tracks FILE`` (tracked line normals,
-``tracks.json``) is the one implemented here. An image mode (``--images PATH --camera FILE``)
-can be added to the group: it extracts and tracks lines into a :class:`LineTracks` and then
-shares everything below it (:func:`omni_sfm.estimate.pipeline.estimate_poses` and
-:func:`omni_sfm.estimate.pipeline.write_init_outputs`).
+Two input modes, mutually exclusive: ``--tracks FILE`` (tracked line normals, ``tracks.json``)
+runs the estimator alone; ``--images PATH --camera FILE`` (an image folder or a video) runs the
+line front end first (:func:`omni_sfm.initialize.init_from_images`). Both share
+:func:`omni_sfm.estimate.pipeline.estimate_poses` and
+:func:`omni_sfm.estimate.pipeline.write_init_outputs`.
 """
 
 from __future__ import annotations
@@ -18,40 +18,83 @@ from typing import Any
 def add_parser(subparsers: Any) -> None:
     p = subparsers.add_parser(
         "init",
-        help="estimate initial camera poses from tracked lines",
-        description="Estimate the pose of every frame from tracked straight lines (the "
-                    "parallel-line method of Kawanishi et al. 2012, refined by a line bundle "
-                    "adjustment). Writes OUTPUT/trajectory.tum (world_from_cam, world = first "
+        help="estimate initial camera poses from straight lines",
+        description="Estimate the pose of every frame from straight lines (the parallel-line "
+                    "method of Kawanishi et al. 2012, refined by a line bundle adjustment), from "
+                    "an image folder or video (--images, --camera) or from tracked lines "
+                    "(--tracks). Writes OUTPUT/trajectory.tum (world_from_cam, world = first "
                     "estimated frame's camera, first-to-last distance = 1) and "
-                    "OUTPUT/report.json, complete or not at all.",
+                    "OUTPUT/report.json, plus for images the tracks, a COLMAP model seeded with "
+                    "the poses and a debug view; complete or not at all.",
     )
     method = p.add_mutually_exclusive_group()
     method.add_argument("--lines", action="store_true", default=True,
                         help="line-based initializer (the default and, in the core, the only "
-                             "one)")
+                             "one; point-based ones are plugins of 'omni-sfm compare')")
     source = p.add_mutually_exclusive_group(required=True)
     source.add_argument("--tracks", type=Path,
                         help="tracked line normals, tracks.json (docs/formats.md)")
+    source.add_argument("--images", type=Path,
+                        help="folder of images (sorted by name) or a video file")
+    p.add_argument("--camera", type=Path,
+                   help="camera file (any format omni-sfm reads; docs/cameras.md); "
+                        "required with --images")
+    p.add_argument("--mask", type=Path, help="mask image: nonzero where pixels may be used")
+    p.add_argument("--start", type=int, default=0, help="first frame to use (default 0)")
+    p.add_argument("--end", type=int, default=None, help="stop before this frame")
+    p.add_argument("--step", type=int, default=1, help="use every STEP-th frame (default 1)")
+    p.add_argument("--debug-view", choices=["png", "mp4", "none"], default="png",
+                   help="frames with tracked lines coloured by parallel group: PNGs in "
+                        "OUTPUT/debug/ (default), OUTPUT/debug.mp4, or none")
+    p.add_argument("--no-colmap", action="store_true",
+                   help="do not write the COLMAP model (sparse/, images_colmap/)")
+    p.add_argument("--text", action="store_true", help="also write the COLMAP model as text")
     p.add_argument("--output", "-o", type=Path, required=True, help="output folder")
     p.add_argument("--overwrite", action="store_true", help="replace a non-empty OUTPUT")
     p.add_argument("--no-refine", action="store_true",
                    help="skip the bundle adjustment (the paper's method alone)")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=run)
 
 
+def _summary(rep: dict[str, Any], output: Path) -> str:
+    return (f"omni-sfm init: {rep['num_frames_estimated']}/{rep['num_frames']} frames, "
+            f"{len(rep['parallel_family']['track_ids'])} parallel lines, "
+            f"{len(rep['rejected_tracks'])} outlier tracks, residual "
+            f"{rep['residuals']['rms_final_deg']:.3g} deg RMS -> {output}")
+
+
 def run(args: argparse.Namespace) -> int:
+    from omni_sfm.errors import OmniSfmError
     from omni_sfm.estimate.pipeline import EstimationOptions, estimate_poses, write_init_outputs
     from omni_sfm.fileio import atomic_output_dir, check_output_dir
+
+    estimation = EstimationOptions(refine=not args.no_refine)
+    if args.images is not None:
+        from omni_sfm.initialize import InitOptions, init_from_images
+        from omni_sfm.lines.frontend import FrontEndOptions
+
+        if args.camera is None:
+            raise OmniSfmError("--images needs --camera CAMERA_FILE (docs/cameras.md)")
+        res = init_from_images(
+            args.images, args.camera, args.output,
+            InitOptions(frontend=FrontEndOptions(progress=not args.quiet), estimation=estimation,
+                        start=args.start, end=args.end, step=args.step,
+                        debug_view=args.debug_view, colmap=not args.no_colmap,
+                        colmap_text=args.text, progress=not args.quiet),
+            mask=args.mask, overwrite=args.overwrite)
+        print(_summary(res.estimation.report, args.output), file=sys.stderr)
+        return 0
+
+    for flag in ("camera", "mask"):
+        if getattr(args, flag) is not None:
+            raise OmniSfmError(f"--{flag} applies to --images input, not to --tracks")
+    check_output_dir(args.output, overwrite=args.overwrite)
     from omni_sfm.lines.tracks import read_tracks
 
-    check_output_dir(args.output, overwrite=args.overwrite)
     tracks = read_tracks(args.tracks)
-    result = estimate_poses(tracks, EstimationOptions(refine=not args.no_refine))
+    result = estimate_poses(tracks, estimation)
     with atomic_output_dir(args.output, overwrite=args.overwrite) as tmp:
         write_init_outputs(tmp, result, extra={"input": {"tracks": str(args.tracks)}})
-    rep = result.report
-    print(f"omni-sfm init: {rep['num_frames_estimated']}/{rep['num_frames']} frames, "
-          f"{len(rep['parallel_family']['track_ids'])} parallel lines, "
-          f"{len(rep['rejected_tracks'])} outlier tracks, residual "
-          f"{rep['residuals']['rms_final_deg']:.3g} deg RMS -> {args.output}", file=sys.stderr)
+    print(_summary(result.report, args.output), file=sys.stderr)
     return 0
