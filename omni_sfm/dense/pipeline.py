@@ -484,7 +484,8 @@ def dense_map(inp: DenseInput, opts: DenseOptions | None = None, *,
     warnings: list[str] = []
     grid = cam.pixel_grid_rays()[::2, ::2].reshape(-1, 3)   # every 4th pixel: enough for a share
     frame_rays = grid[np.isfinite(grid[:, 0])]
-    for k in tqdm(keyframes, desc="dense", unit="keyframe", disable=not progress, leave=False):
+    for k in tqdm(keyframes, desc="dense", unit="keyframe",
+                  disable=None if progress else True, leave=False):
         srcs = _sources(traj, k, calib.baseline)
         if len(srcs) < 2:
             warnings.append(f"frame {k}: fewer than two frames with enough baseline, skipped")

@@ -154,7 +154,7 @@ def track_lines(frames: Iterable[tuple[int, float, np.ndarray]], camera: CameraM
     c_trk: list[float] = []
     total = (len(frames) or None) if hasattr(frames, "__len__") else None  # type: ignore[arg-type]
     it = iter(frames)
-    with tqdm(total=total, desc="lines", unit="frame", disable=not o.progress,
+    with tqdm(total=total, desc="lines", unit="frame", disable=None if o.progress else True,
               leave=False) as bar:
         while True:
             t0 = time.perf_counter()

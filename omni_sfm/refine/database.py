@@ -50,8 +50,8 @@ def write_colmap_images(src: Path, dst: Path, names: Sequence[str], export: Colm
     from tqdm import tqdm
 
     dst.mkdir(parents=True, exist_ok=True)
-    for name in tqdm(names, desc="refine: images for COLMAP", unit="img", disable=not progress,
-                     leave=False):
+    for name in tqdm(names, desc="refine: images for COLMAP", unit="img",
+                     disable=None if progress else True, leave=False):
         img = cv2.imread(str(src / name), cv2.IMREAD_UNCHANGED)
         if img is None:
             raise OmniSfmError(f"{src / name}: OpenCV cannot read this image")

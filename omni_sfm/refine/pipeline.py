@@ -130,8 +130,8 @@ class _Stages:
         from tqdm import tqdm
 
         self.times: dict[str, float] = {}
-        self.bar = tqdm(total=len(names), desc="refine", unit="stage", disable=not progress,
-                        leave=False, file=sys.stderr)
+        self.bar = tqdm(total=len(names), desc="refine", unit="stage",
+                        disable=None if progress else True, leave=False, file=sys.stderr)
 
     @contextmanager
     def stage(self, name: str) -> Iterator[None]:

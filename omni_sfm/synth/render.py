@@ -593,7 +593,7 @@ def render_sequence(output: Path | str, options: RenderOptions | None = None, *,
             (tmp / "images").mkdir()
         try:
             for k in tqdm(range(n), desc=f"render {o.scene}", unit="frame",
-                          disable=not progress, leave=False):
+                          disable=None if progress else True, leave=False):
                 img = setup.renderer.render(gt.rotations[k], gt.positions[k], k)
                 bgr = np.ascontiguousarray(img[:, :, ::-1])
                 if writer is not None:

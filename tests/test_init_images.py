@@ -1,0 +1,127 @@
+"""``omni-sfm init --lines --images`` end to end on rendered sequences with exact ground truth.
+
+Sized for CI; the full-size figures (800x600 and 1600x800, 200 frames) are produced by
+``scripts/eval_init.py`` and quoted in docs/results.md.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from omni_sfm.cli import main
+from omni_sfm.evaluate import trajectory_errors
+from omni_sfm.lines.tracks import read_tracks
+from omni_sfm.poses import read_tum
+from omni_sfm.synth.render import RenderOptions, render_sequence
+
+
+@pytest.fixture(scope="module")
+def corridor(tmp_path_factory) -> Path:
+    d = tmp_path_factory.mktemp("corridor") / "seq"
+    render_sequence(d, RenderOptions(camera="hyperboloid", frames=40, seed=1), progress=False)
+    return d
+
+
+def _init(seq: Path, out: Path, *extra: str) -> int:
+    return main(["init", "--lines", "--images", str(seq / "images"), "--camera",
+                 str(seq / "camera.yaml"), "--output", str(out), "--quiet", *extra])
+
+
+def test_corridor_hyperboloid_every_frame_within_thresholds(corridor, tmp_path):
+    out = tmp_path / "init"
+    assert _init(corridor, out) == 0
+    est, gt = read_tum(out / "trajectory.tum"), read_tum(corridor / "groundtruth.tum")
+    assert len(est) == len(gt)
+    err = trajectory_errors(est, gt)
+    assert err.rot_max_deg <= 0.5
+    assert err.ate_rel <= 0.01
+    for name in ("tracks.json", "report.json", "trajectory.png", "camera.yaml", "sparse",
+                 "images_colmap", "debug"):
+        assert (out / name).exists(), name
+    report = json.loads((out / "report.json").read_text())
+    assert report["reflection"].startswith("resolved")
+    assert report["num_frames_estimated"] == len(gt)
+    assert len(list((out / "debug").glob("*.png"))) == len(gt)
+    # the tracks artifact re-runs the estimator alone, to the same poses
+    assert main(["init", "--tracks", str(out / "tracks.json"), "-o", str(tmp_path / "again")]) \
+        == 0
+    again = read_tum(tmp_path / "again" / "trajectory.tum")
+    np.testing.assert_allclose(again.positions, est.positions, atol=1e-6)
+
+
+def test_equirectangular_corridor(tmp_path):
+    seq = tmp_path / "seq"
+    render_sequence(seq, RenderOptions(camera="equirectangular", frames=16, seed=2),
+                    progress=False)
+    out = tmp_path / "init"
+    assert _init(seq, out, "--no-colmap", "--debug-view", "none") == 0
+    err = trajectory_errors(read_tum(out / "trajectory.tum"), read_tum(seq / "groundtruth.tum"))
+    assert err.num_common == 16
+    assert err.rot_max_deg <= 0.5
+    assert err.ate_rel <= 0.01
+
+
+def test_video_gives_the_same_result_as_its_image_folder(corridor, tmp_path):
+    frames = sorted((corridor / "images").glob("*.png"))[:12]
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    video = tmp_path / "seq.avi"
+    first = cv2.imread(str(frames[0]))
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter.fourcc(*"FFV1"), 10.0,
+                             (first.shape[1], first.shape[0]))
+    assert writer.isOpened()
+    for f in frames:
+        img = cv2.imread(str(f))
+        writer.write(img)
+        cv2.imwrite(str(folder / f.name), img)
+    writer.release()
+    common = ["--camera", str(corridor / "camera.yaml"), "--no-colmap", "--debug-view", "none",
+              "--quiet"]
+    assert main(["init", "--images", str(folder), "-o", str(tmp_path / "a"), *common]) == 0
+    assert main(["init", "--images", str(video), "-o", str(tmp_path / "b"), *common]) == 0
+    a, b = read_tum(tmp_path / "a" / "trajectory.tum"), read_tum(tmp_path / "b" / "trajectory.tum")
+    np.testing.assert_allclose(b.timestamps, a.timestamps / 10.0)  # video: seconds
+    np.testing.assert_allclose(b.positions, a.positions, atol=1e-12)
+    np.testing.assert_allclose(b.rotations, a.rotations, atol=1e-12)
+    ta, tb = read_tracks(tmp_path / "a" / "tracks.json"), read_tracks(tmp_path / "b" /
+                                                                       "tracks.json")
+    np.testing.assert_array_equal(ta.obs_frame, tb.obs_frame)
+
+
+def _one_line_error(capsys, argv: list[str], *needles: str) -> None:
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and err.startswith("omni-sfm: error:"), err
+    for n in needles:
+        assert n in err, err
+
+
+def test_bad_image_input(corridor, tmp_path, capsys):
+    cam = str(corridor / "camera.yaml")
+    _one_line_error(capsys, ["init", "--images", str(tmp_path / "missing"), "--camera", cam,
+                             "-o", str(tmp_path / "o1")], "missing")
+    small = tmp_path / "small"
+    small.mkdir()
+    for k in range(4):
+        cv2.imwrite(str(small / f"{k:03d}.png"), np.zeros((100, 120), np.uint8))
+    _one_line_error(capsys, ["init", "--images", str(small), "--camera", cam,
+                             "-o", str(tmp_path / "o2")], "120x100")
+    blank = tmp_path / "blank"
+    blank.mkdir()
+    for k in range(5):
+        cv2.imwrite(str(blank / f"{k:03d}.png"), np.full((600, 800), 128, np.uint8))
+    _one_line_error(capsys, ["init", "--images", str(blank), "--camera", cam, "--quiet",
+                             "-o", str(tmp_path / "o3")])
+    bad_cam = tmp_path / "cam.yaml"
+    bad_cam.write_text("model: hyperboloid\nwidth: 800\n")
+    _one_line_error(capsys, ["init", "--images", str(corridor / "images"), "--camera",
+                             str(bad_cam), "-o", str(tmp_path / "o4")], str(bad_cam))
+    _one_line_error(capsys, ["init", "--images", str(corridor / "images"),
+                             "-o", str(tmp_path / "o5")], "--camera")
+    for k in range(1, 6):
+        assert not (tmp_path / f"o{k}").exists()
