@@ -84,6 +84,20 @@ def test_without_rays_the_sign_is_the_point_reflection_ambiguity() -> None:
         assert err < 1e-6
 
 
+def test_alternative_starts_share_world_scale_and_branch() -> None:
+    """The alternative starts (translations from other second views) are in the solution's
+    world, scale and reflection branch: noise-free they equal it; none with the option off."""
+    sim = simulate(SimulationOptions(num_views=20, num_parallel=20, num_other=20, seed=4))
+    sol = _solve(sim)
+    assert len(sol.alternatives) == PaperOptions().alternative_starts
+    for R, c in sol.alternatives:
+        np.testing.assert_array_equal(R, sol.rotations)
+        assert np.abs(c - sol.positions).max() < 1e-9
+    for _, c in sol.reflected().alternatives:
+        assert np.abs(c + sol.positions).max() < 1e-9
+    assert _solve(sim, options=PaperOptions(alternative_starts=0)).alternatives == ()
+
+
 @pytest.mark.parametrize("noise", [0.1, 0.5])
 def test_noise_fig12_setup(noise: float) -> None:
     """Fig. 12 set-up: 20 views, 40 lines (20 parallel); errors "nearly within the noise"."""

@@ -72,6 +72,27 @@ def test_fig12_within_1p1_oracle(noise):
     assert paper_m[0] <= noise
 
 
+def test_fig12_highest_noise_reaches_the_oracle():
+    """1.28 deg, the Fig. 12 set-up: from the paper's solution alone the bundle adjustment stops
+    in a wrong local minimum in these trials (seed 100: 3.5 deg / 0.06 against the oracle's
+    0.84 deg / 0.025; seed 1009: 3.1 deg / 0.43); the multi-start over the paper's alternative
+    starts reaches the oracle's minimum in every one."""
+    ref, orc = [], []
+    for seed in (0, 100, 1009, 1030):
+        sim = simulate(SimulationOptions(num_views=20, num_parallel=20, num_other=20,
+                                         noise_deg=1.28, seed=seed))
+        res = estimate_poses(sim.tracks)
+        assert res.estimated.all() and not res.outliers.any()
+        g = sim.groundtruth
+        o = oracle(sim.tracks, g.rotations, g.positions, sim.line_directions, sim.line_points)
+        # the same least-squares cost as the oracle's (the maximum-likelihood minimum)
+        assert res.residual_rms_final_deg <= o.rms_final_deg * (1 + 1e-6)
+        ref.append(_err(res.trajectory, sim))
+        orc.append(_oracle_err(sim))
+    ref_m, orc_m = np.mean(ref, axis=0), np.mean(orc, axis=0)
+    assert ref_m[0] <= 1.1 * orc_m[0] and ref_m[1] <= 1.1 * orc_m[1]
+
+
 def test_200_views_paper_real_case_within_1p1_oracle():
     ref, orc = [], []
     for seed in range(2):

@@ -101,6 +101,12 @@ class PaperOptions:
     rerun_rotation: bool = True
     """Re-solve the rotation with a better-conditioned second view when the solved rotations
     show one (much larger parallax of the non-parallel lines than the proxy's choice)."""
+    alternative_starts: int = 4
+    """Also solve the translation (§5, all-view polish off) with this many other second views
+    ``c`` (those with the most in-plane parallax) and return the results as
+    :attr:`PaperSolution.alternatives`: at high noise the choice of ``c`` decides which basin a
+    later bundle adjustment falls into, so a caller can refine from each and keep the lowest
+    cost. 0: none."""
 
 
 @dataclass(frozen=True)
@@ -131,6 +137,10 @@ class PaperSolution:
             the all-view positions were kept), ``robust_rounds`` (reweighted re-solves run).
         weights: ``(M,)`` the effective track weights of the final solve: the caller's times
             the robust (Cauchy) weights; small values mark suspected outlier tracks.
+        alternatives: ``((rotations (F,3,3), positions (F,3)), ...)`` other starting solutions
+            (same rotations, translations from other second views, see
+            ``PaperOptions.alternative_starts``), each scaled (least squares, the sign
+            included) onto ``positions``: same world, scale and reflection branch.
     """
 
     rotations: FloatArray
@@ -145,6 +155,7 @@ class PaperSolution:
     timings_ms: dict[str, float]
     costs: dict[str, float]
     weights: FloatArray
+    alternatives: tuple[tuple[FloatArray, FloatArray], ...] = ()
 
     def reflected(self) -> PaperSolution:
         """The point reflection through the first camera: positions and line points negated.
@@ -153,7 +164,8 @@ class PaperSolution:
         the sign, chaining windows or comparing with other estimates must allow for it (e.g. a
         least-squares similarity whose scale may be negative).
         """
-        return replace(self, positions=-self.positions, line_points=-self.line_points)
+        return replace(self, positions=-self.positions, line_points=-self.line_points,
+                       alternatives=tuple((R, -c) for R, c in self.alternatives))
 
 
 def _motion_scores(normals: FloatArray) -> FloatArray:
@@ -261,10 +273,39 @@ def estimate_paper(tracks: LineTracks, family: ParallelFamily,
             timings[k] = timings.get(k, 0.0) + val
         sol, w = new, w_new
         rounds += 1
+    t_alt = time.perf_counter()
+    alternatives = _alternatives(sol, normals, w, opts)
+    timings["translation"] = timings.get("translation", 0.0) + \
+        (time.perf_counter() - t_alt) * 1e3
     timings["total"] = (time.perf_counter() - t_start) * 1e3
     costs = dict(sol.costs)
     costs["robust_rounds"] = float(rounds)
-    return replace(sol, timings_ms=timings, costs=costs, weights=w)
+    return replace(sol, timings_ms=timings, costs=costs, weights=w, alternatives=alternatives)
+
+
+def _alternatives(sol: PaperSolution, normals: FloatArray, w: FloatArray,
+                  opts: PaperOptions) -> tuple[tuple[FloatArray, FloatArray], ...]:
+    """Translations of ``sol.rotations`` from other second views (``opts.alternative_starts``)."""
+    if opts.alternative_starts <= 0 or opts.second_view is not None:
+        return ()
+    members = sol.parallel
+    par = np.flatnonzero(members & (w > 0))
+    oth = np.flatnonzero(~members & (w > 0))
+    v = sol.parallel_direction
+    m_world = np.einsum("fij,fmj->fmi", sol.rotations, normals)
+    pp = np.median(in_plane_parallax(m_world[:, par], v), axis=1)
+    order = [int(k) for k in np.argsort(-pp, kind="stable") if k != sol.second_view and k != 0]
+    ref = sol.positions
+    out: list[tuple[FloatArray, FloatArray]] = []
+    for c in order[: opts.alternative_starts]:
+        alt_opts = replace(opts, second_view=c, polish_translation=False)
+        try:
+            t = _translate(sol.rotations, normals, v, members, par, oth, w, alt_opts)
+        except OmniSfmError:
+            continue
+        k = float(np.sum(t.positions * ref) / max(float(np.sum(t.positions ** 2)), 1e-300))
+        out.append((sol.rotations, k * t.positions))
+    return tuple(out)
 
 
 def _solve_once(tracks: LineTracks, family: ParallelFamily, opts: PaperOptions, w: FloatArray,

@@ -68,6 +68,16 @@ class EstimationOptions:
     restart_without_outliers: bool = True
     """When the refinement flags outlier tracks, solve again from scratch without them and keep
     the better of the two solutions (robust initialisation)."""
+    multistart: bool = True
+    """When one window covers the sequence, also refine from the paper's alternative starting
+    solutions (``PaperSolution.alternatives``: translations from other second views) and keep
+    the solution with the lowest final cost, the maximum-likelihood criterion. At high noise
+    the bundle adjustment from the paper's solution alone can stop in a wrong local minimum."""
+    multistart_min_difference: float = 0.05
+    """An alternative start is refined only if its camera centres differ from every start
+    already refined by more than this fraction (RMS, after least-squares scaling) of the RMS
+    distance of the cameras from the first: nearby starts fall into the same basin (at low
+    noise all starts agree and nothing extra is run)."""
 
 
 @dataclass(frozen=True)
@@ -124,6 +134,7 @@ class _Init:
     failures: list[str]
     members: np.ndarray
     vpv: FloatArray
+    alternatives: list[tuple[FloatArray, FloatArray]] = field(default_factory=list)
 
 
 def _check_counts(tracks: LineTracks, members: np.ndarray) -> None:
@@ -156,6 +167,7 @@ def _initialise(tracks: LineTracks, options: EstimationOptions,
         windows = plan_windows(tracks, members, frame_ok, options.windows)
     solutions: list[tuple[FloatArray, FloatArray] | None] = []
     failures: list[str] = []
+    alternatives: list[tuple[FloatArray, FloatArray]] = []
     for w in windows:
         try:
             sol = estimate_paper(window_tracks(tracks, w), window_family(family, w),
@@ -167,6 +179,9 @@ def _initialise(tracks: LineTracks, options: EstimationOptions,
         for k, v in sol.timings_ms.items():
             timings[k] += float(v)
         solutions.append((np.asarray(sol.rotations), np.asarray(sol.positions)))
+        if len(windows) == 1 and w.start == 0 and w.stop == F:
+            # the chain is this window's solution as it is: its alternatives apply directly
+            alternatives = [(np.asarray(R), np.asarray(c)) for R, c in sol.alternatives]
     t0 = time.perf_counter()
     # a few iterations suffice to stop errors from accumulating along the chain
     local_opts = replace(options.bundle, max_rounds=2,
@@ -190,7 +205,7 @@ def _initialise(tracks: LineTracks, options: EstimationOptions,
             "no stretch of 3 or more frames sees 3 parallel and 3 other lines in every frame"
         raise OmniSfmError(f"cannot estimate any frame: {why}")
     return _Init(R, c, done, [windows[i] for i in chained], failures, members,
-                 np.asarray(family.vpv))
+                 np.asarray(family.vpv), alternatives if done.all() else [])
 
 
 def _normalise(R: FloatArray, c: FloatArray, frames: np.ndarray, d: FloatArray,
@@ -217,6 +232,33 @@ def _refine(tracks: LineTracks, init: _Init, options: EstimationOptions,
     res = bundle_adjust(tracks, init.rotations, init.positions, d, p, frames=init.frames,
                         options=options.bundle)
     timings["refinement"] += (time.perf_counter() - t0) * 1e3
+    if not options.multistart or not init.alternatives:
+        return res
+    # multi-start: the bundle adjustment from each distinct alternative start, the lowest final
+    # cost wins (same frames and at least as many tracks, so the costs are comparable)
+    idx = np.flatnonzero(init.frames)
+    c0 = init.positions[idx]
+    spread = float(np.sqrt(np.mean(np.sum((c0 - c0[0]) ** 2, axis=1))))
+    tried = [c0]
+    for R_alt, c_alt in init.alternatives:
+        ca = c_alt[idx]
+        if min(float(np.sqrt(np.mean(np.sum((ca - t) ** 2, axis=1)))) for t in tried) <= \
+                options.multistart_min_difference * spread:
+            continue
+        tried.append(ca)
+        t0 = time.perf_counter()
+        try:
+            d, p, _ = triangulate_lines(tracks, R_alt, c_alt, init.frames)
+            alt = bundle_adjust(tracks, R_alt, c_alt, d, p, frames=init.frames,
+                                options=options.bundle)
+        except OmniSfmError:
+            continue
+        finally:
+            timings["refinement"] += (time.perf_counter() - t0) * 1e3
+        if alt.frames.sum() >= res.frames.sum() and \
+                alt.used_tracks.sum() >= res.used_tracks.sum() and \
+                alt.rms_final_deg < res.rms_final_deg:
+            res = alt
     return res
 
 
