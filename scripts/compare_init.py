@@ -365,8 +365,7 @@ def main(argv: list[str] | None = None) -> int:
     from omni_sfm.compare import parse_initializer_names
     from omni_sfm.registry import INITIALIZERS, available
 
-    # import everything the tasks use before the pool forks, so that every worker runs the
-    # code this run started with
+    # fail early, before any task starts, if a plugin or the renderer cannot be imported
     importlib.import_module("omni_sfm.synth.render")
     for ep in available(INITIALIZERS).values():
         ep.load()
