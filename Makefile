@@ -17,7 +17,7 @@ $(STAMP): pyproject.toml
 	fi
 	$(PY) -m venv $(VENV)
 	$(VENV)/bin/python -m pip install -q --upgrade pip
-	$(VENV)/bin/python -m pip install -q -e '.[dev]'
+	$(VENV)/bin/python -m pip install -q -e '.[dev,compare]'
 	@touch $(STAMP)
 
 demo: $(STAMP)
