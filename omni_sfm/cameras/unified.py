@@ -26,8 +26,29 @@ from omni_sfm.geometry import FloatArray
 # (normalised image units, ~1e-12 px at f = 1000), give up after NEWTON_MAX steps.
 NEWTON_TOL = 1e-14
 NEWTON_MAX = 10
+# steps taken on a whole block before the points not yet converged continue on their own
+NEWTON_FAST = 3
 # a pixel is valid only if its undistorted point reproduces it to this (normalised units)
 RESIDUAL_OK = 1e-10
+
+
+class _Buffers:
+    """Work arrays ``(n,)`` of the radtan residual (reused across Newton steps)."""
+
+    __slots__ = ("xx", "yy", "r2", "a", "t", "ex", "ey")
+
+    def __init__(self, n: int) -> None:
+        self.xx, self.yy, self.r2, self.a, self.t, self.ex, self.ey = np.empty((7, n))
+
+
+class _Jacobian:
+    """The radtan Jacobian ``[[xx, xy], [xy, yy]]`` and its ``det``, ``(n,)`` each; ``q`` is
+    scratch."""
+
+    __slots__ = ("xx", "yy", "xy", "det", "q")
+
+    def __init__(self, n: int) -> None:
+        self.xx, self.yy, self.xy, self.det, self.q = np.empty((5, n))
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -117,39 +138,135 @@ class UnifiedCamera(CameraModel):
         yd = y * rad + self.p1 * (r2 + 2.0 * y * y) + self.p2 * xy2
         return xd, yd
 
-    def _undistort(self, xd: FloatArray, yd: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """Newton's method on the radtan map, started from the exact radial-only inverse;
-        NaN where it does not reproduce ``(xd, yd)`` or leaves the monotone domain."""
-        k1, k2, p1, p2 = self.k1, self.k2, self.p1, self.p2
+    def _undistort(
+        self, xd: FloatArray, yd: FloatArray
+    ) -> tuple[FloatArray, FloatArray, FloatArray, np.ndarray]:
+        """Invert the radtan map: ``(x, y, r^2, ok)`` with ``distort(x, y) = (xd, yd)``.
+
+        Start: the exact inverse of the radial part (table); then two Newton steps on the 2-D
+        map and a third with the second step's Jacobian (converges like Newton this close to
+        the root and saves the Jacobian), each followed by the residual; the block stops as soon
+        as every residual is below ``NEWTON_TOL``. Points still above it continue with full
+        Newton steps on their own, up to ``NEWTON_MAX`` steps. ``ok``: the solution reproduces
+        ``(xd, yd)`` to ``RESIDUAL_OK`` and lies inside the monotone domain ``r < r_max``;
+        ``x, y, r^2`` are meaningless where it is False."""
+        n = len(xd)
+        b, j = _Buffers(n), _Jacobian(n)
+        err = np.empty(n)
         with np.errstate(divide="ignore", invalid="ignore"):
-            rd = np.sqrt(xd * xd + yd * yd)
-            s = self._radial_inverse(rd, clamp=True) / rd
+            rd = np.multiply(xd, xd)
+            np.multiply(yd, yd, out=b.t)
+            rd += b.t
+            np.sqrt(rd, out=rd)
+            s = self._radial_inverse(rd, clamp=True)
+            s /= rd
             s[rd == 0] = 1.0
-            x, y = xd * s, yd * s
-            for _ in range(NEWTON_MAX):
-                r2 = x * x + y * y
-                rad = 1.0 + r2 * (k1 + r2 * k2)
-                xy = x * y
-                ex = x * rad + 2.0 * p1 * xy + p2 * (r2 + 2.0 * x * x) - xd
-                ey = y * rad + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * xy - yd
-                err = np.abs(ex) + np.abs(ey)
-                if not np.nanmax(err, initial=0.0) > NEWTON_TOL:
+            x = np.multiply(xd, s)
+            y = np.multiply(yd, s, out=s)
+            steps = 0
+            while True:
+                self._residual(x, y, xd, yd, b)
+                np.abs(b.ex, out=err)
+                np.abs(b.ey, out=b.t)
+                err += b.t
+                if not np.fmax.reduce(err, initial=0.0) > NEWTON_TOL or steps == NEWTON_FAST:
                     break
-                q2 = 2.0 * (k1 + 2.0 * k2 * r2)
-                jxx = rad + q2 * x * x + 2.0 * p1 * y + 6.0 * p2 * x
-                jyy = rad + q2 * y * y + 6.0 * p1 * y + 2.0 * p2 * x
-                jxy = q2 * xy + 2.0 * p1 * x + 2.0 * p2 * y
-                det = jxx * jyy - jxy * jxy
-                x -= (jyy * ex - jxy * ey) / det
-                y -= (jxx * ey - jxy * ex) / det
-            else:
-                ex, ey = self._distort(x, y)
-                err = np.abs(ex - xd) + np.abs(ey - yd)
-                r2 = x * x + y * y
-            ok = (err < RESIDUAL_OK) & (r2 < self.r_max**2)
-        x[~ok] = np.nan
-        y[~ok] = np.nan
-        return x, y
+                if steps < NEWTON_FAST - 1:
+                    self._jacobian(x, y, b, j)
+                self._step(x, y, b, j)  # the last fast step reuses the previous Jacobian
+                steps += 1
+            r2 = b.r2
+            idx = np.flatnonzero(err > NEWTON_TOL)
+            if idx.size:
+                # the few points not converged yet (far from the table's start, near the
+                # fold): full Newton steps on these alone
+                xs, ys, xds, yds = x[idx], y[idx], xd[idx], yd[idx]
+                bs, js = _Buffers(len(idx)), _Jacobian(len(idx))
+                errs = np.empty(len(idx))
+                self._residual(xs, ys, xds, yds, bs)
+                for _ in range(steps, NEWTON_MAX):
+                    self._jacobian(xs, ys, bs, js)
+                    self._step(xs, ys, bs, js)
+                    self._residual(xs, ys, xds, yds, bs)
+                    np.abs(bs.ex, out=errs)
+                    np.abs(bs.ey, out=bs.t)
+                    errs += bs.t
+                    if not np.fmax.reduce(errs, initial=0.0) > NEWTON_TOL:
+                        break
+                x[idx], y[idx], err[idx], r2[idx] = xs, ys, errs, bs.r2
+            ok = err < RESIDUAL_OK
+            ok &= r2 < self.r_max**2
+        return x, y, r2, ok
+
+    def _residual(
+        self, x: FloatArray, y: FloatArray, xd: FloatArray, yd: FloatArray, b: _Buffers
+    ) -> None:
+        """Radtan residual ``distort(x, y) - (xd, yd)`` into ``b.ex, b.ey``, in place, keeping
+        ``b.xx = x^2, b.yy = y^2, b.r2 = r^2`` and ``b.a = rad + 2 (p1 y + p2 x)`` for the
+        Jacobian. With ``L = p1 y + p2 x`` the tangential terms are ``(p2 r^2 + 2 x L,
+        p1 r^2 + 2 y L)``, so ``e = m (rad + 2 L) + (p2, p1) r^2 - m_d`` (19 array operations)."""
+        k1, k2, p1, p2 = self.k1, self.k2, self.p1, self.p2
+        np.multiply(x, x, out=b.xx)
+        np.multiply(y, y, out=b.yy)
+        np.add(b.xx, b.yy, out=b.r2)
+        a, t = b.a, b.t
+        np.multiply(b.r2, k2, out=a)
+        a += k1
+        a *= b.r2
+        a += 1.0
+        np.multiply(y, 2.0 * p1, out=t)
+        np.multiply(x, 2.0 * p2, out=b.ex)
+        t += b.ex
+        a += t
+        np.multiply(x, a, out=b.ex)
+        np.multiply(b.r2, p2, out=t)
+        b.ex += t
+        b.ex -= xd
+        np.multiply(y, a, out=b.ey)
+        np.multiply(b.r2, p1, out=t)
+        b.ey += t
+        b.ey -= yd
+
+    def _jacobian(self, x: FloatArray, y: FloatArray, b: _Buffers, j: _Jacobian) -> None:
+        """The radtan map's symmetric Jacobian at ``(x, y)`` from :meth:`_residual`'s ``b``:
+        ``jxx = a + q x^2 + 4 p2 x``, ``jyy = a + q y^2 + 4 p1 y``,
+        ``jxy = q x y + 2 p1 x + 2 p2 y`` with ``q = 2 k1 + 4 k2 r^2``; and its determinant."""
+        k1, k2, p1, p2 = self.k1, self.k2, self.p1, self.p2
+        q, t = j.q, b.t
+        np.multiply(b.r2, 4.0 * k2, out=q)
+        q += 2.0 * k1
+        np.multiply(b.xx, q, out=j.xx)
+        j.xx += b.a
+        np.multiply(x, 4.0 * p2, out=t)
+        j.xx += t
+        np.multiply(b.yy, q, out=j.yy)
+        j.yy += b.a
+        np.multiply(y, 4.0 * p1, out=t)
+        j.yy += t
+        np.multiply(x, y, out=j.xy)
+        j.xy *= q
+        np.multiply(x, 2.0 * p1, out=t)
+        j.xy += t
+        np.multiply(y, 2.0 * p2, out=t)
+        j.xy += t
+        np.multiply(j.xx, j.yy, out=j.det)
+        np.multiply(j.xy, j.xy, out=t)
+        j.det -= t
+
+    @staticmethod
+    def _step(x: FloatArray, y: FloatArray, b: _Buffers, j: _Jacobian) -> None:
+        """Newton update ``(x, y) -= J^-1 (ex, ey)`` in place (J from ``j``)."""
+        t, d = b.t, j.q  # j.q is free once the Jacobian is built
+        np.multiply(j.yy, b.ex, out=d)
+        np.multiply(j.xy, b.ey, out=t)
+        d -= t
+        d /= j.det
+        x -= d
+        np.multiply(j.xx, b.ey, out=d)
+        np.multiply(j.xy, b.ex, out=t)
+        d -= t
+        d /= j.det
+        y -= d
 
     def _rays_block(self, uv: FloatArray) -> FloatArray:
         u, v = uv[:, 0], uv[:, 1]
@@ -160,12 +277,15 @@ class UnifiedCamera(CameraModel):
             mx -= self.skew * my
         mx /= self.fx
         if self.has_distortion:
-            mx, my = self._undistort(mx, my)
-        r2 = mx * mx + my * my
+            mx, my, r2, ok = self._undistort(mx, my)
+        else:
+            r2 = mx * mx
+            r2 += my * my
+            ok = np.ones(len(uv), dtype=bool)
         with np.errstate(invalid="ignore"):
             disc = r2 * (1.0 - self.xi**2)
             disc += 1.0
-            ok = disc >= 0
+            ok &= disc >= 0
             if self.xi > 1.0:
                 ok &= r2 < 1.0 / (self.xi**2 - 1.0)
             k = np.sqrt(disc)
