@@ -51,6 +51,11 @@ class ExtractionOptions:
     corners, junctions and line ends."""
     tensor_sigma: float = 1.0
     """Gaussian window of the second-moment matrix (px)."""
+    link_angle_deg: float = 0.0
+    """Two 8-neighbouring edge points belong to one segment only if their gradient
+    orientations (modulo 180 deg) differ by less than this; 0 links all neighbours. Splits
+    chains where a line meets a texture blob or another edge without having to drop the
+    points around the junction."""
     min_points: int = 40
     """Fewest edge points of a segment and of an accepted line (about its length in px); short
     lines carry most of the false NVs (docs/frontend.md)."""
@@ -80,6 +85,10 @@ class ExtractionOptions:
     overlap (a line split by an occluder or by the equirectangular seam)."""
     merge_gap_deg: float = 20.0
     """Largest gap along the great circle between two pieces that are merged (degrees)."""
+    trim_ends_px: float = 0.0
+    """Drop the points within this distance (px, along the line) of each end of a line before
+    its final fit: where a line meets a corner or a texture blob, its last points bend
+    towards the other edge and tilt the NV."""
     mask_erode_px: int = 4
     """Erode the valid mask by this much, so the mask border (mirror rim, the camera's own
     reflection, the image border) gives no edges."""
@@ -214,8 +223,8 @@ class LineExtractor:
     def extract(self, image: np.ndarray) -> ExtractedLines:
         """Lines of one ``(H, W)`` 8-bit grey image (a colour image is converted)."""
         gray = self._gray(image)
-        uv, pix, counts = self._edge_points(gray)
-        return self._fit_lines(uv, pix, counts)
+        uv, pix, theta, counts = self._edge_points(gray)
+        return self._fit_lines(uv, pix, theta, counts)
 
     # -- stages ---------------------------------------------------------------------------
     def _gray(self, image: np.ndarray) -> np.ndarray:
@@ -232,8 +241,10 @@ class LineExtractor:
             img = np.clip(img, 0, 255).astype(np.uint8)
         return img
 
-    def _edge_points(self, gray: np.ndarray) -> tuple[FloatArray, IntArray, dict[str, int]]:
-        """Line-like edge points: sub-pixel ``(N, 2)`` and integer ``(N, 2)`` (x, y) pixels."""
+    def _edge_points(self, gray: np.ndarray
+                     ) -> tuple[FloatArray, IntArray, FloatArray, dict[str, int]]:
+        """Line-like edge points: sub-pixel ``(N, 2)`` and integer ``(N, 2)`` (x, y) pixels and
+        ``(N,)`` gradient orientation (rad, modulo pi)."""
         o = self.options
         # float pipeline: rounding the smoothed image to 8 bits would cost sub-pixel accuracy
         img = self._lut[gray] if self._lut is not None else gray.astype(np.float32)
@@ -281,20 +292,28 @@ class LineExtractor:
             off = np.where(den < 0, 0.5 * (mm - mp) / den, 0.0)
         off = np.clip(off, -0.5, 0.5)
         uv = np.stack([xs + off * ux, ys + off * uy], 1).astype(np.float64)
-        return uv, pix, {"edge": n_edge, "corner": int((~keep).sum())}
+        theta = np.mod(np.arctan2(gy, gx), np.pi).astype(np.float64)
+        return uv, pix, theta, {"edge": n_edge, "corner": int((~keep).sum())}
 
-    def _segments(self, pix: IntArray, idx: IntArray) -> tuple[IntArray, IntArray, IntArray]:
-        """8-connected segments of the points ``pix[idx]`` with at least ``min_points`` points.
+    def _segments(self, pix: IntArray, idx: IntArray,
+                  theta: FloatArray) -> tuple[IntArray, IntArray, IntArray]:
+        """8-connected segments of the points ``pix[idx]`` with at least ``min_points`` points
+        (neighbours linked only where their orientations ``theta`` agree, see
+        ``link_angle_deg``).
 
         Returns the kept indices sorted by segment, their segment (0..S-1) and the counts.
         """
         p = pix[idx]
-        x0, y0 = p.min(axis=0)
-        x1, y1 = p.max(axis=0)
-        img = np.zeros((y1 - y0 + 1, x1 - x0 + 1), np.uint8)
-        img[p[:, 1] - y0, p[:, 0] - x0] = 1
-        n, lab_img = cv2.connectedComponents(img, connectivity=8, ltype=cv2.CV_32S)
-        lab = lab_img[p[:, 1] - y0, p[:, 0] - x0]
+        x0, y0 = p.min(axis=0) - 1
+        x1, y1 = p.max(axis=0) + 1
+        if self.options.link_angle_deg > 0:
+            n, lab = _oriented_components(p - [x0, y0], (y1 - y0 + 1, x1 - x0 + 1),
+                                          theta[idx], np.radians(self.options.link_angle_deg))
+        else:
+            img = np.zeros((y1 - y0 + 1, x1 - x0 + 1), np.uint8)
+            img[p[:, 1] - y0, p[:, 0] - x0] = 1
+            n, lab_img = cv2.connectedComponents(img, connectivity=8, ltype=cv2.CV_32S)
+            lab = lab_img[p[:, 1] - y0, p[:, 0] - x0]
         area = np.bincount(lab, minlength=n)
         sel = area[lab] >= self.options.min_points
         idx, lab = idx[sel], lab[sel]
@@ -303,12 +322,13 @@ class LineExtractor:
         _, seg, cnt = np.unique(lab, return_inverse=True, return_counts=True)
         return idx, seg, cnt
 
-    def _fit_lines(self, uv: FloatArray, pix: IntArray, counts: dict[str, int]) -> ExtractedLines:
+    def _fit_lines(self, uv: FloatArray, pix: IntArray, theta: FloatArray,
+                   counts: dict[str, int]) -> ExtractedLines:
         o = self.options
         rng = np.random.default_rng(o.seed)
         rays = self.camera.rays_from_pixels(uv) if len(uv) else np.zeros((0, 3))
         ok = np.isfinite(rays).all(axis=1)
-        uv, pix, rays = uv[ok], pix[ok], rays[ok]
+        uv, pix, rays, theta = uv[ok], pix[ok], rays[ok], theta[ok]
         # angle (rad) per pixel at each point; l_th of eq. (3) is (line_threshold_px * scale)^2
         scale = self.scale[pix[:, 1], pix[:, 0]].astype(np.float64)
         tol = o.line_threshold_px * scale
@@ -320,7 +340,7 @@ class LineExtractor:
         for rnd in range(max(1, o.peel_rounds)):
             if len(pool) < o.min_points:
                 break
-            idx, seg, cnt = self._segments(pix, pool)
+            idx, seg, cnt = self._segments(pix, pool, theta)
             if len(idx) == 0:
                 break
             nseg = len(cnt)
@@ -346,6 +366,8 @@ class LineExtractor:
         idx = np.concatenate(piece_idx)
         lab = np.concatenate(piece_lab)
         lab = self._merge(idx, lab, np.concatenate(piece_n), rays)
+        if o.trim_ends_px > 0:
+            idx, lab = self._trim_ends(idx, lab, rays, scale)
         return self._package(idx, lab, rays, uv, scale, counts, n_segments, n_rejected)
 
     def _ransac(self, rays: FloatArray, tol: FloatArray, seg: IntArray, cnt: IntArray,
@@ -444,6 +466,27 @@ class LineExtractor:
         _, new = np.unique(roots, return_inverse=True)
         return new[lab]
 
+    def _trim_ends(self, idx: IntArray, lab: IntArray, rays: FloatArray,
+                   scale: FloatArray) -> tuple[IntArray, IntArray]:
+        """Drop the points within ``trim_ends_px`` of either end of each line (labels
+        0..L-1); lines left with fewer than ``min_points`` points go. Returns new idx, labels."""
+        nl = int(lab.max()) + 1 if len(lab) else 0
+        if nl == 0:
+            return idx, lab
+        normals = _smallest_eigvec(_scatter(rays[idx], np.ones(len(idx)), lab, nl))
+        t = _arc_parameter(rays[idx], normals[lab], lab, nl)
+        lo = np.full(nl, np.inf)
+        hi = np.full(nl, -np.inf)
+        np.minimum.at(lo, lab, t)
+        np.maximum.at(hi, lab, t)
+        lim = self.options.trim_ends_px * scale[idx]
+        keep = (t - lo[lab] > lim) & (hi[lab] - t > lim)
+        idx, lab = idx[keep], lab[keep]
+        big = np.bincount(lab, minlength=nl) >= self.options.min_points
+        keep = big[lab]
+        _, lab = np.unique(lab[keep], return_inverse=True)
+        return idx[keep], lab
+
     def _package(self, idx: IntArray, lab: IntArray, rays: FloatArray, uv: FloatArray,
                  scale: FloatArray, counts: dict[str, int], n_segments: int,
                  n_rejected: int) -> ExtractedLines:
@@ -501,6 +544,32 @@ def _arc_parameter(r: FloatArray, n: FloatArray, group: IntArray, ngroup: int) -
     e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
     e2 = np.cross(n, e1)
     return np.arctan2(np.einsum("nk,nk->n", r, e2), np.einsum("nk,nk->n", r, e1))
+
+
+def _oriented_components(p: IntArray, shape: tuple[int, int], theta: FloatArray,
+                         max_angle: float) -> tuple[int, IntArray]:
+    """Connected components of points ``p`` ``(N, 2)`` (x, y, at least 1 px inside ``shape``)
+    where 8-neighbours are linked only if their orientations (mod pi) differ by less than
+    ``max_angle`` (rad). Returns the number of components and the ``(N,)`` labels."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    n = len(p)
+    img = np.full(shape, -1, np.int64)
+    img[p[:, 1], p[:, 0]] = np.arange(n)
+    rows, cols = [], []
+    for dx, dy in ((1, 0), (-1, 1), (0, 1), (1, 1)):
+        nb = img[p[:, 1] + dy, p[:, 0] + dx]
+        has = np.flatnonzero(nb >= 0)
+        d = np.abs(theta[has] - theta[nb[has]])
+        d = np.minimum(d, np.pi - d)
+        ok = d < max_angle
+        rows.append(has[ok])
+        cols.append(nb[has[ok]])
+    r, c = np.concatenate(rows), np.concatenate(cols)
+    g = coo_matrix((np.ones(len(r), np.int8), (r, c)), shape=(n, n))
+    ncomp, lab = connected_components(g, directed=False)
+    return int(ncomp), lab.astype(np.int64)
 
 
 def _bilinear(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
