@@ -17,7 +17,6 @@ from omni_sfm.cameras.base import (
     first_nonincreasing,
     radius_ok,
     unit_input_rays,
-    unit_rows,
 )
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.geometry import FloatArray
@@ -28,6 +27,13 @@ NEWTON_TOL = 1e-14
 NEWTON_MAX = 10
 # steps taken on a whole block before the points not yet converged continue on their own
 NEWTON_FAST = 3
+# entries of the start table of the radtan inverse (see UnifiedCamera._start_table)
+START_TABLE = 8192
+
+
+def _absmax(a: FloatArray) -> float:
+    """``max |a|`` ignoring NaN (0 for an empty or all-NaN array), without a temporary."""
+    return max(float(np.fmax.reduce(a, initial=0.0)), -float(np.fmin.reduce(a, initial=0.0)))
 # a pixel is valid only if its undistorted point reproduces it to this (normalised units)
 RESIDUAL_OK = 1e-10
 
@@ -126,9 +132,23 @@ class UnifiedCamera(CameraModel):
 
     @cached_property
     def _radial_inverse(self) -> MonotoneInverse:
-        # with tangential terms the 2-D Newton refines the table's start point anyway
-        steps = 2 if self.p1 == 0.0 and self.p2 == 0.0 else 0
-        return MonotoneInverse(self._radial, self._dradial, self.r_max, newton_steps=steps)
+        """Exact inverse of the radial part ``r -> r (1 + k1 r^2 + k2 r^4)`` on ``[0, r_max]``."""
+        return MonotoneInverse(self._radial, self._dradial, self.r_max, newton_steps=2)
+
+    @cached_property
+    def _start_table(self) -> tuple[float, FloatArray, FloatArray]:
+        """Start of the radtan inverse with tangential terms: ``(x, y) = s (xd, yd)`` where
+        ``s = r / r_d`` is the radial part's exact inverse ratio, tabulated over ``r_d^2`` (no
+        square root, no division, ``s = 1`` at the centre) for linear interpolation:
+        ``(1 / step, s_i, s_(i+1) - s_i)``; beyond the table ``s`` stays at its last value."""
+        inv = self._radial_inverse
+        rho = np.linspace(0.0, inv.y1**2, START_TABLE + 1)
+        rd = np.sqrt(rho)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = inv(rd) / rd
+        s[0] = 1.0  # d/dr of the radial map is 1 at r = 0
+        ds = np.append(np.diff(s), 0.0)
+        return START_TABLE / float(rho[-1]), s, ds
 
     def _distort(self, x: FloatArray, y: FloatArray) -> tuple[FloatArray, FloatArray]:
         r2 = x * x + y * y
@@ -154,27 +174,43 @@ class UnifiedCamera(CameraModel):
         b, j = _Buffers(n), _Jacobian(n)
         err = np.empty(n)
         with np.errstate(divide="ignore", invalid="ignore"):
-            rd = np.multiply(xd, xd)
-            np.multiply(yd, yd, out=b.t)
-            rd += b.t
-            np.sqrt(rd, out=rd)
-            s = self._radial_inverse(rd, clamp=True)
-            s /= rd
-            s[rd == 0] = 1.0
+            if self.p1 == 0.0 and self.p2 == 0.0:
+                # radial only: the radial inverse is the exact answer
+                rd = np.multiply(xd, xd)
+                np.multiply(yd, yd, out=b.t)
+                rd += b.t
+                np.sqrt(rd, out=rd)
+                s = self._radial_inverse(rd, clamp=True)
+                s /= rd
+                s[rd == 0] = 1.0
+            else:
+                scale, table, dtable = self._start_table
+                rho = np.multiply(xd, xd)
+                np.multiply(yd, yd, out=b.t)
+                rho += b.t
+                rho *= scale
+                np.fmin(rho, START_TABLE, out=rho)  # also NaN -> the table's end
+                i = rho.astype(np.intp)
+                rho -= i
+                s = table[i]
+                d = dtable[i]
+                d *= rho
+                s += d
             x = np.multiply(xd, s)
             y = np.multiply(yd, s, out=s)
             steps = 0
             while True:
                 self._residual(x, y, xd, yd, b)
-                np.abs(b.ex, out=err)
-                np.abs(b.ey, out=b.t)
-                err += b.t
-                if not np.fmax.reduce(err, initial=0.0) > NEWTON_TOL or steps == NEWTON_FAST:
+                # every |ex| + |ey| <= NEWTON_TOL (a bound from four reductions, NaN ignored)
+                if not _absmax(b.ex) + _absmax(b.ey) > NEWTON_TOL or steps == NEWTON_FAST:
                     break
                 if steps < NEWTON_FAST - 1:
                     self._jacobian(x, y, b, j)
                 self._step(x, y, b, j)  # the last fast step reuses the previous Jacobian
                 steps += 1
+            np.abs(b.ex, out=err)
+            np.abs(b.ey, out=b.t)
+            err += b.t
             r2 = b.r2
             idx = np.flatnonzero(err > NEWTON_TOL)
             if idx.size:
@@ -276,24 +312,32 @@ class UnifiedCamera(CameraModel):
         if self.skew != 0.0:
             mx -= self.skew * my
         mx /= self.fx
+        masked = self.inner_radius is not None or self.outer_radius is not None
         if self.has_distortion:
+            # ok is already False for non-finite pixels (their residual is NaN)
             mx, my, r2, ok = self._undistort(mx, my)
+            if masked:
+                ok &= radius_ok(u, v, self.cx, self.cy, self.inner_radius, self.outer_radius)
         else:
             r2 = mx * mx
             r2 += my * my
-            ok = np.ones(len(uv), dtype=bool)
+            ok = radius_ok(u, v, self.cx, self.cy, self.inner_radius, self.outer_radius)
         with np.errstate(invalid="ignore"):
-            disc = r2 * (1.0 - self.xi**2)
-            disc += 1.0
-            ok &= disc >= 0
+            # lift onto the unit sphere: s = (xi + sqrt(1 + (1 - xi^2) r^2)) / (r^2 + 1),
+            # ray = (s m, s - xi) has unit length exactly (up to rounding); for xi > 1 the
+            # square root's argument is >= 0 exactly where r^2 < 1 / (xi^2 - 1)
             if self.xi > 1.0:
                 ok &= r2 < 1.0 / (self.xi**2 - 1.0)
-            k = np.sqrt(disc)
+            k = r2 * (1.0 - self.xi**2)
+            k += 1.0
+            np.sqrt(k, out=k)
             k += self.xi
-            k /= r2 + 1.0
-            z = k - self.xi
-            rays = unit_rows(k * mx, k * my, z)
-        ok &= radius_ok(u, v, self.cx, self.cy, self.inner_radius, self.outer_radius)
+            r2 += 1.0
+            k /= r2
+            rays = np.empty((len(uv), 3))
+            np.multiply(k, mx, out=rays[:, 0])
+            np.multiply(k, my, out=rays[:, 1])
+            np.subtract(k, self.xi, out=rays[:, 2])
         rays[~ok] = np.nan
         return rays
 
