@@ -1,8 +1,10 @@
 """Speed of the camera models on a 1600 x 800 image (1.28 million pixels).
 
-Run ``python -m omni_sfm.cameras.bench [--repeats N]``; prints the median (and minimum) wall time
-of ``rays_from_pixels`` on every pixel centre, ``pixels_from_rays`` on the valid rays, the first
-(computing) and a later (cached) ``pixel_grid_rays`` and ``valid_mask``. Numbers depend on the
+Run ``OPENBLAS_NUM_THREADS=1 python -m omni_sfm.cameras.bench [--repeats N] [--models NAME ...]``;
+prints the median wall time and, in brackets, the median CPU time of this process
+(``time.process_time``) of ``rays_from_pixels`` on every pixel centre, ``pixels_from_rays`` on the
+valid rays, the first (computing) and a later (cached) ``pixel_grid_rays``, and the wall time of
+``valid_mask``. On a loaded machine the CPU time is the figure to compare. Numbers depend on the
 machine and its load; docs/cameras.md quotes a run.
 """
 
@@ -68,13 +70,17 @@ def timed(fn: Callable[[], object], repeats: int) -> tuple[float, float]:
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--repeats", type=int, default=7)
+    cams = bench_cameras()
+    ap.add_argument("--models", nargs="+", choices=sorted(cams), default=list(cams),
+                    help="time only these (default: all)")
     args = ap.parse_args(argv)
     v, u = np.mgrid[0:H, 0:W]
     uv = np.stack([u.ravel(), v.ravel()], axis=1).astype(np.float64)
     print(f"{W} x {H} = {len(uv)} pixels; median of {args.repeats} runs: wall ms [CPU ms]")
     print(f"{'model':16s} {'rays_from_pixels':>18s} {'pixels_from_rays':>18s} "
           f"{'grid 1st':>16s} {'grid cached':>12s} {'valid_mask':>11s}")
-    for name, cam in bench_cameras().items():
+    for name in args.models:
+        cam = cams[name]
         rays = cam.rays_from_pixels(uv)
         ok = rays[np.isfinite(rays).all(axis=1)]
         r2p = timed(partial(cam.rays_from_pixels, uv), args.repeats)
