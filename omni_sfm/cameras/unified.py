@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from functools import cached_property
+from typing import NamedTuple
 
 import numpy as np
 
@@ -29,6 +30,8 @@ NEWTON_MAX = 10
 NEWTON_FAST = 3
 # entries of the start table of the radtan inverse (see UnifiedCamera._start_table)
 START_TABLE = 8192
+# nodes along the image's longer side in the start correction (UnifiedCamera._start_correction)
+START_GRID = 128
 
 
 def _absmax(a: FloatArray) -> float:
@@ -36,6 +39,17 @@ def _absmax(a: FloatArray) -> float:
     return max(float(np.fmax.reduce(a, initial=0.0)), -float(np.fmin.reduce(a, initial=0.0)))
 # a pixel is valid only if its undistorted point reproduces it to this (normalised units)
 RESIDUAL_OK = 1e-10
+
+
+class _Correction(NamedTuple):
+    """Nearest-node table over the normalised image plane, see UnifiedCamera._start_correction."""
+
+    inv_step: float
+    offset_x: float
+    offset_y: float
+    nx: int
+    ny: int
+    dxy: np.ndarray
 
 
 class _Buffers:
@@ -158,8 +172,33 @@ class UnifiedCamera(CameraModel):
         yd = y * rad + self.p1 * (r2 + 2.0 * y * y) + self.p2 * xy2
         return xd, yd
 
+    @cached_property
+    def _start_correction(self) -> _Correction:
+        """Nearest-node table of ``(x, y) - s (xd, yd)``: what the tangential terms move the
+        undistorted point away from the radial start (see :meth:`_start_table`), on a grid of
+        ``START_GRID`` nodes along the longer side of the image's normalised (distorted)
+        rectangle, with a border of zeros that catches every point off the grid."""
+        u = np.array([-0.5, self.width - 0.5, -0.5, self.width - 0.5])
+        v = np.array([-0.5, -0.5, self.height - 0.5, self.height - 0.5])
+        yc = (v - self.cy) / self.fy
+        xc = (u - self.cx - self.skew * yc) / self.fx
+        lo = np.array([xc.min(), yc.min()])
+        step = float((np.array([xc.max(), yc.max()]) - lo).max()) / START_GRID
+        nx, ny = (np.ceil((np.array([xc.max(), yc.max()]) - lo) / step).astype(int) + 1)
+        gy, gx = np.mgrid[0:ny, 0:nx]
+        xd = (lo[0] + step * gx.ravel()).astype(np.float64)
+        yd = (lo[1] + step * gy.ravel()).astype(np.float64)
+        x0, y0, _, _ = self._undistort(xd, yd, iterate=False, correct=False)
+        x, y, _, ok = self._undistort(xd, yd, correct=False)
+        dxy = np.zeros((ny + 2, nx + 2), dtype=np.complex128)  # (dx, dy) as dx + i dy
+        dxy[1:-1, 1:-1] = np.where(ok, (x - x0) + 1j * (y - y0), 0.0).reshape(ny, nx)
+        # index = floor((xd - lo) / step + 1.5): the nearest node, shifted by the border
+        return _Correction(inv_step=1.0 / step, offset_x=1.5 - lo[0] / step,
+                           offset_y=1.5 - lo[1] / step, nx=int(nx) + 2, ny=int(ny) + 2,
+                           dxy=dxy.ravel())
+
     def _undistort(
-        self, xd: FloatArray, yd: FloatArray
+        self, xd: FloatArray, yd: FloatArray, *, iterate: bool = True, correct: bool = True
     ) -> tuple[FloatArray, FloatArray, FloatArray, np.ndarray]:
         """Invert the radtan map: ``(x, y, r^2, ok)`` with ``distort(x, y) = (xd, yd)``.
 
@@ -198,7 +237,26 @@ class UnifiedCamera(CameraModel):
                 s += d
             x = np.multiply(xd, s)
             y = np.multiply(yd, s, out=s)
+            if correct and (self.p1 != 0.0 or self.p2 != 0.0):
+                # add the tangential terms' effect at the nearest node of a grid over the
+                # image: the start is then good to ~1e-4 and two Newton steps finish
+                c = self._start_correction
+                tx = np.multiply(xd, c.inv_step, out=b.t)
+                tx += c.offset_x
+                np.clip(tx, 0.0, c.nx - 1, out=tx)
+                ty = np.multiply(yd, c.inv_step, out=b.a)
+                ty += c.offset_y
+                np.clip(ty, 0.0, c.ny - 1, out=ty)
+                np.floor(ty, out=ty)
+                ty *= c.nx
+                ty += tx
+                # NaN gives a nonsense index, clipped into the table: x stays NaN anyway
+                d = np.take(c.dxy, ty.astype(np.intp), mode="clip")
+                x += d.real
+                y += d.imag
             steps = 0
+            if not iterate:  # the start point only (to build _start_correction)
+                return x, y, b.r2, np.ones(n, dtype=bool)
             while True:
                 self._residual(x, y, xd, yd, b)
                 # every |ex| + |ey| <= NEWTON_TOL (a bound from four reductions, NaN ignored)
