@@ -33,12 +33,13 @@ START_TABLE = 8192
 # nodes along the image's longer side in the start correction (UnifiedCamera._start_correction)
 START_GRID = 128
 
+# a pixel is valid only if its undistorted point reproduces it to this (normalised units)
+RESIDUAL_OK = 1e-10
+
 
 def _absmax(a: FloatArray) -> float:
     """``max |a|`` ignoring NaN (0 for an empty or all-NaN array), without a temporary."""
     return max(float(np.fmax.reduce(a, initial=0.0)), -float(np.fmin.reduce(a, initial=0.0)))
-# a pixel is valid only if its undistorted point reproduces it to this (normalised units)
-RESIDUAL_OK = 1e-10
 
 
 class _Correction(NamedTuple):
@@ -202,13 +203,16 @@ class UnifiedCamera(CameraModel):
     ) -> tuple[FloatArray, FloatArray, FloatArray, np.ndarray]:
         """Invert the radtan map: ``(x, y, r^2, ok)`` with ``distort(x, y) = (xd, yd)``.
 
-        Start: the exact inverse of the radial part (table); then two Newton steps on the 2-D
-        map and a third with the second step's Jacobian (converges like Newton this close to
-        the root and saves the Jacobian), each followed by the residual; the block stops as soon
-        as every residual is below ``NEWTON_TOL``. Points still above it continue with full
-        Newton steps on their own, up to ``NEWTON_MAX`` steps. ``ok``: the solution reproduces
-        ``(xd, yd)`` to ``RESIDUAL_OK`` and lies inside the monotone domain ``r < r_max``;
-        ``x, y, r^2`` are meaningless where it is False."""
+        Start: the exact inverse of the radial part (``_radial_inverse`` without tangential
+        terms, else ``_start_table``) plus, with ``correct``, the tangential terms' shift at the
+        nearest node of ``_start_correction`` (start error ~1e-4 instead of ~1e-2). Then Newton
+        steps on the 2-D map on the whole block, each followed by the residual, until every
+        residual is below ``NEWTON_TOL`` (two steps from the corrected start) or after
+        ``NEWTON_FAST`` steps, the last of which reuses the previous Jacobian (converges like
+        Newton this close to the root). Points still above it continue with full Newton steps on
+        their own, up to ``NEWTON_MAX`` steps. ``ok``: the solution reproduces ``(xd, yd)`` to
+        ``RESIDUAL_OK`` and lies inside the domain ``r < r_max``; ``x, y, r^2`` are meaningless
+        where it is False. ``iterate=False`` returns the start point (and no r^2 / ok)."""
         n = len(xd)
         b, j = _Buffers(n), _Jacobian(n)
         err = np.empty(n)
