@@ -232,6 +232,7 @@ class UnifiedCamera(CameraModel):
                 np.multiply(yd, yd, out=b.t)
                 rho += b.t
                 rho *= scale
+                far = np.flatnonzero(rho > START_TABLE)
                 np.fmin(rho, START_TABLE, out=rho)  # also NaN -> the table's end
                 i = rho.astype(np.intp)
                 rho -= i
@@ -239,6 +240,8 @@ class UnifiedCamera(CameraModel):
                 d = dtable[i]
                 d *= rho
                 s += d
+                if far.size:  # beyond the radial domain's image: start at radius r_max
+                    s[far] = self.r_max / np.hypot(xd[far], yd[far])
             x = np.multiply(xd, s)
             y = np.multiply(yd, s, out=s)
             if correct and (self.p1 != 0.0 or self.p2 != 0.0):
