@@ -8,6 +8,8 @@ complete or absent:
   image folders, seconds for video);
 - ``tracks.json``: the line tracks (with a ray per observation), so the estimator can be re-run
   alone with ``omni-sfm init --lines --tracks``;
+- ``lines3d.json``: the estimated 3D line segments, grouped by direction (what ``omni-sfm view``
+  and ``omni-sfm dense`` draw);
 - ``report.json``: counts, parallel family, per-stage timings, rejected lines, frames not
   estimated, the front end's per-frame figures;
 - ``sparse/``, ``camera.yaml``, ``camera_mask.png``, ``colmap.json``, ``images_colmap/``: the
@@ -29,7 +31,7 @@ import numpy as np
 from omni_sfm.cameras import CameraModel, load_camera
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.estimate.pipeline import EstimationOptions, EstimationResult, estimate_poses
-from omni_sfm.fileio import atomic_output_dir
+from omni_sfm.fileio import atomic_output_dir, atomic_write_text, dumps_json
 from omni_sfm.geometry import normalize
 from omni_sfm.lines.frontend import FrontEndOptions, FrontEndResult, track_lines
 from omni_sfm.lines.tracks import LineTracks
@@ -82,6 +84,60 @@ def tracks_with_side_rays(fe: FrontEndResult) -> LineTracks:
     mid = fe.obs_endpoint_rays[:, 0] + fe.obs_endpoint_rays[:, 1]
     mid -= np.sum(mid * tr.obs_normal, axis=1, keepdims=True) * tr.obs_normal
     return replace(tr, obs_ray=normalize(mid))
+
+
+def estimated_segments(fe: FrontEndResult, result: EstimationResult,
+                       cluster_deg: float = 10.0) -> dict[str, Any]:
+    """The estimated 3D line segments as a ``lines3d.json`` document (docs/formats.md).
+
+    Each used, non-outlier line's extent is where the rays to its observed segment ends come
+    closest to it (2nd to 98th percentile over all its observations). Group 0 is the parallel
+    family; other lines are grouped greedily by direction (within ``cluster_deg``).
+    """
+    tr = fe.tracks
+    idx = np.flatnonzero(result.estimated)
+    pose_of = np.full(tr.num_frames, -1)
+    pose_of[idx] = np.arange(len(idx))
+    keep = result.used_tracks & ~result.outliers
+    sel = keep[tr.obs_track] & (pose_of[tr.obs_frame] >= 0)
+    t = tr.obs_track[sel]
+    k = pose_of[tr.obs_frame[sel]]
+    R, c = result.trajectory.rotations[k], result.trajectory.positions[k]
+    d, p = result.line_directions[t], result.line_points[t]
+    params = []
+    for e in range(2):
+        w = np.einsum("nij,nj->ni", R, fe.obs_endpoint_rays[sel, e])
+        a = np.sum(w * d, axis=1)
+        b = c - p
+        with np.errstate(invalid="ignore", divide="ignore"):
+            params.append((np.sum(b * d, axis=1) - np.sum(b * w, axis=1) * a) / (1.0 - a * a))
+    u = np.concatenate(params)
+    tt = np.concatenate([t, t])
+    groups: list[np.ndarray] = [result.parallel_direction]
+    segments = []
+    cos_tol = np.cos(np.radians(cluster_deg))
+    for m in np.flatnonzero(keep):
+        um = u[(tt == m) & np.isfinite(u)]
+        if len(um) < 2:
+            continue
+        lo, hi = np.percentile(um, [2, 98])
+        if result.parallel[m]:
+            g = 0
+        else:
+            sims = [abs(float(gd @ result.line_directions[m])) for gd in groups[1:]]
+            if sims and max(sims) >= cos_tol:
+                g = 1 + int(np.argmax(sims))
+            else:
+                groups.append(result.line_directions[m])
+                g = len(groups) - 1
+        segments.append({"start": (result.line_points[m] + lo * result.line_directions[m]),
+                         "end": (result.line_points[m] + hi * result.line_directions[m]),
+                         "group": g, "kind": "estimated", "track_id": int(result.track_ids[m])})
+    counts = np.bincount([s_["group"] for s_ in segments], minlength=len(groups))
+    return {"frame": "omni-sfm world: first estimated camera, first-to-last distance = 1",
+            "groups": [{"id": i, "direction": gd, "count": int(n)}
+                       for i, (gd, n) in enumerate(zip(groups, counts, strict=True))],
+            "segments": segments}
 
 
 def _image_names(source: FrameSource, numbers: np.ndarray) -> list[str]:
@@ -174,6 +230,7 @@ def init_from_images(images: Path | str, camera: Path | str | CameraModel, outpu
         }
         write_init_outputs(tmp, result, extra=extra)
         write_tracks(tmp / "tracks.json", tracks)
+        atomic_write_text(tmp / "lines3d.json", dumps_json(estimated_segments(fe, result)))
         plot_trajectory(tmp / "trajectory.png", result.trajectory)
         # colour 0: the parallel family, 1: other lines, grey (-1): rejected as outliers
         groups = np.where(result.outliers, -1, np.where(result.parallel, 0, 1))

@@ -18,6 +18,7 @@ from omni_sfm.evaluate import trajectory_errors
 from omni_sfm.lines.tracks import read_tracks
 from omni_sfm.poses import read_tum
 from omni_sfm.synth.render import RenderOptions, render_sequence
+from omni_sfm.synth.scenes import read_lines3d
 
 
 @pytest.fixture(scope="module")
@@ -47,6 +48,19 @@ def test_corridor_hyperboloid_every_frame_within_thresholds(corridor, tmp_path):
     assert report["reflection"].startswith("resolved")
     assert report["num_frames_estimated"] == len(gt)
     assert len(list((out / "debug").glob("*.png"))) == len(gt)
+    # the estimated 3D segments lie on the scene's true lines (after the trajectory's alignment)
+    est_lines, true_lines = read_lines3d(out / "lines3d.json"), read_lines3d(corridor /
+                                                                             "lines3d.json")
+    assert len(est_lines) >= 15 and (est_lines.groups == 0).sum() >= 3
+    mids = err.alignment.apply_points((est_lines.starts + est_lines.ends) / 2)
+    dirs = est_lines.directions @ err.alignment.rotation.T
+    dist = []
+    for m, d in zip(mids, dirs, strict=True):
+        v = m - true_lines.starts
+        perp = v - np.sum(v * true_lines.directions, axis=1)[:, None] * true_lines.directions
+        similar = np.abs(true_lines.directions @ d) > np.cos(np.radians(3.0))
+        dist.append(np.linalg.norm(perp, axis=1)[similar].min() if similar.any() else np.inf)
+    assert np.median(dist) < 0.03  # metres; the path is 1.5 m
     # the tracks artifact re-runs the estimator alone, to the same poses
     assert main(["init", "--tracks", str(out / "tracks.json"), "-o", str(tmp_path / "again")]) \
         == 0
