@@ -8,6 +8,7 @@ from omni_sfm.estimate.windows import (
     Window,
     WindowOptions,
     chain_windows,
+    max_rotation_step_deg,
     plan_windows,
     similarity_from_overlap,
     window_tracks,
@@ -96,3 +97,60 @@ def test_chain_keeps_the_longest_run():
     R, c, done, chained = chain_windows(40, ws, sols)
     assert chained == [1] and done[20:40].all() and not done[:20].any()
     assert np.isnan(c[:20]).all()
+
+
+def _exact_solutions(sim, ws):
+    g = sim.groundtruth
+    sols = []
+    for w in ws:
+        fr = w.frames
+        R0, c0 = g.rotations[fr[0]], g.positions[fr[0]]
+        sols.append((R0.T @ g.rotations[fr], (g.positions[fr] - c0) @ R0))
+    return sols
+
+
+def test_max_rotation_step_sees_a_flipped_frame():
+    sim = _sim()
+    R = sim.groundtruth.rotations[:30].copy()
+    smooth = max_rotation_step_deg(R)
+    assert 0 < smooth < 5
+    R[12] = R[12] @ rotvec_to_matrix(np.array([0.0, np.pi, 0.0]))
+    assert max_rotation_step_deg(R) > 170
+
+
+def test_chain_skips_a_disagreeing_window_or_takes_its_other_solution():
+    sim = _sim()
+    g = sim.groundtruth
+    ws = plan_windows(sim.tracks, sim.parallel, np.ones(200, bool))
+    assert len(ws) >= 3
+    sols = _exact_solutions(sim, ws)
+    good = sols[1]
+    # window 1's rotations flipped by 180 deg in every other frame (shared ones included)
+    flip = rotvec_to_matrix(np.array([0.0, 0.0, np.pi]))
+    rot = good[0].copy()
+    rot[1::2] = rot[1::2] @ flip
+    sols[1] = (rot, good[1])
+    # without the check the flip goes into the chain
+    R, c, done, chained = chain_windows(200, ws, sols)
+    err = trajectory_errors(Trajectory(g.timestamps[done], R[done], c[done]),
+                            g.subset(np.flatnonzero(done)))
+    assert err.rot_max_deg > 90
+    # with it the window is skipped; the chain goes on where the next window still overlaps
+    R, c, done, chained = chain_windows(200, ws, sols, max_disagreement_deg=5.0)
+    assert 1 not in chained and done.sum() >= 3
+    err = trajectory_errors(Trajectory(g.timestamps[done], R[done], c[done]),
+                            g.subset(np.flatnonzero(done)))
+    assert err.rot_max_deg < 1e-9 and err.ate_rel < 1e-9
+    # with a resolver that gives the right solution, the window is chained
+    asked = []
+
+    def resolve(k):
+        asked.append(k)
+        return good
+
+    R2, c2, done2, chained2 = chain_windows(200, ws, sols, max_disagreement_deg=5.0,
+                                            resolve=resolve)
+    assert asked == [1] and 1 in chained2 and done2.sum() >= done.sum()
+    err = trajectory_errors(Trajectory(g.timestamps[done2], R2[done2], c2[done2]),
+                            g.subset(np.flatnonzero(done2)))
+    assert err.rot_max_deg < 1e-9 and err.ate_rel < 1e-9

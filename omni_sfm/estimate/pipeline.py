@@ -29,11 +29,12 @@ from omni_sfm.estimate.bundle import (
     observation_residuals,
     triangulate_lines,
 )
-from omni_sfm.estimate.paper import PaperOptions, estimate_paper
+from omni_sfm.estimate.paper import PaperOptions, PaperSolution, estimate_paper
 from omni_sfm.estimate.windows import (
     Window,
     WindowOptions,
     chain_windows,
+    max_rotation_step_deg,
     plan_windows,
     window_family,
     window_tracks,
@@ -42,7 +43,7 @@ from omni_sfm.fileio import atomic_write_text, dumps_json
 from omni_sfm.geometry import FloatArray
 from omni_sfm.lines.tracks import LineTracks
 from omni_sfm.poses import Trajectory, write_tum
-from omni_sfm.vanishing import VanishingOptions, detect_parallel_family
+from omni_sfm.vanishing import ParallelFamily, VanishingOptions, detect_parallel_family
 
 SCALE_CONVENTION = ("world = camera of the first estimated frame; distance between the first "
                     "and the last estimated camera centres = 1")
@@ -170,8 +171,7 @@ def _initialise(tracks: LineTracks, options: EstimationOptions,
     alternatives: list[tuple[FloatArray, FloatArray]] = []
     for w in windows:
         try:
-            sol = estimate_paper(window_tracks(tracks, w), window_family(family, w),
-                                 options.paper)
+            sol = _solve_window(tracks, family, w, options)
         except OmniSfmError as exc:
             failures.append(f"frames {w.start}-{w.stop - 1}: {exc}")
             solutions.append(None)
@@ -197,8 +197,21 @@ def _initialise(tracks: LineTracks, options: EstimationOptions,
             return R, c, local
         return res.rotations, res.positions, res.frames
 
+    def resolve(k: int) -> tuple[FloatArray, FloatArray] | None:
+        # a window that disagrees with the chain: its solution without the rotation polish
+        if not options.paper.polish_rotation:
+            return None
+        w = windows[k]
+        try:
+            alt = estimate_paper(window_tracks(tracks, w), window_family(family, w),
+                                 replace(options.paper, polish_rotation=False))
+        except OmniSfmError:
+            return None
+        return np.asarray(alt.rotations), np.asarray(alt.positions)
+
     R, c, done, chained = chain_windows(F, windows, solutions,
-                                        refine if len(windows) > 1 else None)
+                                        refine if len(windows) > 1 else None,
+                                        options.windows.max_disagreement_deg, resolve)
     timings["chaining"] += (time.perf_counter() - t0) * 1e3
     if done.sum() < 3:
         why = "; ".join(failures[:3]) if failures else \
@@ -206,6 +219,23 @@ def _initialise(tracks: LineTracks, options: EstimationOptions,
         raise OmniSfmError(f"cannot estimate any frame: {why}")
     return _Init(R, c, done, [windows[i] for i in chained], failures, members,
                  np.asarray(family.vpv), alternatives if done.all() else [])
+
+
+def _solve_window(tracks: LineTracks, family: ParallelFamily, w: Window,
+                  options: EstimationOptions) -> PaperSolution:
+    """The paper's solution of one window; without the rotation polish where the polished
+    rotations jump between consecutive frames (see ``WindowOptions.max_rotation_step_deg``)."""
+    sub, fam = window_tracks(tracks, w), window_family(family, w)
+    sol = estimate_paper(sub, fam, options.paper)
+    limit = options.windows.max_rotation_step_deg
+    if not options.paper.polish_rotation or \
+            max_rotation_step_deg(np.asarray(sol.rotations)) <= limit:
+        return sol
+    try:
+        alt = estimate_paper(sub, fam, replace(options.paper, polish_rotation=False))
+    except OmniSfmError:
+        return sol
+    return alt if max_rotation_step_deg(np.asarray(alt.rotations)) <= limit else sol
 
 
 def _normalise(R: FloatArray, c: FloatArray, frames: np.ndarray, d: FloatArray,

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from omni_sfm.errors import OmniSfmError
-from omni_sfm.geometry import FloatArray
+from omni_sfm.geometry import FloatArray, rotation_angle
 from omni_sfm.lines.tracks import LineTracks
 from omni_sfm.vanishing import ParallelFamily
 
@@ -38,6 +38,17 @@ class WindowOptions:
     with this many continues the chain."""
     max_length: int = 60
     """Longest window, frames (longer windows give the paper's method more baseline)."""
+    max_rotation_step_deg: float = 45.0
+    """A window's solution that turns by more than this between two consecutive frames is
+    taken for a per-frame flip of the rotation search (video frames turn little): the window is
+    solved again without the rotation polish (:attr:`PaperOptions.polish_rotation`), and that
+    solution is kept if its steps stay below this."""
+    max_disagreement_deg: float | None = None
+    """A window whose rotations, after the best rotation onto the chain, differ from the chained
+    ones on a shared frame by more than this (deg) and whose unpolished solution does too is not
+    chained (its frames are left to the next windows, or not estimated). None: no check (off by
+    default: on the 40-frame textured room 5-45 deg drop a window and 8 frames that the
+    bundle adjustment recovers when the window is kept)."""
 
 
 @dataclass(frozen=True)
@@ -156,6 +167,14 @@ def window_family(family: ParallelFamily, window: Window) -> ParallelFamily:
     return family.select(tracks=window.tracks, frames=window.frames)
 
 
+def max_rotation_step_deg(rotations: FloatArray) -> float:
+    """Largest rotation angle (deg) between consecutive frames of ``rotations`` ``(n,3,3)``."""
+    if rotations.shape[0] < 2:
+        return 0.0
+    rel = np.einsum("kji,kjl->kil", rotations[:-1], rotations[1:])
+    return float(np.degrees(rotation_angle(rel)).max())
+
+
 def similarity_from_overlap(rot_a: FloatArray, pos_a: FloatArray, rot_b: FloatArray,
                             pos_b: FloatArray) -> tuple[FloatArray, float, FloatArray]:
     """Similarity ``x_a = s R x_b + t`` taking solution b onto solution a on shared frames.
@@ -184,13 +203,26 @@ def similarity_from_overlap(rot_a: FloatArray, pos_a: FloatArray, rot_b: FloatAr
     return R, s, ma - s * R @ mb
 
 
+def _fit_overlap(rot_a: FloatArray, pos_a: FloatArray, rot_b: FloatArray, pos_b: FloatArray,
+                 max_disagreement_deg: float | None
+                 ) -> tuple[FloatArray, float, FloatArray, bool]:
+    """:func:`similarity_from_overlap` and whether the rotations agree within the limit."""
+    Rs, s, t = similarity_from_overlap(rot_a, pos_a, rot_b, pos_b)
+    if max_disagreement_deg is None:
+        return Rs, s, t, True
+    diff = np.einsum("kji,kjl->kil", rot_a, Rs @ rot_b)
+    return Rs, s, t, float(np.degrees(rotation_angle(diff)).max()) <= max_disagreement_deg
+
+
 RefineFn = Callable[[FloatArray, FloatArray, np.ndarray, np.ndarray],
                     tuple[FloatArray, FloatArray, np.ndarray]]
 
 
 def chain_windows(num_frames: int, windows: list[Window],
                   solutions: list[tuple[FloatArray, FloatArray] | None],
-                  refine: RefineFn | None = None
+                  refine: RefineFn | None = None,
+                  max_disagreement_deg: float | None = None,
+                  resolve: Callable[[int], tuple[FloatArray, FloatArray] | None] | None = None
                   ) -> tuple[FloatArray, FloatArray, np.ndarray, list[int]]:
     """Chain per-window poses into one trajectory (world = the first chained window's frame 0).
 
@@ -204,6 +236,12 @@ def chain_windows(num_frames: int, windows: list[Window],
             frames)`` adjusts the poses of ``frames`` (bool, the previous and the new window)
             keeping the gauge of ``old_frames`` (the frames chained before); it returns the
             frames it could estimate. Without it, errors of the windows accumulate.
+        max_disagreement_deg: a window whose rotations, mapped onto the chain by the overlap's
+            rotation, differ from the chained rotations by more than this (deg) on a shared
+            frame is skipped (e.g. one frame of it flipped by 180 deg), as is a window left
+            with fewer than 3 shared frames by a skipped one. None: no check.
+        resolve: optional ``resolve(w)`` giving another solution of window ``w`` (or None),
+            tried before a disagreeing window is skipped.
 
     Returns ``(rotations (F,3,3), positions (F,3), estimated (F,) bool, chained window
     indices)``. Only the longest run of windows linked by >= 3 shared frames is kept; the other
@@ -224,16 +262,31 @@ def chain_windows(num_frames: int, windows: list[Window],
         return R, c, done, []
     best = max(runs, key=lambda r: windows[r[-1]].stop - windows[r[0]].start)
     prev_start = windows[best[0]].start
+    chained: list[int] = []
     for w in best:
         rot_w, pos_w = solutions[w]  # type: ignore[misc]
         fr = windows[w].frames
         if not done.any():
             R[fr], c[fr] = rot_w, pos_w
             done[fr] = True
+            chained.append(w)
             continue
         shared = fr[done[fr]]
+        if len(shared) < 3:
+            continue
         idx = shared - windows[w].start
-        Rs, s, t = similarity_from_overlap(R[shared], c[shared], rot_w[idx], pos_w[idx])
+
+        Rs, s, t, agree = _fit_overlap(R[shared], c[shared], rot_w[idx], pos_w[idx],
+                                       max_disagreement_deg)
+        if not agree and resolve is not None:
+            other = resolve(w)
+            if other is not None:
+                Rs, s, t, agree = _fit_overlap(R[shared], c[shared], other[0][idx],
+                                               other[1][idx], max_disagreement_deg)
+                if agree:
+                    rot_w, pos_w = other
+        if not agree:
+            continue
         new = fr[~done[fr]]
         jdx = new - windows[w].start
         R[new] = Rs @ rot_w[jdx]
@@ -250,4 +303,5 @@ def chain_windows(num_frames: int, windows: list[Window],
             new = new[ok[new]]
         done[new] = True
         prev_start = windows[w].start
-    return R, c, done, best
+        chained.append(w)
+    return R, c, done, chained
