@@ -92,3 +92,21 @@ def matrix_from_quat_xyzw(q: ArrayLike) -> FloatArray:
     from scipy.spatial.transform import Rotation
 
     return np.asarray(Rotation.from_quat(np.asarray(q, dtype=np.float64)).as_matrix())
+
+
+def ray_line_closest(origins: ArrayLike, rays: ArrayLike, points: ArrayLike,
+                     directions: ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Closest approach of rays ``o + s r`` to lines ``p + u d`` (all ``(..., 3)``, broadcast;
+    ``r`` and ``d`` unit).
+
+    Returns ``(s, u, den)``: the ray's and the line's parameters at the closest points, and
+    ``den = 1 - (r . d)^2``, which vanishes for a ray parallel to its line (``s`` and ``u`` are
+    then meaningless; they are computed with ``den`` clamped to 1e-12, so callers filter on it).
+    """
+    r, d = np.asarray(rays, dtype=np.float64), np.asarray(directions, dtype=np.float64)
+    b = np.asarray(points, dtype=np.float64) - np.asarray(origins, dtype=np.float64)
+    a = np.sum(r * d, axis=-1)
+    br, bd = np.sum(b * r, axis=-1), np.sum(b * d, axis=-1)
+    den = 1.0 - a * a
+    safe = np.maximum(den, 1e-12)
+    return (br - bd * a) / safe, (br * a - bd) / safe, den

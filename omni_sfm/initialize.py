@@ -32,7 +32,7 @@ from omni_sfm.cameras import CameraModel, load_camera
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.estimate.pipeline import EstimationOptions, EstimationResult, estimate_poses
 from omni_sfm.fileio import atomic_output_dir, atomic_write_text, dumps_json
-from omni_sfm.geometry import normalize
+from omni_sfm.geometry import normalize, ray_line_closest
 from omni_sfm.lines.frontend import FrontEndOptions, FrontEndResult, track_lines
 from omni_sfm.lines.tracks import LineTracks
 from omni_sfm.lines.video import FrameSource, read_frames, read_mask
@@ -104,14 +104,9 @@ def estimated_segments(fe: FrontEndResult, result: EstimationResult,
     k = pose_of[tr.obs_frame[sel]]
     R, c = result.trajectory.rotations[k], result.trajectory.positions[k]
     d, p = result.line_directions[t], result.line_points[t]
-    params = []
-    for e in range(2):
-        w = np.einsum("nij,nj->ni", R, fe.obs_endpoint_rays[sel, e])
-        a = np.sum(w * d, axis=1)
-        b = c - p
-        with np.errstate(invalid="ignore", divide="ignore"):
-            params.append((np.sum(b * d, axis=1) - np.sum(b * w, axis=1) * a) / (1.0 - a * a))
-    u = np.concatenate(params)
+    ends_world = np.einsum("nij,nej->nei", R, fe.obs_endpoint_rays[sel])   # (n, 2, 3)
+    _, u, den = ray_line_closest(c[:, None], ends_world, p[:, None], d[:, None])
+    u = np.where(den > 1e-12, u, np.nan).T.ravel()  # both ends of every observation
     tt = np.concatenate([t, t])
     groups: list[np.ndarray] = [result.parallel_direction]
     segments = []

@@ -139,3 +139,17 @@ def test_tracks_rays_round_trip_and_checks(tmp_path):
     (tmp_path / "mixed.json").write_text(json.dumps(data))
     with pytest.raises(OmniSfmError, match="all tracks or for none"):
         read_tracks(tmp_path / "mixed.json")
+
+
+def test_ray_line_closest_against_brute_force():
+    from omni_sfm.geometry import normalize, ray_line_closest
+
+    rng = np.random.default_rng(7)
+    o, p = rng.normal(size=(50, 3)), rng.normal(size=(50, 3))
+    r, d = normalize(rng.normal(size=(50, 3))), normalize(rng.normal(size=(50, 3)))
+    s, u, den = ray_line_closest(o, r, p, d)
+    # at the closest points the connecting vector is perpendicular to both
+    gap = (o + s[:, None] * r) - (p + u[:, None] * d)
+    assert np.abs(np.sum(gap * r, axis=1)).max() < 1e-9
+    assert np.abs(np.sum(gap * d, axis=1)).max() < 1e-9
+    np.testing.assert_allclose(den, 1 - np.sum(r * d, axis=1) ** 2)

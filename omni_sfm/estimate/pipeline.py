@@ -40,7 +40,7 @@ from omni_sfm.estimate.windows import (
     window_tracks,
 )
 from omni_sfm.fileio import atomic_write_text, dumps_json
-from omni_sfm.geometry import FloatArray
+from omni_sfm.geometry import FloatArray, ray_line_closest
 from omni_sfm.lines.tracks import LineTracks
 from omni_sfm.poses import Trajectory, write_tum
 from omni_sfm.vanishing import ParallelFamily, VanishingOptions, detect_parallel_family
@@ -392,11 +392,8 @@ def side_votes(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArray, 
         return 0, 0
     t, f = t[ok], f[ok]
     w = np.einsum("kij,kj->ki", R[f], tracks.obs_ray[ok])
-    dd, b = d[t], p[t] - c[f]
-    a = np.sum(w * dd, axis=1)
-    den = 1.0 - a * a
-    good = den > 1e-6  # a ray along its own line says nothing
-    depth = (np.sum(b * w, axis=1) - np.sum(b * dd, axis=1) * a)[good] / den[good]
+    depth, _, den = ray_line_closest(c[f], w, p[t], d[t])
+    depth = depth[den > 1e-6]  # a ray along its own line says nothing
     return int(np.sum(depth > 0)), int(np.sum(depth < 0))
 
 

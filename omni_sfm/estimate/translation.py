@@ -38,7 +38,7 @@ import numpy as np
 
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.estimate.rotation import cross3
-from omni_sfm.geometry import FloatArray, normalize
+from omni_sfm.geometry import FloatArray, normalize, ray_line_closest
 
 
 def plane_basis(v: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -355,11 +355,8 @@ def resolve_sign(rays_in_world: FloatArray, origins: FloatArray, points: FloatAr
     rays to use. Each ray votes with the sign of the ray parameter of its closest approach to the
     line; the reflected reconstruction reverses every vote.
     """
-    r = rays_in_world
-    rel = points[None] - origins[:, None]                               # (F, L, 3)
-    rd = np.sum(r * directions[None], -1)
-    lam = (np.sum(rel * r, -1) - np.sum(rel * directions[None], -1) * rd) / \
-        np.maximum(1.0 - rd * rd, 1e-12)
+    lam, _, _ = ray_line_closest(origins[:, None], rays_in_world, points[None],
+                                 directions[None])                       # (F, L)
     if mask is not None:
         lam = np.where(mask, lam, 0.0)
     vote = float(np.sum(np.sign(np.nan_to_num(lam))))
