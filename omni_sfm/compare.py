@@ -315,7 +315,7 @@ def run_comparison(sequence: SequenceInput, gt: Trajectory, names: Sequence[str]
     entries: dict[str, Any] = {}
     trajs: dict[str, Trajectory] = {}
     evals: dict[str, Evaluation] = {}
-    for name in tqdm(names, desc="compare", unit="initializer", disable=not progress):
+    for name in tqdm(names, desc="compare", unit="initializer", disable=None if progress else True):
         res, dt = run_initializer(name, sequence, options.get(name, {}))
         entry: dict[str, Any] = {"status": res.status}
         traj = res.trajectory
