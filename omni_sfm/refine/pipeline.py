@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from omni_sfm.evaluate import Similarity
 from omni_sfm.export.colmap import (
     IMAGES_DIR,
     MASK_FILE,
@@ -257,11 +258,6 @@ def _align_to_input(ref: Trajectory, inp: Trajectory) -> tuple[FloatArray, Float
     return R, b0 - s * a0, s
 
 
-def _apply(R: FloatArray, t: FloatArray, s: float, traj: Trajectory) -> Trajectory:
-    return Trajectory(traj.timestamps.copy(), R[None] @ traj.rotations,
-                      s * traj.positions @ R.T + t)
-
-
 def _set_poses(rec: Any, seed_export: Any, image_ids: list[int], traj: Trajectory) -> None:
     """Set the COLMAP poses of ``image_ids`` (their frames) to ``traj`` (our convention)."""
     import pycolmap
@@ -402,7 +398,7 @@ def refine(init_dir: Path, images_dir: Path, output: Path,
                     idx = {n: k for k, n in enumerate(all_names)}
                     new, _ = trajectory_from_reconstruction(
                         rec, seed.export, added, ts_all[[idx[n] for n in added]])
-                    traj, refined = _merge(traj, refined, _apply(R, t, s, new))
+                    traj, refined = _merge(traj, refined, Similarity(R, t, s).apply(new))
                     final_ids = image_ids + [rec.find_image_with_name(n).image_id
                                              for n in added]
                 if register:
@@ -524,7 +520,7 @@ def _accept(rec: Any, export: Any, init: InitModel, image_ids: list[int], obs0: 
         if small.sum() < 3:
             break
         R, t, s = _align_to_input(adjusted.subset(small), inp.subset(small))
-        aligned = _apply(R, t, s, adjusted)
+        aligned = Similarity(R, t, s).apply(adjusted)
         rot_change = np.degrees(rotation_angle(np.swapaxes(inp.rotations, 1, 2)
                                                @ aligned.rotations))
         pos_change = np.linalg.norm(aligned.positions - inp.positions, axis=1) / scale_len
@@ -540,7 +536,7 @@ def _accept(rec: Any, export: Any, init: InitModel, image_ids: list[int], obs0: 
             "refined_frames": 0, "kept_frames": {}, "alignment_to_input": None,
             "pose_changes": None}
     use = small | (cand & strong)
-    aligned = _apply(R, t, s, adjusted)
+    aligned = Similarity(R, t, s).apply(adjusted)
     for k, name in enumerate(init.image_names):
         if use[k]:
             continue
