@@ -157,7 +157,7 @@ def _sweep_module():
 
 
 def test_sweep_dask_equals_process_pool() -> None:
-    distributed = pytest.importorskip("distributed")
+    import distributed  # installed by the set-up (the 'compare' extra): a missing one must fail
     sweep = _sweep_module()
     tasks = sweep.make_tasks(["sim"], [0, 1], [0.16], 10, 40, ["five-point", "colmap"])
     local = sweep.run_all(tasks, None, 1)
