@@ -78,6 +78,13 @@ class PaperOptions:
     """With ``polish_rotation``, other local minima of ``E_rot`` (all views) up to this factor
     above the best are polished too, and the full model picks the winner (noise can make the
     basins of ``E_rot`` compete)."""
+    rotation_continuity: bool = True
+    """Views are consecutive video frames: among the rotation search's minima prefer those whose
+    angles about the parallel direction never jump by more than 90 deg between neighbouring
+    views, and undo such jumps where the half turn fits the lines about as well
+    (:func:`~omni_sfm.estimate.rotation.keep_continuity`). Lines perpendicular to the parallel
+    direction (a corridor's verticals and cross lines) cannot tell a view from its half turn
+    about it. False: the paper's per-view minima as they are (unordered views)."""
     polish_rotation: bool = True
     """Also solve the angles about ``v`` with all views jointly (``polish_angles``) and keep
     whichever rotations give the full model (all lines triangulated) the smaller RMS angle."""
@@ -339,7 +346,7 @@ def _solve_once(tracks: LineTracks, family: ParallelFamily, opts: PaperOptions, 
     rot = estimate_rotations(normals[:, oth], vpv, w[oth], c_rot, num_grid=opts.rotation_grid,
                              num_starts=opts.rotation_starts, xtol=xtol,
                              softening=opts.rotation_softening, polish=False,
-                             search_views=search_views)
+                             search_views=search_views, continuity=opts.rotation_continuity)
     m_world = np.einsum("fij,fmj->fmi", rot.rotations, normals)
     lp = np.median(line_parallax(m_world[:, oth]), axis=1)
     if np.max(lp) < np.radians(opts.min_parallax_deg):
@@ -355,7 +362,8 @@ def _solve_once(tracks: LineTracks, family: ParallelFamily, opts: PaperOptions, 
                                      num_grid=opts.rotation_grid,
                                      num_starts=opts.rotation_starts, xtol=xtol,
                                      softening=opts.rotation_softening, polish=False,
-                                     search_views=search_views)
+                                     search_views=search_views,
+                                     continuity=opts.rotation_continuity)
     # candidates: the search's minimum, then (if polishing) every local minimum of E_rot within
     # a factor of the best, polished with all views; the full model decides among them
     prob = RotationProblem.build(normals[:, oth], vpv, w[oth], c_rot)

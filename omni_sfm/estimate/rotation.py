@@ -178,8 +178,9 @@ class RotationProblem:
         s2 = norm * norm
         return d, ok * (s2 / (s2 + self.softening ** 2))
 
-    def view_fit(self, phi_c: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """Each view's best ``phi_k`` and cost ``e_k`` for trial ``phi_c (G,)``: two ``(G, F)``."""
+    def _view_terms(self, phi_c: FloatArray) -> tuple[FloatArray, ...]:
+        """``e_k(phi) = sum_q wq (a cos phi + b sin phi + cc)^2``: ``a, b, cc (G, F, Q)``,
+        ``wq (G, 1, Q)`` and the trigonometric coefficients ``(G, F, 4)`` of ``e_k``."""
         d, ok = self.directions(phi_c)
         wt = self.weights[None, :] * ok                                   # (G, Q)
         a = np.einsum("fqj,gqj->gfq", self.w_perp, d)
@@ -188,10 +189,44 @@ class RotationProblem:
         wq = wt[:, None, :]
         coef = np.stack([np.sum(wq * 2 * a * cc, -1), np.sum(wq * 2 * b * cc, -1),
                          np.sum(wq * 0.5 * (a * a - b * b), -1), np.sum(wq * a * b, -1)], -1)
+        return a, b, cc, wq, coef
+
+    def view_fit(self, phi_c: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Each view's best ``phi_k`` and cost ``e_k`` for trial ``phi_c (G,)``: two ``(G, F)``."""
+        a, b, cc, wq, coef = self._view_terms(phi_c)
         phi = trig2_minimize(coef)
         r = a * np.cos(phi)[..., None] + b * np.sin(phi)[..., None] + cc
         e = np.sum(wq * r * r, -1)
         return phi, e
+
+    def half_turn_alternatives(self, phi_c: float,
+                               phi: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Each view's local minimum of ``e_k`` nearest ``phi_k + pi``, for the second view's
+        angle ``phi_c``: angles ``(F,)``, their costs and the costs at ``phi`` (both ``(F,)``).
+
+        Lines perpendicular to the parallel direction cannot tell ``R_v(phi)`` from
+        ``R_v(phi + pi)`` (the half turn maps their directions onto their opposites, and normals
+        carry no sign); only lines oblique to ``v`` and noise separate the two minima.
+        """
+        a, b, cc, wq, coef = (x[0] for x in self._view_terms(np.array([phi_c])))
+        a1, b1, a2, b2 = coef.T
+        alt = np.asarray(phi, dtype=np.float64) + np.pi
+        for _ in range(30):  # Newton on e_k'(phi) = 0, steps clipped, towards a minimum
+            g = -a1 * np.sin(alt) + b1 * np.cos(alt) - 2 * a2 * np.sin(2 * alt) \
+                + 2 * b2 * np.cos(2 * alt)
+            h = -a1 * np.cos(alt) - b1 * np.sin(alt) - 4 * a2 * np.cos(2 * alt) \
+                - 4 * b2 * np.sin(2 * alt)
+            scale = np.abs(a1) + np.abs(b1) + 4 * (np.abs(a2) + np.abs(b2)) + 1e-300
+            step = np.where(h > 1e-9 * scale, -g / np.where(h > 0, h, 1.0), -g / scale)
+            alt = alt + np.clip(step, -0.2, 0.2)
+            if np.all(np.abs(step) < 1e-12):
+                break
+
+        def cost(ph: FloatArray) -> FloatArray:
+            r = a * np.cos(ph)[:, None] + b * np.sin(ph)[:, None] + cc
+            return np.sum(wq * r * r, -1)
+
+        return np.angle(np.exp(1j * alt)), cost(alt), cost(np.asarray(phi, dtype=np.float64))
 
     def cost(self, phi_c: FloatArray) -> FloatArray:
         """``E_rot(phi_c)`` (eq. 14) for ``phi_c (G,)``, views 0 and ``c`` excluded (zero)."""
@@ -215,6 +250,37 @@ class RotationProblem:
         from omni_sfm.geometry import rotation_about_axis
 
         return rotation_about_axis(self.v, phi) @ self.align
+
+
+def keep_continuity(prob: RotationProblem, phi_c: float, phi: FloatArray, *,
+                    tolerance: float = 1.0) -> tuple[FloatArray, FloatArray]:
+    """Undo half turns about ``v`` that the data do not ask for, in view order.
+
+    Views are consecutive video frames, so a camera does not turn by more than 90 deg about
+    ``v`` between one view and the next. Where view ``k``'s angle jumps by more than that from
+    the previous view's (view 0: 0) and its half-turn alternative
+    (:meth:`RotationProblem.half_turn_alternatives`) costs at most ``tolerance`` times
+    ``e_k``'s minimum more, the alternative is taken. A real half turn of the data (lines
+    oblique to ``v`` that reject the alternative) is kept. Views 0 and ``c`` keep their angles
+    (the search decided ``phi_c``; :func:`estimate_rotations` also tries ``phi_c + pi``).
+
+    Returns the angles and each view's cost ``e_k``, ``(F,)`` both (views 0 and ``c``: 0, as
+    in :meth:`RotationProblem.angles_at`).
+    """
+    out = np.array(phi, dtype=np.float64, copy=True)
+    alt, e_alt, e_min = prob.half_turn_alternatives(phi_c, out)
+    e = e_min.copy()
+    prev = 0.0
+    for k in range(1, out.shape[0]):
+        if k != prob.second_view:
+            jump = abs(np.angle(np.exp(1j * (out[k] - prev))))
+            jump_alt = abs(np.angle(np.exp(1j * (alt[k] - prev))))
+            if jump > np.pi / 2 and jump_alt < np.pi / 2 and \
+                    e_alt[k] - e_min[k] <= tolerance * max(e_min[k], 1e-300):
+                out[k], e[k] = alt[k], e_alt[k]
+        prev = out[k]
+    e[[0, prob.second_view]] = 0.0
+    return out, e
 
 
 def polish_angles(prob: RotationProblem, phi: FloatArray, *, max_iter: int = 30,
@@ -317,7 +383,8 @@ class RotationResult:
 def estimate_rotations(normals: FloatArray, vpv: FloatArray, weights: FloatArray,
                        second_view: int, *, num_grid: int = 64, num_starts: int = 3,
                        xtol: float = 1e-12, softening: float = 0.1,
-                       polish: bool = True, search_views: int | None = None) -> RotationResult:
+                       polish: bool = True, search_views: int | None = None,
+                       continuity: bool = True) -> RotationResult:
     """Rotations of all views (METHOD.md §4).
 
     Args:
@@ -333,6 +400,8 @@ def estimate_rotations(normals: FloatArray, vpv: FloatArray, weights: FloatArray
             spread, always with views 0 and ``c``): the cost over hundreds of views is very
             redundant for locating ``phi_c``. ``None``: all views. Every view's angle is then
             solved at the found ``phi_c``.
+        continuity: views are consecutive frames: undo half turns about ``v`` between
+            neighbouring views that the data leave open (:func:`keep_continuity`).
     """
     F, Q = normals.shape[:2]
     if F < 3:
@@ -350,12 +419,36 @@ def estimate_rotations(normals: FloatArray, vpv: FloatArray, weights: FloatArray
                                        int(np.searchsorted(idx, second_view)), softening)
     res = global_minimize_1d(search.cost, -np.pi, np.pi, num_grid=num_grid, periodic=True,
                              num_starts=num_starts, xtol=xtol)
-    phi, e = prob.angles_at(res.x)
+    xs = [res.x] + [x for x, _ in res.minima[1:]]
+    if continuity:
+        # the half turn of the second view is a minimum too wherever the lines perpendicular
+        # to v dominate; it may be the one whose angles run continuously
+        xs += [float(np.angle(np.exp(1j * (x + np.pi)))) for x in xs]
+    cands = []
+    for x in xs:
+        phi_x, e_x = prob.angles_at(x)
+        jumps = 0
+        if continuity:
+            phi_x, e_x = keep_continuity(prob, x, phi_x)
+            jumps = count_half_turns(phi_x)
+        cands.append((jumps, float(e_x.sum()), phi_x, e_x))
+    if continuity and any(j == 0 for j, *_ in cands):
+        # consecutive frames do not turn by more than 90 deg about v: among the minima, those
+        # without such jumps, lowest cost first
+        cands = [c for c in cands if c[0] == 0]
+        cands.sort(key=lambda c: c[1])
+    _, _, phi, e = cands[0]
     polished = float("nan")
     if polish:
         phi, _, polished = polish_angles(prob, phi)
     R = prob.rotations(phi)
     R[0] = np.eye(3)
-    others = [prob.angles_at(x) for x, _ in res.minima[1:]]
+    others = [(ph, ex) for _, _, ph, ex in cands[1:]]
     return RotationResult(R, phi, second_view, float(e.sum()), e, res.num_evals, polished,
                           tuple(p for p, _ in others), tuple(float(c.sum()) for _, c in others))
+
+
+def count_half_turns(phi: FloatArray) -> int:
+    """Consecutive views whose angles about ``v`` differ by more than 90 deg."""
+    step = np.angle(np.exp(1j * np.diff(np.asarray(phi, dtype=np.float64))))
+    return int(np.count_nonzero(np.abs(step) > np.pi / 2))
