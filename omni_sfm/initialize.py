@@ -75,15 +75,17 @@ class InitResult:
 
 
 def tracks_with_side_rays(fe: FrontEndResult) -> LineTracks:
-    """The front end's tracks with a ray towards the middle of every observed segment.
+    """The front end's tracks with a ray towards the middle of every observed segment and the
+    uncertainty of every NV along and across that ray.
 
     The middle ray of the arc between the segment's end rays, projected into the line's plane;
-    it tells on which side of the viewpoint each line lies (see docs/formats.md).
+    it tells on which side of the viewpoint each line lies (see docs/formats.md). The
+    uncertainties let the bundle adjustment weigh a short segment's poorly fixed tilt less.
     """
     tr = fe.tracks
     mid = fe.obs_endpoint_rays[:, 0] + fe.obs_endpoint_rays[:, 1]
     mid -= np.sum(mid * tr.obs_normal, axis=1, keepdims=True) * tr.obs_normal
-    return replace(tr, obs_ray=normalize(mid))
+    return replace(tr, obs_ray=normalize(mid), obs_sigma=fe.obs_normal_sigma)
 
 
 def estimated_segments(fe: FrontEndResult, result: EstimationResult,

@@ -153,3 +153,28 @@ def test_ray_line_closest_against_brute_force():
     assert np.abs(np.sum(gap * r, axis=1)).max() < 1e-9
     assert np.abs(np.sum(gap * d, axis=1)).max() < 1e-9
     np.testing.assert_allclose(den, 1 - np.sum(r * d, axis=1) ** 2)
+
+
+def test_tracks_sigmas_round_trip_and_checks(tmp_path):
+    from omni_sfm.lines.tracks import make_tracks
+
+    n = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]])
+    r = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 1.0, 0.0]])
+    s = np.radians([[0.01, 0.1], [0.02, 0.2], [0.03, 0.3]])
+    tr = make_tracks(3, np.array([7]), np.zeros(3, int), np.array([2, 0, 1]), n, obs_ray=r,
+                     obs_sigma=s)
+    np.testing.assert_allclose(tr.obs_sigma, s[[1, 2, 0]])  # sorted with the normals
+    write_tracks(tmp_path / "t.json", tr)
+    back = read_tracks(tmp_path / "t.json")
+    np.testing.assert_allclose(back.obs_sigma, tr.obs_sigma, rtol=1e-8)
+    np.testing.assert_allclose(back.select_tracks(np.array([0])).obs_sigma, tr.obs_sigma)
+    with pytest.raises(OmniSfmError, match="sigmas need rays"):
+        make_tracks(3, np.array([7]), np.zeros(3, int), np.arange(3), n, obs_sigma=s)
+    with pytest.raises(OmniSfmError, match="finite and positive"):
+        make_tracks(3, np.array([7]), np.zeros(3, int), np.arange(3), n, obs_ray=r,
+                    obs_sigma=-s)
+    data = json.loads((tmp_path / "t.json").read_text())
+    data["tracks"][0]["sigmas_deg"] = [[0.1, 0.2]]
+    (tmp_path / "short.json").write_text(json.dumps(data))
+    with pytest.raises(OmniSfmError, match="one \\[along, across\\] pair"):
+        read_tracks(tmp_path / "short.json")

@@ -200,3 +200,18 @@ def test_oriented_components_split_at_orientation_jumps():
     assert n == 2 and len(set(lab[:9])) == 1 and len(set(lab[9:])) == 1 and lab[0] != lab[-1]
     n, _ = _oriented_components(p, (14, 12), theta, np.radians(100))
     assert n == 1
+
+
+def test_normal_uncertainty_follows_the_fit(hyper_scene):
+    """Each NV's standard deviations along and across its middle ray come from the fit: a
+    line's tilt about its own ray is the poorly fixed direction, by about sqrt(12) / arc for
+    evenly spread points; both scale with the assumed edge noise."""
+    cam, _, _, img = hyper_scene
+    ln = extract_lines(img, cam)
+    s = ln.normal_sigma
+    assert s.shape == (ln.num_lines, 2) and np.all(s > 0)
+    assert np.all(s[:, 1] > s[:, 0])
+    ratio = (s[:, 1] / s[:, 0]) / (np.sqrt(12.0) / np.radians(ln.arc_deg))
+    assert np.all((ratio > 0.75) & (ratio < 1.3)), ratio
+    double = extract_lines(img, cam, ExtractionOptions(edge_noise_px=1.0))
+    np.testing.assert_allclose(double.normal_sigma, 2.0 * s, rtol=1e-9)

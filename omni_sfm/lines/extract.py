@@ -89,6 +89,10 @@ class ExtractionOptions:
     """Drop the points within this distance (px, along the line) of each end of a line before
     its final fit: where a line meets a corner or a texture blob, its last points bend
     towards the other edge and tilt the NV."""
+    edge_noise_px: float = 0.5
+    """Standard deviation of an edge point's position across the edge (px), the noise model
+    behind each NV's uncertainty (:attr:`ExtractedLines.normal_sigma`). Only the ratios of
+    the uncertainties matter to the estimator, which estimates the overall noise level."""
     mask_erode_px: int = 4
     """Erode the valid mask by this much, so the mask border (mirror rim, the camera's own
     reflection, the image border) gives no edges."""
@@ -111,6 +115,12 @@ class ExtractedLines:
         num_support: ``(L,)`` inlier count.
         residual_px: ``(L,)`` RMS distance of the inliers from the great circle, in pixels.
         arc_deg: ``(L,)`` angle subtended by the line at the viewpoint, degrees.
+        normal_sigma: ``(L, 2)`` standard deviations (radians) of the NV's error along the
+            middle ray of the line (projected into its plane) and along ``normal x ray``,
+            from the least-squares fit with ``edge_noise_px`` of noise per point (times the
+            local angle per pixel): ``1 / sqrt(sum_i (r_i . v)^2 / s_i^2)`` for each direction
+            ``v``. Across is the larger, by about ``sqrt(12) / arc`` (radians): a short
+            line pins its plane's tilt about its own ray poorly.
         num_edge_points: Canny edge points inside the mask.
         num_corner_points: edge points rejected as corner-like.
         num_segments: connected segments with at least ``min_points`` points (first round).
@@ -126,6 +136,7 @@ class ExtractedLines:
     num_support: IntArray
     residual_px: FloatArray
     arc_deg: FloatArray
+    normal_sigma: FloatArray
     num_edge_points: int
     num_corner_points: int
     num_segments: int
@@ -497,7 +508,8 @@ class LineExtractor:
                 normals=z3, offsets=np.zeros(1, np.int64), points_uv=np.zeros((0, 2)),
                 point_rays=z3, endpoint_rays=np.zeros((0, 2, 3)),
                 endpoint_uv=np.zeros((0, 2, 2)), num_support=np.zeros(0, np.int64),
-                residual_px=np.zeros(0), arc_deg=np.zeros(0), num_edge_points=counts["edge"],
+                residual_px=np.zeros(0), arc_deg=np.zeros(0), normal_sigma=np.zeros((0, 2)),
+                num_edge_points=counts["edge"],
                 num_corner_points=counts["corner"], num_segments=n_segments,
                 num_rejected=n_rejected)
         # final normals: least squares on all points of each (merged) line
@@ -525,10 +537,20 @@ class LineExtractor:
             return self._package(idx[keep], new, rays, uv, scale, counts, n_segments,
                                  n_rejected)
         arc = np.degrees(arc_rad)
+        # NV uncertainty: information of the fit along the middle ray m and across it (t)
+        m = ends[:, 0] + ends[:, 1]
+        m -= np.sum(m * normals, axis=1, keepdims=True) * normals
+        m /= np.linalg.norm(m, axis=1, keepdims=True)
+        tdir = np.cross(normals, m)
+        w = 1.0 / (self.options.edge_noise_px * scale[idx].astype(np.float64)) ** 2
+        info = np.stack([np.bincount(lab, weights=w * np.einsum("nk,nk->n", r, v[lab]) ** 2,
+                                     minlength=nl) for v in (m, tdir)], axis=1)
+        sigma = 1.0 / np.sqrt(np.maximum(info, 1e-300))
         return ExtractedLines(
             normals=normals, offsets=offsets, points_uv=uv[idx], point_rays=r,
             endpoint_rays=ends, endpoint_uv=np.stack([uv[idx[first]], uv[idx[last]]], 1),
             num_support=sizes.astype(np.int64), residual_px=resid, arc_deg=arc,
+            normal_sigma=sigma,
             num_edge_points=counts["edge"], num_corner_points=counts["corner"],
             num_segments=n_segments, num_rejected=n_rejected)
 

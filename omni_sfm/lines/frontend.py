@@ -50,6 +50,8 @@ class FrontEndResult:
             ``tracks.obs_*``), for drawing.
         obs_support: ``(K,)`` edge points of each observation.
         obs_arc_deg: ``(K,)`` angle each observation subtends at the viewpoint, degrees.
+        obs_normal_sigma: ``(K, 2)`` uncertainty of each NV along and across the segment's
+            middle ray (radians; :attr:`ExtractedLines.normal_sigma`).
         frame_numbers: ``(F,)`` index of each frame in the source (image or video frame).
         lines_extracted: ``(F,)`` lines found per frame.
         segments_rejected: ``(F,)`` edge segments that failed the straightness test, per frame.
@@ -67,6 +69,7 @@ class FrontEndResult:
     obs_endpoint_rays: FloatArray
     obs_support: IntArray
     obs_arc_deg: FloatArray
+    obs_normal_sigma: FloatArray
     frame_numbers: IntArray
     lines_extracted: IntArray
     segments_rejected: IntArray
@@ -191,7 +194,8 @@ def track_lines(frames: Iterable[tuple[int, float, np.ndarray]], camera: CameraM
     ms = 1000.0
     return FrontEndResult(
         tracks=tracks, obs_endpoint_rays=obs.endpoint_rays, obs_support=obs.support,
-        obs_arc_deg=obs.arc_deg, frame_numbers=np.asarray(numbers, np.int64),
+        obs_arc_deg=obs.arc_deg, obs_normal_sigma=obs.normal_sigma,
+        frame_numbers=np.asarray(numbers, np.int64),
         lines_extracted=np.asarray(n_lines, np.int64),
         segments_rejected=np.asarray(n_rej, np.int64), lines_continued=obs.matched,
         tracks_started=obs.started, tracks_revived=obs.revived,

@@ -90,6 +90,7 @@ class TrackedObservations:
         endpoint_rays: ``(K, 2, 3)`` unit rays of the two ends of the observed piece.
         support: ``(K,)`` number of edge points of the observed line.
         arc_deg: ``(K,)`` angle the observed piece subtends at the viewpoint, degrees.
+        normal_sigma: ``(K, 2)`` uncertainty of each NV (:attr:`ExtractedLines.normal_sigma`).
         line_index: ``(K,)`` index of the line in that frame's :class:`ExtractedLines`.
         num_frames: number of processed frames.
         matched: ``(F,)`` lines of frame f that continued a track from frame f-1.
@@ -104,6 +105,7 @@ class TrackedObservations:
     endpoint_rays: FloatArray
     support: IntArray
     arc_deg: FloatArray
+    normal_sigma: FloatArray
     line_index: IntArray
     num_frames: int
     matched: IntArray
@@ -191,7 +193,7 @@ class LineTracker:
         if not self._obs:
             z = np.zeros(0, np.int64)
             return TrackedObservations(z, z, np.zeros((0, 3)), np.zeros((0, 2, 3)), z,
-                                       np.zeros(0), z,
+                                       np.zeros(0), np.zeros((0, 2)), z,
                                        self._frame, np.asarray(self._matched, np.int64),
                                        np.asarray(self._started, np.int64),
                                        np.asarray(self._ended, np.int64),
@@ -205,6 +207,7 @@ class LineTracker:
                                    ).reshape(-1, 2, 3),
             "sup": np.concatenate([ln.num_support for _, _, ln in self._obs]).astype(np.int64),
             "arc": np.concatenate([ln.arc_deg for _, _, ln in self._obs]).astype(np.float64),
+            "sig": np.concatenate([ln.normal_sigma for _, _, ln in self._obs]).reshape(-1, 2),
         }
 
         def take(sel: np.ndarray) -> None:
@@ -229,7 +232,8 @@ class LineTracker:
         take(np.lexsort((c["fr"], c["tr"])))
         return TrackedObservations(
             track=c["tr"], frame=c["fr"], normal=c["nrm"], endpoint_rays=c["ends"],
-            support=c["sup"], arc_deg=c["arc"], line_index=c["li"], num_frames=self._frame,
+            support=c["sup"], arc_deg=c["arc"], normal_sigma=c["sig"], line_index=c["li"],
+            num_frames=self._frame,
             matched=np.asarray(self._matched, np.int64),
             started=np.asarray(self._started, np.int64), ended=np.asarray(self._ended, np.int64),
             revived=np.asarray(self._revived, np.int64))

@@ -45,6 +45,11 @@ class LineTracks:
         timestamps: ``(F,)`` time of each frame (frame index or seconds).
         obs_ray: ``(K, 3)`` unit ray towards a point of each observed segment (camera frame),
             or None when only normals are known (then the solution has a reflection ambiguity).
+        obs_sigma: ``(K, 2)`` standard deviations (radians) of each normal's error along the
+            two directions perpendicular to it: ``[0]`` along the ray (projected into the
+            line's plane), ``[1]`` along ``normal x ray``; or None (all observations alike).
+            Needs ``obs_ray``. A short segment fixes its plane's tilt about its own ray
+            poorly, so ``[1]`` is the larger; the bundle adjustment weights by them.
 
     Observations are sorted by (track, frame); a track sees a frame at most once.
     """
@@ -56,6 +61,7 @@ class LineTracks:
     obs_normal: FloatArray
     timestamps: FloatArray
     obs_ray: FloatArray | None = None
+    obs_sigma: FloatArray | None = None
 
     @property
     def num_tracks(self) -> int:
@@ -85,7 +91,8 @@ class LineTracks:
         sel = remap[self.obs_track] >= 0
         return LineTracks(self.num_frames, self.track_ids[idx], remap[self.obs_track[sel]],
                           self.obs_frame[sel], self.obs_normal[sel], self.timestamps,
-                          None if self.obs_ray is None else self.obs_ray[sel])
+                          None if self.obs_ray is None else self.obs_ray[sel],
+                          None if self.obs_sigma is None else self.obs_sigma[sel])
 
     def to_json_dict(self) -> dict[str, Any]:
         tracks = []
@@ -96,6 +103,8 @@ class LineTracks:
                      "normals": np.round(self.obs_normal[sel], 15).tolist()}
             if self.obs_ray is not None:
                 entry["rays"] = np.round(self.obs_ray[sel], 15).tolist()
+            if self.obs_sigma is not None:
+                entry["sigmas_deg"] = np.round(np.degrees(self.obs_sigma[sel]), 9).tolist()
             tracks.append(entry)
         return {"num_frames": self.num_frames, "timestamps": self.timestamps.tolist(),
                 "tracks": tracks}
@@ -103,7 +112,8 @@ class LineTracks:
 
 def make_tracks(num_frames: int, track_ids: IntArray, obs_track: IntArray, obs_frame: IntArray,
                 obs_normal: FloatArray, timestamps: FloatArray | None = None,
-                source: str = "tracks", obs_ray: FloatArray | None = None) -> LineTracks:
+                source: str = "tracks", obs_ray: FloatArray | None = None,
+                obs_sigma: FloatArray | None = None) -> LineTracks:
     """Validate and sort observations into a :class:`LineTracks` (errors name ``source``)."""
     if isinstance(num_frames, bool) or not isinstance(num_frames, int | np.integer) \
             or num_frames < 1:
@@ -134,10 +144,22 @@ def make_tracks(num_frames: int, track_ids: IntArray, obs_track: IntArray, obs_f
         if np.any(np.abs(np.sum(rays * n, axis=1)) / norms > 0.05):
             raise OmniSfmError(f"{source}: a ray does not lie in its line's plane "
                                "(|ray . normal| > 0.05)")
+    sig = None
+    if obs_sigma is not None:
+        if rays is None:
+            raise OmniSfmError(f"{source}: sigmas need rays (they are given along the ray)")
+        sig = np.asarray(obs_sigma, dtype=np.float64).reshape(-1, 2)
+        if sig.shape[0] != n.shape[0]:
+            raise OmniSfmError(f"{source}: need one [sigma_along, sigma_across] per normal, got "
+                               f"{sig.shape[0]} for {n.shape[0]} normals")
+        if not np.isfinite(sig).all() or np.any(sig <= 0):
+            raise OmniSfmError(f"{source}: sigmas must be finite and positive")
     order = np.lexsort((f, t))
     t, f, n = t[order], f[order], n[order] / norms[order, None]
     if rays is not None:
         rays = rays[order] / np.linalg.norm(rays[order], axis=1, keepdims=True)
+    if sig is not None:
+        sig = sig[order]
     dup = np.flatnonzero((np.diff(t) == 0) & (np.diff(f) == 0))
     if dup.size:
         raise OmniSfmError(f"{source}: track {int(track_ids[t[dup[0]]])} lists frame "
@@ -146,7 +168,8 @@ def make_tracks(num_frames: int, track_ids: IntArray, obs_track: IntArray, obs_f
         np.asarray(timestamps, dtype=np.float64)
     if ts.shape != (num_frames,) or not np.isfinite(ts).all():
         raise OmniSfmError(f"{source}: 'timestamps' must be {num_frames} finite numbers")
-    return LineTracks(int(num_frames), np.asarray(track_ids, dtype=np.int64), t, f, n, ts, rays)
+    return LineTracks(int(num_frames), np.asarray(track_ids, dtype=np.int64), t, f, n, ts, rays,
+                      sig)
 
 
 def read_tracks(path: Path | str) -> LineTracks:
@@ -158,7 +181,7 @@ def read_tracks(path: Path | str) -> LineTracks:
     tracks = data["tracks"]
     if not isinstance(tracks, list):
         raise OmniSfmError(f"{path}: 'tracks' must be a list")
-    ids, ot, of, on, orays = [], [], [], [], []
+    ids, ot, of, on, orays, osig = [], [], [], [], [], []
     for k, tr in enumerate(tracks):
         if not isinstance(tr, dict) or not {"frames", "normals"} <= tr.keys():
             raise OmniSfmError(f"{path}: track #{k} needs keys 'frames' and 'normals'")
@@ -185,6 +208,16 @@ def read_tracks(path: Path | str) -> LineTracks:
                 raise OmniSfmError(f"{path}: track {tid}: needs one ray per normal, got rays "
                                    f"of shape {rv.shape}")
             orays.append(rv)
+        if "sigmas_deg" in tr:
+            try:
+                sv = np.radians(np.asarray(tr["sigmas_deg"], dtype=np.float64))
+            except (TypeError, ValueError):
+                raise OmniSfmError(f"{path}: track {tid}: 'sigmas_deg' must be numbers") \
+                    from None
+            if sv.shape != (nv.shape[0], 2):
+                raise OmniSfmError(f"{path}: track {tid}: needs one [along, across] pair of "
+                                   f"sigmas per normal, got shape {sv.shape}")
+            osig.append(sv)
         ids.append(tid)
         ot.append(np.full(fr.shape[0], k))
         of.append(fr.astype(np.int64))
@@ -195,10 +228,13 @@ def read_tracks(path: Path | str) -> LineTracks:
         raise OmniSfmError(f"{path}: no tracks")
     if orays and len(orays) != len(ids):
         raise OmniSfmError(f"{path}: 'rays' must be given for all tracks or for none")
+    if osig and len(osig) != len(ids):
+        raise OmniSfmError(f"{path}: 'sigmas_deg' must be given for all tracks or for none")
     return make_tracks(data["num_frames"], np.asarray(ids), np.concatenate(ot),
                        np.concatenate(of), np.concatenate(on, axis=0).reshape(-1, 3),
                        data.get("timestamps"), source=str(path),
-                       obs_ray=np.concatenate(orays, axis=0) if orays else None)
+                       obs_ray=np.concatenate(orays, axis=0) if orays else None,
+                       obs_sigma=np.concatenate(osig, axis=0) if osig else None)
 
 
 def write_tracks(path: Path | str, tracks: LineTracks) -> None:
