@@ -44,14 +44,16 @@ class ExtractionOptions:
     about ``2.5 s`` after a 1 px blur)."""
     canny_high: float = 50.0
     """Canny hysteresis high threshold (same units as ``canny_low``)."""
-    corner_ratio: float = 10.0
+    corner_ratio: float = 2.0
     """Keep an edge point if the ratio of the principal RMS gradients in a small window (the
     square root of the eigenvalue ratio of the second-moment matrix, linear in intensity like
-    the Hessian eigenvalues of the paper) is at least this (the paper's 10); lower ratios are
-    corners, junctions and line ends."""
+    the Hessian eigenvalues of the paper) is at least this; lower ratios are corners, junctions
+    and line ends. The paper's 10 strips every edge beside surface texture (the window sees the
+    texture's gradients); with ``link_angle_deg`` and ``trim_ends_px`` doing the splitting at
+    junctions, 2 keeps them and still drops true corners (docs/frontend.md)."""
     tensor_sigma: float = 1.0
     """Gaussian window of the second-moment matrix (px)."""
-    link_angle_deg: float = 0.0
+    link_angle_deg: float = 15.0
     """Two 8-neighbouring edge points belong to one segment only if their gradient
     orientations (modulo 180 deg) differ by less than this; 0 links all neighbours. Splits
     chains where a line meets a texture blob or another edge without having to drop the
@@ -85,10 +87,10 @@ class ExtractionOptions:
     overlap (a line split by an occluder or by the equirectangular seam)."""
     merge_gap_deg: float = 20.0
     """Largest gap along the great circle between two pieces that are merged (degrees)."""
-    trim_ends_px: float = 0.0
+    trim_ends_px: float = 5.0
     """Drop the points within this distance (px, along the line) of each end of a line before
     its final fit: where a line meets a corner or a texture blob, its last points bend
-    towards the other edge and tilt the NV."""
+    towards the other edge and tilt the NV (0: keep them)."""
     edge_noise_px: float = 0.5
     """Standard deviation of an edge point's position across the edge (px), the noise model
     behind each NV's uncertainty (:attr:`ExtractedLines.normal_sigma`). Only the ratios of
