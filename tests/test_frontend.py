@@ -210,8 +210,8 @@ def test_video_frames_that_fail_to_decode_are_skipped(sequence, monkeypatch):
 def test_rendered_corridor_lines_match_the_true_3d_lines(camera, frames):
     """The renderer's texture-poor corridor at the paper's size (800x600 hyperboloid,
     1600x800 equirectangular), its true 3D segments projected with the true poses.
-    Measured (docs/frontend.md): hyperboloid median 0.07 deg, 0.2-0.5% false; equirectangular
-    median 0.02 deg, about 4% false."""
+    Measured (docs/frontend.md, 50 frames): hyperboloid median 0.06 deg, 0.4 % false;
+    equirectangular median 0.02 deg, about 5 % false (4 % with the paper's extraction)."""
     from omni_sfm.synth.render import RenderOptions, prepare
 
     # the first frames of the paper-like sequence (1.5 m in 200 frames)
