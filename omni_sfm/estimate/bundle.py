@@ -11,7 +11,7 @@ carry each normal's uncertainty (``LineTracks.obs_sigma``: along and across the 
 ray), ``B``'s columns are those two directions, each divided by its standard deviation (times the
 median observation's): the maximum-likelihood weighting, under which a short segment's poorly
 fixed tilt counts little (on the rendered textured room it took the maximum rotation error from
-1.06 to 0.45 deg, docs/frontend.md).
+1.06 to 0.45 deg with the paper's extraction settings, docs/results.md).
 
 Parameters (minimal, updated on the manifold at each step):
 - pose ``k``: rotation increment ``w`` with ``R <- R exp([w]x)`` (camera-frame perturbation) and
