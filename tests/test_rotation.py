@@ -233,12 +233,25 @@ def test_half_turn_ambiguity_is_resolved_by_continuity(seed: int) -> None:
 
 def test_continuity_keeps_a_half_turn_the_data_ask_for() -> None:
     """With lines oblique to v the half turn costs much more and is not taken back: a view
-    that really is turned by 180 deg from its neighbour keeps its angle."""
+    that really is turned by 180 deg about v from its neighbours keeps its angle."""
+    from dataclasses import replace
+
+    from omni_sfm.estimate.rotation import keep_continuity
+    from omni_sfm.geometry import rotation_about_axis
+
     sim = simulate(SimulationOptions(num_views=8, num_parallel=3, num_other=6, seed=4))
     normals, vpv = _gt_inputs(sim)
+    k = 3
+    R = sim.groundtruth.rotations.copy()
+    turned = rotation_about_axis(sim.parallel_direction, np.pi) @ R[k]
+    # the same camera centre, turned by pi about v: its normals in the camera frame change,
+    # its VPV does not
+    normals[k] = normals[k] @ (R[k].T @ turned)
+    R[k] = turned
+    sim = replace(sim, groundtruth=replace(sim.groundtruth, rotations=R))
     prob = RotationProblem.build(normals, vpv, np.ones(6), 7)
     phi_true = _true_angles(prob, sim)
-    from omni_sfm.estimate.rotation import keep_continuity
+    assert abs(np.angle(np.exp(1j * (phi_true[k] - phi_true[k - 1])))) > np.pi / 2
 
     phi, e = keep_continuity(prob, float(phi_true[7]), phi_true)
     np.testing.assert_allclose(phi, phi_true)

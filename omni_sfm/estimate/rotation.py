@@ -125,6 +125,14 @@ def trig2_minimize(coef: FloatArray, *, max_iter: int = 80) -> FloatArray:
     return np.where(np.isfinite(phi), phi, 0.0)
 
 
+def _view_costs(a: FloatArray, b: FloatArray, cc: FloatArray, wq: FloatArray,
+                phi: FloatArray) -> FloatArray:
+    """``e_k(phi_k) = sum_q wq (a cos phi_k + b sin phi_k + cc)^2`` for ``a, b, cc (..., Q)``
+    and angles ``phi (...)`` (:meth:`RotationProblem._view_terms`)."""
+    r = a * np.cos(phi)[..., None] + b * np.sin(phi)[..., None] + cc
+    return np.sum(wq * r * r, -1)
+
+
 @dataclass(frozen=True)
 class RotationProblem:
     """The rotation problem of one window, prepared for fast evaluation of ``E_rot(phi_c)``.
@@ -195,9 +203,7 @@ class RotationProblem:
         """Each view's best ``phi_k`` and cost ``e_k`` for trial ``phi_c (G,)``: two ``(G, F)``."""
         a, b, cc, wq, coef = self._view_terms(phi_c)
         phi = trig2_minimize(coef)
-        r = a * np.cos(phi)[..., None] + b * np.sin(phi)[..., None] + cc
-        e = np.sum(wq * r * r, -1)
-        return phi, e
+        return phi, _view_costs(a, b, cc, wq, phi)
 
     def half_turn_alternatives(self, phi_c: float,
                                phi: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
@@ -221,12 +227,8 @@ class RotationProblem:
             alt = alt + np.clip(step, -0.2, 0.2)
             if np.all(np.abs(step) < 1e-12):
                 break
-
-        def cost(ph: FloatArray) -> FloatArray:
-            r = a * np.cos(ph)[:, None] + b * np.sin(ph)[:, None] + cc
-            return np.sum(wq * r * r, -1)
-
-        return np.angle(np.exp(1j * alt)), cost(alt), cost(np.asarray(phi, dtype=np.float64))
+        return (np.angle(np.exp(1j * alt)), _view_costs(a, b, cc, wq, alt),
+                _view_costs(a, b, cc, wq, np.asarray(phi, dtype=np.float64)))
 
     def cost(self, phi_c: FloatArray) -> FloatArray:
         """``E_rot(phi_c)`` (eq. 14) for ``phi_c (G,)``, views 0 and ``c`` excluded (zero)."""
