@@ -27,9 +27,9 @@ from omni_sfm.dense import DenseOptions, read_dense_input, run_dense
 from omni_sfm.dense.evaluate import evaluate_dense
 from omni_sfm.evaluate import umeyama
 from omni_sfm.geometry import rotvec_to_matrix
+from omni_sfm.libs import open3d_module
 from omni_sfm.poses import Trajectory, read_tum, write_tum
 from omni_sfm.synth.render import RenderOptions, render_sequence
-from omni_sfm.synth.scenes import open3d_module
 
 ROTATION = rotvec_to_matrix(np.array([0.3, -0.5, 0.9]))
 SHIFT = np.array([2.0, -1.0, 0.5])

@@ -16,9 +16,10 @@ import pytest
 from omni_sfm.cameras import write_camera_yaml
 from omni_sfm.cli import main as cli_main
 from omni_sfm.geometry import rotation_about_axis
+from omni_sfm.libs import open3d_module
 from omni_sfm.poses import Trajectory, write_tum
 from omni_sfm.synth.render import hyperboloid_camera
-from omni_sfm.synth.scenes import make_scene, open3d_module
+from omni_sfm.synth.scenes import make_scene
 
 BACKGROUND = np.array([244, 244, 242])  # the page's background colour (RGB)
 

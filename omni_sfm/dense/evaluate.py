@@ -9,8 +9,8 @@ import numpy as np
 
 from omni_sfm.cameras import CameraModel
 from omni_sfm.geometry import FloatArray
+from omni_sfm.libs import open3d_module
 from omni_sfm.poses import Trajectory
-from omni_sfm.synth.scenes import open3d_module
 
 
 @dataclass(frozen=True)

@@ -8,7 +8,7 @@ import numpy as np
 
 from omni_sfm.dense.views import StereoRig
 from omni_sfm.geometry import FloatArray
-from omni_sfm.synth.scenes import open3d_module
+from omni_sfm.libs import open3d_module
 
 
 class TsdfFusion:

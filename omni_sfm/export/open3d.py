@@ -15,8 +15,8 @@ import numpy as np
 
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.geometry import FloatArray
+from omni_sfm.libs import open3d_module
 from omni_sfm.poses import Trajectory
-from omni_sfm.synth.scenes import open3d_module
 
 # Tableau-like palette: distinct hues for the first parallel groups, then it repeats
 PALETTE = np.array([

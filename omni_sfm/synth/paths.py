@@ -20,8 +20,9 @@ import numpy as np
 
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.geometry import FloatArray, rotation_about_axis
+from omni_sfm.libs import open3d_module
 from omni_sfm.poses import Trajectory
-from omni_sfm.synth.scenes import Scene, open3d_module
+from omni_sfm.synth.scenes import Scene
 
 
 class Mount(StrEnum):

@@ -26,6 +26,7 @@ from numpy.typing import ArrayLike
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.fileio import atomic_write_text, dumps_json, read_json
 from omni_sfm.geometry import FloatArray, rotation_about_axis
+from omni_sfm.libs import open3d_module
 
 BAND_OFFSET = 0.0005
 """Distance (m) of decorative bands in front of the surface they lie on (0.5 mm: far below a
@@ -132,13 +133,6 @@ class LineSegments3D:
                 for s, e, g, k in zip(self.starts, self.ends, self.groups, self.kinds, strict=True)
             ],
         }
-
-
-def open3d_module() -> Any:
-    """The ``open3d`` module, typed loosely (its stubs reject numpy arrays it accepts)."""
-    import importlib
-
-    return importlib.import_module("open3d")
 
 
 def write_lines3d(path: Path, lines: LineSegments3D, **kwargs: Any) -> None:

@@ -10,8 +10,8 @@ import numpy as np
 
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.geometry import FloatArray, normalize
+from omni_sfm.libs import open3d_module
 from omni_sfm.poses import Trajectory, read_tum
-from omni_sfm.synth.scenes import open3d_module
 
 
 @dataclass(frozen=True)
