@@ -8,8 +8,15 @@ Definitions (used by tests, docs and ``omni-sfm compare`` alike):
   ground truth, divided by the ground-truth path length (``ate_rel``).
 - translation error as in the paper (Sec. VII): distance between estimated and true positions
   after bringing both to the first frame and scaling so that the first-to-last distance is 1.
-- RPE: mean rotation-free relative translation error between consecutive frames after the
-  similarity alignment, divided by the mean true step length.
+- RPE (relative pose error, as the TUM RGB-D benchmark and evo define it): for a frame delta
+  ``d``, ``E_i = (Q_i^-1 Q_{i+d})^-1 (P_i^-1 P_{i+d})`` with ``Q`` the ground truth and ``P`` the
+  estimate (world_from_cam). No alignment: only the estimate's scale is fixed before the
+  translational part, by the ratio of the summed true to the summed estimated motions over ``d``
+  frames. ``rpe``: RMSE of ``|trans(E_i)|`` divided by the mean true motion over ``d`` frames;
+  ``rpe_rot_deg``: mean angle of ``rot(E_i)``.
+- step error after alignment (``step_error_after_alignment``; called RPE before): mean norm of
+  the difference between aligned and true steps of consecutive frames after the similarity
+  alignment, divided by the mean true step. Mixes global drift into a per-step figure.
 """
 
 from __future__ import annotations
@@ -98,13 +105,104 @@ def paper_translation_errors(est: Trajectory, gt: Trajectory) -> FloatArray:
 
 
 @dataclass(frozen=True)
+class RelativePoseErrors:
+    """Relative pose errors (TUM RGB-D benchmark / evo) of an estimate over a frame delta.
+
+    Attributes:
+        delta: frame delta ``d``, in frames of the compared (common) frames.
+        scale: the factor applied to the estimate's positions before the translational part.
+        trans: ``(M,)`` ``|trans(E_i)|`` in ground-truth units, ``M = N - delta``.
+        rot_deg: ``(M,)`` angle of ``rot(E_i)``, degrees.
+        mean_gt_motion: mean true camera displacement over ``delta`` frames (ground-truth units).
+    """
+
+    delta: int
+    scale: float
+    trans: FloatArray
+    rot_deg: FloatArray
+    mean_gt_motion: float
+
+    @property
+    def trans_rmse(self) -> float:
+        """RMSE of ``|trans(E_i)|`` (ground-truth units)."""
+        return float(np.sqrt(np.mean(self.trans**2)))
+
+    @property
+    def trans_mean(self) -> float:
+        """Mean of ``|trans(E_i)|`` (ground-truth units)."""
+        return float(self.trans.mean())
+
+    @property
+    def trans_rel(self) -> float:
+        """``trans_rmse`` over the mean true motion over ``delta`` (dimensionless); NaN when the
+        ground truth does not move."""
+        m = self.mean_gt_motion
+        return self.trans_rmse / m if m > 0 else float("nan")
+
+    @property
+    def rot_mean_deg(self) -> float:
+        """Mean angle of ``rot(E_i)``, degrees."""
+        return float(self.rot_deg.mean())
+
+
+def relative_pose_errors(est: Trajectory, gt: Trajectory, *, delta: int = 1,
+                         scale: float | None = None) -> RelativePoseErrors:
+    """Relative pose error of ``est`` against ``gt`` (TUM RGB-D benchmark / evo), no alignment.
+
+    ``E_i = (Q_i^-1 Q_{i+d})^-1 (P_i^-1 P_{i+d})`` for ``i = 0 .. N-1-d`` with ``Q_i``, ``P_i``
+    the world_from_cam poses of ground truth and estimate; frame ``i`` of ``est`` is frame ``i``
+    of ``gt`` (pass :func:`associate`'s output). ``E_i`` does not change under a rigid transform
+    of either world, so no alignment is done; the estimate's arbitrary scale is fixed first by
+    multiplying its positions by ``scale``. By default that is the ratio of the summed relative
+    motions, ``sum_i |q_{i+d} - q_i| / sum_i |p_{i+d} - p_i|`` (camera centres), which like the
+    RPE itself depends on relative motions only, so global drift does not leak in through the
+    scale. (``evo_rpe --correct_scale`` instead takes the scale of the Umeyama similarity
+    alignment: pass ``scale=umeyama(est.positions, gt.positions).scale`` for that.) The
+    rotational part needs no scale.
+
+    Args:
+        est, gt: ``N`` poses each, corresponding by index.
+        delta: frame delta ``d >= 1`` (index steps of the given frames).
+        scale: factor for the estimate's positions; ``None``: the ratio of summed relative
+            motions above (NaN when the estimate does not move).
+
+    Raises:
+        ValueError: trajectories of different lengths, ``delta < 1`` or ``delta >= N``.
+    """
+    n = len(est)
+    if len(gt) != n:
+        raise ValueError(f"trajectories differ in length: {n} and {len(gt)}")
+    if not 1 <= delta < n:
+        raise ValueError(f"need 1 <= delta < {n} frames, got {delta=}")
+
+    def relative(rot: FloatArray, pos: FloatArray) -> tuple[FloatArray, FloatArray]:
+        # X_i^-1 X_{i+d}: rotation R_i^T R_{i+d}, translation R_i^T (p_{i+d} - p_i)
+        rt = np.swapaxes(rot[:-delta], -1, -2)
+        return rt @ rot[delta:], (rt @ (pos[delta:] - pos[:-delta])[..., None])[..., 0]
+
+    rot_g, t_g = relative(gt.rotations, gt.positions)
+    rot_e, t_e = relative(est.rotations, est.positions)
+    motion_g = np.linalg.norm(t_g, axis=1)
+    if scale is None:
+        motion_e = float(np.linalg.norm(t_e, axis=1).sum())
+        scale = float(motion_g.sum()) / motion_e if motion_e > 0 else float("nan")
+    t_e = scale * t_e
+    # E = A^-1 B: rotation R_A^T R_B, translation R_A^T (t_B - t_A), |R_A^T x| = |x|
+    rot_err = np.swapaxes(rot_g, -1, -2) @ rot_e
+    trans = np.linalg.norm(t_e - t_g, axis=1)
+    return RelativePoseErrors(delta, float(scale), trans, np.degrees(rotation_angle(rot_err)),
+                              float(motion_g.mean()))
+
+
+@dataclass(frozen=True)
 class TrajectoryErrors:
     """Errors of an estimate against ground truth on their common frames."""
 
     num_common: int
     rot_deg: FloatArray
     ate_rel: float
-    rpe_rel: float
+    rpe: RelativePoseErrors
+    step_error_after_alignment: float
     paper_trans: FloatArray
     alignment: Similarity
 
@@ -122,14 +220,19 @@ class TrajectoryErrors:
             "rot_max_deg": self.rot_max_deg,
             "rot_mean_deg": self.rot_mean_deg,
             "ate_rel": self.ate_rel,
-            "rpe": self.rpe_rel,
+            "rpe": self.rpe.trans_rel,
+            "rpe_rot_deg": self.rpe.rot_mean_deg,
+            "step_error_after_alignment": self.step_error_after_alignment,
             "paper_trans_mean": float(self.paper_trans.mean()),
             "paper_trans_max": float(self.paper_trans.max()),
         }
 
 
 def trajectory_errors(est: Trajectory, gt: Trajectory) -> TrajectoryErrors:
-    """All errors of ``est`` against ``gt`` on the frames they share (at least 3)."""
+    """All errors of ``est`` against ``gt`` on the frames they share (at least 3).
+
+    The RPE is over consecutive common frames (``delta = 1``) with its default scale.
+    """
     e, g = associate(est, gt)
     if len(e) < 3:
         raise OmniSfmError(f"only {len(e)} frames in common with the ground truth; need 3")
@@ -143,7 +246,8 @@ def trajectory_errors(est: Trajectory, gt: Trajectory) -> TrajectoryErrors:
     step_e = np.diff(ea.positions, axis=0)
     step_g = np.diff(g.positions, axis=0)
     mean_step = float(np.linalg.norm(step_g, axis=1).mean())
-    rpe = float(np.linalg.norm(step_e - step_g, axis=1).mean() / mean_step) if mean_step > 0 \
-        else float("nan")
-    return TrajectoryErrors(len(e), relative_rotation_errors_deg(e, g), ate, rpe,
+    step_err = float(np.linalg.norm(step_e - step_g, axis=1).mean() / mean_step) \
+        if mean_step > 0 else float("nan")
+    return TrajectoryErrors(len(e), relative_rotation_errors_deg(e, g), ate,
+                            relative_pose_errors(e, g, delta=1), step_err,
                             paper_translation_errors(e, g), sim)
