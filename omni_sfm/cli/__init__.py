@@ -3,7 +3,8 @@
 Each subcommand lives in its own module ``omni_sfm/cli/cmd_<name>.py`` exposing
 ``add_parser(subparsers)``, which adds its parser and sets ``func(args) -> int``. Modules are
 discovered, so adding a command never edits this file. Known errors (:class:`OmniSfmError`,
-missing files) become one line on stderr and exit code 2, never a traceback.
+missing files) become one line on stderr and exit code 2, never a traceback; a stdout pipe
+closed by its reader (``omni-sfm ... | head``) ends the command quietly with exit code 141.
 """
 
 from __future__ import annotations
@@ -43,7 +44,44 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+# Exit status when the reader of our stdout went away (``omni-sfm ... | head``): 128 + SIGPIPE,
+# what the shell reports for cat, grep and the like killed by SIGPIPE in that situation. Not 0,
+# since not all the output was delivered (``set -o pipefail`` sees us like those tools), and not
+# an error message either: a reader closing the pipe early is its choice, not our failure.
+EXIT_BROKEN_PIPE = 141
+
+
+def _stdout_to_devnull() -> None:
+    """Point file descriptor 1 at /dev/null, so the interpreter's flush of what is left in
+    ``sys.stdout`` at exit does not raise BrokenPipeError again (the Python docs' recipe for
+    SIGPIPE, ``signal`` module)."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError):  # stdout without a descriptor (replaced, closed)
+        pass
+
+
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run ``omni-sfm`` with ``argv`` (default ``sys.argv[1:]``); the exit status.
+
+    0 on success, 2 for known errors, 130 on Ctrl-C, :data:`EXIT_BROKEN_PIPE` when stdout is a
+    pipe its reader closed (no traceback; the output is flushed here, where that can be caught,
+    not at interpreter exit).
+    """
+    try:
+        try:
+            code = _main(argv)
+        finally:
+            sys.stdout.flush()
+    except BrokenPipeError:
+        _stdout_to_devnull()
+        return EXIT_BROKEN_PIPE
+    return code
+
+
+def _main(argv: Sequence[str] | None) -> int:
     from omni_sfm.errors import OmniSfmError
 
     parser = build_parser()
