@@ -12,7 +12,8 @@ that appears complete or not at all:
 
 - ``results.json``: ``{"initializers": {NAME: {"status": "ok"|"failed", "reason"?,
   "trajectory": "trajectories/NAME.tum" | null, "registered": fraction of the frames,
-  "rot_max_deg", "rot_mean_deg", "ate_rel", "rpe", "time_s", ...}}}``;
+  "rot_max_deg", "rot_mean_deg", "ate_rel", "rpe", "rpe_rot_deg", "step_error_after_alignment",
+  "time_s", ...}}}``;
 - ``trajectories/NAME.tum``: the poses each initializer registered (world_from_cam, TUM);
 - ``report.md``: the table; ``trajectories.png`` (top view over ground truth) and
   ``errors.png`` (rotation and position error per frame).
@@ -40,6 +41,7 @@ from omni_sfm.evaluate import associate, trajectory_errors
 from omni_sfm.fileio import atomic_output_dir, atomic_write_text, dumps_json, read_json
 from omni_sfm.geometry import FloatArray
 from omni_sfm.lines.tracks import LineTracks
+from omni_sfm.lines.video import FrameStore
 from omni_sfm.poses import Trajectory, read_tum, write_tum
 from omni_sfm.registry import INITIALIZERS, available, load
 
@@ -47,6 +49,9 @@ DEFAULT_INITIALIZERS = ("lines", "five-point", "colmap", "upright-3pt")
 """The initializers :func:`compare` runs when none are named (those installed)."""
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
+# the error figures of a results.json entry (None when the initializer cannot be evaluated)
+METRIC_KEYS = ("rot_max_deg", "rot_mean_deg", "ate_rel", "rpe", "rpe_rot_deg",
+               "step_error_after_alignment")
 
 
 @dataclass(frozen=True)
@@ -90,7 +95,7 @@ class SequenceInput:
         timestamps: ``(F,)`` timestamp of each frame (frame index for an image folder), the
             timestamps the trajectories are written with.
         camera: the calibrated camera model of every frame.
-        images: ``F`` image files in frame order, or None.
+        images: the ``F`` frames (an image folder or a video, in frame order), or None.
         line_tracks: line observations (unit normals) of the ``F`` frames, or None.
         points: point observations (pixels and rays) of the ``F`` frames, or None.
         name: a label for reports.
@@ -98,7 +103,7 @@ class SequenceInput:
 
     timestamps: FloatArray
     camera: CameraModel
-    images: tuple[Path, ...] | None = None
+    images: FrameStore | None = None
     line_tracks: LineTracks | None = None
     points: PointObservations | None = None
     name: str = "sequence"
@@ -118,38 +123,38 @@ class SequenceInput:
     def num_frames(self) -> int:
         return int(self.timestamps.shape[0])
 
-    def read_gray(self, k: int) -> np.ndarray:
-        """Frame ``k`` as an ``(H, W)`` uint8 grey image (checked against the camera size),
-        converted like :func:`omni_sfm.lines.video.read_frames` does."""
-        import cv2
-
+    def read_image(self, k: int, *, gray: bool = False) -> np.ndarray:
+        """Frame ``k`` as OpenCV reads it (BGR uint8, or ``(H, W)`` uint8 grey with ``gray``,
+        converted as the front end does), checked against the camera size."""
         if self.images is None:
             raise OmniSfmError(f"{self.name}: this sequence has no images")
-        from omni_sfm.lines.video import to_gray
-
-        raw = cv2.imread(str(self.images[k]), cv2.IMREAD_UNCHANGED)
-        if raw is None:
-            raise OmniSfmError(f"{self.images[k]}: OpenCV cannot read this image")
-        img = to_gray(raw)  # as omni-sfm's front end reads frames
-        if img.shape != (self.camera.height, self.camera.width):
-            raise OmniSfmError(f"{self.images[k]}: image is {img.shape[1]}x{img.shape[0]} px, "
-                               f"the camera is {self.camera.width}x{self.camera.height} px")
+        name = self.images.names[k]
+        img = self.images.read(name, gray=gray)
+        if img.shape[:2] != (self.camera.height, self.camera.width):
+            raise OmniSfmError(f"{self.images.where(name)}: image is {img.shape[1]}x"
+                               f"{img.shape[0]} px, the camera is {self.camera.width}x"
+                               f"{self.camera.height} px")
         return img
 
+    def read_gray(self, k: int) -> np.ndarray:
+        """Frame ``k`` as an ``(H, W)`` uint8 grey image, as ``init``'s front end reads it."""
+        return self.read_image(k, gray=True)
 
-def sequence_from_folder(images: Path, camera: CameraModel) -> SequenceInput:
-    """The image files of a folder (sorted by name; timestamp = index in that order)."""
-    images = Path(images)
-    if not images.is_dir():
-        raise OmniSfmError(f"{images}: not a folder of images")
-    files = sorted(p for p in images.iterdir()
-                   if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
-    if len(files) < 3:
-        raise OmniSfmError(f"{images}: {len(files)} images; need at least 3 "
-                           f"({', '.join(IMAGE_SUFFIXES)})")
-    name = images.resolve().parent.name if images.name == "images" else images.name
-    return SequenceInput(np.arange(len(files), dtype=np.float64), camera, images=tuple(files),
-                         name=name)
+
+def sequence_from_frames(images: Path, camera: CameraModel) -> SequenceInput:
+    """Every frame of an image folder (sorted by name; timestamp = index) or a video
+    (timestamps in seconds), named and stamped as ``init`` names them. One-line OmniSfmError
+    when there are fewer than 3 frames or the first does not have the camera's size."""
+    from omni_sfm.lines.video import FrameStore
+
+    frames = FrameStore(images)
+    if len(frames) < 3:
+        raise OmniSfmError(f"{images}: {len(frames)} frames; need at least 3")
+    path = Path(images)
+    name = path.resolve().parent.name if path.name == "images" else path.stem
+    seq = SequenceInput(frames.timestamps.copy(), camera, images=frames, name=name)
+    seq.read_image(0)  # a camera for other images fails here, before any initializer runs
+    return seq
 
 
 @dataclass(frozen=True)
@@ -235,7 +240,9 @@ class Evaluation:
 
     Attributes:
         registered: fraction of the sequence's frames in the trajectory that have ground truth.
-        metrics: ``rot_max_deg``, ``rot_mean_deg``, ``ate_rel``, ``rpe``, ``frames_compared``.
+        metrics: ``rot_max_deg``, ``rot_mean_deg``, ``ate_rel``, ``rpe`` (TUM/evo translational
+            RPE over one frame, RMSE over the mean true step), ``rpe_rot_deg``,
+            ``step_error_after_alignment``, ``frames_compared``.
         timestamps: ``(N,)`` the compared frames.
         rot_deg: ``(N,)`` rotation error relative to the first compared frame, degrees.
         pos_err_rel: ``(N,)`` camera-centre error after the similarity alignment, divided by
@@ -262,7 +269,9 @@ def evaluate_trajectory(est: Trajectory, gt: Trajectory, num_frames: int) -> Eva
     aligned = e.alignment.apply(ea)
     pos = np.linalg.norm(aligned.positions - ga.positions, axis=1) / ga.path_length()
     m = {"rot_max_deg": e.rot_max_deg, "rot_mean_deg": e.rot_mean_deg, "ate_rel": e.ate_rel,
-         "rpe": e.rpe_rel, "frames_compared": e.num_common}
+         "rpe": e.rpe.trans_rel, "rpe_rot_deg": e.rpe.rot_mean_deg,
+         "step_error_after_alignment": e.step_error_after_alignment,
+         "frames_compared": e.num_common}
     return Evaluation(e.num_common / num_frames, m, ea.timestamps, e.rot_deg, pos, aligned)
 
 
@@ -354,12 +363,11 @@ def run_comparison(sequence: SequenceInput, gt: Trajectory, names: Sequence[str]
         if ev is not None:
             evals[name] = ev
             entry["registered"] = ev.registered
-            entry.update({k: ev.metrics[k] for k in ("rot_max_deg", "rot_mean_deg", "ate_rel",
-                                                     "rpe")})
+            entry.update({k: ev.metrics[k] for k in METRIC_KEYS})
             entry["frames_compared"] = int(ev.metrics["frames_compared"])
         else:
             entry["registered"] = 0.0 if traj is None else len(traj) / sequence.num_frames
-            entry.update({k: None for k in ("rot_max_deg", "rot_mean_deg", "ate_rel", "rpe")})
+            entry.update({k: None for k in METRIC_KEYS})
             entry["frames_compared"] = 0
         entry["frames_registered"] = 0 if traj is None else len(traj)
         entry["time_s"] = dt
@@ -375,18 +383,20 @@ def run_comparison(sequence: SequenceInput, gt: Trajectory, names: Sequence[str]
 def compare(sequence: SequenceInput, gt: Trajectory, output: Path,
             names: Sequence[str] | None = None, *,
             options: Mapping[str, Mapping[str, Any]] | None = None, overwrite: bool = False,
-            plots: bool = True, progress: bool = False) -> ComparisonResult:
+            plots: bool = True, progress: bool = False,
+            inputs: tuple[Path | None, ...] = ()) -> ComparisonResult:
     """Run the initializers ``names`` on ``sequence``, evaluate and write ``output``.
 
     Raises:
         OmniSfmError: ground truth matching fewer than 3 frames, an unknown initializer, an
-            output folder that exists and is not empty (unless ``overwrite``).
+            output folder that exists and is not empty (unless ``overwrite``) or that is, holds
+            or lies inside one of ``inputs``.
     """
     chosen = parse_initializer_names(names if names is None or isinstance(names, str)
                                      else list(names))
     match_gt_frames(sequence, gt)
     output = Path(output)
-    with atomic_output_dir(output, overwrite=overwrite) as tmp:
+    with atomic_output_dir(output, overwrite=overwrite, inputs=inputs) as tmp:
         results, trajs, evals = run_comparison(sequence, gt, chosen, options, progress)
         (tmp / "trajectories").mkdir()
         for name, traj in trajs.items():
@@ -408,12 +418,13 @@ def _fmt(x: Any, digits: int = 3, pct: bool = False) -> str:
 def table_rows(entries: Mapping[str, Mapping[str, Any]]) -> list[str]:
     """Markdown table (header included) of the ``initializers`` entries of results.json."""
     rows = ["| initializer | status | registered | rot max (deg) | rot mean (deg) | ATE / path "
-            "| RPE | time (s) |",
-            "|---|---|---|---|---|---|---|---|"]
+            "| RPE / step | RPE rot (deg) | time (s) |",
+            "|---|---|---|---|---|---|---|---|---|"]
     for name, e in entries.items():
         rows.append(f"| {name} | {e['status']} | {_fmt(e.get('registered'), 0, pct=True)} | "
                     f"{_fmt(e.get('rot_max_deg'))} | {_fmt(e.get('rot_mean_deg'))} | "
                     f"{_fmt(e.get('ate_rel'), 2, pct=True)} | {_fmt(e.get('rpe'))} | "
+                    f"{_fmt(e.get('rpe_rot_deg'))} | "
                     f"{_fmt(e.get('time_s'), 1)} |")
     return rows
 
@@ -425,8 +436,10 @@ def report_markdown(results: Mapping[str, Any]) -> str:
     lines = [f"# Initializers on {seq.get('name', 'the sequence')}", "",
              f"{seq.get('frames', '?')} frames, camera `{seq.get('camera', '?')}`. Rotation error "
              "relative to the first frame; ATE = RMSE of camera centres after similarity "
-             "alignment, over the ground-truth path length; RPE = mean relative step error over "
-             "the mean step (omni_sfm.evaluate). Errors are over the registered frames.", ""]
+             "alignment, over the ground-truth path length; RPE = relative pose error between "
+             "consecutive frames (TUM/evo, no alignment, scale fixed): RMSE of its translation "
+             "over the mean true step, mean angle of its rotation (omni_sfm.evaluate). Errors "
+             "are over the registered frames.", ""]
     lines += table_rows(entries)
     notes = [f"- `{n}`: {e['reason']}" for n, e in entries.items() if e.get("reason")]
     if notes:

@@ -71,25 +71,59 @@ def read_json(path: Path, what: str = "JSON file") -> Any:
         ) from None
 
 
-def check_output_dir(path: Path, *, overwrite: bool) -> None:
-    """Refuse an output folder that exists and is not empty, unless ``overwrite``."""
+def check_output_dir(path: Path, *, overwrite: bool, inputs: tuple[Path | None, ...] = ()
+                     ) -> None:
+    """Refuse an output folder that exists and is not empty, unless ``overwrite``, and one that
+    is one of ``inputs``, lies inside one or holds one (writing it would destroy the input)."""
     path = Path(path)
     if path.exists() and not path.is_dir():
         raise OmniSfmError(f"{path}: output path exists and is not a folder")
+    out = path.resolve()
+    for inp in inputs:
+        if inp is None:
+            continue
+        src = Path(inp).resolve()
+        if out == src:
+            raise OmniSfmError(f"{path}: the output folder is the input; choose another "
+                               "--output")
+        if src in out.parents:
+            raise OmniSfmError(f"{path}: the output folder would be inside the input {inp}; "
+                               "choose another --output")
+        if out in src.parents:
+            raise OmniSfmError(f"{path}: the output folder holds the input {inp}; choose "
+                               "another --output")
     if path.is_dir() and any(path.iterdir()) and not overwrite:
         raise OmniSfmError(f"{path}: output folder exists and is not empty (use --overwrite)")
 
 
+def stored_path(target: Path | str, folder: Path | str) -> str:
+    """How an output folder records a path it depends on, so that the folder can be moved:
+    relative to the folder when ``target`` lies inside it, else absolute."""
+    target, folder = Path(target).resolve(), Path(folder).resolve()
+    if folder == target or folder in target.parents:
+        return target.relative_to(folder).as_posix()
+    return str(target)
+
+
+def resolve_stored(text: str, folder: Path | str) -> Path:
+    """The path that :func:`stored_path` recorded in ``folder`` (relative ones are relative to
+    ``folder``, whatever the current directory)."""
+    p = Path(text)
+    return p if p.is_absolute() else Path(folder) / p
+
+
 @contextlib.contextmanager
-def atomic_output_dir(path: Path, *, overwrite: bool = False) -> Iterator[Path]:
+def atomic_output_dir(path: Path, *, overwrite: bool = False,
+                      inputs: tuple[Path | None, ...] = ()) -> Iterator[Path]:
     """Yield a temporary folder that becomes ``path`` only if the block finishes.
 
     On any exception the temporary folder is removed and ``path`` is left as it was, so a
     failed run never leaves an output folder that looks complete. An existing non-empty
-    ``path`` is refused unless ``overwrite``; an existing one is replaced as a whole.
+    ``path`` is refused unless ``overwrite``; an existing one is replaced as a whole. An output
+    that is, holds or lies inside one of ``inputs`` is refused (:func:`check_output_dir`).
     """
     path = Path(path)
-    check_output_dir(path, overwrite=overwrite)
+    check_output_dir(path, overwrite=overwrite, inputs=inputs)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent))
     os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp creates 0700; outputs are for people to share

@@ -31,11 +31,17 @@ import numpy as np
 from omni_sfm.cameras import CameraModel, load_camera
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.estimate.pipeline import EstimationOptions, EstimationResult, estimate_poses
-from omni_sfm.fileio import atomic_output_dir, atomic_write_text, dumps_json
-from omni_sfm.geometry import normalize, ray_line_closest
+from omni_sfm.fileio import atomic_output_dir, atomic_write_text, dumps_json, stored_path
+from omni_sfm.folders import LINES_FILE, USER_MASK_FILE
+from omni_sfm.geometry import ray_line_closest
 from omni_sfm.lines.frontend import FrontEndOptions, FrontEndResult, track_lines
-from omni_sfm.lines.tracks import LineTracks
-from omni_sfm.lines.video import FrameSource, read_frames, read_mask
+from omni_sfm.lines.video import (
+    FrameSource,
+    read_frames,
+    read_mask,
+    video_frame_name,
+    write_mask,
+)
 from omni_sfm.poses import Trajectory
 
 
@@ -72,20 +78,11 @@ class InitResult:
     frontend: FrontEndResult
     estimation: EstimationResult
     image_names: tuple[str, ...]
-
-
-def tracks_with_side_rays(fe: FrontEndResult) -> LineTracks:
-    """The front end's tracks with a ray towards the middle of every observed segment and the
-    uncertainty of every NV along and across that ray.
-
-    The middle ray of the arc between the segment's end rays, projected into the line's plane;
-    it tells on which side of the viewpoint each line lies (see docs/formats.md). The
-    uncertainties let the bundle adjustment weigh a short segment's poorly fixed tilt less.
-    """
-    tr = fe.tracks
-    mid = fe.obs_endpoint_rays[:, 0] + fe.obs_endpoint_rays[:, 1]
-    mid -= np.sum(mid * tr.obs_normal, axis=1, keepdims=True) * tr.obs_normal
-    return replace(tr, obs_ray=normalize(mid), obs_sigma=fe.obs_normal_sigma)
+    """Names of the estimated frames, in trajectory order (the first is the world frame)."""
+    not_estimated: tuple[str, ...] = ()
+    """Names of frames that were read but got no pose (report.json says why)."""
+    unreadable: tuple[str, ...] = ()
+    """Names of frames that could not be decoded."""
 
 
 def estimated_segments(fe: FrontEndResult, result: EstimationResult,
@@ -141,7 +138,7 @@ def _image_names(source: FrameSource, numbers: np.ndarray) -> list[str]:
     files = getattr(source, "files", None)
     if files:
         return [Path(files[int(n)]).name for n in numbers]
-    return [f"{int(n):06d}.png" for n in numbers]
+    return [video_frame_name(int(n)) for n in numbers]
 
 
 def _frames_of(source: FrameSource, numbers: set[int]) -> Iterator[tuple[int, float, np.ndarray]]:
@@ -196,7 +193,7 @@ def init_from_images(images: Path | str, camera: Path | str | CameraModel, outpu
     if o.debug_view not in ("png", "mp4", "none"):
         raise OmniSfmError(f"debug view must be png, mp4 or none, got {o.debug_view!r}")
     output = Path(output)
-    check_output_dir(output, overwrite=overwrite)
+    check_output_dir(output, overwrite=overwrite, inputs=(Path(images),))
     cam = camera if isinstance(camera, CameraModel) else load_camera(camera)
     size = (cam.width, cam.height)
     user_mask = read_mask(mask, size) if mask is not None else None
@@ -205,7 +202,7 @@ def init_from_images(images: Path | str, camera: Path | str | CameraModel, outpu
     t0 = time.perf_counter()
     fe = track_lines(source, cam, fe_opts, user_mask)
     t1 = time.perf_counter()
-    tracks = tracks_with_side_rays(fe)
+    tracks = fe.estimator_tracks()
     result = estimate_poses(tracks, o.estimation)
     t2 = time.perf_counter()
 
@@ -214,12 +211,14 @@ def init_from_images(images: Path | str, camera: Path | str | CameraModel, outpu
     est_names = [names[f] for f in est_frames]
     est_numbers = {int(fe.frame_numbers[f]) for f in est_frames}
     skipped_not_estimated = [names[f] for f in np.flatnonzero(~result.estimated)]
-    with atomic_output_dir(output, overwrite=overwrite) as tmp:
+    with atomic_output_dir(output, overwrite=overwrite, inputs=(Path(images),)) as tmp:
         extra: dict[str, Any] = {
-            "input": {"images": str(images), "camera": str(camera) if not isinstance(
-                camera, CameraModel) else camera.model, "mask": None if mask is None else
-                str(mask), "start": o.start, "end": o.end, "step": o.step,
-                "timestamps": "seconds" if source.is_video else "frame index"},
+            "input": {"images": stored_path(images, output),
+                      "camera": stored_path(camera, output) if not isinstance(
+                          camera, CameraModel) else camera.model,
+                      "mask": None if mask is None else stored_path(mask, output),
+                      "start": o.start, "end": o.end, "step": o.step,
+                      "timestamps": "seconds" if source.is_video else "frame index"},
             "front_end": fe.summary(),
             "front_end_per_frame": fe.per_frame(),
             "frames_not_estimated_names": skipped_not_estimated,
@@ -227,7 +226,9 @@ def init_from_images(images: Path | str, camera: Path | str | CameraModel, outpu
         }
         write_init_outputs(tmp, result, extra=extra)
         write_tracks(tmp / "tracks.json", tracks)
-        atomic_write_text(tmp / "lines3d.json", dumps_json(estimated_segments(fe, result)))
+        atomic_write_text(tmp / LINES_FILE, dumps_json(estimated_segments(fe, result)))
+        if user_mask is not None:
+            write_mask(tmp / USER_MASK_FILE, user_mask)
         plot_trajectory(tmp / "trajectory.png", result.trajectory)
         # colour 0: the parallel family, 1: other lines, grey (-1): rejected as outliers
         groups = np.where(result.outliers, -1, np.where(result.parallel, 0, 1))
@@ -239,4 +240,5 @@ def init_from_images(images: Path | str, camera: Path | str | CameraModel, outpu
             imgs = (img for _, _, img in _frames_of(
                 read_frames(images, o.start, o.end, o.step, size=size), est_numbers))
             write_init_model(tmp, cam, result.trajectory, est_names, imgs, text=o.colmap_text)
-    return InitResult(output, cam, fe, result, tuple(est_names))
+    return InitResult(output, cam, fe, result, tuple(est_names), tuple(skipped_not_estimated),
+                      tuple(_image_names(source, np.asarray(fe.frames_skipped, dtype=int))))

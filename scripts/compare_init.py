@@ -111,7 +111,7 @@ def run_task(task: dict[str, Any]) -> dict[str, Any]:
     """
     import cv2
 
-    from omni_sfm.compare import run_comparison, sequence_from_folder
+    from omni_sfm.compare import run_comparison, sequence_from_frames
 
     cv2.setNumThreads(1)
     t0 = time.perf_counter()
@@ -126,7 +126,7 @@ def run_task(task: dict[str, Any]) -> dict[str, Any]:
             rr = render_sequence(Path(tmp) / "seq", RenderOptions(
                 scene=spec["scene"], camera=spec["camera"], textured=spec["textured"],
                 frames=task["frames"], width=w, height=h, seed=task["seed"]), progress=False)
-            seq = sequence_from_folder(rr.output / "images", rr.camera)
+            seq = sequence_from_frames(rr.output / "images", rr.camera)
             gt, options = rr.groundtruth, {}
         results, trajs, _ = run_comparison(seq, gt, task["initializers"], options)
     results["sequence"]["name"] = task_id(task)

@@ -19,7 +19,7 @@ from omni_sfm.poses import Trajectory, read_tum, write_tum
 
 ROOT = Path(__file__).resolve().parents[1]
 KEYS = {"status", "trajectory", "registered", "rot_max_deg", "rot_mean_deg", "ate_rel", "rpe",
-        "time_s"}
+        "rpe_rot_deg", "step_error_after_alignment", "time_s"}
 
 sys.path.insert(0, str(Path(__file__).parent))
 from test_initializers import simulated  # noqa: E402
@@ -36,7 +36,8 @@ def check_results_match_trajectories(out: Path, gt: Trajectory, num_frames: int)
             assert e.get("reason"), f"{name} failed without a reason"
         if e["status"] == "ok":
             assert (out / e["trajectory"]).is_file()
-            for k in ("registered", "rot_max_deg", "rot_mean_deg", "ate_rel", "rpe"):
+            for k in ("registered", "rot_max_deg", "rot_mean_deg", "ate_rel", "rpe",
+                      "rpe_rot_deg", "step_error_after_alignment"):
                 assert e[k] == pytest.approx(again[name][k], rel=1e-9, abs=1e-12), (name, k)
             ev = evaluate_trajectory(read_tum(out / e["trajectory"]), gt, num_frames)
             assert e["rot_max_deg"] == pytest.approx(float(ev.rot_deg.max()), abs=1e-9)
@@ -172,9 +173,9 @@ def test_sweep_dask_equals_process_pool() -> None:
 
 
 def test_five_point_with_klt_tracks(tiny) -> None:
-    from omni_sfm.compare import run_initializer, sequence_from_folder
+    from omni_sfm.compare import run_initializer, sequence_from_frames
 
-    seq = sequence_from_folder(tiny.output / "images", tiny.camera)
+    seq = sequence_from_frames(tiny.output / "images", tiny.camera)
     res, _ = run_initializer("five-point", seq, {"features": "klt"})
     assert res.status == "ok", res.reason
     assert res.info["features"] == "klt"

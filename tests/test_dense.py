@@ -22,11 +22,13 @@ from omni_sfm.dense.evaluate import evaluate_dense
 from omni_sfm.dense.pipeline import _floor_scale
 from omni_sfm.dense.relpose import PairPoseOptions, frame_features, pair_pose
 from omni_sfm.dense.views import ViewGeometry, stereo_rig
+from omni_sfm.errors import OmniSfmError
 from omni_sfm.evaluate import umeyama
+from omni_sfm.fileio import stored_path
 from omni_sfm.geometry import angle_between, rotation_angle, rotvec_to_matrix
+from omni_sfm.libs import open3d_module
 from omni_sfm.poses import Trajectory, read_tum, write_tum
 from omni_sfm.synth.render import RenderOptions, render_sequence
-from omni_sfm.synth.scenes import open3d_module
 
 SCALE = 0.37
 
@@ -192,15 +194,33 @@ def test_pair_pose_undoes_rotation_drift(room: Path) -> None:
     assert np.degrees(angle_between(fixed.centre_src - c_ref, c_src - c_ref)) < 2.0
 
 
-def test_refine_folder_takes_the_init_camera(room: Path, poses: Path, tmp_path: Path) -> None:
-    """A refine output has no camera.yaml; its report names the init folder that has one."""
-    refined = tmp_path / "refine"
-    refined.mkdir()
-    shutil.copy(poses / "trajectory.tum", refined / "trajectory.tum")
-    (refined / "report.json").write_text(json.dumps({"input": {"init": str(poses)}}))
-    inp = read_dense_input(refined, room / "images")
+def test_poses_folder_records_its_frames_and_can_be_moved(room: Path, poses: Path,
+                                                         tmp_path: Path) -> None:
+    """Without --images, dense reads the frames the poses folder records in report.json
+    (relative inside the folder, absolute outside), also after the folder has moved."""
+    folder = tmp_path / "refined"
+    shutil.copytree(poses, folder)
+    (folder / "report.json").write_text(json.dumps(
+        {"input": {"images": stored_path(room / "images", folder)}}))
+    moved = tmp_path / "elsewhere" / "moved"
+    moved.parent.mkdir()
+    shutil.move(folder, moved)
+    inp = read_dense_input(moved)
     assert inp.camera == load_camera(poses / "camera.yaml")
-    assert [p.name for p in inp.image_paths] == [f"{k:06d}.png" for k in range(24)]
+    assert inp.frames.path == (room / "images").resolve()
+    assert list(inp.image_names) == [f"{k:06d}.png" for k in range(24)]
+    # frames inside the folder are recorded relative to it
+    shutil.copytree(room / "images", moved / "frames")
+    (moved / "report.json").write_text(json.dumps(
+        {"input": {"images": stored_path(moved / "frames", moved)}}))
+    assert json.loads((moved / "report.json").read_text())["input"]["images"] == "frames"
+    again = tmp_path / "again"
+    shutil.move(moved, again)
+    assert read_dense_input(again).frames.path == again / "frames"
+    # a folder that records nothing needs --images
+    (again / "report.json").unlink()
+    with pytest.raises(OmniSfmError, match="give --images"):
+        read_dense_input(again)
 
 
 def _err(capsys: pytest.CaptureFixture[str]) -> str:
@@ -221,7 +241,7 @@ def test_bad_input_one_line_errors(room: Path, poses: Path, tmp_path: Path,
     # no images
     assert cli_main(["dense", "-i", str(poses), "--images", str(tmp_path / "nope"), "-o",
                      str(tmp_path / "o2")]) == 2
-    assert "image folder not found" in _err(capsys)
+    assert "no such image folder or video file" in _err(capsys)
     # a static camera: all centres equal
     static = tmp_path / "static"
     static.mkdir()

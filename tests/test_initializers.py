@@ -123,9 +123,9 @@ def corridor(tmp_path_factory: pytest.TempPathFactory):
 def test_lines_on_texture_poor_corridor(corridor) -> None:
     """Every frame registered, rotation error <= 0.5 deg, ATE <= 1 % of the path; the
     reflection is decided by the segments' ends, not by the ground truth."""
-    from omni_sfm.compare import sequence_from_folder
+    from omni_sfm.compare import sequence_from_frames
 
-    seq = sequence_from_folder(corridor.output / "images", corridor.camera)
+    seq = sequence_from_frames(corridor.output / "images", corridor.camera)
     res, _ = run_initializer("lines", seq, {})
     assert res.status == "ok", res.reason
     assert not res.reflection_ambiguous

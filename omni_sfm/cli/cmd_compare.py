@@ -22,7 +22,8 @@ def add_parser(sub: Any) -> None:
         ),
     )
     p.add_argument("--images", type=Path, required=True,
-                   help="folder of the frames (sorted by name; timestamp = index)")
+                   help="image folder (sorted by name; timestamp = index) or video file "
+                        "(timestamps in seconds), as for init")
     p.add_argument("--camera", type=Path, required=True, help="camera file (docs/cameras.md)")
     p.add_argument("--groundtruth", type=Path, required=True,
                    help="ground-truth trajectory, TUM (timestamps = frame indices)")
@@ -31,22 +32,25 @@ def add_parser(sub: Any) -> None:
                    help="comma-separated names (default: lines,five-point,colmap,upright-3pt)")
     p.add_argument("--overwrite", action="store_true", help="replace a non-empty OUTPUT")
     p.add_argument("--no-plots", action="store_true", help="do not draw the PNG plots")
+    p.add_argument("--verbose", action="store_true", help="show COLMAP's log on stderr")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     from omni_sfm.cameras import load_camera
-    from omni_sfm.compare import compare, parse_initializer_names, sequence_from_folder
+    from omni_sfm.compare import compare, parse_initializer_names, sequence_from_frames
     from omni_sfm.fileio import check_output_dir
     from omni_sfm.poses import read_tum
 
     names = parse_initializer_names(args.initializers)
     camera = load_camera(args.camera)
     gt = read_tum(args.groundtruth)
-    check_output_dir(args.output, overwrite=args.overwrite)
-    seq = sequence_from_folder(args.images, camera)
-    res = compare(seq, gt, args.output, names, overwrite=args.overwrite,
-                  plots=not args.no_plots, progress=sys.stderr.isatty())
+    inputs = (args.images, args.groundtruth)
+    check_output_dir(args.output, overwrite=args.overwrite, inputs=inputs)
+    seq = sequence_from_frames(args.images, camera)
+    options = {n: {"verbose": True} for n in names} if args.verbose else None
+    res = compare(seq, gt, args.output, names, options=options, overwrite=args.overwrite,
+                  plots=not args.no_plots, progress=sys.stderr.isatty(), inputs=inputs)
     for name, e in res.results["initializers"].items():
         if e["status"] == "ok":
             print(f"{name}: ok, {100 * e['registered']:.0f} % of frames, rotation max "

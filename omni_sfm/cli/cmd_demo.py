@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from pathlib import Path
 
@@ -37,5 +36,5 @@ def run(args: argparse.Namespace) -> int:
     print(f"ATE after similarity alignment: {100 * e.ate_rel:.3f} % of the path length")
     print(f"plots:      {res.plot}")
     print(f"            {res.init_dir / 'debug'} (tracked lines; blue: parallel family)")
-    print(f"total time: {time.perf_counter() - t0:.1f} s", file=sys.stderr)
+    print(f"total time: {time.perf_counter() - t0:.1f} s")
     return 0

@@ -33,7 +33,8 @@ def add_parser(sub: Any) -> None:
     )
     p.add_argument("--input", "-i", type=Path, required=True,
                    help="poses folder (output of init or refine: trajectory.tum, camera.yaml)")
-    p.add_argument("--images", type=Path, required=True, help="folder of the frames")
+    p.add_argument("--images", type=Path, default=None,
+                   help="image folder or video of the frames (default: the one INPUT records)")
     p.add_argument("--output", "-o", type=Path, required=True, help="output folder")
     p.add_argument("--camera", type=Path, default=None,
                    help="camera file (default: INPUT/camera.yaml)")
@@ -48,6 +49,7 @@ def add_parser(sub: Any) -> None:
     p.add_argument("--resolution-scale", type=float, default=1.0,
                    help="virtual-view pixels per camera pixel; < 1 is faster (default: 1)")
     p.add_argument("--overwrite", action="store_true", help="replace a non-empty OUTPUT")
+    p.add_argument("--verbose", action="store_true", help="show Open3D's and COLMAP's log")
     p.set_defaults(func=run)
 
 
@@ -58,8 +60,11 @@ def run(args: argparse.Namespace) -> int:
         raise OmniSfmError(f"--resolution-scale must be > 0, got {args.resolution_scale}")
     opts = DenseOptions(keyframe_step=args.keyframe_step, known_distance=args.known_distance,
                         camera_height=args.camera_height, resolution_scale=args.resolution_scale)
-    res = run_dense(args.input, args.images, args.output, opts, camera_file=args.camera,
-                    overwrite=args.overwrite, progress=sys.stderr.isatty())
+    from omni_sfm.libs import library_logging
+
+    with library_logging(args.verbose):
+        res = run_dense(args.input, args.images, args.output, opts, camera_file=args.camera,
+                        overwrite=args.overwrite, progress=sys.stderr.isatty())
     r = res.report
     sec = r["seconds"]
     print(f"dense: {r['num_points']} points, {r['num_triangles']} triangles from "

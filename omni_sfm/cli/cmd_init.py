@@ -10,7 +10,6 @@ line front end first (:func:`omni_sfm.initialize.init_from_images`). Both share
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -57,17 +56,35 @@ def add_parser(subparsers: Any) -> None:
     p.set_defaults(func=run)
 
 
-def _summary(rep: dict[str, Any], output: Path) -> str:
-    return (f"omni-sfm init: {rep['num_frames_estimated']}/{rep['num_frames']} frames, "
-            f"{len(rep['parallel_family']['track_ids'])} parallel lines, "
-            f"{len(rep['rejected_tracks'])} outlier tracks, residual "
-            f"{rep['residuals']['rms_final_deg']:.3g} deg RMS -> {output}")
+def _names(names: list[str], most: int = 5) -> str:
+    more = f", ... ({len(names) - most} more)" if len(names) > most else ""
+    return ", ".join(names[:most]) + more
+
+
+def summary(rep: dict[str, Any], output: Path, estimated: list[str], not_estimated: list[str],
+            unreadable: list[str]) -> str:
+    """The result lines ``init`` prints on stdout: frames estimated out of all given, the world
+    frame, the frames without a pose and why to look in report.json."""
+    total = rep["num_frames"] + len(unreadable)
+    lines = [f"init: {len(estimated)} of {total} frames estimated, "
+             f"{len(rep['parallel_family']['track_ids'])} parallel lines, "
+             f"{len(rep['rejected_tracks'])} outlier tracks, residual "
+             f"{rep['residuals']['rms_final_deg']:.3g} deg RMS -> {output}",
+             f"world: the camera of frame {estimated[0]} (first estimated), first-to-last "
+             "camera distance = 1"]
+    if not_estimated:
+        lines.append(f"not estimated: {len(not_estimated)} frames ({_names(not_estimated)}; "
+                     "reasons in report.json)")
+    if unreadable:
+        lines.append(f"unreadable: {len(unreadable)} frames could not be decoded "
+                     f"({_names(unreadable)})")
+    return "\n".join(lines)
 
 
 def run(args: argparse.Namespace) -> int:
     from omni_sfm.errors import OmniSfmError
     from omni_sfm.estimate.pipeline import EstimationOptions, estimate_poses, write_init_outputs
-    from omni_sfm.fileio import atomic_output_dir, check_output_dir
+    from omni_sfm.fileio import atomic_output_dir, check_output_dir, stored_path
 
     estimation = EstimationOptions(refine=not args.no_refine)
     if args.images is not None:
@@ -83,18 +100,23 @@ def run(args: argparse.Namespace) -> int:
                         debug_view=args.debug_view, colmap=not args.no_colmap,
                         colmap_text=args.text, progress=not args.quiet),
             mask=args.mask, overwrite=args.overwrite)
-        print(_summary(res.estimation.report, args.output), file=sys.stderr)
+        print(summary(res.estimation.report, args.output, list(res.image_names),
+                      list(res.not_estimated), list(res.unreadable)))
         return 0
 
     for flag in ("camera", "mask"):
         if getattr(args, flag) is not None:
             raise OmniSfmError(f"--{flag} applies to --images input, not to --tracks")
-    check_output_dir(args.output, overwrite=args.overwrite)
+    check_output_dir(args.output, overwrite=args.overwrite, inputs=(args.tracks,))
     from omni_sfm.lines.tracks import read_tracks
 
     tracks = read_tracks(args.tracks)
     result = estimate_poses(tracks, estimation)
-    with atomic_output_dir(args.output, overwrite=args.overwrite) as tmp:
-        write_init_outputs(tmp, result, extra={"input": {"tracks": str(args.tracks)}})
-    print(_summary(result.report, args.output), file=sys.stderr)
+    with atomic_output_dir(args.output, overwrite=args.overwrite, inputs=(args.tracks,)) as tmp:
+        write_init_outputs(
+            tmp, result, extra={"input": {"tracks": stored_path(args.tracks, args.output)}})
+    frames = [f"{k}" for k in range(tracks.num_frames)]
+    est = result.estimated
+    print(summary(result.report, args.output, [f for f, e in zip(frames, est, strict=True) if e],
+                  [f for f, e in zip(frames, est, strict=True) if not e], []))
     return 0

@@ -20,13 +20,15 @@ def add_parser(sub: Any) -> None:
             "the line-based poses fixed, COLMAP's mapper for frames the init missed, bundle "
             "adjustment with the gauge fixed; frames it cannot improve keep their input pose. "
             "Writes sparse/, trajectory.tum, report.json, images_colmap/, camera_mask.png and "
-            "database.db into OUTPUT (see docs/colmap.md)."
+            "database.db into OUTPUT, and carries camera.yaml, lines3d.json and mask.png over "
+            "from INPUT for dense and view (see docs/colmap.md)."
         ),
     )
     p.add_argument("--input", "-i", type=Path, required=True,
                    help="init directory (sparse/, camera.yaml, trajectory.tum)")
-    p.add_argument("--images", type=Path, required=True,
-                   help="folder of the frames as recorded (names as in the init model)")
+    p.add_argument("--images", type=Path, default=None,
+                   help="image folder or video the init was made from (default: the one INPUT "
+                        "records)")
     p.add_argument("--output", "-o", type=Path, required=True, help="output folder")
     p.add_argument("--overwrite", action="store_true", help="replace a non-empty OUTPUT")
     p.add_argument("--database", type=Path, default=None,
@@ -41,6 +43,7 @@ def add_parser(sub: Any) -> None:
                    help="do not try to register frames the init did not pose")
     p.add_argument("--threads", type=int, default=d.num_threads,
                    help="pycolmap threads, -1 = all cores (default: %(default)s)")
+    p.add_argument("--verbose", action="store_true", help="show COLMAP's log on stderr")
     p.set_defaults(func=run)
 
 
@@ -56,14 +59,14 @@ def run(args: argparse.Namespace) -> int:
                          register_missing=not args.no_mapper, num_threads=args.threads,
                          text=args.text)
     res = refine(args.input, args.images, args.output, opts, database=args.database,
-                 overwrite=args.overwrite, progress=sys.stderr.isatty())
+                 overwrite=args.overwrite, progress=sys.stderr.isatty(), verbose=args.verbose)
     r = res.report
     n = len(res.input_trajectory)
     ba = r.get("bundle_adjustment", {})
     rounds = ba.get("rounds") or []
     err = (f", mean reprojection error {rounds[0]['mean_reprojection_error_before_px']:.3f} -> "
            f"{rounds[-1]['mean_reprojection_error_after_px']:.3f} px" if rounds else "")
-    print(f"refined {r['refined_frames']} of {n} input poses "
+    print(f"refine: refined {r['refined_frames']} of {n} input poses "
           f"({r['model']['points']} points, {r['model']['observations']} observations{err}) "
           f"into {res.output}")
     added = r.get("mapper", {}).get("added_to_trajectory")

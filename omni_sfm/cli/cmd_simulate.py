@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 
@@ -45,5 +44,5 @@ def run(args: argparse.Namespace) -> int:
     with atomic_output_dir(args.output, overwrite=args.overwrite) as tmp:
         write_simulation(tmp, sim, opts)
     print(f"wrote {args.output}: {sim.tracks.num_frames} frames, {sim.tracks.num_tracks} tracks, "
-          f"{sim.tracks.num_observations} observations", file=sys.stderr)
+          f"{sim.tracks.num_observations} observations")
     return 0

@@ -45,14 +45,26 @@ from omni_sfm.dense.views import (
     view_geometry,
 )
 from omni_sfm.errors import OmniSfmError
-from omni_sfm.fileio import atomic_output_dir, atomic_write_text, check_output_dir, dumps_json
+from omni_sfm.fileio import (
+    atomic_output_dir,
+    atomic_write_text,
+    check_output_dir,
+    dumps_json,
+    stored_path,
+)
+from omni_sfm.folders import (
+    CAMERA_FILE,
+    LINES_FILE,
+    REPORT_FILE,
+    TRAJECTORY_FILE,
+    USER_MASK_FILE,
+    carry_forward,
+    images_for,
+)
 from omni_sfm.geometry import FloatArray, normalize
+from omni_sfm.libs import open3d_module
+from omni_sfm.lines.video import FrameStore
 from omni_sfm.poses import Trajectory, read_tum, write_tum
-from omni_sfm.synth.scenes import open3d_module
-
-TRAJECTORY_FILE = "trajectory.tum"
-CAMERA_FILE = "camera.yaml"
-LINES_FILE = "lines3d.json"
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -93,18 +105,20 @@ class DenseOptions:
 
 @dataclass(frozen=True)
 class DenseInput:
-    """Poses, camera and the image file of every pose.
+    """Poses, camera and the frame of every pose.
 
     Attributes:
         trajectory: the poses (world_from_cam, pose units).
         camera: the camera model the poses refer to.
-        image_paths: one image file per pose, in trajectory order.
+        frames: the image folder or video.
+        image_names: the name of each pose's frame in ``frames``, in trajectory order.
         lines: the 3D lines document of the poses folder (``lines3d.json``), or None.
     """
 
     trajectory: Trajectory
     camera: CameraModel
-    image_paths: tuple[Path, ...]
+    frames: FrameStore
+    image_names: tuple[str, ...]
     lines: dict[str, Any] | None
 
 
@@ -166,17 +180,18 @@ class DenseResult:
     report: dict[str, Any]
 
 
-def read_dense_input(poses_dir: Path, images: Path, camera_file: Path | None = None
-                     ) -> DenseInput:
+def read_dense_input(poses_dir: Path, images: Path | None = None,
+                     camera_file: Path | None = None) -> DenseInput:
     """Poses folder + frames -> :class:`DenseInput`; every defect is a one-line OmniSfmError.
 
-    Images are found by the poses folder's ``colmap.json`` image names when present, else by
-    file stems equal to the integer timestamps (``000012.png`` for timestamp 12), else in order
-    when the folder holds exactly one image per pose."""
+    ``images``: the image folder or video; None: the frames the poses folder records
+    (:func:`omni_sfm.folders.images_for`). Frames are found by the poses folder's
+    ``colmap.json`` image names when present, else by names equal to the integer timestamps
+    (``000012.png`` for timestamp 12, as ``init`` names video frames), else in order when the
+    source holds exactly one frame per pose."""
     from omni_sfm.fileio import read_json
-    from omni_sfm.refine.database import list_images
 
-    poses_dir, images = Path(poses_dir), Path(images)
+    poses_dir = Path(poses_dir)
     if not poses_dir.is_dir():
         raise OmniSfmError(f"{poses_dir}: poses folder not found")
     tum = poses_dir / TRAJECTORY_FILE
@@ -186,12 +201,11 @@ def read_dense_input(poses_dir: Path, images: Path, camera_file: Path | None = N
     if len(traj) < 3:
         raise OmniSfmError(f"{tum}: {len(traj)} poses, dense mapping needs at least 3")
     cam_file = Path(camera_file) if camera_file is not None else poses_dir / CAMERA_FILE
-    if camera_file is None and not cam_file.is_file():
-        cam_file = _refine_input_camera(poses_dir) or cam_file
     if not cam_file.is_file():
         raise OmniSfmError(f"{cam_file}: camera file not found (give --camera FILE)")
     camera = load_camera(cam_file)
-    names = list_images(images)
+    frames = FrameStore(images_for(poses_dir, images))
+    names = list(frames.names)
     manifest = poses_dir / "colmap.json"
     chosen: list[str] | None = None
     if manifest.is_file():
@@ -212,55 +226,37 @@ def read_dense_input(poses_dir: Path, images: Path, camera_file: Path | None = N
             chosen = names
         else:
             raise OmniSfmError(
-                f"{images}: cannot match {len(names)} images to the {len(traj)} poses of {tum} "
-                "(need image stems equal to the timestamps, colmap.json names, or one image "
-                "per pose)")
-    missing = [n for n in chosen if not (images / n).is_file()]
+                f"{frames.path}: cannot match {len(names)} frames to the {len(traj)} poses of "
+                f"{tum} (need frame names equal to the timestamps, colmap.json names, or one "
+                "frame per pose)")
+    have = set(names)
+    missing = [n for n in chosen if n not in have]
     if missing:
-        raise OmniSfmError(f"{images}: {len(missing)} of {len(chosen)} images are missing "
+        raise OmniSfmError(f"{frames.path}: {len(missing)} of {len(chosen)} frames are missing "
                            f"(first: {missing[0]!r})")
     lines = None
     if (poses_dir / LINES_FILE).is_file():
         doc = read_json(poses_dir / LINES_FILE, "lines3d file")
         lines = doc if isinstance(doc, dict) else None
-    return DenseInput(traj, camera, tuple(images / n for n in chosen), lines)
-
-
-def _refine_input_camera(poses_dir: Path) -> Path | None:
-    """A refine folder has no camera file: the one of the init folder it refined, if any."""
-    from omni_sfm.fileio import read_json
-
-    report = poses_dir / "report.json"
-    if not report.is_file():
-        return None
-    doc = read_json(report, "report")
-    init = doc.get("input", {}).get("init") if isinstance(doc, dict) and \
-        isinstance(doc.get("input"), dict) else None
-    if not isinstance(init, str):
-        return None
-    path = Path(init) if Path(init).is_absolute() else poses_dir / init
-    return path / CAMERA_FILE if (path / CAMERA_FILE).is_file() else None
+    return DenseInput(traj, camera, frames, tuple(chosen), lines)
 
 
 class _Frames:
-    """Images by frame index, read on demand (RGB uint8), a few kept."""
+    """Images by pose index, read on demand (RGB uint8), a few kept."""
 
-    def __init__(self, paths: tuple[Path, ...], camera: CameraModel) -> None:
-        self.paths = paths
-        self.camera = camera
+    def __init__(self, inp: DenseInput) -> None:
+        self.inp = inp
+        self.camera = inp.camera
         self._cache: dict[int, np.ndarray] = {}
 
     def __call__(self, k: int) -> np.ndarray:
-        import cv2
-
         if k not in self._cache:
-            img = cv2.imread(str(self.paths[k]), cv2.IMREAD_COLOR)
-            if img is None:
-                raise OmniSfmError(f"{self.paths[k]}: OpenCV cannot read this image")
+            name = self.inp.image_names[k]
+            img = self.inp.frames.read(name)
             if img.shape[:2] != (self.camera.height, self.camera.width):
                 raise OmniSfmError(
-                    f"{self.paths[k]}: image is {img.shape[1]}x{img.shape[0]} px, the camera is "
-                    f"{self.camera.width}x{self.camera.height}")
+                    f"{self.inp.frames.where(name)}: image is {img.shape[1]}x{img.shape[0]} px, "
+                    f"the camera is {self.camera.width}x{self.camera.height}")
             if len(self._cache) > 24:
                 self._cache.pop(next(iter(self._cache)))
             self._cache[k] = np.ascontiguousarray(img[:, :, ::-1])
@@ -288,7 +284,7 @@ class _Matcher:
         self.num_disparities = num_disparities
         self.opts = opts
         self.pose_opts = pose_opts
-        self.frames = _Frames(inp.image_paths, inp.camera)
+        self.frames = _Frames(inp)
         self.valid = inp.camera.valid_mask()
         self._sift_mask = cv2.erode(self.valid.astype(np.uint8) * 255, np.ones((7, 7), np.uint8))
         self._features: dict[int, Features] = {}
@@ -573,7 +569,7 @@ def dense_map(inp: DenseInput, opts: DenseOptions | None = None, *,
                     "fusion_total": float(sum(s.seconds_fusion for s in stats)),
                     "extraction": t_extract},
         "frames": [{"frame": s.frame, "timestamp": float(traj.timestamps[s.frame]),
-                    "image": inp.image_paths[s.frame].name, "sources": list(s.sources),
+                    "image": inp.image_names[s.frame], "sources": list(s.sources),
                     "baselines": [b * scale for b in s.baselines],
                     "depth_share": s.depth_share, "view_share": s.view_share,
                     "view_pixels": s.view_pixels, "depth_pixels": s.depth_pixels,
@@ -613,12 +609,17 @@ def scaled_lines(doc: dict[str, Any], scale: float) -> dict[str, Any]:
     return out
 
 
-def write_dense(output: Path, inp: DenseInput, res: DenseResult, *, overwrite: bool = False
-                ) -> None:
+def write_dense(output: Path, inp: DenseInput, res: DenseResult, *, overwrite: bool = False,
+                poses_dir: Path | None = None) -> None:
     """Write ``dense.ply``, ``mesh.ply``, ``trajectory.tum`` (output units), ``camera.yaml``,
-    ``lines3d.json`` (when the input had one) and ``report.json`` (complete or not at all)."""
+    ``lines3d.json`` (when the input had one), ``mask.png`` (carried from ``poses_dir``) and
+    ``report.json`` with where the poses and frames came from (complete or not at all)."""
     o3d = open3d_module()
-    with atomic_output_dir(Path(output), overwrite=overwrite) as tmp:
+    output = Path(output)
+    inputs = (poses_dir, inp.frames.path)
+    report = {"input": {"poses": None if poses_dir is None else stored_path(poses_dir, output),
+                        "images": stored_path(inp.frames.path, output)}, **res.report}
+    with atomic_output_dir(output, overwrite=overwrite, inputs=inputs) as tmp:
         pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(res.points))
         pcd.colors = o3d.utility.Vector3dVector(res.colors)
         if not o3d.io.write_point_cloud(str(tmp / "dense.ply"), pcd):
@@ -629,15 +630,19 @@ def write_dense(output: Path, inp: DenseInput, res: DenseResult, *, overwrite: b
         write_camera_yaml(tmp / CAMERA_FILE, inp.camera)
         if inp.lines is not None:
             atomic_write_text(tmp / LINES_FILE, dumps_json(scaled_lines(inp.lines, res.scale)))
-        atomic_write_text(tmp / "report.json", dumps_json(res.report))
+        if poses_dir is not None:
+            carry_forward(poses_dir, tmp, (USER_MASK_FILE,))
+        atomic_write_text(tmp / REPORT_FILE, dumps_json(report))
 
 
-def run_dense(poses_dir: Path, images: Path, output: Path, opts: DenseOptions | None = None, *,
-              camera_file: Path | None = None, overwrite: bool = False,
-              progress: bool = False) -> DenseResult:
-    """Read, map and write (the ``omni-sfm dense`` command)."""
-    check_output_dir(Path(output), overwrite=overwrite)
+def run_dense(poses_dir: Path, images: Path | None, output: Path,
+              opts: DenseOptions | None = None, *, camera_file: Path | None = None,
+              overwrite: bool = False, progress: bool = False) -> DenseResult:
+    """Read, map and write (the ``omni-sfm dense`` command); ``images`` None: the frames the
+    poses folder records."""
+    check_output_dir(Path(output), overwrite=overwrite, inputs=(Path(poses_dir), images))
     inp = read_dense_input(poses_dir, images, camera_file)
+    check_output_dir(Path(output), overwrite=overwrite, inputs=(inp.frames.path,))
     res = dense_map(inp, opts, progress=progress)
-    write_dense(output, inp, res, overwrite=overwrite)
+    write_dense(output, inp, res, overwrite=overwrite, poses_dir=Path(poses_dir))
     return res

@@ -18,6 +18,7 @@ import numpy as np
 
 from omni_sfm.cameras.base import CameraModel, ColmapExport
 from omni_sfm.errors import OmniSfmError
+from omni_sfm.folders import CAMERA_FILE, TRAJECTORY_FILE
 from omni_sfm.geometry import FloatArray
 from omni_sfm.poses import Trajectory
 
@@ -86,21 +87,22 @@ def projection_centres(reconstruction: Any) -> dict[str, FloatArray]:
 
 SPARSE_DIR = "sparse"
 IMAGES_DIR = "images_colmap"
-CAMERA_FILE = "camera.yaml"
-TRAJECTORY_FILE = "trajectory.tum"
 MANIFEST_FILE = "colmap.json"
 MASK_FILE = "camera_mask.png"
 MASK_EROSION_PX = 3
 
 
-def write_colmap_mask(path: Path, camera: CameraModel, erode_px: int = MASK_EROSION_PX) -> None:
+def write_colmap_mask(path: Path, camera: CameraModel, erode_px: int = MASK_EROSION_PX,
+                      user_mask: np.ndarray | None = None) -> None:
     """COLMAP's camera mask (``ImageReaderOptions.camera_mask_path``; 0 = ignore) of the valid
-    pixels, shrunk by ``erode_px`` so that the strong edges at a mirror's rim or a mask's border
-    give no features, and mirrored like the images COLMAP sees."""
+    pixels (and of ``user_mask``, ``(H, W)`` bool, where given), shrunk by ``erode_px`` so that
+    the strong edges at a mirror's rim or a mask's border give no features, and mirrored like
+    the images COLMAP sees."""
     import cv2
 
     export = camera.colmap_export()
-    mask: np.ndarray = np.where(camera.valid_mask(), 255, 0).astype(np.uint8)
+    valid = camera.valid_mask() if user_mask is None else camera.valid_mask() & user_mask
+    mask: np.ndarray = np.where(valid, 255, 0).astype(np.uint8)
     if erode_px > 0:
         k = 2 * erode_px + 1
         mask = cv2.erode(mask, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k)),

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -19,7 +19,7 @@ from tqdm import tqdm
 
 from omni_sfm.cameras.base import CameraModel
 from omni_sfm.errors import OmniSfmError
-from omni_sfm.geometry import FloatArray
+from omni_sfm.geometry import FloatArray, normalize
 from omni_sfm.lines.extract import ExtractionOptions, LineExtractor
 from omni_sfm.lines.track import LineTracker, TrackingOptions
 from omni_sfm.lines.tracks import LineTracks, make_tracks
@@ -78,6 +78,21 @@ class FrontEndResult:
     tracks_revived: IntArray
     timings_ms: dict[str, FloatArray]
     frames_skipped: tuple[int, ...]
+
+    def estimator_tracks(self) -> LineTracks:
+        """The tracks as the estimator takes them: every caller of the estimator on images
+        (``init``, the ``lines`` initializer of ``compare``) goes through this one conversion.
+
+        Each observation gets a ray towards the middle of its segment (the middle of the arc
+        between its end rays, projected into the line's plane), which tells on which side of the
+        viewpoint the line lies and so settles the point reflection that normals leave open
+        (docs/formats.md), and the uncertainty of its NV along and across that ray, with which
+        the bundle adjustment weighs a short segment's poorly fixed tilt less.
+        """
+        tr = self.tracks
+        mid = self.obs_endpoint_rays[:, 0] + self.obs_endpoint_rays[:, 1]
+        mid -= np.sum(mid * tr.obs_normal, axis=1, keepdims=True) * tr.obs_normal
+        return replace(tr, obs_ray=normalize(mid), obs_sigma=self.obs_normal_sigma)
 
     def track_lengths(self) -> IntArray:
         """``(M,)`` frames each track is seen in."""

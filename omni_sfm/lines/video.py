@@ -198,3 +198,111 @@ def read_mask(path: Path | str, size: tuple[int, int]) -> np.ndarray:
         raise OmniSfmError(f"{path}: mask is {gray.shape[1]}x{gray.shape[0]} px but the camera "
                            f"file says {size[0]}x{size[1]} px")
     return np.asarray(gray > 0)
+
+
+def write_mask(path: Path | str, mask: np.ndarray) -> None:
+    """Write a ``(H, W)`` bool mask as an 8-bit PNG (255 = use the pixel) that
+    :func:`read_mask` reads back."""
+    if not cv2.imwrite(str(path), np.where(mask, 255, 0).astype(np.uint8)):
+        raise OmniSfmError(f"{path}: OpenCV cannot write the mask image")
+
+
+def video_frame_name(index: int) -> str:
+    """The name of video frame ``index`` wherever omni-sfm names frames (``000012.png``): in
+    trajectories' image lists, the COLMAP model and ``images_colmap/``."""
+    return f"{int(index):06d}.png"
+
+
+class FrameStore:
+    """The frames of an image folder or a video, by name, for the stages after ``init``.
+
+    Names are those ``init`` gives the frames: an image folder's file names (sorted), a video's
+    :func:`video_frame_name` of each frame index. ``timestamps`` are ``init``'s too: the index
+    in the folder, or seconds in the video (the index where the video has no frame rate).
+    Reading a video by name decodes forward from the last frame read (reopening only to go
+    back), so reading in frame order decodes the file once. Every failure is a one-line
+    :class:`OmniSfmError`.
+    """
+
+    def __init__(self, path: Path | str) -> None:
+        self.path = Path(path)
+        self._cache: dict[str, np.ndarray] = {}
+        self._cap: cv2.VideoCapture | None = None
+        self._next = 0
+        if not self.path.exists():
+            raise OmniSfmError(f"{self.path}: no such image folder or video file")
+        if self.path.is_dir():
+            self.is_video = False
+            files = sorted(p.name for p in self.path.iterdir()
+                           if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+            if not files:
+                raise OmniSfmError(f"{self.path}: folder holds no images "
+                                   f"({', '.join(IMAGE_SUFFIXES)})")
+            self.names: tuple[str, ...] = tuple(files)
+            self.timestamps = np.arange(len(files), dtype=np.float64)
+            return
+        self.is_video = True
+        src = read_frames(self.path)  # checks that OpenCV opens it; frame rate and count
+        count = src.frame_count
+        if count is None:  # the container does not say: count what decodes
+            count = 1 + max((f.number for f in src), default=-1)
+        self.names = tuple(video_frame_name(i) for i in range(count))
+        idx = np.arange(count, dtype=np.float64)
+        self.timestamps = idx / src.fps if src.fps else idx
+        self._index = {n: i for i, n in enumerate(self.names)}
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+    def __getstate__(self) -> dict[str, object]:
+        # worker processes get the names and paths; each opens the video itself
+        return {**self.__dict__, "_cap": None, "_next": 0, "_cache": {}}
+
+    def read(self, name: str, *, gray: bool = False) -> np.ndarray:
+        """Frame ``name`` as OpenCV reads it: BGR ``(H, W, 3)`` uint8, or grey ``(H, W)`` with
+        ``gray`` (converted as :func:`to_gray`, like the front end's frames)."""
+        if name not in self._cache:
+            img = self._read_video(name) if self.is_video else \
+                cv2.imread(str(self.path / name), cv2.IMREAD_UNCHANGED)
+            if img is None:
+                raise OmniSfmError(f"{self.where(name)}: OpenCV cannot read this frame")
+            if len(self._cache) >= 8:
+                self._cache.pop(next(iter(self._cache)))
+            self._cache[name] = img
+        img = self._cache[name]
+        if gray:
+            return to_gray(img)
+        if img.ndim == 3 and img.shape[2] == 3 and img.dtype == np.uint8:
+            return img
+        if img.ndim == 3 and img.shape[2] == 4 and img.dtype == np.uint8:
+            return cv2.cvtColor(img, cv2.COLOR_BGRA2BGR)
+        return cv2.cvtColor(to_gray(img), cv2.COLOR_GRAY2BGR)
+
+    def where(self, name: str) -> str:
+        """The frame's file, or the video and frame index, for messages."""
+        if self.is_video:
+            return f"{self.path} frame {self._index.get(name, name)}"
+        return str(self.path / name)
+
+    def _read_video(self, name: str) -> np.ndarray | None:
+        if name not in self._index:
+            raise OmniSfmError(f"{self.path}: the video has no frame {name!r} (frames are named "
+                               f"{video_frame_name(0)} to {self.names[-1]})")
+        i = self._index[name]
+        if self._cap is None or i < self._next:
+            self.close()
+            self._cap = cv2.VideoCapture(str(self.path))
+            self._next = 0
+        while self._next < i:
+            if not self._cap.grab():
+                return None
+            self._next += 1
+        ok, img = self._cap.read()
+        self._next += 1
+        return img if ok else None
+
+    def close(self) -> None:
+        """Release the video (reading again reopens it)."""
+        if self._cap is not None:
+            self._cap.release()
+            self._cap = None

@@ -14,20 +14,7 @@ from typing import Any
 
 from omni_sfm.cameras.base import ColmapExport
 from omni_sfm.errors import OmniSfmError
-
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
-
-
-def list_images(folder: Path) -> list[str]:
-    """Sorted names of the image files directly in ``folder`` (OmniSfmError if none)."""
-    folder = Path(folder)
-    if not folder.is_dir():
-        raise OmniSfmError(f"{folder}: image folder not found")
-    names = sorted(p.name for p in folder.iterdir()
-                   if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
-    if not names:
-        raise OmniSfmError(f"{folder}: no images ({', '.join(IMAGE_SUFFIXES)}) in the folder")
-    return names
+from omni_sfm.lines.video import FrameStore
 
 
 def check_image_names(folder: Path, available: Sequence[str], model_names: Sequence[str],
@@ -41,24 +28,22 @@ def check_image_names(folder: Path, available: Sequence[str], model_names: Seque
             f"(first: {missing[0]!r}); give the frames the init directory was made from")
 
 
-def write_colmap_images(src: Path, dst: Path, names: Sequence[str], export: ColmapExport,
-                        *, progress: bool = False) -> None:
-    """Write ``src/<name>`` as COLMAP must see it to ``dst/<name>`` (mirrored where the camera
-    export says so), checking every image's size against the camera. Images that exist already
-    are rewritten (cheap next to SIFT)."""
+def write_colmap_images(frames: FrameStore, dst: Path, names: Sequence[str],
+                        export: ColmapExport, *, progress: bool = False) -> None:
+    """Write frame ``<name>`` of ``frames`` (an image folder or a video) as COLMAP must see it
+    to ``dst/<name>`` (mirrored where the camera export says so), checking every image's size
+    against the camera. Images that exist already are rewritten (cheap next to SIFT)."""
     import cv2
     from tqdm import tqdm
 
     dst.mkdir(parents=True, exist_ok=True)
     for name in tqdm(names, desc="refine: images for COLMAP", unit="img",
                      disable=None if progress else True, leave=False):
-        img = cv2.imread(str(src / name), cv2.IMREAD_UNCHANGED)
-        if img is None:
-            raise OmniSfmError(f"{src / name}: OpenCV cannot read this image")
+        img = frames.read(name)
         if img.shape[:2] != (export.height, export.width):
             raise OmniSfmError(
-                f"{src / name}: image is {img.shape[1]}x{img.shape[0]} px, the camera is "
-                f"{export.width}x{export.height} px")
+                f"{frames.where(name)}: image is {img.shape[1]}x{img.shape[0]} px, the camera "
+                f"is {export.width}x{export.height} px")
         if not cv2.imwrite(str(dst / name), export.image_to_colmap(img)):
             raise OmniSfmError(f"{dst / name}: OpenCV cannot write this image")
 

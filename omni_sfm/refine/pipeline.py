@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from omni_sfm.cameras import write_camera_yaml
 from omni_sfm.evaluate import Similarity
 from omni_sfm.export.colmap import (
     IMAGES_DIR,
@@ -45,19 +46,32 @@ from omni_sfm.export.colmap import (
     trajectory_from_reconstruction,
     write_colmap_mask,
 )
-from omni_sfm.fileio import atomic_output_dir, atomic_write_text, dumps_json
+from omni_sfm.fileio import (
+    atomic_output_dir,
+    atomic_write_text,
+    check_output_dir,
+    dumps_json,
+    stored_path,
+)
+from omni_sfm.folders import (
+    CAMERA_FILE,
+    REPORT_FILE,
+    USER_MASK_FILE,
+    carry_forward,
+    images_for,
+)
 from omni_sfm.geometry import FloatArray, rotation_angle
+from omni_sfm.libs import library_logging
+from omni_sfm.lines.video import FrameStore, read_mask
 from omni_sfm.poses import Trajectory, write_tum
 from omni_sfm.refine.database import (
     check_image_names,
     extract_features,
-    list_images,
     match_sequential,
     write_colmap_images,
 )
 
 DATABASE_FILE = "database.db"
-REPORT_FILE = "report.json"
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -287,18 +301,23 @@ def _frame_timestamps(all_names: list[str], init: InitModel) -> tuple[FloatArray
     return ts, "affine in the frame index"
 
 
-def refine(init_dir: Path, images_dir: Path, output: Path,
+def refine(init_dir: Path, images: Path | None, output: Path,
            options: RefineOptions | None = None, *, database: Path | None = None,
-           overwrite: bool = False, progress: bool = True) -> RefineResult:
-    """Refine the poses of ``init_dir`` with COLMAP on the frames in ``images_dir``.
+           overwrite: bool = False, progress: bool = True, verbose: bool = False
+           ) -> RefineResult:
+    """Refine the poses of ``init_dir`` with COLMAP on its frames.
 
     Args:
         init_dir: an init directory (:func:`omni_sfm.export.colmap.write_init_model`).
-        images_dir: the frames (as recorded, not mirrored), names as in the init model; frames
-            the init did not pose may be there too (the mapper stage tries to register them).
+        images: the image folder or video (as recorded, not mirrored), frame names as in the
+            init model; frames the init did not pose may be there too (the mapper stage tries
+            to register them). None: the frames ``init_dir`` records
+            (:func:`omni_sfm.folders.images_for`).
         output: the output directory (complete or absent): ``sparse/``, ``trajectory.tum``,
             ``report.json``, ``images_colmap/``, ``camera_mask.png`` and ``database.db``
-            (unless ``database`` is given).
+            (unless ``database`` is given), and, carried from ``init_dir`` for the later
+            stages, ``camera.yaml``, ``lines3d.json`` and ``mask.png`` (docs/colmap.md).
+        verbose: let COLMAP log to stderr (off: warnings and errors only).
         database: a COLMAP database to use and keep (created if missing); features and matches
             it holds are reused.
 
@@ -307,12 +326,17 @@ def refine(init_dir: Path, images_dir: Path, output: Path,
     import pycolmap
 
     o = options or RefineOptions()
-    init_dir, images_dir, output = Path(init_dir), Path(images_dir), Path(output)
+    init_dir, output = Path(init_dir), Path(output)
+    images_dir = images_for(init_dir, images)
+    check_output_dir(output, overwrite=overwrite, inputs=(init_dir, images_dir, database))
     init = read_init_model(init_dir)
     camera = init.camera
     export = camera.colmap_export()
-    all_names = list_images(images_dir)
+    frames = FrameStore(images_dir)
+    all_names = list(frames.names)
     check_image_names(images_dir, all_names, init.image_names, init_dir / SPARSE_DIR)
+    user_mask = read_mask(init_dir / USER_MASK_FILE, (camera.width, camera.height)) \
+        if (init_dir / USER_MASK_FILE).is_file() else None
     posed = set(init.image_names)
     unposed = [n for n in all_names if n not in posed]
     register = o.register_missing and bool(unposed)
@@ -323,26 +347,25 @@ def refine(init_dir: Path, images_dir: Path, output: Path,
     inp = init.trajectory
     path_length = inp.path_length()
     report: dict[str, Any] = {
-        "input": {"init": str(init_dir), "images": str(images_dir),
-                  "database": str(database) if database else DATABASE_FILE},
+        "input": {"init": stored_path(init_dir, output),
+                  "images": stored_path(images_dir, output),
+                  "database": stored_path(database, output) if database else DATABASE_FILE},
         "camera": {"model": camera.model, "colmap_model": export.camera.model_name,
                    "image_mirrored_for_colmap": export.flip_u},
         "frames": {"input_poses": len(inp), "images_in_folder": len(all_names),
                    "unposed_in_folder": len(unposed)},
         "options": asdict(o),
     }
-    prev_level = pycolmap.logging.minloglevel
-    if not progress:
-        pycolmap.logging.minloglevel = 2
     try:
-        with atomic_output_dir(output, overwrite=overwrite) as tmp:
+        with library_logging(verbose), atomic_output_dir(output, overwrite=overwrite,
+                               inputs=(init_dir, images_dir, database)) as tmp:
             db_path = Path(database) if database else tmp / DATABASE_FILE
             work = tmp / ".work"
             work.mkdir()
             with stages.stage("images"):
-                write_colmap_images(images_dir, tmp / IMAGES_DIR, names, export,
-                                    progress=progress)
-                write_colmap_mask(tmp / MASK_FILE, camera, o.mask_erosion_px)
+                write_colmap_images(frames, tmp / IMAGES_DIR, names, export, progress=progress)
+                frames.close()
+                write_colmap_mask(tmp / MASK_FILE, camera, o.mask_erosion_px, user_mask)
             with stages.stage("features"):
                 feats = extract_features(db_path, tmp / IMAGES_DIR, tmp / MASK_FILE, names,
                                          export, max_features=o.max_features,
@@ -413,13 +436,14 @@ def refine(init_dir: Path, images_dir: Path, output: Path,
                 if o.text:
                     final.write_text(str(tmp / SPARSE_DIR))
                 write_tum(tmp / TRAJECTORY_FILE, traj)
+                write_camera_yaml(tmp / CAMERA_FILE, camera)
+                report["carried_from_input"] = carry_forward(init_dir, tmp)
                 report["trajectory_frames"] = len(final_ids)
             shutil.rmtree(work, ignore_errors=True)
             report["timings_s"] = dict(stages.times)
             atomic_write_text(tmp / REPORT_FILE, dumps_json(report))
     finally:
         stages.close()
-        pycolmap.logging.minloglevel = prev_level
     return RefineResult(output, traj, inp, refined, report)
 
 

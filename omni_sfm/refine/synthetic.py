@@ -15,8 +15,8 @@ from omni_sfm.cameras import load_camera
 from omni_sfm.export.colmap import write_init_model
 from omni_sfm.fileio import atomic_output_dir
 from omni_sfm.geometry import rotvec_to_matrix
+from omni_sfm.lines.video import FrameStore
 from omni_sfm.poses import Trajectory, read_tum, write_tum
-from omni_sfm.refine.database import list_images
 
 
 def perturb(gt: Trajectory, *, rotation_deg: float = 0.3, position_fraction: float = 0.005,
@@ -41,7 +41,7 @@ def write_perturbed_init(render_dir: Path, init_dir: Path, *, rotation_deg: floa
     render_dir = Path(render_dir)
     camera = load_camera(render_dir / "camera.yaml")
     gt = read_tum(render_dir / "groundtruth.tum")
-    names = list_images(render_dir / "images")
+    names = list(FrameStore(render_dir / "images").names)
     if len(names) != len(gt):
         raise ValueError(f"{render_dir}: {len(names)} images for {len(gt)} poses")
     traj = perturb(gt, rotation_deg=rotation_deg, position_fraction=position_fraction, seed=seed)

@@ -98,12 +98,8 @@ def _database_from_images(db_path: Path, work: Path, seq: SequenceInput, export:
     img_dir = work / "images"
     img_dir.mkdir()
     names = [_frame_name(k) for k in range(seq.num_frames)]
-    assert seq.images is not None
-    for name, src in zip(names, seq.images, strict=True):
-        img = cv2.imread(str(src), cv2.IMREAD_UNCHANGED)
-        if img is None or img.shape[:2] != (export.height, export.width):
-            raise ValueError(f"{src}: unreadable or not {export.width}x{export.height} px")
-        cv2.imwrite(str(img_dir / name), export.image_to_colmap(img))
+    for k, name in enumerate(names):
+        cv2.imwrite(str(img_dir / name), export.image_to_colmap(seq.read_image(k)))
     write_colmap_mask(work / "mask.png", seq.camera)
     threads = int(options.get("threads", 1))
     with pycolmap.Database.open(str(db_path)) as db:
@@ -136,7 +132,10 @@ def colmap(sequence: SequenceInput, options: Mapping[str, Any]) -> InitializerRe
     export = sequence.camera.colmap_export()
     C = np.asarray(export.colmap_cam_from_cam)
     prev_level = pycolmap.logging.minloglevel
-    pycolmap.logging.minloglevel = 2
+    # the mapper's own errors ("Failed to create any sparse model") become this result's
+    # reason; COLMAP's log is for --verbose
+    verbose = bool(options.get("verbose", False))
+    pycolmap.logging.minloglevel = 0 if verbose else 3
     try:
         with tempfile.TemporaryDirectory(prefix="omni_sfm_colmap_") as tmp:
             work = Path(tmp)
