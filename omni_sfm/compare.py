@@ -48,8 +48,6 @@ from omni_sfm.registry import INITIALIZERS, available, load
 DEFAULT_INITIALIZERS = ("lines", "five-point", "colmap", "upright-3pt")
 """The initializers :func:`compare` runs when none are named (those installed)."""
 
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
-# the error figures of a results.json entry (None when the initializer cannot be evaluated)
 METRIC_KEYS = ("rot_max_deg", "rot_mean_deg", "ate_rel", "rpe", "rpe_rot_deg",
                "step_error_after_alignment")
 
@@ -145,8 +143,6 @@ def sequence_from_frames(images: Path, camera: CameraModel) -> SequenceInput:
     """Every frame of an image folder (sorted by name; timestamp = index) or a video
     (timestamps in seconds), named and stamped as ``init`` names them. One-line OmniSfmError
     when there are fewer than 3 frames or the first does not have the camera's size."""
-    from omni_sfm.lines.video import FrameStore
-
     frames = FrameStore(images)
     if len(frames) < 3:
         raise OmniSfmError(f"{images}: {len(frames)} frames; need at least 3")

@@ -45,6 +45,8 @@ RENDER: dict[str, dict[str, Any]] = {
                                       "textured": True},
     "room-equirectangular": {"scene": "room", "camera": "equirectangular", "textured": False},
 }
+IMAGE_ONLY = ("lines-refine",)
+"""Initializers that need frames: added to the rendered sequences' runs unless --initializers."""
 SIZES = {"hyperboloid": (640, 480), "equirectangular": (960, 480)}
 BEGIN, END = "<!-- sweep:begin -->", "<!-- sweep:end -->"
 
@@ -57,7 +59,8 @@ def task_id(task: dict[str, Any]) -> str:
 
 
 def make_tasks(kinds: Iterable[str], seeds: Iterable[int], noises: Iterable[float],
-               frames: int, sim_points: int, initializers: list[str]) -> list[dict[str, Any]]:
+               frames: int, sim_points: int, initializers: list[str],
+               image_only: Iterable[str] = ()) -> list[dict[str, Any]]:
     tasks = []
     for kind in kinds:
         for seed in seeds:
@@ -67,7 +70,8 @@ def make_tasks(kinds: Iterable[str], seeds: Iterable[int], noises: Iterable[floa
                                   "points": sim_points, "initializers": initializers})
             else:
                 tasks.append({"kind": kind, "seed": seed, "frames": frames,
-                              "initializers": initializers})
+                              "initializers": initializers + [n for n in image_only
+                                                              if n not in initializers]})
     return tasks
 
 
@@ -350,7 +354,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--frames", type=int, default=30, help="frames of rendered sequences")
     ap.add_argument("--sim-points", type=int, default=40,
                     help="point features of a simulated sequence (it has 40 lines)")
-    ap.add_argument("--initializers", default=None, help="comma-separated (default: all four)")
+    ap.add_argument("--initializers", default=None,
+                    help="comma-separated (default: the four of 'omni-sfm compare'; on rendered "
+                         "sequences also lines-refine, the README's init + refine)")
     ap.add_argument("--workers", type=int, default=2, help="local processes")
     ap.add_argument("--scheduler", default=None,
                     help="Dask scheduler address (tcp://HOST:8786) instead of local processes")
@@ -380,7 +386,8 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"unknown kind {bad[0]!r}")
     names = parse_initializer_names(a.initializers)
     tasks = make_tasks(kinds, [int(s) for s in a.seeds.split(",")],
-                       [float(x) for x in a.noise.split(",")], a.frames, a.sim_points, names)
+                       [float(x) for x in a.noise.split(",")], a.frames, a.sim_points, names,
+                       IMAGE_ONLY if a.initializers is None else ())
     a.output.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     count = [0]

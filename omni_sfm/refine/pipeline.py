@@ -327,8 +327,9 @@ def refine(init_dir: Path, images: Path | None, output: Path,
 
     o = options or RefineOptions()
     init_dir, output = Path(init_dir), Path(output)
+    check_output_dir(output, overwrite=overwrite, inputs=(init_dir, images, database))
     images_dir = images_for(init_dir, images)
-    check_output_dir(output, overwrite=overwrite, inputs=(init_dir, images_dir, database))
+    check_output_dir(output, overwrite=overwrite, inputs=(images_dir,))
     init = read_init_model(init_dir)
     camera = init.camera
     export = camera.colmap_export()

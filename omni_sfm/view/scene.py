@@ -75,7 +75,7 @@ def up_direction(traj: Trajectory, camera_model: str | None) -> FloatArray:
 
 def load_view_scene(folder: Path, *, max_points: int = 200_000, seed: int = 0) -> ViewScene:
     """Read ``trajectory.tum`` (required), ``dense.ply`` (optional), 3D lines from
-    ``lines3d.json`` or from ``report.json``'s ``lines3d`` entry (optional) and the camera
+    ``lines3d.json`` (optional) and the camera
     model from ``camera.yaml`` (optional, for the up direction). One-line OmniSfmError when the
     folder or its trajectory is missing."""
     from omni_sfm.fileio import read_json
@@ -95,11 +95,6 @@ def load_view_scene(folder: Path, *, max_points: int = 200_000, seed: int = 0) -
         lines = _lines_from_doc(read_json(folder / "lines3d.json", "lines3d file"))
         if lines is not None:
             sources["lines"] = "lines3d.json"
-    if lines is None and (folder / "report.json").is_file():
-        rep = read_json(folder / "report.json", "report")
-        lines = _lines_from_doc(rep.get("lines3d") if isinstance(rep, dict) else None)
-        if lines is not None:
-            sources["lines"] = "report.json"
     if lines is None:
         lines = (np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, dtype=np.int64))
     pts, cols = np.zeros((0, 3)), np.zeros((0, 3))

@@ -1,0 +1,52 @@
+"""``lines-refine``: the README's chain ``omni-sfm init --lines`` then ``omni-sfm refine``.
+
+The frames go through :func:`omni_sfm.initialize.init_from_images` exactly as ``init`` runs
+(the ``lines`` initializer's result) and the init folder through :func:`omni_sfm.refine.refine`
+(COLMAP features, triangulation on the line-based poses, the mapper for the frames lines
+missed, bundle adjustment, never worse than its input: docs/colmap.md). Needs images; the work
+folders are temporary.
+
+Options: ``threads`` (pycolmap threads, default 1 so that parallel comparisons stay
+deterministic and do not oversubscribe), ``verbose`` (COLMAP's log).
+"""
+
+from __future__ import annotations
+
+import tempfile
+from collections.abc import Mapping
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+from omni_sfm.compare import InitializerResult, SequenceInput, failed
+
+
+def lines_refine(sequence: SequenceInput, options: Mapping[str, Any]) -> InitializerResult:
+    """The ``lines-refine`` initializer (module docstring)."""
+    from omni_sfm.errors import OmniSfmError
+    from omni_sfm.initialize import InitOptions, init_from_images
+    from omni_sfm.refine import RefineOptions, refine
+
+    if sequence.images is None:
+        return failed("needs images (init and refine run on frames)")
+    with tempfile.TemporaryDirectory(prefix="omni_sfm_lines_refine_") as tmp:
+        work = Path(tmp)
+        try:
+            init = init_from_images(sequence.images.path, sequence.camera, work / "init",
+                                    InitOptions(debug_view="none", progress=False))
+        except OmniSfmError as exc:
+            return failed(f"init: {exc}")
+        ropts = replace(RefineOptions(), num_threads=int(options.get("threads", 1)))
+        try:
+            res = refine(work / "init", sequence.images.path, work / "refined", ropts,
+                         progress=False, verbose=bool(options.get("verbose", False)))
+        except OmniSfmError as exc:
+            return failed(f"refine: {exc}")
+    r = res.report
+    info: dict[str, Any] = {
+        "init_frames": len(init.image_names),
+        "refined_frames": int(r["refined_frames"]),
+        "added_by_mapper": len(r.get("mapper", {}).get("added_to_trajectory") or []),
+        "kept_input_for_all": r.get("kept_input_for_all") or None,
+    }
+    return InitializerResult(res.trajectory, "ok", info=info)

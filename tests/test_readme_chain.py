@@ -1,0 +1,86 @@
+"""The README's chain, typed as shown, from an image folder and from a video.
+
+The commands are read from README.md's "Using it on your own video" block and run one by one
+in a fresh folder with relative paths (``cd`` included), exactly as written, with two changes:
+``compare`` runs only the ``lines`` initializer (the point-based ones are tested in
+tests/test_compare.py), and for the video the example is rendered with ``--video`` and
+``images/`` becomes ``video.mp4`` wherever the README says so. The final view must have the
+trajectory, the 3D lines and the map, and ``compare``'s ``lines`` trajectory must be ``init``'s.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shlex
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from omni_sfm.poses import read_tum
+from omni_sfm.view.scene import load_view_scene
+
+ROOT = Path(__file__).resolve().parents[1]
+BIN = Path(sys.executable).parent
+
+
+def readme_chain() -> list[list[str]]:
+    """The commands of the README's chain block, as argument lists (comments dropped)."""
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    section = text[text.index("## Using it on your own video"):]
+    block = re.search(r"```bash\n(.*?)```", section, re.S)
+    assert block is not None, "README: no bash block under 'Using it on your own video'"
+    cmds = [shlex.split(line, comments=True) for line in block.group(1).splitlines()]
+    cmds = [c for c in cmds if c]
+    assert [c[1] for c in cmds if c[0] == "omni-sfm"] == [
+        "render", "camera", "init", "refine", "dense", "view", "compare"], cmds
+    return cmds
+
+
+def run_chain(tmp: Path, video: bool) -> Path:
+    """Run the chain in ``tmp``; returns the folder the commands ended in."""
+    env = {**os.environ, "PATH": f"{BIN}{os.pathsep}{os.environ.get('PATH', '')}"}
+    cwd = tmp
+    for cmd in readme_chain():
+        if cmd[0] == "cd":
+            cwd = cwd / cmd[1]
+            continue
+        if cmd[1] == "render" and video:
+            cmd = [*cmd, "--video"]
+        if video:
+            cmd = ["video.mp4" if a == "images/" else a for a in cmd]
+        if cmd[1] == "compare":
+            cmd = [*cmd, "--initializers", "lines"]
+        r = subprocess.run(cmd, cwd=cwd, env=env, capture_output=True, text=True,
+                           stdin=subprocess.DEVNULL, timeout=600)
+        assert r.returncode == 0, f"{' '.join(cmd)} exited {r.returncode}: {r.stderr[-2000:]}"
+        assert "Traceback" not in r.stderr, r.stderr
+        if cmd[1] in ("init", "refine", "dense", "view", "compare"):
+            assert r.stdout.strip(), f"{cmd[1]} printed no summary on stdout"
+    return cwd
+
+
+@pytest.mark.parametrize("video", [False, True], ids=["image-folder", "video"])
+def test_readme_chain_end_to_end(tmp_path: Path, video: bool) -> None:
+    ex = run_chain(tmp_path, video)
+    scene = load_view_scene(ex / "dense")
+    n = len(read_tum(ex / "refined" / "trajectory.tum"))
+    assert len(scene.trajectory) == n >= 25
+    assert len(scene.line_starts) >= 20          # the 3D lines came through refine and dense
+    assert len(scene.points) >= 10_000           # the dense map
+    for name in ("view.png", "view.html", "lines3d.ply", "cameras.ply"):
+        assert (ex / "dense" / name).is_file(), name
+    # refine and dense found the frames init recorded, as stored paths
+    for folder in ("refined", "dense"):
+        assert (ex / folder / "camera.yaml").is_file()
+    # compare's lines are init's, on the same frames
+    init = read_tum(ex / "init" / "trajectory.tum")
+    lines = read_tum(ex / "cmp" / "trajectories" / "lines.tum")
+    np.testing.assert_array_equal(lines.timestamps, init.timestamps)
+    np.testing.assert_allclose(lines.positions, init.positions, atol=1e-9)
+    np.testing.assert_allclose(lines.rotations, init.rotations, atol=1e-9)
+    if video:
+        assert not np.array_equal(init.timestamps, np.round(init.timestamps))  # seconds

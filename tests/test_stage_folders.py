@@ -1,0 +1,87 @@
+"""How stage folders chain: outputs that would destroy their input are refused, paths are
+stored so that folders can be moved, bad input to compare is one line and exit 2, and the
+summaries say which frames have no pose and which frame is the world."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from omni_sfm.cli import main as cli_main
+from omni_sfm.cli.cmd_init import summary
+from omni_sfm.errors import OmniSfmError
+from omni_sfm.fileio import check_output_dir, resolve_stored, stored_path
+from omni_sfm.synth.render import RenderOptions, render_sequence
+
+
+def _one_line_error(capsys: pytest.CaptureFixture[str]) -> str:
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and err.startswith("omni-sfm: error:"), err
+    return err
+
+
+def test_output_that_is_holds_or_lies_inside_the_input_is_refused(tmp_path: Path) -> None:
+    inp = tmp_path / "init"
+    inp.mkdir()
+    (inp / "tracks.json").write_text("{}")
+    for out, words in ((inp, "is the input"), (inp / "sub", "inside the input"),
+                       (tmp_path, "holds the input")):
+        with pytest.raises(OmniSfmError, match=words):
+            check_output_dir(out, overwrite=True, inputs=(inp,))
+    check_output_dir(tmp_path / "other", overwrite=True, inputs=(inp, None))
+
+
+def test_refine_onto_its_own_input_keeps_the_input(tmp_path: Path,
+                                                   capsys: pytest.CaptureFixture[str]) -> None:
+    inp = tmp_path / "init"
+    inp.mkdir()
+    (inp / "tracks.json").write_text("{}")
+    assert cli_main(["refine", "--input", str(inp), "--output", str(inp), "--overwrite"]) == 2
+    assert "is the input" in _one_line_error(capsys)
+    assert (inp / "tracks.json").read_text() == "{}"
+
+
+def test_stored_paths_are_relative_inside_and_absolute_outside(tmp_path: Path) -> None:
+    folder = tmp_path / "out"
+    assert stored_path(folder / "frames", folder) == "frames"
+    outside = stored_path(tmp_path / "video.mp4", folder)
+    assert Path(outside).is_absolute()
+    assert resolve_stored("frames", tmp_path / "moved") == tmp_path / "moved" / "frames"
+    assert resolve_stored(outside, tmp_path / "moved") == tmp_path / "video.mp4"
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("tiny") / "r"
+    render_sequence(out, RenderOptions(scene="room", frames=5, width=160, height=120),
+                    progress=False)
+    return out
+
+
+def test_compare_with_a_camera_of_another_size_is_exit_2(tiny: Path, tmp_path: Path,
+                                                         capsys: pytest.CaptureFixture[str]
+                                                         ) -> None:
+    other = tmp_path / "other"
+    render_sequence(other, RenderOptions(scene="room", frames=3, width=200, height=150),
+                    progress=False)
+    out = tmp_path / "cmp"
+    assert cli_main(["compare", "--images", str(tiny / "images"), "--camera",
+                     str(other / "camera.yaml"), "--groundtruth", str(tiny / "groundtruth.tum"),
+                     "--output", str(out)]) == 2
+    err = _one_line_error(capsys)
+    assert "160x120" in err and "200x150" in err
+    assert not out.exists()
+
+
+def test_init_summary_names_the_world_frame_and_frames_without_a_pose() -> None:
+    rep = {"num_frames": 20, "parallel_family": {"track_ids": [1, 2, 3]},
+           "rejected_tracks": [], "residuals": {"rms_final_deg": 0.03}}
+    est = [f"{k:06d}.png" for k in range(12, 20)]
+    missing = [f"{k:06d}.png" for k in range(12) if k != 5]
+    text = summary(rep, Path("init"), est, missing, ["000005.png"])
+    lines = text.splitlines()
+    assert lines[0].startswith("init: 8 of 21 frames estimated")
+    assert "world: the camera of frame 000012.png" in lines[1]
+    assert lines[2].startswith("not estimated: 11 frames (000000.png")
+    assert lines[3].startswith("unreadable: 1 frames could not be decoded (000005.png)")
