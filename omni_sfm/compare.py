@@ -444,7 +444,8 @@ def report_markdown(results: Mapping[str, Any]) -> str:
     return "\n".join(lines)
 
 
-COLOURS = {"lines": "tab:red", "five-point": "tab:blue", "colmap": "tab:green",
+COLOURS = {"lines": "tab:red", "lines-refine": "tab:purple", "five-point": "tab:blue",
+           "colmap": "tab:green",
            "upright-3pt": "tab:orange"}
 
 

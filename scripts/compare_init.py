@@ -225,10 +225,12 @@ def summary_tables(done: list[dict[str, Any]]) -> str:
         for n in names:
             es = [r["results"]["initializers"][n] for r in runs
                   if n in r["results"]["initializers"]]
+            if not es:
+                continue  # not run on this kind (lines-refine needs images)
             ok = [e for e in es if e["status"] == "ok"]
             lines.append(
                 f"| {key} ({len(runs)} seeds) | {n} | {len(ok)}/{len(es)} | "
-                f"{_f(float(np.mean([e['registered'] for e in es])) if es else np.nan, 0, True)}"
+                f"{_f(float(np.mean([e['registered'] for e in es])), 0, True)}"
                 f" | {_f(_med([e['rot_max_deg'] for e in ok]))} | "
                 f"{_f(_med([e['rot_mean_deg'] for e in ok]))} | "
                 f"{_f(_med([e['ate_rel'] for e in ok]), 2, True)} | "
@@ -273,12 +275,14 @@ def plot_sweep(done: list[dict[str, Any]], prefix: Path | str) -> list[Path]:
                 for nz in noises:
                     v = [scale * r["results"]["initializers"][n][key] for r in sims
                          if r["task"]["noise_deg"] == nz
+                         and n in r["results"]["initializers"]
                          and r["results"]["initializers"][n]["status"] == "ok"]
                     if v:
                         xs.append(nz)
                         med.append(np.median(v))
                         ax.scatter([nz] * len(v), v, s=8, alpha=0.4, color=COLOURS.get(n))
-                ax.plot(xs, med, "o-", color=COLOURS.get(n), label=n)
+                if xs:
+                    ax.plot(xs, med, "o-", color=COLOURS.get(n), label=n)
         axes[0].set_ylabel("max rotation error (deg)")
         axes[1].set_ylabel("ATE (% of path)")
         from matplotlib.ticker import NullFormatter
@@ -304,8 +308,9 @@ def plot_sweep(done: list[dict[str, Any]], prefix: Path | str) -> list[Path]:
         for i, n in enumerate(names):
             reg, ate = [], []
             for k in kinds:
-                es = [r["results"]["initializers"][n] for r in done if r["task"]["kind"] == k]
-                reg.append(100 * np.mean([e["registered"] for e in es]))
+                es = [r["results"]["initializers"][n] for r in done if r["task"]["kind"] == k
+                      and n in r["results"]["initializers"]]
+                reg.append(100 * np.mean([e["registered"] for e in es]) if es else np.nan)
                 ok = [100 * e["ate_rel"] for e in es if e["status"] == "ok"]
                 ate.append(np.median(ok) if ok else np.nan)
             x = np.arange(len(kinds)) + (i - (len(names) - 1) / 2) * w
@@ -331,6 +336,13 @@ def plot_sweep(done: list[dict[str, Any]], prefix: Path | str) -> list[Path]:
         plt.close(fig)
         paths.append(p)
     return paths
+
+
+def docs_block(done: list[dict[str, Any]], produced_by: str) -> str:
+    """The generated part of docs/comparison.md: provenance, plots, tables."""
+    return (f"Produced by {produced_by}.\n\n"
+            "![error against noise](img/comparison_noise.png)\n\n"
+            f"![error against texture](img/comparison_texture.png)\n\n{summary_tables(done)}")
 
 
 def update_docs(doc: Path, block: str) -> None:
@@ -379,6 +391,11 @@ def main(argv: list[str] | None = None) -> int:
     if a.replot:
         done = json.loads((a.output / "sweep.json").read_text(encoding="utf-8"))
         plot_sweep(done, ROOT / "docs" / "img" / "comparison_" if a.docs else f"{a.output}/")
+        if a.docs:
+            wall = sum(r["wall_s"] for r in done) / 60
+            update_docs(ROOT / "docs" / "comparison.md", docs_block(
+                done, f"redrawn from {a.output}/sweep.json ({len(done)} runs, {wall:.0f} min "
+                      "of task wall time)"))
         return 0
     kinds = [k.strip() for k in a.kinds.split(",") if k.strip()]
     bad = [k for k in kinds if k != "sim" and k not in RENDER]
@@ -408,12 +425,10 @@ def main(argv: list[str] | None = None) -> int:
         plot_sweep(done, ROOT / "docs" / "img" / "comparison_")
         cmd = "scripts/compare_init.py " + " ".join(
             x for x in (argv if argv is not None else sys.argv[1:]))
-        block = (f"Produced by `.venv/bin/python {cmd}` "
-                 f"({len(done)} runs, {wall / 60:.0f} min wall on "
-                 f"{'Dask ' + a.scheduler if a.scheduler else f'{a.workers} local processes'})."
-                 f"\n\n![error against noise](img/comparison_noise.png)\n\n"
-                 f"![error against texture](img/comparison_texture.png)\n\n{tables}")
-        update_docs(ROOT / "docs" / "comparison.md", block)
+        where = 'Dask ' + a.scheduler if a.scheduler else f'{a.workers} local processes'
+        update_docs(ROOT / "docs" / "comparison.md", docs_block(
+            done, f"`.venv/bin/python {cmd}` ({len(done)} runs, {wall / 60:.0f} min wall on "
+                  f"{where})"))
     else:
         plot_sweep(done, f"{a.output}/")
     return 0
