@@ -22,6 +22,7 @@ from omni_sfm.cameras import load_camera
 from omni_sfm.cli import main as cli_main
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.geometry import angle_between, rotation_about_axis, rotation_angle
+from omni_sfm.lines.video import FrameStore
 from omni_sfm.poses import read_tum
 from omni_sfm.synth.paths import Mount, PathOptions, camera_path
 from omni_sfm.synth.render import (
@@ -279,6 +280,8 @@ def test_render_video_with_a_camera_object(tmp_path):
     assert res.num_frames == 4 and res.camera == cam
     gt = read_tum(out / "groundtruth.tum")
     np.testing.assert_allclose(gt.positions, res.groundtruth.positions, atol=1e-12)
+    # stamped as omni-sfm stamps the video's frames (seconds), so compare can match them
+    np.testing.assert_array_equal(gt.timestamps, FrameStore(out / "video.mp4").timestamps)
     assert json.loads((out / "render.json").read_text())["mount"] == "handheld"
     assert not (out / "images").exists()
     cap = cv2.VideoCapture(str(out / "video.mp4"))

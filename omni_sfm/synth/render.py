@@ -608,7 +608,10 @@ def render_sequence(output: Path | str, options: RenderOptions | None = None, *,
         world_scene = setup.scene_in_world()
         up = R_ws[:, 2]
         write_camera_yaml(tmp / "camera.yaml", cam)
-        write_tum(tmp / "groundtruth.tum", setup.groundtruth_in_world())
+        truth = setup.groundtruth_in_world()
+        if o.video:  # stamped as omni-sfm stamps video frames: seconds, index / frame rate
+            truth = Trajectory(truth.timestamps / float(o.fps), truth.rotations, truth.positions)
+        write_tum(tmp / "groundtruth.tum", truth)
         world_scene.write_ply(tmp / "scene.ply")
         write_lines3d(tmp / "lines3d.json", world_scene.lines,
                       frame="world = first camera's ray frame, metres", up=up)
@@ -630,4 +633,4 @@ def render_sequence(output: Path | str, options: RenderOptions | None = None, *,
                     scene_frame="metres, +Z up, floor at z=0", up_in_world=up,
                     path_length_m=gt.path_length(), seconds_per_frame=seconds)
         atomic_write_text(tmp / "render.json", dumps_json(meta))
-    return RenderResult(output, cam, setup.groundtruth_in_world(), n, seconds)
+    return RenderResult(output, cam, truth, n, seconds)
