@@ -1,5 +1,5 @@
-"""What every stage's output folder shares, so the stages chain: ``init`` -> ``refine`` ->
-``dense`` -> ``view``.
+"""The output folders of the stages, one owner class each, so the stages chain: ``init`` ->
+``refine`` -> ``dense`` -> ``view``, and ``compare`` beside them.
 
 Each folder holds the poses (``trajectory.tum``) and carries forward what a later stage needs
 without being told again: the camera (``camera.yaml``), the user's mask (``mask.png``, when one
@@ -8,15 +8,27 @@ or video, recorded in ``report.json`` under ``input.images``). Paths are recorde
 folder can be moved (:func:`omni_sfm.fileio.stored_path`): relative to the folder when inside
 it, absolute otherwise. A stage reads its input folder with :func:`recorded_images` and copies
 the carried files with :func:`carry_forward`.
+
+Each folder kind has one class that knows its file names (:class:`InitFolder`,
+:class:`RefineFolder`, :class:`DenseFolder`, :class:`CompareFolder`); the stages write and
+read through them, so every file of a folder is named in one place. docs/formats.md describes
+the files.
 """
 
 from __future__ import annotations
 
 import shutil
+from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING, Any, ClassVar
 
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.fileio import read_json, resolve_stored
+
+if TYPE_CHECKING:
+    from omni_sfm.cameras import CameraModel
+    from omni_sfm.lines3d import LineSegments3D
+    from omni_sfm.poses import Trajectory
 
 TRAJECTORY_FILE = "trajectory.tum"
 CAMERA_FILE = "camera.yaml"
@@ -66,3 +78,99 @@ def carry_forward(src: Path | str, dst: Path | str, names: tuple[str, ...] = CAR
             shutil.copyfile(src / name, dst / name)
             copied.append(name)
     return copied
+
+
+@dataclass(frozen=True)
+class StageFolder:
+    """What every stage folder holds: poses, camera, report, and what is carried forward."""
+
+    path: Path
+    TRAJECTORY: ClassVar[str] = TRAJECTORY_FILE
+    CAMERA: ClassVar[str] = CAMERA_FILE
+    LINES3D: ClassVar[str] = LINES_FILE
+    MASK: ClassVar[str] = USER_MASK_FILE
+    REPORT: ClassVar[str] = REPORT_FILE
+
+    def __truediv__(self, name: str) -> Path:
+        return Path(self.path) / name
+
+    def read_trajectory(self) -> Trajectory:
+        """``trajectory.tum``: world_from_cam of every posed frame (one-line error if absent)."""
+        from omni_sfm.poses import read_tum
+
+        return read_tum(self / self.TRAJECTORY)
+
+    def read_camera(self) -> CameraModel:
+        """``camera.yaml``: the camera the poses refer to."""
+        from omni_sfm.cameras import load_camera
+
+        return load_camera(self / self.CAMERA)
+
+    def read_lines3d(self) -> LineSegments3D | None:
+        """``lines3d.json``, or None when the folder has none."""
+        from omni_sfm.lines3d import read_lines3d
+
+        return read_lines3d(self / self.LINES3D) if (self / self.LINES3D).is_file() else None
+
+    def read_report(self) -> dict[str, Any]:
+        """``report.json`` (one-line error if absent or malformed)."""
+        doc = read_json(self / self.REPORT, "report")
+        if not isinstance(doc, dict):
+            raise OmniSfmError(f"{self / self.REPORT}: not a JSON object")
+        return doc
+
+    def images(self, given: Path | str | None = None) -> Path:
+        """The frames: ``given``, else those the folder records (:func:`images_for`)."""
+        return images_for(self.path, given)
+
+
+@dataclass(frozen=True)
+class InitFolder(StageFolder):
+    """``omni-sfm init`` output (docs/formats.md, docs/colmap.md)."""
+
+    TRACKS: ClassVar[str] = "tracks.json"
+    TRAJECTORY_PLOT: ClassVar[str] = "trajectory.png"
+    DEBUG_FRAMES: ClassVar[str] = "debug"
+    DEBUG_VIDEO: ClassVar[str] = "debug.mp4"
+    SPARSE: ClassVar[str] = "sparse"
+    COLMAP_IMAGES: ClassVar[str] = "images_colmap"
+    COLMAP_MASK: ClassVar[str] = "camera_mask.png"
+    MANIFEST: ClassVar[str] = "colmap.json"
+
+
+@dataclass(frozen=True)
+class RefineFolder(StageFolder):
+    """``omni-sfm refine`` output (docs/colmap.md)."""
+
+    DATABASE: ClassVar[str] = "database.db"
+    SPARSE: ClassVar[str] = InitFolder.SPARSE
+    COLMAP_IMAGES: ClassVar[str] = InitFolder.COLMAP_IMAGES
+    COLMAP_MASK: ClassVar[str] = InitFolder.COLMAP_MASK
+
+
+@dataclass(frozen=True)
+class DenseFolder(StageFolder):
+    """``omni-sfm dense`` output, and ``omni-sfm view``'s files beside it (docs/dense.md)."""
+
+    POINTS: ClassVar[str] = "dense.ply"
+    MESH: ClassVar[str] = "mesh.ply"
+    VIEW_PNG: ClassVar[str] = "view.png"
+
+
+@dataclass(frozen=True)
+class CompareFolder:
+    """``omni-sfm compare`` output (docs/comparison.md)."""
+
+    path: Path
+    RESULTS: ClassVar[str] = "results.json"
+    REPORT_MD: ClassVar[str] = "report.md"
+    TRAJECTORIES: ClassVar[str] = "trajectories"
+    TRAJECTORIES_PLOT: ClassVar[str] = "trajectories.png"
+    ERRORS_PLOT: ClassVar[str] = "errors.png"
+
+    def __truediv__(self, name: str) -> Path:
+        return Path(self.path) / name
+
+    def trajectory(self, initializer: str) -> str:
+        """Where an initializer's poses go, relative to the folder."""
+        return f"{self.TRAJECTORIES}/{initializer}.tum"

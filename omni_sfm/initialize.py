@@ -31,8 +31,8 @@ import numpy as np
 from omni_sfm.cameras import CameraModel, load_camera
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.estimate.pipeline import EstimationOptions, EstimationResult, estimate_poses
-from omni_sfm.fileio import atomic_output_dir, atomic_write_text, dumps_json, stored_path
-from omni_sfm.folders import LINES_FILE, USER_MASK_FILE
+from omni_sfm.fileio import atomic_output_dir, stored_path
+from omni_sfm.folders import LINES_FILE, USER_MASK_FILE, InitFolder
 from omni_sfm.geometry import ray_line_closest
 from omni_sfm.lines.frontend import FrontEndOptions, FrontEndResult, track_lines
 from omni_sfm.lines.video import (
@@ -42,6 +42,7 @@ from omni_sfm.lines.video import (
     video_frame_name,
     write_mask,
 )
+from omni_sfm.lines3d import LineSegments3D, write_lines3d
 from omni_sfm.poses import Trajectory
 
 
@@ -86,8 +87,8 @@ class InitResult:
 
 
 def estimated_segments(fe: FrontEndResult, result: EstimationResult,
-                       cluster_deg: float = 10.0) -> dict[str, Any]:
-    """The estimated 3D line segments as a ``lines3d.json`` document (docs/formats.md).
+                       cluster_deg: float = 10.0) -> LineSegments3D:
+    """The estimated 3D line segments (written as ``lines3d.json``, docs/formats.md).
 
     Each used, non-outlier line's extent is where the rays to its observed segment ends come
     closest to it (2nd to 98th percentile over all its observations). Group 0 is the parallel
@@ -108,7 +109,7 @@ def estimated_segments(fe: FrontEndResult, result: EstimationResult,
     u = np.where(den > 1e-12, u, np.nan).T.ravel()  # both ends of every observation
     tt = np.concatenate([t, t])
     groups: list[np.ndarray] = [result.parallel_direction]
-    segments = []
+    starts, ends, labels, track_ids = [], [], [], []
     cos_tol = np.cos(np.radians(cluster_deg))
     for m in np.flatnonzero(keep):
         um = u[(tt == m) & np.isfinite(u)]
@@ -124,14 +125,16 @@ def estimated_segments(fe: FrontEndResult, result: EstimationResult,
             else:
                 groups.append(result.line_directions[m])
                 g = len(groups) - 1
-        segments.append({"start": (result.line_points[m] + lo * result.line_directions[m]),
-                         "end": (result.line_points[m] + hi * result.line_directions[m]),
-                         "group": g, "kind": "estimated", "track_id": int(result.track_ids[m])})
-    counts = np.bincount([s_["group"] for s_ in segments], minlength=len(groups))
-    return {"frame": "omni-sfm world: first estimated camera, first-to-last distance = 1",
-            "groups": [{"id": i, "direction": gd, "count": int(n)}
-                       for i, (gd, n) in enumerate(zip(groups, counts, strict=True))],
-            "segments": segments}
+        starts.append(result.line_points[m] + lo * result.line_directions[m])
+        ends.append(result.line_points[m] + hi * result.line_directions[m])
+        labels.append(g)
+        track_ids.append(int(result.track_ids[m]))
+    return LineSegments3D(
+        np.asarray(starts, dtype=np.float64).reshape(-1, 3),
+        np.asarray(ends, dtype=np.float64).reshape(-1, 3),
+        np.asarray(labels, dtype=np.int64), np.asarray(groups, dtype=np.float64).reshape(-1, 3),
+        ("estimated",) * len(labels), np.asarray(track_ids, dtype=np.int64),
+        frame="omni-sfm world: first estimated camera, first-to-last distance = 1")
 
 
 def _image_names(source: FrameSource, numbers: np.ndarray) -> list[str]:
@@ -225,15 +228,16 @@ def init_from_images(images: Path | str, camera: Path | str | CameraModel, outpu
             "wall_time_s": {"front_end": t1 - t0, "estimation": t2 - t1},
         }
         write_init_outputs(tmp, result, extra=extra)
-        write_tracks(tmp / "tracks.json", tracks)
-        atomic_write_text(tmp / LINES_FILE, dumps_json(estimated_segments(fe, result)))
+        write_tracks(tmp / InitFolder.TRACKS, tracks)
+        write_lines3d(tmp / LINES_FILE, estimated_segments(fe, result))
         if user_mask is not None:
             write_mask(tmp / USER_MASK_FILE, user_mask)
-        plot_trajectory(tmp / "trajectory.png", result.trajectory)
+        plot_trajectory(tmp / InitFolder.TRAJECTORY_PLOT, result.trajectory)
         # colour 0: the parallel family, 1: other lines, grey (-1): rejected as outliers
         groups = np.where(result.outliers, -1, np.where(result.parallel, 0, 1))
         if o.debug_view != "none":
-            target = tmp / ("debug.mp4" if o.debug_view == "mp4" else "debug")
+            target = tmp / (InitFolder.DEBUG_VIDEO if o.debug_view == "mp4"
+                            else InitFolder.DEBUG_FRAMES)
             write_debug_view(read_frames(images, o.start, o.end, o.step, size=size), cam, fe,
                              target, groups=groups)
         if o.colmap:

@@ -26,8 +26,8 @@ from omni_sfm.lines.extract import LineExtractor
 from omni_sfm.lines.frontend import FrontEndOptions, track_lines
 from omni_sfm.lines.track import TrackingOptions
 from omni_sfm.lines.video import read_frames
+from omni_sfm.lines3d import read_lines3d
 from omni_sfm.poses import read_tum
-from omni_sfm.synth.scenes import read_lines3d
 
 PAPER_MS = 5.0
 FALSE_DEG = 0.5

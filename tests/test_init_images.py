@@ -16,9 +16,9 @@ import pytest
 from omni_sfm.cli import main
 from omni_sfm.evaluate import trajectory_errors
 from omni_sfm.lines.tracks import read_tracks
+from omni_sfm.lines3d import read_lines3d
 from omni_sfm.poses import read_tum
 from omni_sfm.synth.render import RenderOptions, render_sequence
-from omni_sfm.synth.scenes import read_lines3d
 
 
 @pytest.fixture(scope="module")

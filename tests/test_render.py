@@ -23,6 +23,7 @@ from omni_sfm.cli import main as cli_main
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.geometry import angle_between, rotation_about_axis, rotation_angle
 from omni_sfm.lines.video import FrameStore
+from omni_sfm.lines3d import read_lines3d
 from omni_sfm.poses import read_tum
 from omni_sfm.synth.paths import Mount, PathOptions, camera_path
 from omni_sfm.synth.render import (
@@ -35,7 +36,7 @@ from omni_sfm.synth.render import (
     render_sequence,
     visible_line_samples,
 )
-from omni_sfm.synth.scenes import SceneName, make_scene, read_lines3d
+from omni_sfm.synth.scenes import SceneName, make_scene
 
 
 def _frames(setup: RenderSetup, idx: tuple[int, ...]) -> dict[int, np.ndarray]:

@@ -58,12 +58,15 @@ from omni_sfm.folders import (
     REPORT_FILE,
     TRAJECTORY_FILE,
     USER_MASK_FILE,
+    DenseFolder,
+    InitFolder,
     carry_forward,
     images_for,
 )
 from omni_sfm.geometry import FloatArray, normalize
 from omni_sfm.libs import open3d_module
 from omni_sfm.lines.video import FrameStore
+from omni_sfm.lines3d import LineSegments3D, read_lines3d, write_lines3d
 from omni_sfm.poses import Trajectory, read_tum, write_tum
 
 
@@ -112,14 +115,14 @@ class DenseInput:
         camera: the camera model the poses refer to.
         frames: the image folder or video.
         image_names: the name of each pose's frame in ``frames``, in trajectory order.
-        lines: the 3D lines document of the poses folder (``lines3d.json``), or None.
+        lines: the 3D lines of the poses folder (``lines3d.json``), or None.
     """
 
     trajectory: Trajectory
     camera: CameraModel
     frames: FrameStore
     image_names: tuple[str, ...]
-    lines: dict[str, Any] | None
+    lines: LineSegments3D | None
 
 
 @dataclass(frozen=True)
@@ -206,7 +209,7 @@ def read_dense_input(poses_dir: Path, images: Path | None = None,
     camera = load_camera(cam_file)
     frames = FrameStore(images_for(poses_dir, images))
     names = list(frames.names)
-    manifest = poses_dir / "colmap.json"
+    manifest = poses_dir / InitFolder.MANIFEST
     chosen: list[str] | None = None
     if manifest.is_file():
         m = read_json(manifest, "colmap manifest")
@@ -234,10 +237,7 @@ def read_dense_input(poses_dir: Path, images: Path | None = None,
     if missing:
         raise OmniSfmError(f"{frames.path}: {len(missing)} of {len(chosen)} frames are missing "
                            f"(first: {missing[0]!r})")
-    lines = None
-    if (poses_dir / LINES_FILE).is_file():
-        doc = read_json(poses_dir / LINES_FILE, "lines3d file")
-        lines = doc if isinstance(doc, dict) else None
+    lines = read_lines3d(poses_dir / LINES_FILE) if (poses_dir / LINES_FILE).is_file() else None
     return DenseInput(traj, camera, frames, tuple(chosen), lines)
 
 
@@ -600,15 +600,6 @@ def _pycolmap_has_cuda() -> bool:
     return bool(getattr(pycolmap, "has_cuda", False))
 
 
-def scaled_lines(doc: dict[str, Any], scale: float) -> dict[str, Any]:
-    """A ``lines3d.json`` document with its endpoints multiplied by ``scale``."""
-    out = dict(doc)
-    out["segments"] = [
-        {**s, "start": [scale * float(x) for x in s["start"]],
-         "end": [scale * float(x) for x in s["end"]]} for s in doc.get("segments", [])]
-    return out
-
-
 def write_dense(output: Path, inp: DenseInput, res: DenseResult, *, overwrite: bool = False,
                 poses_dir: Path | None = None) -> None:
     """Write ``dense.ply``, ``mesh.ply``, ``trajectory.tum`` (output units), ``camera.yaml``,
@@ -622,14 +613,14 @@ def write_dense(output: Path, inp: DenseInput, res: DenseResult, *, overwrite: b
     with atomic_output_dir(output, overwrite=overwrite, inputs=inputs) as tmp:
         pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(res.points))
         pcd.colors = o3d.utility.Vector3dVector(res.colors)
-        if not o3d.io.write_point_cloud(str(tmp / "dense.ply"), pcd):
+        if not o3d.io.write_point_cloud(str(tmp / DenseFolder.POINTS), pcd):
             raise OmniSfmError(f"{output}: Open3D could not write dense.ply")
-        if not o3d.io.write_triangle_mesh(str(tmp / "mesh.ply"), res.mesh):
+        if not o3d.io.write_triangle_mesh(str(tmp / DenseFolder.MESH), res.mesh):
             raise OmniSfmError(f"{output}: Open3D could not write mesh.ply")
         write_tum(tmp / TRAJECTORY_FILE, res.trajectory)
         write_camera_yaml(tmp / CAMERA_FILE, inp.camera)
         if inp.lines is not None:
-            atomic_write_text(tmp / LINES_FILE, dumps_json(scaled_lines(inp.lines, res.scale)))
+            write_lines3d(tmp / LINES_FILE, inp.lines.scaled(res.scale))
         if poses_dir is not None:
             carry_forward(poses_dir, tmp, (USER_MASK_FILE,))
         atomic_write_text(tmp / REPORT_FILE, dumps_json(report))

@@ -18,7 +18,7 @@ import numpy as np
 
 from omni_sfm.cameras.base import CameraModel, ColmapExport
 from omni_sfm.errors import OmniSfmError
-from omni_sfm.folders import CAMERA_FILE, TRAJECTORY_FILE
+from omni_sfm.folders import CAMERA_FILE, TRAJECTORY_FILE, InitFolder
 from omni_sfm.geometry import FloatArray
 from omni_sfm.poses import Trajectory
 
@@ -85,10 +85,11 @@ def projection_centres(reconstruction: Any) -> dict[str, FloatArray]:
 
 # --- the init model layout (written by ``omni-sfm init``, read by ``omni-sfm refine``) ---------
 
-SPARSE_DIR = "sparse"
-IMAGES_DIR = "images_colmap"
-MANIFEST_FILE = "colmap.json"
-MASK_FILE = "camera_mask.png"
+# the names are InitFolder's (omni_sfm.folders), the one place the folder's files are named
+SPARSE_DIR = InitFolder.SPARSE
+IMAGES_DIR = InitFolder.COLMAP_IMAGES
+MANIFEST_FILE = InitFolder.MANIFEST
+MASK_FILE = InitFolder.COLMAP_MASK
 MASK_EROSION_PX = 3
 
 

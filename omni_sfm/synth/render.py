@@ -35,6 +35,8 @@ from omni_sfm.cameras import (
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.fileio import atomic_output_dir, atomic_write_text, dumps_json
 from omni_sfm.geometry import FloatArray
+from omni_sfm.libs import open3d_module
+from omni_sfm.lines3d import write_lines3d
 from omni_sfm.poses import Trajectory, write_tum
 from omni_sfm.synth.paths import Mount, PathOptions, camera_path
 from omni_sfm.synth.scenes import (
@@ -44,8 +46,6 @@ from omni_sfm.synth.scenes import (
     Scene,
     SceneName,
     make_scene,
-    open3d_module,
-    write_lines3d,
 )
 
 

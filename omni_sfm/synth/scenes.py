@@ -24,9 +24,9 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from omni_sfm.errors import OmniSfmError
-from omni_sfm.fileio import atomic_write_text, dumps_json, read_json
 from omni_sfm.geometry import FloatArray, rotation_about_axis
 from omni_sfm.libs import open3d_module
+from omni_sfm.lines3d import LineSegments3D
 
 BAND_OFFSET = 0.0005
 """Distance (m) of decorative bands in front of the surface they lie on (0.5 mm: far below a
@@ -77,84 +77,6 @@ MATERIAL_EMISSION[Material.LIGHT] = [2.0, 2.0, 1.9]
 MATERIAL_EMISSION[Material.WINDOW] = [0.75, 0.85, 1.0]
 MATERIAL_TEXTURED = np.ones(len(Material), dtype=bool)
 MATERIAL_TEXTURED[[Material.LIGHT, Material.WINDOW]] = False
-
-
-@dataclass(frozen=True)
-class LineSegments3D:
-    """True straight 3D line segments of a scene (world frame, metres).
-
-    Attributes:
-        starts: ``(L, 3)`` first endpoint of each segment.
-        ends: ``(L, 3)`` second endpoint.
-        groups: ``(L,)`` int direction group; segments of one group are parallel.
-        group_directions: ``(G, 3)`` unit direction of each group (sign arbitrary).
-        kinds: ``L`` names of what each segment is (``"door_frame"``, ``"wall_floor"``...).
-    """
-
-    starts: FloatArray
-    ends: FloatArray
-    groups: np.ndarray
-    group_directions: FloatArray
-    kinds: tuple[str, ...]
-
-    def __len__(self) -> int:
-        return int(self.starts.shape[0])
-
-    @property
-    def directions(self) -> FloatArray:
-        """``(L, 3)`` unit direction of each segment (start to end)."""
-        d = self.ends - self.starts
-        return np.asarray(d / np.linalg.norm(d, axis=1, keepdims=True))
-
-    @property
-    def lengths(self) -> FloatArray:
-        return np.asarray(np.linalg.norm(self.ends - self.starts, axis=1))
-
-    def transformed(self, rotation: FloatArray, translation: FloatArray) -> LineSegments3D:
-        """The segments in another frame: ``x' = rotation @ x + translation``."""
-        R, t = np.asarray(rotation), np.asarray(translation)
-        return replace(self, starts=self.starts @ R.T + t, ends=self.ends @ R.T + t,
-                       group_directions=self.group_directions @ R.T)
-
-    def to_json(self, frame: str = "scene frame: metres, +Z up, floor at z=0",
-                up: FloatArray | None = None) -> dict[str, Any]:
-        """The ``lines3d.json`` document (see docs/rendering.md); ``frame`` describes the
-        coordinate frame, ``up`` (optional) is the unit up direction in it."""
-        counts = np.bincount(self.groups, minlength=len(self.group_directions))
-        return {
-            "frame": frame,
-            **({"up": np.asarray(up).tolist()} if up is not None else {}),
-            "groups": [
-                {"id": g, "direction": d.tolist(), "count": int(c)}
-                for g, (d, c) in enumerate(zip(self.group_directions, counts, strict=True))
-            ],
-            "segments": [
-                {"start": s.tolist(), "end": e.tolist(), "group": int(g), "kind": k}
-                for s, e, g, k in zip(self.starts, self.ends, self.groups, self.kinds, strict=True)
-            ],
-        }
-
-
-def write_lines3d(path: Path, lines: LineSegments3D, **kwargs: Any) -> None:
-    """Write ``lines`` as ``lines3d.json`` (atomically); ``kwargs`` go to ``to_json``."""
-    atomic_write_text(Path(path), dumps_json(lines.to_json(**kwargs)))
-
-
-def read_lines3d(path: Path) -> LineSegments3D:
-    """Read a ``lines3d.json`` file; defects become a one-line :class:`OmniSfmError`."""
-    data = read_json(Path(path), "lines3d file")
-    try:
-        segs = data["segments"]
-        starts = np.array([s["start"] for s in segs], dtype=np.float64).reshape(-1, 3)
-        ends = np.array([s["end"] for s in segs], dtype=np.float64).reshape(-1, 3)
-        groups = np.array([int(s["group"]) for s in segs], dtype=np.int64)
-        kinds = tuple(str(s.get("kind", "")) for s in segs)
-        dirs = np.array([g["direction"] for g in data["groups"]], dtype=np.float64).reshape(-1, 3)
-    except (KeyError, TypeError, ValueError) as exc:
-        raise OmniSfmError(f"{path}: malformed lines3d file: {exc!r}") from None
-    if len(groups) and (groups.min() < 0 or groups.max() >= len(dirs)):
-        raise OmniSfmError(f"{path}: segment group out of range 0..{len(dirs) - 1}")
-    return LineSegments3D(starts, ends, groups, dirs, kinds)
 
 
 @dataclass(frozen=True)

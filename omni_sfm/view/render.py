@@ -23,6 +23,7 @@ from omni_sfm.export.open3d import (
     write_line_set,
 )
 from omni_sfm.fileio import atomic_write_text
+from omni_sfm.folders import DenseFolder
 from omni_sfm.view.scene import ViewScene, load_view_scene, upright_from_world
 
 HTML_MAX_POINTS = 150_000
@@ -141,7 +142,7 @@ def make_view(folder: Path, output: Path | None = None) -> ViewOutputs:
     with 3D lines, ``lines3d.ply`` in the PNG's folder."""
     folder = Path(folder)
     scene = load_view_scene(folder)
-    png = Path(output) if output is not None else folder / "view.png"
+    png = Path(output) if output is not None else folder / DenseFolder.VIEW_PNG
     if png.suffix.lower() != ".png":
         png = png.with_suffix(".png")
     png.parent.mkdir(parents=True, exist_ok=True)

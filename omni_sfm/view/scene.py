@@ -4,13 +4,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from omni_sfm.errors import OmniSfmError
+from omni_sfm.folders import LINES_FILE, DenseFolder
 from omni_sfm.geometry import FloatArray, normalize
 from omni_sfm.libs import open3d_module
+from omni_sfm.lines3d import LineSegments3D, read_lines3d
 from omni_sfm.poses import Trajectory, read_tum
 
 
@@ -48,21 +49,6 @@ class ViewScene:
         return d if d > 0 else 1.0
 
 
-def _lines_from_doc(doc: Any) -> tuple[FloatArray, FloatArray, np.ndarray] | None:
-    """Segments of a ``lines3d.json``-style document (``{"segments": [{"start", "end",
-    "group"}]}``), or None when ``doc`` has none."""
-    if not isinstance(doc, dict) or not isinstance(doc.get("segments"), list):
-        return None
-    try:
-        segs = doc["segments"]
-        s = np.array([x["start"] for x in segs], dtype=np.float64).reshape(-1, 3)
-        e = np.array([x["end"] for x in segs], dtype=np.float64).reshape(-1, 3)
-        g = np.array([int(x.get("group", -1)) for x in segs], dtype=np.int64)
-    except (KeyError, TypeError, ValueError):
-        return None
-    return s, e, g
-
-
 def up_direction(traj: Trajectory, camera_model: str | None) -> FloatArray:
     """The world's up: the cameras' mean up axis (``+z`` of the hyperboloid, robot mount;
     ``-y`` of other models, OpenCV's hand-held convention; world ``-y`` without a camera)."""
@@ -78,42 +64,39 @@ def load_view_scene(folder: Path, *, max_points: int = 200_000, seed: int = 0) -
     ``lines3d.json`` (optional) and the camera
     model from ``camera.yaml`` (optional, for the up direction). One-line OmniSfmError when the
     folder or its trajectory is missing."""
-    from omni_sfm.fileio import read_json
 
     folder = Path(folder)
     if not folder.is_dir():
         raise OmniSfmError(f"{folder}: folder not found")
-    tum = folder / "trajectory.tum"
+    tum = folder / DenseFolder.TRAJECTORY
     if not tum.is_file():
         raise OmniSfmError(f"{tum}: no trajectory (give a dense, init or refine output folder)")
     traj = read_tum(tum)
     if len(traj) == 0:
         raise OmniSfmError(f"{tum}: the trajectory is empty")
     sources = {"trajectory": tum.name}
-    lines = None
-    if (folder / "lines3d.json").is_file():
-        lines = _lines_from_doc(read_json(folder / "lines3d.json", "lines3d file"))
-        if lines is not None:
-            sources["lines"] = "lines3d.json"
-    if lines is None:
-        lines = (np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, dtype=np.int64))
+    lines = LineSegments3D.empty()
+    if (folder / LINES_FILE).is_file():
+        lines = read_lines3d(folder / LINES_FILE)
+        sources["lines"] = LINES_FILE
     pts, cols = np.zeros((0, 3)), np.zeros((0, 3))
-    if (folder / "dense.ply").is_file():
+    if (folder / DenseFolder.POINTS).is_file():
         o3d = open3d_module()
-        pcd = o3d.io.read_point_cloud(str(folder / "dense.ply"))
+        pcd = o3d.io.read_point_cloud(str(folder / DenseFolder.POINTS))
         pts = np.asarray(pcd.points)
         cols = np.asarray(pcd.colors) if pcd.has_colors() else np.full_like(pts, 0.6)
         if len(pts) > max_points:
             keep = np.sort(np.random.default_rng(seed).choice(len(pts), max_points,
                                                               replace=False))
             pts, cols = pts[keep], cols[keep]
-        sources["points"] = "dense.ply"
+        sources["points"] = DenseFolder.POINTS
     model = None
-    if (folder / "camera.yaml").is_file():
+    if (folder / DenseFolder.CAMERA).is_file():
         from omni_sfm.cameras import load_camera
 
-        model = load_camera(folder / "camera.yaml").model
-    return ViewScene(traj, *lines, pts, cols, up_direction(traj, model), sources)
+        model = load_camera(folder / DenseFolder.CAMERA).model
+    return ViewScene(traj, lines.starts, lines.ends, lines.groups, pts, cols,
+                     up_direction(traj, model), sources)
 
 
 def upright_from_world(up: FloatArray) -> FloatArray:
