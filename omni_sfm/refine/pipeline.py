@@ -26,7 +26,7 @@ import sys
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -57,6 +57,7 @@ from omni_sfm.folders import (
     CAMERA_FILE,
     REPORT_FILE,
     USER_MASK_FILE,
+    RefineFolder,
     carry_forward,
     images_for,
 )
@@ -71,7 +72,7 @@ from omni_sfm.refine.database import (
     write_colmap_images,
 )
 
-DATABASE_FILE = "database.db"
+DATABASE_FILE = RefineFolder.DATABASE
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -323,129 +324,167 @@ def refine(init_dir: Path, images: Path | None, output: Path,
 
     Raises OmniSfmError (one line) for a bad init directory or image folder.
     """
-    import pycolmap
-
     o = options or RefineOptions()
     init_dir, output = Path(init_dir), Path(output)
     check_output_dir(output, overwrite=overwrite, inputs=(init_dir, images, database))
     images_dir = images_for(init_dir, images)
     check_output_dir(output, overwrite=overwrite, inputs=(images_dir,))
     init = read_init_model(init_dir)
-    camera = init.camera
-    export = camera.colmap_export()
     frames = FrameStore(images_dir)
     all_names = list(frames.names)
     check_image_names(images_dir, all_names, init.image_names, init_dir / SPARSE_DIR)
-    user_mask = read_mask(init_dir / USER_MASK_FILE, (camera.width, camera.height)) \
-        if (init_dir / USER_MASK_FILE).is_file() else None
     posed = set(init.image_names)
     unposed = [n for n in all_names if n not in posed]
-    register = o.register_missing and bool(unposed)
-    names = list(all_names) if register else list(init.image_names)
-    stage_names = ["images", "features", "matching", "triangulation", "mapper",
-                   "bundle adjustment", "acceptance and output"]
-    stages = _Stages(stage_names, progress)
-    inp = init.trajectory
-    path_length = inp.path_length()
+    stages = _Stages(["images", "features", "matching", "triangulation", "mapper",
+                      "bundle adjustment", "acceptance and output"], progress)
+    export = init.camera.colmap_export()
     report: dict[str, Any] = {
         "input": {"init": stored_path(init_dir, output),
                   "images": stored_path(images_dir, output),
                   "database": stored_path(database, output) if database else DATABASE_FILE},
-        "camera": {"model": camera.model, "colmap_model": export.camera.model_name,
+        "camera": {"model": init.camera.model, "colmap_model": export.camera.model_name,
                    "image_mirrored_for_colmap": export.flip_u},
-        "frames": {"input_poses": len(inp), "images_in_folder": len(all_names),
+        "frames": {"input_poses": len(init.trajectory), "images_in_folder": len(all_names),
                    "unposed_in_folder": len(unposed)},
         "options": asdict(o),
     }
     try:
         with library_logging(verbose), atomic_output_dir(output, overwrite=overwrite,
                                inputs=(init_dir, images_dir, database)) as tmp:
-            db_path = Path(database) if database else tmp / DATABASE_FILE
-            work = tmp / ".work"
-            work.mkdir()
-            with stages.stage("images"):
-                write_colmap_images(frames, tmp / IMAGES_DIR, names, export, progress=progress)
-                frames.close()
-                write_colmap_mask(tmp / MASK_FILE, camera, o.mask_erosion_px, user_mask)
-            with stages.stage("features"):
-                feats = extract_features(db_path, tmp / IMAGES_DIR, tmp / MASK_FILE, names,
-                                         export, max_features=o.max_features,
-                                         num_threads=o.num_threads)
-            report["features"] = {"extracted_images": len(feats.extracted),
-                                  "reused_images": len(feats.reused),
-                                  "keypoints": feats.num_keypoints}
-            with stages.stage("matching"):
-                matches = match_sequential(db_path, overlap=o.overlap,
-                                           num_threads=o.num_threads)
-            report["matching"] = {"verified_pairs": matches.verified_pairs,
-                                  "inlier_matches": matches.inlier_matches}
-            seed = seed_for_database(camera, inp, init.image_names, db_path)
-            image_ids = [seed.reconstruction.find_image_with_name(n).image_id
-                         for n in init.image_names]
-            with stages.stage("triangulation"):
-                rec = pycolmap.triangulate_points(seed.reconstruction, str(db_path),
-                                                  str(tmp / IMAGES_DIR), str(work / "tri"),
-                                                  clear_points=True, refine_intrinsics=False)
-            report["triangulation"] = model_statistics(rec)
-            with stages.stage("mapper"):
-                rec, report["mapper"] = _register_missing(
-                    rec, register, unposed, db_path, tmp / IMAGES_DIR, work, o)
-            obs0 = _observations(rec, image_ids)
-            weak = obs0 < o.min_observations
-            fixed = {rec.images[i].frame_id for i, w in zip(image_ids, weak, strict=True) if w}
-            need_points = max(o.min_points, int(np.ceil(o.min_points_per_frame * len(image_ids))))
-            trusted_model = rec.num_points3D() >= need_points and (~weak).sum() >= 3
-            with stages.stage("bundle adjustment"):
-                if trusted_model:
-                    priors = _position_priors(rec, image_ids, inp,
-                                              o.prior_position_sigma * max(path_length, 1e-9))
-                    report["bundle_adjustment"] = _bundle_adjust(rec, fixed, priors, o)
-                    report["bundle_adjustment"]["held_fixed_frames"] = int(len(fixed))
-                    report["bundle_adjustment"]["after"] = model_statistics(rec)
-                else:
-                    report["bundle_adjustment"] = {
-                        "skipped": f"too few points ({rec.num_points3D()} < {need_points}) "
-                                   f"or well-observed frames ({int((~weak).sum())} < 3)"}
+            run = _Run(o, init, init_dir, frames, all_names, unposed, tmp,
+                       Path(database) if database else tmp / DATABASE_FILE, stages, report,
+                       progress)
+            rec, seed, image_ids = run.colmap_model()
+            obs0, trusted = run.bundle_adjustment(rec, image_ids)
             with stages.stage("acceptance and output"):
-                traj, refined, decisions = _accept(rec, seed.export, init, image_ids, obs0,
-                                                   trusted_model, o, path_length)
-                report.update(decisions)
-                final_ids = image_ids
-                ts_all, ts_why = _frame_timestamps(all_names, init)
-                added = [n for n in unposed if (im := rec.find_image_with_name(n)) is not None
-                         and im.has_pose]
-                a = decisions["alignment_to_input"]
-                if not added or a is None or ts_all is None:
-                    added = []  # without the alignment or timestamps they cannot be placed
-                else:
-                    R, t, s = np.asarray(a["rotation"]), np.asarray(a["translation"]), a["scale"]
-                    idx = {n: k for k, n in enumerate(all_names)}
-                    new, _ = trajectory_from_reconstruction(
-                        rec, seed.export, added, ts_all[[idx[n] for n in added]])
-                    traj, refined = _merge(traj, refined, Similarity(R, t, s).apply(new))
-                    final_ids = image_ids + [rec.find_image_with_name(n).image_id
-                                             for n in added]
-                if register:
-                    report["mapper"]["added_to_trajectory"] = added
-                    report["mapper"]["timestamps"] = ts_why if a is not None else (
-                        "not placed: the adjusted model was not trusted")
-                final = _final_model(rec, seed.export, decisions, image_ids, init, traj, added)
-                report["model"] = model_statistics(final)
-                report["summary"] = final.summary()
-                (tmp / SPARSE_DIR).mkdir()
-                final.write_binary(str(tmp / SPARSE_DIR))
-                if o.text:
-                    final.write_text(str(tmp / SPARSE_DIR))
-                write_tum(tmp / TRAJECTORY_FILE, traj)
-                write_camera_yaml(tmp / CAMERA_FILE, camera)
-                report["carried_from_input"] = carry_forward(init_dir, tmp)
-                report["trajectory_frames"] = len(final_ids)
-            shutil.rmtree(work, ignore_errors=True)
+                traj, refined = run.accept_and_write(rec, seed, image_ids, obs0, trusted)
             report["timings_s"] = dict(stages.times)
             atomic_write_text(tmp / REPORT_FILE, dumps_json(report))
     finally:
         stages.close()
-    return RefineResult(output, traj, inp, refined, report)
+    return RefineResult(output, traj, init.trajectory, refined, report)
+
+
+@dataclass
+class _Run:
+    """One refinement's state, its steps in the order :func:`refine` calls them."""
+
+    o: RefineOptions
+    init: InitModel
+    init_dir: Path
+    frames: FrameStore
+    all_names: list[str]
+    unposed: list[str]
+    tmp: Path
+    db_path: Path
+    stages: _Stages
+    report: dict[str, Any]
+    progress: bool
+
+    @property
+    def register(self) -> bool:
+        return self.o.register_missing and bool(self.unposed)
+
+    def colmap_model(self) -> tuple[Any, Any, list[int]]:
+        """Images and mask for COLMAP, features, matches, triangulation on the fixed input
+        poses, the mapper for unposed frames: the model, the seed and the seeded image ids."""
+        import pycolmap
+
+        o, init, tmp, report = self.o, self.init, self.tmp, self.report
+        camera, db = init.camera, self.db_path
+        export = camera.colmap_export()
+        names = list(self.all_names) if self.register else list(init.image_names)
+        user_mask = read_mask(self.init_dir / USER_MASK_FILE, (camera.width, camera.height)) \
+            if (self.init_dir / USER_MASK_FILE).is_file() else None
+        work = tmp / ".work"
+        work.mkdir()
+        with self.stages.stage("images"):
+            write_colmap_images(self.frames, tmp / IMAGES_DIR, names, export,
+                                progress=self.progress)
+            self.frames.close()
+            write_colmap_mask(tmp / MASK_FILE, camera, o.mask_erosion_px, user_mask)
+        with self.stages.stage("features"):
+            feats = extract_features(db, tmp / IMAGES_DIR, tmp / MASK_FILE, names, export,
+                                     max_features=o.max_features, num_threads=o.num_threads)
+        report["features"] = {"extracted_images": len(feats.extracted),
+                              "reused_images": len(feats.reused),
+                              "keypoints": feats.num_keypoints}
+        with self.stages.stage("matching"):
+            matches = match_sequential(db, overlap=o.overlap, num_threads=o.num_threads)
+        report["matching"] = {"verified_pairs": matches.verified_pairs,
+                              "inlier_matches": matches.inlier_matches}
+        seed = seed_for_database(camera, init.trajectory, init.image_names, db)
+        image_ids = [seed.reconstruction.find_image_with_name(n).image_id
+                     for n in init.image_names]
+        with self.stages.stage("triangulation"):
+            rec = pycolmap.triangulate_points(seed.reconstruction, str(db),
+                                              str(tmp / IMAGES_DIR), str(work / "tri"),
+                                              clear_points=True, refine_intrinsics=False)
+        report["triangulation"] = model_statistics(rec)
+        with self.stages.stage("mapper"):
+            rec, report["mapper"] = _register_missing(
+                rec, self.register, self.unposed, db, tmp / IMAGES_DIR, work, o)
+        shutil.rmtree(work, ignore_errors=True)
+        return rec, seed, image_ids
+
+    def bundle_adjustment(self, rec: Any, image_ids: list[int]) -> tuple[np.ndarray, bool]:
+        """Adjust when the model is strong enough; the seeded frames' observation counts
+        before it and whether the model is trusted."""
+        o, inp = self.o, self.init.trajectory
+        obs0 = _observations(rec, image_ids)
+        weak = obs0 < o.min_observations
+        fixed = {rec.images[i].frame_id for i, w in zip(image_ids, weak, strict=True) if w}
+        need_points = max(o.min_points, int(np.ceil(o.min_points_per_frame * len(image_ids))))
+        trusted = rec.num_points3D() >= need_points and (~weak).sum() >= 3
+        with self.stages.stage("bundle adjustment"):
+            if trusted:
+                priors = _position_priors(rec, image_ids, inp,
+                                          o.prior_position_sigma * max(inp.path_length(), 1e-9))
+                ba = _bundle_adjust(rec, fixed, priors, o)
+                ba["held_fixed_frames"] = int(len(fixed))
+                ba["after"] = model_statistics(rec)
+                self.report["bundle_adjustment"] = ba
+            else:
+                self.report["bundle_adjustment"] = {
+                    "skipped": f"too few points ({rec.num_points3D()} < {need_points}) "
+                               f"or well-observed frames ({int((~weak).sum())} < 3)"}
+        return obs0, bool(trusted)
+
+    def accept_and_write(self, rec: Any, seed: Any, image_ids: list[int], obs0: np.ndarray,
+                         trusted: bool) -> tuple[Trajectory, np.ndarray]:
+        """Accept per frame, place the mapper's frames, write the model, trajectory and the
+        files carried forward; the trajectory and which frames were refined."""
+        o, init, tmp, report = self.o, self.init, self.tmp, self.report
+        acc = _accept(rec, seed.export, init, image_ids, obs0, trusted, o,
+                      init.trajectory.path_length())
+        report.update(acc.report())
+        traj, refined = acc.trajectory, acc.refined
+        ts_all, ts_why = _frame_timestamps(self.all_names, init)
+        added = [n for n in self.unposed if (im := rec.find_image_with_name(n)) is not None
+                 and im.has_pose]
+        if not added or acc.alignment is None or ts_all is None:
+            added = []  # without the alignment or timestamps they cannot be placed
+        else:
+            idx = {n: k for k, n in enumerate(self.all_names)}
+            new, _ = trajectory_from_reconstruction(
+                rec, seed.export, added, ts_all[[idx[n] for n in added]])
+            traj, refined = _merge(traj, refined, acc.alignment.apply(new))
+        if self.register:
+            report["mapper"]["added_to_trajectory"] = added
+            report["mapper"]["timestamps"] = ts_why if acc.alignment is not None else (
+                "not placed: the adjusted model was not trusted")
+        final = _final_model(rec, seed.export, acc.alignment, image_ids, init, traj, added)
+        report["model"] = model_statistics(final)
+        report["summary"] = final.summary()
+        (tmp / SPARSE_DIR).mkdir()
+        final.write_binary(str(tmp / SPARSE_DIR))
+        if o.text:
+            final.write_text(str(tmp / SPARSE_DIR))
+        write_tum(tmp / TRAJECTORY_FILE, traj)
+        write_camera_yaml(tmp / CAMERA_FILE, init.camera)
+        report["carried_from_input"] = carry_forward(self.init_dir, tmp)
+        report["trajectory_frames"] = len(image_ids) + len(added)
+        return traj, refined
 
 
 def _register_missing(rec: Any, register: bool, unposed: list[str], db_path: Path,
@@ -509,9 +548,43 @@ def _frame_errors(rec: Any, image_ids: list[int]) -> np.ndarray:
     return out
 
 
+@dataclass(frozen=True)
+class Acceptance:
+    """What the acceptance step decided (``report.json``: :meth:`report`).
+
+    Attributes:
+        trajectory: ``(N,)`` per input frame, the adjusted pose (mapped onto the input's frame)
+            or the input pose.
+        refined: ``(N,)`` bool, the frame's pose comes from the adjustment.
+        alignment: the similarity taking the adjusted model onto the input's frame and scale,
+            or None when the adjustment was not trusted at all.
+        kept_input_for_all: why every input pose was kept, or None.
+        kept_frames: frame name -> why its input pose was kept.
+        pose_changes: how far the accepted poses moved (JSON-ready), or None.
+    """
+
+    trajectory: Trajectory
+    refined: np.ndarray
+    alignment: Similarity | None = None
+    kept_input_for_all: str | None = None
+    kept_frames: dict[str, str] = field(default_factory=dict)
+    pose_changes: dict[str, Any] | None = None
+
+    def report(self) -> dict[str, Any]:
+        a = self.alignment
+        return {
+            "kept_input_for_all": self.kept_input_for_all,
+            "refined_frames": int(self.refined.sum()),
+            "kept_frames": self.kept_frames,
+            "alignment_to_input": None if a is None else {
+                "rotation": a.rotation, "translation": a.translation, "scale": a.scale,
+                "rotation_deg": float(np.degrees(rotation_angle(a.rotation)))},
+            "pose_changes": self.pose_changes,
+        }
+
+
 def _accept(rec: Any, export: Any, init: InitModel, image_ids: list[int], obs0: np.ndarray,
-            trusted_model: bool, o: RefineOptions, path_length: float
-            ) -> tuple[Trajectory, np.ndarray, dict[str, Any]]:
+            trusted_model: bool, o: RefineOptions, path_length: float) -> Acceptance:
     """Per frame: the adjusted pose (mapped onto the input's frame) or the input pose, and why."""
     inp = init.trajectory
     n = len(inp)
@@ -521,9 +594,7 @@ def _accept(rec: Any, export: Any, init: InitModel, image_ids: list[int], obs0: 
         why = ("too few points or well-observed frames for a trustworthy adjustment"
                if not trusted_model else
                f"mean reprojection error {ba_mean:.2f} px > {o.max_mean_reprojection_error_px}")
-        return inp, np.zeros(n, dtype=bool), {
-            "kept_input_for_all": why, "refined_frames": 0, "kept_frames": {},
-            "alignment_to_input": None, "pose_changes": None}
+        return Acceptance(inp, np.zeros(n, dtype=bool), kept_input_for_all=why)
     ref, ok = trajectory_from_reconstruction(rec, export, init.image_names, inp.timestamps)
     full_R, full_c = inp.rotations.copy(), inp.positions.copy()
     full_R[ok], full_c[ok] = ref.rotations, ref.positions
@@ -555,11 +626,9 @@ def _accept(rec: Any, export: Any, init: InitModel, image_ids: list[int], obs0: 
             break
         small = new_small
     if small.sum() < 3 or small.sum() < 0.5 * cand.sum():
-        return inp, np.zeros(n, dtype=bool), {
-            "kept_input_for_all": "the adjustment moved most frames implausibly far "
-                                  "(or fewer than three frames changed plausibly)",
-            "refined_frames": 0, "kept_frames": {}, "alignment_to_input": None,
-            "pose_changes": None}
+        return Acceptance(inp, np.zeros(n, dtype=bool), kept_input_for_all=(
+            "the adjustment moved most frames implausibly far (or fewer than three frames "
+            "changed plausibly)"))
     use = small | (cand & strong)
     aligned = Similarity(R, t, s).apply(adjusted)
     for k, name in enumerate(init.image_names):
@@ -592,14 +661,10 @@ def _accept(rec: Any, export: Any, init: InitModel, image_ids: list[int], obs0: 
         "position_fraction_of_path_median": float(np.median(pos_change[use])),
         "position_fraction_of_path_max": float(pos_change[use].max()),
     }
-    return traj, use, {
-        "kept_input_for_all": None, "refined_frames": int(use.sum()), "kept_frames": reasons,
-        "alignment_to_input": {"rotation": R, "translation": t, "scale": s,
-                               "rotation_deg": float(np.degrees(rotation_angle(R)))},
-        "pose_changes": changes}
+    return Acceptance(traj, use, Similarity(R, t, s), kept_frames=reasons, pose_changes=changes)
 
 
-def _final_model(rec: Any, export: Any, decisions: dict[str, Any], image_ids: list[int],
+def _final_model(rec: Any, export: Any, alignment: Similarity | None, image_ids: list[int],
                  init: InitModel, traj: Trajectory, added: list[str]) -> Any:
     """The adjusted model mapped onto the input's frame, with every seeded frame at its
     ``trajectory.tum`` pose (kept frames back at their input pose) and point errors updated.
@@ -607,10 +672,10 @@ def _final_model(rec: Any, export: Any, decisions: dict[str, Any], image_ids: li
     deregistered."""
     import pycolmap
 
-    a = decisions["alignment_to_input"]
-    if a is not None:
-        rot = pycolmap.Rotation3d(np.asarray(a["rotation"]))
-        rec.transform(pycolmap.Sim3d(float(a["scale"]), rot, np.asarray(a["translation"])))
+    if alignment is not None:
+        rec.transform(pycolmap.Sim3d(float(alignment.scale),
+                                     pycolmap.Rotation3d(np.asarray(alignment.rotation)),
+                                     np.asarray(alignment.translation)))
     by_ts = {float(ts): k for k, ts in enumerate(traj.timestamps)}
     idx = [by_ts[float(ts)] for ts in init.trajectory.timestamps]
     _set_poses(rec, export, image_ids, traj.subset(np.asarray(idx, dtype=np.intp)))
