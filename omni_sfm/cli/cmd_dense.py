@@ -56,8 +56,12 @@ def add_parser(sub: Any) -> None:
 def run(args: argparse.Namespace) -> int:
     from omni_sfm.dense import DenseOptions, run_dense
 
-    if args.resolution_scale <= 0:
-        raise OmniSfmError(f"--resolution-scale must be > 0, got {args.resolution_scale}")
+    for flag in ("resolution_scale", "camera_height", "known_distance"):
+        val = getattr(args, flag)
+        if val is not None and not val > 0:
+            raise OmniSfmError(f"--{flag.replace('_', '-')} must be > 0, got {val}")
+    if args.keyframe_step is not None and args.keyframe_step < 1:
+        raise OmniSfmError(f"--keyframe-step must be >= 1, got {args.keyframe_step}")
     opts = DenseOptions(keyframe_step=args.keyframe_step, known_distance=args.known_distance,
                         camera_height=args.camera_height, resolution_scale=args.resolution_scale)
     from omni_sfm.libs import library_logging

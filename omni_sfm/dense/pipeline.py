@@ -450,20 +450,74 @@ def _floor_scale(points: FloatArray, traj: Trajectory, up_in_camera: FloatArray,
                             "camera_height_pose_units": h_cam}
 
 
+def check_options(opts: DenseOptions) -> None:
+    """OmniSfmError naming the option when ``opts`` cannot be honoured."""
+    if opts.known_distance is not None and opts.camera_height is not None:
+        raise OmniSfmError("give either known_distance or camera_height, not both")
+    for name in ("known_distance", "camera_height"):
+        val = getattr(opts, name)
+        if val is not None and not val > 0:
+            raise OmniSfmError(f"{name} must be > 0, got {val}")
+    if opts.keyframe_step is not None and opts.keyframe_step < 1:
+        raise OmniSfmError(f"keyframe_step must be >= 1, got {opts.keyframe_step}")
+    if not opts.resolution_scale > 0:
+        raise OmniSfmError(f"resolution_scale must be > 0, got {opts.resolution_scale}")
+
+
+def _keyframe_depth(matcher: _Matcher, traj: Trajectory, k: int, baseline: float,
+                    fusion: TsdfFusion, frame_rays: FloatArray, opts: DenseOptions
+                    ) -> KeyframeStats | None:
+    """Checked depth of keyframe ``k`` from its two stereo pairs, fused; None when fewer than
+    two frames lie at the stereo baseline."""
+    srcs = _sources(traj, k, baseline)
+    if len(srcs) < 2:
+        return None
+    t1 = time.perf_counter()
+    pa, pb = (matcher.pair(k, j) for j, _ in srcs)
+    ok_a = consistent(pa.rig, pa.depth, pb.rig, pb.depth, opts.stereo)
+    ok_b = consistent(pb.rig, pb.depth, pa.rig, pa.depth, opts.stereo)
+    da = np.where(ok_a, pa.depth, np.nan)
+    db = np.where(ok_b, pb.depth, np.nan)
+    t2 = time.perf_counter()
+    for pd, d in ((pa, da), (pb, db)):
+        fusion.integrate_rig(pd.rig, d, pd.colors, traj.positions[k])
+    t3 = time.perf_counter()
+    view_px = int(pa.valid.sum() + pb.valid.sum())
+    rays = traj.rotations[k] @ frame_rays.T
+    has = np.isfinite(depth_along(pa.rig, da, rays.T)[0])
+    has |= np.isfinite(depth_along(pb.rig, db, rays.T)[0])
+    return KeyframeStats(k, tuple(j for j, _ in srcs), tuple(b for _, b in srcs),
+                         float(has.mean()), view_px, int(ok_a.sum() + ok_b.sum()),
+                         t2 - t1, t3 - t2, (pa.pose, pb.pose))
+
+
+def _output_scale(points: FloatArray, traj: Trajectory, cam: CameraModel, voxel: float,
+                  opts: DenseOptions) -> tuple[float, dict[str, Any]]:
+    """Output units per pose unit, and where the factor comes from (``report.json`` ``scale``)."""
+    if opts.known_distance is not None:
+        first_last = float(np.linalg.norm(traj.positions[-1] - traj.positions[0]))
+        if not first_last > 0:
+            raise OmniSfmError("known_distance: the first and last cameras coincide")
+        return opts.known_distance / first_last, {
+            "source": "known_distance", "unit": "unit of --known-distance",
+            "first_last_pose_units": first_last, "known_distance": opts.known_distance}
+    if opts.camera_height is not None:
+        up_cam = np.asarray(opts.up_in_camera if opts.up_in_camera is not None else
+                            ((0.0, 0.0, 1.0) if cam.model == "hyperboloid" else (0.0, -1.0, 0.0)),
+                            dtype=np.float64)
+        scale, info = _floor_scale(points, traj, normalize(up_cam), opts.camera_height, voxel)
+        return scale, {"source": "camera_height", "unit": "unit of --camera-height",
+                       "camera_height": opts.camera_height, **info}
+    return 1.0, {"source": "poses", "unit": "pose units (arbitrary scale of the input poses)"}
+
+
 def dense_map(inp: DenseInput, opts: DenseOptions | None = None, *,
               progress: bool = False) -> DenseResult:
     """Dense map of ``inp`` (see the module docstring); OmniSfmError for impossible input."""
     from tqdm import tqdm
 
     opts = opts or DenseOptions()
-    if opts.known_distance is not None and opts.camera_height is not None:
-        raise OmniSfmError("give either --known-distance or --camera-height, not both")
-    for name in ("known_distance", "camera_height"):
-        val = getattr(opts, name)
-        if val is not None and not val > 0:
-            raise OmniSfmError(f"--{name.replace('_', '-')} must be > 0, got {val}")
-    if opts.keyframe_step is not None and opts.keyframe_step < 1:
-        raise OmniSfmError(f"--keyframe-step must be >= 1, got {opts.keyframe_step}")
+    check_options(opts)
     traj, cam = inp.trajectory, inp.camera
     geometry = view_geometry(cam, resolution_scale=opts.resolution_scale,
                              fov_along_deg=opts.fov_along_deg)
@@ -473,36 +527,19 @@ def dense_map(inp: DenseInput, opts: DenseOptions | None = None, *,
     calib = calibrate_baseline(matcher, opts)
     t_calib = time.perf_counter() - t0
     step = opts.keyframe_step or max(1, calib.frame_offset // 2)
-    keyframes = list(range(0, len(traj), step))
     voxel = opts.voxel_pixels * calib.median_depth / geometry.focal
     fusion = TsdfFusion(voxel, max_depth=opts.max_depth_ratio * calib.median_depth)
     stats: list[KeyframeStats] = []
     warnings: list[str] = []
     grid = cam.pixel_grid_rays()[::2, ::2].reshape(-1, 3)   # every 4th pixel: enough for a share
     frame_rays = grid[np.isfinite(grid[:, 0])]
-    for k in tqdm(keyframes, desc="dense", unit="keyframe",
+    for k in tqdm(range(0, len(traj), step), desc="dense", unit="keyframe",
                   disable=None if progress else True, leave=False):
-        srcs = _sources(traj, k, calib.baseline)
-        if len(srcs) < 2:
+        st = _keyframe_depth(matcher, traj, k, calib.baseline, fusion, frame_rays, opts)
+        if st is None:
             warnings.append(f"frame {k}: fewer than two frames with enough baseline, skipped")
-            continue
-        t1 = time.perf_counter()
-        pa, pb = (matcher.pair(k, j) for j, _ in srcs)
-        ok_a = consistent(pa.rig, pa.depth, pb.rig, pb.depth, opts.stereo)
-        ok_b = consistent(pb.rig, pb.depth, pa.rig, pa.depth, opts.stereo)
-        da = np.where(ok_a, pa.depth, np.nan)
-        db = np.where(ok_b, pb.depth, np.nan)
-        t2 = time.perf_counter()
-        for pd, d in ((pa, da), (pb, db)):
-            fusion.integrate_rig(pd.rig, d, pd.colors, traj.positions[k])
-        t3 = time.perf_counter()
-        view_px = int(pa.valid.sum() + pb.valid.sum())
-        rays = traj.rotations[k] @ frame_rays.T
-        has = np.isfinite(depth_along(pa.rig, da, rays.T)[0])
-        has |= np.isfinite(depth_along(pb.rig, db, rays.T)[0])
-        stats.append(KeyframeStats(k, tuple(j for j, _ in srcs), tuple(b for _, b in srcs),
-                                   float(has.mean()), view_px, int(ok_a.sum() + ok_b.sum()),
-                                   t2 - t1, t3 - t2, (pa.pose, pb.pose)))
+        else:
+            stats.append(st)
     if not stats:
         raise OmniSfmError("no keyframe had two frames with enough baseline for stereo")
     t4 = time.perf_counter()
@@ -513,35 +550,32 @@ def dense_map(inp: DenseInput, opts: DenseOptions | None = None, *,
         raise OmniSfmError(f"stereo gave {points.shape[0]} surface points confirmed by enough "
                            "views: too little texture or baseline for stereo, or poses that do "
                            "not fit the images")
-    scale = 1.0
-    scale_info: dict[str, Any] = {"source": "poses", "unit": "pose units (arbitrary scale of the "
-                              "input poses)"}
-    if opts.known_distance is not None:
-        first_last = float(np.linalg.norm(traj.positions[-1] - traj.positions[0]))
-        if not first_last > 0:
-            raise OmniSfmError("--known-distance: the first and last cameras coincide")
-        scale = opts.known_distance / first_last
-        scale_info = {"source": "known_distance", "unit": "unit of --known-distance",
-                      "first_last_pose_units": first_last, "known_distance": opts.known_distance}
-    elif opts.camera_height is not None:
-        up_cam = np.asarray(opts.up_in_camera if opts.up_in_camera is not None else
-                            ((0.0, 0.0, 1.0) if cam.model == "hyperboloid" else (0.0, -1.0, 0.0)),
-                            dtype=np.float64)
-        scale, info = _floor_scale(points, traj, normalize(up_cam), opts.camera_height, voxel)
-        scale_info = {"source": "camera_height", "unit": "unit of --camera-height",
-                      "camera_height": opts.camera_height, **info}
+    scale, scale_info = _output_scale(points, traj, cam, voxel, opts)
     scale_info["factor"] = scale
     points = points * scale
     mesh.scale(scale, center=np.zeros(3))
     out_traj = Trajectory(traj.timestamps.copy(), traj.rotations.copy(), traj.positions * scale)
-    shares = np.array([s.depth_share for s in stats])
-    pposes = [p for s in stats for p in s.pair_poses]
-    changes = [p.rotation_change_deg for p in pposes if p.corrected]
     poor = [s.frame for s in stats if s.depth_share < 0.05]
     if poor:
         warnings.append(f"{len(poor)} keyframes got depth on under 5% of their valid pixels "
                         f"(texture-poor or little parallax): {poor[:10]}")
-    report = {
+    report = _dense_report(inp, stats, calib, geometry, matcher, opts, scale, scale_info, voxel,
+                           step, points, mesh, warnings, {"calibration": t_calib,
+                                                          "extraction": t_extract})
+    return DenseResult(points, colors, mesh, out_traj, scale, calib.median_depth * scale,
+                       voxel * scale, tuple(stats), report)
+
+
+def _dense_report(inp: DenseInput, stats: list[KeyframeStats], calib: BaselineCalibration,
+                  geometry: ViewGeometry, matcher: _Matcher, opts: DenseOptions, scale: float,
+                  scale_info: dict[str, Any], voxel: float, step: int, points: FloatArray,
+                  mesh: Any, warnings: list[str], seconds: dict[str, float]) -> dict[str, Any]:
+    """The ``report.json`` document of a dense map (docs/dense.md)."""
+    traj = inp.trajectory
+    shares = np.array([s.depth_share for s in stats])
+    pposes = [p for s in stats for p in s.pair_poses]
+    changes = [p.rotation_change_deg for p in pposes if p.corrected]
+    return {
         "scale": scale_info,
         "median_depth": calib.median_depth * scale,
         "stereo_baseline": calib.baseline * scale,
@@ -562,12 +596,12 @@ def dense_map(inp: DenseInput, opts: DenseOptions | None = None, *,
         "num_triangles": int(len(mesh.triangles)),
         "depth_share": {"median": float(np.median(shares)), "min": float(shares.min()),
                         "max": float(shares.max())},
-        "seconds": {"calibration": t_calib,
+        "seconds": {"calibration": seconds["calibration"],
                     "depth_per_keyframe": float(np.median([s.seconds_depth for s in stats])),
                     "fusion_per_keyframe": float(np.median([s.seconds_fusion for s in stats])),
                     "depth_total": float(sum(s.seconds_depth for s in stats)),
                     "fusion_total": float(sum(s.seconds_fusion for s in stats)),
-                    "extraction": t_extract},
+                    "extraction": seconds["extraction"]},
         "frames": [{"frame": s.frame, "timestamp": float(traj.timestamps[s.frame]),
                     "image": inp.image_names[s.frame], "sources": list(s.sources),
                     "baselines": [b * scale for b in s.baselines],
@@ -588,8 +622,6 @@ def dense_map(inp: DenseInput, opts: DenseOptions | None = None, *,
                 "the same over the virtual views' pixels. Directions within (180 - "
                 "fov_along) / 2 deg of the motion are not covered by the views",
     }
-    return DenseResult(points, colors, mesh, out_traj, scale, calib.median_depth * scale,
-                       voxel * scale, tuple(stats), report)
 
 
 def _pycolmap_has_cuda() -> bool:
