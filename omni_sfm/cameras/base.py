@@ -371,18 +371,6 @@ class CameraModel(ABC):
         r = self.rays_from_pixels(np.stack([u.ravel(), v.ravel()], 1).astype(np.float64))
         return r[np.isfinite(r).all(axis=1)]
 
-    def field_of_view_deg(self) -> tuple[float, float]:
-        """(min, max) elevation in degrees of valid pixels above the camera's x-y plane.
-
-        Sampled on a coarse pixel grid; for an upward-looking mirror camera this is the vertical
-        field of view around the horizon.
-        """
-        r = self._coarse_rays()
-        if r.size == 0:
-            return (float("nan"), float("nan"))
-        el = np.degrees(np.arcsin(np.clip(r[:, 2], -1, 1)))
-        return (float(el.min()), float(el.max()))
-
     def summary(self) -> str:
         """Readable several-line description: model, size, parameters, field of view."""
         p = self.params()

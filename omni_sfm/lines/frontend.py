@@ -98,12 +98,6 @@ class FrontEndResult:
         """``(M,)`` frames each track is seen in."""
         return np.bincount(self.tracks.obs_track, minlength=self.tracks.num_tracks)
 
-    def track_mean_support(self) -> FloatArray:
-        """``(M,)`` mean edge-point support of each track's observations."""
-        n = np.maximum(self.track_lengths(), 1)
-        return np.bincount(self.tracks.obs_track, weights=self.obs_support,
-                           minlength=self.tracks.num_tracks) / n
-
     def per_frame(self) -> dict[str, list[Any]]:
         """Per-frame counts and times as plain lists (for ``report.json``)."""
         return {

@@ -149,12 +149,3 @@ def match_sequential(database: Path, *, overlap: int, num_threads: int) -> Match
                               device=pycolmap.Device.cpu)
     with pycolmap.Database.open(str(database)) as db:
         return Matches(int(db.num_verified_image_pairs()), int(db.num_inlier_matches()))
-
-
-def extract_and_match(database: Path, image_dir: Path, mask_path: Path, names: Sequence[str],
-                      export: ColmapExport, *, max_features: int, overlap: int,
-                      num_threads: int) -> tuple[Features, Matches]:
-    """:func:`extract_features` then :func:`match_sequential` (one call for other stages)."""
-    feats = extract_features(database, image_dir, mask_path, names, export,
-                             max_features=max_features, num_threads=num_threads)
-    return feats, match_sequential(database, overlap=overlap, num_threads=num_threads)
