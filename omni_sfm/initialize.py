@@ -244,5 +244,7 @@ def init_from_images(images: Path | str, camera: Path | str | CameraModel, outpu
             imgs = (img for _, _, img in _frames_of(
                 read_frames(images, o.start, o.end, o.step, size=size), est_numbers))
             write_init_model(tmp, cam, result.trajectory, est_names, imgs, text=o.colmap_text)
-    return InitResult(output, cam, fe, result, tuple(est_names), tuple(skipped_not_estimated),
-                      tuple(_image_names(source, np.asarray(fe.frames_skipped, dtype=int))))
+    return InitResult(output=output, camera=cam, frontend=fe, estimation=result,
+                      image_names=tuple(est_names), not_estimated=tuple(skipped_not_estimated),
+                      unreadable=tuple(_image_names(source, np.asarray(fe.frames_skipped,
+                                                                        dtype=int))))

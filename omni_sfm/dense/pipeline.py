@@ -486,9 +486,11 @@ def _keyframe_depth(matcher: _Matcher, traj: Trajectory, k: int, baseline: float
     rays = traj.rotations[k] @ frame_rays.T
     has = np.isfinite(depth_along(pa.rig, da, rays.T)[0])
     has |= np.isfinite(depth_along(pb.rig, db, rays.T)[0])
-    return KeyframeStats(k, tuple(j for j, _ in srcs), tuple(b for _, b in srcs),
-                         float(has.mean()), view_px, int(ok_a.sum() + ok_b.sum()),
-                         t2 - t1, t3 - t2, (pa.pose, pb.pose))
+    return KeyframeStats(frame=k, sources=tuple(j for j, _ in srcs),
+                         baselines=tuple(b for _, b in srcs), depth_share=float(has.mean()),
+                         view_pixels=view_px, depth_pixels=int(ok_a.sum() + ok_b.sum()),
+                         seconds_depth=t2 - t1, seconds_fusion=t3 - t2,
+                         pair_poses=(pa.pose, pb.pose))
 
 
 def _output_scale(points: FloatArray, traj: Trajectory, cam: CameraModel, voxel: float,
@@ -562,8 +564,9 @@ def dense_map(inp: DenseInput, opts: DenseOptions | None = None, *,
     report = _dense_report(inp, stats, calib, geometry, matcher, opts, scale, scale_info, voxel,
                            step, points, mesh, warnings, {"calibration": t_calib,
                                                           "extraction": t_extract})
-    return DenseResult(points, colors, mesh, out_traj, scale, calib.median_depth * scale,
-                       voxel * scale, tuple(stats), report)
+    return DenseResult(points=points, colors=colors, mesh=mesh, trajectory=out_traj, scale=scale,
+                       median_depth=calib.median_depth * scale, voxel_size=voxel * scale,
+                       keyframes=tuple(stats), report=report)
 
 
 def _dense_report(inp: DenseInput, stats: list[KeyframeStats], calib: BaselineCalibration,
