@@ -2,9 +2,9 @@
 
 An *initializer* is a plugin registered in the entry-point group ``omni_sfm.initializers``
 (:mod:`omni_sfm.registry`): a callable ``(sequence: SequenceInput, options: dict) ->
-InitializerResult``. The core never imports one by name. omni-sfm ships four (package
-``plugins.initializers``): ``lines``, ``five-point``, ``colmap`` and ``upright-3pt``
-(docs/comparison.md).
+InitializerResult`` (the contract: :mod:`omni_sfm.initializer`, docs/plugins.md). The core
+never imports one by name. omni-sfm ships four (package ``omni_sfm_plugins.initializers``):
+``lines``, ``five-point``, ``colmap`` and ``upright-3pt`` (docs/comparison.md).
 
 :func:`compare` runs the chosen initializers on one sequence, evaluates each trajectory against
 ground truth with :func:`omni_sfm.evaluate.trajectory_errors` and writes, into one output folder
@@ -29,9 +29,9 @@ import math
 import time
 import traceback
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 
@@ -40,103 +40,23 @@ from omni_sfm.errors import OmniSfmError
 from omni_sfm.evaluate import associate, trajectory_errors
 from omni_sfm.fileio import atomic_output_dir, atomic_write_text, dumps_json, read_json
 from omni_sfm.geometry import FloatArray
-from omni_sfm.lines.tracks import LineTracks
+from omni_sfm.initializer import (  # the contract (importable from here too)
+    Initializer,
+    InitializerResult,
+    SequenceInput,
+    check_result,
+    failed,
+)
+from omni_sfm.initializer import PointObservations as PointObservations
 from omni_sfm.lines.video import FrameStore
 from omni_sfm.poses import Trajectory, read_tum, write_tum
-from omni_sfm.registry import INITIALIZERS, available, load
+from omni_sfm.registry import INITIALIZERS, PluginError, available, load
 
 DEFAULT_INITIALIZERS = ("lines", "five-point", "colmap", "upright-3pt")
 """The initializers :func:`compare` runs when none are named (those installed)."""
 
 METRIC_KEYS = ("rot_max_deg", "rot_mean_deg", "ate_rel", "rpe", "rpe_rot_deg",
                "step_error_after_alignment")
-
-
-@dataclass(frozen=True)
-class PointObservations:
-    """Point feature tracks of a sequence, as pixels and unit rays.
-
-    Attributes:
-        obs_track: ``(K,)`` int track id of each observation.
-        obs_frame: ``(K,)`` int frame index (0..F-1) of each observation.
-        obs_uv: ``(K, 2)`` pixel of each observation (OpenCV convention), in the image of
-            :attr:`SequenceInput.camera`.
-        obs_ray: ``(K, 3)`` unit ray of each observation in the camera frame.
-    """
-
-    obs_track: np.ndarray
-    obs_frame: np.ndarray
-    obs_uv: FloatArray
-    obs_ray: FloatArray
-
-    def __post_init__(self) -> None:
-        k = self.obs_track.shape[0]
-        if self.obs_frame.shape != (k,) or self.obs_uv.shape != (k, 2) or \
-                self.obs_ray.shape != (k, 3):
-            raise ValueError(f"inconsistent point observations: {self.obs_track.shape=} "
-                             f"{self.obs_frame.shape=} {self.obs_uv.shape=} "
-                             f"{self.obs_ray.shape=}")
-
-    @property
-    def num_observations(self) -> int:
-        return int(self.obs_track.shape[0])
-
-
-@dataclass(frozen=True)
-class SequenceInput:
-    """What an initializer gets: the frames of one sequence and its camera.
-
-    Either ``images`` (real or rendered frames: every initializer extracts its own features)
-    or precomputed observations (a simulation: ``line_tracks`` and/or ``points``), or both.
-
-    Attributes:
-        timestamps: ``(F,)`` timestamp of each frame (frame index for an image folder), the
-            timestamps the trajectories are written with.
-        camera: the calibrated camera model of every frame.
-        images: the ``F`` frames (an image folder or a video, in frame order), or None.
-        line_tracks: line observations (unit normals) of the ``F`` frames, or None.
-        points: point observations (pixels and rays) of the ``F`` frames, or None.
-        name: a label for reports.
-    """
-
-    timestamps: FloatArray
-    camera: CameraModel
-    images: FrameStore | None = None
-    line_tracks: LineTracks | None = None
-    points: PointObservations | None = None
-    name: str = "sequence"
-
-    def __post_init__(self) -> None:
-        f = self.timestamps.shape[0]
-        if self.timestamps.shape != (f,) or f < 3:
-            raise OmniSfmError(f"a sequence needs at least 3 frames, got {self.timestamps.shape}")
-        if self.images is not None and len(self.images) != f:
-            raise ValueError(f"{len(self.images)} images for {f} timestamps")
-        if self.line_tracks is not None and self.line_tracks.num_frames != f:
-            raise ValueError(f"line tracks have {self.line_tracks.num_frames} frames, not {f}")
-        if self.images is None and self.line_tracks is None and self.points is None:
-            raise ValueError("a sequence needs images or precomputed observations")
-
-    @property
-    def num_frames(self) -> int:
-        return int(self.timestamps.shape[0])
-
-    def read_image(self, k: int, *, gray: bool = False) -> np.ndarray:
-        """Frame ``k`` as OpenCV reads it (BGR uint8, or ``(H, W)`` uint8 grey with ``gray``,
-        converted as the front end does), checked against the camera size."""
-        if self.images is None:
-            raise OmniSfmError(f"{self.name}: this sequence has no images")
-        name = self.images.names[k]
-        img = self.images.read(name, gray=gray)
-        if img.shape[:2] != (self.camera.height, self.camera.width):
-            raise OmniSfmError(f"{self.images.where(name)}: image is {img.shape[1]}x"
-                               f"{img.shape[0]} px, the camera is {self.camera.width}x"
-                               f"{self.camera.height} px")
-        return img
-
-    def read_gray(self, k: int) -> np.ndarray:
-        """Frame ``k`` as an ``(H, W)`` uint8 grey image, as ``init``'s front end reads it."""
-        return self.read_image(k, gray=True)
 
 
 def sequence_from_frames(images: Path, camera: CameraModel) -> SequenceInput:
@@ -151,40 +71,6 @@ def sequence_from_frames(images: Path, camera: CameraModel) -> SequenceInput:
     seq = SequenceInput(frames.timestamps.copy(), camera, images=frames, name=name)
     seq.read_image(0)  # a camera for other images fails here, before any initializer runs
     return seq
-
-
-@dataclass(frozen=True)
-class InitializerResult:
-    """What an initializer returns.
-
-    Attributes:
-        trajectory: world_from_cam of the frames it registered (timestamps of the sequence),
-            any world and scale; None when it failed before registering anything.
-        status: ``"ok"`` or ``"failed"``.
-        reason: why it failed (one line), or a note; empty when there is nothing to say.
-        reflection_ambiguous: True when the data determine the positions only up to the point
-            reflection through the first camera (line normals alone, METHOD.md); the comparison
-            then evaluates the branch nearer the ground truth and says so.
-        info: JSON-ready details (counts, options used).
-    """
-
-    trajectory: Trajectory | None
-    status: str = "ok"
-    reason: str = ""
-    reflection_ambiguous: bool = False
-    info: dict[str, Any] = field(default_factory=dict)
-
-
-def failed(reason: str, **info: Any) -> InitializerResult:
-    """An :class:`InitializerResult` for a failure."""
-    return InitializerResult(None, "failed", reason, info=dict(info))
-
-
-class Initializer(Protocol):
-    """The plugin interface of the ``omni_sfm.initializers`` entry-point group."""
-
-    def __call__(self, sequence: SequenceInput,
-                 options: Mapping[str, Any]) -> InitializerResult: ...
 
 
 def known_initializers() -> list[str]:
@@ -212,14 +98,22 @@ def parse_initializer_names(text: str | Sequence[str] | None) -> list[str]:
 
 def run_initializer(name: str, sequence: SequenceInput,
                     options: Mapping[str, Any] | None = None) -> tuple[InitializerResult, float]:
-    """Run one initializer; any exception becomes a failed result with its one-line reason.
+    """Run one initializer; any exception becomes a failed result with its one-line reason,
+    and so does a plugin that cannot be loaded or returns what breaks the contract
+    (:func:`omni_sfm.initializer.check_result`).
 
     Returns the result and the wall time in seconds.
+
+    Raises:
+        OmniSfmError: no initializer ``name`` is installed.
     """
-    fn = load(INITIALIZERS, name)
+    try:
+        fn: Initializer = load(INITIALIZERS, name)
+    except PluginError as exc:
+        return failed(str(exc)), 0.0
     t0 = time.perf_counter()
     try:
-        res = fn(sequence, dict(options or {}))
+        res = check_result(fn(sequence, dict(options or {})))
     except OmniSfmError as exc:
         res = failed(str(exc))
     except Exception as exc:  # a crash of one initializer must not lose the others' results

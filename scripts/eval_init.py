@@ -22,14 +22,15 @@ from omni_sfm.initialize import InitOptions, init_from_images
 from omni_sfm.lines.frontend import FrontEndOptions
 from omni_sfm.poses import read_tum
 from omni_sfm.synth.render import RenderOptions, render_sequence
+from omni_sfm.synth.scenes import SceneName
 
 SEQUENCES = {
-    "corridor-hyperboloid-800x600-200f": RenderOptions(scene="corridor", camera="hyperboloid",
-                                                        frames=200),
-    "corridor-equirectangular-1600x800-200f": RenderOptions(scene="corridor",
+    "corridor-hyperboloid-800x600-200f": RenderOptions(scene=SceneName.CORRIDOR,
+                                                        camera="hyperboloid", frames=200),
+    "corridor-equirectangular-1600x800-200f": RenderOptions(scene=SceneName.CORRIDOR,
                                                              camera="equirectangular",
                                                              frames=200),
-    "room-textured-hyperboloid-800x600-100f": RenderOptions(scene="room", textured=True,
+    "room-textured-hyperboloid-800x600-100f": RenderOptions(scene=SceneName.ROOM, textured=True,
                                                              camera="hyperboloid", frames=100),
 }
 

@@ -6,9 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from omni_sfm.compare import PointObservations, SequenceInput, run_initializer
+from omni_sfm.compare import run_initializer
 from omni_sfm.evaluate import trajectory_errors
 from omni_sfm.geometry import normalize, rotvec_to_matrix
+from omni_sfm.initializer import PointObservations, SequenceInput
 from omni_sfm.poses import read_tum
 from omni_sfm.registry import INITIALIZERS, available, load
 
@@ -76,9 +77,8 @@ def test_too_few_points_fail_with_reason() -> None:
 def test_upright_basis_and_poselib_convention() -> None:
     """Rays turned by A (A v = +y) give PoseLib's upright problem; the pose comes back."""
     import poselib
-
-    from plugins.initializers.points import upright_basis
-    from plugins.initializers.upright import upright_ransac
+    from omni_sfm_plugins.initializers.points import upright_basis
+    from omni_sfm_plugins.initializers.upright import upright_ransac
 
     rng = np.random.default_rng(3)
     for v in (normalize(rng.normal(size=3)), np.array([0.0, -1.0, 0.0]),

@@ -34,14 +34,14 @@ def init_dir(tmp_path_factory) -> Path:
 
 def test_adapter_is_registered():
     assert "pycolmap-seed" in available(ADAPTERS)
-    from plugins.pycolmap_adapter import seeded_reconstruction
+    from omni_sfm_plugins.pycolmap_adapter import seeded_reconstruction
 
     assert load(ADAPTERS, "pycolmap-seed") is seeded_reconstruction
 
 
 def test_user_flow_triangulates_with_the_seeded_poses(init_dir, tmp_path):
     # the flow of docs/colmap.md, with database ids deliberately not in trajectory order
-    from plugins.pycolmap_adapter import reader_options
+    from omni_sfm_plugins.pycolmap_adapter import reader_options
 
     seeded_reconstruction = load(ADAPTERS, "pycolmap-seed")
     images = init_dir / "images_colmap"

@@ -18,7 +18,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from omni_sfm.compare import InitializerResult, SequenceInput, failed
+from omni_sfm.initializer import InitializerResult, SequenceInput, failed
 
 
 def lines_refine(sequence: SequenceInput, options: Mapping[str, Any]) -> InitializerResult:

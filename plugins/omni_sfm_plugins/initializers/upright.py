@@ -10,7 +10,7 @@ in the camera frames ``R = A_k^T R_y A_r``, ``t = A_k^T t``. Around the minimal 
 (symmetric angular epipolar error), cheirality by the sign of the triangulated depths, and a
 least-squares refinement of the angle and the translation direction on the inliers (still
 upright). The chain and its scale are the five-point initializer's
-(:func:`plugins.initializers.points.chain_relative_poses`). The family need not be vertical:
+(:func:`.points.chain_relative_poses`). The family need not be vertical:
 any direction fixed in the world works.
 
 Options: as ``five-point`` (``features``, ``max_features``, ``stride``, ``max_error_px``,
@@ -24,9 +24,9 @@ from typing import Any
 
 import numpy as np
 
-from omni_sfm.compare import InitializerResult, SequenceInput, failed
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.geometry import FloatArray
+from omni_sfm.initializer import InitializerResult, SequenceInput, failed
 
 from .five_point import chain_options, ransac_threshold
 from .points import RelPose, chain_relative_poses, pair_depths, point_tracks, upright_basis

@@ -19,9 +19,9 @@ from typing import Any
 import numpy as np
 
 from omni_sfm.cameras.base import CameraModel
-from omni_sfm.compare import PointObservations, SequenceInput
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.geometry import FloatArray
+from omni_sfm.initializer import PointObservations, SequenceInput
 from omni_sfm.poses import Trajectory
 
 RelPose = tuple[FloatArray, FloatArray, np.ndarray]

@@ -4,7 +4,7 @@ Features (SIFT by default, KLT tracks with ``features: klt``) become unit rays t
 camera model; each frame's pose relative to its reference frame comes from
 ``pycolmap.estimate_relative_pose`` on the rays (LO-RANSAC, essential matrix) refined by
 ``pycolmap.refine_relative_pose`` on its inliers; the scale is carried by triangulated points
-(:func:`plugins.initializers.points.chain_relative_poses`). Simulated sequences give their point
+(:func:`.points.chain_relative_poses`). Simulated sequences give their point
 rays directly.
 
 Options: ``features`` (``sift`` | ``klt``), ``max_features``, ``stride`` (3), ``max_error_px``
@@ -18,8 +18,8 @@ from typing import Any
 
 import numpy as np
 
-from omni_sfm.compare import InitializerResult, SequenceInput
 from omni_sfm.geometry import FloatArray
+from omni_sfm.initializer import InitializerResult, SequenceInput
 
 from .points import (
     ChainOptions,

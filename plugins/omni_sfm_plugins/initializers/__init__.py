@@ -1,9 +1,11 @@
 """omni-sfm's initializer plugins (entry-point group ``omni_sfm.initializers``).
 
-Each is a callable ``(sequence: omni_sfm.compare.SequenceInput, options: dict) ->
-omni_sfm.compare.InitializerResult`` (docs/comparison.md):
+Each is a callable ``(sequence: omni_sfm.initializer.SequenceInput, options: dict) ->
+omni_sfm.initializer.InitializerResult`` (contract: docs/plugins.md; results: docs/comparison.md):
 
 - ``lines``: omni-sfm's line front end and estimator (:mod:`.lines`);
+- ``lines-refine``: ``lines`` then ``omni-sfm refine`` (COLMAP on the line-based poses;
+  :mod:`.lines_refine`);
 - ``five-point``: point rays, pycolmap's five-point LO-RANSAC, chained with scale carried by
   triangulated points (:mod:`.five_point`);
 - ``colmap``: pycolmap's incremental mapper with the exact camera model (:mod:`.colmap`);
