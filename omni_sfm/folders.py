@@ -171,6 +171,7 @@ class CompareFolder:
     def __truediv__(self, name: str) -> Path:
         return Path(self.path) / name
 
-    def trajectory(self, initializer: str) -> str:
+    @classmethod
+    def trajectory(cls, initializer: str) -> str:
         """Where an initializer's poses go, relative to the folder."""
-        return f"{self.TRAJECTORIES}/{initializer}.tum"
+        return f"{cls.TRAJECTORIES}/{initializer}.tum"

@@ -16,7 +16,6 @@ from typing import Any
 import numpy as np
 import pytest
 
-import omni_sfm.compare as compare_mod
 import omni_sfm.registry as registry_mod
 from omni_sfm.compare import compare, run_initializer
 from omni_sfm.errors import OmniSfmError
@@ -109,7 +108,6 @@ def fake_plugins(monkeypatch: pytest.MonkeyPatch) -> dict[str, EntryPoint]:
         return {**found, **fakes} if group == INITIALIZERS else found
 
     monkeypatch.setattr(registry_mod, "available", patched)
-    monkeypatch.setattr(compare_mod, "available", patched)  # compare imported the name
     return fakes
 
 

@@ -1,0 +1,244 @@
+"""Running initializers on a sequence and writing what they did (:func:`compare`)."""
+
+from __future__ import annotations
+
+import time
+import traceback
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from omni_sfm import registry
+from omni_sfm.cameras.base import CameraModel
+from omni_sfm.compare.metrics import METRIC_KEYS, Evaluation, evaluate_trajectory
+from omni_sfm.compare.plots import plot_errors, plot_trajectories
+from omni_sfm.compare.report import report_markdown
+from omni_sfm.errors import OmniSfmError
+from omni_sfm.evaluate import associate
+from omni_sfm.fileio import atomic_output_dir, atomic_write_text, dumps_json
+from omni_sfm.folders import CompareFolder
+from omni_sfm.initializer import Initializer, InitializerResult, SequenceInput, check_result, failed
+from omni_sfm.lines.video import FrameStore
+from omni_sfm.poses import Trajectory, write_tum
+from omni_sfm.registry import INITIALIZERS, PluginError
+
+DEFAULT_INITIALIZERS = ("lines", "five-point", "colmap", "upright-3pt")
+"""The initializers :func:`compare` runs when none are named (those installed)."""
+
+def sequence_from_frames(images: Path, camera: CameraModel) -> SequenceInput:
+    """Every frame of an image folder (sorted by name; timestamp = index) or a video
+    (timestamps in seconds), named and stamped as ``init`` names them. One-line OmniSfmError
+    when there are fewer than 3 frames or the first does not have the camera's size."""
+    frames = FrameStore(images)
+    if len(frames) < 3:
+        raise OmniSfmError(f"{images}: {len(frames)} frames; need at least 3")
+    path = Path(images)
+    name = path.resolve().parent.name if path.name == "images" else path.stem
+    seq = SequenceInput(frames.timestamps.copy(), camera, images=frames, name=name)
+    seq.read_image(0)  # a camera for other images fails here, before any initializer runs
+    return seq
+
+
+def known_initializers() -> list[str]:
+    """Names of the installed initializers."""
+    return sorted(registry.available(INITIALIZERS))
+
+
+def parse_initializer_names(text: str | Sequence[str] | None) -> list[str]:
+    """Checked initializer names from ``"a,b"`` or a list; None: the default ones installed."""
+    known = known_initializers()
+    if text is None:
+        names = [n for n in DEFAULT_INITIALIZERS if n in known]
+    else:
+        items = text.split(",") if isinstance(text, str) else list(text)
+        names = [n.strip() for n in items if n.strip()]
+    if not names:
+        raise OmniSfmError(f"no initializer named (known: {', '.join(known) or 'none'})")
+    for n in names:
+        if n not in known:
+            raise OmniSfmError(f"unknown initializer {n!r} (known: {', '.join(known)})")
+    if len(set(names)) != len(names):
+        raise OmniSfmError(f"initializer named twice in {','.join(names)}")
+    return names
+
+
+def run_initializer(name: str, sequence: SequenceInput,
+                    options: Mapping[str, Any] | None = None) -> tuple[InitializerResult, float]:
+    """Run one initializer; any exception becomes a failed result with its one-line reason,
+    and so does a plugin that cannot be loaded or returns what breaks the contract
+    (:func:`omni_sfm.initializer.check_result`).
+
+    Returns the result and the wall time in seconds.
+
+    Raises:
+        OmniSfmError: no initializer ``name`` is installed.
+    """
+    try:
+        fn: Initializer = registry.load(INITIALIZERS, name)
+    except PluginError as exc:
+        return failed(str(exc)), 0.0
+    t0 = time.perf_counter()
+    try:
+        res = check_result(fn(sequence, dict(options or {})))
+    except OmniSfmError as exc:
+        res = failed(str(exc))
+    except Exception as exc:  # a crash of one initializer must not lose the others' results
+        tb = traceback.extract_tb(exc.__traceback__)
+        where = f" ({Path(tb[-1].filename).name}:{tb[-1].lineno})" if tb else ""
+        res = failed(f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
+                     f"{where}")
+    return res, time.perf_counter() - t0
+
+
+def match_gt_frames(sequence: SequenceInput, gt: Trajectory, gt_name: str = "ground truth"
+                    ) -> int:
+    """Frames of the sequence that have a ground-truth pose; OmniSfmError when fewer than 3."""
+    probe = Trajectory(sequence.timestamps.copy(),
+                       np.broadcast_to(np.eye(3), (sequence.num_frames, 3, 3)).copy(),
+                       np.zeros((sequence.num_frames, 3)))
+    try:
+        e, _ = associate(probe, gt)
+    except OmniSfmError:
+        raise OmniSfmError(
+            f"{gt_name}: no timestamp matches a frame (frames have timestamps "
+            f"{sequence.timestamps[0]:g}..{sequence.timestamps[-1]:g}, the ground truth "
+            f"{gt.timestamps[0]:g}..{gt.timestamps[-1]:g})") from None
+    if len(e) < 3:
+        raise OmniSfmError(f"{gt_name}: only {len(e)} timestamps match a frame; need 3")
+    return len(e)
+
+
+@dataclass(frozen=True)
+class ComparisonResult:
+    """What :func:`compare` wrote.
+
+    Attributes:
+        output: the output folder.
+        results: the content of ``results.json``.
+        evaluations: the evaluation of each initializer that produced a trajectory.
+    """
+
+    output: Path
+    results: dict[str, Any]
+    evaluations: dict[str, Evaluation]
+
+
+def run_comparison(sequence: SequenceInput, gt: Trajectory, names: Sequence[str],
+                   options: Mapping[str, Mapping[str, Any]] | None = None,
+                   progress: bool = False
+                   ) -> tuple[dict[str, Any], dict[str, Trajectory], dict[str, Evaluation]]:
+    """Run and evaluate ``names`` on ``sequence`` (nothing written).
+
+    Returns ``results`` (the ``results.json`` content, trajectory paths
+    ``trajectories/NAME.tum``), the trajectories written for each initializer that has one,
+    and their evaluations.
+    """
+    from tqdm import tqdm
+
+    options = options or {}
+    entries: dict[str, Any] = {}
+    trajs: dict[str, Trajectory] = {}
+    evals: dict[str, Evaluation] = {}
+    for name in tqdm(names, desc="compare", unit="initializer", disable=None if progress else True):
+        res, dt = run_initializer(name, sequence, options.get(name, {}))
+        entry, traj, ev = _evaluated_entry(name, res, sequence, gt)
+        entry["time_s"] = dt
+        if res.info:
+            entry["info"] = res.info
+        if traj is not None:
+            trajs[name] = traj
+        if ev is not None:
+            evals[name] = ev
+        entries[name] = entry
+    results = {"initializers": entries, "sequence": {"name": sequence.name,
+                                                      "frames": sequence.num_frames,
+                                                      "camera": sequence.camera.model}}
+    return results, trajs, evals
+
+
+def _reflection_nearer(traj: Trajectory, gt: Trajectory) -> tuple[Trajectory, str | None]:
+    """For normals-only results: the reflection branch nearer the ground truth, and a note
+    when it is the reflected one."""
+    from omni_sfm.estimate.pipeline import match_reflection
+
+    try:
+        chosen = match_reflection(traj, gt)
+    except OmniSfmError:
+        return traj, None
+    if chosen is traj:
+        return traj, None
+    return chosen, ("positions reflected through the first camera (normals alone cannot tell "
+                    "the two branches apart; the branch nearer the ground truth is evaluated)")
+
+
+def _evaluated_entry(name: str, res: InitializerResult, sequence: SequenceInput,
+                     gt: Trajectory
+                     ) -> tuple[dict[str, Any], Trajectory | None, Evaluation | None]:
+    """One initializer's ``results.json`` entry (without time and info), the trajectory to
+    write (None when it registered nothing) and its evaluation (None when it has none)."""
+    entry: dict[str, Any] = {"status": res.status}
+    traj = res.trajectory if res.trajectory is not None and len(res.trajectory) else None
+    notes = [res.reason] if res.reason else []
+    ev: Evaluation | None = None
+    if traj is not None:
+        if res.reflection_ambiguous:
+            traj, note = _reflection_nearer(traj, gt)
+            notes += [note] if note else []
+        try:
+            ev = evaluate_trajectory(traj, gt, sequence.num_frames)
+        except OmniSfmError as exc:
+            entry["status"] = "failed"
+            notes.append(f"cannot evaluate {len(traj)} registered frames: {exc}")
+    elif res.status == "ok":
+        entry["status"] = "failed"
+        notes.append("returned no poses")
+    if entry["status"] == "failed" and not notes:
+        notes.append("failed without a reason")
+    if notes:
+        entry["reason"] = "; ".join(notes)
+    entry["trajectory"] = None if traj is None else CompareFolder.trajectory(name)
+    if ev is not None:
+        entry["registered"] = ev.registered
+        entry.update({k: ev.metrics[k] for k in METRIC_KEYS})
+        entry["frames_compared"] = int(ev.metrics["frames_compared"])
+    else:
+        entry["registered"] = 0.0 if traj is None else len(traj) / sequence.num_frames
+        entry.update({k: None for k in METRIC_KEYS})
+        entry["frames_compared"] = 0
+    entry["frames_registered"] = 0 if traj is None else len(traj)
+    return entry, traj, ev
+
+
+def compare(sequence: SequenceInput, gt: Trajectory, output: Path,
+            names: Sequence[str] | None = None, *,
+            options: Mapping[str, Mapping[str, Any]] | None = None, overwrite: bool = False,
+            plots: bool = True, progress: bool = False,
+            inputs: tuple[Path | None, ...] = ()) -> ComparisonResult:
+    """Run the initializers ``names`` on ``sequence``, evaluate and write ``output``.
+
+    Raises:
+        OmniSfmError: ground truth matching fewer than 3 frames, an unknown initializer, an
+            output folder that exists and is not empty (unless ``overwrite``) or that is, holds
+            or lies inside one of ``inputs``.
+    """
+    chosen = parse_initializer_names(names if names is None or isinstance(names, str)
+                                     else list(names))
+    match_gt_frames(sequence, gt)
+    output = Path(output)
+    with atomic_output_dir(output, overwrite=overwrite, inputs=inputs) as tmp:
+        results, trajs, evals = run_comparison(sequence, gt, chosen, options, progress)
+        folder = CompareFolder(tmp)
+        (folder / folder.TRAJECTORIES).mkdir()
+        for name, traj in trajs.items():
+            write_tum(folder / results["initializers"][name]["trajectory"], traj)
+        atomic_write_text(folder / folder.RESULTS, dumps_json(results))
+        atomic_write_text(folder / folder.REPORT_MD, report_markdown(results))
+        if plots:
+            plot_trajectories(folder / folder.TRAJECTORIES_PLOT, evals, gt)
+            plot_errors(folder / folder.ERRORS_PLOT, evals)
+    return ComparisonResult(output, results, evals)
+
+
