@@ -1,4 +1,9 @@
-"""Small, vectorised 3D geometry helpers shared by every stage (rotations, unit vectors)."""
+"""Small, vectorised 3D geometry helpers shared by every stage: rotations, unit vectors, bases,
+the normal vectors (NVs) of lines and the angles between them.
+
+Each piece of math has its home here (similarity transforms: :mod:`omni_sfm.transforms`), so
+that the stages call one implementation; tests/test_foundation.py tests them.
+"""
 
 from __future__ import annotations
 
@@ -28,6 +33,73 @@ def skew(v: ArrayLike) -> FloatArray:
         ],
         -2,
     )
+
+
+def cross3(a: FloatArray, b: FloatArray) -> FloatArray:
+    """``np.cross`` for ``(..., 3)`` arrays with broadcasting, without its axis bookkeeping
+    (several times faster on the small arrays of the per-evaluation loops; the same values)."""
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], -1)
+
+
+def orthonormal_completion(n: FloatArray, *, switch: float = 0.9
+                           ) -> tuple[FloatArray, FloatArray]:
+    """Unit ``e1, e2`` ``(..., 3)`` with ``(e1, e2, n)`` a right-handed orthonormal basis.
+
+    ``n`` ``(..., 3)`` is unit. ``e1 = normalize(n x h)`` and ``e2 = n x e1`` with the helper
+    axis ``h = x`` where ``|n_x| < switch``, else ``y`` (never near ``n`` for ``switch`` well
+    below 1). The basis, unlike the plane it spans, depends on ``switch``: each caller keeps the
+    one its basis was defined with.
+    """
+    helper = np.where(np.abs(n[..., :1]) < switch, np.array([1.0, 0.0, 0.0]),
+                      np.array([0.0, 1.0, 0.0]))
+    e1 = normalize(cross3(n, helper))
+    return e1, cross3(n, e1)
+
+
+def completion_towards(n: FloatArray, hint: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Unit ``e1, e2`` ``(..., 3)`` with ``(e1, e2, n)`` right-handed orthonormal and ``e1`` the
+    direction of ``hint`` ``(..., 3)`` projected onto the plane perpendicular to unit ``n``.
+
+    Undefined where ``hint`` is parallel to ``n`` (NaN where its projection is exactly zero,
+    else a direction of round-off)."""
+    e1 = normalize(hint - np.sum(hint * n, axis=-1, keepdims=True) * n)
+    return e1, cross3(n, e1)
+
+
+def smallest_eigenvector(S: FloatArray) -> FloatArray:
+    """Unit eigenvectors ``(..., n)`` of the smallest eigenvalue of symmetric ``S (..., n, n)``
+    (``np.linalg.eigh``; arbitrary sign). For a scatter matrix ``sum w x x^T`` of vectors
+    ``x``: the unit ``v`` minimising ``sum w (x . v)^2``."""
+    return np.linalg.eigh(S)[1][..., 0]
+
+
+def unsigned_angle(a: FloatArray, b: FloatArray) -> FloatArray:
+    """Angle in radians ``[0, pi/2]`` between unit vectors ``(..., 3)`` ignoring their signs
+    (as for line normals): ``atan2(|a x b|, |a . b|)``, accurate near 0 and pi/2.
+
+    The inputs are not normalised here (see :func:`angle_between` for any vectors)."""
+    return np.arctan2(np.linalg.norm(cross3(a, b), axis=-1), np.abs(np.sum(a * b, axis=-1)))
+
+
+def line_plane_normals(centres: FloatArray, points: FloatArray,
+                       directions: FloatArray) -> FloatArray:
+    """``(p - c) x d`` ``(..., 3)``: normals (world frame, not normalised) of the planes through
+    camera centres ``c`` and the 3D lines through ``p`` along ``d`` (all ``(..., 3)``, broadcast).
+
+    Normalised and rotated into a camera's frame, this is the line's normal vector (NV) as that
+    camera sees it; zero for a camera on the line."""
+    return cross3(points - centres, directions)
+
+
+def predicted_normals(world_from_cam: FloatArray, centres: FloatArray, points: FloatArray,
+                      directions: FloatArray) -> FloatArray:
+    """``(K, 3)`` NVs predicted in the camera frame (not normalised): ``R^T ((p - c) x d)`` for
+    ``K`` pairs of a pose (``world_from_cam (K, 3, 3)``, centre ``(K, 3)``) and a line
+    (``points``, ``directions`` ``(K, 3)``)."""
+    return np.einsum("kji,kj->ki", world_from_cam,
+                     line_plane_normals(centres, points, directions))
 
 
 def rotation_about_axis(axis: ArrayLike, angle: ArrayLike) -> FloatArray:
@@ -72,11 +144,9 @@ def angle_between(a: ArrayLike, b: ArrayLike, *, unsigned_lines: bool = False) -
     line normals whose sign is arbitrary.
     """
     ua, ub = normalize(a), normalize(b)
-    c = np.sum(ua * ub, axis=-1)
-    s = np.linalg.norm(np.cross(ua, ub), axis=-1)
     if unsigned_lines:
-        c = np.abs(c)
-    return np.arctan2(s, c)
+        return unsigned_angle(ua, ub)
+    return np.arctan2(np.linalg.norm(cross3(ua, ub), axis=-1), np.sum(ua * ub, axis=-1))
 
 
 def quat_xyzw_from_matrix(R: ArrayLike) -> FloatArray:

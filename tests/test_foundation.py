@@ -178,3 +178,185 @@ def test_tracks_sigmas_round_trip_and_checks(tmp_path):
     (tmp_path / "short.json").write_text(json.dumps(data))
     with pytest.raises(OmniSfmError, match="one \\[along, across\\] pair"):
         read_tracks(tmp_path / "short.json")
+
+
+# --- the shared math (omni_sfm.geometry, omni_sfm.transforms): one implementation, tested here
+
+def _unit(rng, *shape):
+    from omni_sfm.geometry import normalize
+
+    return normalize(rng.normal(size=(*shape, 3)))
+
+
+def test_cross3_is_np_cross_bit_for_bit():
+    from omni_sfm.geometry import cross3, skew
+
+    rng = np.random.default_rng(0)
+    a, b = rng.normal(size=(4, 5, 3)), rng.normal(size=(5, 3))
+    np.testing.assert_array_equal(cross3(a, b), np.cross(a, b))
+    np.testing.assert_allclose(skew(a) @ b[..., None], np.cross(a, b)[..., None], atol=1e-15)
+
+
+@pytest.mark.parametrize("switch", [0.9, 0.6])
+def test_orthonormal_completion(switch):
+    from omni_sfm.geometry import cross3, orthonormal_completion
+
+    rng = np.random.default_rng(1)
+    axes = np.vstack([np.eye(3), -np.eye(3)])
+    edge = np.array([[switch, np.sqrt(1 - switch**2), 0.0]])  # at the helper's switch
+    n = np.vstack([axes, edge, _unit(rng, 50)])
+    e1, e2 = orthonormal_completion(n, switch=switch)
+    basis = np.stack([e1, e2, n], -1)
+    np.testing.assert_allclose(np.swapaxes(basis, 1, 2) @ basis, np.broadcast_to(np.eye(3),
+                                                                                 basis.shape),
+                               atol=1e-15)
+    np.testing.assert_allclose(cross3(e1, e2), n, atol=1e-15)  # right-handed
+    # one vector at a time gives the same, and the helper follows |n_x| < switch
+    one = orthonormal_completion(n[0], switch=switch)
+    np.testing.assert_array_equal(one[0], e1[0])
+    np.testing.assert_allclose(e1[1], [0.0, 0.0, -1.0])   # n = y: helper x, e1 = y x x
+    np.testing.assert_allclose(e1[0], [0.0, 0.0, 1.0])    # n = x: helper y, e1 = x x y
+
+
+def test_completion_towards_hint():
+    from omni_sfm.geometry import completion_towards, cross3
+
+    rng = np.random.default_rng(2)
+    n, hint = _unit(rng, 30), rng.normal(size=(30, 3))
+    e1, e2 = completion_towards(n, hint)
+    np.testing.assert_allclose(np.sum(e1 * n, -1), 0.0, atol=1e-15)
+    np.testing.assert_allclose(np.linalg.norm(e1, axis=-1), 1.0, atol=1e-15)
+    np.testing.assert_allclose(cross3(e1, e2), n, atol=1e-15)
+    # e1 is the hint's in-plane direction: the hint lies in span(e1, n), on e1's side
+    np.testing.assert_allclose(np.sum(hint * e2, -1), 0.0, atol=1e-14)
+    assert (np.sum(hint * e1, -1) > 0).all()
+    z = np.array([0.0, 0.0, 1.0])
+    assert np.isnan(completion_towards(z, 2.0 * z)[0]).all()  # no in-plane direction
+
+
+def test_smallest_eigenvector_of_scatter():
+    from omni_sfm.geometry import smallest_eigenvector
+
+    rng = np.random.default_rng(3)
+    normal = _unit(rng, 4)
+    # vectors in the plane perpendicular to each normal: the scatter's null direction
+    x = rng.normal(size=(4, 20, 3))
+    x -= np.sum(x * normal[:, None], -1, keepdims=True) * normal[:, None]
+    v = smallest_eigenvector(np.einsum("kni,knj->kij", x, x))
+    np.testing.assert_allclose(np.abs(np.sum(v * normal, -1)), 1.0, atol=1e-12)
+    S = np.diag([3.0, 1.0, 2.0])
+    np.testing.assert_allclose(np.abs(smallest_eigenvector(S)), [0.0, 1.0, 0.0])
+
+
+def test_unsigned_angle():
+    from omni_sfm.geometry import angle_between, rotation_about_axis, unsigned_angle
+
+    rng = np.random.default_rng(4)
+    a, b = _unit(rng, 40), _unit(rng, 40)
+    ang = unsigned_angle(a, b)
+    assert (ang >= 0).all() and (ang <= np.pi / 2).all()
+    np.testing.assert_array_equal(unsigned_angle(-a, b), ang)
+    np.testing.assert_array_equal(unsigned_angle(b, a), ang)
+    np.testing.assert_allclose(ang, angle_between(a, b, unsigned_lines=True), atol=1e-15)
+    expected = np.minimum(angle_between(a, b), np.pi - angle_between(a, b))
+    np.testing.assert_allclose(ang, expected, atol=1e-14)
+    # accurate for tiny angles (arccos of a dot product is not)
+    tiny = rotation_about_axis(np.array([0.0, 0.0, 1.0]), 1e-9) @ np.array([1.0, 0.0, 0.0])
+    assert unsigned_angle(np.array([1.0, 0.0, 0.0]), -tiny) == pytest.approx(1e-9, rel=1e-9)
+
+
+def test_line_plane_and_predicted_normals():
+    from omni_sfm.geometry import line_plane_normals, normalize, predicted_normals
+
+    rng = np.random.default_rng(5)
+    c, p = rng.normal(size=(10, 3)), rng.normal(size=(10, 3))
+    d = _unit(rng, 10)
+    n = line_plane_normals(c, p, d)
+    # normal to the line and to the ray from the centre to any point of it
+    for s in (-1.0, 0.0, 2.5):
+        np.testing.assert_allclose(np.sum(n * (p + s * d - c), -1), 0.0, atol=1e-12)
+    np.testing.assert_allclose(np.sum(n * d, -1), 0.0, atol=1e-12)
+    z = np.array([0.0, 0.0, 1.0])
+    assert (line_plane_normals(p[0], p[0] + 3.0 * z, z) == 0.0).all()  # a camera on the line
+    R = rotvec_to_matrix(rng.normal(size=(10, 3)))
+    cam = predicted_normals(R, c, p, d)
+    np.testing.assert_allclose(np.einsum("kij,kj->ki", R, cam), n, atol=1e-12)
+    # a point of the line, seen from the camera, lies in the plane: ray_cam . n_cam = 0
+    ray_cam = np.einsum("kji,kj->ki", R, normalize(p + 0.7 * d - c))
+    np.testing.assert_allclose(np.sum(ray_cam * cam, -1), 0.0, atol=1e-12)
+
+
+def _posed(rng, n):
+    return rotvec_to_matrix(rng.normal(size=(n, 3))), rng.normal(size=(n, 3))
+
+
+@pytest.mark.parametrize("scale", [2.5, -0.7])
+def test_similarity_from_poses_exact(scale):
+    from omni_sfm.transforms import similarity_from_poses
+
+    rng = np.random.default_rng(6)
+    R_src, c_src = _posed(rng, 6)
+    Rs = rotvec_to_matrix(np.array([0.2, -0.4, 0.1]))
+    t = np.array([1.0, 2.0, -1.0])
+    R_dst, c_dst = Rs @ R_src, scale * c_src @ Rs.T + t
+    sim = similarity_from_poses(R_dst, c_dst, R_src, c_src, allow_reflection=True)
+    np.testing.assert_allclose(sim.rotation, Rs, atol=1e-12)
+    assert sim.scale == pytest.approx(scale, abs=1e-12)
+    np.testing.assert_allclose(sim.translation, t, atol=1e-12)
+    np.testing.assert_allclose(sim.apply_points(c_src), c_dst, atol=1e-12)
+    pos = similarity_from_poses(R_dst, c_dst, R_src, c_src, allow_reflection=False)
+    np.testing.assert_allclose(pos.rotation, Rs, atol=1e-12)
+    if scale > 0:
+        assert pos.scale == pytest.approx(scale, abs=1e-12)
+    else:  # no reflection: unit scale, the translation maps the mean centres
+        assert pos.scale == 1.0
+        np.testing.assert_allclose(pos.apply_points(c_src).mean(0), c_dst.mean(0), atol=1e-12)
+
+
+def test_similarity_from_poses_rotation_from_rotations_on_a_straight_path():
+    from omni_sfm.transforms import similarity_from_poses, umeyama
+
+    rng = np.random.default_rng(7)
+    R_src, _ = _posed(rng, 5)
+    c_src = np.outer(np.arange(5.0), [1.0, 0.5, 0.0])  # collinear: centres leave a roll free
+    Rs = rotvec_to_matrix(np.array([0.3, 0.1, -0.2]))
+    R_dst, c_dst = Rs @ R_src, 0.5 * c_src @ Rs.T
+    sim = similarity_from_poses(R_dst, c_dst, R_src, c_src, allow_reflection=True)
+    np.testing.assert_allclose(sim.rotation, Rs, atol=1e-12)
+    np.testing.assert_allclose(umeyama(c_src, c_dst).apply_points(c_src), c_dst, atol=1e-12)
+
+
+def test_similarity_from_poses_degenerate_centres():
+    from omni_sfm.transforms import similarity_from_poses
+
+    rng = np.random.default_rng(8)
+    R, c = _posed(rng, 4)
+    still = np.zeros((4, 3))
+    with pytest.raises(OmniSfmError, match="do not spread"):
+        similarity_from_poses(R, c, R, still, allow_reflection=True)
+    with pytest.raises(OmniSfmError, match="do not spread"):
+        similarity_from_poses(R, still, R, c, allow_reflection=True)
+    assert similarity_from_poses(R, c, R, still, allow_reflection=False).scale == 1.0
+    assert similarity_from_poses(R, still, R, c, allow_reflection=False).scale == 1.0
+
+
+def test_evaluate_reexports_the_transforms():
+    from omni_sfm import evaluate, transforms
+
+    for name in ("Similarity", "umeyama", "associate", "paper_translation_errors"):
+        assert getattr(evaluate, name) is getattr(transforms, name)
+
+
+def test_paper_translation_errors_invariant_to_similarity():
+    from omni_sfm.transforms import Similarity, paper_normalised_positions, paper_translation_errors
+
+    gt = _random_traj(8, 9)
+    p = paper_normalised_positions(gt)
+    np.testing.assert_allclose(p[0], 0.0, atol=1e-15)
+    assert np.linalg.norm(p[-1]) == pytest.approx(1.0)
+    moved = Similarity(rotvec_to_matrix(np.array([0.4, 0.0, -0.3])), np.array([1.0, 2.0, 3.0]),
+                       3.0).apply(gt)
+    assert paper_translation_errors(moved, gt).max() < 1e-12
+    with pytest.raises(OmniSfmError, match="coincide"):
+        paper_normalised_positions(Trajectory(gt.timestamps[:2], gt.rotations[:2],
+                                              np.zeros((2, 3))))

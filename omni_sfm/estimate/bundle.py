@@ -44,7 +44,16 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from omni_sfm.errors import OmniSfmError
-from omni_sfm.geometry import FloatArray, normalize, rotvec_to_matrix, skew
+from omni_sfm.geometry import (
+    FloatArray,
+    completion_towards,
+    normalize,
+    orthonormal_completion,
+    predicted_normals,
+    rotvec_to_matrix,
+    skew,
+    unsigned_angle,
+)
 from omni_sfm.lines.tracks import LineTracks
 
 # median of the norm of a 2D isotropic Gaussian with unit std-dev per axis (Rayleigh median)
@@ -140,12 +149,9 @@ class BundleResult:
 
 
 def _tangent_basis(n: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Two unit vectors ``(..., 3)`` completing unit ``n`` to an orthonormal basis."""
-    helper = np.where(np.abs(n[..., :1]) < 0.6, np.array([1.0, 0.0, 0.0]),
-                      np.array([0.0, 1.0, 0.0]))
-    e1 = normalize(np.cross(n, helper))
-    e2 = np.cross(n, e1)
-    return e1, e2
+    """Two unit vectors ``(..., 3)`` completing unit ``n`` to an orthonormal basis (the
+    adjustment's residual and line-update axes: the helper axis switches at ``|n_x| = 0.6``)."""
+    return orthonormal_completion(n, switch=0.6)
 
 
 def _residual_basis(tracks: LineTracks) -> FloatArray:
@@ -161,9 +167,7 @@ def _residual_basis(tracks: LineTracks) -> FloatArray:
     n = tracks.obs_normal
     if tracks.obs_sigma is None or tracks.obs_ray is None:
         return np.stack(_tangent_basis(n), axis=1)
-    m = tracks.obs_ray - np.sum(tracks.obs_ray * n, axis=1, keepdims=True) * n
-    m = normalize(m)
-    t = np.cross(n, m)
+    m, t = completion_towards(n, tracks.obs_ray)
     sig = tracks.obs_sigma
     ref = float(np.median(np.sqrt(sig[:, 0] * sig[:, 1])))
     return np.stack([m * (ref / sig[:, :1]), t * (ref / sig[:, 1:])], axis=1)
@@ -178,8 +182,7 @@ def weighted_residuals(tracks: LineTracks, rotations: FloatArray, positions: Flo
     NaN where the frame's pose or the track's line is undefined.
     """
     f, t = tracks.obs_frame, tracks.obs_track
-    u = np.einsum("kji,kj->ki", rotations[f],
-                  np.cross(line_points[t] - positions[f], line_directions[t]))
+    u = predicted_normals(rotations[f], positions[f], line_points[t], line_directions[t])
     e = np.einsum("kai,ki->ka", _residual_basis(tracks), normalize(u))
     return np.linalg.norm(e, axis=1)
 
@@ -228,11 +231,8 @@ def observation_residuals(tracks: LineTracks, rotations: FloatArray, positions: 
     NaN where the frame's pose or the track's line is undefined.
     """
     f, t = tracks.obs_frame, tracks.obs_track
-    u = np.einsum("kji,kj->ki", rotations[f],
-                  np.cross(line_points[t] - positions[f], line_directions[t]))
-    c = np.abs(np.sum(normalize(u) * tracks.obs_normal, axis=1))
-    s = np.linalg.norm(np.cross(normalize(u), tracks.obs_normal), axis=1)
-    return np.arctan2(s, c)
+    u = predicted_normals(rotations[f], positions[f], line_points[t], line_directions[t])
+    return unsigned_angle(normalize(u), tracks.obs_normal)
 
 
 def _loss_weights(s: FloatArray, loss: RobustLoss, scale: float) -> tuple[FloatArray, FloatArray]:
@@ -279,7 +279,7 @@ class _Problem:
     def residuals(self, R: FloatArray, c: FloatArray, d: FloatArray,
                   p: FloatArray) -> tuple[FloatArray, FloatArray]:
         f, t = self.f, self.t
-        u = np.einsum("kji,kj->ki", R[f], np.cross(p[t] - c[f], d[t]))
+        u = predicted_normals(R[f], c[f], p[t], d[t])
         n = u / np.linalg.norm(u, axis=1, keepdims=True)
         return np.einsum("kai,ki->ka", self.B, n), u
 

@@ -33,10 +33,10 @@ from omni_sfm.estimate.translation import (
     in_plane_parallax,
     line_directions,
     line_parallax,
+    line_points,
     normal_residuals,
     resolve_sign,
     translation_all_views,
-    triangulate_lines,
 )
 from omni_sfm.geometry import FloatArray
 from omni_sfm.lines.tracks import LineTracks
@@ -469,7 +469,7 @@ def _translate(R: FloatArray, normals: FloatArray, v: FloatArray, members: np.nd
                            f"lines (too few with parallax)")
     dirs = line_directions(m_world)
     dirs[members] = v
-    points = triangulate_lines(m_world, dirs, positions)
+    points = line_points(m_world, dirs, positions)
     used = w > 0
 
     def rms_of(pos: FloatArray, pts: FloatArray) -> float:
@@ -481,7 +481,7 @@ def _translate(R: FloatArray, normals: FloatArray, v: FloatArray, members: np.nd
     if opts.polish_translation:
         pos2, _, _ = translation_all_views(m_world, dirs, w, irls_iter=1, reference=positions)
         if np.isfinite(pos2).all():
-            pts2 = triangulate_lines(m_world, dirs, pos2)
+            pts2 = line_points(m_world, dirs, pos2)
             rms2 = rms_of(pos2, pts2)
             if rms2 < rms:
                 positions, points, rms, all_views = pos2, pts2, rms2, True

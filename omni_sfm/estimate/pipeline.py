@@ -43,6 +43,7 @@ from omni_sfm.fileio import atomic_write_text, dumps_json
 from omni_sfm.geometry import FloatArray, ray_line_closest
 from omni_sfm.lines.tracks import LineTracks
 from omni_sfm.poses import Trajectory, write_tum
+from omni_sfm.transforms import associate, paper_translation_errors
 from omni_sfm.vanishing import ParallelFamily, VanishingOptions, detect_parallel_family
 
 SCALE_CONVENTION = ("world = camera of the first estimated frame; distance between the first "
@@ -476,12 +477,18 @@ def reflect_positions(traj: Trajectory) -> Trajectory:
 def match_reflection(est: Trajectory, gt: Trajectory) -> Trajectory:
     """``est`` or its reflection (:func:`reflect_positions`), whichever is nearer ``gt``.
 
-    Nearer: smaller mean translation error as the paper defines it. For evaluation only: the
-    data cannot tell the two apart.
+    Nearer: smaller mean translation error as the paper defines it
+    (:func:`omni_sfm.transforms.paper_translation_errors`) on the frames the two share (at least
+    3, as :func:`omni_sfm.evaluate.trajectory_errors`). For evaluation only: the data cannot tell
+    the two apart.
     """
-    from omni_sfm.evaluate import trajectory_errors
+    def mean_error(tr: Trajectory) -> float:
+        e, g = associate(tr, gt)
+        if len(e) < 3:
+            raise OmniSfmError(f"only {len(e)} frames in common with the ground truth; need 3")
+        return float(paper_translation_errors(e, g).mean())
 
     ref = reflect_positions(est)
-    e0 = float(trajectory_errors(est, gt).paper_trans.mean())
-    e1 = float(trajectory_errors(ref, gt).paper_trans.mean())
+    e0 = mean_error(est)
+    e1 = mean_error(ref)
     return ref if e1 < e0 else est

@@ -24,15 +24,14 @@ import numpy as np
 
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.estimate.search import global_minimize_1d
-from omni_sfm.geometry import FloatArray, normalize, skew
-
-
-def cross3(a: FloatArray, b: FloatArray) -> FloatArray:
-    """``np.cross`` for ``(..., 3)`` arrays with broadcasting, without its axis bookkeeping
-    (several times faster on the small arrays of the per-evaluation loops)."""
-    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
-    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
-    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], -1)
+from omni_sfm.geometry import (
+    FloatArray,
+    cross3,
+    normalize,
+    orthonormal_completion,
+    skew,
+    smallest_eigenvector,
+)
 
 
 def rotation_aligning(a: FloatArray, b: FloatArray) -> FloatArray:
@@ -53,9 +52,7 @@ def rotation_aligning(a: FloatArray, b: FloatArray) -> FloatArray:
     anti = c <= -1.0 + 1e-12
     if np.any(anti):
         # rotation by pi about an axis u perpendicular to a: 2 u u^T - I
-        aa = a[anti]
-        helper = np.where(np.abs(aa[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
-        u = normalize(np.cross(aa, helper))
+        u, _ = orthonormal_completion(a[anti])
         R[anti] = 2.0 * u[:, :, None] * u[:, None, :] - np.eye(3)
     return R
 
@@ -305,14 +302,11 @@ def polish_angles(prob: RotationProblem, phi: FloatArray, *, max_iter: int = 30,
         return m, dm
 
     m, dm = state(phi)
-    d = np.linalg.eigh(np.einsum("q,fqi,fqj->qij", np.ones(Q), m, m))[1][:, :, 0]
+    d = smallest_eigenvector(np.einsum("q,fqi,fqj->qij", np.ones(Q), m, m))
     cost = float(np.sum(W * np.einsum("fqi,qi->fq", m, d) ** 2))
     lam = 1e-6
     for _ in range(max_iter):
-        helper = np.where(np.abs(d[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
-        e1 = cross3(d, helper)
-        e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
-        e2 = cross3(d, e1)
+        e1, e2 = orthonormal_completion(d)
         r = np.einsum("fqi,qi->fq", m, d)
         jp = np.einsum("fqi,qi->fq", dm, d)                                # d r / d phi_k
         jd = np.stack([np.einsum("fqi,qi->fq", m, e1), np.einsum("fqi,qi->fq", m, e2)], -1)

@@ -37,16 +37,24 @@ from dataclasses import dataclass
 import numpy as np
 
 from omni_sfm.errors import OmniSfmError
-from omni_sfm.estimate.rotation import cross3
-from omni_sfm.geometry import FloatArray, normalize, ray_line_closest
+from omni_sfm.geometry import (
+    FloatArray,
+    line_plane_normals,
+    normalize,
+    orthonormal_completion,
+    ray_line_closest,
+    smallest_eigenvector,
+    unsigned_angle,
+)
 
 
 def plane_basis(v: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Unit ``a, b`` with ``(a, b, v)`` a right-handed orthonormal basis."""
-    helper = np.array([1.0, 0.0, 0.0]) if abs(v[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    a = normalize(np.cross(helper, v))
-    b = np.cross(v, a)
-    return a, b
+    """Unit ``a, b`` ``(3,)`` with ``(a, b, v)`` a right-handed orthonormal basis (unit ``v``).
+
+    The negated :func:`~omni_sfm.geometry.orthonormal_completion`: the in-plane coordinates
+    and the sign convention of :func:`estimate_plane` are defined in this basis."""
+    e1, e2 = orthonormal_completion(v)
+    return -e1, -e2
 
 
 def _perp(x: FloatArray) -> FloatArray:
@@ -69,10 +77,7 @@ def in_plane_parallax(world_normals: FloatArray, v: FloatArray) -> FloatArray:
 
 def line_parallax(world_normals: FloatArray) -> FloatArray:
     """``(F, Q)`` angle (rad) between each line's plane (its NV) in view 0 and in view k."""
-    n0 = world_normals[:1]
-    s = np.linalg.norm(cross3(world_normals, n0), axis=-1)
-    c = np.abs(np.sum(world_normals * n0, -1))
-    return np.arctan2(s, c)
+    return unsigned_angle(world_normals, world_normals[:1])
 
 
 @dataclass(frozen=True)
@@ -178,8 +183,7 @@ class VerticalResult:
 def line_directions(world_normals: FloatArray, weights: FloatArray | None = None) -> FloatArray:
     """``(Q, 3)`` direction of each line from all its world normals ``(F, Q, 3)`` (eq. 5 again)."""
     w = np.ones(world_normals.shape[0]) if weights is None else weights
-    S = np.einsum("f,fqi,fqj->qij", w, world_normals, world_normals)
-    return np.linalg.eigh(S)[1][:, :, 0]
+    return smallest_eigenvector(np.einsum("f,fqi,fqj->qij", w, world_normals, world_normals))
 
 
 def estimate_vertical(world_normals: FloatArray, directions: FloatArray, v: FloatArray,
@@ -244,11 +248,7 @@ def estimate_vertical(world_normals: FloatArray, directions: FloatArray, v: Floa
 
 def _tangent_bases(d: FloatArray) -> FloatArray:
     """``(L, 3, 2)`` orthonormal bases of the planes perpendicular to the unit ``d (L, 3)``."""
-    helper = np.where(np.abs(d[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
-    e1 = cross3(d, helper)
-    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
-    e2 = cross3(d, e1)
-    return np.stack([e1, e2], -1)
+    return np.stack(orthonormal_completion(d), -1)
 
 
 def translation_all_views(world_normals: FloatArray, directions: FloatArray,
@@ -318,12 +318,14 @@ def translation_all_views(world_normals: FloatArray, directions: FloatArray,
     return pos, pts, cost
 
 
-def triangulate_lines(world_normals: FloatArray, directions: FloatArray,
-                      positions: FloatArray) -> FloatArray:
-    """``(L, 3)`` point of each line closest to the world origin, from all views.
+def line_points(world_normals: FloatArray, directions: FloatArray,
+                positions: FloatArray) -> FloatArray:
+    """``(L, 3)`` point of each line of known direction closest to the world origin, from the
+    normals of all views (every line seen in every view, the paper's setting).
 
     Minimises ``sum_k (m_ik . (x - t_k))^2`` with ``x . d_i = 0``; ``world_normals (F, L, 3)``,
-    ``directions (L, 3)``, ``positions (F, 3)``.
+    ``directions (L, 3)``, ``positions (F, 3)``. (Lines of partial tracks, directions and
+    points, from poses: :func:`omni_sfm.estimate.bundle.triangulate_lines`.)
     """
     m = world_normals
     A = np.einsum("fli,flj->lij", m, m) + np.einsum("li,lj->lij", directions, directions)
@@ -338,12 +340,9 @@ def normal_residuals(world_normals: FloatArray, directions: FloatArray, points: 
     The predicted NV of line ``l`` (``points``, ``directions`` ``(L, 3)``) from the camera at
     ``positions[k]`` is ``(x_l - t_k) x d_l`` normalised; the angle ignores the normals' signs.
     """
-    rel = points[None] - positions[:, None]
-    pred = cross3(rel, directions[None])
+    pred = line_plane_normals(positions[:, None], points[None], directions[None])
     pred /= np.maximum(np.linalg.norm(pred, axis=-1, keepdims=True), 1e-300)
-    s = np.linalg.norm(cross3(world_normals, pred), axis=-1)
-    c = np.abs(np.sum(world_normals * pred, -1))
-    return np.arctan2(s, c)
+    return unsigned_angle(world_normals, pred)
 
 
 def resolve_sign(rays_in_world: FloatArray, origins: FloatArray, points: FloatArray,
@@ -361,3 +360,8 @@ def resolve_sign(rays_in_world: FloatArray, origins: FloatArray, points: FloatAr
         lam = np.where(mask, lam, 0.0)
     vote = float(np.sum(np.sign(np.nan_to_num(lam))))
     return -1.0 if vote < 0 else 1.0
+
+
+# the former name, still imported by tests/test_translation.py; to be dropped once it imports
+# line_points (the public triangulate_lines is omni_sfm.estimate.bundle's)
+triangulate_lines = line_points

@@ -23,6 +23,7 @@ import numpy as np
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.geometry import FloatArray, rotation_angle
 from omni_sfm.lines.tracks import LineTracks
+from omni_sfm.transforms import similarity_from_poses
 from omni_sfm.vanishing import ParallelFamily
 
 
@@ -182,7 +183,8 @@ def similarity_from_overlap(rot_a: FloatArray, pos_a: FloatArray, rot_b: FloatAr
     ``rot_*`` are ``(n, 3, 3)`` world_from_cam and ``pos_*`` ``(n, 3)`` camera centres of the
     same ``n >= 2`` frames in the two solutions. The rotation is the chordal mean of
     ``R_a R_b^T`` over the frames (rotations are well determined), the scale the least-squares
-    ratio of the centres about their means, the translation maps the means.
+    ratio of the centres about their means, the translation maps the means
+    (:func:`omni_sfm.transforms.similarity_from_poses` with ``allow_reflection``).
 
     The scale may come out negative: NVs have no sign, so a window's solution is determined only
     up to the point reflection of its positions (and lines) through its first camera; a negative
@@ -190,17 +192,12 @@ def similarity_from_overlap(rot_a: FloatArray, pos_a: FloatArray, rot_b: FloatAr
     """
     if rot_a.shape[0] < 2:
         raise OmniSfmError("chaining windows needs at least 2 shared frames")
-    M = np.einsum("kij,klj->il", rot_a, rot_b)
-    U, _, Vt = np.linalg.svd(M)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
-    R = U @ D @ Vt
-    ma, mb = pos_a.mean(0), pos_b.mean(0)
-    xa, xb = pos_a - ma, (pos_b - mb) @ R.T
-    den = float(np.sum(xb * xb))
-    if not den > 0 or not np.sum(xa * xa) > 0:
-        raise OmniSfmError("chaining windows: the shared frames do not move; scale undefined")
-    s = float(np.sum(xa * xb) / den)
-    return R, s, ma - s * R @ mb
+    try:
+        sim = similarity_from_poses(rot_a, pos_a, rot_b, pos_b, allow_reflection=True)
+    except OmniSfmError as e:
+        raise OmniSfmError("chaining windows: the shared frames do not move; scale "
+                           "undefined") from e
+    return sim.rotation, sim.scale, sim.translation
 
 
 def _fit_overlap(rot_a: FloatArray, pos_a: FloatArray, rot_b: FloatArray, pos_b: FloatArray,

@@ -23,7 +23,7 @@ import numpy as np
 
 from omni_sfm.cameras.base import CameraModel
 from omni_sfm.errors import OmniSfmError
-from omni_sfm.geometry import FloatArray
+from omni_sfm.geometry import FloatArray, completion_towards, smallest_eigenvector
 
 IntArray = np.ndarray
 
@@ -177,12 +177,6 @@ def _scatter(rays: FloatArray, weight: np.ndarray, seg: IntArray, nseg: int) -> 
                       ((1, 2), y * rays[:, 2]), ((2, 2), z * rays[:, 2])):
         out[:, i, j] = out[:, j, i] = np.bincount(seg, weights=v, minlength=nseg)
     return out
-
-
-def _smallest_eigvec(m: FloatArray) -> FloatArray:
-    """``(S, 3, 3)`` symmetric -> ``(S, 3)`` unit eigenvectors of the smallest eigenvalue."""
-    _, vec = np.linalg.eigh(m)
-    return vec[:, :, 0]
 
 
 class LineExtractor:
@@ -410,7 +404,7 @@ class LineExtractor:
         n = hyp[np.arange(nseg), best].astype(np.float64)
         inl = np.abs(np.einsum("nk,nk->n", rays, n[seg])) < tol
         for _ in range(max(1, o.refine_iterations)):
-            n_new = _smallest_eigvec(_scatter(rays, inl.astype(np.float64), seg, nseg))
+            n_new = smallest_eigenvector(_scatter(rays, inl.astype(np.float64), seg, nseg))
             good = np.bincount(seg, weights=inl, minlength=nseg) >= 3
             n = np.where(good[:, None], n_new, n)
             inl = np.abs(np.einsum("nk,nk->n", rays, n[seg])) < tol
@@ -466,10 +460,7 @@ class LineExtractor:
         for i, j in cand:
             ni = normals[i]
             ri, rj = rays[idx[lab == i]], rays[idx[lab == j]]
-            e1 = ri.mean(axis=0)
-            e1 -= (e1 @ ni) * ni
-            e1 /= np.linalg.norm(e1)
-            e2 = np.cross(ni, e1)
+            e1, e2 = completion_towards(ni, ri.mean(axis=0))
             ti = np.arctan2(ri @ e2, ri @ e1)
             tj = np.arctan2(rj @ e2, rj @ e1)
             gap = max(tj.min() - ti.max(), ti.min() - tj.max())
@@ -486,7 +477,7 @@ class LineExtractor:
         nl = int(lab.max()) + 1 if len(lab) else 0
         if nl == 0:
             return idx, lab
-        normals = _smallest_eigvec(_scatter(rays[idx], np.ones(len(idx)), lab, nl))
+        normals = smallest_eigenvector(_scatter(rays[idx], np.ones(len(idx)), lab, nl))
         t = _arc_parameter(rays[idx], normals[lab], lab, nl)
         lo = np.full(nl, np.inf)
         hi = np.full(nl, -np.inf)
@@ -515,7 +506,7 @@ class LineExtractor:
                 num_corner_points=counts["corner"], num_segments=n_segments,
                 num_rejected=n_rejected)
         # final normals: least squares on all points of each (merged) line
-        normals = _smallest_eigvec(_scatter(rays[idx], np.ones(len(idx)), lab, nl))
+        normals = smallest_eigenvector(_scatter(rays[idx], np.ones(len(idx)), lab, nl))
         r = rays[idx]
         t = _arc_parameter(r, normals[lab], lab, nl)
         order = np.lexsort((t, lab))
@@ -540,10 +531,7 @@ class LineExtractor:
                                  n_rejected)
         arc = np.degrees(arc_rad)
         # NV uncertainty: information of the fit along the middle ray m and across it (t)
-        m = ends[:, 0] + ends[:, 1]
-        m -= np.sum(m * normals, axis=1, keepdims=True) * normals
-        m /= np.linalg.norm(m, axis=1, keepdims=True)
-        tdir = np.cross(normals, m)
+        m, tdir = completion_towards(normals, ends[:, 0] + ends[:, 1])
         w = 1.0 / (self.options.edge_noise_px * scale[idx].astype(np.float64)) ** 2
         info = np.stack([np.bincount(lab, weights=w * np.einsum("nk,nk->n", r, v[lab]) ** 2,
                                      minlength=nl) for v in (m, tdir)], axis=1)
@@ -563,10 +551,7 @@ def _arc_parameter(r: FloatArray, n: FloatArray, group: IntArray, ngroup: int) -
     mean = np.zeros((ngroup, 3))
     for k in range(3):
         mean[:, k] = np.bincount(group, weights=r[:, k], minlength=ngroup)
-    e1 = mean[group]
-    e1 -= np.einsum("nk,nk->n", e1, n)[:, None] * n
-    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
-    e2 = np.cross(n, e1)
+    e1, e2 = completion_towards(n, mean[group])
     return np.arctan2(np.einsum("nk,nk->n", r, e2), np.einsum("nk,nk->n", r, e1))
 
 

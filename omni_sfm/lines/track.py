@@ -29,7 +29,7 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
-from omni_sfm.geometry import FloatArray
+from omni_sfm.geometry import FloatArray, unsigned_angle
 from omni_sfm.lines.extract import ExtractedLines
 
 IntArray = np.ndarray
@@ -116,11 +116,6 @@ class TrackedObservations:
     @property
     def num_tracks(self) -> int:
         return int(self.track.max()) + 1 if len(self.track) else 0
-
-
-def _unsigned_angle_deg(a: FloatArray, b: FloatArray) -> FloatArray:
-    c = np.abs(np.einsum("nk,nk->n", a, b))
-    return np.degrees(np.arccos(np.clip(c, 0.0, 1.0)))
 
 
 class LineTracker:
@@ -323,7 +318,7 @@ class LineTracker:
         pair, votes = np.unique(i * n_cur + j, return_counts=True)
         pi, pj = pair // n_cur, pair % n_cur
         need = np.maximum(o.min_votes, o.min_vote_fraction * nsamp[pi])
-        step = _unsigned_angle_deg(prev.normals[pi], cur.normals[pj])
+        step = np.degrees(unsigned_angle(prev.normals[pi], cur.normals[pj]))
         lim = o.max_normal_step_deg if max_step_deg is None else max_step_deg
         good = (votes >= need) & (step <= lim)
         return pi[good], pj[good], votes[good]

@@ -33,7 +33,6 @@ from typing import Any
 import numpy as np
 
 from omni_sfm.cameras import write_camera_yaml
-from omni_sfm.evaluate import Similarity
 from omni_sfm.export.colmap import (
     IMAGES_DIR,
     MASK_FILE,
@@ -71,6 +70,7 @@ from omni_sfm.refine.database import (
     match_sequential,
     write_colmap_images,
 )
+from omni_sfm.transforms import Similarity, similarity_from_poses
 
 DATABASE_FILE = RefineFolder.DATABASE
 
@@ -260,17 +260,11 @@ def _align_to_input(ref: Trajectory, inp: Trajectory) -> tuple[FloatArray, Float
 
     ``R`` is the chordal mean of the per-frame rotation differences (well defined even for a
     straight path, where centres alone leave a rotation free), then ``s`` and ``t`` by least
-    squares on the centres."""
-    M = np.einsum("nij,nkj->ik", inp.rotations, ref.rotations)
-    U, _, Vt = np.linalg.svd(M)
-    R = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
-    a = ref.positions @ R.T
-    a0, b0 = a.mean(0), inp.positions.mean(0)
-    den = float(((a - a0) ** 2).sum())
-    s = float(((a - a0) * (inp.positions - b0)).sum() / den) if den > 1e-18 else 1.0
-    if not s > 0:
-        s = 1.0
-    return R, b0 - s * a0, s
+    squares on the centres; ``s`` is 1 where that is not positive or the adjusted centres do
+    not spread (:func:`omni_sfm.transforms.similarity_from_poses`)."""
+    sim = similarity_from_poses(inp.rotations, inp.positions, ref.rotations, ref.positions,
+                                allow_reflection=False)
+    return sim.rotation, sim.translation, sim.scale
 
 
 def _set_poses(rec: Any, seed_export: Any, image_ids: list[int], traj: Trajectory) -> None:

@@ -16,7 +16,7 @@ import numpy as np
 
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.fileio import atomic_write_text, dumps_json
-from omni_sfm.geometry import FloatArray, normalize, rotvec_to_matrix
+from omni_sfm.geometry import FloatArray, line_plane_normals, normalize, rotvec_to_matrix
 from omni_sfm.lines.tracks import LineTracks, make_tracks, write_tracks
 from omni_sfm.poses import Trajectory, write_tum
 
@@ -163,7 +163,7 @@ def simulate(opts: SimulationOptions) -> Simulation:
 
     # NV in world: normal of the plane through the camera centre and the line
     c = gt.positions[None, :, :]
-    n_world = normalize(np.cross(obs_pts - c, obs_dirs))
+    n_world = normalize(line_plane_normals(c, obs_pts, obs_dirs))
     n_cam = np.einsum("fji,mfj->mfi", gt.rotations, n_world)
     if opts.noise_deg > 0:
         axis = normalize(np.cross(n_cam, rng.normal(size=n_cam.shape)))

@@ -23,7 +23,7 @@ from math import comb
 import numpy as np
 
 from omni_sfm.errors import OmniSfmError
-from omni_sfm.geometry import FloatArray
+from omni_sfm.geometry import FloatArray, smallest_eigenvector
 from omni_sfm.lines.tracks import LineTracks
 
 
@@ -132,9 +132,7 @@ def vpv_per_frame(normals: FloatArray, mask: np.ndarray,
     if weights is not None:
         w = w * np.asarray(weights, dtype=np.float64)[:, None]
     n = np.where(mask[..., None], normals, 0.0)
-    S = np.einsum("mf,mfi,mfj->fij", w, n, n)
-    _, vecs = np.linalg.eigh(S)
-    v = vecs[:, :, 0]
+    v = smallest_eigenvector(np.einsum("mf,mfi,mfj->fij", w, n, n))
     count = np.count_nonzero(mask & (w > 0), axis=0)
     v[count < 2] = np.nan
     return v, count

@@ -1,0 +1,112 @@
+"""The package's import direction: stages import only earlier stages and the shared helpers.
+
+Every module under ``omni_sfm/`` is parsed with :mod:`ast` (nothing is imported) and every
+``import`` / ``from`` statement is collected, those inside functions included (lazy imports are
+imports too). The pipeline runs one way, cameras -> lines -> vanishing -> estimate -> export ->
+refine -> dense -> view; the shared helpers sit below all stages; simulation and rendering
+(``synth``) and the comparison with ground truth (``evaluate``) sit above them, with the
+programs that use both (``compare``, ``demo``, ``cli``).
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+PACKAGE = Path(__file__).resolve().parents[1] / "omni_sfm"
+
+STAGES = ["cameras", "lines", "vanishing", "estimate", "export", "refine", "dense", "view"]
+"""Pipeline stages in their order: a stage may import only itself and earlier stages."""
+HELPERS = ["geometry", "transforms", "fileio", "folders", "libs", "poses", "errors", "registry",
+           "initialize"]
+"""Shared helpers below the stages (top-level modules of ``omni_sfm``)."""
+UPPER = ["synth", "evaluate"]
+"""Ground-truth side: only ``UPPER`` itself and the programs in ``CONSUMERS`` may import it."""
+CONSUMERS = ["synth", "evaluate", "compare", "demo", "cli"]
+
+
+def _module_name(path: Path) -> str:
+    parts = list(path.relative_to(PACKAGE.parent).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+def _imported(path: Path, module: str) -> set[str]:
+    """Absolute names of the modules (or module attributes) imported anywhere in ``path``."""
+    tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+    is_package = path.name == "__init__.py"
+    out: set[str] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            out.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = module.split(".")
+                keep = len(base) - node.level + (1 if is_package else 0)
+                prefix = ".".join(base[:keep])
+                target = f"{prefix}.{node.module}" if node.module else prefix
+            else:
+                target = node.module or ""
+            out.add(target)
+            # ``from omni_sfm import evaluate`` imports the submodule
+            out.update(f"{target}.{alias.name}" for alias in node.names if alias.name != "*")
+    return out
+
+
+def _all_imports() -> dict[str, set[str]]:
+    mods = {}
+    for path in sorted(PACKAGE.rglob("*.py")):
+        name = _module_name(path)
+        mods[name] = {t for t in _imported(path, name) if t == "omni_sfm"
+                      or t.startswith("omni_sfm.")}
+    return mods
+
+
+IMPORTS = _all_imports()
+
+
+def _part(name: str) -> str | None:
+    """The top-level part of ``omni_sfm`` a module name belongs to (None: the package)."""
+    parts = name.split(".")
+    return parts[1] if len(parts) > 1 else None
+
+
+def test_walk_finds_the_package():
+    assert "omni_sfm.estimate.pipeline" in IMPORTS
+    assert "omni_sfm.transforms" in IMPORTS["omni_sfm.estimate.windows"]
+    # function-level (lazy) imports are seen
+    assert "omni_sfm.synth.render" in IMPORTS["omni_sfm.demo"]
+    for part in STAGES + HELPERS + UPPER:
+        assert any(_part(m) == part for m in IMPORTS), part
+
+
+def test_relative_import_resolution():
+    path = PACKAGE / "estimate" / "paper.py"
+    assert _module_name(path) == "omni_sfm.estimate.paper"
+    assert _module_name(PACKAGE / "lines" / "__init__.py") == "omni_sfm.lines"
+
+
+@pytest.mark.parametrize("part", STAGES + HELPERS)
+def test_no_stage_or_helper_imports_synth_or_evaluate(part):
+    bad = sorted(f"{mod} imports {target}" for mod, targets in IMPORTS.items()
+                 if _part(mod) == part for target in targets if _part(target) in UPPER)
+    assert not bad, "\n".join(bad)
+
+
+def test_only_consumers_import_synth_or_evaluate():
+    bad = sorted(f"{mod} imports {target}" for mod, targets in IMPORTS.items()
+                 if _part(mod) not in CONSUMERS
+                 for target in targets if _part(target) in UPPER)
+    assert not bad, "\n".join(bad)
+
+
+@pytest.mark.parametrize("stage", STAGES)
+def test_stage_imports_no_later_stage(stage):
+    rank = {s: k for k, s in enumerate(STAGES)}
+    bad = sorted(f"{mod} imports {target}" for mod, targets in IMPORTS.items()
+                 if _part(mod) == stage for target in targets
+                 if _part(target) in rank and rank[_part(target)] > rank[stage])
+    assert not bad, "\n".join(bad)
