@@ -124,8 +124,8 @@ class InitializerResult:
         status: ``"ok"`` or ``"failed"``.
         reason: why it failed (one line), or a note; empty when there is nothing to say.
         reflection_ambiguous: True when the data determine the positions only up to the point
-            reflection through the first camera (line normals alone, METHOD.md); the comparison
-            then evaluates the branch nearer the ground truth and says so.
+            reflection through the first camera (line normals alone, docs/method.md §6); the
+            comparison then evaluates the branch nearer the ground truth and says so.
         info: JSON-ready details (counts, options used).
     """
 

@@ -1,4 +1,4 @@
-"""The paper's estimator end to end (METHOD.md §3-§5) on seeded simulations."""
+"""The paper's estimator end to end (docs/method.md §3-§5) on seeded simulations."""
 
 from __future__ import annotations
 

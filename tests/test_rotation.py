@@ -1,4 +1,5 @@
-"""Rotation (METHOD.md §4): exact per-view solution, global 1-DOF search, noise-free exactness."""
+"""Rotation (docs/method.md §4): exact per-view solution, global 1-DOF search, noise-free
+exactness."""
 
 from __future__ import annotations
 

@@ -1,4 +1,5 @@
-"""Translation (METHOD.md §5): the closed forms against brute-force searches, exactness, sign."""
+"""Translation (docs/method.md §5): the closed forms against brute-force searches, exactness,
+sign."""
 
 from __future__ import annotations
 

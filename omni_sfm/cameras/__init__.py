@@ -1,4 +1,4 @@
-"""Camera models: pixel <-> unit ray for central omnidirectional cameras (METHOD.md §1).
+"""Camera models: pixel <-> unit ray for central omnidirectional cameras (docs/method.md §1).
 
 ``load_camera(path)`` reads any camera file omni-sfm knows (our YAML, cv2.omnidir FileStorage,
 Kalibr camchain, OCamCalib calib_results.txt, COLMAP cameras.txt); every model is a

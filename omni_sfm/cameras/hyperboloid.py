@@ -1,4 +1,4 @@
-"""The paper's catadioptric camera: hyperboloid mirror + perspective camera (METHOD.md §1)."""
+"""The paper's catadioptric camera: hyperboloid mirror + perspective camera (docs/method.md §1)."""
 
 from __future__ import annotations
 

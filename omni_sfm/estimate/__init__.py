@@ -1,4 +1,4 @@
-"""Poses of all views from tracked line observations (METHOD.md §3-§5) and their refinement.
+"""Poses of all views from tracked line observations (docs/method.md §3-§5) and their refinement.
 
 Modules: ``rotation``, ``translation``, ``search``, ``paper`` (the paper's method on one window
 of fully visible tracks), ``bundle`` (line bundle adjustment and the ground-truth oracle),

@@ -1,5 +1,5 @@
 """The paper's estimator: poses of every view of a window from its parallel family and the other
-lines (METHOD.md §3-§5), with the choice of the second view and degeneracy checks.
+lines (docs/method.md §3-§5), with the choice of the second view and degeneracy checks.
 
 Input: a window of :class:`~omni_sfm.lines.tracks.LineTracks` in which every track is observed in
 every frame, and the parallel family found by :func:`omni_sfm.vanishing.detect_parallel_family`.
@@ -228,7 +228,7 @@ def estimate_paper(tracks: LineTracks, family: ParallelFamily,
                    options: PaperOptions | None = None, *,
                    weights: FloatArray | None = None,
                    side_rays: FloatArray | None = None) -> PaperSolution:
-    """Poses of every frame of a window by the paper's method (METHOD.md §4-§5).
+    """Poses of every frame of a window by the paper's method (docs/method.md §4-§5).
 
     Args:
         tracks: the window; every track observed in every frame, at least 3 frames.
@@ -331,7 +331,7 @@ def _solve_once(tracks: LineTracks, family: ParallelFamily, opts: PaperOptions, 
     ref = np.asarray(family.vpv, dtype=np.float64)
     vpv = chain_signs(vpv, ref if np.isfinite(ref).all(axis=1).any() else None)
 
-    # rotation: the paper's global 1-DOF search over phi_c (METHOD.md §4)
+    # rotation: the paper's global 1-DOF search over phi_c (docs/method.md §4)
     t0 = time.perf_counter()
     xtol = opts.rotation_xtol if opts.rotation_xtol is not None else \
         (1e-6 if opts.polish_rotation else 1e-10)
@@ -441,7 +441,8 @@ class _Translation:
 def _translate(R: FloatArray, normals: FloatArray, v: FloatArray, members: np.ndarray,
                par: np.ndarray, oth: np.ndarray, w: FloatArray,
                opts: PaperOptions) -> _Translation:
-    """METHOD.md §5 for given rotations, then all lines triangulated and the model's RMS angle."""
+    """docs/method.md §5 for given rotations, then all lines triangulated and the model's RMS
+    angle."""
     t1 = time.perf_counter()
     m_world = np.einsum("fij,fmj->fmi", R, normals)
     pp = np.median(in_plane_parallax(m_world[:, par], v), axis=1)

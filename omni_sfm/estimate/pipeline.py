@@ -56,9 +56,9 @@ REFLECTION_NOTE = ("line normals carry no sign, so the camera centres (and lines
 @dataclass(frozen=True, kw_only=True)
 class EstimationOptions:
     vanishing: VanishingOptions = field(default_factory=VanishingOptions)
-    """Parallel-family detection and VPVs (METHOD.md §3)."""
+    """Parallel-family detection and VPVs (docs/method.md §3)."""
     paper: PaperOptions = field(default_factory=PaperOptions)
-    """The paper's rotation and translation searches (METHOD.md §4-§5)."""
+    """The paper's rotation and translation searches (docs/method.md §4-§5)."""
     windows: WindowOptions = field(default_factory=WindowOptions)
     """Windows over frames when no set of tracks is seen in every frame."""
     bundle: BundleOptions = field(default_factory=BundleOptions)

@@ -1,4 +1,4 @@
-"""Rotation of every view from the VPVs and the non-parallel lines (METHOD.md §4).
+"""Rotation of every view from the VPVs and the non-parallel lines (docs/method.md §4).
 
 Conventions: ``world_from_cam`` rotations ``R_k`` (a normal ``n`` seen in view ``k`` is
 ``R_k n`` in the world), world = the camera of view 0, so the paper's ``R_c^T`` is our ``R_c``.
@@ -381,7 +381,7 @@ def estimate_rotations(normals: FloatArray, vpv: FloatArray, weights: FloatArray
                        xtol: float = 1e-12, softening: float = 0.1,
                        polish: bool = True, search_views: int | None = None,
                        continuity: bool = True) -> RotationResult:
-    """Rotations of all views (METHOD.md §4).
+    """Rotations of all views (docs/method.md §4).
 
     Args:
         normals: ``(F, Q, 3)`` unit normals of the non-parallel lines in each camera frame

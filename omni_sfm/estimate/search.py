@@ -1,6 +1,6 @@
 """Global minimisation of a 1-DOF cost: a coarse grid that finds the basins, then Brent polishing.
 
-The paper searches its 1-DOF costs (METHOD.md §4-§5) exhaustively on a fixed fine grid. Here a
+The paper searches its 1-DOF costs (docs/method.md §4-§5) exhaustively on a fixed fine grid. Here a
 coarse grid, evaluated in one vectorised call, brackets every local minimum it sees; the few best
 brackets are polished by Brent's method (parabolic interpolation with golden-section safeguard)
 to a tolerance near machine precision. The grid only has to be finer than the narrowest basin

@@ -1,4 +1,4 @@
-"""Translation of every view once the rotations are known (METHOD.md §5).
+"""Translation of every view once the rotations are known (docs/method.md §5).
 
 World normals ``m_ik = R_k n_ik`` (any sign). ``v`` is the parallel direction, ``(a, b, v)`` an
 orthonormal basis.

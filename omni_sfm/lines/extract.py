@@ -1,4 +1,4 @@
-"""Straight-line extraction in omnidirectional images (METHOD.md §2, paper Sec. III).
+"""Straight-line extraction in omnidirectional images (docs/method.md §2, paper Sec. III).
 
 Canny edges -> corner rejection by the ratio of the principal gradients in a small window ->
 sub-pixel edge positions -> connected edge segments -> unit rays through the camera model ->

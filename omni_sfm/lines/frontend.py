@@ -1,4 +1,4 @@
-"""The front end: frames -> straight lines -> line tracks (METHOD.md §2).
+"""The front end: frames -> straight lines -> line tracks (docs/method.md §2).
 
 ``track_lines(frames, camera, options, mask)`` extracts the lines of every frame
 (:mod:`omni_sfm.lines.extract`), tracks them from frame to frame (:mod:`omni_sfm.lines.track`)

@@ -1,4 +1,4 @@
-"""Line tracking between consecutive frames (METHOD.md §2, paper Fig. 6), and beyond.
+"""Line tracking between consecutive frames (docs/method.md §2, paper Fig. 6), and beyond.
 
 The paper's rule: sample points at constant intervals on each line of frame ``t``, track them
 into frame ``t+1`` with KLT, snap each to the nearest edge point there, and take the line of

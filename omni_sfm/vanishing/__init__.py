@@ -1,4 +1,4 @@
-"""Parallel-line families and their vanishing-point vectors (VPVs), METHOD.md §3.
+"""Parallel-line families and their vanishing-point vectors (VPVs), docs/method.md §3.
 
 The NV ``n`` of a line is orthogonal to the line's direction, so the NVs of parallel lines seen
 in one frame are coplanar and orthogonal to the family's direction ``v_k`` in that camera frame
@@ -467,7 +467,7 @@ def _merge_groups(normals: FloatArray, vis: np.ndarray, groups: list[np.ndarray]
 
 def detect_parallel_family(tracks: LineTracks,
                            options: VanishingOptions | None = None) -> ParallelFamily:
-    """The largest parallel family of ``tracks`` and its per-frame VPV (METHOD.md §3).
+    """The largest parallel family of ``tracks`` and its per-frame VPV (docs/method.md §3).
 
     Raises:
         OmniSfmError: fewer than ``min_family_size`` (3) parallel tracks were found.
