@@ -134,9 +134,11 @@ def extract_features(database: Path, image_dir: Path, mask_path: Path, names: Se
     return Features(cam_id, tuple(todo), tuple(sorted(done)), num_keypoints)
 
 
-def match_sequential(database: Path, *, overlap: int, num_threads: int) -> Matches:
+def match_sequential(database: Path, *, overlap: int, num_threads: int,
+                     verification: Any | None = None) -> Matches:
     """Sequential matching (``overlap`` following frames, by name order) with COLMAP's geometric
-    verification; pairs matched before are skipped by COLMAP's matcher."""
+    verification (``pycolmap.TwoViewGeometryOptions``, COLMAP's defaults when None); pairs
+    matched before are skipped by COLMAP's matcher."""
     import pycolmap
 
     matching = pycolmap.FeatureMatchingOptions()
@@ -145,7 +147,8 @@ def match_sequential(database: Path, *, overlap: int, num_threads: int) -> Match
     pairing = pycolmap.SequentialPairingOptions()
     pairing.overlap = overlap
     pairing.num_threads = num_threads
+    extra = {} if verification is None else {"verification_options": verification}
     pycolmap.match_sequential(str(database), matching_options=matching, pairing_options=pairing,
-                              device=pycolmap.Device.cpu)
+                              device=pycolmap.Device.cpu, **extra)
     with pycolmap.Database.open(str(database)) as db:
         return Matches(int(db.num_verified_image_pairs()), int(db.num_inlier_matches()))

@@ -91,9 +91,9 @@ def _database_from_images(db_path: Path, work: Path, seq: SequenceInput, export:
     """COLMAP SIFT of the (mirrored where needed) frames with the camera mask, the exact camera
     shared by all, sequential matching with seeded geometric verification."""
     import cv2
-    import pycolmap
 
     from omni_sfm.export.colmap import write_colmap_mask
+    from omni_sfm.refine.database import extract_features, match_sequential
 
     img_dir = work / "images"
     img_dir.mkdir()
@@ -102,27 +102,11 @@ def _database_from_images(db_path: Path, work: Path, seq: SequenceInput, export:
         cv2.imwrite(str(img_dir / name), export.image_to_colmap(seq.read_image(k)))
     write_colmap_mask(work / "mask.png", seq.camera)
     threads = int(options.get("threads", 1))
-    with pycolmap.Database.open(str(db_path)) as db:
-        cam_id = int(db.write_camera(export.camera))
-    reader = pycolmap.ImageReaderOptions()
-    reader.existing_camera_id = cam_id
-    reader.camera_mask_path = str(work / "mask.png")
-    extraction = pycolmap.FeatureExtractionOptions()
-    extraction.num_threads = threads
-    extraction.use_gpu = False
-    extraction.sift.max_num_features = int(options.get("max_features", 4000))
-    pycolmap.extract_features(str(db_path), str(img_dir), image_names=names,
-                              camera_mode=pycolmap.CameraMode.SINGLE, reader_options=reader,
-                              extraction_options=extraction, device=pycolmap.Device.cpu)
-    matching = pycolmap.FeatureMatchingOptions()
-    matching.num_threads = threads
-    matching.use_gpu = False
-    pairing = pycolmap.SequentialPairingOptions()
-    pairing.overlap = int(options.get("overlap", 10))
-    pairing.num_threads = threads
-    pycolmap.match_sequential(str(db_path), matching_options=matching, pairing_options=pairing,
-                              verification_options=_verification(options),
-                              device=pycolmap.Device.cpu)
+    # the same extraction and matching as omni-sfm refine, with a seeded verification
+    extract_features(db_path, img_dir, work / "mask.png", names, export,
+                     max_features=int(options.get("max_features", 4000)), num_threads=threads)
+    match_sequential(db_path, overlap=int(options.get("overlap", 10)), num_threads=threads,
+                     verification=_verification(options))
 
 
 def colmap(sequence: SequenceInput, options: Mapping[str, Any]) -> InitializerResult:
