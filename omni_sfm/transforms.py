@@ -18,6 +18,7 @@ errors are :mod:`omni_sfm.evaluate`'s). Below the stages: imports nothing of the
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -138,3 +139,30 @@ def paper_translation_errors(est: Trajectory, gt: Trajectory) -> FloatArray:
     """
     return np.linalg.norm(paper_normalised_positions(est) - paper_normalised_positions(gt),
                           axis=1)
+
+
+def relative_pose_from_rays(rays1: FloatArray, rays2: FloatArray, *, max_error: float,
+                            seed: int) -> tuple[FloatArray, FloatArray, np.ndarray] | None:
+    """The relative pose of two views from matched unit rays ``(N, 3)`` (row i of each sees
+    the same point): pycolmap's LO-RANSAC essential-matrix estimate (``max_error`` in its
+    angular units, seeded), refined on its inliers.
+
+    Returns ``cam2_from_cam1``'s rotation ``(3, 3)``, its translation ``(3,)`` (COLMAP's
+    arbitrary scale) and the ``(N,)`` bool inlier mask of the RANSAC, or None when RANSAC
+    finds no model.
+    """
+    import pycolmap
+
+    ransac: Any = pycolmap.RANSACOptions()
+    ransac.max_error = max_error
+    ransac.random_seed = seed
+    res = pycolmap.estimate_relative_pose(rays1, rays2, ransac)
+    if res is None:
+        return None
+    inliers = np.asarray(res["inlier_mask"], bool).ravel()
+    pose = res["cam2_from_cam1"]
+    refined = pycolmap.refine_relative_pose(pose, rays1, rays2, inliers)
+    if refined is not None:
+        pose = refined["cam2_from_cam1"]
+    return (np.asarray(pose.rotation.matrix()), np.asarray(pose.translation, dtype=np.float64),
+            inliers)

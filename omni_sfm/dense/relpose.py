@@ -14,12 +14,12 @@ estimate's own noise: otherwise the given poses are used.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
 from omni_sfm.cameras import CameraModel
 from omni_sfm.geometry import FloatArray, angle_between, rotation_angle
+from omni_sfm.transforms import relative_pose_from_rays
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -94,7 +94,6 @@ def pair_pose(ref: Features, src: Features, world_from_ref: FloatArray, centre_r
     if not opts.enabled or len(ref.rays) < opts.min_inliers or len(src.rays) < opts.min_inliers:
         return keep
     import cv2
-    import pycolmap
 
     knn = cv2.BFMatcher(cv2.NORM_L2).knnMatch(ref.descriptors, src.descriptors, k=2)
     good = [p[0] for p in knn if len(p) == 2 and p[0].distance < 0.8 * p[1].distance]
@@ -102,21 +101,15 @@ def pair_pose(ref: Features, src: Features, world_from_ref: FloatArray, centre_r
         return keep
     r1 = ref.rays[[m.queryIdx for m in good]]
     r2 = src.rays[[m.trainIdx for m in good]]
-    ransac: Any = pycolmap.RANSACOptions()
-    ransac.max_error = opts.max_error
-    ransac.random_seed = 0
-    res = pycolmap.estimate_relative_pose(r1, r2, ransac)
-    if res is None or int(res["num_inliers"]) < opts.min_inliers:
+    est = relative_pose_from_rays(r1, r2, max_error=opts.max_error, seed=0)
+    if est is None or int(est[2].sum()) < opts.min_inliers:
         return keep
-    refined = pycolmap.refine_relative_pose(res["cam2_from_cam1"], r1, r2, res["inlier_mask"])
-    est = refined["cam2_from_cam1"] if refined is not None else res["cam2_from_cam1"]
-    R = np.asarray(est.rotation.matrix())                     # src_from_ref
-    t = np.asarray(est.translation, dtype=np.float64)
+    R, t, inlier_mask = est                                   # src_from_ref
     R_given = world_from_src.T @ world_from_ref
     t_given = world_from_src.T @ (centre_ref - centre_src)
     d_rot = float(np.degrees(rotation_angle(R_given.T @ R)))
     d_dir = float(np.degrees(angle_between(t, t_given)))
-    inliers = int(res["num_inliers"])
+    inliers = int(inlier_mask.sum())
     if d_rot < opts.min_rotation_change_deg or d_rot > opts.max_rotation_change_deg or \
             d_dir > opts.max_direction_change_deg:
         return PairPose(world_from_src, centre_src, False, inliers, d_rot, d_dir)

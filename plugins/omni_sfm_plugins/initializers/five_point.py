@@ -44,26 +44,17 @@ def chain_options(options: Mapping[str, Any]) -> ChainOptions:
 
 def five_point(sequence: SequenceInput, options: Mapping[str, Any]) -> InitializerResult:
     """The ``five-point`` initializer (module docstring)."""
-    import pycolmap
+    from omni_sfm.transforms import relative_pose_from_rays
 
     pts, source = point_tracks(sequence, options)
     thr = ransac_threshold(sequence, options)
     seed = int(options.get("seed", 0))
 
     def relpose(r: int, k: int, x1: FloatArray, x2: FloatArray) -> RelPose | None:
-        ro = pycolmap.RANSACOptions()
-        ro.max_error = thr
-        ro.random_seed = seed + 1000 * k + r
-        res = pycolmap.estimate_relative_pose(x1, x2, ro)
-        if res is None:
+        est = relative_pose_from_rays(x1, x2, max_error=thr, seed=seed + 1000 * k + r)
+        if est is None:
             return None
-        inl = np.asarray(res["inlier_mask"], bool).ravel()
-        pose = res["cam2_from_cam1"]
-        ref = pycolmap.refine_relative_pose(pose, x1, x2, inl)
-        if ref is not None:
-            pose = ref["cam2_from_cam1"]
-        R = np.asarray(pose.rotation.matrix())
-        t = np.asarray(pose.translation, float)
+        R, t, inl = est
         n = np.linalg.norm(t)
         if not n > 0:
             return None
