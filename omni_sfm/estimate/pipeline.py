@@ -371,9 +371,13 @@ def estimate_poses(tracks: LineTracks,
     report = _report(tracks, frames, members, direction, outliers, used, windows,
                      init.failures, dict(timings), rms0, rms1, sigma)
     report["reflection"] = reflection
-    return EstimationResult(traj, frames, traj0, tracks.track_ids.copy(), members, direction,
-                            outliers, used, d_n, p_n, windows, dict(timings), rms0, rms1,
-                            sigma, SCALE_CONVENTION, report)
+    return EstimationResult(
+        trajectory=traj, estimated=frames, initial_trajectory=traj0,
+        track_ids=tracks.track_ids.copy(), parallel=members, parallel_direction=direction,
+        outliers=outliers, used_tracks=used, line_directions=d_n, line_points=p_n,
+        windows=windows, timings_ms=dict(timings), residual_rms_initial_deg=rms0,
+        residual_rms_final_deg=rms1, sigma_deg=sigma, scale_convention=SCALE_CONVENTION,
+        report=report)
 
 
 def side_votes(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArray, p: FloatArray,
