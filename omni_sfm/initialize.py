@@ -31,7 +31,7 @@ import numpy as np
 from omni_sfm.cameras import CameraModel, load_camera
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.estimate.pipeline import EstimationOptions, EstimationResult, estimate_poses
-from omni_sfm.fileio import atomic_output_dir, stored_path
+from omni_sfm.fileio import atomic_output_dir, atomic_write_text, dumps_json, stored_path
 from omni_sfm.folders import LINES_FILE, USER_MASK_FILE, InitFolder
 from omni_sfm.geometry import ray_line_closest
 from omni_sfm.lines.frontend import FrontEndOptions, FrontEndResult, track_lines
@@ -248,3 +248,76 @@ def init_from_images(images: Path | str, camera: Path | str | CameraModel, outpu
                       image_names=tuple(est_names), not_estimated=tuple(skipped_not_estimated),
                       unreadable=tuple(_image_names(source, np.asarray(fe.frames_skipped,
                                                                         dtype=int))))
+
+
+@dataclass(frozen=True)
+class PluginInitResult:
+    """What :func:`init_with_initializer` wrote: the folder, the normalised poses, the names of
+    the posed frames (trajectory order; the first is the world frame) and of the others, and
+    the ``report.json`` document."""
+
+    output: Path
+    trajectory: Trajectory
+    image_names: tuple[str, ...]
+    not_estimated: tuple[str, ...]
+    report: dict[str, Any]
+
+
+def normalised_trajectory(traj: Trajectory) -> Trajectory:
+    """``traj`` in ``init``'s convention: world = its first camera, first-to-last camera
+    distance = 1 (kept when the two coincide)."""
+    R0, c0 = traj.rotations[0], traj.positions[0]
+    pos = (traj.positions - c0) @ R0        # R0^T (c_k - c0), row-wise
+    d = float(np.linalg.norm(pos[-1]))
+    return Trajectory(traj.timestamps.copy(), np.einsum("ji,njk->nik", R0, traj.rotations),
+                      pos / d if d > 0 else pos)
+
+
+def init_with_initializer(images: Path | str, camera: Path | str | CameraModel,
+                          output: Path | str, name: str, *,
+                          options: dict[str, Any] | None = None,
+                          overwrite: bool = False) -> PluginInitResult:
+    """``omni-sfm init --initializer NAME``: the poses of a registered initializer (a plugin,
+    e.g. ``five-point``) on the frames, written as an init folder that ``refine`` and
+    ``dense`` take like the line-based one: ``trajectory.tum`` (normalised as ``init``'s),
+    ``report.json``, ``camera.yaml`` and the COLMAP model seeded with the poses.
+
+    Raises:
+        OmniSfmError: unknown initializer, unreadable frames or camera, or an initializer that
+            posed fewer than 3 frames (its reason in the message).
+    """
+    from omni_sfm.export.colmap import write_init_model
+    from omni_sfm.fileio import check_output_dir
+    from omni_sfm.initializer import run_initializer, sequence_from_frames
+
+    output = Path(output)
+    check_output_dir(output, overwrite=overwrite, inputs=(Path(images),))
+    cam = camera if isinstance(camera, CameraModel) else load_camera(camera)
+    seq = sequence_from_frames(Path(images), cam)
+    assert seq.images is not None  # sequence_from_frames reads frames
+    res, seconds = run_initializer(name, seq, options)
+    if res.status != "ok" or res.trajectory is None or len(res.trajectory) < 3:
+        raise OmniSfmError(f"initializer {name!r} posed no usable trajectory: "
+                           f"{res.reason or 'fewer than 3 frames'}")
+    traj = normalised_trajectory(res.trajectory)
+    frame_of = {float(t): k for k, t in enumerate(seq.timestamps)}
+    posed = [frame_of[float(t)] for t in traj.timestamps]
+    names = [seq.images.names[k] for k in posed]
+    missing = sorted(set(range(seq.num_frames)) - set(posed))
+    report = {
+        "input": {"images": stored_path(images, output),
+                  "camera": stored_path(camera, output) if not isinstance(
+                      camera, CameraModel) else camera.model,
+                  "timestamps": "seconds" if seq.images.is_video else "frame index"},
+        "initializer": name, "status": res.status, "reason": res.reason, "info": res.info,
+        "num_frames": seq.num_frames, "num_frames_estimated": len(traj),
+        "frames_not_estimated_names": [seq.images.names[k] for k in missing],
+        "wall_time_s": {"initializer": seconds},
+        "scale_convention": "world = first estimated camera, first-to-last distance = 1",
+    }
+    with atomic_output_dir(output, overwrite=overwrite, inputs=(Path(images),)) as tmp:
+        write_init_model(tmp, cam, traj, names)
+        atomic_write_text(tmp / InitFolder.REPORT, dumps_json(report))
+    return PluginInitResult(output=output, trajectory=traj, image_names=tuple(names),
+                            not_estimated=tuple(seq.images.names[k] for k in missing),
+                            report=report)

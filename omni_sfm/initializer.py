@@ -10,12 +10,16 @@ a failure by returning :func:`failed` (or raising :class:`~omni_sfm.errors.OmniS
 
 from __future__ import annotations
 
+import time
+import traceback
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
 
+from omni_sfm import registry
 from omni_sfm.cameras.base import CameraModel
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.geometry import FloatArray
@@ -172,3 +176,45 @@ def check_result(res: object) -> InitializerResult:
         return failed(f"broken plugin: {problem}")
     assert isinstance(res, InitializerResult)
     return res
+
+
+def sequence_from_frames(images: Path, camera: CameraModel) -> SequenceInput:
+    """Every frame of an image folder (sorted by name; timestamp = index) or a video
+    (timestamps in seconds), named and stamped as ``init`` names them. One-line OmniSfmError
+    when there are fewer than 3 frames or the first does not have the camera's size."""
+    frames = FrameStore(images)
+    if len(frames) < 3:
+        raise OmniSfmError(f"{images}: {len(frames)} frames; need at least 3")
+    path = Path(images)
+    name = path.resolve().parent.name if path.name == "images" else path.stem
+    seq = SequenceInput(frames.timestamps.copy(), camera, images=frames, name=name)
+    seq.read_image(0)  # a camera for other images fails here, before any initializer runs
+    return seq
+
+
+def run_initializer(name: str, sequence: SequenceInput,
+                    options: Mapping[str, Any] | None = None) -> tuple[InitializerResult, float]:
+    """Run one initializer; any exception becomes a failed result with its one-line reason,
+    and so does a plugin that cannot be loaded or returns what breaks the contract
+    (:func:`omni_sfm.initializer.check_result`).
+
+    Returns the result and the wall time in seconds.
+
+    Raises:
+        OmniSfmError: no initializer ``name`` is installed.
+    """
+    try:
+        fn: Initializer = registry.load(registry.INITIALIZERS, name)
+    except registry.PluginError as exc:
+        return failed(str(exc)), 0.0
+    t0 = time.perf_counter()
+    try:
+        res = check_result(fn(sequence, dict(options or {})))
+    except OmniSfmError as exc:
+        res = failed(str(exc))
+    except Exception as exc:  # a crash of one initializer must not lose the others' results
+        tb = traceback.extract_tb(exc.__traceback__)
+        where = f" ({Path(tb[-1].filename).name}:{tb[-1].lineno})" if tb else ""
+        res = failed(f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
+                     f"{where}")
+    return res, time.perf_counter() - t0

@@ -4,14 +4,20 @@ summaries say which frames have no pose and which frame is the world."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from omni_sfm.cli import main as cli_main
 from omni_sfm.cli.cmd_init import summary
 from omni_sfm.errors import OmniSfmError
+from omni_sfm.evaluate import trajectory_errors
+from omni_sfm.export.colmap import read_init_model
 from omni_sfm.fileio import check_output_dir, resolve_stored, stored_path
+from omni_sfm.folders import recorded_images
+from omni_sfm.poses import read_tum
 from omni_sfm.synth.render import RenderOptions, render_sequence
 
 
@@ -85,3 +91,47 @@ def test_init_summary_names_the_world_frame_and_frames_without_a_pose() -> None:
     assert "world: the camera of frame 000012.png" in lines[1]
     assert lines[2].startswith("not estimated: 11 frames (000000.png")
     assert lines[3].startswith("unreadable: 1 frames could not be decoded (000005.png)")
+
+
+@pytest.fixture(scope="module")
+def textured(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("textured") / "r"
+    render_sequence(out, RenderOptions(scene="room", textured=True, frames=12, width=400,
+                                       height=300), progress=False)
+    return out
+
+
+def test_init_with_an_initializer_plugin_makes_an_init_folder(
+        textured: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``init --initializer five-point``: the plugin's poses, normalised like init's, as a
+    folder that refine reads (COLMAP model, camera) and that records its frames."""
+    out = tmp_path / "init5"
+    assert cli_main(["init", "--initializer", "five-point", "--images",
+                     str(textured / "images"), "--camera", str(textured / "camera.yaml"),
+                     "--output", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "init: 12 of 12 frames estimated by five-point" in printed
+    model = read_init_model(out)
+    traj = read_tum(out / "trajectory.tum")
+    np.testing.assert_allclose(traj.rotations[0], np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(traj.positions[0], 0.0, atol=1e-12)
+    assert np.linalg.norm(traj.positions[-1]) == pytest.approx(1.0)
+    assert list(model.image_names) == [f"{k:06d}.png" for k in range(12)]
+    assert recorded_images(out) == (textured / "images").resolve()
+    report = json.loads((out / "report.json").read_text())
+    assert report["initializer"] == "five-point" and report["num_frames_estimated"] == 12
+    # the poses are the plugin's: the same frames against the truth as compare measures them
+    errs = trajectory_errors(traj, read_tum(textured / "groundtruth.tum"))
+    assert errs.rot_max_deg < 1.0
+
+
+def test_init_with_an_unknown_or_misused_initializer_is_exit_2(
+        textured: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    common = ["--images", str(textured / "images"), "--camera", str(textured / "camera.yaml")]
+    assert cli_main(["init", "--initializer", "nope", *common, "--output",
+                     str(tmp_path / "a")]) == 2
+    assert "unknown initializer 'nope'" in _one_line_error(capsys)
+    assert cli_main(["init", "--initializer", "five-point", *common, "--no-refine",
+                     "--output", str(tmp_path / "b")]) == 2
+    assert "--no-refine applies to the line-based method" in _one_line_error(capsys)
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()

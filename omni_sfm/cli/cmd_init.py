@@ -27,9 +27,13 @@ def add_parser(subparsers: Any) -> None:
                     "the poses and a debug view; complete or not at all.",
     )
     method = p.add_mutually_exclusive_group()
-    method.add_argument("--lines", action="store_true", default=True,
-                        help="line-based initializer (the default and, in the core, the only "
-                             "one; point-based ones are plugins of 'omni-sfm compare')")
+    method.add_argument("--lines", action="store_true",
+                        help="the line-based method (the default): front end, the paper's "
+                             "searches, line bundle adjustment")
+    method.add_argument("--initializer", metavar="NAME", default=None,
+                        help="instead, a registered initializer plugin on the frames (e.g. "
+                             "five-point, colmap, upright-3pt; see 'omni-sfm compare'), written "
+                             "as an init folder that refine and dense take")
     source = p.add_mutually_exclusive_group(required=True)
     source.add_argument("--tracks", type=Path,
                         help="tracked line normals, tracks.json (docs/formats.md)")
@@ -87,6 +91,8 @@ def run(args: argparse.Namespace) -> int:
     from omni_sfm.fileio import atomic_output_dir, check_output_dir, stored_path
 
     estimation = EstimationOptions(refine=not args.no_refine)
+    if args.initializer is not None:
+        return _run_plugin(args)
     if args.images is not None:
         from omni_sfm.initialize import InitOptions, init_from_images
         from omni_sfm.lines.frontend import FrontEndOptions
@@ -119,4 +125,30 @@ def run(args: argparse.Namespace) -> int:
     est = result.estimated
     print(summary(result.report, args.output, [f for f, e in zip(frames, est, strict=True) if e],
                   [f for f, e in zip(frames, est, strict=True) if not e], []))
+    return 0
+
+
+def _run_plugin(args: argparse.Namespace) -> int:
+    """``init --initializer NAME``: a plugin's poses as an init folder."""
+    from omni_sfm.errors import OmniSfmError
+    from omni_sfm.initialize import init_with_initializer
+
+    if args.images is None or args.camera is None:
+        raise OmniSfmError("--initializer needs --images PATH and --camera FILE")
+    line_only = {"--mask": args.mask is not None, "--no-refine": args.no_refine,
+                 "--start/--end/--step": (args.start, args.end, args.step) != (0, None, 1),
+                 "--no-colmap": args.no_colmap, "--text": args.text}
+    given = [flag for flag, on in line_only.items() if on]
+    if given:
+        raise OmniSfmError(f"{given[0]} applies to the line-based method, not --initializer")
+    res = init_with_initializer(args.images, args.camera, args.output, args.initializer,
+                                overwrite=args.overwrite)
+    total = len(res.image_names) + len(res.not_estimated)
+    print(f"init: {len(res.image_names)} of {total} frames estimated by {args.initializer} "
+          f"-> {args.output}")
+    print(f"world: the camera of frame {res.image_names[0]} (first estimated), first-to-last "
+          "camera distance = 1")
+    if res.not_estimated:
+        print(f"not estimated: {len(res.not_estimated)} frames ({_names(list(res.not_estimated))};"
+              f" {res.report['reason'] or 'see report.json'})")
     return 0

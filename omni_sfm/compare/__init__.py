@@ -41,8 +41,6 @@ from omni_sfm.compare.runner import (
     match_gt_frames,
     parse_initializer_names,
     run_comparison,
-    run_initializer,
-    sequence_from_frames,
 )
 from omni_sfm.initializer import (  # the contract, importable from here too
     Initializer,
@@ -50,6 +48,8 @@ from omni_sfm.initializer import (  # the contract, importable from here too
     PointObservations,
     SequenceInput,
     failed,
+    run_initializer,
+    sequence_from_frames,
 )
 
 __all__ = [

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import time
-import traceback
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -12,7 +10,6 @@ from typing import Any
 import numpy as np
 
 from omni_sfm import registry
-from omni_sfm.cameras.base import CameraModel
 from omni_sfm.compare.metrics import METRIC_KEYS, Evaluation, evaluate_trajectory
 from omni_sfm.compare.plots import plot_errors, plot_trajectories
 from omni_sfm.compare.report import report_markdown
@@ -20,27 +17,16 @@ from omni_sfm.errors import OmniSfmError
 from omni_sfm.evaluate import associate
 from omni_sfm.fileio import atomic_output_dir, atomic_write_text, dumps_json
 from omni_sfm.folders import CompareFolder
-from omni_sfm.initializer import Initializer, InitializerResult, SequenceInput, check_result, failed
-from omni_sfm.lines.video import FrameStore
+from omni_sfm.initializer import (
+    InitializerResult,
+    SequenceInput,
+    run_initializer,
+)
 from omni_sfm.poses import Trajectory, write_tum
-from omni_sfm.registry import INITIALIZERS, PluginError
+from omni_sfm.registry import INITIALIZERS
 
 DEFAULT_INITIALIZERS = ("lines", "five-point", "colmap", "upright-3pt")
 """The initializers :func:`compare` runs when none are named (those installed)."""
-
-def sequence_from_frames(images: Path, camera: CameraModel) -> SequenceInput:
-    """Every frame of an image folder (sorted by name; timestamp = index) or a video
-    (timestamps in seconds), named and stamped as ``init`` names them. One-line OmniSfmError
-    when there are fewer than 3 frames or the first does not have the camera's size."""
-    frames = FrameStore(images)
-    if len(frames) < 3:
-        raise OmniSfmError(f"{images}: {len(frames)} frames; need at least 3")
-    path = Path(images)
-    name = path.resolve().parent.name if path.name == "images" else path.stem
-    seq = SequenceInput(frames.timestamps.copy(), camera, images=frames, name=name)
-    seq.read_image(0)  # a camera for other images fails here, before any initializer runs
-    return seq
-
 
 def known_initializers() -> list[str]:
     """Names of the installed initializers."""
@@ -63,34 +49,6 @@ def parse_initializer_names(text: str | Sequence[str] | None) -> list[str]:
     if len(set(names)) != len(names):
         raise OmniSfmError(f"initializer named twice in {','.join(names)}")
     return names
-
-
-def run_initializer(name: str, sequence: SequenceInput,
-                    options: Mapping[str, Any] | None = None) -> tuple[InitializerResult, float]:
-    """Run one initializer; any exception becomes a failed result with its one-line reason,
-    and so does a plugin that cannot be loaded or returns what breaks the contract
-    (:func:`omni_sfm.initializer.check_result`).
-
-    Returns the result and the wall time in seconds.
-
-    Raises:
-        OmniSfmError: no initializer ``name`` is installed.
-    """
-    try:
-        fn: Initializer = registry.load(INITIALIZERS, name)
-    except PluginError as exc:
-        return failed(str(exc)), 0.0
-    t0 = time.perf_counter()
-    try:
-        res = check_result(fn(sequence, dict(options or {})))
-    except OmniSfmError as exc:
-        res = failed(str(exc))
-    except Exception as exc:  # a crash of one initializer must not lose the others' results
-        tb = traceback.extract_tb(exc.__traceback__)
-        where = f" ({Path(tb[-1].filename).name}:{tb[-1].lineno})" if tb else ""
-        res = failed(f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
-                     f"{where}")
-    return res, time.perf_counter() - t0
 
 
 def match_gt_frames(sequence: SequenceInput, gt: Trajectory, gt_name: str = "ground truth"
