@@ -444,29 +444,20 @@ def _levenberg_marquardt(prob: _Problem, state: _State, loss: RobustLoss, scale:
     return state, it
 
 
-def bundle_adjust(tracks: LineTracks, rotations: FloatArray, positions: FloatArray,
-                  line_directions: FloatArray, line_points: FloatArray, *,
-                  frames: np.ndarray | None = None,
-                  scale_frames: np.ndarray | None = None,
-                  options: BundleOptions = BundleOptions()) -> BundleResult:
-    """Refine poses and lines jointly from all observations (partial tracks allowed).
+def _initial_state(tracks: LineTracks, rotations: FloatArray, positions: FloatArray,
+                   line_directions: FloatArray, line_points: FloatArray,
+                   frames: np.ndarray | None) -> tuple[_State, np.ndarray]:
+    """The starting point of the adjustment: float64 copies of the initial values, checked.
 
-    Args:
-        tracks: the observations; only (track, frame) pairs present give residuals.
-        rotations: ``(F, 3, 3)`` initial world_from_cam.
-        positions: ``(F, 3)`` initial camera centres.
-        line_directions: ``(M, 3)`` initial unit line directions (world); NaN rows: tracks that
-            take no part (they are triangulated from the initial poses if possible).
-        line_points: ``(M, 3)`` a point of each initial line (world).
-        frames: ``(F,)`` bool, the frames to estimate (default: all with finite poses).
-        scale_frames: ``(F,)`` bool, frames among which the one that holds the scale is chosen
-            (default: all); e.g. the already refined part of a growing chain.
-        options: see :class:`BundleOptions`.
+    Returns ``((R, c, d, p), frames)``: ``R`` ``(F, 3, 3)`` world_from_cam, ``c`` ``(F, 3)``
+    camera centres, ``d`` ``(M, 3)`` unit line directions and ``p`` ``(M, 3)`` each line's point
+    closest to the world origin (world units of the input); ``frames`` ``(F,)`` bool, the frames
+    with a finite pose (among ``frames`` if given). Lines given as NaN are triangulated from the
+    initial poses of those frames (NaN where that fails).
 
     Raises:
-        OmniSfmError: fewer than 3 estimable frames or no usable track.
+        ValueError: arrays of the wrong shape.
     """
-    t0 = time.perf_counter()
     F, M = tracks.num_frames, tracks.num_tracks
     R = np.array(rotations, dtype=np.float64)
     c = np.array(positions, dtype=np.float64)
@@ -485,24 +476,23 @@ def bundle_adjust(tracks: LineTracks, rotations: FloatArray, positions: FloatArr
         d[missing], p[missing] = d2[missing], p2[missing]
     d = normalize(d)
     p = p - np.sum(p * d, 1, keepdims=True) * d
-    line_ok = np.isfinite(d).all(1) & np.isfinite(p).all(1)
-    outlier = np.zeros(M, bool)
+    return (R, c, d, p), fr
 
-    weak = np.zeros(M, bool)
 
-    def active_tracks() -> np.ndarray:
-        cnt = np.bincount(tracks.obs_track[fr[tracks.obs_frame]], minlength=M)
-        return line_ok & ~outlier & ~weak & (cnt >= options.min_observations)
+def _gauge(c: FloatArray, frames: np.ndarray,
+           scale_frames: np.ndarray | None) -> tuple[int, int, int]:
+    """``(fixed_frame, scale_frame, scale_axis)``: the gauge held during the adjustment.
 
-    # frames need observations of active tracks to be determined
-    act = active_tracks()
-    per_frame = np.bincount(tracks.obs_frame[act[tracks.obs_track]], minlength=F)
-    fr &= per_frame >= 3
-    if fr.sum() < 3:
-        raise OmniSfmError(f"bundle adjustment needs at least 3 frames that see 3 lines or more; "
-                           f"got {int(fr.sum())}")
-    fixed = int(np.flatnonzero(fr)[0])
-    dist = np.linalg.norm(np.where(fr[:, None], c - c[fixed], 0.0), axis=1)
+    ``c`` ``(F, 3)`` initial camera centres, ``frames`` ``(F,)`` bool the estimated frames. The
+    first estimated frame's pose is held; the scale by the coordinate (axis 0-2) of the largest
+    magnitude of the offset from it of the camera centre farthest from it (among
+    ``scale_frames`` ``(F,)`` bool, if given).
+
+    Raises:
+        OmniSfmError: all candidate centres coincide with the fixed one (no scale).
+    """
+    fixed = int(np.flatnonzero(frames)[0])
+    dist = np.linalg.norm(np.where(frames[:, None], c - c[fixed], 0.0), axis=1)
     if scale_frames is not None:
         dist = np.where(np.asarray(scale_frames, bool), dist, 0.0)
     scale_frame = int(np.argmax(dist))
@@ -510,90 +500,215 @@ def bundle_adjust(tracks: LineTracks, rotations: FloatArray, positions: FloatArr
     if dist[scale_frame] <= 0:
         raise OmniSfmError("bundle adjustment: all initial camera centres coincide; the scale "
                            "is undefined")
+    return fixed, scale_frame, scale_axis
 
-    obs_in = fr[tracks.obs_frame]
 
-    def angles_now() -> FloatArray:
-        a = np.full(tracks.num_observations, np.nan)
-        a[obs_in] = weighted_residuals(tracks, R, c, d, p)[obs_in]
+def _new_outliers(active: np.ndarray, rms: FloatArray, sigma: float,
+                  options: BundleOptions) -> np.ndarray:
+    """``(M,)`` bool: the active tracks to reject in this round (none unless
+    ``options.reject_outliers``).
+
+    ``rms`` ``(M,)`` is each track's RMS weighted residual and ``sigma`` the per-axis noise
+    (both radians). Of the tracks above ``outlier_threshold`` times the expected RMS
+    (``sqrt(2) sigma``), only the gross ones (at least half the worst's RMS) are taken, as they
+    bias the others' residuals; at most half the active tracks (the worst).
+    """
+    M = len(active)
+    new_out = np.zeros(M, bool)
+    if options.reject_outliers:
+        cand = active & (rms > options.outlier_threshold * np.sqrt(2.0) * sigma)
+        if cand.any():
+            worst = float(np.max(rms[cand]))
+            new_out = cand & (rms >= 0.5 * worst)
+            if new_out.sum() > 0.5 * active.sum():
+                keep = np.argsort(-np.where(new_out, rms, -np.inf))[: int(0.5 * active.sum())]
+                new_out = np.zeros(M, bool)
+                new_out[keep] = True
+    return new_out
+
+
+class _Adjustment:
+    """One bundle adjustment's state through its rounds.
+
+    Attributes:
+        R, c, d, p: current poses and lines: ``(F, 3, 3)`` world_from_cam, ``(F, 3)`` camera
+            centres, ``(M, 3)`` unit line directions and ``(M, 3)`` line points (world units of
+            the initial values).
+        frames: ``(F,)`` bool, the estimated frames (each sees at least 3 active tracks).
+        line_ok: ``(M,)`` bool, tracks with a (finite) line.
+        outlier: ``(M,)`` bool, tracks currently rejected as outliers.
+        weak: ``(M,)`` bool, tracks left out for their small plane spread.
+        fixed, scale_frame, scale_axis: the gauge (:func:`_gauge`).
+        obs_in: ``(K,)`` bool, observations in the estimated frames.
+        ang0: ``(K,)`` weighted residual norms (radians) at the start, NaN outside ``frames``.
+        sigma: current per-axis NV noise, radians.
+        iterations: LM iterations so far; history: one entry per solve.
+    """
+
+    def __init__(self, tracks: LineTracks, state: _State, frames: np.ndarray,
+                 scale_frames: np.ndarray | None, options: BundleOptions) -> None:
+        """Set up from :func:`_initial_state`'s output.
+
+        Raises:
+            OmniSfmError: fewer than 3 frames seeing 3 active tracks or more, or no scale.
+        """
+        self.tracks, self.options = tracks, options
+        self.R, self.c, self.d, self.p = state
+        self.frames = frames
+        M = tracks.num_tracks
+        self.line_ok = np.asarray(np.isfinite(self.d).all(1) & np.isfinite(self.p).all(1))
+        self.outlier = np.zeros(M, bool)
+        self.weak = np.zeros(M, bool)
+        # frames need observations of active tracks to be determined
+        act = self.active_tracks()
+        per_frame = np.bincount(tracks.obs_frame[act[tracks.obs_track]],
+                                minlength=tracks.num_frames)
+        self.frames &= per_frame >= 3
+        if self.frames.sum() < 3:
+            raise OmniSfmError(f"bundle adjustment needs at least 3 frames that see 3 lines or "
+                               f"more; got {int(self.frames.sum())}")
+        self.fixed, self.scale_frame, self.scale_axis = _gauge(self.c, self.frames, scale_frames)
+        self.obs_in = self.frames[tracks.obs_frame]
+        self.ang0 = self.angles()
+        self.sigma = np.radians(options.noise_deg) if options.noise_deg else \
+            _robust_sigma(self.ang0[act[tracks.obs_track] & self.obs_in])
+        self.iterations = 0
+        self.history: list[dict[str, float]] = []
+
+    def active_tracks(self) -> np.ndarray:
+        """``(M,)`` bool: tracks with a line, not rejected, with enough observations."""
+        tracks = self.tracks
+        cnt = np.bincount(tracks.obs_track[self.frames[tracks.obs_frame]],
+                          minlength=tracks.num_tracks)
+        return self.line_ok & ~self.outlier & ~self.weak & (cnt >= self.options.min_observations)
+
+    def angles(self) -> FloatArray:
+        """``(K,)`` weighted residual norms (radians) now; NaN outside the estimated frames."""
+        a = np.full(self.tracks.num_observations, np.nan)
+        a[self.obs_in] = weighted_residuals(self.tracks, self.R, self.c, self.d,
+                                            self.p)[self.obs_in]
         return a
 
-    ang0 = angles_now()
-    sigma = np.radians(options.noise_deg) if options.noise_deg else \
-        _robust_sigma(ang0[act[tracks.obs_track] & obs_in])
-    iterations = 0
-    history: list[dict[str, float]] = []
-    for _round in range(max(1, options.max_rounds)):
-        act = active_tracks()
+    def solve(self, active: np.ndarray, loss: RobustLoss, max_iterations: int,
+              tolerance: float) -> int:
+        """Run LM on the ``active`` ``(M,)`` tracks with the loss scaled to the current noise;
+        returns the iterations it took."""
+        prob = _Problem(self.tracks, self.frames, active, self.fixed, self.scale_frame,
+                        self.scale_axis)
+        (self.R, self.c, self.d, self.p), it = _levenberg_marquardt(
+            prob, (self.R, self.c, self.d, self.p), loss, self.options.loss_scale * self.sigma,
+            max_iterations, tolerance)
+        self.iterations += it
+        return it
+
+    def readmit(self) -> np.ndarray:
+        """``(M,)`` bool: rejected tracks that fit the current poses after all.
+
+        Tracks rejected while the solution was still off may be fine: their lines are refitted
+        to the current poses, and those whose RMS is now within the threshold get the refitted
+        line back (``d``, ``p`` and ``line_ok`` updated in place).
+        """
+        tracks, o = self.tracks, self.options
+        d2, p2, ok2 = triangulate_lines(tracks, self.R, self.c, self.frames, o.min_observations)
+        ang2 = weighted_residuals(tracks, self.R, self.c, d2, p2)
+        ang2[~self.obs_in] = np.nan
+        rms2 = _track_rms(tracks, ang2, tracks.num_tracks)
+        readmit = self.outlier & ok2 & (rms2 <= o.outlier_threshold * np.sqrt(2.0) * self.sigma)
+        self.d[readmit], self.p[readmit] = d2[readmit], p2[readmit]
+        self.line_ok[readmit] = True
+        return readmit
+
+    def robust_round(self, round_: int) -> bool:
+        """One robust round: solve, re-estimate the noise, reject (or take back) outlier tracks.
+
+        Returns True when it changed nothing (no track rejected or taken back, the noise
+        estimate within 10 %): the rounds have converged.
+        """
+        tracks, o, M = self.tracks, self.options, self.tracks.num_tracks
+        act = self.active_tracks()
         if not act.any():
             raise OmniSfmError("bundle adjustment: no track with enough observations remains")
-        prob = _Problem(tracks, fr, act, fixed, scale_frame, scale_axis)
-        (R, c, d, p), it = _levenberg_marquardt(prob, (R, c, d, p), options.loss,
-                                                options.loss_scale * sigma,
-                                                min(options.max_iterations,
-                                                    options.robust_iterations),
-                                                max(options.tolerance, options.robust_tolerance))
-        iterations += it
-        ang = angles_now()
-        old_sigma = sigma
-        if not options.noise_deg:
-            sigma = _robust_sigma(ang[act[tracks.obs_track]])
-        rms = _track_rms(tracks, ang, M)
-        new_out = np.zeros(M, bool)
-        if options.reject_outliers:
-            cand = act & (rms > options.outlier_threshold * np.sqrt(2.0) * sigma)
-            if cand.any():
-                # gross outliers first: they bias the others' residuals; at most half the tracks
-                worst = float(np.max(rms[cand]))
-                new_out = cand & (rms >= 0.5 * worst)
-                if new_out.sum() > 0.5 * act.sum():
-                    keep = np.argsort(-np.where(new_out, rms, -np.inf))[: int(0.5 * act.sum())]
-                    new_out = np.zeros(M, bool)
-                    new_out[keep] = True
+        it = self.solve(act, o.loss, min(o.max_iterations, o.robust_iterations),
+                        max(o.tolerance, o.robust_tolerance))
+        ang = self.angles()
+        old_sigma = self.sigma
+        if not o.noise_deg:
+            self.sigma = _robust_sigma(ang[act[tracks.obs_track]])
+        new_out = _new_outliers(act, _track_rms(tracks, ang, M), self.sigma, o)
         readmit = np.zeros(M, bool)
-        if options.reject_outliers and outlier.any() and not new_out.any():
-            # tracks rejected while the solution was still off may be fine: refit their lines
-            # to the current poses and take back those that now fit
-            d2, p2, ok2 = triangulate_lines(tracks, R, c, fr, options.min_observations)
-            ang2 = weighted_residuals(tracks, R, c, d2, p2)
-            ang2[~obs_in] = np.nan
-            rms2 = _track_rms(tracks, ang2, M)
-            readmit = outlier & ok2 & (rms2 <= options.outlier_threshold * np.sqrt(2.0) * sigma)
-            d[readmit], p[readmit] = d2[readmit], p2[readmit]
-            line_ok[readmit] = True
-        history.append({"round": float(_round), "sigma_deg": float(np.degrees(sigma)),
-                        "iterations": float(it), "new_outliers": float(new_out.sum()),
-                        "readmitted": float(readmit.sum())})
-        outlier = (outlier | new_out) & ~readmit
-        if _round == 0 and options.min_spread_sigmas > 0:
+        if o.reject_outliers and self.outlier.any() and not new_out.any():
+            readmit = self.readmit()
+        self.history.append({"round": float(round_), "sigma_deg": float(np.degrees(self.sigma)),
+                             "iterations": float(it), "new_outliers": float(new_out.sum()),
+                             "readmitted": float(readmit.sum())})
+        self.outlier = (self.outlier | new_out) & ~readmit
+        if round_ == 0 and o.min_spread_sigmas > 0:
             # lines whose planes barely turn (seen along their own direction) fix almost
             # nothing but make the problem ill-conditioned: leave them out
-            weak = act & (_plane_spread(tracks, R, fr, M)
-                          < options.min_spread_sigmas * np.sqrt(2.0) * sigma)
-        if not new_out.any() and not readmit.any() and abs(sigma - old_sigma) <= 0.1 * old_sigma:
+            self.weak = act & (_plane_spread(tracks, self.R, self.frames, M)
+                               < o.min_spread_sigmas * np.sqrt(2.0) * self.sigma)
+        return bool(not new_out.any() and not readmit.any()
+                    and abs(self.sigma - old_sigma) <= 0.1 * old_sigma)
+
+    def polish(self, loss: RobustLoss) -> None:
+        """The maximum-likelihood polish on the inliers (converges fast: no reweighting)."""
+        it = self.solve(self.active_tracks(), loss, self.options.max_iterations,
+                        self.options.tolerance)
+        self.history.append({"round": -1.0, "sigma_deg": float(np.degrees(self.sigma)),
+                             "iterations": float(it), "new_outliers": 0.0})
+
+    def result(self, t0: float) -> BundleResult:
+        """The :class:`BundleResult` now (``t0``: ``time.perf_counter()`` at the start)."""
+        tracks, fr = self.tracks, self.frames
+        act = self.active_tracks()
+        ang = self.angles()
+        used_obs = act[tracks.obs_track] & self.obs_in
+        rms_final = float(np.degrees(np.sqrt(np.mean(ang[used_obs] ** 2))))
+        rms_initial = float(np.degrees(np.sqrt(np.nanmean(self.ang0[used_obs] ** 2))))
+        R_out = np.where(fr[:, None, None], self.R, np.nan)
+        c_out = np.where(fr[:, None], self.c, np.nan)
+        return BundleResult(R_out, c_out, np.where(act[:, None], self.d, np.nan),
+                            np.where(act[:, None], self.p, np.nan), fr, act, self.outlier,
+                            float(np.degrees(self.sigma)),
+                            np.degrees(_track_rms(tracks, ang, tracks.num_tracks)),
+                            rms_initial, rms_final, self.iterations,
+                            (time.perf_counter() - t0) * 1e3, self.history)
+
+
+def bundle_adjust(tracks: LineTracks, rotations: FloatArray, positions: FloatArray,
+                  line_directions: FloatArray, line_points: FloatArray, *,
+                  frames: np.ndarray | None = None,
+                  scale_frames: np.ndarray | None = None,
+                  options: BundleOptions = BundleOptions()) -> BundleResult:
+    """Refine poses and lines jointly from all observations (partial tracks allowed).
+
+    Robust rounds (:meth:`_Adjustment.robust_round`) until nothing changes or
+    ``options.max_rounds``, then the polish with ``options.final_loss`` on the inliers.
+
+    Args:
+        tracks: the observations; only (track, frame) pairs present give residuals.
+        rotations: ``(F, 3, 3)`` initial world_from_cam.
+        positions: ``(F, 3)`` initial camera centres.
+        line_directions: ``(M, 3)`` initial unit line directions (world); NaN rows: tracks that
+            take no part (they are triangulated from the initial poses if possible).
+        line_points: ``(M, 3)`` a point of each initial line (world).
+        frames: ``(F,)`` bool, the frames to estimate (default: all with finite poses).
+        scale_frames: ``(F,)`` bool, frames among which the one that holds the scale is chosen
+            (default: all); e.g. the already refined part of a growing chain.
+        options: see :class:`BundleOptions`.
+
+    Raises:
+        OmniSfmError: fewer than 3 estimable frames or no usable track.
+    """
+    t0 = time.perf_counter()
+    state, fr = _initial_state(tracks, rotations, positions, line_directions, line_points, frames)
+    adj = _Adjustment(tracks, state, fr, scale_frames, options)
+    for round_ in range(max(1, options.max_rounds)):
+        if adj.robust_round(round_):
             break
     if options.final_loss is not None:
-        # the maximum-likelihood polish on the inliers (converges fast: no reweighting)
-        act = active_tracks()
-        prob = _Problem(tracks, fr, act, fixed, scale_frame, scale_axis)
-        (R, c, d, p), it = _levenberg_marquardt(prob, (R, c, d, p), options.final_loss,
-                                                options.loss_scale * sigma,
-                                                options.max_iterations, options.tolerance)
-        iterations += it
-        history.append({"round": -1.0, "sigma_deg": float(np.degrees(sigma)),
-                        "iterations": float(it), "new_outliers": 0.0})
-    act = active_tracks()
-    ang = angles_now()
-    used_obs = act[tracks.obs_track] & obs_in
-    rms_final = float(np.degrees(np.sqrt(np.mean(ang[used_obs] ** 2))))
-    rms_initial = float(np.degrees(np.sqrt(np.nanmean(ang0[used_obs] ** 2))))
-    R_out = np.where(fr[:, None, None], R, np.nan)
-    c_out = np.where(fr[:, None], c, np.nan)
-    return BundleResult(R_out, c_out, np.where(act[:, None], d, np.nan),
-                        np.where(act[:, None], p, np.nan), fr, act, outlier,
-                        float(np.degrees(sigma)), np.degrees(_track_rms(tracks, ang, M)),
-                        rms_initial, rms_final, iterations,
-                        (time.perf_counter() - t0) * 1e3, history)
+        adj.polish(options.final_loss)
+    return adj.result(t0)
 
 
 def _plane_spread(tracks: LineTracks, R: FloatArray, frames: np.ndarray, M: int) -> FloatArray:

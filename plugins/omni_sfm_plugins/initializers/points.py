@@ -20,7 +20,7 @@ import numpy as np
 
 from omni_sfm.cameras.base import CameraModel
 from omni_sfm.errors import OmniSfmError
-from omni_sfm.geometry import FloatArray
+from omni_sfm.geometry import FloatArray, skew
 from omni_sfm.initializer import PointObservations, SequenceInput
 from omni_sfm.poses import Trajectory
 
@@ -314,5 +314,5 @@ def upright_basis(v: FloatArray) -> FloatArray:
     if s < 1e-12:
         return np.eye(3) if cth > 0 else np.diag([1.0, -1.0, -1.0])
     k = axis / s
-    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    K = skew(k)
     return np.eye(3) + s * K + (1 - cth) * K @ K

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from omni_sfm.errors import OmniSfmError
-from omni_sfm.geometry import FloatArray
+from omni_sfm.geometry import FloatArray, skew
 from omni_sfm.initializer import InitializerResult, SequenceInput, failed
 
 from .five_point import chain_options, ransac_threshold
@@ -37,13 +37,9 @@ def _ry(theta: float) -> FloatArray:
     return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
 
 
-def _skew(t: FloatArray) -> FloatArray:
-    return np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
-
-
 def epipolar_errors(x1: FloatArray, x2: FloatArray, R: FloatArray, t: FloatArray) -> FloatArray:
     """``(N,)`` larger of the two angles (sines) between a ray and its epipolar plane."""
-    E = _skew(t) @ R
+    E = skew(t) @ R
     n2 = x1 @ E.T
     n1 = x2 @ E
     with np.errstate(invalid="ignore", divide="ignore"):
