@@ -8,6 +8,7 @@ from pathlib import Path
 
 from omni_sfm.evaluate import TrajectoryErrors, trajectory_errors
 from omni_sfm.fileio import atomic_write_text
+from omni_sfm.folders import RenderFolder
 from omni_sfm.initialize import InitOptions, init_from_images, plot_trajectory
 from omni_sfm.poses import read_tum
 
@@ -32,13 +33,13 @@ def run_demo(output: Path, *, camera: str = "hyperboloid", frames: int = 100,
     output = Path(output)
     opts = RenderOptions(camera=camera, frames=frames, seed=seed)
     seq = output / f"sequence-corridor-{camera}-{frames}f-seed{seed}"
-    reused = (seq / "render.json").is_file() and (seq / "groundtruth.tum").is_file()
+    reused = (seq / RenderFolder.META).is_file() and (seq / RenderFolder.GROUNDTRUTH).is_file()
     if not reused:
         render_sequence(seq, opts, overwrite=True)
     init_dir = output / "init"
-    res = init_from_images(seq / "images", seq / "camera.yaml", init_dir,
+    res = init_from_images(seq / RenderFolder.IMAGES, seq / RenderFolder.CAMERA, init_dir,
                            InitOptions(), overwrite=True)
-    gt = read_tum(seq / "groundtruth.tum")
+    gt = read_tum(seq / RenderFolder.GROUNDTRUTH)
     err = trajectory_errors(res.estimation.trajectory, gt)
     aligned = err.alignment.apply(res.estimation.trajectory)
     plot = init_dir / "trajectory_vs_groundtruth.png"

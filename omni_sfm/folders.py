@@ -175,3 +175,25 @@ class CompareFolder:
     def trajectory(cls, initializer: str) -> str:
         """Where an initializer's poses go, relative to the folder."""
         return f"{cls.TRAJECTORIES}/{initializer}.tum"
+
+
+@dataclass(frozen=True)
+class RenderFolder:
+    """``omni-sfm render`` output: a sequence with exact ground truth (docs/rendering.md)."""
+
+    path: Path
+    IMAGES: ClassVar[str] = "images"
+    VIDEO: ClassVar[str] = "video.mp4"
+    CAMERA: ClassVar[str] = CAMERA_FILE
+    GROUNDTRUTH: ClassVar[str] = "groundtruth.tum"
+    SCENE: ClassVar[str] = "scene.ply"
+    LINES3D: ClassVar[str] = LINES_FILE
+    META: ClassVar[str] = "render.json"
+
+    def __truediv__(self, name: str) -> Path:
+        return Path(self.path) / name
+
+    @property
+    def frames(self) -> Path:
+        """The image folder, or the video when the sequence was rendered as one."""
+        return self / (self.VIDEO if (self / self.VIDEO).is_file() else self.IMAGES)

@@ -40,6 +40,7 @@ from omni_sfm.estimate.windows import (
     window_tracks,
 )
 from omni_sfm.fileio import atomic_write_text, dumps_json
+from omni_sfm.folders import REPORT_FILE, TRAJECTORY_FILE
 from omni_sfm.geometry import FloatArray, ray_line_closest
 from omni_sfm.lines.tracks import LineTracks
 from omni_sfm.poses import Trajectory, write_tum
@@ -458,12 +459,12 @@ def write_init_outputs(directory: Path, result: EstimationResult,
     :func:`omni_sfm.fileio.atomic_output_dir` so that the folder appears complete or not at all.
     """
     directory = Path(directory)
-    write_tum(directory / "trajectory.tum", result.trajectory)
+    write_tum(directory / TRAJECTORY_FILE, result.trajectory)
     report = dict(result.report)
     if extra:
         report.update(extra)
-    atomic_write_text(directory / "report.json", dumps_json(report))
-    return [directory / "trajectory.tum", directory / "report.json"]
+    atomic_write_text(directory / REPORT_FILE, dumps_json(report))
+    return [directory / TRAJECTORY_FILE, directory / REPORT_FILE]
 
 
 def reflect_positions(traj: Trajectory) -> Trajectory:

@@ -173,14 +173,6 @@ class LineTracker:
         self._frame += 1
         return track
 
-    def skip_frame(self) -> None:
-        """A frame that could not be read: nothing observed; tracking bridges it."""
-        self._matched.append(0)
-        self._started.append(0)
-        self._ended.append(0)
-        self._revived.append(0)
-        self._frame += 1
-
     def finish(self) -> TrackedObservations:
         """Merge joined tracks, keep one observation per (track, frame), drop short tracks,
         and number tracks 0..M-1 in order of their first frame."""

@@ -14,6 +14,7 @@ import numpy as np
 from omni_sfm.cameras import load_camera
 from omni_sfm.export.colmap import write_init_model
 from omni_sfm.fileio import atomic_output_dir
+from omni_sfm.folders import TRAJECTORY_FILE, RenderFolder
 from omni_sfm.geometry import rotvec_to_matrix
 from omni_sfm.lines.video import FrameStore
 from omni_sfm.poses import Trajectory, read_tum, write_tum
@@ -39,9 +40,9 @@ def write_perturbed_init(render_dir: Path, init_dir: Path, *, rotation_deg: floa
     ground truth of ``frames`` (indices; default all) as ``trajectory.tum`` and the COLMAP model
     (no ``images_colmap/``: refine writes its own). Returns the perturbed poses."""
     render_dir = Path(render_dir)
-    camera = load_camera(render_dir / "camera.yaml")
-    gt = read_tum(render_dir / "groundtruth.tum")
-    names = list(FrameStore(render_dir / "images").names)
+    camera = load_camera(render_dir / RenderFolder.CAMERA)
+    gt = read_tum(render_dir / RenderFolder.GROUNDTRUTH)
+    names = list(FrameStore(render_dir / RenderFolder.IMAGES).names)
     if len(names) != len(gt):
         raise ValueError(f"{render_dir}: {len(names)} images for {len(gt)} poses")
     traj = perturb(gt, rotation_deg=rotation_deg, position_fraction=position_fraction, seed=seed)
@@ -49,6 +50,6 @@ def write_perturbed_init(render_dir: Path, init_dir: Path, *, rotation_deg: floa
         traj = traj.subset(np.asarray(frames))
         names = [names[k] for k in np.asarray(frames)]
     with atomic_output_dir(Path(init_dir), overwrite=overwrite) as tmp:
-        write_tum(tmp / "trajectory.tum", traj)
+        write_tum(tmp / TRAJECTORY_FILE, traj)
         write_init_model(tmp, camera, traj, names)
     return traj

@@ -34,8 +34,10 @@ from omni_sfm.cameras import (
 )
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.fileio import atomic_output_dir, atomic_write_text, dumps_json
+from omni_sfm.folders import RenderFolder
 from omni_sfm.geometry import FloatArray
 from omni_sfm.libs import open3d_module
+from omni_sfm.lines.video import video_frame_name
 from omni_sfm.lines3d import write_lines3d
 from omni_sfm.poses import Trajectory, write_tum
 from omni_sfm.synth.paths import Mount, PathOptions, camera_path
@@ -585,12 +587,12 @@ def render_sequence(output: Path | str, options: RenderOptions | None = None, *,
     with atomic_output_dir(output, overwrite=overwrite) as tmp:
         writer = None
         if o.video:
-            writer = cv2.VideoWriter(str(tmp / "video.mp4"), cv2.VideoWriter.fourcc(*"mp4v"),
+            writer = cv2.VideoWriter(str(tmp / RenderFolder.VIDEO), cv2.VideoWriter.fourcc(*"mp4v"),
                                      float(o.fps), (cam.width, cam.height))
             if not writer.isOpened():
                 raise OmniSfmError(f"{output}: OpenCV cannot write an mp4v video here")
         else:
-            (tmp / "images").mkdir()
+            (tmp / RenderFolder.IMAGES).mkdir()
         try:
             for k in tqdm(range(n), desc=f"render {o.scene}", unit="frame",
                           disable=None if progress else True, leave=False):
@@ -598,7 +600,7 @@ def render_sequence(output: Path | str, options: RenderOptions | None = None, *,
                 bgr = np.ascontiguousarray(img[:, :, ::-1])
                 if writer is not None:
                     writer.write(bgr)
-                elif not cv2.imwrite(str(tmp / "images" / f"{k:06d}.png"), bgr):
+                elif not cv2.imwrite(str(tmp / RenderFolder.IMAGES / video_frame_name(k)), bgr):
                     raise OmniSfmError(f"{output}: could not write frame {k}")
         finally:
             if writer is not None:
@@ -607,13 +609,13 @@ def render_sequence(output: Path | str, options: RenderOptions | None = None, *,
         R_ws, t_ws = setup.world_from_scene()
         world_scene = setup.scene_in_world()
         up = R_ws[:, 2]
-        write_camera_yaml(tmp / "camera.yaml", cam)
+        write_camera_yaml(tmp / RenderFolder.CAMERA, cam)
         truth = setup.groundtruth_in_world()
         if o.video:  # stamped as omni-sfm stamps video frames: seconds, index / frame rate
             truth = Trajectory(truth.timestamps / float(o.fps), truth.rotations, truth.positions)
-        write_tum(tmp / "groundtruth.tum", truth)
-        world_scene.write_ply(tmp / "scene.ply")
-        write_lines3d(tmp / "lines3d.json", world_scene.lines,
+        write_tum(tmp / RenderFolder.GROUNDTRUTH, truth)
+        world_scene.write_ply(tmp / RenderFolder.SCENE)
+        write_lines3d(tmp / RenderFolder.LINES3D, world_scene.lines,
                       frame="world = first camera's ray frame, metres", up=up)
         meta: dict[str, Any] = {
             f.name: getattr(o, f.name) for f in fields(o)
@@ -632,5 +634,5 @@ def render_sequence(output: Path | str, options: RenderOptions | None = None, *,
                     world_from_scene=world_from_scene,
                     scene_frame="metres, +Z up, floor at z=0", up_in_world=up,
                     path_length_m=gt.path_length(), seconds_per_frame=seconds)
-        atomic_write_text(tmp / "render.json", dumps_json(meta))
+        atomic_write_text(tmp / RenderFolder.META, dumps_json(meta))
     return RenderResult(output, cam, truth, n, seconds)
