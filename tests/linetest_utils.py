@@ -4,6 +4,14 @@ A ray caster: every pixel's rays (``supersample`` x ``supersample`` sub-pixel ra
 anti-aliasing) hit the inside of an axis-aligned box; each face has a grey level and may hold
 axis-aligned rectangles ("doors", "windows") of another grey. The straight edges of the picture
 are exactly the box edges and the rectangles' edges, returned as 3D segments.
+
+Why not the renderer's (Open3D) ray casting: this slab test in float32 and Open3D's triangle
+intersection disagree on which face a ray grazing a box edge hits, so a few edge pixels differ
+(frame 0 of the tests' hyperboloid path: 69 pixels, up to 10 grey levels) and the figures the
+line tests quote would move. The cameras are the renderer's (identical models).
+
+:func:`render` keeps the images it made (tests render the same poses again and again) and
+returns a fresh copy each time, so a caller may paint on it.
 """
 
 from __future__ import annotations
@@ -15,16 +23,20 @@ import numpy as np
 
 from omni_sfm.cameras import CameraModel, EquirectangularCamera, HyperboloidCamera
 from omni_sfm.geometry import normalize
+from omni_sfm.synth import render as synth_render
 
 
 def hyperboloid_camera() -> HyperboloidCamera:
-    """The paper-like 800x600 hyperboloid camera of the project's tests."""
-    return HyperboloidCamera(width=800, height=600, cx=400, cy=300, px=0.01, py=0.01, f=8,
-                             alpha=14, beta=19.4, inner_radius=48, outer_radius=290)
+    """The paper's 800x600 hyperboloid camera (the renderer's)."""
+    return synth_render.hyperboloid_camera(800, 600)
 
 
 def equirect_camera() -> EquirectangularCamera:
-    return EquirectangularCamera(width=1600, height=800)
+    """The 1600x800 equirectangular camera (the renderer's paper size)."""
+    cam = synth_render.make_camera(synth_render.CameraKind.EQUIRECTANGULAR,
+                                   preset=synth_render.Preset.PAPER)
+    assert isinstance(cam, EquirectangularCamera) and (cam.width, cam.height) == (1600, 800)
+    return cam
 
 
 # world z up; the equirectangular camera's +Y is down and +Z its image centre
@@ -134,7 +146,27 @@ def render(camera: CameraModel, room: Room, world_from_cam: np.ndarray, position
 
     Adaptive anti-aliasing: pixels whose centre value differs from a 4-neighbour's are
     re-rendered as the mean of ``supersample x supersample`` sub-pixel rays.
+
+    Each distinct input is rendered once per test session; every call returns its own copy.
     """
+    R = np.asarray(world_from_cam, np.float64)
+    pos = np.asarray(position, np.float64)
+    assert R.shape == (3, 3) and pos.shape == (3,), (R.shape, pos.shape)
+    return _render_cached(camera, room, R.tobytes(), pos.tobytes(), supersample, background,
+                          noise, seed).copy()
+
+
+@functools.lru_cache(maxsize=64)
+def _render_cached(camera: CameraModel, room: Room, world_from_cam: bytes, position: bytes,
+                   supersample: int, background: float, noise: float, seed: int) -> np.ndarray:
+    img = _render(camera, room, np.frombuffer(world_from_cam).reshape(3, 3),
+                  np.frombuffer(position), supersample, background, noise, seed)
+    img.flags.writeable = False
+    return img
+
+
+def _render(camera: CameraModel, room: Room, world_from_cam: np.ndarray, position: np.ndarray,
+            supersample: int, background: float, noise: float, seed: int) -> np.ndarray:
     R = np.asarray(world_from_cam, np.float32)
     pos = np.asarray(position, float)
     rays = centre_rays(camera)

@@ -9,6 +9,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from helpers import assert_one_line_error
 
 from omni_sfm.cameras import (
     DoubleSphereCamera,
@@ -264,7 +265,7 @@ def test_cli_show_and_convert(tmp_path: Path, capsys: pytest.CaptureFixture[str]
     assert load_camera(dst) == load_camera(src)
     # no silent overwrite
     assert main(["camera", "convert", str(src), "-o", str(dst)]) == 2
-    assert "--overwrite" in capsys.readouterr().err
+    assert_one_line_error(capsys, "--overwrite")
     assert main(["camera", "convert", str(src), "-o", str(dst), "--overwrite"]) == 0
 
 
@@ -274,12 +275,12 @@ def test_cli_bad_input_exits_2_with_one_line(
 ) -> None:
     path = write(tmp_path, "cam.yaml", BAD_FILES[case][0])
     assert main(["camera", "show", str(path)]) == 2
+    assert_one_line_error(capsys, str(path))
     assert main(["camera", "convert", str(path), "-o", str(tmp_path / "o.yaml")]) == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 2 and all(e.startswith("omni-sfm: error: ") for e in err)
-    assert all(str(path) in e for e in err)
+    assert_one_line_error(capsys, str(path))
     assert not (tmp_path / "o.yaml").exists()
     assert main(["camera", "show", str(tmp_path / "nope.yaml")]) == 2
+    assert_one_line_error(capsys, "nope.yaml")
 
 
 def test_numpy_scalars_write_as_plain_yaml(tmp_path: Path) -> None:

@@ -6,6 +6,7 @@ import json
 
 import numpy as np
 import pytest
+from helpers import assert_one_line_error
 
 from omni_sfm.cli import main
 from omni_sfm.evaluate import trajectory_errors
@@ -39,7 +40,7 @@ def test_simulate_then_init_end_to_end(tmp_path, capsys):
     assert rep["residuals"]["rms_final_deg"] < 1e-6
     # an existing output is refused without --overwrite, replaced with it
     assert main(["init", "--tracks", str(sim_dir / "tracks.json"), "--output", str(out)]) == 2
-    assert "--overwrite" in capsys.readouterr().err
+    assert_one_line_error(capsys, "--overwrite")
     assert main(["init", "--tracks", str(sim_dir / "tracks.json"), "--output", str(out),
                  "--overwrite"]) == 0
 
@@ -88,9 +89,7 @@ def test_bad_input_one_line_exit_2_no_output(tmp_path, capsys, good, case):
     path.write_text(content if isinstance(content, str) else json.dumps(content))
     out = tmp_path / "out"
     assert main(["init", "--lines", "--tracks", str(path), "--output", str(out)]) == 2
-    err = capsys.readouterr().err
-    assert err.startswith("omni-sfm: error: ") and err.count("\n") == 1 and msg in err
-    assert "Traceback" not in err
+    assert_one_line_error(capsys, msg)
     assert not out.exists()
     assert not any(p.name.startswith(".out") for p in tmp_path.iterdir())
 
@@ -98,7 +97,7 @@ def test_bad_input_one_line_exit_2_no_output(tmp_path, capsys, good, case):
 def test_missing_tracks_file(tmp_path, capsys):
     assert main(["init", "--tracks", str(tmp_path / "nope.json"), "--output",
                  str(tmp_path / "o")]) == 2
-    assert "not found" in capsys.readouterr().err
+    assert_one_line_error(capsys, "not found", "nope.json")
 
 
 def test_write_tracks_round_trip_is_accepted(tmp_path, good):

@@ -1,6 +1,7 @@
-"""``omni-sfm compare`` and the sweep: results.json is what the written trajectories give,
-failures are kept with their reasons, bad input is one line and exit code 2, and the sweep gives
-the same results on a Dask cluster as on the local process pool."""
+"""``omni-sfm compare`` and the sweep: results.json is what the written trajectories give
+(recomputed here from the TUM files with numpy, independently of omni_sfm.evaluate), failures
+are kept with their reasons, bad input is one line and exit code 2, and the sweep gives the same
+results on a Dask cluster as on the local process pool."""
 
 from __future__ import annotations
 
@@ -12,10 +13,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from helpers import assert_one_line_error, independent_trajectory_errors
 
 from omni_sfm.cli import main
 from omni_sfm.compare import compare, evaluate_trajectory, recompute_results
 from omni_sfm.poses import Trajectory, read_tum, write_tum
+from omni_sfm.synth.render import RenderOptions
 
 ROOT = Path(__file__).resolve().parents[1]
 KEYS = {"status", "trajectory", "registered", "rot_max_deg", "rot_mean_deg", "ate_rel", "rpe",
@@ -24,32 +27,40 @@ KEYS = {"status", "trajectory", "registered", "rot_max_deg", "rot_mean_deg", "at
 sys.path.insert(0, str(Path(__file__).parent))
 from test_initializers import simulated  # noqa: E402
 
+FIGURES = ("registered", "rot_max_deg", "rot_mean_deg", "ate_rel", "rpe", "rpe_rot_deg",
+           "step_error_after_alignment")
 
-def check_results_match_trajectories(out: Path, gt: Trajectory, num_frames: int) -> dict:
-    """Every figure of results.json equals its recomputation from the TUM files."""
+
+def check_results_match_trajectories(out: Path, gt_tum: Path, num_frames: int) -> dict:
+    """Every figure of results.json equals its recomputation from the TUM files: by
+    ``recompute_results`` (what ``compare`` uses) and, independently, by numpy from the
+    definitions (tests/helpers.py); a failure has a reason and no figures."""
     res = json.loads((out / "results.json").read_text())
-    again = recompute_results(out, gt, num_frames)
+    again = recompute_results(out, read_tum(gt_tum), num_frames)
     for name, e in res["initializers"].items():
         assert set(e) >= KEYS, (name, sorted(e))
         assert e["status"] in ("ok", "failed")
         if e["status"] == "failed":
             assert e.get("reason"), f"{name} failed without a reason"
+            assert e["trajectory"] is None and e["rot_max_deg"] is None, (name, e)
+            assert name not in again
         if e["status"] == "ok":
             assert (out / e["trajectory"]).is_file()
-            for k in ("registered", "rot_max_deg", "rot_mean_deg", "ate_rel", "rpe",
-                      "rpe_rot_deg", "step_error_after_alignment"):
+            hand = independent_trajectory_errors(out / e["trajectory"], gt_tum, num_frames)
+            for k in FIGURES:
                 assert e[k] == pytest.approx(again[name][k], rel=1e-9, abs=1e-12), (name, k)
-            ev = evaluate_trajectory(read_tum(out / e["trajectory"]), gt, num_frames)
-            assert e["rot_max_deg"] == pytest.approx(float(ev.rot_deg.max()), abs=1e-9)
+                assert e[k] == pytest.approx(hand[k], rel=1e-9, abs=1e-9), (name, k, hand[k])
+    assert set(again) == {n for n, e in res["initializers"].items() if e["status"] == "ok"}
     return res
 
 
 def test_compare_simulation_results_recomputed(tmp_path: Path) -> None:
     seq, gt = simulated(noise_deg=0.1)
+    write_tum(tmp_path / "gt.tum", gt)
     thr = {"max_error_rad": 3 * np.radians(0.1)}
     out = tmp_path / "cmp"
     r = compare(seq, gt, out, ["lines", "five-point"], options={"five-point": thr})
-    res = check_results_match_trajectories(out, gt, seq.num_frames)
+    res = check_results_match_trajectories(out, tmp_path / "gt.tum", seq.num_frames)
     assert set(res["initializers"]) == {"lines", "five-point"}
     assert all(e["status"] == "ok" for e in res["initializers"].values())
     assert r.results == res
@@ -67,12 +78,16 @@ def test_compare_simulation_results_recomputed(tmp_path: Path) -> None:
     write_tum(out / e["trajectory"], moved)
     assert recompute_results(out, gt, seq.num_frames)["lines"]["ate_rel"] != \
         pytest.approx(e["ate_rel"], rel=1e-6)
+    assert independent_trajectory_errors(out / e["trajectory"], tmp_path / "gt.tum",
+                                         seq.num_frames)["ate_rel"] != \
+        pytest.approx(e["ate_rel"], rel=1e-6)
 
 
 def test_failure_kept_with_reason(tmp_path: Path) -> None:
     seq, gt = simulated(num_points=8)
+    write_tum(tmp_path / "gt.tum", gt)
     compare(seq, gt, tmp_path / "cmp", ["lines", "five-point"], plots=False)
-    res = check_results_match_trajectories(tmp_path / "cmp", gt, seq.num_frames)
+    res = check_results_match_trajectories(tmp_path / "cmp", tmp_path / "gt.tum", seq.num_frames)
     fp = res["initializers"]["five-point"]
     assert fp["status"] == "failed" and fp["trajectory"] is None and fp["registered"] == 0
     assert "correspondences" in fp["reason"] or "points" in fp["reason"]
@@ -81,14 +96,10 @@ def test_failure_kept_with_reason(tmp_path: Path) -> None:
 
 
 @pytest.fixture(scope="module")
-def tiny(tmp_path_factory: pytest.TempPathFactory):
-    """A tiny rendered textured corridor (paper's camera, 400 x 300, 10 frames)."""
-    from omni_sfm.synth.render import RenderOptions, render_sequence
-
-    out = tmp_path_factory.mktemp("tiny") / "seq"
-    return render_sequence(out, RenderOptions(scene="corridor", camera="hyperboloid",
-                                              frames=10, width=400, height=300, textured=True,
-                                              seed=4), progress=False)
+def tiny(rendered):
+    """A tiny rendered textured corridor (paper's camera, 400 x 300, 10 frames; read-only)."""
+    return rendered(RenderOptions(scene="corridor", camera="hyperboloid", frames=10, width=400,
+                                  height=300, textured=True, seed=4))
 
 
 def test_cli_every_initializer_on_rendered_sequence(tiny, tmp_path: Path,
@@ -98,18 +109,23 @@ def test_cli_every_initializer_on_rendered_sequence(tiny, tmp_path: Path,
     rc = main(["compare", "--images", str(d / "images"), "--camera", str(d / "camera.yaml"),
                "--groundtruth", str(d / "groundtruth.tum"), "--output", str(out)])
     assert rc == 0
-    gt = read_tum(d / "groundtruth.tum")
-    res = check_results_match_trajectories(out, gt, 10)
-    assert set(res["initializers"]) == {"lines", "five-point", "colmap", "upright-3pt"}
+    res = check_results_match_trajectories(out, d / "groundtruth.tum", 10)
+    inits = res["initializers"]
+    assert set(inits) == {"lines", "five-point", "colmap", "upright-3pt"}
+    # point features abound here: the point-based standards work, on every frame, near the
+    # truth; at this size the texture leaves the line front end 4 tracks (docs/comparison.md,
+    # the texture axis), too few for the line-based methods, which fail and say so
+    assert {n: e["status"] for n, e in inits.items()} == {
+        "lines": "failed", "five-point": "ok", "colmap": "ok", "upright-3pt": "failed"}
+    for name in ("five-point", "colmap"):
+        e = inits[name]
+        assert e["registered"] == 1.0, (name, e)
+        assert e["rot_max_deg"] < 2.0 and e["ate_rel"] < 0.05, (name, e)
+    assert "need at least 6" in inits["lines"]["reason"]
+    assert "no vanishing direction" in inits["upright-3pt"]["reason"]
     printed = capsys.readouterr().out
-    for name, e in res["initializers"].items():
+    for name in inits:
         assert name in printed
-        if e["status"] == "ok":
-            # textured, 400 x 300: every initializer that runs must be near the truth
-            assert e["rot_max_deg"] < 2.0 and e["ate_rel"] < 0.05, (name, e)
-    # point features abound here: the point-based standards must work
-    assert res["initializers"]["five-point"]["status"] == "ok"
-    assert res["initializers"]["colmap"]["status"] == "ok"
     # refuses to overwrite without --overwrite
     rc = main(["compare", "--images", str(d / "images"), "--camera", str(d / "camera.yaml"),
                "--groundtruth", str(d / "groundtruth.tum"), "--output", str(out),
@@ -118,13 +134,8 @@ def test_cli_every_initializer_on_rendered_sequence(tiny, tmp_path: Path,
 
 
 def _one_line_error(capsys: pytest.CaptureFixture[str], argv: list[str], *needles: str) -> None:
-    rc = main(argv)
-    err = capsys.readouterr().err
-    assert rc == 2
-    assert len(err.strip().splitlines()) == 1, err
-    assert err.startswith("omni-sfm: error: ")
-    for n in needles:
-        assert n in err, err
+    assert main(argv) == 2
+    assert_one_line_error(capsys, *needles)
 
 
 def test_bad_input_exit_2(tiny, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

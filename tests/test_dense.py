@@ -14,6 +14,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from helpers import assert_one_line_error
 
 from omni_sfm.cameras import load_camera
 from omni_sfm.cli import main as cli_main
@@ -28,7 +29,7 @@ from omni_sfm.fileio import stored_path
 from omni_sfm.geometry import angle_between, rotation_angle, rotvec_to_matrix
 from omni_sfm.libs import open3d_module
 from omni_sfm.poses import Trajectory, read_tum, write_tum
-from omni_sfm.synth.render import RenderOptions, render_sequence
+from omni_sfm.synth.render import RenderOptions
 
 SCALE = 0.37
 
@@ -40,21 +41,26 @@ def _similar(gt: Trajectory, scale: float) -> Trajectory:
 
 
 @pytest.fixture(scope="module")
-def room(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """Textured room, hyperboloid 400 x 300, 24 frames over 1.5 m."""
-    out = tmp_path_factory.mktemp("dense") / "room"
-    render_sequence(out, RenderOptions(scene="room", camera="hyperboloid", textured=True,
-                                       frames=24, width=400, height=300), progress=False)
-    return out
+def room(rendered) -> Path:
+    """Textured room, hyperboloid 400 x 300, 24 frames over 1.5 m (the session's read-only
+    render)."""
+    return rendered(RenderOptions(scene="room", camera="hyperboloid", textured=True, frames=24,
+                                  width=400, height=300)).output
 
 
 @pytest.fixture(scope="module")
-def poses(room: Path) -> Path:
+def work(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """This module's folder for what it writes beside the render."""
+    return tmp_path_factory.mktemp("dense")
+
+
+@pytest.fixture(scope="module")
+def poses(room: Path, work: Path) -> Path:
     """A poses folder: the true poses at scale 0.37, the camera and the true 3D lines."""
-    d = room.parent / "poses"
+    d = work / "poses"
     d.mkdir()
     write_tum(d / "trajectory.tum", _similar(read_tum(room / "groundtruth.tum"), SCALE))
-    shutil.copy(room / "camera.yaml", d / "camera.yaml")
+    shutil.copyfile(room / "camera.yaml", d / "camera.yaml")
     lines = json.loads((room / "lines3d.json").read_text())
     R = rotvec_to_matrix(np.array([0.3, -0.5, 0.9]))
     for s in lines["segments"]:
@@ -65,10 +71,10 @@ def poses(room: Path) -> Path:
 
 
 @pytest.fixture(scope="module")
-def dense_out(room: Path, poses: Path) -> Path:
+def dense_out(room: Path, poses: Path, work: Path) -> Path:
     gt = read_tum(room / "groundtruth.tum")
     first_last = float(np.linalg.norm(gt.positions[-1] - gt.positions[0]))
-    out = room.parent / "dense"
+    out = work / "dense"
     rc = cli_main(["dense", "--input", str(poses), "--images", str(room / "images"),
                    "--output", str(out), "--known-distance", f"first-last={first_last!r}"])
     assert rc == 0
@@ -156,13 +162,13 @@ def test_camera_height_finds_the_floor(room: Path, dense_out: Path) -> None:
     assert info["floor_points"] > 5000
 
 
-def test_camera_height_cli(room: Path, poses: Path) -> None:
+def test_camera_height_cli(room: Path, poses: Path, work: Path) -> None:
     """``--camera-height`` end to end (up axis from the camera model, ``--keyframe-step``)."""
     render = json.loads((room / "render.json").read_text())
     wfs = np.array(render["world_from_scene"])
     gt = read_tum(room / "groundtruth.tum")
     true_height = float(np.median(((gt.positions - wfs[:3, 3]) @ wfs[:3, :3])[:, 2]))
-    out = room.parent / "dense_height"
+    out = work / "dense_height"
     assert cli_main(["dense", "-i", str(poses), "--images", str(room / "images"), "-o", str(out),
                      "--camera-height", repr(true_height), "--keyframe-step", "4"]) == 0
     report = json.loads((out / "report.json").read_text())
@@ -223,12 +229,6 @@ def test_poses_folder_records_its_frames_and_can_be_moved(room: Path, poses: Pat
         read_dense_input(again)
 
 
-def _err(capsys: pytest.CaptureFixture[str]) -> str:
-    err = capsys.readouterr().err.strip()
-    assert err.count("\n") == 0 and err.startswith("omni-sfm: error:"), err
-    return err
-
-
 def test_bad_input_one_line_errors(room: Path, poses: Path, tmp_path: Path,
                                    capsys: pytest.CaptureFixture[str]) -> None:
     images = str(room / "images")
@@ -237,21 +237,21 @@ def test_bad_input_one_line_errors(room: Path, poses: Path, tmp_path: Path,
     empty.mkdir()
     assert cli_main(["dense", "-i", str(empty), "--images", images, "-o",
                      str(tmp_path / "o1")]) == 2
-    assert "trajectory.tum" in _err(capsys)
+    assert_one_line_error(capsys, "trajectory.tum")
     # no images
     assert cli_main(["dense", "-i", str(poses), "--images", str(tmp_path / "nope"), "-o",
                      str(tmp_path / "o2")]) == 2
-    assert "no such image folder or video file" in _err(capsys)
+    assert_one_line_error(capsys, "no such image folder or video file")
     # a static camera: all centres equal
     static = tmp_path / "static"
     static.mkdir()
     gt = read_tum(room / "groundtruth.tum")
     write_tum(static / "trajectory.tum", Trajectory(
         gt.timestamps, gt.rotations, np.zeros_like(gt.positions)))
-    shutil.copy(room / "camera.yaml", static / "camera.yaml")
+    shutil.copyfile(room / "camera.yaml", static / "camera.yaml")
     assert cli_main(["dense", "-i", str(static), "--images", images, "-o",
                      str(tmp_path / "o3")]) == 2
-    assert "baseline" in _err(capsys)
+    assert_one_line_error(capsys, "baseline")
     # the poses say the camera moves, the images say it does not: no parallax, no depth
     frozen = tmp_path / "frozen"
     frozen.mkdir()
@@ -260,7 +260,7 @@ def test_bad_input_one_line_errors(room: Path, poses: Path, tmp_path: Path,
         cv2.imwrite(str(frozen / f"{k:06d}.png"), first)
     assert cli_main(["dense", "-i", str(poses), "--images", str(frozen), "-o",
                      str(tmp_path / "o4")]) == 2
-    assert "baseline" in _err(capsys)
+    assert_one_line_error(capsys, "baseline")
     # two ways to fix the scale at once; a malformed distance (argparse: exit 2, one line)
     for extra, msg in ((["--known-distance", "first-last=1", "--camera-height", "1.1"],
                         "not allowed with"), (["--known-distance", "last=1"], "first-last=D")):
@@ -268,11 +268,10 @@ def test_bad_input_one_line_errors(room: Path, poses: Path, tmp_path: Path,
             cli_main(["dense", "-i", str(poses), "--images", images, "-o",
                       str(tmp_path / "o5"), *extra])
         assert exc.value.code == 2
-        err = capsys.readouterr().err.strip()
-        assert msg in err and err.count("\n") == 0
+        assert_one_line_error(capsys, msg, prefix="omni-sfm dense: error: ")
     assert cli_main(["dense", "-i", str(poses), "--images", images, "-o", str(tmp_path / "o6"),
                      "--camera-height", "-1"]) == 2
-    assert "must be > 0" in _err(capsys)
+    assert_one_line_error(capsys, "must be > 0")
     for name in ("o1", "o2", "o3", "o4", "o5", "o6"):
         assert not (tmp_path / name).exists()
 
@@ -281,4 +280,4 @@ def test_existing_output_refused(room: Path, poses: Path, dense_out: Path,
                                  capsys: pytest.CaptureFixture[str]) -> None:
     assert cli_main(["dense", "-i", str(poses), "--images", str(room / "images"), "-o",
                      str(dense_out)]) == 2
-    assert "--overwrite" in _err(capsys)
+    assert_one_line_error(capsys, "--overwrite")

@@ -12,20 +12,20 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from helpers import assert_one_line_error
 
 from omni_sfm.cli import main
 from omni_sfm.evaluate import trajectory_errors
 from omni_sfm.lines.tracks import read_tracks
 from omni_sfm.lines3d import read_lines3d
 from omni_sfm.poses import read_tum
-from omni_sfm.synth.render import RenderOptions, render_sequence
+from omni_sfm.synth.render import RenderOptions
 
 
 @pytest.fixture(scope="module")
-def corridor(tmp_path_factory) -> Path:
-    d = tmp_path_factory.mktemp("corridor") / "seq"
-    render_sequence(d, RenderOptions(camera="hyperboloid", frames=40, seed=1), progress=False)
-    return d
+def corridor(rendered) -> Path:
+    """The texture-poor corridor, 800 x 600 hyperboloid, 40 frames (read-only)."""
+    return rendered(RenderOptions(camera="hyperboloid", frames=40, seed=1)).output
 
 
 def _init(seq: Path, out: Path, *extra: str) -> int:
@@ -76,9 +76,8 @@ def test_corridor_hyperboloid_every_frame_within_thresholds(corridor, tmp_path):
     # them (full size, 100 frames: docs/results.md); measured 40/40, max 0.03 deg, ATE 0.02 %
     RenderOptions(scene="room", textured=True, frames=40, seed=0),
 ], ids=["equirectangular-corridor", "textured-room"])
-def test_every_frame_within_thresholds(opts, tmp_path):
-    seq = tmp_path / "seq"
-    render_sequence(seq, opts, progress=False)
+def test_every_frame_within_thresholds(opts, rendered, tmp_path):
+    seq = rendered(opts).output
     out = tmp_path / "init"
     assert _init(seq, out, "--no-colmap", "--debug-view", "none") == 0
     err = trajectory_errors(read_tum(out / "trajectory.tum"), read_tum(seq / "groundtruth.tum"))
@@ -116,10 +115,7 @@ def test_video_gives_the_same_result_as_its_image_folder(corridor, tmp_path):
 
 def _one_line_error(capsys, argv: list[str], *needles: str) -> None:
     assert main(argv) == 2
-    err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and err.startswith("omni-sfm: error:"), err
-    for n in needles:
-        assert n in err, err
+    assert_one_line_error(capsys, *needles)
 
 
 def test_bad_image_input(corridor, tmp_path, capsys):

@@ -8,12 +8,14 @@ The "line-based init" here is the rendered ground truth with realistic errors (0
 from __future__ import annotations
 
 import shutil
+import sqlite3
 from pathlib import Path
 
 import cv2
 import numpy as np
 import pycolmap
 import pytest
+from helpers import assert_one_line_error
 
 from omni_sfm.cameras import load_camera
 from omni_sfm.cli import main
@@ -28,24 +30,33 @@ from omni_sfm.fileio import read_json
 from omni_sfm.poses import Trajectory, read_tum
 from omni_sfm.refine import RefineOptions, refine
 from omni_sfm.refine.synthetic import perturb, write_perturbed_init
-from omni_sfm.synth.render import RenderOptions, render_sequence
+from omni_sfm.synth.render import RenderOptions
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "docs" / "examples" / "cameras"
 MISSING = (6, 13)  # frames the "line stage" did not pose: the mapper should register them
 
 
-def _render(root: Path, name: str, **kw) -> Path:
-    out = root / name
-    render_sequence(out, RenderOptions(camera="hyperboloid", width=400, height=300,
-                                       supersample=1, preset="small", seed=3, **kw),
-                    progress=False)
-    return out
+def _render(rendered, **kw) -> Path:
+    """The session's (read-only) render of the hyperboloid at 400 x 300, supersample 1."""
+    return rendered(RenderOptions(camera="hyperboloid", width=400, height=300, supersample=1,
+                                  preset="small", seed=3, **kw)).output
+
+
+def _keypoints_in_database(db: Path) -> int:
+    """Keypoints stored in a COLMAP database, read from its ``keypoints`` table with sqlite3
+    (each row: one image's ``rows x cols`` float32 blob), independently of pycolmap."""
+    con = sqlite3.connect(f"file:{db}?mode=ro", uri=True)
+    try:
+        rows = con.execute("SELECT rows, cols, length(data) FROM keypoints").fetchall()
+    finally:
+        con.close()
+    assert rows and all(r * c * 4 == n for r, c, n in rows), rows[:3]
+    return sum(r for r, _, _ in rows)
 
 
 @pytest.fixture(scope="module")
-def room(tmp_path_factory) -> Path:
-    return _render(tmp_path_factory.mktemp("room"), "room", scene="room", frames=20,
-                   textured=True)
+def room(rendered) -> Path:
+    return _render(rendered, scene="room", frames=20, textured=True)
 
 
 @pytest.fixture(scope="module")
@@ -127,14 +138,18 @@ def test_cli_reuses_the_features_of_a_database(room, room_refined, tmp_path, cap
     work, gt, _, _ = room_refined
     db = tmp_path / "database.db"
     shutil.copy(work / "out" / "database.db", db)
+    stored = _keypoints_in_database(db)
     init = write_perturbed_init(room, tmp_path / "init", seed=2)
     rc = main(["refine", "--input", str(tmp_path / "init"), "--images", str(room / "images"),
                "--output", str(tmp_path / "out"), "--database", str(db), "--overlap", "5"])
     assert rc == 0
     assert "refined" in capsys.readouterr().out
     report = read_json(tmp_path / "out" / "report.json")
+    # the keypoints reported are those the database held, none added
+    assert stored > 100 * len(gt)
     assert report["features"] == {"extracted_images": 0, "reused_images": len(gt),
-                                  "keypoints": report["features"]["keypoints"]}
+                                  "keypoints": stored}
+    assert _keypoints_in_database(db) == stored
     assert not (tmp_path / "out" / "database.db").exists()  # the given database is used
     out = read_tum(tmp_path / "out" / "trajectory.tum")
     assert trajectory_errors(out, gt).ate_rel < trajectory_errors(init, gt).ate_rel
@@ -144,8 +159,8 @@ def test_a_large_correction_is_taken_only_where_the_images_back_it(room, room_re
                                                                       tmp_path):
     """One seeded pose 8 deg off (beyond the 5 deg plausibility bound): its observations fit the
     corrected pose to sub-pixel error, so the correction is taken, and the report lists it as a
-    large change backed by the images. (Frames with too few observations keep their input: the
-    corridor test.)"""
+    large change backed by the images. (Where the images back no adjustment, every frame keeps
+    its input: the corridor test.)"""
     from omni_sfm.geometry import rotation_angle, rotvec_to_matrix
     from omni_sfm.poses import write_tum
 
@@ -175,28 +190,32 @@ def test_a_large_correction_is_taken_only_where_the_images_back_it(room, room_re
     assert rot_err(init) > 7.0 and rot_err(res.trajectory) < 0.5
 
 
-def test_refine_keeps_the_input_on_a_texture_poor_corridor(tmp_path):
-    corridor = _render(tmp_path, "corridor", scene="corridor", frames=16)
+def test_refine_keeps_the_input_on_a_texture_poor_corridor(rendered, tmp_path):
+    """Too few SIFT points on the untextured corridor for a trustworthy adjustment: the whole
+    input is kept, and the report says why."""
+    corridor = _render(rendered, scene="corridor", frames=16)
     init = write_perturbed_init(corridor, tmp_path / "init", seed=4)
     res = refine(tmp_path / "init", corridor / "images", tmp_path / "out",
                  RefineOptions(overlap=5), progress=False)
     gt = read_tum(corridor / "groundtruth.tum")
-    kept = ~res.refined
-    assert kept.sum() >= 0.5 * len(init)
+    assert len(res.trajectory) == len(init) == len(gt)
+    assert not res.refined.any()
     # kept means the input pose itself (up to the TUM file's quaternion round trip)
-    np.testing.assert_allclose(res.trajectory.positions[kept], init.positions[kept], atol=1e-12)
-    np.testing.assert_allclose(res.trajectory.rotations[kept], init.rotations[kept], atol=1e-12)
-    assert trajectory_errors(res.trajectory, gt).ate_rel <= trajectory_errors(init, gt).ate_rel
+    np.testing.assert_allclose(res.trajectory.positions, init.positions, atol=1e-12)
+    np.testing.assert_allclose(res.trajectory.rotations, init.rotations, atol=1e-12)
+    assert trajectory_errors(res.trajectory, gt).ate_rel == pytest.approx(
+        trajectory_errors(init, gt).ate_rel, rel=1e-9)
     r = res.report
-    assert r["kept_input_for_all"] or r["kept_frames"]
+    assert r["kept_input_for_all"] == ("too few points or well-observed frames for a "
+                                       "trustworthy adjustment"), r["kept_input_for_all"]
+    assert r["refined_frames"] == 0 and r["kept_frames"] == {}
 
 
-def test_refine_improves_an_equirectangular_seed(tmp_path):
+def test_refine_improves_an_equirectangular_seed(rendered, tmp_path):
     """The camera whose COLMAP image is not mirrored and whose frame is COLMAP's own."""
-    out = tmp_path / "eq"
-    render_sequence(out, RenderOptions(scene="room", camera="equirectangular", width=384,
-                                       height=192, frames=10, textured=True, supersample=1,
-                                       preset="small", seed=3), progress=False)
+    out = rendered(RenderOptions(scene="room", camera="equirectangular", width=384, height=192,
+                                 frames=10, textured=True, supersample=1, preset="small",
+                                 seed=3)).output
     init = write_perturbed_init(out, tmp_path / "init", seed=5)
     res = refine(tmp_path / "init", out / "images", tmp_path / "out", RefineOptions(overlap=4),
                  progress=False)
@@ -228,9 +247,8 @@ def tiny_init(tmp_path):
 def _refine_cli(tmp, capsys, init="init", images="images"):
     rc = main(["refine", "--input", str(tmp / init), "--images", str(tmp / images),
                "--output", str(tmp / "out")])
-    err = capsys.readouterr().err.strip()
     assert rc == 2
-    assert err.startswith("omni-sfm: error: ") and "\n" not in err
+    err = assert_one_line_error(capsys)
     assert not (tmp / "out").exists()
     return err
 

@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 import pycolmap
 import pytest
+from helpers import assert_one_line_error
 from scipy.spatial.transform import Rotation
 
 from omni_sfm.cameras import load_camera
@@ -310,10 +311,8 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys, args, message):
     rc = cli_main(["render", "--output", str(out), "--preset", "small", "--frames", "2", *args]
                   if "--frames" not in args else
                   ["render", "--output", str(out), "--preset", "small", *args])
-    err = capsys.readouterr().err
     assert rc == 2
-    assert message in err
-    assert err.count("\n") == 1 and err.startswith("omni-sfm: error: ")
+    assert_one_line_error(capsys, message)
     assert not out.exists()
 
 
@@ -323,7 +322,7 @@ def test_non_empty_output_is_refused_unless_overwrite(tmp_path, capsys):
     (out / "keep.txt").write_text("x")
     argv = ["render", "--output", str(out), "--preset", "small", "--frames", "1"]
     assert cli_main(argv) == 2
-    assert "not empty (use --overwrite)" in capsys.readouterr().err
+    assert_one_line_error(capsys, "not empty (use --overwrite)")
     assert (out / "keep.txt").exists()
     assert cli_main([*argv, "--overwrite"]) == 0
     assert not (out / "keep.txt").exists() and (out / "images" / "000000.png").exists()

@@ -1,4 +1,4 @@
-"""Parallel-family detection and VPVs (METHOD.md §3) on seeded simulations."""
+"""Parallel-family detection and VPVs (docs/method.md §3) on seeded simulations."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from omni_sfm.errors import OmniSfmError
-from omni_sfm.lines.tracks import make_tracks
+from omni_sfm.lines.tracks import LineTracks, make_tracks
 from omni_sfm.synth.simulate import Simulation, SimulationOptions, simulate
 from omni_sfm.vanishing import (
     VanishingOptions,
@@ -87,8 +87,8 @@ def test_accidental_near_parallel_track_is_rejected() -> None:
     _check_vpv(sim, fam.vpv, 0.1)
 
 
-def test_two_families() -> None:
-    """Lines in two directions: both families come back, largest first."""
+def _two_family_tracks() -> LineTracks:
+    """15 views of 8 lines in one direction and 5 in a second one (seed 7)."""
     rng = np.random.default_rng(7)
     sim = simulate(SimulationOptions(num_views=15, num_parallel=8, num_other=0, seed=7))
     gt = sim.groundtruth
@@ -103,7 +103,13 @@ def test_two_families() -> None:
     n_cam *= rng.choice([-1.0, 1.0], size=n_cam.shape[:2])[..., None]
     M, F = n_cam.shape[:2]
     mm, ff = np.meshgrid(np.arange(M), np.arange(F), indexing="ij")
-    tracks = make_tracks(F, np.arange(M), mm.ravel(), ff.ravel(), n_cam.reshape(-1, 3))
+    return make_tracks(F, np.arange(M), mm.ravel(), ff.ravel(), n_cam.reshape(-1, 3))
+
+
+def test_two_families() -> None:
+    """Lines in two directions: both families come back, largest first."""
+    tracks = _two_family_tracks()
+    M = tracks.num_tracks
     fams = detect_parallel_families(tracks)
     assert len(fams) == 2
     np.testing.assert_array_equal(fams[0].members, np.arange(M) < 8)
@@ -159,7 +165,78 @@ def test_closed_form_eigen_helpers_match_numpy() -> None:
     np.testing.assert_allclose(np.abs(np.sum(vec * ref_vec, 1)), 1.0, atol=1e-9)
 
 
-def test_options_are_respected() -> None:
-    sim = simulate(SimulationOptions(num_views=10, num_parallel=6, num_other=6, seed=9))
-    with pytest.raises(OmniSfmError):
-        detect_parallel_family(sim.tracks, VanishingOptions(min_family_size=7))
+def _families(tracks: LineTracks, **options) -> list[list[int]]:
+    """Member track indices of every family found with these options."""
+    return [np.flatnonzero(f.members).tolist()
+            for f in detect_parallel_families(tracks, VanishingOptions(**options))]
+
+
+@pytest.fixture(scope="module")
+def option_cases() -> dict[str, LineTracks]:
+    return {
+        # noise-free, 12 tracks, 6 of them parallel (0..5)
+        "clean": simulate(SimulationOptions(num_views=10, num_parallel=6, num_other=6,
+                                            seed=9)).tracks,
+        # 0.1 deg, 20 parallel (0..19); track 22 nearly fits (the accidental-track test)
+        "accidental": simulate(SimulationOptions(num_views=20, num_parallel=20, num_other=20,
+                                                 noise_deg=0.1, seed=5)).tracks,
+        "two": _two_family_tracks(),
+    }
+
+
+CLEAN, ACCIDENTAL = [list(range(6))], [list(range(20))]
+NONE: list[list[int]] = []
+
+
+@pytest.mark.parametrize(("case", "options", "expected"), [
+    # the defaults, against which every option below changes the outcome
+    ("clean", {}, CLEAN),
+    ("accidental", {}, ACCIDENTAL),
+    ("two", {}, [list(range(8)), list(range(8, 13))]),
+    ("clean", {"min_family_size": 6}, CLEAN),
+    ("clean", {"min_family_size": 7}, NONE),
+    ("two", {"max_families": 1}, [list(range(8))]),
+    ("clean", {"p_th": 1e-30}, NONE),
+    ("accidental", {"p_th": 1e-7}, NONE),  # below the noise: (0.1 deg)^2 = 3e-6
+    ("clean", {"min_spread": 2.0}, NONE),  # the middle eigenvalue of 3 normals is <= 1.5
+    ("clean", {"min_shared_frames": 10}, CLEAN),
+    ("clean", {"min_shared_frames": 11}, NONE),  # more than the 10 views
+    ("clean", {"max_triples": 0}, NONE),
+    ("clean", {"max_seeds": 0}, NONE),
+    ("clean", {"max_seeds": 1}, CLEAN),  # one seed triple grows into the whole family
+    ("clean", {"max_seeds": 1, "max_refine_iter": 0}, [[1, 2, 4]]),  # ... not without rounds
+    ("clean", {"max_seeds": 1, "max_refine_iter": 1}, CLEAN),
+    ("accidental", {"outlier_factor": 0.1}, NONE),
+    ("accidental", {"frame_outlier_factor": 0.5}, NONE),
+    ("accidental", {"outlier_factor": 1e4, "frame_outlier_factor": 1e4},
+     [list(range(20)) + [22]]),
+    ("accidental", {"seed_factor": 0.0}, NONE),
+    ("accidental", {"seed_factor": 1000.0},
+     [list(range(20)), [20, 22, 30, 31, 33], [27, 29, 36]]),
+    ("accidental", {"min_noise_deg": 1.0},
+     [list(range(20)) + [22], [20, 30, 31, 33], [24, 27, 29, 36]]),
+    # random triples (220 > max_triples), the best one kept as it is: the seed picks them
+    ("clean", {"max_triples": 40, "max_seeds": 1, "max_refine_iter": 0, "seed": 0}, [[0, 2, 5]]),
+    ("clean", {"max_triples": 40, "max_seeds": 1, "max_refine_iter": 0, "seed": 1}, [[0, 1, 2]]),
+    ("clean", {"max_triples": 40, "max_seeds": 1, "max_refine_iter": 0, "seed": 2}, [[0, 3, 4]]),
+])
+def test_options_are_respected(option_cases: dict[str, LineTracks], case: str, options: dict,
+                               expected: list[list[int]]) -> None:
+    """Every field of VanishingOptions changes the families found (exactly as listed), on data
+    where the defaults find the true ones; where none is left, the single-family API raises."""
+    tracks = option_cases[case]
+    assert _families(tracks, **options) == expected
+    if not expected:
+        # the message names the frames asked for
+        n = options.get("min_shared_frames", VanishingOptions().min_shared_frames)
+        with pytest.raises(OmniSfmError, match=f"parallel line tracks .* in {n} or more frames"):
+            detect_parallel_family(tracks, VanishingOptions(**options))
+
+
+def test_every_option_is_checked() -> None:
+    """test_options_are_respected covers each field of VanishingOptions."""
+    from dataclasses import fields
+
+    marks = test_options_are_respected.pytestmark  # type: ignore[attr-defined]
+    covered = {k for m in marks if m.name == "parametrize" for _, o, _ in m.args[1] for k in o}
+    assert covered == {f.name for f in fields(VanishingOptions)}

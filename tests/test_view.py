@@ -12,6 +12,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from helpers import assert_one_line_error
 
 from omni_sfm.cameras import write_camera_yaml
 from omni_sfm.cli import main as cli_main
@@ -141,7 +142,6 @@ def test_view_without_points_or_lines(result_dir: Path, tmp_path: Path) -> None:
 
 def test_view_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert cli_main(["view", "--input", str(tmp_path / "missing")]) == 2
+    assert_one_line_error(capsys, "missing")
     assert cli_main(["view", "--input", str(tmp_path)]) == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 2 and all(e.startswith("omni-sfm: error:") for e in err)
-    assert "trajectory.tum" in err[1]
+    assert_one_line_error(capsys, "trajectory.tum")
