@@ -11,10 +11,10 @@ from omni_sfm.estimate.translation import (
     estimate_plane,
     estimate_vertical,
     line_directions,
+    line_points,
     normal_residuals,
     plane_basis,
     resolve_sign,
-    triangulate_lines,
 )
 from omni_sfm.synth.simulate import Simulation, SimulationOptions, simulate
 
@@ -126,7 +126,7 @@ def test_lines_residuals_and_sign() -> None:
     gt = sim.groundtruth.positions
     d = line_directions(m)
     np.testing.assert_allclose(np.abs(np.sum(d * sim.line_directions, 1)), 1.0, atol=1e-12)
-    pts = triangulate_lines(m, d, gt)
+    pts = line_points(m, d, gt)
     # the same 3D lines: the true points lie on them
     off = sim.line_points - pts
     off -= np.sum(off * d, 1, keepdims=True) * d

@@ -360,8 +360,3 @@ def resolve_sign(rays_in_world: FloatArray, origins: FloatArray, points: FloatAr
         lam = np.where(mask, lam, 0.0)
     vote = float(np.sum(np.sign(np.nan_to_num(lam))))
     return -1.0 if vote < 0 else 1.0
-
-
-# the former name, still imported by tests/test_translation.py; to be dropped once it imports
-# line_points (the public triangulate_lines is omni_sfm.estimate.bundle's)
-triangulate_lines = line_points
