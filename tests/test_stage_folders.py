@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import assert_one_line_error
 
 from omni_sfm.cli import main as cli_main
 from omni_sfm.cli.cmd_init import summary
@@ -19,12 +20,6 @@ from omni_sfm.fileio import check_output_dir, resolve_stored, stored_path
 from omni_sfm.folders import recorded_images
 from omni_sfm.poses import read_tum
 from omni_sfm.synth.render import RenderOptions, render_sequence
-
-
-def _one_line_error(capsys: pytest.CaptureFixture[str]) -> str:
-    err = capsys.readouterr().err.strip()
-    assert err.count("\n") == 0 and err.startswith("omni-sfm: error:"), err
-    return err
 
 
 def test_output_that_is_holds_or_lies_inside_the_input_is_refused(tmp_path: Path) -> None:
@@ -44,7 +39,7 @@ def test_refine_onto_its_own_input_keeps_the_input(tmp_path: Path,
     inp.mkdir()
     (inp / "tracks.json").write_text("{}")
     assert cli_main(["refine", "--input", str(inp), "--output", str(inp), "--overwrite"]) == 2
-    assert "is the input" in _one_line_error(capsys)
+    assert "is the input" in assert_one_line_error(capsys)
     assert (inp / "tracks.json").read_text() == "{}"
 
 
@@ -75,7 +70,7 @@ def test_compare_with_a_camera_of_another_size_is_exit_2(tiny: Path, tmp_path: P
     assert cli_main(["compare", "--images", str(tiny / "images"), "--camera",
                      str(other / "camera.yaml"), "--groundtruth", str(tiny / "groundtruth.tum"),
                      "--output", str(out)]) == 2
-    err = _one_line_error(capsys)
+    err = assert_one_line_error(capsys)
     assert "160x120" in err and "200x150" in err
     assert not out.exists()
 
@@ -130,8 +125,8 @@ def test_init_with_an_unknown_or_misused_initializer_is_exit_2(
     common = ["--images", str(textured / "images"), "--camera", str(textured / "camera.yaml")]
     assert cli_main(["init", "--initializer", "nope", *common, "--output",
                      str(tmp_path / "a")]) == 2
-    assert "unknown initializer 'nope'" in _one_line_error(capsys)
+    assert "unknown initializer 'nope'" in assert_one_line_error(capsys)
     assert cli_main(["init", "--initializer", "five-point", *common, "--no-refine",
                      "--output", str(tmp_path / "b")]) == 2
-    assert "--no-refine applies to the line-based method" in _one_line_error(capsys)
+    assert "--no-refine applies to the line-based method" in assert_one_line_error(capsys)
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
