@@ -20,7 +20,7 @@ from __future__ import annotations
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import TYPE_CHECKING, ClassVar
 
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.fileio import read_json, resolve_stored
@@ -112,17 +112,6 @@ class StageFolder:
 
         return read_lines3d(self / self.LINES3D) if (self / self.LINES3D).is_file() else None
 
-    def read_report(self) -> dict[str, Any]:
-        """``report.json`` (one-line error if absent or malformed)."""
-        doc = read_json(self / self.REPORT, "report")
-        if not isinstance(doc, dict):
-            raise OmniSfmError(f"{self / self.REPORT}: not a JSON object")
-        return doc
-
-    def images(self, given: Path | str | None = None) -> Path:
-        """The frames: ``given``, else those the folder records (:func:`images_for`)."""
-        return images_for(self.path, given)
-
 
 @dataclass(frozen=True)
 class InitFolder(StageFolder):
@@ -192,8 +181,3 @@ class RenderFolder:
 
     def __truediv__(self, name: str) -> Path:
         return Path(self.path) / name
-
-    @property
-    def frames(self) -> Path:
-        """The image folder, or the video when the sequence was rendered as one."""
-        return self / (self.VIDEO if (self / self.VIDEO).is_file() else self.IMAGES)

@@ -60,14 +60,15 @@ from omni_sfm.folders import (
     USER_MASK_FILE,
     DenseFolder,
     InitFolder,
+    StageFolder,
     carry_forward,
     images_for,
 )
 from omni_sfm.geometry import FloatArray, normalize
 from omni_sfm.libs import open3d_module
 from omni_sfm.lines.video import FrameStore
-from omni_sfm.lines3d import LineSegments3D, read_lines3d, write_lines3d
-from omni_sfm.poses import Trajectory, read_tum, write_tum
+from omni_sfm.lines3d import LineSegments3D, write_lines3d
+from omni_sfm.poses import Trajectory, write_tum
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -200,10 +201,11 @@ def read_dense_input(poses_dir: Path, images: Path | None = None,
     tum = poses_dir / TRAJECTORY_FILE
     if not tum.is_file():
         raise OmniSfmError(f"{tum}: no trajectory (need the output folder of init or refine)")
-    traj = read_tum(tum)
+    owner = StageFolder(poses_dir)
+    traj = owner.read_trajectory()
     if len(traj) < 3:
         raise OmniSfmError(f"{tum}: {len(traj)} poses, dense mapping needs at least 3")
-    cam_file = Path(camera_file) if camera_file is not None else poses_dir / CAMERA_FILE
+    cam_file = Path(camera_file) if camera_file is not None else owner / owner.CAMERA
     if not cam_file.is_file():
         raise OmniSfmError(f"{cam_file}: camera file not found (give --camera FILE)")
     camera = load_camera(cam_file)
@@ -237,7 +239,7 @@ def read_dense_input(poses_dir: Path, images: Path | None = None,
     if missing:
         raise OmniSfmError(f"{frames.path}: {len(missing)} of {len(chosen)} frames are missing "
                            f"(first: {missing[0]!r})")
-    lines = read_lines3d(poses_dir / LINES_FILE) if (poses_dir / LINES_FILE).is_file() else None
+    lines = owner.read_lines3d()
     return DenseInput(traj, camera, frames, tuple(chosen), lines)
 
 

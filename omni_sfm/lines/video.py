@@ -231,18 +231,13 @@ class FrameStore:
         self._next = 0
         if not self.path.exists():
             raise OmniSfmError(f"{self.path}: no such image folder or video file")
-        if self.path.is_dir():
-            self.is_video = False
-            files = sorted(p.name for p in self.path.iterdir()
-                           if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
-            if not files:
-                raise OmniSfmError(f"{self.path}: folder holds no images "
-                                   f"({', '.join(IMAGE_SUFFIXES)})")
-            self.names: tuple[str, ...] = tuple(files)
-            self.timestamps = np.arange(len(files), dtype=np.float64)
+        # the folder listing, or the video's frame rate and count, as init reads them
+        src = read_frames(self.path)
+        self.is_video = src.is_video
+        if not src.is_video:
+            self.names: tuple[str, ...] = tuple(f.name for f in src.files)
+            self.timestamps = np.arange(len(self.names), dtype=np.float64)
             return
-        self.is_video = True
-        src = read_frames(self.path)  # checks that OpenCV opens it; frame rate and count
         count = src.frame_count
         if count is None:  # the container does not say: count what decodes
             count = 1 + max((f.number for f in src), default=-1)

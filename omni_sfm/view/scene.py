@@ -8,11 +8,11 @@ from pathlib import Path
 import numpy as np
 
 from omni_sfm.errors import OmniSfmError
-from omni_sfm.folders import LINES_FILE, DenseFolder
+from omni_sfm.folders import DenseFolder
 from omni_sfm.geometry import FloatArray, normalize
 from omni_sfm.libs import open3d_module
-from omni_sfm.lines3d import LineSegments3D, read_lines3d
-from omni_sfm.poses import Trajectory, read_tum
+from omni_sfm.lines3d import LineSegments3D
+from omni_sfm.poses import Trajectory
 
 
 @dataclass(frozen=True)
@@ -61,24 +61,26 @@ def up_direction(traj: Trajectory, camera_model: str | None) -> FloatArray:
 
 def load_view_scene(folder: Path, *, max_points: int = 200_000, seed: int = 0) -> ViewScene:
     """Read ``trajectory.tum`` (required), ``dense.ply`` (optional), 3D lines from
-    ``lines3d.json`` (optional) and the camera
-    model from ``camera.yaml`` (optional, for the up direction). One-line OmniSfmError when the
+    ``lines3d.json`` (optional) and the camera model from ``camera.yaml`` (optional, for the up
+    direction), through :class:`omni_sfm.folders.DenseFolder`. One-line OmniSfmError when the
     folder or its trajectory is missing."""
 
     folder = Path(folder)
     if not folder.is_dir():
         raise OmniSfmError(f"{folder}: folder not found")
-    tum = folder / DenseFolder.TRAJECTORY
+    owner = DenseFolder(folder)
+    tum = owner / owner.TRAJECTORY
     if not tum.is_file():
         raise OmniSfmError(f"{tum}: no trajectory (give a dense, init or refine output folder)")
-    traj = read_tum(tum)
+    traj = owner.read_trajectory()
     if len(traj) == 0:
         raise OmniSfmError(f"{tum}: the trajectory is empty")
     sources = {"trajectory": tum.name}
-    lines = LineSegments3D.empty()
-    if (folder / LINES_FILE).is_file():
-        lines = read_lines3d(folder / LINES_FILE)
-        sources["lines"] = LINES_FILE
+    lines = owner.read_lines3d()
+    if lines is not None:
+        sources["lines"] = owner.LINES3D
+    else:
+        lines = LineSegments3D.empty()
     pts, cols = np.zeros((0, 3)), np.zeros((0, 3))
     if (folder / DenseFolder.POINTS).is_file():
         o3d = open3d_module()
@@ -91,10 +93,8 @@ def load_view_scene(folder: Path, *, max_points: int = 200_000, seed: int = 0) -
             pts, cols = pts[keep], cols[keep]
         sources["points"] = DenseFolder.POINTS
     model = None
-    if (folder / DenseFolder.CAMERA).is_file():
-        from omni_sfm.cameras import load_camera
-
-        model = load_camera(folder / DenseFolder.CAMERA).model
+    if (owner / owner.CAMERA).is_file():
+        model = owner.read_camera().model
     return ViewScene(traj, lines.starts, lines.ends, lines.groups, pts, cols,
                      up_direction(traj, model), sources)
 
