@@ -44,6 +44,7 @@ from omni_sfm.lines.video import (
 )
 from omni_sfm.lines3d import LineSegments3D, write_lines3d
 from omni_sfm.poses import Trajectory
+from omni_sfm.transforms import paper_normalised_positions
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -265,12 +266,9 @@ class PluginInitResult:
 
 def normalised_trajectory(traj: Trajectory) -> Trajectory:
     """``traj`` in ``init``'s convention: world = its first camera, first-to-last camera
-    distance = 1 (kept when the two coincide)."""
-    R0, c0 = traj.rotations[0], traj.positions[0]
-    pos = (traj.positions - c0) @ R0        # R0^T (c_k - c0), row-wise
-    d = float(np.linalg.norm(pos[-1]))
-    return Trajectory(traj.timestamps.copy(), np.einsum("ji,njk->nik", R0, traj.rotations),
-                      pos / d if d > 0 else pos)
+    distance = 1 (OmniSfmError when the two coincide, as for the line-based estimate)."""
+    rot = np.einsum("ji,njk->nik", traj.rotations[0], traj.rotations)
+    return Trajectory(traj.timestamps.copy(), rot, paper_normalised_positions(traj))
 
 
 def init_with_initializer(images: Path | str, camera: Path | str | CameraModel,
