@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import tempfile
 from collections.abc import Mapping
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -36,7 +35,7 @@ def lines_refine(sequence: SequenceInput, options: Mapping[str, Any]) -> Initial
                                     InitOptions(debug_view="none", progress=False))
         except OmniSfmError as exc:
             return failed(f"init: {exc}")
-        ropts = replace(RefineOptions(), num_threads=int(options.get("threads", 1)))
+        ropts = RefineOptions(num_threads=int(options.get("threads", 1)))
         try:
             res = refine(work / "init", sequence.images.path, work / "refined", ropts,
                          progress=False, verbose=bool(options.get("verbose", False)))
