@@ -30,6 +30,21 @@ class Mount(StrEnum):
     HANDHELD = "handheld"
 
 
+class Route(StrEnum):
+    """How the camera moves through the scene (docs/rendering.md, "Routes")."""
+
+    LANE = "lane"
+    """Along the scene's straight walkway with smooth sway, bob and yaw (the default)."""
+    OFFICE = "office"
+    """An office walk of 20 m or more with a 90 deg turn (scene ``office``)."""
+    STOP_AND_GO = "stop-and-go"
+    """Drive, stop, turn 90 deg in place, drive on."""
+    TURN = "turn-in-place"
+    """Turn in place (a yaw sweep with a little pitch and roll), no translation."""
+    WALK = "walk"
+    """A hand-held walk: head height, walking bob and sway, glances to the sides."""
+
+
 # body frame: x forward, y left, z up.  Columns: the camera's axes in the body frame.
 BODY_FROM_CAM = {
     Mount.ROBOT: np.eye(3),
@@ -41,8 +56,11 @@ BODY_FROM_CAM = {
 class PathOptions:
     num_frames: int = 200
     """Number of poses."""
-    path_length: float = 1.5
-    """Length of the camera path, metres (arc length of the camera centre)."""
+    route: Route = Route.LANE
+    """How the camera moves (see :class:`Route`)."""
+    path_length: float | None = None
+    """Length of the camera path, metres (arc length of the camera centre); None: the
+    route's default (1.5 m for ``lane``)."""
     mount: Mount = Mount.ROBOT
     """How the camera is carried (see the module docstring)."""
     height: float | None = None
@@ -78,10 +96,11 @@ def camera_path(scene: Scene, options: PathOptions | None = None) -> Trajectory:
     Raises OmniSfmError when the requested path does not fit in the scene with the clearance.
     """
     o = options or PathOptions()
+    length = 1.5 if o.path_length is None else o.path_length
     if o.num_frames < 1:
         raise OmniSfmError(f"number of frames must be positive, got {o.num_frames}")
-    if not o.path_length >= 0:
-        raise OmniSfmError(f"path length must be >= 0 m, got {o.path_length}")
+    if not length >= 0:
+        raise OmniSfmError(f"path length must be >= 0 m, got {length}")
     rng = np.random.default_rng([o.seed, 7411])
     robot = o.mount == Mount.ROBOT
     height = o.height if o.height is not None else (1.1 if robot else 1.45)
@@ -90,10 +109,10 @@ def camera_path(scene: Scene, options: PathOptions | None = None) -> Trajectory:
 
     a, b = scene.walkway[0, :2], scene.walkway[1, :2]
     lane = float(np.linalg.norm(b - a))
-    slack = lane - o.path_length
+    slack = lane - length
     if slack < 0:
         raise OmniSfmError(
-            f"path length {o.path_length} m exceeds the {lane:.1f} m walkway of scene "
+            f"path length {length} m exceeds the {lane:.1f} m walkway of scene "
             f"{scene.name!r}"
         )
     heading = (b - a) / lane
@@ -118,15 +137,15 @@ def camera_path(scene: Scene, options: PathOptions | None = None) -> Trajectory:
         xy = start + scale * prog[:, None] * fwd + lateral[:, None] * side
         return np.column_stack([xy, height + vertical])
 
-    pos = positions(o.path_length)
+    pos = positions(length)
     arc = float(np.linalg.norm(np.diff(pos, axis=0), axis=1).sum()) if n > 1 else 0.0
-    if arc > 0 and o.path_length > 0:
+    if arc > 0 and length > 0:
         # the sway lengthens the path: shrink the forward part until the arc length matches
-        scale = o.path_length
+        scale = length
         for _ in range(20):
             pos = positions(scale)
             arc = float(np.linalg.norm(np.diff(pos, axis=0), axis=1).sum())
-            scale *= o.path_length / arc
+            scale *= length / arc
         pos = positions(scale)
 
     yaw0 = np.arctan2(fwd[1], fwd[0])
