@@ -30,6 +30,11 @@ from omni_sfm.estimate.bundle import (
     triangulate_lines,
 )
 from omni_sfm.estimate.paper import PaperOptions, PaperSolution, estimate_paper
+from omni_sfm.estimate.rotation_only import (
+    RotationOnlyOptions,
+    RotationOnlyResult,
+    estimate_rotation_only,
+)
 from omni_sfm.estimate.windows import (
     Window,
     WindowOptions,
@@ -76,6 +81,13 @@ class EstimationOptions:
     solutions (``PaperSolution.alternatives``: translations from other second views) and keep
     the solution with the lowest final cost, the maximum-likelihood criterion. At high noise
     the bundle adjustment from the paper's solution alone can stop in a wrong local minimum."""
+    rotation_only: RotationOnlyOptions = field(default_factory=RotationOnlyOptions)
+    """The rotation-only fit, for a camera that turns without moving (docs/method.md §13)."""
+    rotation_only_max_median_deg: float = 0.2
+    """When the paper's method finds no motion, the rotation-only fit is the result if it
+    explains the NVs this well (median angle, degrees); otherwise the paper's error stands.
+    Translation changes the NVs by the parallax the paper's method needs (at least
+    ``paper.min_parallax_deg``), which no rotation can explain."""
     multistart_min_difference: float = 0.05
     """An alternative start is refined only if its camera centres differ from every start
     already refined by more than this fraction (RMS, after least-squares scaling) of the RMS
@@ -309,7 +321,13 @@ def estimate_poses(tracks: LineTracks,
     if M < 6:
         raise OmniSfmError(f"tracks have {M} lines; need at least 6 (3 parallel and 3 others)")
     timings: dict[str, float] = defaultdict(float)
-    init = _initialise(tracks, options, timings)
+    try:
+        init = _initialise(tracks, options, timings)
+    except OmniSfmError as exc:
+        rot_only = _try_rotation_only(tracks, options, timings)
+        if rot_only is None:
+            raise
+        return _rotation_only_result(tracks, rot_only, options, timings, str(exc), t_all)
     outliers = np.zeros(M, bool)
     if options.refine:
         ba = _refine(tracks, init, options, timings)
@@ -379,6 +397,68 @@ def estimate_poses(tracks: LineTracks,
         windows=windows, timings_ms=dict(timings), residual_rms_initial_deg=rms0,
         residual_rms_final_deg=rms1, sigma_deg=sigma, scale_convention=SCALE_CONVENTION,
         report=report)
+
+
+ROTATION_ONLY_CONVENTION = ("world = camera of the first estimated frame; the camera only "
+                            "turned: every position is 0, translation and scale are undetermined")
+
+
+def _try_rotation_only(tracks: LineTracks, options: EstimationOptions,
+                       timings: dict[str, float]) -> RotationOnlyResult | None:
+    """The rotation-only fit if it explains the NVs (the camera turned in place), else None."""
+    t0 = time.perf_counter()
+    try:
+        res = estimate_rotation_only(tracks, options.rotation_only)
+    except OmniSfmError:
+        return None
+    finally:
+        timings["rotation_only"] += (time.perf_counter() - t0) * 1e3
+    if res.estimated.sum() < 3 or not res.median_deg <= options.rotation_only_max_median_deg:
+        return None
+    return res
+
+
+def _rotation_only_result(tracks: LineTracks, res: RotationOnlyResult,
+                          options: EstimationOptions, timings: dict[str, float], why: str,
+                          t_all: float) -> EstimationResult:
+    """An :class:`EstimationResult` of a camera that only turned: rotations, positions 0."""
+    M = tracks.num_tracks
+    frames = res.estimated
+    idx = np.flatnonzero(frames)
+    t0 = time.perf_counter()
+    try:
+        family = detect_parallel_family(tracks, options.vanishing)
+        members = np.asarray(family.members, bool)
+        vpv = np.asarray(family.vpv)[idx]
+        ok = np.isfinite(vpv).all(axis=1)
+        direction = res.rotations[idx[ok][0]] @ vpv[ok][0] if ok.any() else \
+            np.full(3, np.nan)
+    except OmniSfmError:
+        members, direction = np.zeros(M, bool), np.full(3, np.nan)
+    timings["parallel_lines"] += (time.perf_counter() - t0) * 1e3
+    ts = tracks.timestamps
+    traj = Trajectory(ts[idx].copy(), res.rotations[idx], np.zeros((len(idx), 3)))
+    sigma = float(res.median_deg / np.sqrt(2 * np.log(2)))
+    timings["total"] = (time.perf_counter() - t_all) * 1e3
+    nan3 = np.full((M, 3), np.nan)
+    report = _report(tracks, frames, members, direction, res.outliers, res.used_tracks, [],
+                     [], dict(timings), res.rms_initial_deg, res.rms_final_deg, sigma)
+    report["scale_convention"] = ROTATION_ONLY_CONVENTION
+    report["motion"] = {
+        "kind": "rotation only",
+        "translation": "undetermined: the camera turned without moving (positions are 0, "
+                       "the scale and the 3D lines are undetermined)",
+        "why": f"the paper's method found no motion ({why}); the rotations alone explain the "
+               f"line normals to {res.median_deg:.3g} deg (median)"}
+    report["frames_not_estimated_reasons"] = {str(k): v for k, v in res.reasons.items()}
+    report["reflection"] = "none: no translation"
+    return EstimationResult(
+        trajectory=traj, estimated=frames, initial_trajectory=traj,
+        track_ids=tracks.track_ids.copy(), parallel=members, parallel_direction=direction,
+        outliers=res.outliers, used_tracks=res.used_tracks, line_directions=nan3,
+        line_points=nan3.copy(), windows=[], timings_ms=dict(timings),
+        residual_rms_initial_deg=res.rms_initial_deg, residual_rms_final_deg=res.rms_final_deg,
+        sigma_deg=sigma, scale_convention=ROTATION_ONLY_CONVENTION, report=report)
 
 
 def side_votes(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArray, p: FloatArray,
