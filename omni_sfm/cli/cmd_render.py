@@ -9,7 +9,8 @@ from typing import Any
 
 
 def add_parser(sub: Any) -> None:
-    from omni_sfm.synth.paths import Mount
+    from omni_sfm.synth.effects import Body, VideoCodec
+    from omni_sfm.synth.paths import Mount, Route
     from omni_sfm.synth.render import CameraKind, Preset, RenderOptions
     from omni_sfm.synth.scenes import SceneName
 
@@ -40,29 +41,88 @@ def add_parser(sub: Any) -> None:
                    help="add surface texture so that point features exist")
     p.add_argument("--seed", type=int, default=d.seed,
                    help="seeds path, texture and noise (default: %(default)s)")
-    p.add_argument("--video", action="store_true", help="write video.mp4 instead of PNG frames")
+    p.add_argument("--video", action="store_true",
+                   help="write video.mp4 instead of image frames")
+    p.add_argument("--video-codec", choices=[c.value for c in VideoCodec],
+                   default=d.video_codec.value,
+                   help="codec of video.mp4: h264 (PyAV/libx264, yuv420p) or mp4v (OpenCV) "
+                        "(default: %(default)s)")
+    p.add_argument("--video-crf", type=int, default=None,
+                   help=f"H.264 constant rate factor 0..51, lower is better (default: "
+                        f"{d.video_crf}, 23 with --footage)")
+    p.add_argument("--fps", type=float, default=d.fps,
+                   help="frame rate of video.mp4 and of the occluder's walk "
+                        "(default: %(default)s)")
     p.add_argument("--overwrite", action="store_true", help="replace a non-empty OUTPUT")
     p.add_argument("--supersample", type=int, default=d.supersample,
                    help="S x S rays per pixel for anti-aliasing (default: %(default)s)")
     p.add_argument("--noise", type=float, default=d.noise_sigma,
-                   help="sensor noise std-dev in grey levels (default: %(default)s)")
-    p.add_argument("--path-length", type=float, default=d.path_length,
-                   help="camera path length in metres (default: %(default)s)")
+                   help="read noise std-dev in grey levels (default: %(default)s)")
+    p.add_argument("--route", choices=[r.value for r in Route], default=d.route.value,
+                   help="how the camera moves (default: %(default)s)")
+    p.add_argument("--path-length", type=float, default=None,
+                   help="camera path length in metres (default: the route's, 1.5 for lane)")
     p.add_argument("--mount", choices=[m.value for m in Mount], default=None,
                    help="robot (camera +Z up) or handheld (-Y up); default: robot for the "
                         "hyperboloid camera, handheld otherwise")
+    _add_effect_arguments(p, [b.value for b in Body])
     p.set_defaults(func=run)
 
 
+def _add_effect_arguments(p: argparse.ArgumentParser, bodies: list[str]) -> None:
+    g = p.add_argument_group(
+        "real-footage effects (docs/rendering.md, 'Effects'; all off unless given or "
+        "--footage)")
+    g.add_argument("--footage", action="store_true",
+                   help="realistic defaults: --motion-blur 0.5 --exposure-drift 0.3 "
+                        "--flicker 0.02 --shot-noise 2 --vignetting 0.3, --jpeg 85 (H.264 at "
+                        "CRF 23 with --video), --body robot (robot mount) or operator "
+                        "(hand-held); the flags below override them")
+    g.add_argument("--motion-blur", type=float, default=None, metavar="FRACTION",
+                   help="exposure as a fraction of the frame interval, 0..1")
+    g.add_argument("--exposure-drift", type=float, default=None, metavar="STOPS",
+                   help="peak amplitude of the slow auto-exposure drift, stops")
+    g.add_argument("--flicker", type=float, default=None, metavar="FRACTION",
+                   help="peak relative frame-to-frame gain flicker, 0..0.5")
+    g.add_argument("--shot-noise", type=float, default=None, metavar="LEVELS",
+                   help="shot-noise std-dev at full white, grey levels (--noise: read noise)")
+    g.add_argument("--jpeg", type=int, default=None, metavar="QUALITY",
+                   help="write images/NNNNNN.jpg with this JPEG quality, 1..100")
+    g.add_argument("--vignetting", type=float, default=None, metavar="FRACTION",
+                   help="fraction of light lost at the image rim, 0..1")
+    g.add_argument("--body", choices=bodies, default=None,
+                   help="camera-fixed body in view")
+    g.add_argument("--seam", type=float, default=None, metavar="DEG",
+                   help="stitching-seam misalignment in degrees (equirectangular only)")
+    g.add_argument("--occluder", action="store_const", const=True, default=None,
+                   help="a person walks past the camera")
+
+
+_EFFECT_FLAGS = {"motion_blur": "motion_blur", "exposure_drift": "exposure_drift",
+                 "flicker": "flicker", "shot_noise": "shot_noise", "jpeg": "jpeg_quality",
+                 "vignetting": "vignetting", "body": "body", "seam": "seam_deg",
+                 "occluder": "occluder"}
+
+
 def run(args: argparse.Namespace) -> int:
-    from omni_sfm.synth.render import RenderOptions, render_sequence
+    from dataclasses import replace
+
+    from omni_sfm.synth.render import RenderOptions, footage_options, render_sequence
 
     opts = RenderOptions(
         scene=args.scene, camera=args.camera, preset=args.preset, frames=args.frames,
         width=args.width, height=args.height, textured=args.textured, seed=args.seed,
-        video=args.video, supersample=args.supersample, noise_sigma=args.noise,
-        path_length=args.path_length, mount=args.mount,
+        video=args.video, video_codec=args.video_codec, supersample=args.supersample,
+        noise_sigma=args.noise, route=args.route, path_length=args.path_length,
+        mount=args.mount, fps=args.fps,
     )
+    if args.footage:
+        opts = footage_options(opts)
+    given = {field: getattr(args, flag) for flag, field in _EFFECT_FLAGS.items()
+             if getattr(args, flag) is not None}
+    opts = replace(opts, effects=replace(opts.effects, **given))
+    if args.video_crf is not None:
+        opts = replace(opts, video_crf=args.video_crf)
     res = render_sequence(args.output, opts, overwrite=args.overwrite,
                           progress=sys.stderr.isatty())
     cam = res.camera

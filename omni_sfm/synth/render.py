@@ -9,16 +9,19 @@ from the scene's point lights with a soft distance falloff, a direction-dependen
 (so that two faces of a box never look the same), emissive light panels and windows, no
 shadows; optional procedural texture (value noise and spots fixed to the surfaces, so point
 features are trackable); a little seeded Gaussian sensor noise; gamma 1/2.2 and 8-bit output.
+Real-footage effects (motion blur, exposure drift and flicker, vignetting, shot noise, JPEG or
+H.264, a camera-fixed body, a stitching seam, a walking occluder) come from
+:mod:`omni_sfm.synth.effects`, all off by default.
 
-Output of :func:`render_sequence` (documented in docs/rendering.md): ``images/NNNNNN.png`` or
-``video.mp4``, ``camera.yaml``, ``groundtruth.tum``, ``scene.ply``, ``lines3d.json``,
-``render.json``.
+Output of :func:`render_sequence` (documented in docs/rendering.md): ``images/NNNNNN.png``
+(``.jpg`` with JPEG compression) or ``video.mp4``, ``camera.yaml``, ``groundtruth.tum``,
+``scene.ply``, ``lines3d.json``, ``render.json``.
 """
 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 from enum import StrEnum
 from pathlib import Path
 from typing import Any
@@ -40,7 +43,24 @@ from omni_sfm.libs import open3d_module
 from omni_sfm.lines.video import video_frame_name
 from omni_sfm.lines3d import write_lines3d
 from omni_sfm.poses import Trajectory, write_tum
-from omni_sfm.synth.paths import Mount, PathOptions, camera_path
+from omni_sfm.synth.effects import (
+    Effects,
+    Shapes,
+    Shutter,
+    VideoCodec,
+    VideoWriter,
+    blur_along_flow,
+    body_shapes,
+    check_effects,
+    effects_json,
+    frame_gain,
+    occluder_path,
+    occluder_shapes,
+    seam_rotation,
+    shutter_poses,
+    vignetting_gain,
+)
+from omni_sfm.synth.paths import Mount, PathOptions, Route, camera_path
 from omni_sfm.synth.scenes import (
     MATERIAL_ALBEDO,
     MATERIAL_EMISSION,
@@ -146,7 +166,9 @@ class ShadingOptions:
     exposure: float = 1.0
     """Linear radiance multiplier before the gamma curve."""
     seed: int = 0
-    """Seeds the texture pattern and the sensor noise."""
+    """Seeds the texture pattern, the sensor noise, the gain drift and flicker."""
+    effects: Effects = field(default_factory=Effects)
+    """Real-footage effects (:class:`omni_sfm.synth.effects.Effects`); all off by default."""
 
 
 _AMBIENT = 0.16
@@ -159,6 +181,29 @@ _TEX_AMPLITUDE = 0.3
 _TEX_SPOTS = ((0.3, 0.1, 0.3), (0.12, 0.12, 0.33))  # cell size (m), radius range (cells)
 _TEX_TABLE = 256
 _SUBRAY_CACHE_BYTES = 64 * 2**20
+# surface ids of the body's and the occluder's parts (scene surfaces are numbered from 0)
+_BODY_SID = 1_000_000
+_OCCLUDER_SID = 2_000_000
+
+
+@dataclass(frozen=True)
+class _BodyPixels:
+    """The camera-fixed body as the valid pixels see it (the same in every frame).
+
+    ``t (P,)`` distance along the centre ray (inf: no body), ``rad (P, 3)``, ``sid (P,)``;
+    ``hits``: indices of the pixels whose centre ray hits it. Pixels on the body's outline
+    (``sub_row (P,)`` >= 0) keep their ``S x S`` sub-pixel hits: ``sub_t (S*S, E)``,
+    ``sub_rad (S*S, E, 3)``, ``sub_sid (S*S, E)``; elsewhere the centre's hit stands for all.
+    """
+
+    t: np.ndarray
+    rad: np.ndarray
+    sid: np.ndarray
+    hits: np.ndarray
+    sub_row: np.ndarray
+    sub_t: np.ndarray
+    sub_rad: np.ndarray
+    sub_sid: np.ndarray
 
 
 class Renderer:
@@ -172,7 +217,9 @@ class Renderer:
     """
 
     def __init__(self, scene: Scene, camera: CameraModel,
-                 options: ShadingOptions | None = None) -> None:
+                 options: ShadingOptions | None = None, *, mount: Mount | None = None) -> None:
+        """``mount``: how the body (``options.effects.body``) is attached; None: the camera's
+        default mount."""
         self.o3d = open3d_module()
         self.scene = scene
         self.camera = camera
@@ -181,12 +228,23 @@ class Renderer:
             raise OmniSfmError(f"supersample must be an integer 1..8, got {o.supersample!r}")
         if not o.noise_sigma >= 0:
             raise OmniSfmError(f"noise sigma must be >= 0, got {o.noise_sigma}")
+        e = o.effects
+        check_effects(e, camera.model)
+        self.mount = Mount(mount) if mount is not None else default_mount(camera)
         self.raycaster = scene.raycasting_scene()
         self.materials = scene.materials.astype(np.int64)
         self.surfaces = scene.surfaces.astype(np.int32)
         self.mask = camera.valid_mask()
         self.pixel_index = np.flatnonzero(self.mask.ravel())
         self.centre_rays, self.pixel_angle = self._centre_rays()
+        self.vignette = (vignetting_gain(camera, np.stack(self._pixel_uv(), axis=1),
+                                         self.centre_rays, e.vignetting)
+                         if e.vignetting > 0 else None)
+        # a stitching seam: the back lens's pixels (z < 0) see through rotated rays
+        self.seam = seam_rotation(e.seam_deg).astype(np.float32) if e.seam_deg != 0 else None
+        if self.seam is not None:
+            back = self.centre_rays[:, 2] < 0
+            self.centre_rays[back] = self.centre_rays[back] @ self.seam.T
         # sub-pixel rays are kept when they fit in _SUBRAY_CACHE_BYTES, else made per frame
         S2 = o.supersample**2
         cache = o.supersample > 1 and S2 * len(self.pixel_index) * 12 <= _SUBRAY_CACHE_BYTES
@@ -199,6 +257,46 @@ class Renderer:
             (len(_TEX_WAVELENGTHS) + len(_TEX_SPOTS), _TEX_TABLE, _TEX_TABLE)).astype(np.float32)
         self.tex_offsets = rng.uniform(0, 50.0, size=(len(MATERIAL_ALBEDO), 3, 2)).astype(
             np.float32)
+        shapes = body_shapes(e.body, self.mount)
+        self.body = self._body_pixels(shapes) if shapes is not None else None
+        self.occluder: Shapes | None = occluder_shapes() if e.occluder else None
+
+    def body_mask(self) -> np.ndarray:
+        """``(height, width)`` bool: pixels whose centre ray hits the camera-fixed body (in a
+        given frame the scene can still be nearer, e.g. the floor at a tripod's feet)."""
+        out = np.zeros(self.camera.height * self.camera.width, dtype=bool)
+        if self.body is not None:
+            out[self.pixel_index[self.body.hits]] = True
+        return out.reshape(self.camera.height, self.camera.width)
+
+    def _body_pixels(self, shapes: Shapes) -> _BodyPixels:
+        """Intersect the centre rays, and the sub-pixel rays of the body's outline, with the
+        camera-fixed body, once."""
+        P = len(self.pixel_index)
+        t = np.full(P, np.inf, dtype=np.float32)
+        rad = np.zeros((P, 3), dtype=np.float32)
+        sid = np.full(P, -1, dtype=np.int32)
+        origin = np.zeros(3)
+        chunk = 1 << 18
+        for i in range(0, P, chunk):
+            h = shapes.hit(origin, self.centre_rays[i:i + chunk])
+            ok = h.part >= 0
+            t[i:i + chunk][ok] = h.t[ok]
+            rad[i:i + chunk][ok] = h.radiance[ok]
+            sid[i:i + chunk][ok] = _BODY_SID + h.part[ok]
+        S2 = self.options.supersample**2
+        sub_row = np.full(P, -1, dtype=np.int64)
+        edge = (np.flatnonzero(self._edge_pixels(sid)) if S2 > 1
+                else np.zeros(0, dtype=np.int64))
+        sub_row[edge] = np.arange(len(edge))
+        sub = self._subpixel_rays(edge) if len(edge) else np.zeros((S2, 0, 3), np.float32)
+        hs = shapes.hit(origin, sub.reshape(-1, 3))
+        ok = hs.part >= 0
+        sub_sid = np.where(ok, _BODY_SID + hs.part, -1).astype(np.int32)
+        return _BodyPixels(
+            t=t, rad=rad, sid=sid, hits=np.flatnonzero(sid >= 0), sub_row=sub_row,
+            sub_t=hs.t.astype(np.float32).reshape(S2, -1),
+            sub_rad=hs.radiance.reshape(S2, -1, 3), sub_sid=sub_sid.reshape(S2, -1))
 
     def _pixel_uv(self) -> tuple[FloatArray, FloatArray]:
         w = self.camera.width
@@ -225,9 +323,12 @@ class Renderer:
         offs = (np.arange(S) + 0.5) / S - 0.5
         out = np.empty((S * S, len(u), 3), dtype=np.float32)
         k = 0
+        back = self.centre_rays[idx, 2] < 0 if self.seam is not None else None
         for dv in offs:
             for du in offs:
                 r = self.camera.rays_from_pixels(np.stack([u + du, v + dv], axis=1))
+                if back is not None and self.seam is not None:
+                    r[back] = r[back] @ self.seam.T
                 bad = ~np.isfinite(r).all(axis=1)
                 r[bad] = self.centre_rays[idx[bad]]
                 out[k] = r
@@ -250,9 +351,10 @@ class Renderer:
         }
 
     def _shade(self, world_from_cam: FloatArray, position: FloatArray, rays_cam: FloatArray,
-               ray_angle: FloatArray) -> tuple[FloatArray, np.ndarray]:
-        """Linear radiance ``(M, 3)`` and surface id ``(M,)`` (-1: nothing hit) of ``(M, 3)``
-        unit rays whose samples stand for ``ray_angle`` (rad) wide pixels or sub-pixels."""
+               ray_angle: FloatArray) -> tuple[FloatArray, np.ndarray, FloatArray, FloatArray]:
+        """Linear radiance ``(M, 3)``, surface id ``(M,)`` (-1: nothing hit), distance ``(M,)``
+        (inf: nothing hit) and world direction ``(M, 3)`` of ``(M, 3)`` unit rays whose samples
+        stand for ``ray_angle`` (rad) wide pixels or sub-pixels."""
         hit = self.cast(world_from_cam, position, rays_cam)
         t = hit["t_hit"]
         ok = np.isfinite(t)
@@ -279,7 +381,7 @@ class Renderer:
         rad = albedo * irr[:, None] + MATERIAL_EMISSION.astype(np.float32)[mat]
         rad[~ok] = 0.0
         sid = np.where(ok, self.surfaces[tri], -1)
-        return rad, sid
+        return rad, sid, t, d
 
     def _edge_pixels(self, sid: np.ndarray) -> np.ndarray:
         """``(P,)`` bool: valid pixels with a neighbour (8-neighbourhood) on another surface."""
@@ -304,18 +406,74 @@ class Renderer:
             mark(full, slice(W - 1, W), full, slice(0, 1))
         return edge.ravel()[self.pixel_index]
 
-    def radiance(self, world_from_cam: FloatArray, position: FloatArray) -> FloatArray:
-        """``(P, 3)`` linear radiance of the valid pixels (adaptively supersampled)."""
-        rad, sid = self._shade(world_from_cam, position, self.centre_rays, self.pixel_angle)
+    def radiance(self, world_from_cam: FloatArray, position: FloatArray, *,
+                 occluder: FloatArray | None = None) -> FloatArray:
+        """``(P, 3)`` linear radiance of the valid pixels (adaptively supersampled), with the
+        body and, at ``occluder`` (its feet, scene frame), the walking person."""
+        return self._radiance(world_from_cam, position, occluder)[0]
+
+    def _radiance(self, world_from_cam: FloatArray, position: FloatArray,
+                  occluder: FloatArray | None) -> tuple[FloatArray, np.ndarray, FloatArray,
+                                                        FloatArray]:
+        """Radiance ``(P, 3)``, surface id ``(P,)``, distance ``(P,)`` and world direction
+        ``(P, 3)`` of the valid pixels' centre rays (radiance supersampled on edges)."""
+        rad, sid, t, dirs = self._shade(world_from_cam, position, self.centre_rays,
+                                        self.pixel_angle)
+        b = self.body
+        if b is not None:
+            h = b.hits[b.t[b.hits] < t[b.hits]]
+            rad[h], sid[h], t[h] = b.rad[h], b.sid[h], b.t[h]
+        if occluder is not None:
+            self._composite_occluder(occluder, position, dirs, rad, sid, t)
         if self.options.supersample > 1:
             S2 = self.options.supersample**2
             idx = np.flatnonzero(self._edge_pixels(sid))
             sub = (self.sub_rays[:, idx] if self.sub_rays is not None
                    else self._subpixel_rays(idx)).reshape(-1, 3)
             angle = np.tile(self.pixel_angle[idx] / self.options.supersample, S2)
-            rs, _ = self._shade(world_from_cam, position, sub, angle)
+            rs, ss, ts, ds = self._shade(world_from_cam, position, sub, angle)
+            if b is not None:
+                self._composite_body_sub(idx, rs, ss, ts)
+            if occluder is not None:
+                self._composite_occluder(occluder, position, ds, rs, ss, ts)
             rad[idx] = rs.reshape(S2, len(idx), 3).mean(axis=0)
-        return rad
+        return rad, sid, t, dirs
+
+    def _composite_body_sub(self, idx: np.ndarray, rad: FloatArray, sid: np.ndarray,
+                            t: FloatArray) -> None:
+        """Put the body in front of the ``(S*S * len(idx))`` sub-pixel samples of pixels
+        ``idx`` where it is nearer (in place)."""
+        b = self.body
+        assert b is not None
+        S2, n = self.options.supersample**2, len(idx)
+        tb = np.repeat(b.t[idx][None], S2, axis=0)
+        sb = np.repeat(b.sid[idx][None], S2, axis=0)
+        rb = np.repeat(b.rad[idx][None], S2, axis=0)
+        rows = b.sub_row[idx]
+        m = rows >= 0
+        tb[:, m], sb[:, m], rb[:, m] = b.sub_t[:, rows[m]], b.sub_sid[:, rows[m]], \
+            b.sub_rad[:, rows[m]]
+        near = (tb < t.reshape(S2, n)).ravel()
+        rad[near] = rb.reshape(-1, 3)[near]
+        sid[near] = sb.ravel()[near]
+        t[near] = tb.ravel()[near]
+
+    def _composite_occluder(self, feet: FloatArray, position: FloatArray, dirs: FloatArray,
+                            rad: FloatArray, sid: np.ndarray, t: FloatArray) -> None:
+        """Put the walking person (feet at ``feet``, scene frame) in front of the samples with
+        world directions ``dirs (M, 3)`` where it is nearer (in place)."""
+        if self.occluder is None:  # a place given without the effect: draw the person anyway
+            self.occluder = occluder_shapes()
+        feet = np.asarray(feet, dtype=np.float64)
+        cand = self.occluder.candidates(np.asarray(position, dtype=np.float64), dirs, feet)
+        if len(cand) == 0:
+            return
+        h = self.occluder.hit(position, dirs[cand], feet)
+        near = h.t < t[cand]
+        sel = cand[near]
+        rad[sel] = h.radiance[near]
+        sid[sel] = _OCCLUDER_SID + h.part[near]
+        t[sel] = h.t[near]
 
     def _texture(self, pts: np.ndarray, n: np.ndarray, mat: np.ndarray,
                  foot: np.ndarray) -> np.ndarray:
@@ -341,21 +499,62 @@ class Renderer:
         return np.where(MATERIAL_TEXTURED[mat], factor, 1.0).astype(np.float32)
 
     def render(self, world_from_cam: FloatArray, position: FloatArray,
-               frame_index: int = 0) -> np.ndarray:
+               frame_index: int = 0, *, shutter: Shutter | None = None,
+               occluder: FloatArray | None = None) -> np.ndarray:
         """``(height, width, 3)`` uint8 RGB image of the camera at this pose.
 
         ``world_from_cam``: ``(3, 3)`` rotation of the camera's ray frame; ``position``: ``(3,)``
-        camera centre (world, metres). ``frame_index`` seeds this frame's sensor noise.
+        camera centre (world, metres): the pose at mid-exposure. ``frame_index`` seeds this
+        frame's sensor noise, drift and flicker. ``shutter``: the poses at shutter open and
+        close, for motion blur (ignored unless ``effects.motion_blur > 0``; None: a still
+        camera). ``occluder``: ``(3,)`` feet of the walking person (scene frame), or None.
         """
-        o = self.options
-        rad = self.radiance(world_from_cam, position)
-        val = 255.0 * np.clip(rad * o.exposure, 0.0, 1.0) ** (1 / 2.2)
-        if o.noise_sigma > 0:
+        o, e = self.options, self.options.effects
+        rad, sid, t, dirs = self._radiance(world_from_cam, position, occluder)
+        if shutter is not None and e.motion_blur > 0:
+            rad = self._motion_blur(position, shutter, rad, sid, t, dirs)
+        gain = o.exposure * frame_gain(e, o.seed, frame_index)
+        lin = rad * gain
+        if self.vignette is not None:
+            lin = lin * self.vignette[:, None]
+        lin = np.clip(lin, 0.0, 1.0)
+        val = 255.0 * lin ** (1 / 2.2)
+        if o.noise_sigma > 0 and e.shot_noise == 0:
             rng = np.random.default_rng([o.seed, 5077, int(frame_index)])
             val += rng.normal(0.0, o.noise_sigma, size=val.shape)
+        elif e.shot_noise > 0:
+            rng = np.random.default_rng([o.seed, 5077, int(frame_index)])
+            sigma = np.sqrt(np.float32(o.noise_sigma**2) + np.float32(e.shot_noise**2) * lin)
+            val += rng.standard_normal(size=val.shape, dtype=np.float32) * sigma
         img = np.zeros((self.camera.height * self.camera.width, 3), dtype=np.uint8)
         img[self.pixel_index] = np.clip(np.rint(val), 0, 255).astype(np.uint8)
         return img.reshape(self.camera.height, self.camera.width, 3)
+
+    def _motion_blur(self, position: FloatArray, shutter: Shutter, rad: FloatArray,
+                     sid: np.ndarray, t: FloatArray, dirs: FloatArray) -> FloatArray:
+        """``rad (P, 3)`` blurred along each pixel's flow during the exposure: the scene point
+        it sees (distance ``t`` along world direction ``dirs``) projected at the shutter-open
+        and shutter-close poses. Body pixels move with the camera (no flow); the occluder's
+        own motion is ignored."""
+        cam = self.camera
+        H, W = cam.height, cam.width
+        far = np.where(np.isfinite(t), t, 1e4).astype(np.float64)
+        pts = np.asarray(position, dtype=np.float64) + far[:, None] * dirs
+        uv = [cam.pixels_from_rays((pts - np.asarray(c, dtype=np.float64)) @ np.asarray(R))
+              for R, c in ((shutter.open_rotation, shutter.open_position),
+                           (shutter.close_rotation, shutter.close_position))]
+        d = uv[1] - uv[0]
+        if self.wrap_u:
+            d[:, 0] = (d[:, 0] + W / 2) % W - W / 2
+        d[~np.isfinite(d).all(axis=1)] = 0.0
+        d[(sid >= _BODY_SID) & (sid < _OCCLUDER_SID)] = 0.0
+        flow = np.zeros((H * W, 2), dtype=np.float32)
+        flow[self.pixel_index] = d
+        img = np.zeros((H * W, 3), dtype=np.float32)
+        img[self.pixel_index] = rad
+        out = blur_along_flow(img.reshape(H, W, 3), self.mask.astype(np.float32),
+                              flow.reshape(H, W, 2), wrap_u=self.wrap_u)
+        return np.asarray(out.reshape(-1, 3)[self.pixel_index])
 
     def depth_along_rays(self, world_from_cam: FloatArray, position: FloatArray,
                          rays_cam: FloatArray) -> FloatArray:
@@ -477,17 +676,25 @@ class RenderOptions:
     seed: int = 0
     """Seeds the path, the texture and the sensor noise."""
     video: bool = False
-    """Write ``video.mp4`` (mp4v) instead of PNG frames."""
+    """Write ``video.mp4`` instead of image frames."""
+    video_codec: VideoCodec = VideoCodec.H264
+    """Codec of ``video.mp4``: ``h264`` (PyAV, libx264, yuv420p) or ``mp4v`` (OpenCV)."""
+    video_crf: int = 18
+    """H.264 constant rate factor, 0 (lossless) .. 51 (worst); x264's default is 23."""
     supersample: int = 3
     """Sub-pixel rays per edge pixel along each axis (1: no anti-aliasing)."""
     noise_sigma: float = 1.0
-    """Sensor noise std-dev, 8-bit grey levels."""
-    path_length: float = 1.5
-    """Camera path length, metres."""
+    """Read noise: Gaussian std-dev, 8-bit grey levels."""
+    route: Route = Route.LANE
+    """How the camera moves (``omni_sfm.synth.paths.Route``)."""
+    path_length: float | None = None
+    """Camera path length, metres; None: the route's default (1.5 m for ``lane``)."""
     mount: Mount | None = None
     """Camera mount; None: robot for the hyperboloid camera, hand-held otherwise."""
     fps: float = 15.0
-    """Frame rate written into ``video.mp4``."""
+    """Frame rate: written into ``video.mp4``; sets the occluder's steps per frame."""
+    effects: Effects = field(default_factory=Effects)
+    """Real-footage effects (:class:`omni_sfm.synth.effects.Effects`); all off by default."""
 
 
 @dataclass(frozen=True)
@@ -504,6 +711,18 @@ class RenderSetup:
     groundtruth: Trajectory
     renderer: Renderer
     mount: Mount
+    occluder_path: FloatArray | None = None
+    """``(N, 3)`` feet of the walking occluder per frame (scene frame), if there is one."""
+
+    def render_frame(self, k: int) -> np.ndarray:
+        """``(H, W, 3)`` uint8 RGB frame ``k`` with every effect (motion blur from the ground
+        truth's motion within the exposure, the occluder at its place)."""
+        gt = self.groundtruth
+        exposure = self.renderer.options.effects.motion_blur
+        shutter = shutter_poses(gt, k, exposure) if exposure > 0 else None
+        occ = self.occluder_path[k] if self.occluder_path is not None else None
+        return self.renderer.render(gt.rotations[k], gt.positions[k], k, shutter=shutter,
+                                    occluder=occ)
 
     def world_from_scene(self) -> tuple[FloatArray, FloatArray]:
         """``(R (3, 3), t (3,))`` with ``x_world = R @ x_scene + t``, world = first camera."""
@@ -541,19 +760,61 @@ def prepare(options: RenderOptions) -> RenderSetup:
         raise OmniSfmError(
             f"unknown mount {o.mount!r} (known: {', '.join(m.value for m in Mount)})"
         ) from None
-    traj = camera_path(scene, PathOptions(num_frames=frames, path_length=o.path_length,
-                                          mount=mount, seed=o.seed))
+    _check_output_options(o)
+    check_effects(o.effects, camera.model)
+    try:
+        route = Route(o.route)
+    except ValueError:
+        raise OmniSfmError(
+            f"unknown route {o.route!r} (known: {', '.join(r.value for r in Route)})"
+        ) from None
+    traj = camera_path(scene, PathOptions(num_frames=frames, route=route,
+                                          path_length=o.path_length, mount=mount, seed=o.seed))
     renderer = Renderer(scene, camera, ShadingOptions(
-        supersample=o.supersample, textured=o.textured, noise_sigma=o.noise_sigma, seed=o.seed))
-    return RenderSetup(scene, camera, traj, renderer, mount)
+        supersample=o.supersample, textured=o.textured, noise_sigma=o.noise_sigma, seed=o.seed,
+        effects=o.effects), mount=mount)
+    occ = occluder_path(traj, mount, o.fps, o.seed) if o.effects.occluder else None
+    return RenderSetup(scene, camera, traj, renderer, mount, occ)
+
+
+def _check_output_options(o: RenderOptions) -> None:
+    if not (isinstance(o.fps, int | float) and not isinstance(o.fps, bool)
+            and np.isfinite(o.fps) and o.fps > 0):
+        raise OmniSfmError(f"frame rate must be > 0, got {o.fps!r}")
+    try:
+        VideoCodec(o.video_codec)
+    except ValueError:
+        raise OmniSfmError(f"unknown video codec {o.video_codec!r} "
+                           f"(known: {', '.join(c.value for c in VideoCodec)})") from None
+    crf = o.video_crf
+    if isinstance(crf, bool) or not isinstance(crf, int) or not 0 <= crf <= 51:
+        raise OmniSfmError(f"H.264 CRF must be an integer 0..51, got {crf!r}")
+    if o.video and o.effects.jpeg_quality is not None:
+        raise OmniSfmError("JPEG quality applies to image frames: not with --video (set the "
+                           "video's compression with --video-crf)")
+
+
+def footage_options(options: RenderOptions) -> RenderOptions:
+    """``options`` with the ``--footage`` effects (:func:`~omni_sfm.synth.effects.footage_effects`
+    for the camera's mount; JPEG frames, or H.264 at CRF 23 with ``video``)."""
+    from dataclasses import replace
+
+    from omni_sfm.synth.effects import footage_effects
+
+    o = options
+    try:
+        preset = Preset(o.preset)
+    except ValueError:
+        raise OmniSfmError(f"unknown preset {o.preset!r}") from None
+    camera = make_camera(o.camera, width=o.width, height=o.height, preset=preset)
+    mount = Mount(o.mount) if o.mount is not None else default_mount(camera)
+    return replace(o, effects=footage_effects(mount, video=o.video), video_crf=23)
 
 
 def render_frames(options: RenderOptions) -> tuple[RenderSetup, np.ndarray]:
     """Render a whole sequence in memory: the setup and ``(N, H, W, 3)`` uint8 RGB images."""
     setup = prepare(options)
-    gt = setup.groundtruth
-    imgs = np.stack([setup.renderer.render(gt.rotations[k], gt.positions[k], k)
-                     for k in range(len(gt))])
+    imgs = np.stack([setup.render_frame(k) for k in range(len(setup.groundtruth))])
     return setup, imgs
 
 
@@ -584,27 +845,33 @@ def render_sequence(output: Path | str, options: RenderOptions | None = None, *,
     cam, gt = setup.camera, setup.groundtruth
     n = len(gt)
     t0 = time.perf_counter()
+    quality = o.effects.jpeg_quality
     with atomic_output_dir(output, overwrite=overwrite) as tmp:
         writer = None
         if o.video:
-            writer = cv2.VideoWriter(str(tmp / RenderFolder.VIDEO), cv2.VideoWriter.fourcc(*"mp4v"),
-                                     float(o.fps), (cam.width, cam.height))
-            if not writer.isOpened():
-                raise OmniSfmError(f"{output}: OpenCV cannot write an mp4v video here")
+            writer = VideoWriter(tmp / RenderFolder.VIDEO, o.video_codec, o.fps, cam.width,
+                                 cam.height, o.video_crf)
         else:
             (tmp / RenderFolder.IMAGES).mkdir()
         try:
             for k in tqdm(range(n), desc=f"render {o.scene}", unit="frame",
                           disable=None if progress else True, leave=False):
-                img = setup.renderer.render(gt.rotations[k], gt.positions[k], k)
-                bgr = np.ascontiguousarray(img[:, :, ::-1])
+                img = setup.render_frame(k)
                 if writer is not None:
-                    writer.write(bgr)
-                elif not cv2.imwrite(str(tmp / RenderFolder.IMAGES / video_frame_name(k)), bgr):
+                    writer.write(img)
+                    continue
+                bgr = np.ascontiguousarray(img[:, :, ::-1])
+                name = Path(video_frame_name(k))
+                if quality is not None:
+                    ok = cv2.imwrite(str(tmp / RenderFolder.IMAGES / name.with_suffix(".jpg")),
+                                     bgr, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+                else:
+                    ok = cv2.imwrite(str(tmp / RenderFolder.IMAGES / name), bgr)
+                if not ok:
                     raise OmniSfmError(f"{output}: could not write frame {k}")
         finally:
             if writer is not None:
-                writer.release()
+                writer.close()
         seconds = (time.perf_counter() - t0) / n
         R_ws, t_ws = setup.world_from_scene()
         world_scene = setup.scene_in_world()
@@ -621,7 +888,9 @@ def render_sequence(output: Path | str, options: RenderOptions | None = None, *,
             f.name: getattr(o, f.name) for f in fields(o)
         }
         for k, v in meta.items():
-            if isinstance(v, StrEnum):
+            if isinstance(v, Effects):
+                meta[k] = effects_json(v)
+            elif isinstance(v, StrEnum):
                 meta[k] = v.value
             elif isinstance(v, CameraModel):
                 meta[k] = v.model

@@ -1,15 +1,17 @@
 """Man-made scenes for rendering: triangle meshes with materials, lights and true 3D lines.
 
-Every scene is built from axis-aligned (or yawed) boxes and flat rectangles. World frame: metres,
-``+Z`` up, the floor at ``z = 0``. Thin "bands" (baseboards, door frames, doors, window frames,
-light panels) lie :data:`BAND_OFFSET` in front of the surface they decorate, so each visible
-straight edge is a real edge of the mesh, and the true line segments are recorded on the visible
-surface, where the image edge is.
+Every scene is built from axis-aligned (or yawed) boxes, flat rectangles and, for bins, upright
+polygonal prisms. World frame: metres, ``+Z`` up, the floor at ``z = 0``. Thin "bands"
+(baseboards, door frames, doors, window frames, light panels, posters) lie :data:`BAND_OFFSET`
+in front of the surface they decorate, so each visible straight edge is a real edge of the mesh,
+and the true line segments are recorded on the visible surface, where the image edge is.
 
 The true segments (:class:`LineSegments3D`) are the straight edges a person would see: where
 walls meet floor and ceiling, baseboard tops, door and window frames, light panels, pillar and
-furniture edges. Each carries a direction group (segments parallel to each other share a group;
-group 0 is the most populated one) and a kind naming what it is.
+furniture edges, posters, floor-tile seams. Each carries a direction group (segments parallel to
+each other share a group; group 0 is the most populated one) and a kind naming what it is. Bins
+stand for cylinders: 24-sided prisms whose facet edges and rims are not in the line list (a real
+cylinder's outline is a silhouette that moves with the viewer, not a fixed 3D line).
 """
 
 from __future__ import annotations
@@ -36,6 +38,7 @@ pixel at any distance the cameras see, far above the ray caster's float32 resolu
 class SceneName(StrEnum):
     CORRIDOR = "corridor"
     ROOM = "room"
+    OFFICE = "office"
 
 
 class Material(IntEnum):
@@ -54,6 +57,15 @@ class Material(IntEnum):
     FURNITURE = 10
     FURNITURE_DARK = 11
     END_WALL = 12
+    FLOOR_TILE = 13
+    FLOOR_TILE_DARK = 14
+    POSTER = 15
+    POSTER_RED = 16
+    POSTER_BLUE = 17
+    BOX = 18
+    BIN = 19
+    CHAIR = 20
+    CHAIR_SEAT = 21
 
 
 # linear RGB albedo, emitted radiance (linear RGB), textured by --textured
@@ -71,6 +83,15 @@ MATERIAL_ALBEDO = np.array([
     [0.55, 0.40, 0.24],  # FURNITURE: light wood
     [0.12, 0.16, 0.22],  # FURNITURE_DARK: dark blue laminate
     [0.45, 0.52, 0.50],  # END_WALL: green-grey accent
+    [0.31, 0.30, 0.29],  # FLOOR_TILE: carpet tile, light
+    [0.23, 0.24, 0.26],  # FLOOR_TILE_DARK: carpet tile, dark blue-grey
+    [0.85, 0.84, 0.80],  # POSTER: paper
+    [0.55, 0.13, 0.10],  # POSTER_RED: printed picture
+    [0.10, 0.22, 0.45],  # POSTER_BLUE: printed picture
+    [0.52, 0.37, 0.20],  # BOX: cardboard
+    [0.16, 0.30, 0.22],  # BIN: green plastic
+    [0.07, 0.07, 0.08],  # CHAIR: black frame
+    [0.20, 0.28, 0.45],  # CHAIR_SEAT: blue fabric
 ], dtype=np.float64)
 MATERIAL_EMISSION = np.zeros_like(MATERIAL_ALBEDO)
 MATERIAL_EMISSION[Material.LIGHT] = [2.0, 2.0, 1.9]
@@ -93,7 +114,11 @@ class Scene:
         light_positions: ``(K, 3)`` point lights (world, metres).
         light_power: ``(K,)`` light strengths (irradiance ``power / (d^2 + 1 m^2)`` at distance d).
         walkway: ``(2, 3)`` ends of a straight free lane at floor level; camera paths run along it.
-        walkway_halfwidth: free distance (m) on each side of the walkway line, floor to ceiling.
+        walkway_halfwidth: free distance (m) on each side of the walkway line (and of the route),
+            floor to ceiling.
+        route: ``(K, 3)`` floor-level polyline, the centre line of the free path through the
+            whole scene (routes that turn corners follow it); the walkway's two points in scenes
+            without a corner, its first segment is the walkway in the office.
         ceiling_height: height (m) of the ceiling.
     """
 
@@ -108,15 +133,16 @@ class Scene:
     walkway: FloatArray
     walkway_halfwidth: float
     ceiling_height: float
+    route: FloatArray
 
     def transformed(self, rotation: FloatArray, translation: FloatArray) -> Scene:
         """The scene in another frame: ``x' = rotation @ x + translation`` (mesh, lines, lights,
-        walkway; ``ceiling_height`` keeps its meaning in the scene frame)."""
+        walkway, route; ``ceiling_height`` keeps its meaning in the scene frame)."""
         R, t = np.asarray(rotation), np.asarray(translation)
         return replace(self, vertices=self.vertices @ R.T + t,
                        lines=self.lines.transformed(R, t),
                        light_positions=self.light_positions @ R.T + t,
-                       walkway=self.walkway @ R.T + t)
+                       walkway=self.walkway @ R.T + t, route=self.route @ R.T + t)
 
     def to_open3d(self) -> Any:
         """A legacy ``open3d.geometry.TriangleMesh`` with per-vertex material colours."""
@@ -165,7 +191,12 @@ class _Builder:
              mat: Material) -> None:
         """Rectangle with corner ``o`` and edge vectors ``e1``, ``e2``."""
         o_, a, b = (np.asarray(x, dtype=np.float64) for x in (o, e1, e2))
-        self.verts.append(np.stack([o_, o_ + a, o_ + a + b, o_ + b]))
+        self.quad(o_, o_ + a, o_ + a + b, o_ + b, mat)
+
+    def quad(self, p0: ArrayLike, p1: ArrayLike, p2: ArrayLike, p3: ArrayLike,
+             mat: Material) -> None:
+        """Flat convex quadrilateral ``p0 p1 p2 p3`` (triangles ``p0 p1 p2`` and ``p0 p2 p3``)."""
+        self.verts.append(np.stack([np.asarray(p, dtype=np.float64) for p in (p0, p1, p2, p3)]))
         self.mats.append(int(mat))
 
     def line(self, a: ArrayLike, b: ArrayLike, kind: str) -> None:
@@ -183,8 +214,10 @@ class _Builder:
             self.line(*ends[k], kind)
 
     def box(self, centre: ArrayLike, size: ArrayLike, mat: Material, kind: str,
-            yaw_deg: float = 0.0, top_mat: Material | None = None) -> None:
-        """Closed box standing upright, yawed about +Z; all 12 edges become lines."""
+            yaw_deg: float = 0.0, top_mat: Material | None = None,
+            vertical_only: bool = False) -> None:
+        """Closed box standing upright, yawed about +Z; all 12 edges become lines (only the 4
+        vertical ones with ``vertical_only``, for thin legs)."""
         c = np.asarray(centre, dtype=np.float64)
         h = np.asarray(size, dtype=np.float64) / 2
         R = rotation_about_axis([0.0, 0.0, 1.0], np.radians(yaw_deg))
@@ -199,14 +232,32 @@ class _Builder:
         corners = [o, o + ex, o + ey, o + ex + ey]
         for p in corners:
             self.line(p, p + ez, kind)
+        if vertical_only:
+            return
         for p, q in ((o, o + ex), (o, o + ey), (o + ex, o + ex + ey), (o + ey, o + ex + ey)):
             self.line(p, q, kind)
             self.line(p + ez, q + ez, kind)
 
+    def prism(self, centre: ArrayLike, radius: float, height: float, mat: Material,
+              sides: int = 24) -> None:
+        """Closed upright prism on a regular ``sides``-gon (a cylinder to the eye), standing on
+        ``centre`` (floor-level centre of its base); no lines (see the module docstring)."""
+        c = np.asarray(centre, dtype=np.float64)
+        ang = 2 * np.pi * np.arange(sides + 1) / sides
+        ring = c + radius * np.column_stack([np.cos(ang), np.sin(ang), np.zeros(sides + 1)])
+        up = np.array([0.0, 0.0, height])
+        for k in range(sides):
+            self.quad(ring[k], ring[k + 1], ring[k + 1] + up, ring[k] + up, mat)
+        # the lid and the base as fans of quads (two triangles of the fan each)
+        for k in range(0, sides, 2):
+            self.quad(c + up, ring[k] + up, ring[k + 1] + up, ring[k + 2] + up, mat)
+            self.quad(c, ring[k + 2], ring[k + 1], ring[k], mat)
+
     def light(self, pos: ArrayLike, power: float) -> None:
         self.lights.append((np.asarray(pos, dtype=np.float64), power))
 
-    def build(self, name: str, walkway: FloatArray, halfwidth: float, ceiling: float) -> Scene:
+    def build(self, name: str, walkway: FloatArray, halfwidth: float, ceiling: float,
+              route: FloatArray | None = None) -> Scene:
         quads = np.stack(self.verts)
         n = len(quads)
         base = 4 * np.arange(n)[:, None]
@@ -225,6 +276,7 @@ class _Builder:
             walkway=np.asarray(walkway, dtype=np.float64),
             walkway_halfwidth=halfwidth,
             ceiling_height=ceiling,
+            route=np.asarray(walkway if route is None else route, dtype=np.float64),
         )
 
 
@@ -340,6 +392,22 @@ class _Wall:
             for c0, c1 in ((z0 + frame, zm - bar / 2), (zm + bar / 2, z1 - frame)):
                 self.band(b, a0, a1, c0, c1, Material.WINDOW, kind, "0123")
 
+    def poster(self, b: _Builder, s0: float, z0: float, width: float, height: float,
+               ink: Material, tilt_deg: float = 0.0, margin: float = 0.05) -> None:
+        """A paper poster (lower-left corner ``(s0, z0)`` before the tilt) turned by
+        ``tilt_deg`` in the wall plane about its centre, with a printed picture inset by
+        ``margin`` (three times that at the bottom, for a caption) lying one band further out.
+        Lines: the paper's and the picture's edges."""
+        t = np.radians(tilt_deg)
+        u = np.cos(t) * self.a + np.array([0.0, 0.0, np.sin(t)])
+        v = -np.sin(t) * self.a + np.array([0.0, 0.0, np.cos(t)])
+        centre = self.point(s0 + width / 2, z0 + height / 2, 0.0)
+        for depth, mat, (left, right, bot, top) in (
+                (BAND_OFFSET, Material.POSTER, (0.0, 0.0, 0.0, 0.0)),
+                (2 * BAND_OFFSET, ink, (margin, margin, 3 * margin, margin))):
+            o = centre + depth * self.n + (left - width / 2) * u + (bot - height / 2) * v
+            b.rect_lines(o, (width - left - right) * u, (height - bot - top) * v, mat, "poster")
+
     def baseboard(self, b: _Builder, gaps: Sequence[tuple[float, float]],
                   height: float = 0.1) -> None:
         """Baseboard pieces along the wall between the ``gaps`` (s intervals of doors)."""
@@ -421,7 +489,150 @@ def room() -> Scene:
     return b.build("room", walkway, 0.75, Z)
 
 
-SCENES = {SceneName.CORRIDOR: corridor, SceneName.ROOM: room}
+def _l_outline() -> FloatArray:
+    """The office's floor plan, counter-clockwise: leg A along +X (15.6 m x 2.4 m), leg B
+    along +Y (2.4 m x 14.4 m) from its far end."""
+    return np.array([[0.0, 0.0], [15.6, 0.0], [15.6, 14.4], [13.2, 14.4], [13.2, 2.4],
+                     [0.0, 2.4]])
+
+
+def _add_walls(b: _Builder, outline: FloatArray, ceiling: float,
+               mats: Sequence[Material]) -> list[_Wall]:
+    """Walls along a counter-clockwise floor plan, their floor, ceiling and corner edges."""
+    walls = []
+    for k, (p, q) in enumerate(zip(outline, np.roll(outline, -1, axis=0), strict=True)):
+        along = q - p
+        length = float(np.linalg.norm(along))
+        a = along / length
+        b.rect((*p, 0.0), (*along, 0.0), (0.0, 0.0, ceiling), mats[k])
+        b.line((*p, 0.0), (*q, 0.0), "wall_floor")
+        b.line((*p, ceiling), (*q, ceiling), "wall_ceiling")
+        b.line((*p, 0.0), (*p, ceiling), "wall_corner")
+        walls.append(_Wall((*p, 0.0), (*a, 0.0), (-a[1], a[0], 0.0), length))
+    return walls
+
+
+def _office_floor(b: _Builder, ceiling: float, tiles: bool, tile: float = 0.6) -> None:
+    """Floor and ceiling of the L. With ``tiles``: 0.6 m carpet tiles in two shades laid as a
+    checkerboard, every seam a line (``floor_tile``)."""
+    legs = (((0.0, 0.0), (15.6, 2.4)), ((13.2, 2.4), (15.6, 14.4)))
+    for (x0, y0), (x1, y1) in legs:
+        b.rect((x0, y0, ceiling), (0, y1 - y0, 0), (x1 - x0, 0, 0), Material.CEILING)
+        if not tiles:
+            b.rect((x0, y0, 0), (x1 - x0, 0, 0), (0, y1 - y0, 0), Material.FLOOR)
+            continue
+        for i in range(round(x0 / tile), round(x1 / tile)):
+            for j in range(round(y0 / tile), round(y1 / tile)):
+                mat = Material.FLOOR_TILE if (i + j) % 2 == 0 else Material.FLOOR_TILE_DARK
+                b.rect((i * tile, j * tile, 0), (tile, 0, 0), (0, tile, 0), mat)
+    if tiles:
+        for k in range(1, 26):  # seams across leg A (and along leg B beyond x = 13.2)
+            b.line((k * tile, 0, 0), (k * tile, 2.4 if k <= 22 else 14.4, 0), "floor_tile")
+        for k in range(1, 24):  # seams along leg A (and across leg B)
+            b.line((0.0 if k <= 3 else 13.2, k * tile, 0), (15.6, k * tile, 0), "floor_tile")
+
+
+def _against(wall: _Wall, s: float, half: tuple[float, float], yaw_deg: float,
+             gap: float = 0.03) -> tuple[FloatArray, float]:
+    """Floor-level centre and world yaw (deg) of a footprint with half sizes ``(along,
+    across)`` turned by ``yaw_deg`` from the wall's direction, standing ``gap`` from the wall
+    at ``s``."""
+    t = np.radians(yaw_deg)
+    reach = abs(np.cos(t)) * half[1] + abs(np.sin(t)) * half[0]
+    wall_yaw = np.degrees(np.arctan2(wall.a[1], wall.a[0]))
+    return wall.point(s, 0.0, gap + reach), float(wall_yaw + yaw_deg)
+
+
+def _box_against(b: _Builder, wall: _Wall, s: float, size: tuple[float, float, float],
+                 yaw_deg: float, mat: Material, top_mat: Material | None = None
+                 ) -> tuple[FloatArray, float]:
+    """A box (``size``: along the wall, across, height) on the floor by the wall; its floor
+    centre and world yaw."""
+    c, yaw = _against(wall, s, (size[0] / 2, size[1] / 2), yaw_deg)
+    b.box(c + [0, 0, size[2] / 2], size, mat, "clutter", yaw_deg=yaw, top_mat=top_mat)
+    return c, yaw
+
+
+def _chair(b: _Builder, wall: _Wall, s: float, yaw_deg: float) -> None:
+    """A chair (0.44 m seat at 0.44 m, four legs, a back up to 0.97 m) by the wall, turned by
+    ``yaw_deg`` from facing along it."""
+    c, yaw = _against(wall, s, (0.23, 0.23), yaw_deg)
+    R = rotation_about_axis([0.0, 0.0, 1.0], np.radians(yaw))
+    seat_top = 0.465
+    b.box(c + [0, 0, 0.44], (0.44, 0.44, 0.05), Material.CHAIR_SEAT, "chair", yaw_deg=yaw)
+    for lx in (-0.19, 0.19):
+        for ly in (-0.19, 0.19):
+            b.box(c + R @ [lx, ly, 0.2075], (0.03, 0.03, 0.415), Material.CHAIR, "chair",
+                  yaw_deg=yaw, vertical_only=True)
+    b.box(c + R @ [-0.205, 0.0, seat_top + 0.2525], (0.03, 0.42, 0.505), Material.CHAIR,
+          "chair", yaw_deg=yaw)
+
+
+def office(tiled_floor: bool = True) -> Scene:
+    """An L-shaped office corridor 2.4 m wide and 2.7 m high: leg A 15.6 m along +X, then a
+    90 deg left turn into leg B, 14.4 m along +Y. Doors, windows, baseboards, nine light panels,
+    posters (two of them hung a few degrees crooked), carpet tiles (``tiled_floor``; else a
+    plain floor) and clutter along the walls turned by various angles: cardboard boxes (one
+    stacked on another), a cabinet, a low shelf, three chairs and three round bins. The route
+    runs along the centre line of both legs (25.2 m as a polyline)."""
+    Z = 2.7
+    b = _Builder()
+    wall_mats = [Material.WALL] * 6
+    wall_mats[2] = wall_mats[5] = Material.END_WALL
+    # south (y=0), east (x=15.6), north end of B, west of B (x=13.2), north of A (y=2.4),
+    # west end of A
+    south, east, end_b, west_b, north_a, end_a = _add_walls(b, _l_outline(), Z, wall_mats)
+    _office_floor(b, Z, tiled_floor)
+    # doors (start along the wall, width): one ends each leg, three on each inner wall
+    for wall, doors in ((south, ()), (east, ((0.7, 1.0),)), (end_b, ((0.7, 1.0),)),
+                        (west_b, ((1.8, 0.9), (5.8, 0.9), (9.0, 0.9))),
+                        (north_a, ((1.5, 0.9), (5.5, 0.9), (9.5, 0.9))), (end_a, ((0.7, 1.0),))):
+        for s0, width in doors:
+            wall.door(b, s0, width)
+        wall.baseboard(b, [(s0, s0 + width) for s0, width in doors])
+    for wall, s0 in ((south, 2.0), (south, 6.2), (south, 10.4), (east, 4.6), (east, 9.2)):
+        wall.window(b, s0, 1.6, 0.9, 1.4)
+    red, blue = Material.POSTER_RED, Material.POSTER_BLUE
+    for wall, s0, w, h, ink, tilt in (
+            (south, 4.3, 0.6, 0.85, red, 0.0), (south, 8.7, 0.8, 0.55, blue, 0.0),
+            (south, 12.6, 0.5, 0.7, blue, 0.0), (east, 2.4, 0.6, 0.8, red, 0.0),
+            (east, 7.2, 0.6, 0.85, blue, 0.0), (east, 11.8, 0.7, 0.5, red, 0.0),
+            (west_b, 3.6, 0.6, 0.85, red, 0.0), (west_b, 7.3, 0.7, 0.9, blue, -5.0),
+            (north_a, 3.3, 0.7, 0.9, blue, 0.0), (north_a, 6.8, 0.6, 0.8, red, 4.0),
+            (north_a, 11.0, 0.9, 0.6, red, 0.0)):
+        wall.poster(b, s0, 1.2, w, h, ink, tilt)
+    _office_clutter(b, south, east, west_b, north_a)
+    for cx in (1.8, 4.6, 7.4, 10.2):
+        _ceiling_light(b, cx, 1.2, Z, 1.2, 0.6, 1.6)
+    _ceiling_light(b, 14.4, 1.2, Z, 0.6, 0.6, 1.2)
+    for cy in (4.2, 7.0, 9.8, 12.6):
+        _ceiling_light(b, 14.4, cy, Z, 0.6, 1.2, 1.6)
+    route = np.array([[1.2, 1.2, 0.0], [14.4, 1.2, 0.0], [14.4, 13.2, 0.0]])
+    return b.build("office", route[:2], 0.5, Z, route=route)
+
+
+def _office_clutter(b: _Builder, south: _Wall, east: _Wall, west_b: _Wall,
+                    north_a: _Wall) -> None:
+    """Boxes, a cabinet, a shelf, chairs and bins along the office's walls, none of them
+    aligned with the walls (world yaws differ by several degrees from each other, so each
+    object adds its own pair of horizontal line directions), all within 0.7 m of a wall."""
+    box, dark, wood = Material.BOX, Material.FURNITURE_DARK, Material.FURNITURE
+    _box_against(b, south, 4.8, (0.5, 0.4, 0.4), 17.0, box)
+    c, _ = _box_against(b, south, 9.0, (0.6, 0.45, 0.5), -8.0, box)
+    b.box(c + [0, 0, 0.64], (0.34, 0.28, 0.28), box, "clutter", yaw_deg=30.0)  # stacked on it
+    b.prism(south.point(12.6, 0.0, 0.21), 0.17, 0.55, Material.BIN)
+    _box_against(b, north_a, 8.3, (0.5, 0.45, 1.15), 4.0, dark, top_mat=wood)
+    _chair(b, north_a, 3.8, 55.0)
+    b.prism(north_a.point(11.4, 0.0, 0.2), 0.16, 0.45, Material.BIN)
+    _chair(b, east, 3.3, -140.0)
+    _box_against(b, east, 7.6, (0.55, 0.45, 0.45), -22.0, box)
+    _chair(b, east, 12.3, 72.0)
+    _box_against(b, west_b, 1.0, (0.5, 0.5, 0.35), 78.0, box)
+    _box_against(b, west_b, 4.3, (1.0, 0.35, 0.8), 10.0, wood, top_mat=dark)
+    b.prism(west_b.point(7.6, 0.0, 0.24), 0.2, 0.6, Material.BIN)
+
+
+SCENES = {SceneName.CORRIDOR: corridor, SceneName.ROOM: room, SceneName.OFFICE: office}
 
 
 def make_scene(name: str | SceneName) -> Scene:
