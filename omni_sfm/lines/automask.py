@@ -1,0 +1,266 @@
+"""An automatic mask of what does not move with the scene (docs/frontend.md, "Automatic mask").
+
+The operator, a tripod's legs, the robot or the mirror's mount and the camera's own reflection
+are fixed to the camera: while the camera moves they stay at the same pixels and the scene
+slides past them. Their straight edges would otherwise be tracked as lines that never move,
+which the estimator reads as lines at infinity in the wrong direction.
+
+:func:`static_mask` takes a sample of frames spread over the sequence:
+
+1. Canny edges of each lightly smoothed frame inside the usable region (the camera's valid
+   mask, less a margin at its border, and the user's mask);
+2. *persistent* edge pixels: an edge (within 1 px) in at least ``persist_fraction`` of the
+   frames; pieces shorter than ``min_component_px`` are dropped;
+3. guard: if most edges of the sample persist, the camera barely moved and nothing can be told
+   apart, so no mask is made (``applied`` False, with the reason);
+4. the persistent edges are closed into regions, the areas they enclose whose grey levels do
+   not change over the sample are filled in (the body's plain inside), and the result is grown
+   by a margin.
+
+Deterministic (no sampling), about 5 ms per 800x600 frame.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from omni_sfm.cameras.base import CameraModel
+from omni_sfm.errors import OmniSfmError
+
+
+@dataclass(frozen=True, kw_only=True)
+class AutoMaskOptions:
+    """Parameters of :func:`static_mask`; pixel units unless stated."""
+
+    blur_sigma: float = 1.0
+    """Gaussian smoothing before edge detection (px)."""
+    canny_low: float = 20.0
+    """Canny hysteresis low threshold (grey levels, L2 Sobel magnitude as in extraction)."""
+    canny_high: float = 50.0
+    """Canny hysteresis high threshold."""
+    persist_fraction: float = 0.9
+    """An edge pixel is camera-fixed if an edge lies within 1 px of it in at least this
+    fraction of the sampled frames."""
+    min_component_px: int = 40
+    """Persistent edge pieces with fewer pixels are ignored (chance coincidences)."""
+    border_px: int = 6
+    """Edges within this distance of the border of the usable region are ignored: the mirror's
+    rim and the user's mask border stay put but are masked already."""
+    static_edge_limit: float = 0.35
+    """If more than this fraction of all edge pixels of the sample persist, the camera barely
+    moved: no mask is made."""
+    close_px: float = 0.008
+    """Radius of the dilation that thickens the persistent edges into walls (bridging their
+    gaps), as a fraction of the smaller image side (at least 2 px)."""
+    still_grey: float = 3.0
+    """An area enclosed by persistent edges is filled if the median over its pixels of the
+    grey level's standard deviation across the sample is below this (grey levels)."""
+    max_fill_fraction: float = 0.25
+    """Largest enclosed area that is filled, as a fraction of the usable region."""
+    margin_px: float = 0.005
+    """Margin added around the masked regions, as a fraction of the smaller image side."""
+    max_masked_fraction: float = 0.5
+    """If the mask would cover more than this fraction of the usable region, it is not applied
+    (the sample is too still or too uniform to tell the body from the scene)."""
+    min_frames: int = 5
+    """Fewest frames in the sample."""
+
+
+@dataclass(frozen=True)
+class AutoMask:
+    """The automatic mask and what it did.
+
+    Attributes:
+        mask: ``(H, W)`` bool, True where the image may be used: the user's mask (all True if
+            none) less the camera-fixed regions when ``applied``, the user's mask otherwise.
+        applied: whether camera-fixed regions were masked (False: nothing found, or the guard
+            of a camera that barely moves).
+        masked_fraction: fraction of the camera's valid pixels (inside the user's mask) that
+            the automatic part removed (0 when not applied).
+        static_edge_fraction: fraction of the sample's edge pixels that persist.
+        reason: one line for the log and ``report.json``.
+    """
+
+    mask: np.ndarray
+    applied: bool
+    masked_fraction: float
+    static_edge_fraction: float
+    reason: str
+
+    def summary(self) -> dict[str, object]:
+        """Plain numbers for ``report.json``."""
+        return {"applied": self.applied, "masked_fraction": round(self.masked_fraction, 4),
+                "static_edge_fraction": round(self.static_edge_fraction, 4),
+                "reason": self.reason}
+
+
+def _usable_region(camera: CameraModel, user_mask: np.ndarray | None,
+                   border_px: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(base, inner)``: the camera's valid pixels inside the user's mask, and that region
+    eroded by ``border_px`` (edges are only looked for there)."""
+    h, w = camera.height, camera.width
+    base = camera.valid_mask()
+    if user_mask is not None:
+        um = np.asarray(user_mask)
+        if um.shape != (h, w):
+            raise OmniSfmError(f"mask is {um.shape[1]}x{um.shape[0]} px but the camera is "
+                               f"{w}x{h} px")
+        base &= um > 0
+    b = max(0, int(border_px))
+    if b == 0:
+        return base, base.copy()
+    pad = cv2.copyMakeBorder(base.astype(np.uint8), b, b, b, b, cv2.BORDER_CONSTANT, value=0)
+    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * b + 1, 2 * b + 1))
+    return base, cv2.erode(pad, k)[b:-b, b:-b] > 0
+
+
+def _edge_statistics(frames: Sequence[np.ndarray], shape: tuple[int, int],
+                     o: AutoMaskOptions) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per pixel over the sample: ``(raw, near, std)``, the fraction of frames with an edge at
+    the pixel, with an edge within 1 px of it, and the standard deviation of the smoothed grey
+    level (grey levels)."""
+    h, w = shape
+    raw = np.zeros((h, w), np.float32)
+    near = np.zeros((h, w), np.float32)
+    s1 = np.zeros((h, w), np.float64)
+    s2 = np.zeros((h, w), np.float64)
+    k3 = np.ones((3, 3), np.uint8)
+    ksize = 2 * int(np.ceil(2.0 * o.blur_sigma)) + 1
+    for f in frames:
+        img = np.asarray(f)
+        if img.shape != (h, w) or img.dtype != np.uint8:
+            raise ValueError(f"frames must be ({h}, {w}) uint8 grey images, got "
+                             f"{img.shape=} {img.dtype=}")
+        sm = cv2.GaussianBlur(img.astype(np.float32), (ksize, ksize), o.blur_sigma) \
+            if o.blur_sigma > 0 else img.astype(np.float32)
+        e = cv2.Canny(np.clip(sm + 0.5, 0, 255).astype(np.uint8), o.canny_low, o.canny_high,
+                      L2gradient=True) > 0
+        raw += e
+        near += cv2.dilate(e.astype(np.uint8), k3) > 0
+        s1 += sm
+        s2 += sm.astype(np.float64) ** 2
+    n = float(len(frames))
+    var = np.maximum(s2 / n - (s1 / n) ** 2, 0.0)
+    return raw / n, near / n, np.sqrt(var).astype(np.float32)
+
+
+def _persistent_edges(raw: np.ndarray, near: np.ndarray, inner: np.ndarray,
+                      o: AutoMaskOptions) -> tuple[np.ndarray, float]:
+    """Bool ``(H, W)`` camera-fixed edge pixels and the fraction of all edge detections of the
+    sample that fall on them."""
+    persistent = (near >= o.persist_fraction) & (raw >= 0.5 * o.persist_fraction) & inner
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(persistent.astype(np.uint8),
+                                                        connectivity=8)
+    big = stats[:, cv2.CC_STAT_AREA] >= max(1, o.min_component_px)
+    big[0] = False
+    persistent = big[lab]
+    total = float(raw[inner].sum())
+    static = float(raw[persistent].sum())
+    return persistent, static / total if total > 0 else 0.0
+
+
+def _disk(radius: int) -> np.ndarray:
+    return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
+
+
+def _still_hulls(thick: np.ndarray, still: np.ndarray, base: np.ndarray,
+                 limit: float) -> np.ndarray:
+    """The still pixels inside the convex hull of each connected piece of ``thick`` (a body's
+    outline with gaps, where the enclosed-area test leaks)."""
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(thick.astype(np.uint8), connectivity=8)
+    hulls = np.zeros(thick.shape, np.uint8)
+    ys, xs = np.nonzero(lab)
+    order = np.argsort(lab[ys, xs], kind="stable")
+    pts = np.stack([xs[order], ys[order]], 1).astype(np.int32)
+    bounds = np.concatenate([[0], np.cumsum(stats[1:, cv2.CC_STAT_AREA])])
+    for k in range(n - 1):
+        hull = cv2.convexHull(pts[bounds[k]:bounds[k + 1]])
+        if cv2.contourArea(hull) <= limit:
+            cv2.fillConvexPoly(hulls, hull, 1)
+    return (hulls > 0) & still & base
+
+
+def _regions(persistent: np.ndarray, std: np.ndarray, base: np.ndarray, inner: np.ndarray,
+             o: AutoMaskOptions) -> np.ndarray:
+    """Bool ``(H, W)``: the persistent edges thickened into walls, the still areas they
+    enclose filled, grown by the margin."""
+    side = min(persistent.shape)
+    # dilation, not closing: closing does not bridge the gaps of a one-pixel-thin edge
+    kc = _disk(max(2, int(round(o.close_px * side))))
+    thick = cv2.dilate(persistent.astype(np.uint8), kc) > 0
+    # areas of the usable region cut off by the walls and the border band (where edges were
+    # not looked for: a body that reaches the rim or the image border is enclosed there)
+    walls = thick | ~inner
+    free = (base & ~walls).astype(np.uint8)
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(free, connectivity=4)
+    area = stats[:, cv2.CC_STAT_AREA]
+    limit = o.max_fill_fraction * max(1, int(base.sum()))
+    cand = np.flatnonzero((area > 0) & (area <= limit))
+    cand = cand[cand > 0]
+    fill = np.zeros(n, bool)
+    if len(cand):
+        near = cv2.dilate(thick.astype(np.uint8), _disk(1)) > 0
+        touching = np.zeros(n, bool)
+        touching[np.unique(lab[near & (free > 0)])] = True
+        flat = lab.ravel()
+        order = np.argsort(flat, kind="stable")
+        starts = np.searchsorted(flat[order], cand)
+        ends = np.searchsorted(flat[order], cand, side="right")
+        flat_std = std.ravel()[order]
+        for k, i0, i1 in zip(cand, starts, ends, strict=True):
+            if touching[k] and np.median(flat_std[i0:i1]) < o.still_grey:
+                fill[k] = True
+    region = thick | fill[lab] | _still_hulls(thick, std < o.still_grey, base, limit)
+    # the border band is masked only where it touches a masked region
+    region |= ~inner & (cv2.dilate(region.astype(np.uint8), kc) > 0)
+    m = int(round(o.margin_px * side))
+    if m > 0:
+        region = cv2.dilate(region.astype(np.uint8), _disk(m)) > 0
+    return region & base
+
+
+def static_mask(frames: Sequence[np.ndarray], camera: CameraModel,
+                user_mask: np.ndarray | None = None,
+                options: AutoMaskOptions | None = None) -> AutoMask:
+    """The mask of the regions that stay put while the scene moves (module docstring).
+
+    Args:
+        frames: a sample of ``(H, W)`` uint8 grey frames spread over the sequence (20-60 is
+            plenty; at least ``options.min_frames``).
+        camera: the camera; its valid mask bounds the search.
+        user_mask: optional ``(H, W)`` array, nonzero where the image may be used.
+        options: thresholds (:class:`AutoMaskOptions`).
+
+    Returns:
+        :class:`AutoMask`; its ``mask`` already includes ``user_mask``.
+    """
+    o = options or AutoMaskOptions()
+    h, w = camera.height, camera.width
+    base, inner = _usable_region(camera, user_mask, o.border_px)
+    keep = np.ones((h, w), bool) if user_mask is None else np.asarray(user_mask) > 0
+    if len(frames) < o.min_frames:
+        return AutoMask(keep, False, 0.0, 0.0,
+                        f"not applied: {len(frames)} frames sampled, at least {o.min_frames} "
+                        "needed")
+    raw, near, std = _edge_statistics(frames, (h, w), o)
+    persistent, static_frac = _persistent_edges(raw, near, inner, o)
+    if static_frac > o.static_edge_limit:
+        return AutoMask(keep, False, 0.0, static_frac,
+                        f"not applied: the camera barely moves ({100 * static_frac:.0f} % of "
+                        "the edges stay put)")
+    if not persistent.any():
+        return AutoMask(keep, False, 0.0, static_frac,
+                        "nothing masked: no edges stay put while the scene moves")
+    region = _regions(persistent, std, base, inner, o)
+    frac = float(region.sum()) / max(1, int(base.sum()))
+    if frac > o.max_masked_fraction:
+        return AutoMask(keep, False, 0.0, static_frac,
+                        f"not applied: the regions that stay put would cover {100 * frac:.0f} % "
+                        "of the image (too much to be the camera's mount or operator)")
+    return AutoMask(keep & ~region, True, frac, static_frac,
+                    f"masked {100 * frac:.1f} % of the image: edges that stay put while the "
+                    "scene moves")
