@@ -84,7 +84,9 @@ class InitResult:
     not_estimated: tuple[str, ...] = ()
     """Names of frames that were read but got no pose (report.json says why)."""
     unreadable: tuple[str, ...] = ()
-    """Names of frames that could not be decoded."""
+    """Names of frames skipped: not decoded, damaged or of another size."""
+    unreadable_reasons: tuple[str, ...] = ()
+    """Why each of ``unreadable`` was skipped (one line each)."""
 
 
 def estimated_segments(fe: FrontEndResult, result: EstimationResult,
@@ -185,7 +187,8 @@ def init_from_images(images: Path | str, camera: Path | str | CameraModel, outpu
 
     Raises:
         OmniSfmError: unreadable input, a camera that does not load or does not match the
-            images, too few lines or no parallel family, degenerate motion.
+            images, too few lines (with the front end's reason: dark or low-contrast frames, an
+            empty mask, edges that are not straight) or no parallel family, degenerate motion.
     """
     from omni_sfm.estimate.pipeline import write_init_outputs
     from omni_sfm.export.colmap import write_init_model
@@ -206,8 +209,17 @@ def init_from_images(images: Path | str, camera: Path | str | CameraModel, outpu
     t0 = time.perf_counter()
     fe = track_lines(source, cam, fe_opts, user_mask)
     t1 = time.perf_counter()
+    too_few = fe.why_too_few_lines()
+    if too_few:
+        raise OmniSfmError(too_few)
     tracks = fe.estimator_tracks()
-    result = estimate_poses(tracks, o.estimation)
+    try:
+        result = estimate_poses(tracks, o.estimation)
+    except OmniSfmError as exc:
+        problem = fe.image_problem()  # the likely cause, where the images have one
+        if problem:
+            raise OmniSfmError(f"{exc} ({problem})") from exc
+        raise
     t2 = time.perf_counter()
 
     est_frames = np.flatnonzero(result.estimated)
@@ -215,6 +227,10 @@ def init_from_images(images: Path | str, camera: Path | str | CameraModel, outpu
     est_names = [names[f] for f in est_frames]
     est_numbers = {int(fe.frame_numbers[f]) for f in est_frames}
     skipped_not_estimated = [names[f] for f in np.flatnonzero(~result.estimated)]
+    unreadable = _image_names(source, np.asarray(fe.frames_skipped, dtype=int))
+    front_end = fe.summary()
+    for entry, name in zip(front_end["frames_skipped_reasons"], unreadable, strict=True):
+        entry["name"] = name
     with atomic_output_dir(output, overwrite=overwrite, inputs=(Path(images),)) as tmp:
         extra: dict[str, Any] = {
             "input": {"images": stored_path(images, output),
@@ -223,7 +239,7 @@ def init_from_images(images: Path | str, camera: Path | str | CameraModel, outpu
                       "mask": None if mask is None else stored_path(mask, output),
                       "start": o.start, "end": o.end, "step": o.step,
                       "timestamps": "seconds" if source.is_video else "frame index"},
-            "front_end": fe.summary(),
+            "front_end": front_end,
             "front_end_per_frame": fe.per_frame(),
             "frames_not_estimated_names": skipped_not_estimated,
             "wall_time_s": {"front_end": t1 - t0, "estimation": t2 - t1},
@@ -247,8 +263,8 @@ def init_from_images(images: Path | str, camera: Path | str | CameraModel, outpu
             write_init_model(tmp, cam, result.trajectory, est_names, imgs, text=o.colmap_text)
     return InitResult(output=output, camera=cam, frontend=fe, estimation=result,
                       image_names=tuple(est_names), not_estimated=tuple(skipped_not_estimated),
-                      unreadable=tuple(_image_names(source, np.asarray(fe.frames_skipped,
-                                                                        dtype=int))))
+                      unreadable=tuple(unreadable),
+                      unreadable_reasons=fe.frames_skipped_reasons)
 
 
 @dataclass(frozen=True)

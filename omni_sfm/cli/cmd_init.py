@@ -11,7 +11,10 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from omni_sfm.lines.extract import ExtractionOptions
 
 
 def add_parser(subparsers: Any) -> None:
@@ -46,6 +49,15 @@ def add_parser(subparsers: Any) -> None:
     p.add_argument("--start", type=int, default=0, help="first frame to use (default 0)")
     p.add_argument("--end", type=int, default=None, help="stop before this frame")
     p.add_argument("--step", type=int, default=1, help="use every STEP-th frame (default 1)")
+    p.add_argument("--edge-low", type=float, default=None, metavar="G",
+                   help="low edge threshold of line extraction (default 20): Canny on the "
+                        "gradient of the smoothed image, in grey levels of a frame whose grey "
+                        "levels spread over 80 or more (5th to 95th percentile); darker or "
+                        "flatter frames scale both thresholds down (docs/frontend.md, "
+                        "'Real footage')")
+    p.add_argument("--edge-high", type=float, default=None, metavar="G",
+                   help="high edge threshold of line extraction (default 50, same units): "
+                        "lower finds fainter edges, and more noise")
     p.add_argument("--debug-view", choices=["png", "mp4", "none"], default="png",
                    help="frames with tracked lines coloured by parallel group: PNGs in "
                         "OUTPUT/debug/ (default), OUTPUT/debug.mp4, or none")
@@ -65,10 +77,26 @@ def _names(names: list[str], most: int = 5) -> str:
     return ", ".join(names[:most]) + more
 
 
+def _skipped(names: list[str], reasons: list[str], most: int = 3) -> str:
+    """``skipped: ...``: the skipped frames with their reasons, runs of frames with one reason
+    as one entry (``000018.png-000029.png: ...``)."""
+    runs: list[tuple[str, str, str]] = []
+    for name, why in zip(names, reasons, strict=True):
+        if runs and runs[-1][2] == why:
+            runs[-1] = (runs[-1][0], name, why)
+        else:
+            runs.append((name, name, why))
+    parts = [f"{a}{'' if a == b else '-' + b}: {why}" for a, b, why in runs[:most]]
+    more = f"; ... ({len(runs) - most} more, in report.json)" if len(runs) > most else ""
+    n = len(names)
+    return f"skipped: {n} damaged frame{'' if n == 1 else 's'} ({'; '.join(parts)}{more})"
+
+
 def summary(rep: dict[str, Any], output: Path, estimated: list[str], not_estimated: list[str],
-            unreadable: list[str]) -> str:
+            unreadable: list[str], reasons: list[str] | None = None) -> str:
     """The result lines ``init`` prints on stdout: frames estimated out of all given, the world
-    frame, the frames without a pose and why to look in report.json."""
+    frame, the frames without a pose and why to look in report.json, and the frames skipped
+    (``unreadable``) with their ``reasons`` where known."""
     total = rep["num_frames"] + len(unreadable)
     lines = [f"init: {len(estimated)} of {total} frames estimated, "
              f"{len(rep['parallel_family']['track_ids'])} parallel lines, "
@@ -79,7 +107,9 @@ def summary(rep: dict[str, Any], output: Path, estimated: list[str], not_estimat
     if not_estimated:
         lines.append(f"not estimated: {len(not_estimated)} frames ({_names(not_estimated)}; "
                      "reasons in report.json)")
-    if unreadable:
+    if unreadable and reasons:
+        lines.append(_skipped(unreadable, reasons))
+    elif unreadable:
         lines.append(f"unreadable: {len(unreadable)} frames could not be decoded "
                      f"({_names(unreadable)})")
     return "\n".join(lines)
@@ -99,20 +129,23 @@ def run(args: argparse.Namespace) -> int:
 
         if args.camera is None:
             raise OmniSfmError("--images needs --camera CAMERA_FILE (docs/cameras.md)")
+        frontend = FrontEndOptions(extraction=_extraction(args), progress=not args.quiet)
         res = init_from_images(
             args.images, args.camera, args.output,
-            InitOptions(frontend=FrontEndOptions(progress=not args.quiet), estimation=estimation,
+            InitOptions(frontend=frontend, estimation=estimation,
                         start=args.start, end=args.end, step=args.step,
                         debug_view=args.debug_view, colmap=not args.no_colmap,
                         colmap_text=args.text, progress=not args.quiet),
             mask=args.mask, overwrite=args.overwrite)
         print(summary(res.estimation.report, args.output, list(res.image_names),
-                      list(res.not_estimated), list(res.unreadable)))
+                      list(res.not_estimated), list(res.unreadable),
+                      list(res.unreadable_reasons)))
         return 0
 
-    for flag in ("camera", "mask"):
+    for flag in ("camera", "mask", "edge_low", "edge_high"):
         if getattr(args, flag) is not None:
-            raise OmniSfmError(f"--{flag} applies to --images input, not to --tracks")
+            raise OmniSfmError(f"--{flag.replace('_', '-')} applies to --images input, not to "
+                               "--tracks")
     check_output_dir(args.output, overwrite=args.overwrite, inputs=(args.tracks,))
     from omni_sfm.lines.tracks import read_tracks
 
@@ -128,6 +161,20 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _extraction(args: argparse.Namespace) -> ExtractionOptions:
+    """The line extraction options of ``--edge-low``/``--edge-high`` (checked here, so a bad
+    value is one line, not a traceback)."""
+    from omni_sfm.errors import OmniSfmError
+    from omni_sfm.lines.extract import ExtractionOptions
+
+    default = ExtractionOptions()
+    low = default.canny_low if args.edge_low is None else args.edge_low
+    high = default.canny_high if args.edge_high is None else args.edge_high
+    if not 0 < low <= high:
+        raise OmniSfmError(f"need 0 < --edge-low <= --edge-high, got {low:g} and {high:g}")
+    return ExtractionOptions(canny_low=low, canny_high=high)
+
+
 def _run_plugin(args: argparse.Namespace) -> int:
     """``init --initializer NAME``: a plugin's poses as an init folder."""
     from omni_sfm.errors import OmniSfmError
@@ -137,6 +184,7 @@ def _run_plugin(args: argparse.Namespace) -> int:
         raise OmniSfmError("--initializer needs --images PATH and --camera FILE")
     line_only = {"--mask": args.mask is not None, "--no-refine": args.no_refine,
                  "--start/--end/--step": (args.start, args.end, args.step) != (0, None, 1),
+                 "--edge-low/--edge-high": (args.edge_low, args.edge_high) != (None, None),
                  "--no-colmap": args.no_colmap, "--text": args.text}
     given = [flag for flag, on in line_only.items() if on]
     if given:

@@ -16,7 +16,7 @@ defaults work for a 800x600 hyperboloid image and a 1600x800 equirectangular one
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -44,6 +44,20 @@ class ExtractionOptions:
     about ``2.5 s`` after a 1 px blur)."""
     canny_high: float = 50.0
     """Canny hysteresis high threshold (same units as ``canny_low``)."""
+    reference_contrast: float = 80.0
+    """Contrast normalisation: both Canny thresholds are scaled by ``min(1, c /
+    reference_contrast)``, ``c`` the frame's contrast (:meth:`LineExtractor.image_stats`), so a
+    dark or low-contrast frame finds the edges a normal one would; frames with at least this
+    contrast (most footage; every frame of the rendered scenes) use the thresholds as they
+    are. 0 disables the normalisation."""
+    min_threshold_scale: float = 0.1
+    """Lowest factor of the normalisation: below it the thresholds would pick up the steps of a
+    smooth shading quantised to 8 bits (one grey level gives about 2.5 after the blur)."""
+    min_contrast: float = 4.0
+    """A frame whose contrast (as for ``reference_contrast``) is below this gives no lines: in
+    a frame that dark or flat the 8-bit steps are the edges, and the few lines found were
+    mostly false (2 % of the demo corridor's brightness, contrast 2: 21 of 40 frames, 10 deg
+    off). 0 disables."""
     corner_ratio: float = 2.0
     """Keep an edge point if the ratio of the principal RMS gradients in a small window (the
     square root of the eigenvalue ratio of the second-moment matrix, linear in intensity like
@@ -127,6 +141,10 @@ class ExtractedLines:
         num_corner_points: edge points rejected as corner-like.
         num_segments: connected segments with at least ``min_points`` points (first round).
         num_rejected: segments that failed the straightness test.
+        median_grey: median grey level (0-255) of the image inside the mask (NaN: no pixels).
+        contrast: spread of its grey levels inside the mask (:meth:`LineExtractor.image_stats`).
+        threshold_scale: the factor the Canny thresholds were scaled by for this image
+            (``ExtractionOptions.reference_contrast``).
     """
 
     normals: FloatArray
@@ -143,6 +161,9 @@ class ExtractedLines:
     num_corner_points: int
     num_segments: int
     num_rejected: int
+    median_grey: float = float("nan")
+    contrast: float = float("nan")
+    threshold_scale: float = 1.0
 
     @property
     def num_lines(self) -> int:
@@ -193,8 +214,12 @@ class LineExtractor:
         o = self.options
         if o.min_points < 3:
             raise ValueError(f"min_points must be at least 3, got {o.min_points}")
-        if o.canny_low > o.canny_high:
-            raise ValueError(f"canny_low {o.canny_low} exceeds canny_high {o.canny_high}")
+        if not 0 <= o.canny_low <= o.canny_high:
+            raise ValueError(f"need 0 <= canny_low <= canny_high, got {o.canny_low} and "
+                             f"{o.canny_high}")
+        if o.reference_contrast < 0 or not 0 < o.min_threshold_scale <= 1:
+            raise ValueError(f"need reference_contrast >= 0 and 0 < min_threshold_scale <= 1, "
+                             f"got {o.reference_contrast} and {o.min_threshold_scale}")
         h, w = camera.height, camera.width
         valid = camera.valid_mask()
         if mask is not None:
@@ -225,13 +250,44 @@ class LineExtractor:
         self.search_mask[:, -b:] = 0
         g = np.exp(-(wx**2 + wy**2).ravel() / (2.0 * o.tensor_sigma**2))
         self._win_w = (g / g.sum()).astype(np.float32)
+        # pixels where edges are searched: the valid area and the user's mask, eroded
+        self.valid_pixels = int(np.count_nonzero(self.search_mask))
+
+    def image_stats(self, gray: np.ndarray) -> tuple[float, float, float]:
+        """``(median grey, contrast, threshold scale)`` of an ``(H, W)`` uint8 image inside the
+        search mask (see :class:`ExtractedLines`); NaN, NaN, 1 where the mask is empty.
+
+        Contrast: the larger of the spread between the 5th and 95th percentiles of the grey
+        levels and half the spread between the 0.5th and 99.5th, so that a flat frame with a few
+        strong edges (a white wall with dark lines) counts as contrasted (one 256-bin
+        histogram, about 0.3 ms for 800x600)."""
+        if self.valid_pixels == 0:
+            return float("nan"), float("nan"), 1.0
+        hist = cv2.calcHist([gray], [0], self.search_mask, [256], [0, 256]).ravel()
+        cdf = np.cumsum(hist) / self.valid_pixels
+        q = np.searchsorted(cdf, [0.005, 0.05, 0.5, 0.95, 0.995])
+        lut = np.arange(256.0) if self._lut is None else self._lut
+        contrast = float(max(q[3] - q[1], (q[4] - q[0]) / 2))
+        o = self.options
+        if o.reference_contrast <= 0:
+            return float(q[2]), contrast, 1.0
+        lin = float(max(lut[q[3]] - lut[q[1]], (lut[q[4]] - lut[q[0]]) / 2))
+        scale = float(np.clip(lin / o.reference_contrast, o.min_threshold_scale, 1.0))
+        return float(q[2]), contrast, scale
 
     # -- public ---------------------------------------------------------------------------
     def extract(self, image: np.ndarray) -> ExtractedLines:
         """Lines of one ``(H, W)`` 8-bit grey image (a colour image is converted)."""
         gray = self._gray(image)
-        uv, pix, theta, counts = self._edge_points(gray)
-        return self._fit_lines(uv, pix, theta, counts)
+        median, contrast, scale = self.image_stats(gray)
+        if contrast < self.options.min_contrast:  # NaN: an empty mask, which finds nothing anyway
+            z = np.zeros(0, np.int64)
+            lines = self._package(z, z, np.zeros((0, 3)), np.zeros((0, 2)), np.zeros(0),
+                                  {"edge": 0, "corner": 0}, 0, 0)
+        else:
+            uv, pix, theta, counts = self._edge_points(gray, scale)
+            lines = self._fit_lines(uv, pix, theta, counts)
+        return replace(lines, median_grey=median, contrast=contrast, threshold_scale=scale)
 
     # -- stages ---------------------------------------------------------------------------
     def _gray(self, image: np.ndarray) -> np.ndarray:
@@ -248,10 +304,11 @@ class LineExtractor:
             img = np.clip(img, 0, 255).astype(np.uint8)
         return img
 
-    def _edge_points(self, gray: np.ndarray
+    def _edge_points(self, gray: np.ndarray, scale: float = 1.0
                      ) -> tuple[FloatArray, IntArray, FloatArray, dict[str, int]]:
         """Line-like edge points: sub-pixel ``(N, 2)`` and integer ``(N, 2)`` (x, y) pixels and
-        ``(N,)`` gradient orientation (rad, modulo pi)."""
+        ``(N,)`` gradient orientation (rad, modulo pi). ``scale`` multiplies the Canny
+        thresholds (contrast normalisation)."""
         o = self.options
         # float pipeline: rounding the smoothed image to 8 bits would cost sub-pixel accuracy
         img = self._lut[gray] if self._lut is not None else gray.astype(np.float32)
@@ -265,7 +322,8 @@ class LineExtractor:
         dy16 = np.empty(dy.shape, np.int16)
         np.multiply(dx, 8.0, out=dx16, casting="unsafe")
         np.multiply(dy, 8.0, out=dy16, casting="unsafe")
-        edges = cv2.Canny(dx16, dy16, 8.0 * o.canny_low, 8.0 * o.canny_high, L2gradient=True)
+        edges = cv2.Canny(dx16, dy16, 8.0 * scale * o.canny_low, 8.0 * scale * o.canny_high,
+                          L2gradient=True)
         nz = cv2.findNonZero(cv2.bitwise_and(edges, self.search_mask))
         pix = np.zeros((0, 2), np.int32) if nz is None else nz.reshape(-1, 2)
         n_edge = len(pix)

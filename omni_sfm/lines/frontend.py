@@ -27,6 +27,16 @@ from omni_sfm.lines.video import to_gray
 
 IntArray = np.ndarray
 
+MIN_TRACKS = 6
+"""Fewest line tracks the estimator takes (3 parallel lines and 3 others)."""
+DARK_GREY = 25
+"""Frames whose median grey level is below this are "very dark" in the diagnosis of
+:meth:`FrontEndResult.why_too_few_lines`."""
+LOW_CONTRAST = 12
+"""Frames whose contrast (grey levels spread over fewer levels than this, mostly the 5th to
+95th percentile: :meth:`~omni_sfm.lines.extract.LineExtractor.image_stats`) are "low
+contrast" there."""
+
 
 @dataclass(frozen=True, kw_only=True)
 class FrontEndOptions:
@@ -62,7 +72,17 @@ class FrontEndResult:
             ``track`` (``(F,)`` each) and ``finish`` (one value); ``extract_cpu`` and
             ``track_cpu``: CPU time of the calling thread (equal to the work done when OpenCV
             runs single-threaded, ``cv2.setNumThreads(1)``, whatever the machine's load).
-        frames_skipped: source indices of frames that could not be decoded.
+        frames_skipped: source indices of frames skipped: not decoded, damaged or of another
+            size (:class:`~omni_sfm.lines.video.FrameSource`).
+        frames_skipped_reasons: why, one line for each of ``frames_skipped``.
+        median_grey: ``(F,)`` median grey level of each frame inside the mask (0-255).
+        contrast: ``(F,)`` spread of each frame's grey levels (mostly the 5th to 95th
+            percentile: :meth:`~omni_sfm.lines.extract.LineExtractor.image_stats`).
+        threshold_scale: ``(F,)`` factor of the edge thresholds after contrast normalisation
+            (:attr:`ExtractionOptions.reference_contrast`).
+        edge_points: ``(F,)`` Canny edge points inside the mask per frame.
+        valid_pixels: pixels where edges are searched (the camera's valid area and the mask,
+            eroded).
     """
 
     tracks: LineTracks
@@ -78,6 +98,12 @@ class FrontEndResult:
     tracks_revived: IntArray
     timings_ms: dict[str, FloatArray]
     frames_skipped: tuple[int, ...]
+    frames_skipped_reasons: tuple[str, ...]
+    median_grey: FloatArray
+    contrast: FloatArray
+    threshold_scale: FloatArray
+    edge_points: IntArray
+    valid_pixels: int
 
     def estimator_tracks(self) -> LineTracks:
         """The tracks as the estimator takes them: every caller of the estimator on images
@@ -108,6 +134,10 @@ class FrontEndResult:
             "lines_continued": self.lines_continued.tolist(),
             "tracks_started": self.tracks_started.tolist(),
             "tracks_revived": self.tracks_revived.tolist(),
+            "edge_points": self.edge_points.tolist(),
+            "median_grey": self.median_grey.tolist(),
+            "contrast": self.contrast.tolist(),
+            "threshold_scale": np.round(self.threshold_scale, 4).tolist(),
             "extract_ms": np.round(self.timings_ms["extract"], 3).tolist(),
             "track_ms": np.round(self.timings_ms["track"], 3).tolist(),
         }
@@ -123,6 +153,10 @@ class FrontEndResult:
         return {
             "frames": int(self.tracks.num_frames),
             "frames_skipped": list(self.frames_skipped),
+            "frames_skipped_reasons": [
+                {"frame": n, "reason": r}
+                for n, r in zip(self.frames_skipped, self.frames_skipped_reasons, strict=True)],
+            "valid_pixels": self.valid_pixels,
             "tracks": int(self.tracks.num_tracks),
             "observations": int(self.tracks.num_observations),
             "track_length_frames": {
@@ -138,6 +172,50 @@ class FrontEndResult:
             "timings_ms_total": {k: float(np.sum(v)) for k, v in t.items()},
         }
 
+    def image_problem(self) -> str | None:
+        """What is wrong with the images as a whole, if anything: the mask leaves no pixels, the
+        frames are very dark (median grey below :data:`DARK_GREY`) or low contrast (spread below
+        :data:`LOW_CONTRAST`); medians over the frames. Such frames may still give lines (the
+        edge thresholds follow the contrast): this says why when they give too few."""
+        if self.valid_pixels == 0:
+            return ("the mask leaves no pixels (the camera's valid area and the mask, less a "
+                    "border, do not overlap)")
+        grey = float(np.median(self.median_grey))
+        spread = float(np.median(self.contrast))
+        if grey < DARK_GREY:
+            return f"the frames are very dark (median grey {grey:.0f} of 255)"
+        if spread < LOW_CONTRAST:
+            return f"the frames are low contrast (grey levels spread over {spread:.0f} of 255)"
+        return None
+
+    def why_too_few_lines(self, need: int = MIN_TRACKS) -> str | None:
+        """One line that says why the sequence gave fewer than ``need`` line tracks (the
+        estimator's minimum), from the per-frame statistics; None if it gave enough.
+
+        In this order: the mask leaves no pixels; the frames are very dark (median grey below
+        :data:`DARK_GREY`); low contrast (spread below :data:`LOW_CONTRAST`); edges but no
+        straight ones (a wrong camera model bends every line); straight lines in single frames
+        that were not followed from frame to frame; too few edges at all.
+        """
+        n = self.tracks.num_tracks
+        if n >= need:
+            return None
+        head = "no straight edges found"
+        problem = self.image_problem()
+        if problem:
+            return f"{head}: {problem}"
+        edges = int(np.median(self.edge_points))
+        lines = float(np.median(self.lines_extracted))
+        if lines < 1 and edges >= 1000:
+            return (f"{head}: edges found ({edges} points per frame) but none straight: is the "
+                    "camera file right?")
+        if lines >= 1:
+            return (f"too few line tracks ({n}; need {need}): {lines:.0f} straight lines per "
+                    "frame, but too few followed over 3 or more frames (is the motion between "
+                    "frames too large? try a smaller --step)")
+        return (f"{head}: only {edges} edge points per frame (a scene without straight edges, "
+                "or images out of focus?)")
+
 
 def track_lines(frames: Iterable[tuple[int, float, np.ndarray]], camera: CameraModel,
                 options: FrontEndOptions | None = None,
@@ -146,8 +224,9 @@ def track_lines(frames: Iterable[tuple[int, float, np.ndarray]], camera: CameraM
 
     Args:
         frames: ``(index, timestamp, image)`` in order, e.g. a
-            :class:`~omni_sfm.lines.video.FrameSource`; its ``skipped`` list (if any) is
-            reported in ``frames_skipped``.
+            :class:`~omni_sfm.lines.video.FrameSource`; its ``skipped`` list and
+            ``skip_reasons`` (if any) are reported in ``frames_skipped`` and
+            ``frames_skipped_reasons``.
         camera: the calibrated camera; images must be ``camera.width x camera.height``.
         options: extraction/tracking options.
         mask: optional ``(H, W)`` array, nonzero where the image may be used.
@@ -164,6 +243,7 @@ def track_lines(frames: Iterable[tuple[int, float, np.ndarray]], camera: CameraM
     t_trk: list[float] = []
     c_ext: list[float] = []
     c_trk: list[float] = []
+    stats: list[tuple[float, float, float, int]] = []
     total = (len(frames) or None) if hasattr(frames, "__len__") else None  # type: ignore[arg-type]
     it = iter(frames)
     with tqdm(total=total, desc="lines", unit="frame", disable=None if o.progress else True,
@@ -189,17 +269,23 @@ def track_lines(frames: Iterable[tuple[int, float, np.ndarray]], camera: CameraM
             t_trk.append(t3 - t2)
             c_ext.append(c2 - c1)
             c_trk.append(c3 - c2)
+            stats.append((lines.median_grey, lines.contrast, lines.threshold_scale,
+                          lines.num_edge_points))
             bar.update(1)
             bar.set_postfix(lines=lines.num_lines, refresh=False)
+    skipped = tuple(int(s) for s in getattr(frames, "skipped", ()))
+    reasons: dict[int, str] = getattr(frames, "skip_reasons", {})
     if not numbers:
-        raise OmniSfmError("no frames could be read (nothing to track)")
+        why = f": {len(skipped)} skipped, e.g. frame {skipped[0]}: " \
+            f"{reasons.get(skipped[0], 'does not decode')}" if skipped else ""
+        raise OmniSfmError(f"no frames could be read (nothing to track){why}")
     t4 = time.perf_counter()
     obs = tracker.finish()
     ids = np.arange(obs.num_tracks)
     tracks = make_tracks(len(numbers), ids, obs.track, obs.frame, obs.normal,
                          np.asarray(stamps), source="front end")
     t5 = time.perf_counter()
-    skipped = tuple(int(s) for s in getattr(frames, "skipped", ()))
+    st = np.asarray(stats, dtype=np.float64).reshape(-1, 4)
     ms = 1000.0
     return FrontEndResult(
         tracks=tracks, obs_endpoint_rays=obs.endpoint_rays, obs_support=obs.support,
@@ -211,4 +297,7 @@ def track_lines(frames: Iterable[tuple[int, float, np.ndarray]], camera: CameraM
         timings_ms={"read": ms * np.asarray(t_read), "extract": ms * np.asarray(t_ext),
                     "track": ms * np.asarray(t_trk), "finish": np.asarray([ms * (t5 - t4)]),
                     "extract_cpu": ms * np.asarray(c_ext), "track_cpu": ms * np.asarray(c_trk)},
-        frames_skipped=skipped)
+        frames_skipped=skipped,
+        frames_skipped_reasons=tuple(reasons.get(k, "does not decode") for k in skipped),
+        median_grey=st[:, 0], contrast=st[:, 1], threshold_scale=st[:, 2],
+        edge_points=st[:, 3].astype(np.int64), valid_pixels=extractor.valid_pixels)

@@ -4,14 +4,24 @@
 :class:`Frame` tuples ``(index, timestamp, image)``. Image folders: files sorted by name,
 ``timestamp`` = frame index. Video files (anything OpenCV's ``VideoCapture`` opens):
 ``timestamp`` = frame index / frame rate in seconds (the frame index if the file has no rate).
-Frames that fail to decode are skipped and listed in ``FrameSource.skipped``; a file that cannot
-be opened, a folder without images or an image whose size differs from the camera's is an
-:class:`OmniSfmError`.
+Frames that do not decode, or decode damaged, are skipped, listed in ``FrameSource.skipped``
+with the reason in ``FrameSource.skip_reasons``: a truncated JPEG (no end-of-image marker; found
+in the bytes, before libjpeg sees the file), a decoder that reports damage (its text, caught at
+the file-descriptor level so that libjpeg's and FFmpeg's raw warnings never reach the terminal),
+a frame whose bottom rows are the decoder's constant grey fill for missing data, a frame of
+another size than the camera's in the middle of the sequence, and the frames a truncated video
+no longer holds. A file that cannot be opened, a folder without images, or a sequence whose
+first frames all have another size than the camera's is an :class:`OmniSfmError`.
 """
 
 from __future__ import annotations
 
+import os
+import re
+import sys
+import tempfile
 from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import NamedTuple
@@ -26,6 +36,115 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".pp
 
 MAX_CONSECUTIVE_FAILURES = 25
 """A video is taken to end after this many frames in a row fail to decode."""
+
+SIZE_CHECK_FRAMES = 5
+"""If none of the first this many readable frames has the camera's size, the camera file does
+not match the images (an error); later frames of another size are skipped."""
+
+GREY_FILL_ROWS = 16
+"""A frame whose bottom rows (at least this many) are all one mid-grey value is damaged: that
+is how libjpeg fills the rows of a truncated file."""
+
+_DAMAGE = re.compile(r"premature end|corrupt(?! jpeg data: \d+ extraneous)|error|partial file|"
+                     r"conceal|truncat", re.IGNORECASE)
+_FFMPEG_PREFIX = re.compile(r"^\[[^]]*@ 0x[0-9a-f]+\]\s*", re.IGNORECASE)
+
+
+@contextmanager
+def captured_stderr() -> Iterator[list[str]]:
+    """Catch what C libraries (libjpeg, libpng, FFmpeg, OpenCV's log) write to file descriptor
+    2 inside the block; on exit the yielded list holds that text, cleaned by
+    :func:`decoder_note`. Where descriptor 2 cannot be redirected, nothing is caught."""
+    out: list[str] = []
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError, AttributeError):
+        yield out
+        return
+    with tempfile.TemporaryFile() as tmp:
+        os.dup2(tmp.fileno(), 2)
+        try:
+            yield out
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            tmp.seek(0)
+            out.append(decoder_note(tmp.read().decode("utf-8", errors="replace")))
+
+
+def decoder_note(text: str, most: int = 160) -> str:
+    """A decoder's stderr text as one short line: FFmpeg's ``[codec @ 0x...]`` prefixes and
+    repeated lines dropped, lines joined by ``; ``."""
+    lines: list[str] = []
+    for raw in text.splitlines():
+        line = _FFMPEG_PREFIX.sub("", raw.strip())
+        if line and line not in lines:
+            lines.append(line)
+    note = "; ".join(lines)
+    return note if len(note) <= most else note[: most - 3] + "..."
+
+
+def jpeg_is_truncated(data: bytes) -> bool:
+    """Whether ``data``, a JPEG file (starts with the SOI marker), lacks its end-of-image
+    marker (``FF D9``): at the end of the file (zero padding allowed) or, for files with
+    appended data (motion photos), somewhere after the first start-of-scan marker."""
+    if data.rstrip(b"\x00").endswith(b"\xff\xd9"):
+        return False
+    sos = data.find(b"\xff\xda")
+    return sos < 0 or data.find(b"\xff\xd9", sos) < 0
+
+
+def grey_fill_rows(gray: np.ndarray) -> int:
+    """Bottom rows of an ``(H, W)`` uint8 image that all hold one mid-grey value (120-136: a
+    decoder's fill for missing data); 0 when the last row is not such a row."""
+    last = gray[-1]
+    v = last[0]
+    if abs(int(v) - 128) > 8 or not bool(np.all(last == v)):
+        return 0
+    const = np.all(gray == v, axis=1)
+    other = np.flatnonzero(~const)
+    return int(gray.shape[0] - 1 - other[-1]) if len(other) else int(gray.shape[0])
+
+
+def _damage(note: str) -> str | None:
+    """The reason a frame that decoded is damaged, from its decoder's text; None if fine."""
+    return f"damaged ({note})" if note and _DAMAGE.search(note) else None
+
+
+def open_video(path: Path | str) -> cv2.VideoCapture:
+    """OpenCV's capture of a video file, decoding in one thread where FFmpeg decodes it: with
+    frame threads FFmpeg reports a frame's damage while it returns an earlier frame, so the
+    decoder's messages (:func:`captured_stderr`) would blame the wrong frame."""
+    try:
+        cap = cv2.VideoCapture(str(path), cv2.CAP_FFMPEG, [cv2.CAP_PROP_N_THREADS, 1])
+    except (TypeError, cv2.error):  # OpenCV without open parameters (before 4.5.2)
+        cap = None
+    if cap is None or not cap.isOpened():
+        cap = cv2.VideoCapture(str(path))
+    return cap
+
+
+def decode_image_file(path: Path) -> tuple[np.ndarray | None, str | None]:
+    """An image file as OpenCV decodes it (``cv2.IMREAD_UNCHANGED``) and, for one that cannot be
+    used, why: ``(image, None)`` or ``(None, reason)``. Truncated JPEGs are found in the bytes
+    and never decoded; the decoder's own warnings are caught (:func:`captured_stderr`) and
+    become the reason, never terminal output."""
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        return None, f"cannot be read ({exc.strerror})"
+    if not data:
+        return None, "empty file"
+    if data[:2] == b"\xff\xd8" and jpeg_is_truncated(data):
+        return None, "truncated JPEG"
+    with captured_stderr() as log:
+        img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    note = log[0] if log else ""
+    if img is None:
+        return None, "does not decode" + (f" ({note})" if note else "")
+    reason = _damage(note)
+    return (None, reason) if reason else (img, None)
 
 
 class Frame(NamedTuple):
@@ -59,8 +178,10 @@ def to_gray(image: np.ndarray) -> np.ndarray:
 class FrameSource:
     """Iterable frames of an image folder or a video (see module docstring).
 
-    ``size`` ``(width, height)``: if set, every frame must have it (an OmniSfmError names both
-    sizes). ``skipped`` lists the source indices of frames that could not be decoded.
+    ``size`` ``(width, height)``: the camera's image size. Frames of another size are skipped,
+    unless none of the first :data:`SIZE_CHECK_FRAMES` readable frames has it: then the camera
+    file does not match the images (an OmniSfmError names both sizes). ``skipped`` lists the
+    source indices of the frames skipped (in the order met), ``skip_reasons`` why, by index.
     """
 
     path: Path
@@ -69,10 +190,13 @@ class FrameSource:
     step: int = 1
     size: tuple[int, int] | None = None
     skipped: list[int] = field(default_factory=list)
+    skip_reasons: dict[int, str] = field(default_factory=dict)
     is_video: bool = False
     fps: float | None = None
     files: list[Path] = field(default_factory=list)
     frame_count: int | None = None
+    _size_seen: bool = field(default=False, init=False, repr=False)
+    _size_errors: list[str] = field(default_factory=list, init=False, repr=False)
 
     def __len__(self) -> int:
         """Number of frames the range selects (an estimate for videos without a frame count)."""
@@ -81,65 +205,119 @@ class FrameSource:
         return max(0, -(-(end - self.start) // self.step))
 
     def __iter__(self) -> Iterator[Frame]:
-        return self._iter_video() if self.is_video else self._iter_folder()
+        self._size_seen = False
+        self._size_errors = []
+        yield from self._iter_video() if self.is_video else self._iter_folder()
+        if self._size_errors and not self._size_seen:
+            raise OmniSfmError(self._size_errors[0])
 
-    def _check_size(self, img: np.ndarray, where: str) -> None:
-        if self.size is not None and (img.shape[1], img.shape[0]) != self.size:
-            raise OmniSfmError(
-                f"{where}: image is {img.shape[1]}x{img.shape[0]} px but the camera file says "
+    def _skip(self, number: int, reason: str) -> None:
+        self.skipped.append(number)
+        self.skip_reasons[number] = reason
+
+    def _usable(self, img: np.ndarray, number: int, where: str) -> np.ndarray | None:
+        """The grey frame, or None (recorded as skipped) for a grey-filled or wrongly sized one;
+        an OmniSfmError once the first readable frames all had another size."""
+        gray = to_gray(img)
+        fill = grey_fill_rows(gray)
+        if fill >= min(GREY_FILL_ROWS, gray.shape[0]):
+            self._skip(number, f"damaged: the bottom {fill} rows are the decoder's grey fill")
+            return None
+        got = (gray.shape[1], gray.shape[0])
+        if self.size is None or got == tuple(self.size):
+            self._size_seen = True
+            return gray
+        if not self._size_seen:
+            self._size_errors.append(
+                f"{where}: image is {got[0]}x{got[1]} px but the camera file says "
                 f"{self.size[0]}x{self.size[1]} px")
+            if len(self._size_errors) >= SIZE_CHECK_FRAMES:
+                raise OmniSfmError(self._size_errors[0])
+        self._skip(number, f"{got[0]}x{got[1]} px, the camera's is {self.size[0]}x{self.size[1]}")
+        return None
 
     def _iter_folder(self) -> Iterator[Frame]:
         end = len(self.files) if self.end is None else min(self.end, len(self.files))
         for i in range(self.start, end, self.step):
             f = self.files[i]
-            img = cv2.imread(str(f), cv2.IMREAD_UNCHANGED)
+            img, reason = decode_image_file(f)
             if img is None:
-                self.skipped.append(i)
+                self._skip(i, reason or "does not decode")
                 continue
-            gray = to_gray(img)
-            self._check_size(gray, str(f))
-            yield Frame(i, float(i), gray)
+            gray = self._usable(img, i, str(f))
+            if gray is not None:
+                yield Frame(i, float(i), gray)
 
     def _iter_video(self) -> Iterator[Frame]:
-        cap = cv2.VideoCapture(str(self.path))
+        with captured_stderr() as log:
+            cap = open_video(self.path)
         if not cap.isOpened():
-            raise OmniSfmError(f"{self.path}: OpenCV cannot open this video")
+            raise OmniSfmError(f"{self.path}: OpenCV cannot open this video"
+                               + (f" ({log[0]})" if log and log[0] else ""))
         try:
             i = 0
-            pending: list[int] = []  # failed wanted frames, reported once a later frame decodes
+            # failed wanted frames and the decoder's text, reported once a later frame decodes
+            pending: list[tuple[int, str]] = []
             fails = 0
             while self.end is None or i < self.end:
                 if self.frame_count is not None and i >= self.frame_count:
                     break
                 wanted = i >= self.start and (i - self.start) % self.step == 0
-                ok = cap.grab()
-                img = None
-                if ok and wanted:
-                    ok, img = cap.retrieve()
-                    ok = ok and img is not None
+                with captured_stderr() as log:
+                    ok = cap.grab()
+                    img = None
+                    if ok and wanted:
+                        ok, img = cap.retrieve()
+                        ok = ok and img is not None
+                note = log[0] if log else ""
                 i += 1
                 if not ok:
                     fails += 1
                     if wanted:
-                        pending.append(i - 1)
+                        pending.append((i - 1, note))
                     if fails >= MAX_CONSECUTIVE_FAILURES:
-                        pending.clear()  # the stream ended early (a wrong frame count)
                         break
                     continue
                 fails = 0
-                self.skipped.extend(pending)
+                for number, why in pending:
+                    self._skip(number, "does not decode" + (f" ({why})" if why else ""))
                 pending.clear()
-                if img is not None:
-                    gray = to_gray(img)
-                    self._check_size(gray, f"{self.path} frame {i - 1}")
+                if img is None:
+                    continue
+                reason = _damage(note)
+                if reason:
+                    self._skip(i - 1, reason)
+                    continue
+                gray = self._usable(img, i - 1, f"{self.path} frame {i - 1}")
+                if gray is not None:
                     ts = (i - 1) / self.fps if self.fps else float(i - 1)
                     yield Frame(i - 1, ts, gray)
-            if self.frame_count is not None:
-                # failures before the announced end are bad frames, not the end of the stream
-                self.skipped.extend(pending)
+            self._report_tail(i, fails, pending)
         finally:
             cap.release()
+
+    def _report_tail(self, i: int, fails: int, pending: list[tuple[int, str]]) -> None:
+        """The last ``fails`` frames before frame ``i`` did not decode (``pending``: the wanted
+        ones). Where the video stopped decoding before the frame count its container announces,
+        every wanted frame from the first failure to the count is reported as cut off; failures
+        at the end of the chosen range, as bad frames; without a count, after
+        :data:`MAX_CONSECUTIVE_FAILURES`, the stream simply ended."""
+        if fails == 0:
+            return
+        stopped = fails >= MAX_CONSECUTIVE_FAILURES
+        if self.frame_count is None or not (stopped or i >= self.frame_count):
+            if not stopped:
+                for number, why in pending:
+                    self._skip(number, "does not decode" + (f" ({why})" if why else ""))
+            return
+        first = i - fails
+        why = (f"missing: the video stops decoding after frame {first - 1} of the "
+               f"{self.frame_count} its container announces (a truncated file?)" if first > 0
+               else "missing: no frame of the video decodes")
+        end = self.frame_count if self.end is None else min(self.end, self.frame_count)
+        for number in range(first, end):
+            if number >= self.start and (number - self.start) % self.step == 0:
+                self._skip(number, why)
 
 
 def read_frames(path: Path | str, start: int = 0, end: int | None = None, step: int = 1,
@@ -170,11 +348,16 @@ def read_frames(path: Path | str, start: int = 0, end: int | None = None, step: 
             raise OmniSfmError(f"{path}: start {start} is beyond the last of {len(files)} "
                                "images")
         return FrameSource(path=path, start=start, end=end, step=step, size=size, files=files)
-    cap = cv2.VideoCapture(str(path))
+    with captured_stderr() as log:
+        cap = open_video(path)
     try:
         if not cap.isOpened():
+            note = log[0] if log else ""
+            hint = (": the file has no index (moov atom), as when a recording is cut off "
+                    "before it is finished; a repair tool (e.g. untrunc) may rebuild it"
+                    if "moov atom not found" in note else f" ({note})" if note else "")
             raise OmniSfmError(f"{path}: not an image folder, and OpenCV cannot open it as a "
-                               "video")
+                               f"video{hint}")
         fps = float(cap.get(cv2.CAP_PROP_FPS))
         count = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
     finally:
@@ -255,12 +438,18 @@ class FrameStore:
 
     def read(self, name: str, *, gray: bool = False) -> np.ndarray:
         """Frame ``name`` as OpenCV reads it: BGR ``(H, W, 3)`` uint8, or grey ``(H, W)`` with
-        ``gray`` (converted as :func:`to_gray`, like the front end's frames)."""
+        ``gray`` (converted as :func:`to_gray`, like the front end's frames). A frame that does
+        not decode or decodes damaged (as :class:`FrameSource` judges it) is an OmniSfmError
+        that says why."""
         if name not in self._cache:
-            img = self._read_video(name) if self.is_video else \
-                cv2.imread(str(self.path / name), cv2.IMREAD_UNCHANGED)
+            img, reason = self._read_video(name) if self.is_video else \
+                decode_image_file(self.path / name)
             if img is None:
-                raise OmniSfmError(f"{self.where(name)}: OpenCV cannot read this frame")
+                raise OmniSfmError(f"{self.where(name)}: {reason or 'does not decode'}")
+            fill = grey_fill_rows(to_gray(img))
+            if fill >= min(GREY_FILL_ROWS, img.shape[0]):
+                raise OmniSfmError(f"{self.where(name)}: damaged: the bottom {fill} rows are "
+                                   "the decoder's grey fill")
             if len(self._cache) >= 8:
                 self._cache.pop(next(iter(self._cache)))
             self._cache[name] = img
@@ -279,22 +468,31 @@ class FrameStore:
             return f"{self.path} frame {self._index.get(name, name)}"
         return str(self.path / name)
 
-    def _read_video(self, name: str) -> np.ndarray | None:
+    def _read_video(self, name: str) -> tuple[np.ndarray | None, str | None]:
         if name not in self._index:
             raise OmniSfmError(f"{self.path}: the video has no frame {name!r} (frames are named "
                                f"{video_frame_name(0)} to {self.names[-1]})")
         i = self._index[name]
-        if self._cap is None or i < self._next:
-            self.close()
-            self._cap = cv2.VideoCapture(str(self.path))
-            self._next = 0
-        while self._next < i:
-            if not self._cap.grab():
-                return None
-            self._next += 1
-        ok, img = self._cap.read()
-        self._next += 1
-        return img if ok else None
+        with captured_stderr():  # what earlier frames' decoding says is not about this one
+            if self._cap is None or i < self._next:
+                self.close()
+                self._cap = open_video(self.path)
+                self._next = 0
+            ok = True
+            while ok and self._next < i:
+                ok = self._cap.grab()
+                self._next += 1
+        img = None
+        with captured_stderr() as log:
+            if ok:
+                ok, img = self._cap.read()
+                self._next += 1
+        note = log[0] if log else ""
+        if not ok or img is None:
+            return None, "does not decode" + (f" ({note})" if note else "") + \
+                " (damaged, or beyond the end of a truncated video)"
+        reason = _damage(note)
+        return (None, reason) if reason else (img, None)
 
     def close(self) -> None:
         """Release the video (reading again reopens it)."""
