@@ -21,7 +21,7 @@ complete or absent:
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -69,6 +69,19 @@ class InitOptions:
     """Also write the COLMAP model as text."""
     progress: bool = True
     """Progress bars on stderr."""
+    auto_mask: bool = True
+    """Mask what stays put in the image while the scene moves (the operator, a tripod, the
+    mount, the camera's own reflection), found from a sample of the frames
+    (:func:`omni_sfm.lines.automask.static_mask`), on top of the user's mask."""
+    camera_check: bool = True
+    """Check on a few frames that the camera model fits the images
+    (:func:`omni_sfm.lines.camfit.check_camera_fit`); a misfit is a warning."""
+    strict: bool = False
+    """Refuse (an error) instead of warning when the camera check fails."""
+
+
+SAMPLE_FRAMES = 40
+"""Frames sampled (evenly over the range) for the automatic mask; the camera check uses 5."""
 
 
 @dataclass(frozen=True)
@@ -87,6 +100,10 @@ class InitResult:
     """Names of frames skipped: not decoded, damaged or of another size."""
     unreadable_reasons: tuple[str, ...] = ()
     """Why each of ``unreadable`` was skipped (one line each)."""
+    warnings: tuple[str, ...] = ()
+    """One-line warnings (e.g. a camera model that does not fit the images)."""
+    auto_mask: str = ""
+    """What the automatic mask did, in one line (empty when it was off)."""
 
 
 def estimated_segments(fe: FrontEndResult, result: EstimationResult,
@@ -180,15 +197,77 @@ def plot_trajectory(path: Path, traj: Trajectory, gt: Trajectory | None = None,
     plt.close(fig)
 
 
+def _sample(images: Path | str, o: InitOptions, size: tuple[int, int],
+            count: int = SAMPLE_FRAMES) -> list[np.ndarray]:
+    """Up to ``count`` grey frames spread evenly over the frames ``init`` reads."""
+    n = len(read_frames(images, o.start, o.end, o.step, size=size))
+    every = max(1, n // count)
+    frames = [img for _, _, img in read_frames(images, o.start, o.end, o.step * every,
+                                                size=size)]
+    return frames[:count]
+
+
+@dataclass(frozen=True)
+class _Checks:
+    """The automatic mask and the camera check of one ``init`` run."""
+
+    mask: np.ndarray | None
+    report: dict[str, Any]
+    warnings: tuple[str, ...]
+    auto_mask: str
+
+
+def _check_frames(images: Path | str, cam: CameraModel, o: InitOptions,
+                  user_mask: np.ndarray | None,
+                  warn: Callable[[str], None] | None) -> _Checks:
+    """Camera check (a misfit warns, or refuses with ``strict``), then the automatic mask."""
+    from omni_sfm.lines.automask import static_mask
+    from omni_sfm.lines.camfit import check_camera_fit
+
+    if not (o.auto_mask or o.camera_check):
+        return _Checks(user_mask, {}, (), "")
+    sample = _sample(images, o, (cam.width, cam.height))
+    report: dict[str, Any] = {}
+    warnings: list[str] = []
+    if o.camera_check and sample:
+        fit = check_camera_fit(sample[::max(1, len(sample) // 5)][:5], cam, user_mask,
+                               o.frontend.extraction)
+        report["camera_check"] = {"ok": fit.ok, "message": fit.message,
+                                  **{k: (None if not np.isfinite(v) else float(v))
+                                     for k, v in fit.figures.items()}}
+        if not fit.ok:
+            if o.strict:
+                raise OmniSfmError(f"{fit.message} (--strict)")
+            warnings.append(fit.message)
+            if warn is not None:
+                warn(fit.message)
+    mask, said = user_mask, ""
+    if o.auto_mask and len(sample) >= 5:
+        auto = static_mask(sample, cam, user_mask)
+        report["auto_mask"] = auto.summary()
+        said = f"automatic mask: {auto.reason}"
+        if auto.applied:
+            mask = auto.mask
+    elif o.auto_mask:
+        said = f"automatic mask: not applied: {len(sample)} frames, too few to tell"
+        report["auto_mask"] = {"applied": False, "reason": said}
+    return _Checks(mask, report, tuple(warnings), said)
+
+
 def init_from_images(images: Path | str, camera: Path | str | CameraModel, output: Path | str,
                      options: InitOptions | None = None, *, mask: Path | str | None = None,
-                     overwrite: bool = False) -> InitResult:
+                     overwrite: bool = False,
+                     warn: Callable[[str], None] | None = None) -> InitResult:
     """Estimate the camera motion of an image folder or video from its straight lines.
+
+    ``warn`` is called at once with each one-line warning (they are also in the result and
+    ``report.json``).
 
     Raises:
         OmniSfmError: unreadable input, a camera that does not load or does not match the
-            images, too few lines (with the front end's reason: dark or low-contrast frames, an
-            empty mask, edges that are not straight) or no parallel family, degenerate motion.
+            images (with ``strict``: a camera model that does not fit them), too few lines
+            (with the front end's reason: dark or low-contrast frames, an empty mask, edges
+            that are not straight) or no parallel family, degenerate motion.
     """
     from omni_sfm.estimate.pipeline import write_init_outputs
     from omni_sfm.export.colmap import write_init_model
@@ -207,7 +286,9 @@ def init_from_images(images: Path | str, camera: Path | str | CameraModel, outpu
     source = read_frames(images, o.start, o.end, o.step, size=size)
     fe_opts = replace(o.frontend, progress=o.progress and o.frontend.progress)
     t0 = time.perf_counter()
-    fe = track_lines(source, cam, fe_opts, user_mask)
+    checks = _check_frames(images, cam, o, user_mask, warn)
+    line_mask = checks.mask
+    fe = track_lines(source, cam, fe_opts, line_mask)
     t1 = time.perf_counter()
     too_few = fe.why_too_few_lines()
     if too_few:
@@ -243,12 +324,14 @@ def init_from_images(images: Path | str, camera: Path | str | CameraModel, outpu
             "front_end_per_frame": fe.per_frame(),
             "frames_not_estimated_names": skipped_not_estimated,
             "wall_time_s": {"front_end": t1 - t0, "estimation": t2 - t1},
+            **checks.report,
+            "warnings": list(checks.warnings),
         }
         write_init_outputs(tmp, result, extra=extra)
         write_tracks(tmp / InitFolder.TRACKS, tracks)
         write_lines3d(tmp / LINES_FILE, estimated_segments(fe, result))
-        if user_mask is not None:
-            write_mask(tmp / USER_MASK_FILE, user_mask)
+        if line_mask is not None:  # the user's mask and the automatic one: what refine uses
+            write_mask(tmp / USER_MASK_FILE, line_mask)
         plot_trajectory(tmp / InitFolder.TRAJECTORY_PLOT, result.trajectory)
         # colour 0: the parallel family, 1: other lines, grey (-1): rejected as outliers
         groups = np.where(result.outliers, -1, np.where(result.parallel, 0, 1))
@@ -264,7 +347,8 @@ def init_from_images(images: Path | str, camera: Path | str | CameraModel, outpu
     return InitResult(output=output, camera=cam, frontend=fe, estimation=result,
                       image_names=tuple(est_names), not_estimated=tuple(skipped_not_estimated),
                       unreadable=tuple(unreadable),
-                      unreadable_reasons=fe.frames_skipped_reasons)
+                      unreadable_reasons=fe.frames_skipped_reasons,
+                      warnings=checks.warnings, auto_mask=checks.auto_mask)
 
 
 @dataclass(frozen=True)

@@ -10,6 +10,7 @@ line front end first (:func:`omni_sfm.initialize.init_from_images`). Both share
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -46,6 +47,14 @@ def add_parser(subparsers: Any) -> None:
                    help="camera file (any format omni-sfm reads; docs/cameras.md); "
                         "required with --images")
     p.add_argument("--mask", type=Path, help="mask image: nonzero where pixels may be used")
+    p.add_argument("--no-auto-mask", action="store_true",
+                   help="do not mask what stays put in the image while the scene moves (the "
+                        "operator, a tripod, the mount, the camera's own reflection); by "
+                        "default it is found from the frames, reported and written with the "
+                        "user's mask as OUTPUT/mask.png")
+    p.add_argument("--strict", action="store_true",
+                   help="refuse, instead of warning, when the camera model does not fit the "
+                        "images (docs/frontend.md, 'Camera check')")
     p.add_argument("--start", type=int, default=0, help="first frame to use (default 0)")
     p.add_argument("--end", type=int, default=None, help="stop before this frame")
     p.add_argument("--step", type=int, default=1, help="use every STEP-th frame (default 1)")
@@ -102,8 +111,10 @@ def summary(rep: dict[str, Any], output: Path, estimated: list[str], not_estimat
              f"{len(rep['parallel_family']['track_ids'])} parallel lines, "
              f"{len(rep['rejected_tracks'])} outlier tracks, residual "
              f"{rep['residuals']['rms_final_deg']:.3g} deg RMS -> {output}",
-             f"world: the camera of frame {estimated[0]} (first estimated), first-to-last "
-             "camera distance = 1"]
+             f"world: the camera of frame {estimated[0]} (first estimated), "
+             + ("rotation only: the camera turned without moving, positions are 0 and the "
+                "scale is undetermined" if "motion" in rep else
+                "first-to-last camera distance = 1")]
     if not_estimated:
         lines.append(f"not estimated: {len(not_estimated)} frames ({_names(not_estimated)}; "
                      "reasons in report.json)")
@@ -135,15 +146,23 @@ def run(args: argparse.Namespace) -> int:
             InitOptions(frontend=frontend, estimation=estimation,
                         start=args.start, end=args.end, step=args.step,
                         debug_view=args.debug_view, colmap=not args.no_colmap,
-                        colmap_text=args.text, progress=not args.quiet),
-            mask=args.mask, overwrite=args.overwrite)
+                        colmap_text=args.text, progress=not args.quiet,
+                        auto_mask=not args.no_auto_mask, strict=args.strict),
+            mask=args.mask, overwrite=args.overwrite,
+            warn=lambda text: print(f"omni-sfm: warning: {text}", file=sys.stderr, flush=True))
         print(summary(res.estimation.report, args.output, list(res.image_names),
                       list(res.not_estimated), list(res.unreadable),
                       list(res.unreadable_reasons)))
+        if res.auto_mask:
+            print(res.auto_mask)
         return 0
 
     for flag in ("camera", "mask", "edge_low", "edge_high"):
         if getattr(args, flag) is not None:
+            raise OmniSfmError(f"--{flag.replace('_', '-')} applies to --images input, not to "
+                               "--tracks")
+    for flag in ("no_auto_mask", "strict"):
+        if getattr(args, flag):
             raise OmniSfmError(f"--{flag.replace('_', '-')} applies to --images input, not to "
                                "--tracks")
     check_output_dir(args.output, overwrite=args.overwrite, inputs=(args.tracks,))
@@ -185,7 +204,8 @@ def _run_plugin(args: argparse.Namespace) -> int:
     line_only = {"--mask": args.mask is not None, "--no-refine": args.no_refine,
                  "--start/--end/--step": (args.start, args.end, args.step) != (0, None, 1),
                  "--edge-low/--edge-high": (args.edge_low, args.edge_high) != (None, None),
-                 "--no-colmap": args.no_colmap, "--text": args.text}
+                 "--no-colmap": args.no_colmap, "--text": args.text,
+                 "--no-auto-mask": args.no_auto_mask, "--strict": args.strict}
     given = [flag for flag, on in line_only.items() if on]
     if given:
         raise OmniSfmError(f"{given[0]} applies to the line-based method, not --initializer")

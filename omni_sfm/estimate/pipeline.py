@@ -322,12 +322,29 @@ def estimate_poses(tracks: LineTracks,
         raise OmniSfmError(f"tracks have {M} lines; need at least 6 (3 parallel and 3 others)")
     timings: dict[str, float] = defaultdict(float)
     try:
-        init = _initialise(tracks, options, timings)
+        result = _estimate_moving(tracks, options, timings, t_all)
     except OmniSfmError as exc:
         rot_only = _try_rotation_only(tracks, options, timings)
         if rot_only is None:
             raise
         return _rotation_only_result(tracks, rot_only, options, timings, str(exc), t_all)
+    if result.estimated.all():
+        return result
+    # the paper's method found motion in a part of the sequence only: if the rotations alone
+    # explain every frame, the camera turned in place and that "motion" was noise
+    rot_only = _try_rotation_only(tracks, options, timings)
+    if rot_only is not None and rot_only.estimated.sum() > result.estimated.sum():
+        why = (f"the paper's method estimated only {int(result.estimated.sum())} of "
+               f"{tracks.num_frames} frames")
+        return _rotation_only_result(tracks, rot_only, options, timings, why, t_all)
+    return result
+
+
+def _estimate_moving(tracks: LineTracks, options: EstimationOptions,
+                     timings: dict[str, float], t_all: float) -> EstimationResult:
+    """The paper's method, chaining and the bundle adjustment (a camera that moves)."""
+    M = tracks.num_tracks
+    init = _initialise(tracks, options, timings)
     outliers = np.zeros(M, bool)
     if options.refine:
         ba = _refine(tracks, init, options, timings)

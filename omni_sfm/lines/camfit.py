@@ -61,7 +61,9 @@ class CameraFitOptions:
     min_segments: int = 8
     """Fewest LSD segments (all frames together) for that figure to count."""
     black_grey: float = 12.0
-    """A pixel is black if its smoothed grey level stays below this in every frame."""
+    """A pixel is black if its smoothed grey level stays below this (or below a tenth of the
+    frames' bright end, the 99th percentile of each pixel's brightest value, if that is less)
+    in every frame; frames whose bright end is below 2/3 of it are too dark to tell."""
     max_empty_valid: float = 0.2
     """Most ``empty_valid`` the right model may give."""
     moving_grey: float = 4.0
@@ -137,16 +139,28 @@ def _segment_curvatures(gray: np.ndarray, camera: CameraModel, usable: np.ndarra
     return out
 
 
-def _coverage(grays: Sequence[np.ndarray], valid: np.ndarray,
+def _coverage(grays: Sequence[np.ndarray], valid: np.ndarray, user: np.ndarray,
               o: CameraFitOptions) -> tuple[float, float]:
-    """``(empty_valid, moving_outside)`` of the frames against the model's valid mask."""
+    """``(empty_valid, moving_outside)`` of the frames against the model's valid mask
+    ``valid``, both counted only where the user's mask ``user`` allows (NaN where it allows
+    nothing to count)."""
     sm = np.stack([cv2.GaussianBlur(g, (5, 5), 1.5).astype(np.float32) for g in grays])
-    black = sm.max(axis=0) < o.black_grey
-    empty = float((black & valid).sum()) / max(1, int(valid.sum()))
+    brightest = sm.max(axis=0)
+    # dark footage: "black" is relative to the frames' bright end; frames with (almost) no
+    # bright pixels at all are too dark to tell (the front end says so), not a misfit
+    top = float(np.percentile(brightest, 99))
+    if top < 2.0 * o.black_grey / 3.0:
+        empty = float("nan")
+    else:
+        black = brightest < min(o.black_grey, 0.1 * top)
+        inside = valid & user
+        empty = float((black & inside).sum()) / int(inside.sum()) if inside.any() \
+            else float("nan")
     if len(grays) < 2:
         return empty, float("nan")
-    moving = sm.std(axis=0) > o.moving_grey
-    outside = float((moving & ~valid).sum()) / max(1, int(moving.sum()))
+    moving = (sm.std(axis=0) > o.moving_grey) & user
+    outside = float((moving & ~valid).sum()) / int(moving.sum()) if moving.any() \
+        else float("nan")
     return empty, outside
 
 
@@ -183,10 +197,8 @@ def check_camera_fit(frames: Sequence[np.ndarray], camera: CameraModel,
         bows += _bows(lines, scale, o.long_line_points)
         resid += lines.residual_px.tolist()
         curv += _segment_curvatures(g, camera, usable, scale, o.segment_px)
-    valid = camera.valid_mask()
-    if mask is not None:
-        valid &= np.asarray(mask) > 0
-    empty, outside = _coverage(grays, valid, o)
+    user = np.ones(camera.valid_mask().shape, bool) if mask is None else np.asarray(mask) > 0
+    empty, outside = _coverage(grays, camera.valid_mask(), user, o)
     nan = float("nan")
     bent = float(np.mean(np.asarray(bows) > o.bow_px)) if len(bows) >= o.min_long_lines \
         else nan

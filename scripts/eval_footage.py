@@ -1,0 +1,170 @@
+"""What each effect of real footage costs ``omni-sfm init --lines`` (issue "Real footage").
+
+Renders (or reuses, under ``--work``) the office walk (scene ``office``, route ``office``: an
+L-shaped corridor of 23 m with a 90 deg turn, clutter not aligned with the walls) through each
+camera, clean, with each effect of real footage alone and with all of them together, runs the
+line-based ``init`` on the frames exactly as the command line does (automatic mask and camera
+check included), and compares with the ground truth: frames estimated, maximum and mean rotation
+error relative to the first frame, ATE after similarity alignment over the path length, wall
+time. Also the camera-fixed body (operator / robot) unmasked against the same run with the body
+masked by hand, and a turn in place. Prints JSON lines and a Markdown table.
+
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/eval_footage.py --work /tmp/footage \\
+        --frames 600 --markdown /tmp/footage/table.md
+
+``--frames`` scales the sequences (600 is the issue's length; fewer frames make each step
+longer, so blur and tracking get harder, not easier).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from omni_sfm.errors import OmniSfmError
+from omni_sfm.evaluate import relative_rotation_errors_deg, trajectory_errors
+from omni_sfm.initialize import InitOptions, init_from_images
+from omni_sfm.lines.frontend import FrontEndOptions
+from omni_sfm.poses import read_tum
+from omni_sfm.synth.effects import Body, Effects
+from omni_sfm.synth.paths import Route
+from omni_sfm.synth.render import RenderOptions, prepare, render_sequence
+from omni_sfm.synth.scenes import SceneName
+from omni_sfm.transforms import associate
+
+CAMERAS: dict[str, tuple[str, int, int]] = {
+    "hyperboloid-800x600": ("hyperboloid", 800, 600),
+    "equirect-1280x640": ("equirectangular", 1280, 640),
+}
+
+
+def body_for(camera: str) -> Body:
+    """The camera-fixed body of each kind: a robot under the mirror, the operator under a 360."""
+    return Body.ROBOT if camera == "hyperboloid" else Body.OPERATOR
+
+
+def variants(camera: str) -> dict[str, Effects]:
+    body = body_for(camera)
+    return {
+        "clean": Effects(),
+        "motion blur 0.5": Effects(motion_blur=0.5),
+        "JPEG 85": Effects(jpeg_quality=85),
+        "exposure drift 0.5 stop + flicker": Effects(exposure_drift=0.5, flicker=0.03),
+        "shot noise 3": Effects(shot_noise=3.0),
+        "vignetting 0.4": Effects(vignetting=0.4),
+        f"{body.value} (not masked)": Effects(body=body),
+        "person walking by": Effects(occluder=True),
+        "all: blur, JPEG 85, drift, noise, vignetting": Effects(
+            motion_blur=0.5, jpeg_quality=85, exposure_drift=0.5, flicker=0.03, shot_noise=3.0,
+            vignetting=0.4),
+    }
+
+
+@dataclass(frozen=True)
+class Case:
+    name: str
+    render: RenderOptions
+    hand_mask: bool = False
+
+
+def cases(frames: int, only: list[str] | None) -> list[Case]:
+    out = []
+    for cam_name, (camera, width, height) in CAMERAS.items():
+        base = RenderOptions(scene=SceneName.OFFICE, route=Route.OFFICE, frames=frames,
+                             camera=camera, width=width, height=height)
+        for name, eff in variants(camera).items():
+            out.append(Case(f"{cam_name} | {name}", replace(base, effects=eff)))
+        body = Effects(body=body_for(camera))
+        out.append(Case(f"{cam_name} | {body.body.value}, masked by hand",
+                        replace(base, effects=body), hand_mask=True))
+        turn = replace(base, route=Route.TURN, frames=max(20, frames // 3))
+        out.append(Case(f"{cam_name} | turn in place 120 deg", turn))
+    return [c for c in out if not only or any(o in c.name for o in only)]
+
+
+def slug(name: str) -> str:
+    return "".join(ch if ch.isalnum() else "-" for ch in name).strip("-").replace("--", "-")
+
+
+def run_case(case: Case, work: Path) -> dict[str, Any]:
+    seq = work / slug(case.name)
+    if not (seq / "groundtruth.tum").is_file():
+        render_sequence(seq, case.render, overwrite=True)
+    images = seq / "images"
+    mask = None
+    if case.hand_mask:
+        # the body's pixels, grown by 5 px, as a careful user would mask them
+        body = prepare(case.render).renderer.body_mask()
+        grown = cv2.dilate(body.astype(np.uint8), np.ones((11, 11), np.uint8)) > 0
+        mask = seq.parent / (seq.name + "-mask.png")
+        cv2.imwrite(str(mask), np.where(grown, 0, 255).astype(np.uint8))
+    t0 = time.perf_counter()
+    row: dict[str, Any] = {"case": case.name}
+    try:
+        res = init_from_images(images, seq / "camera.yaml", work / (seq.name + "-init"),
+                               InitOptions(frontend=FrontEndOptions(progress=False),
+                                           debug_view="none", colmap=False, progress=False),
+                               mask=mask, overwrite=True)
+    except OmniSfmError as exc:
+        row.update(error=str(exc), wall_s=time.perf_counter() - t0)
+        return row
+    wall = time.perf_counter() - t0
+    gt = read_tum(seq / "groundtruth.tum")
+    est = res.estimation.trajectory
+    row.update(frames=len(gt), wall_s=wall, tracks=res.estimation.report["num_tracks"])
+    if "motion" in res.estimation.report:  # rotation only: no positions to compare
+        e, g = associate(est, gt)
+        rot = relative_rotation_errors_deg(e, g)
+        row.update(estimated=len(e), rot_max_deg=float(rot.max()),
+                   rot_mean_deg=float(rot.mean()), ate_pct=None)
+        return row
+    err = trajectory_errors(est, gt)
+    row.update(estimated=err.num_common, rot_max_deg=err.rot_max_deg,
+               rot_mean_deg=err.rot_mean_deg, ate_pct=100 * err.ate_rel)
+    return row
+
+
+def table(rows: list[dict[str, Any]]) -> str:
+    lines = ["| camera | footage | frames estimated | max rot. err. (deg) | mean rot. err. (deg) "
+             "| ATE (% of path) | init wall time (s) |", "|---|---|---|---|---|---|---|"]
+    for r in rows:
+        cam, name = r["case"].split(" | ", 1)
+        if "error" in r:
+            lines.append(f"| {cam} | {name} | 0/? (error: {r['error'][:120]}) | | | | "
+                         f"{r['wall_s']:.0f} |")
+            continue
+        ate = "rotation only" if r["ate_pct"] is None else f"{r['ate_pct']:.3f}"
+        lines.append(f"| {cam} | {name} | {r['estimated']}/{r['frames']} | "
+                     f"{r['rot_max_deg']:.3f} | {r['rot_mean_deg']:.3f} | {ate} | "
+                     f"{r['wall_s']:.0f} |")
+    return "\n".join(lines) + "\n"
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--work", type=Path, required=True, help="folder for renders and results")
+    p.add_argument("--frames", type=int, default=600, help="frames of the walk (default 600)")
+    p.add_argument("--only", nargs="*", help="run only cases whose name contains one of these")
+    p.add_argument("--markdown", type=Path, help="write the table here")
+    args = p.parse_args()
+    rows = []
+    for case in cases(args.frames, args.only):
+        row = run_case(case, args.work)
+        rows.append(row)
+        print(json.dumps(row), flush=True)
+    text = table(rows)
+    print(text)
+    if args.markdown:
+        args.markdown.write_text(text)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
