@@ -210,7 +210,7 @@ def test_jpeg_frames_are_written_and_close_to_the_render(rendered):
 
 
 def test_h264_video_reads_back_with_opencv(rendered):
-    opts = RenderOptions(**EQ, frames=5, seed=1, video=True,
+    opts = RenderOptions(**EQ, frames=5, seed=1, video=True, video_codec=VideoCodec.H264,
                          effects=Effects(exposure_drift=0.5, vignetting=0.2))
     res = rendered(opts)
     path = res.output / "video.mp4"
@@ -237,14 +237,17 @@ def test_h264_video_reads_back_with_opencv(rendered):
     assert meta["video_codec"] == "h264" and meta["effects"]["vignetting"] == 0.2
 
 
-def test_mp4v_codec_still_available(tmp_path):
+def test_video_codec_defaults_mp4v_and_h264_with_footage(tmp_path):
     out = tmp_path / "v"
     assert cli_main(["render", "-o", str(out), "--camera", "equirectangular", "--width", "160",
-                     "--preset", "small", "--frames", "2", "--video", "--video-codec",
-                     "mp4v"]) == 0
+                     "--preset", "small", "--frames", "2", "--video"]) == 0
     cap = cv2.VideoCapture(str(out / "video.mp4"))
     assert int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) == 2
     assert json.loads((out / "render.json").read_text())["video_codec"] == VideoCodec.MP4V
+    out = tmp_path / "f"
+    assert cli_main(["render", "-o", str(out), "--camera", "equirectangular", "--width", "160",
+                     "--preset", "small", "--frames", "2", "--video", "--footage"]) == 0
+    assert json.loads((out / "render.json").read_text())["video_codec"] == VideoCodec.H264
 
 
 @pytest.mark.parametrize(("base", "body"), [(HYP, "robot"), (EQ, "operator"), (EQ, "tripod")])
@@ -375,7 +378,8 @@ def test_footage_flag_sets_the_documented_defaults(tmp_path):
         (["--exposure-drift", "-1"], "exposure drift must be in [0, 4]"),
         (["--video", "--jpeg", "80"], "JPEG quality applies to image frames"),
         (["--video", "--video-crf", "60"], "H.264 CRF must be an integer 0..51"),
-        (["--video", "--width", "201", "--height", "151"], "needs an even image size"),
+        (["--video", "--video-codec", "h264", "--width", "201", "--height", "151"],
+         "needs an even image size"),
         (["--fps", "0"], "frame rate must be > 0"),
     ],
 )

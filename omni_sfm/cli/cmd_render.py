@@ -44,9 +44,10 @@ def add_parser(sub: Any) -> None:
     p.add_argument("--video", action="store_true",
                    help="write video.mp4 instead of image frames")
     p.add_argument("--video-codec", choices=[c.value for c in VideoCodec],
-                   default=d.video_codec.value,
-                   help="codec of video.mp4: h264 (PyAV/libx264, yuv420p) or mp4v (OpenCV) "
-                        "(default: %(default)s)")
+                   default=None,
+                   help="codec of video.mp4: mp4v (OpenCV's MPEG-4 Part 2) or h264 "
+                        "(PyAV/libx264, yuv420p, as 360 cameras write) (default: "
+                        f"{d.video_codec.value}; h264 with --footage)")
     p.add_argument("--video-crf", type=int, default=None,
                    help=f"H.264 constant rate factor 0..51, lower is better (default: "
                         f"{d.video_crf}, 23 with --footage)")
@@ -112,7 +113,7 @@ def run(args: argparse.Namespace) -> int:
     opts = RenderOptions(
         scene=args.scene, camera=args.camera, preset=args.preset, frames=args.frames,
         width=args.width, height=args.height, textured=args.textured, seed=args.seed,
-        video=args.video, video_codec=args.video_codec, supersample=args.supersample,
+        video=args.video, supersample=args.supersample,
         noise_sigma=args.noise, route=args.route, path_length=args.path_length,
         mount=args.mount, fps=args.fps,
     )
@@ -121,6 +122,8 @@ def run(args: argparse.Namespace) -> int:
     given = {field: getattr(args, flag) for flag, field in _EFFECT_FLAGS.items()
              if getattr(args, flag) is not None}
     opts = replace(opts, effects=replace(opts.effects, **given))
+    if args.video_codec is not None:
+        opts = replace(opts, video_codec=args.video_codec)
     if args.video_crf is not None:
         opts = replace(opts, video_crf=args.video_crf)
     res = render_sequence(args.output, opts, overwrite=args.overwrite,

@@ -184,15 +184,28 @@ class DenseResult:
     report: dict[str, Any]
 
 
+def _by_video_time(frames: FrameStore, ts: FloatArray) -> list[str] | None:
+    """The video frames whose times (seconds, as ``init`` stamps video frames) are nearest to
+    the pose timestamps ``ts``, if each lies within a quarter of a frame interval; else None."""
+    t = frames.timestamps
+    if len(t) < 2:
+        return None
+    k = np.clip(np.searchsorted(t, ts), 1, len(t) - 1)
+    k -= (ts - t[k - 1]) < (t[k] - ts)
+    if not np.all(np.abs(t[k] - ts) < 0.25 * float(np.diff(t).min())):
+        return None
+    return [frames.names[int(i)] for i in k]
+
+
 def read_dense_input(poses_dir: Path, images: Path | None = None,
                      camera_file: Path | None = None) -> DenseInput:
     """Poses folder + frames -> :class:`DenseInput`; every defect is a one-line OmniSfmError.
 
     ``images``: the image folder or video; None: the frames the poses folder records
     (:func:`omni_sfm.folders.images_for`). Frames are found by the poses folder's
-    ``colmap.json`` image names when present, else by names equal to the integer timestamps
-    (``000012.png`` for timestamp 12, as ``init`` names video frames), else in order when the
-    source holds exactly one frame per pose."""
+    ``colmap.json`` image names when present, else (video) by the timestamps in seconds ``init``
+    gives video frames, else by names equal to the integer timestamps (``000012.png`` for
+    timestamp 12), else in order when the source holds exactly one frame per pose."""
     from omni_sfm.fileio import read_json
 
     poses_dir = Path(poses_dir)
@@ -225,11 +238,12 @@ def read_dense_input(poses_dir: Path, images: Path | None = None,
             if stem.isdigit():
                 by_stem.setdefault(int(stem), n)
         ts = traj.timestamps
-        if np.all(ts == np.round(ts)) and all(int(t) in by_stem for t in ts):
+        chosen = _by_video_time(frames, ts) if frames.is_video else None
+        if chosen is None and np.all(ts == np.round(ts)) and all(int(t) in by_stem for t in ts):
             chosen = [by_stem[int(t)] for t in ts]
-        elif len(names) == len(traj):
+        if chosen is None and len(names) == len(traj):
             chosen = names
-        else:
+        if chosen is None:
             raise OmniSfmError(
                 f"{frames.path}: cannot match {len(names)} frames to the {len(traj)} poses of "
                 f"{tum} (need frame names equal to the timestamps, colmap.json names, or one "

@@ -677,8 +677,9 @@ class RenderOptions:
     """Seeds the path, the texture and the sensor noise."""
     video: bool = False
     """Write ``video.mp4`` instead of image frames."""
-    video_codec: VideoCodec = VideoCodec.H264
-    """Codec of ``video.mp4``: ``h264`` (PyAV, libx264, yuv420p) or ``mp4v`` (OpenCV)."""
+    video_codec: VideoCodec = VideoCodec.MP4V
+    """Codec of ``video.mp4``: ``mp4v`` (OpenCV's MPEG-4 Part 2 writer) or ``h264`` (PyAV,
+    libx264, yuv420p; what 360 cameras write, and the ``--footage`` default)."""
     video_crf: int = 18
     """H.264 constant rate factor, 0 (lossless) .. 51 (worst); x264's default is 23."""
     supersample: int = 3
@@ -808,7 +809,8 @@ def footage_options(options: RenderOptions) -> RenderOptions:
         raise OmniSfmError(f"unknown preset {o.preset!r}") from None
     camera = make_camera(o.camera, width=o.width, height=o.height, preset=preset)
     mount = Mount(o.mount) if o.mount is not None else default_mount(camera)
-    return replace(o, effects=footage_effects(mount, video=o.video), video_crf=23)
+    return replace(o, effects=footage_effects(mount, video=o.video),
+                   video_codec=VideoCodec.H264, video_crf=23)
 
 
 def render_frames(options: RenderOptions) -> tuple[RenderSetup, np.ndarray]:
