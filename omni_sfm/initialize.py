@@ -289,6 +289,13 @@ def init_from_images(images: Path | str, camera: Path | str | CameraModel, outpu
     checks = _check_frames(images, cam, o, user_mask, warn)
     line_mask = checks.mask
     fe = track_lines(source, cam, fe_opts, line_mask)
+    auto_said, fixed_ids = checks.auto_mask, []
+    if o.auto_mask:  # what the mask left of structure fixed to the camera
+        fixed = fe.camera_fixed_tracks()
+        if fixed.any():
+            fixed_ids = fe.tracks.track_ids[fixed].tolist()
+            fe = fe.without_tracks(fixed)
+            auto_said += f"; {len(fixed_ids)} line tracks fixed to the camera dropped"
     t1 = time.perf_counter()
     too_few = fe.why_too_few_lines()
     if too_few:
@@ -325,6 +332,7 @@ def init_from_images(images: Path | str, camera: Path | str | CameraModel, outpu
             "frames_not_estimated_names": skipped_not_estimated,
             "wall_time_s": {"front_end": t1 - t0, "estimation": t2 - t1},
             **checks.report,
+            "camera_fixed_tracks": fixed_ids,
             "warnings": list(checks.warnings),
         }
         write_init_outputs(tmp, result, extra=extra)
@@ -348,7 +356,7 @@ def init_from_images(images: Path | str, camera: Path | str | CameraModel, outpu
                       image_names=tuple(est_names), not_estimated=tuple(skipped_not_estimated),
                       unreadable=tuple(unreadable),
                       unreadable_reasons=fe.frames_skipped_reasons,
-                      warnings=checks.warnings, auto_mask=checks.auto_mask)
+                      warnings=checks.warnings, auto_mask=auto_said)
 
 
 @dataclass(frozen=True)

@@ -109,3 +109,34 @@ def test_right_camera_does_not_warn(rendered, tmp_path: Path,
     assert "warning" not in capsys.readouterr().err
     report = json.loads((tmp_path / "init" / "report.json").read_text())
     assert report["camera_check"]["ok"] and report["warnings"] == []
+
+
+def _with_fixed_track(tracks, frames: range):
+    """``tracks`` plus one track whose NV stays put in the camera frame over ``frames``."""
+    from dataclasses import replace as dc_replace
+
+    n = np.array([0.3, -0.2, 0.93]) / np.linalg.norm([0.3, -0.2, 0.93])
+    k = len(frames)
+    return dc_replace(
+        tracks, track_ids=np.append(tracks.track_ids, 999),
+        obs_track=np.append(tracks.obs_track, np.full(k, tracks.num_tracks)),
+        obs_frame=np.append(tracks.obs_frame, np.asarray(frames)),
+        obs_normal=np.vstack([tracks.obs_normal, np.tile(n, (k, 1))]))
+
+
+def test_camera_fixed_tracks_are_found_only_when_the_camera_moves() -> None:
+    from omni_sfm.lines.frontend import camera_fixed_tracks
+    from omni_sfm.synth.simulate import SimulationOptions, simulate
+
+    moving = simulate(SimulationOptions(num_views=30, noise_deg=0.05, seed=1)).tracks
+    assert not camera_fixed_tracks(moving).any()
+    flagged = camera_fixed_tracks(_with_fixed_track(moving, range(5, 20)))
+    assert flagged[-1] and flagged.sum() == 1
+    # a camera standing still: every line stays put, none is taken for the camera's own
+    from dataclasses import replace as dc_replace
+
+    rng = np.random.default_rng(2)
+    first = moving.obs_normal[np.searchsorted(moving.obs_track, moving.obs_track)]
+    noisy = first + np.radians(0.02) * rng.normal(size=first.shape)
+    still = dc_replace(moving, obs_normal=noisy / np.linalg.norm(noisy, axis=1, keepdims=True))
+    assert not camera_fixed_tracks(_with_fixed_track(still, range(5, 20))).any()

@@ -105,6 +105,20 @@ class FrontEndResult:
     edge_points: IntArray
     valid_pixels: int
 
+    def camera_fixed_tracks(self) -> np.ndarray:
+        """``(M,)`` bool: tracks of structure fixed to the camera (:func:`camera_fixed_tracks`)."""
+        return camera_fixed_tracks(self.tracks)
+
+    def without_tracks(self, drop: np.ndarray) -> FrontEndResult:
+        """The same result without the tracks ``drop`` (``(M,)`` bool) and their observations;
+        the per-frame figures are those of the front end as it ran."""
+        keep_obs = ~np.asarray(drop, bool)[self.tracks.obs_track]
+        return replace(self, tracks=self.tracks.select_tracks(~np.asarray(drop, bool)),
+                       obs_endpoint_rays=self.obs_endpoint_rays[keep_obs],
+                       obs_support=self.obs_support[keep_obs],
+                       obs_arc_deg=self.obs_arc_deg[keep_obs],
+                       obs_normal_sigma=self.obs_normal_sigma[keep_obs])
+
     def estimator_tracks(self) -> LineTracks:
         """The tracks as the estimator takes them: every caller of the estimator on images
         (``init``, the ``lines`` initializer of ``compare``) goes through this one conversion.
@@ -301,3 +315,50 @@ def track_lines(frames: Iterable[tuple[int, float, np.ndarray]], camera: CameraM
         frames_skipped_reasons=tuple(reasons.get(k, "does not decode") for k in skipped),
         median_grey=st[:, 0], contrast=st[:, 1], threshold_scale=st[:, 2],
         edge_points=st[:, 3].astype(np.int64), valid_pixels=extractor.valid_pixels)
+
+
+def camera_fixed_tracks(tracks: LineTracks, *, max_spread_deg: float = 0.1,
+                        min_ratio: float = 10.0, min_others_deg: float = 0.5) -> np.ndarray:
+    """``(M,)`` bool: tracks of structure fixed to the camera (the operator's outline, a
+    tripod leg, the robot's body, the mirror's mount) that the automatic mask left.
+
+    Such a line is seen along the same plane through the viewpoint whatever the camera
+    does: its NVs stay put in the camera frame. A track is camera-fixed when its NVs stay
+    within ``max_spread_deg`` of their mean while, over the same frames, the other tracks'
+    NVs spread by at least ``min_ratio`` times as much (median) and by ``min_others_deg``:
+    the camera moved, the line did not move with the scene. When the camera stands still
+    every track stays put and none is flagged.
+    """
+    tr = tracks
+    M = tr.num_tracks
+    n = tr.obs_normal * np.where(
+        np.sum(tr.obs_normal * tr.obs_normal[np.searchsorted(tr.obs_track, tr.obs_track)],
+               axis=1) < 0, -1.0, 1.0)[:, None]  # signs aligned with each track's first
+    mean = np.zeros((M, 3))
+    np.add.at(mean, tr.obs_track, n)
+    mean = normalize(mean)
+    dev = np.degrees(np.arccos(np.clip(np.abs(np.sum(n * mean[tr.obs_track], axis=1)),
+                                       0.0, 1.0)))
+    spread = np.zeros(M)
+    np.maximum.at(spread, tr.obs_track, dev)
+    out = np.zeros(M, dtype=bool)
+    for m in np.flatnonzero(spread <= max_spread_deg):
+        frames = tr.obs_frame[tr.obs_track == m]
+        # the other tracks' spread over the frames this one is seen in
+        sel = (tr.obs_frame >= frames[0]) & (tr.obs_frame <= frames[-1]) & \
+            (tr.obs_track != m)
+        if not sel.any():
+            continue
+        t, nn = tr.obs_track[sel], n[sel]
+        mm = np.zeros((M, 3))
+        np.add.at(mm, t, nn)
+        cnt = np.bincount(t, minlength=M)
+        mm = normalize(mm)
+        d = np.degrees(np.arccos(np.clip(np.abs(np.sum(nn * mm[t], axis=1)), 0.0, 1.0)))
+        sp = np.zeros(M)
+        np.maximum.at(sp, t, d)
+        others = sp[(cnt >= max(2, len(frames) // 2)) & (spread > max_spread_deg)]
+        if len(others) >= 3:
+            level = float(np.median(others))
+            out[m] = level >= max(min_ratio * spread[m], min_others_deg)
+    return out
