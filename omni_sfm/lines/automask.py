@@ -29,7 +29,7 @@ import cv2
 import numpy as np
 
 from omni_sfm.cameras.base import CameraModel
-from omni_sfm.errors import OmniSfmError
+from omni_sfm.lines.extract import usable_pixels
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -102,14 +102,7 @@ def _usable_region(camera: CameraModel, user_mask: np.ndarray | None,
                    border_px: int) -> tuple[np.ndarray, np.ndarray]:
     """``(base, inner)``: the camera's valid pixels inside the user's mask, and that region
     eroded by ``border_px`` (edges are only looked for there)."""
-    h, w = camera.height, camera.width
-    base = camera.valid_mask()
-    if user_mask is not None:
-        um = np.asarray(user_mask)
-        if um.shape != (h, w):
-            raise OmniSfmError(f"mask is {um.shape[1]}x{um.shape[0]} px but the camera is "
-                               f"{w}x{h} px")
-        base &= um > 0
+    base = usable_pixels(camera, user_mask)
     b = max(0, int(border_px))
     if b == 0:
         return base, base.copy()

@@ -174,6 +174,20 @@ class ExtractedLines:
         return np.repeat(np.arange(self.num_lines), np.diff(self.offsets))
 
 
+def usable_pixels(camera: CameraModel, mask: np.ndarray | None) -> np.ndarray:
+    """``(H, W)`` bool: the camera's valid pixels where ``mask`` (if given, nonzero = use the
+    pixel, the camera's size) allows them. A mask of another size is an OmniSfmError."""
+    valid = np.asarray(camera.valid_mask(), dtype=bool).copy()
+    if mask is not None:
+        m = np.asarray(mask)
+        h, w = camera.height, camera.width
+        if m.shape != (h, w):
+            raise OmniSfmError(f"mask is {m.shape[1]}x{m.shape[0]} px but the camera is "
+                               f"{w}x{h} px")
+        valid &= m > 0
+    return valid
+
+
 def angular_pixel_scale(camera: CameraModel) -> np.ndarray:
     """``(H, W)`` float32: angle (rad) between a pixel's ray and its right/lower neighbour's,
     the larger of the two; NaN where the pixel or both neighbours are invalid."""
@@ -220,14 +234,8 @@ class LineExtractor:
         if o.reference_contrast < 0 or not 0 < o.min_threshold_scale <= 1:
             raise ValueError(f"need reference_contrast >= 0 and 0 < min_threshold_scale <= 1, "
                              f"got {o.reference_contrast} and {o.min_threshold_scale}")
-        h, w = camera.height, camera.width
-        valid = camera.valid_mask()
-        if mask is not None:
-            mask = np.asarray(mask)
-            if mask.shape != (h, w):
-                raise OmniSfmError(f"mask is {mask.shape[1]}x{mask.shape[0]} px but the camera "
-                                   f"is {w}x{h} px")
-            valid &= mask > 0
+        w = camera.width
+        valid = usable_pixels(camera, mask)
         self.scale = angular_pixel_scale(camera)
         valid &= np.isfinite(self.scale)
         e = int(o.mask_erode_px)

@@ -763,13 +763,7 @@ def prepare(options: RenderOptions) -> RenderSetup:
         ) from None
     _check_output_options(o)
     check_effects(o.effects, camera.model)
-    try:
-        route = Route(o.route)
-    except ValueError:
-        raise OmniSfmError(
-            f"unknown route {o.route!r} (known: {', '.join(r.value for r in Route)})"
-        ) from None
-    traj = camera_path(scene, PathOptions(num_frames=frames, route=route,
+    traj = camera_path(scene, PathOptions(num_frames=frames, route=o.route,
                                           path_length=o.path_length, mount=mount, seed=o.seed))
     renderer = Renderer(scene, camera, ShadingOptions(
         supersample=o.supersample, textured=o.textured, noise_sigma=o.noise_sigma, seed=o.seed,
