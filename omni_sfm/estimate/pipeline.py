@@ -29,6 +29,7 @@ from omni_sfm.estimate.bundle import (
     observation_residuals,
     triangulate_lines,
 )
+from omni_sfm.estimate.extend import ExtendOptions, extend_frames
 from omni_sfm.estimate.paper import PaperOptions, PaperSolution, estimate_paper
 from omni_sfm.estimate.rotation_only import (
     RotationOnlyOptions,
@@ -81,6 +82,9 @@ class EstimationOptions:
     solutions (``PaperSolution.alternatives``: translations from other second views) and keep
     the solution with the lowest final cost, the maximum-likelihood criterion. At high noise
     the bundle adjustment from the paper's solution alone can stop in a wrong local minimum."""
+    extend: ExtendOptions | None = field(default_factory=ExtendOptions)
+    """Register the frames beyond the chained windows from the lines already reconstructed
+    (docs/estimator.md, stage 5b); None: the chain's frames only."""
     rotation_only: RotationOnlyOptions = field(default_factory=RotationOnlyOptions)
     """The rotation-only fit, for a camera that turns without moving (docs/method.md §13)."""
     rotation_only_max_median_deg: float = 0.2
@@ -364,6 +368,8 @@ def _estimate_moving(tracks: LineTracks, options: EstimationOptions,
                 init = _Init(init2.rotations, init2.positions, init2.frames, init2.windows,
                              init2.failures, members2, init2.vpv)
                 ba = _expand(ba2, idx, M, ba.outlier_tracks)
+        if options.extend is not None and not ba.frames.all():
+            ba, init = _extend(tracks, ba, init, options, timings)
         R, c, frames = ba.rotations, ba.positions, ba.frames
         d, p, used, outliers = ba.line_directions, ba.line_points, ba.used_tracks, \
             ba.outlier_tracks
@@ -414,6 +420,33 @@ def _estimate_moving(tracks: LineTracks, options: EstimationOptions,
         windows=windows, timings_ms=dict(timings), residual_rms_initial_deg=rms0,
         residual_rms_final_deg=rms1, sigma_deg=sigma, scale_convention=SCALE_CONVENTION,
         report=report)
+
+
+def _extend(tracks: LineTracks, ba: BundleResult, init: _Init, options: EstimationOptions,
+            timings: dict[str, float]) -> tuple[BundleResult, _Init]:
+    """Frames beyond the chain registered from its lines, then the bundle adjustment of all;
+    the result unchanged when no frame is added or the adjustment fails."""
+    assert options.extend is not None
+    t0 = time.perf_counter()
+    keep = ~ba.outlier_tracks
+    sub = tracks.select_tracks(keep)
+    R, c, frames = extend_frames(sub, ba.rotations, ba.positions, ba.frames, options.bundle,
+                                 options.extend)
+    added = frames & ~ba.frames
+    timings["extension"] += (time.perf_counter() - t0) * 1e3
+    if not added.any():
+        return ba, init
+    t0 = time.perf_counter()
+    try:
+        d, p, _ = triangulate_lines(tracks, R, c, frames)
+        new = bundle_adjust(tracks, R, c, d, p, frames=frames, options=options.bundle)
+    except OmniSfmError:
+        return ba, init
+    finally:
+        timings["refinement"] += (time.perf_counter() - t0) * 1e3
+    R0, c0 = init.rotations.copy(), init.positions.copy()
+    R0[added], c0[added] = R[added], c[added]
+    return new, replace(init, rotations=R0, positions=c0, frames=new.frames)
 
 
 ROTATION_ONLY_CONVENTION = ("world = camera of the first estimated frame; the camera only "
