@@ -33,7 +33,7 @@ class ExtendOptions:
     """Estimated frames next to the new one that take part in its local adjustment."""
     min_lines: int = 4
     """Lines a new frame must share with the window (fixed in 3D by it)."""
-    max_residual_factor: float = 3.0
+    max_residual_factor: float = 2.0
     """The new frame's median observation angle may be at most this times the window's."""
     min_residual_deg: float = 0.05
     """Floor of that limit (noise-free data), degrees."""
