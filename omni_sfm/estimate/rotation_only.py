@@ -90,6 +90,22 @@ def procrustes(a: FloatArray, b: FloatArray, w: FloatArray) -> FloatArray:
     return np.asarray(Vt.T @ D @ U.T)
 
 
+def _procrustes_batch(a: FloatArray, b: FloatArray, group: np.ndarray, num: int) -> FloatArray:
+    """``(num, 3, 3)``: for each group ``g`` the rotation minimising
+    ``sum ||R a_k - b_k||^2`` over the rows ``k`` with ``group[k] == g`` (weights folded into
+    ``a``); identity for empty groups."""
+    H = np.zeros((num, 3, 3))
+    np.add.at(H, group, a[:, :, None] * b[:, None, :])
+    U, _, Vt = np.linalg.svd(H)
+    V, Ut = np.swapaxes(Vt, 1, 2), np.swapaxes(U, 1, 2)
+    sign = np.sign(np.linalg.det(V @ Ut))
+    sign[sign == 0] = 1.0
+    D = np.zeros((num, 3, 3))
+    D[:, 0, 0] = D[:, 1, 1] = 1.0
+    D[:, 2, 2] = sign
+    return np.asarray(V @ D @ Ut)
+
+
 def _spread_ok(n: FloatArray, min_spread: float) -> bool:
     """The unsigned unit vectors ``n (K, 3)`` are not all (nearly) parallel."""
     if len(n) < 2:
@@ -169,8 +185,6 @@ def _joint(tracks: LineTracks, R: FloatArray, n: FloatArray, sel: np.ndarray,
     scale = np.radians(o.robust_scale_deg)
     f_all, t_all, m_all = tracks.obs_frame[sel], tracks.obs_track[sel], tracks.obs_normal[sel]
     frames = np.unique(f_all)
-    order = np.argsort(f_all, kind="stable")
-    bounds = np.searchsorted(f_all[order], np.arange(F + 1))
     last = np.inf
     for _ in range(o.iterations):
         rot = np.einsum("kij,kj->ki", R[f_all], m_all)
@@ -183,9 +197,7 @@ def _joint(tracks: LineTracks, R: FloatArray, n: FloatArray, sel: np.ndarray,
         ok = np.linalg.norm(acc, axis=1) > 0
         n = n.copy()
         n[ok] = acc[ok] / np.linalg.norm(acc[ok], axis=1, keepdims=True)
-        for f in frames:
-            k = order[bounds[f]:bounds[f + 1]]
-            R[f] = procrustes(m_all[k] * s[k, None], n[t_all[k]], w[k])
+        R[frames] = _procrustes_batch(m_all * (w * s)[:, None], n[t_all], f_all, F)[frames]
         cost = float(np.sum(w * r ** 2))
         if last - cost <= 1e-12 * max(last, 1e-30):
             break
