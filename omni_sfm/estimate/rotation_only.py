@@ -84,10 +84,7 @@ class RotationOnlyResult:
 
 def procrustes(a: FloatArray, b: FloatArray, w: FloatArray) -> FloatArray:
     """The rotation ``R`` minimising ``sum w_k ||R a_k - b_k||^2`` (Kabsch; ``a, b (K, 3)``)."""
-    H = (a * w[:, None]).T @ b
-    U, _, Vt = np.linalg.svd(H)
-    D = np.diag([1.0, 1.0, float(np.sign(np.linalg.det(Vt.T @ U.T))) or 1.0])
-    return np.asarray(Vt.T @ D @ U.T)
+    return _procrustes_batch(a * w[:, None], b, np.zeros(len(a), dtype=np.int64), 1)[0]
 
 
 def _procrustes_batch(a: FloatArray, b: FloatArray, group: np.ndarray, num: int) -> FloatArray:
