@@ -1,0 +1,184 @@
+#!/usr/bin/env python
+"""How the estimator scales with sequence length: `omni-sfm init --lines` on long Manhattan walks.
+
+For each N in ``--frames`` (default 1,000, 5,000 and 20,000 frames) this simulates a walk through
+office corridors (``omni-sfm simulate --world manhattan``: 0.05 m a frame, each line seen in
+about 60 frames, 0.1 deg noise on the normals, a fixed seed), writes it to a temporary folder
+and runs ``omni-sfm init --lines --tracks DIR/tracks.json --output OUT`` in a fresh process. Per
+N it prints the wall time, the time per frame, the child's peak memory (its own maximum
+resident set: each run goes through a wrapper process of its own, so runs do not mix), the
+frames estimated, and against the ground truth (on the reflection branch nearer it,
+``match_reflection``) the rotation error of the 500th and of the last frame relative to the
+first, the mean rotation error and the ATE (RMS after a similarity alignment, per cent of the
+path length). A run that fails or passes ``--timeout`` is reported with its last error line and
+the next N goes on.
+
+    .venv/bin/python scripts/bench_scaling.py [--frames 1000 5000 20000] [--timeout 3600]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import shlex
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from omni_sfm.errors import OmniSfmError
+from omni_sfm.estimate.pipeline import match_reflection
+from omni_sfm.evaluate import trajectory_errors
+from omni_sfm.poses import read_tum
+from omni_sfm.synth.simulate import SimulationOptions, simulate, write_simulation
+from omni_sfm.transforms import associate
+
+# Runs COMMAND with its output in LOG, kills its process group after TIMEOUT seconds, and
+# writes the exit code, wall time and the peak RSS of its one child (bytes) to RESULT.
+_WRAPPER = r"""
+import json, os, resource, signal, subprocess, sys, time
+timeout, log, result, cmd = float(sys.argv[1]), sys.argv[2], sys.argv[3], sys.argv[4:]
+t0 = time.perf_counter()
+timed_out = False
+with open(log, "wb") as fh:
+    p = subprocess.Popen(cmd, stdout=fh, stderr=subprocess.STDOUT, start_new_session=True)
+    try:
+        rc = p.wait(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        timed_out = True
+        os.killpg(p.pid, signal.SIGKILL)
+        rc = p.wait()
+wall = time.perf_counter() - t0
+ru = resource.getrusage(resource.RUSAGE_CHILDREN)
+unit = 1 if sys.platform == "darwin" else 1024
+with open(result, "w") as fh:
+    json.dump({"rc": rc, "timed_out": timed_out, "wall_s": wall,
+               "peak_rss_bytes": ru.ru_maxrss * unit, "cpu_s": ru.ru_utime + ru.ru_stime}, fh)
+"""
+
+COLUMNS = (("frames", 7), ("lines", 6), ("obs", 8), ("sim s", 7), ("wall s", 8), ("ms/frame", 9),
+           ("peak MB", 8), ("estimated", 12), ("rot@500", 8), ("rot@last", 9), ("rot mean", 9),
+           ("ATE %", 7))
+
+
+def _last_error_line(log: Path) -> str:
+    """The last line of the log that names an error, else its last non-empty line."""
+    try:
+        lines = [ln.strip() for ln in log.read_text(errors="replace").splitlines() if ln.strip()]
+    except OSError:
+        return "(no output)"
+    if not lines:
+        return "(no output)"
+    for ln in reversed(lines):
+        if "error" in ln.lower() or "Error" in ln:
+            return ln
+    return lines[-1]
+
+
+def _errors(traj_path: Path, gt_path: Path, n: int) -> dict[str, str]:
+    """Frames estimated and the errors of the estimate, formatted for the table."""
+    est, gt = read_tum(traj_path), read_tum(gt_path)
+    out = {"estimated": f"{len(est)}/{n}"}
+    try:
+        matched = match_reflection(est, gt)
+        err = trajectory_errors(matched, gt)
+    except OmniSfmError as exc:
+        return out | {"rot@500": "-", "rot@last": "-", "rot mean": "-", "ATE %": "-",
+                      "note": str(exc)}
+    common = associate(matched, gt)[0].timestamps   # rot_deg is per common frame
+    for key, frame in (("rot@500", 499), ("rot@last", n - 1)):
+        hit = np.flatnonzero(np.abs(common - frame) < 1e-6)
+        out[key] = f"{err.rot_deg[hit[0]]:.3f}" if hit.size else "-"
+    out["rot mean"] = f"{err.rot_mean_deg:.3f}"
+    out["ATE %"] = f"{100 * err.ate_rel:.2f}"
+    return out
+
+
+def _run_one(n: int, args: argparse.Namespace, work: Path) -> dict[str, str]:
+    row = {"frames": str(n)}
+    opts = SimulationOptions(world="manhattan", num_views=n, path_length=0.05 * (n - 1),
+                             noise_deg=args.noise_deg, visible_frames=args.visible_frames,
+                             seed=args.seed)
+    t0 = time.perf_counter()
+    sim = simulate(opts)
+    sim_dir = work / f"sim_{n}"
+    write_simulation(sim_dir, sim, opts)
+    row |= {"lines": str(sim.tracks.num_tracks), "obs": str(sim.tracks.num_observations),
+            "sim s": f"{time.perf_counter() - t0:.1f}"}
+    del sim
+    out_dir, log, result = work / f"init_{n}", work / f"init_{n}.log", work / f"init_{n}.json"
+    cmd = [sys.executable, "-m", "omni_sfm", "init", "--lines", "--tracks",
+           str(sim_dir / "tracks.json"), "--output", str(out_dir), "--quiet",
+           *shlex.split(args.init_args)]
+    env = dict(os.environ)
+    env.setdefault("OPENBLAS_NUM_THREADS", "1")
+    try:
+        subprocess.run([sys.executable, "-c", _WRAPPER, str(args.timeout), str(log), str(result),
+                        *cmd], env=env, check=True, timeout=args.timeout + 120)
+        res = json.loads(result.read_text())
+    except (subprocess.SubprocessError, OSError, ValueError) as exc:
+        return row | {"note": f"wrapper failed: {exc}"}
+    row |= {"wall s": f"{res['wall_s']:.1f}", "ms/frame": f"{1000 * res['wall_s'] / n:.2f}",
+            "peak MB": f"{res['peak_rss_bytes'] / 2**20:.0f}"}
+    if res["timed_out"]:
+        return row | {"note": f"timed out after {args.timeout:g} s"}
+    if res["rc"] != 0:
+        return row | {"note": f"exit {res['rc']}: {_last_error_line(log)}"}
+    traj = out_dir / "trajectory.tum"
+    if not traj.exists():
+        return row | {"note": f"no {traj.name}: {_last_error_line(log)}"}
+    try:
+        return row | _errors(traj, sim_dir / "groundtruth.tum", n)
+    except (OmniSfmError, OSError) as exc:
+        return row | {"note": f"evaluation failed: {exc}"}
+
+
+def _print_row(row: dict[str, str]) -> None:
+    print("".join(f"{row.get(name, '-'):>{w}}" for name, w in COLUMNS)
+          + (f"  {row['note']}" if "note" in row else ""), flush=True)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--frames", type=int, nargs="+", default=[1000, 5000, 20000],
+                    help="sequence lengths to run (default 1000 5000 20000)")
+    ap.add_argument("--timeout", type=float, default=3600.0,
+                    help="seconds allowed to each init run (default 3600)")
+    ap.add_argument("--noise-deg", type=float, default=0.1)
+    ap.add_argument("--visible-frames", type=int, default=60)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--init-args", default="",
+                    help="extra arguments for 'omni-sfm init', e.g. '--no-refine'")
+    ap.add_argument("--keep", type=Path, default=None,
+                    help="keep the simulations, outputs and logs in this folder")
+    args = ap.parse_args()
+    if any(n < 3 for n in args.frames):
+        ap.error("every --frames value must be 3 or more")
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    print(f"# omni-sfm init --lines {args.init_args}".rstrip()
+          + f" on Manhattan walks (0.05 m a frame, lines seen in about {args.visible_frames} "
+          f"frames), noise {args.noise_deg} deg, seed {args.seed}, timeout {args.timeout:g} s; "
+          f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, load average "
+          f"{load:.1f}, OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', '1')}")
+    print("# rot@500, rot@last, rot mean: rotation error (deg) relative to the first frame; "
+          "ATE: RMS after similarity alignment, % of the path length", flush=True)
+    print("".join(f"{name:>{w}}" for name, w in COLUMNS), flush=True)
+    with tempfile.TemporaryDirectory(prefix="bench_scaling_") as tmp:
+        work = Path(tmp) if args.keep is None else args.keep
+        work.mkdir(parents=True, exist_ok=True)
+        for n in args.frames:
+            try:
+                row = _run_one(n, args, work)
+            except (OmniSfmError, OSError, MemoryError) as exc:
+                row = {"frames": str(n), "note": f"{type(exc).__name__}: {exc}"}
+            _print_row(row)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
