@@ -127,6 +127,16 @@ def rotvec_to_matrix(rotvec: ArrayLike) -> FloatArray:
     return rotation_about_axis(axis, th)
 
 
+def matrix_to_rotvec(R: ArrayLike) -> FloatArray:
+    """Rotation matrices ``(..., 3, 3)`` -> axis-angle vectors ``(..., 3)`` (radians, angle in
+    ``[0, pi]``); the inverse of :func:`rotvec_to_matrix`."""
+    from scipy.spatial.transform import Rotation
+
+    m = np.asarray(R, dtype=np.float64)
+    return np.asarray(Rotation.from_matrix(m.reshape(-1, 3, 3)).as_rotvec()).reshape(
+        m.shape[:-1])
+
+
 def rotation_angle(R: ArrayLike) -> FloatArray:
     """Rotation angle in radians of ``(..., 3, 3)`` rotation matrices, robust near 0 and pi."""
     m = np.asarray(R, dtype=np.float64)

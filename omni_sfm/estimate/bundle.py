@@ -250,6 +250,23 @@ def _loss_weights(s: FloatArray, loss: RobustLoss, scale: float) -> tuple[FloatA
 
 
 _State = tuple[FloatArray, FloatArray, FloatArray, FloatArray]
+
+
+def _pose_jacobian(R: FloatArray, d: FloatArray, u: FloatArray,
+                   B: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Per observation ``(A, J_rot, J_c)``: ``A = d e / d u`` ``(K, 2, 3)`` and the residual's
+    derivatives ``(K, 2, 3)`` by the camera-frame rotation increment and by the centre.
+
+    ``R`` ``(K, 3, 3)`` world_from_cam of each observation's frame, ``d`` ``(K, 3)`` its line's
+    direction, ``u`` ``(K, 3)`` the unnormalised predicted normal, ``B`` ``(K, 2, 3)`` the
+    residual basis: ``e = B normalise(u)``, ``u = R^T ((p - c) x d)``.
+    """
+    nu = np.linalg.norm(u, axis=1)
+    n = u / nu[:, None]
+    # d e / d u = B^T (I - n n^T) / |u|
+    A = (B - np.sum(B * n[:, None, :], axis=2, keepdims=True) * n[:, None, :]) / \
+        nu[:, None, None]
+    return A, A @ skew(u), A @ (np.swapaxes(R, 1, 2) @ skew(d))
 _Blocks = tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]
 
 
@@ -262,7 +279,8 @@ class _Problem:
     """
 
     def __init__(self, tracks: LineTracks, frames: np.ndarray, active: np.ndarray,
-                 fixed_frame: int, scale_frame: int, scale_axis: int) -> None:
+                 fixed_frame: int, scale_frame: int, scale_axis: int,
+                 held: np.ndarray | None = None) -> None:
         F, M = tracks.num_frames, tracks.num_tracks
         sel = frames[tracks.obs_frame] & active[tracks.obs_track]
         self.F, self.M = F, M
@@ -273,6 +291,8 @@ class _Problem:
         pose_free[frames] = True
         pose_free[fixed_frame] = False
         pose_free[scale_frame, 3 + scale_axis] = False
+        if held is not None:
+            pose_free[held] = False
         self.pose_free = pose_free
         self.line_free = np.repeat(np.asarray(active, bool)[:, None], 4, axis=1)
 
@@ -288,14 +308,7 @@ class _Problem:
         """Per observation: ``(K, 2, 6)`` d e / d pose and ``(K, 2, 4)`` d e / d line."""
         f, t = self.f, self.t
         Rk = R[f]
-        nu = np.linalg.norm(u, axis=1)
-        n = u / nu[:, None]
-        B = self.B
-        # d e / d u = B^T (I - n n^T) / |u|
-        A = (B - np.sum(B * n[:, None, :], axis=2, keepdims=True) * n[:, None, :]) / \
-            nu[:, None, None]
-        J_rot = A @ skew(u)
-        J_c = A @ (np.swapaxes(Rk, 1, 2) @ skew(d[t]))
+        A, J_rot, J_c = _pose_jacobian(Rk, d[t], u, self.B)
         e1, e2 = _tangent_basis(d[t])
         pc = p[t] - c[f]
         V = np.stack([np.cross(pc, e1), np.cross(pc, e2), np.cross(e1, d[t]),
@@ -479,19 +492,20 @@ def _initial_state(tracks: LineTracks, rotations: FloatArray, positions: FloatAr
     return (R, c, d, p), fr
 
 
-def _gauge(c: FloatArray, frames: np.ndarray,
-           scale_frames: np.ndarray | None) -> tuple[int, int, int]:
+def _gauge(c: FloatArray, frames: np.ndarray, scale_frames: np.ndarray | None,
+           fixed: int | None = None) -> tuple[int, int, int]:
     """``(fixed_frame, scale_frame, scale_axis)``: the gauge held during the adjustment.
 
     ``c`` ``(F, 3)`` initial camera centres, ``frames`` ``(F,)`` bool the estimated frames. The
-    first estimated frame's pose is held; the scale by the coordinate (axis 0-2) of the largest
-    magnitude of the offset from it of the camera centre farthest from it (among
-    ``scale_frames`` ``(F,)`` bool, if given).
+    first estimated frame's pose (or that of ``fixed``) is held; the scale by the coordinate
+    (axis 0-2) of the largest magnitude of the offset from it of the camera centre farthest
+    from it (among ``scale_frames`` ``(F,)`` bool, if given).
 
     Raises:
         OmniSfmError: all candidate centres coincide with the fixed one (no scale).
     """
-    fixed = int(np.flatnonzero(frames)[0])
+    if fixed is None:
+        fixed = int(np.flatnonzero(frames)[0])
     dist = np.linalg.norm(np.where(frames[:, None], c - c[fixed], 0.0), axis=1)
     if scale_frames is not None:
         dist = np.where(np.asarray(scale_frames, bool), dist, 0.0)
@@ -546,7 +560,8 @@ class _Adjustment:
     """
 
     def __init__(self, tracks: LineTracks, state: _State, frames: np.ndarray,
-                 scale_frames: np.ndarray | None, options: BundleOptions) -> None:
+                 scale_frames: np.ndarray | None, options: BundleOptions,
+                 held_frames: np.ndarray | None = None) -> None:
         """Set up from :func:`_initial_state`'s output.
 
         Raises:
@@ -567,7 +582,11 @@ class _Adjustment:
         if self.frames.sum() < 3:
             raise OmniSfmError(f"bundle adjustment needs at least 3 frames that see 3 lines or "
                                f"more; got {int(self.frames.sum())}")
-        self.fixed, self.scale_frame, self.scale_axis = _gauge(self.c, self.frames, scale_frames)
+        self.held = None if held_frames is None else np.asarray(held_frames, bool) & self.frames
+        first_held = None if self.held is None or not self.held.any() else \
+            int(np.flatnonzero(self.held)[0])
+        self.fixed, self.scale_frame, self.scale_axis = _gauge(self.c, self.frames, scale_frames,
+                                                               first_held)
         self.obs_in = self.frames[tracks.obs_frame]
         self.ang0 = self.angles()
         self.sigma = np.radians(options.noise_deg) if options.noise_deg else \
@@ -594,7 +613,7 @@ class _Adjustment:
         """Run LM on the ``active`` ``(M,)`` tracks with the loss scaled to the current noise;
         returns the iterations it took."""
         prob = _Problem(self.tracks, self.frames, active, self.fixed, self.scale_frame,
-                        self.scale_axis)
+                        self.scale_axis, self.held)
         (self.R, self.c, self.d, self.p), it = _levenberg_marquardt(
             prob, (self.R, self.c, self.d, self.p), loss, self.options.loss_scale * self.sigma,
             max_iterations, tolerance)
@@ -679,6 +698,7 @@ def bundle_adjust(tracks: LineTracks, rotations: FloatArray, positions: FloatArr
                   line_directions: FloatArray, line_points: FloatArray, *,
                   frames: np.ndarray | None = None,
                   scale_frames: np.ndarray | None = None,
+                  held_frames: np.ndarray | None = None,
                   options: BundleOptions = BundleOptions()) -> BundleResult:
     """Refine poses and lines jointly from all observations (partial tracks allowed).
 
@@ -695,6 +715,8 @@ def bundle_adjust(tracks: LineTracks, rotations: FloatArray, positions: FloatArr
         frames: ``(F,)`` bool, the frames to estimate (default: all with finite poses).
         scale_frames: ``(F,)`` bool, frames among which the one that holds the scale is chosen
             (default: all); e.g. the already refined part of a growing chain.
+        held_frames: ``(F,)`` bool, estimated frames whose poses are held as given (anchors of
+            a local adjustment: their observations fix the lines they share with the others).
         options: see :class:`BundleOptions`.
 
     Raises:
@@ -702,7 +724,7 @@ def bundle_adjust(tracks: LineTracks, rotations: FloatArray, positions: FloatArr
     """
     t0 = time.perf_counter()
     state, fr = _initial_state(tracks, rotations, positions, line_directions, line_points, frames)
-    adj = _Adjustment(tracks, state, fr, scale_frames, options)
+    adj = _Adjustment(tracks, state, fr, scale_frames, options, held_frames)
     for round_ in range(max(1, options.max_rounds)):
         if adj.robust_round(round_):
             break
@@ -742,3 +764,56 @@ def oracle(tracks: LineTracks, rotations: FloatArray, positions: FloatArray,
     """
     return bundle_adjust(tracks, rotations, positions, line_directions, line_points,
                          options=options)
+
+
+def resect_pose(normals: FloatArray, line_directions: FloatArray, line_points: FloatArray,
+                rotation: FloatArray, position: FloatArray, *, scale: float,
+                iterations: int = 10) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """The pose of one camera from lines known in 3D (absolute pose from lines).
+
+    Minimises the adjustment's residual (module docstring) over the 6 pose parameters with the
+    lines held, from ``rotation`` (world_from_cam) and ``position``, by Levenberg-Marquardt with
+    a Huber loss of ``scale`` (radians; ``inf``: plain least squares). ``normals`` ``(K, 3)``
+    are the camera's observed NVs of the lines ``line_directions``, ``line_points`` ``(K, 3)``
+    (world).
+
+    Returns ``(R, c, angles)``: the pose and the ``(K,)`` angles (radians) between observed and
+    predicted normals at it.
+    """
+    n_obs = normalize(np.asarray(normals, np.float64))
+    d, p = np.asarray(line_directions, np.float64), np.asarray(line_points, np.float64)
+    B = np.stack(_tangent_basis(n_obs), axis=1)
+    R, c = np.array(rotation, np.float64), np.array(position, np.float64)
+    loss = RobustLoss.HUBER if np.isfinite(scale) else RobustLoss.LINEAR
+
+    def residuals(R: FloatArray, c: FloatArray) -> tuple[FloatArray, FloatArray]:
+        u = predicted_normals(R[None], c[None], p, d)
+        return np.einsum("kai,ki->ka", B, normalize(u)), u
+
+    e, u = residuals(R, c)
+    cost = 0.5 * float(np.sum(_loss_weights(np.sum(e * e, 1), loss, scale)[0]))
+    lam = 1e-4
+    for _ in range(iterations):
+        _, w = _loss_weights(np.sum(e * e, 1), loss, scale)
+        _, J_rot, J_c = _pose_jacobian(np.broadcast_to(R, (len(d), 3, 3)), d, u, B)
+        J = np.concatenate([J_rot, J_c], axis=2)  # (K, 2, 6)
+        H = np.einsum("kai,k,kaj->ij", J, w, J)
+        g = np.einsum("kai,k,ka->i", J, w, e)
+        improved = False
+        for _ in range(10):
+            step = -np.linalg.solve(H + lam * np.diag(np.maximum(np.diag(H), 1e-12)), g)
+            R2, c2 = R @ rotvec_to_matrix(step[:3]), c + step[3:]
+            e2, u2 = residuals(R2, c2)
+            cost2 = 0.5 * float(np.sum(_loss_weights(np.sum(e2 * e2, 1), loss, scale)[0]))
+            if np.isfinite(cost2) and cost2 <= cost:
+                improved = True
+                break
+            lam *= 10.0
+        if not improved:
+            break
+        rel = (cost - cost2) / max(cost, 1e-300)
+        R, c, e, u, cost = R2, c2, e2, u2, cost2
+        lam = max(lam / 10.0, 1e-12)
+        if rel < 1e-10:
+            break
+    return R, c, unsigned_angle(normalize(u), n_obs)

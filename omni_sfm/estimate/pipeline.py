@@ -29,7 +29,7 @@ from omni_sfm.estimate.bundle import (
     observation_residuals,
     triangulate_lines,
 )
-from omni_sfm.estimate.extend import ExtendOptions, extend_frames
+from omni_sfm.estimate.incremental import IncrementalOptions, register_frames
 from omni_sfm.estimate.paper import PaperOptions, PaperSolution, estimate_paper
 from omni_sfm.estimate.rotation_only import (
     RotationOnlyOptions,
@@ -82,9 +82,9 @@ class EstimationOptions:
     solutions (``PaperSolution.alternatives``: translations from other second views) and keep
     the solution with the lowest final cost, the maximum-likelihood criterion. At high noise
     the bundle adjustment from the paper's solution alone can stop in a wrong local minimum."""
-    extend: ExtendOptions | None = field(default_factory=ExtendOptions)
-    """Register the frames beyond the chained windows from the lines already reconstructed
-    (docs/estimator.md, stage 5b); None: the chain's frames only."""
+    extend: IncrementalOptions | None = field(default_factory=IncrementalOptions)
+    """Register the frames beyond the chained windows from the lines already reconstructed,
+    frame by frame (docs/estimator.md, stage 5b); None: the chain's frames only."""
     rotation_only: RotationOnlyOptions = field(default_factory=RotationOnlyOptions)
     """The rotation-only fit, for a camera that turns without moving (docs/method.md §13)."""
     rotation_only_max_median_deg: float = 0.2
@@ -154,6 +154,8 @@ class _Init:
     members: np.ndarray
     vpv: FloatArray
     alternatives: list[tuple[FloatArray, FloatArray]] = field(default_factory=list)
+    reasons: dict[int, str] = field(default_factory=dict)
+    """Why frames the incremental registration reached were not registered."""
 
 
 def _check_counts(tracks: LineTracks, members: np.ndarray) -> None:
@@ -413,6 +415,10 @@ def _estimate_moving(tracks: LineTracks, options: EstimationOptions,
     report = _report(tracks, frames, members, direction, outliers, used, windows,
                      init.failures, dict(timings), rms0, rms1, sigma)
     report["reflection"] = reflection
+    report["frames_not_estimated_reasons"] = {
+        str(k): init.reasons.get(int(k), "not reached: the registration of the frames beyond "
+                                         "the chain stopped before it")
+        for k in np.flatnonzero(~frames)}
     return EstimationResult(
         trajectory=traj, estimated=frames, initial_trajectory=traj0,
         track_ids=tracks.track_ids.copy(), parallel=members, parallel_direction=direction,
@@ -430,15 +436,20 @@ def _extend(tracks: LineTracks, ba: BundleResult, init: _Init, options: Estimati
     t0 = time.perf_counter()
     keep = ~ba.outlier_tracks
     sub = tracks.select_tracks(keep)
-    R, c, frames = extend_frames(sub, ba.rotations, ba.positions, ba.frames, options.bundle,
-                                 options.extend)
+    reg = register_frames(sub, ba.rotations, ba.positions, ba.frames,
+                          ba.line_directions[keep], ba.line_points[keep], ba.sigma_deg,
+                          options.bundle, options.extend)
+    R, c, frames = reg.rotations, reg.positions, reg.estimated
     added = frames & ~ba.frames
     timings["extension"] += (time.perf_counter() - t0) * 1e3
+    init = replace(init, reasons=dict(reg.reasons))
     if not added.any():
         return ba, init
     t0 = time.perf_counter()
     try:
-        d, p, _ = triangulate_lines(tracks, R, c, frames)
+        d = np.full((tracks.num_tracks, 3), np.nan)
+        p = d.copy()
+        d[keep], p[keep] = reg.line_directions, reg.line_points
         new = bundle_adjust(tracks, R, c, d, p, frames=frames, options=options.bundle)
     except OmniSfmError:
         return ba, init

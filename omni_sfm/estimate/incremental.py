@@ -1,0 +1,391 @@
+"""Every frame that sees lines already fixed in 3D: incremental registration beyond the windows
+(docs/method.md §14, docs/estimator.md stage 5b).
+
+The paper's method needs a window of frames in which 3 parallel and 3 other lines are seen
+throughout. Where tracks are short (a turn, a doorway, a 360 camera carried by a person) no
+such window forms and the chain of windows ends, although each frame there sees lines that its
+neighbours have already fixed in 3D. :func:`register_frames` grows the estimated frames frame by
+frame, forwards then backwards, as incremental structure from motion does with points:
+
+1. **Resection.** The new frame's pose is the absolute pose from the known 3D lines it sees
+   (:func:`omni_sfm.estimate.bundle.resect_pose`: the bundle adjustment's residual over the 6
+   pose parameters, lines held), started from two predictions: constant velocity and turn rate
+   from the last registered frames, and the rotation that best aligns the observed normals with
+   the known line directions (``n . R^T d = 0``) with the centre then solved linearly given it
+   (``R n . c = R n . p``: each plane passes through its line); the lower robust cost wins. A camera that stands still
+   or turns in place is posed like any other: the known lines fix its position.
+2. **Acceptance.** The frame is kept if at least ``min_lines`` of its known lines fit within
+   ``inlier_sigmas`` times the noise, in at least two directions ``min_angle_deg`` apart (one
+   direction leaves the position along it free); the pose is then solved again on those.
+3. **Triangulation.** Lines the new frame sees that are not yet known are triangulated from all
+   registered frames that see them, once their planes have turned by ``min_parallax_deg`` (a
+   camera that only turns adds no parallax: its new lines wait) and their residuals fit.
+4. **Local adjustment.** Every ``local_every`` frames (and after a frame that fits its lines
+   worse than the noise), a bundle adjustment of the last ``local_frames`` registered frames
+   and the known lines they see, with every other registered frame that sees those lines held
+   (their observations keep the lines in place), stops errors from growing.
+
+A frame that fails is listed with the reason and the growth goes on from the last registered
+frame; after ``max_misses`` failures in a row the growth in that direction stops (the caller
+restarts there). Cost per frame is bounded by the window: observations are reached through
+per-frame and per-track indices, and the local problems are built on the window's observations
+only.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from omni_sfm.errors import OmniSfmError
+from omni_sfm.estimate.bundle import (
+    BundleOptions,
+    bundle_adjust,
+    observation_residuals,
+    resect_pose,
+    triangulate_lines,
+)
+from omni_sfm.geometry import FloatArray, matrix_to_rotvec, rotation_angle, rotvec_to_matrix
+from omni_sfm.lines.tracks import LineTracks
+
+
+@dataclass(frozen=True, kw_only=True)
+class IncrementalOptions:
+    """Options of :func:`register_frames`."""
+
+    min_lines: int = 4
+    """Known 3D lines a frame must see and fit (inliers) to be registered (3 lines in two
+    directions fix the 6 pose parameters; one more checks them)."""
+    min_angle_deg: float = 20.0
+    """Two of those lines' directions must be at least this far apart."""
+    inlier_sigmas: float = 8.0
+    """An observation fits if its angle is at most this many times the noise (per axis)."""
+    min_inlier_deg: float = 0.1
+    """Floor of that threshold, degrees (noise-free data)."""
+    relative_inlier: float = 3.0
+    """... or this many times the median angle of the last registered frame, if larger (lines
+    triangulated from far away fit a new viewpoint worse than the noise)."""
+    max_turn_deg: float = 20.0
+    """A registered frame turns at most this much per frame from the last registered one."""
+    max_misses: int = 10
+    """Failures in a row after which the growth in that direction stops."""
+    min_parallax_deg: float = 1.5
+    """A new line is triangulated once its world planes span at least this angle."""
+    min_views: int = 3
+    """... and it is seen in at least this many registered frames."""
+    local_every: int = 5
+    """A local bundle adjustment after every this many registered frames."""
+    local_frames: int = 15
+    """Registered frames adjusted by each local adjustment (the latest ones)."""
+    local_iterations: int = 10
+    """Levenberg-Marquardt iterations of each local adjustment."""
+
+
+@dataclass(frozen=True)
+class Registration:
+    """The result of :func:`register_frames`.
+
+    Attributes:
+        rotations, positions: ``(F, 3, 3)`` world_from_cam and ``(F, 3)`` centres (NaN where not
+            estimated).
+        estimated: ``(F,)`` bool.
+        line_directions, line_points: ``(M, 3)`` the known lines (NaN where unknown).
+        reasons: frame -> why it was not registered (frames the growth reached).
+        stops: ``[(frame, direction)]`` where the growth stopped after ``max_misses`` failures
+            (``direction`` +1 forwards, -1 backwards): the first frame of the failed run.
+        added: number of frames registered.
+    """
+
+    rotations: FloatArray
+    positions: FloatArray
+    estimated: np.ndarray
+    line_directions: FloatArray
+    line_points: FloatArray
+    reasons: dict[int, str] = field(default_factory=dict)
+    stops: list[tuple[int, int]] = field(default_factory=list)
+    added: int = 0
+
+
+def _index(keys: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(order, starts)``: observations of key ``k`` are ``order[starts[k]:starts[k + 1]]``."""
+    order = np.argsort(keys, kind="stable")
+    return order, np.searchsorted(keys[order], np.arange(n + 1))
+
+
+def rotation_from_directions(normals: FloatArray, directions: FloatArray, R0: FloatArray,
+                             iterations: int = 8) -> FloatArray:
+    """world_from_cam rotation that makes camera-frame normals ``(K, 3)`` orthogonal to their
+    lines' world directions ``(K, 3)`` (``n . R^T d = 0``), by Gauss-Newton from ``R0``."""
+    R = np.array(R0, np.float64)
+    for _ in range(iterations):
+        a = directions @ R  # R^T d, (K, 3)
+        r = np.sum(normals * a, axis=1)
+        J = np.cross(normals, a)  # d r / d w for R <- R exp([w]x)
+        H = J.T @ J + 1e-9 * np.eye(3)
+        w = -np.linalg.solve(H, J.T @ r)
+        R = R @ rotvec_to_matrix(w)
+        if float(np.linalg.norm(w)) < 1e-12:
+            break
+    return R
+
+
+def centre_given_rotation(normals: FloatArray, directions: FloatArray, points: FloatArray,
+                          R: FloatArray) -> FloatArray | None:
+    """The camera centre that puts every plane (world normal ``m = R n``) through its line's
+    point ``p``, least squares: ``m . c = m . p``; None when the lines leave it undetermined
+    (all of one direction: the centre is free along it)."""
+    del directions  # the rotation has already made each plane contain its line's direction
+    m = normals @ R.T
+    b = np.sum(m * points, axis=1)
+    sv = np.linalg.svd(m, compute_uv=False)
+    if len(sv) < 3 or sv[2] < 1e-6 * max(sv[0], 1e-300):
+        return None
+    return np.asarray(np.linalg.lstsq(m, b, rcond=None)[0])
+
+
+def _spread(directions: FloatArray) -> float:
+    """Largest angle (deg) between two of the (unsigned) directions ``(K, 3)``."""
+    if len(directions) < 2:
+        return 0.0
+    g = np.abs(directions @ directions.T)
+    return float(np.degrees(np.arccos(np.clip(g.min(), 0.0, 1.0))))
+
+
+class _Growth:
+    """The growing reconstruction: poses, known lines and the indices into the observations."""
+
+    def __init__(self, tracks: LineTracks, R: FloatArray, c: FloatArray, est: np.ndarray,
+                 d: FloatArray, p: FloatArray, sigma: float, options: IncrementalOptions,
+                 bundle: BundleOptions) -> None:
+        self.tracks, self.o = tracks, options
+        F, M = tracks.num_frames, tracks.num_tracks
+        self.R, self.c = np.array(R, np.float64), np.array(c, np.float64)
+        self.est = np.array(est, bool)
+        self.d, self.p = np.array(d, np.float64), np.array(p, np.float64)
+        self.known: np.ndarray = np.asarray(np.isfinite(self.d).all(1) &
+                                            np.isfinite(self.p).all(1))
+        self.rejected = np.zeros(M, bool)
+        self.sigma = sigma
+        self.thr = max(options.inlier_sigmas * sigma, np.radians(options.min_inlier_deg))
+        self.last_median = 0.0  # median angle of the last registered frame at its pose
+        self.refit = False  # the last frame fitted its lines worse than usual: adjust soon
+        self.by_frame, self.frame_starts = _index(tracks.obs_frame, F)
+        self.by_track, self.track_starts = _index(tracks.obs_track, M)
+        self.local = replace(bundle, max_rounds=2, max_iterations=options.local_iterations,
+                             final_loss=None)
+        self.reasons: dict[int, str] = {}
+        self.stops: list[tuple[int, int]] = []
+        self.added = 0
+
+    def frame_obs(self, f: int) -> np.ndarray:
+        return self.by_frame[self.frame_starts[f]:self.frame_starts[f + 1]]
+
+    def track_obs(self, tracks: np.ndarray) -> np.ndarray:
+        if len(tracks) == 0:
+            return np.zeros(0, int)
+        return np.concatenate([self.by_track[self.track_starts[t]:self.track_starts[t + 1]]
+                               for t in tracks])
+
+    # -- 1-2: resection and acceptance ---------------------------------------------------------
+    def predict(self, f: int, a: int, b: int | None) -> tuple[FloatArray, FloatArray]:
+        """Pose at ``f`` from registered ``a`` (nearest) and ``b`` (the one before it)."""
+        if b is None:
+            return self.R[a], self.c[a]
+        k = (f - a) / (a - b)
+        step = matrix_to_rotvec(self.R[b].T @ self.R[a])
+        return self.R[a] @ rotvec_to_matrix(step * k), self.c[a] + (self.c[a] - self.c[b]) * k
+
+    def register(self, f: int, a: int, b: int | None) -> str | None:
+        """Pose frame ``f``; None on success, else why not."""
+        tracks, o = self.tracks, self.o
+        obs = self.frame_obs(f)
+        t = tracks.obs_track[obs]
+        kn = self.known[t]
+        if kn.sum() < o.min_lines:
+            return (f"sees {int(kn.sum())} lines already reconstructed; need {o.min_lines} "
+                    f"(of {len(t)} lines seen)")
+        obs, t = obs[kn], t[kn]
+        n, d, p = tracks.obs_normal[obs], self.d[t], self.p[t]
+        R_pred, c_pred = self.predict(f, a, b)
+        starts = [(R_pred, c_pred)]
+        R_dir = rotation_from_directions(n, d, R_pred)
+        c_dir = centre_given_rotation(n, d, p, R_dir)
+        if c_dir is not None:
+            starts.append((R_dir, c_dir))
+        # lines fixed from far away fit new viewpoints worse than the noise: the threshold
+        # follows how well the last frame fitted them
+        thr = max(self.thr, o.relative_inlier * self.last_median)
+        best = None
+        for R0, c0 in starts:
+            R1, c1, ang = resect_pose(n, d, p, R0, c0, scale=thr / 2.0)
+            inl = ang <= thr
+            score = (int(inl.sum()), -float(np.sum(np.minimum(ang, thr) ** 2)))
+            if best is None or score > best[0]:
+                best = (score, R1, c1, inl)
+        assert best is not None
+        _, R1, c1, inl = best
+        if inl.sum() < o.min_lines:
+            return (f"{int(inl.sum())} of its {len(t)} reconstructed lines fit a pose; "
+                    f"need {o.min_lines}")
+        if _spread(d[inl]) < o.min_angle_deg:
+            return "the reconstructed lines it sees are all (nearly) parallel"
+        R2, c2, ang = resect_pose(n[inl], d[inl], p[inl], R1, c1, scale=np.inf)
+        turn = float(np.degrees(rotation_angle(self.R[a].T @ R2)))
+        if turn > o.max_turn_deg * abs(f - a):
+            return f"its pose would turn {turn:.0f} deg from frame {a}"
+        self.R[f], self.c[f], self.est[f] = R2, c2, True
+        self.last_median = float(np.median(ang))
+        self.refit = self.last_median > self.thr / 2.0
+        return None
+
+    # -- 3: triangulation ----------------------------------------------------------------------
+    def triangulate(self, f: int) -> None:
+        """Lines seen in ``f`` that are not known yet, from all registered frames seeing them."""
+        tracks, o = self.tracks, self.o
+        t = tracks.obs_track[self.frame_obs(f)]
+        cand = np.unique(t[~self.known[t] & ~self.rejected[t]])
+        if len(cand) == 0:
+            return
+        obs = self.track_obs(cand)
+        obs = obs[self.est[tracks.obs_frame[obs]]]
+        if len(obs) == 0:
+            return
+        local_t = np.searchsorted(cand, tracks.obs_track[obs])
+        cnt = np.bincount(local_t, minlength=len(cand))
+        n_w = np.einsum("kij,kj->ki", self.R[tracks.obs_frame[obs]], tracks.obs_normal[obs])
+        A = np.zeros((len(cand), 3, 3))
+        np.add.at(A, local_t, n_w[:, :, None] * n_w[:, None, :])
+        ev = np.linalg.eigvalsh(A)
+        ratio = ev[:, 1] / np.maximum(ev[:, 1] + ev[:, 2], 1e-300)
+        parallax = np.degrees(2.0 * np.arcsin(np.sqrt(np.clip(ratio, 0.0, 1.0))))
+        ready = (cnt >= o.min_views) & (parallax >= o.min_parallax_deg)
+        if not ready.any():
+            return
+        keep = ready[local_t]
+        sub = _subtracks(tracks, obs[keep], cand)
+        dd, pp, ok = triangulate_lines(sub, self.R, self.c, min_observations=o.min_views)
+        ang = observation_residuals(sub, self.R, self.c, dd, pp)
+        rms = np.sqrt(np.bincount(sub.obs_track, ang ** 2, len(cand)) /
+                      np.maximum(np.bincount(sub.obs_track, minlength=len(cand)), 1))
+        good = ok & (rms <= self.thr)
+        self.d[cand[good]], self.p[cand[good]] = dd[good], pp[good]
+        self.known[cand[good]] = True
+
+    # -- 4: local adjustment -------------------------------------------------------------------
+    def adjust(self, window: np.ndarray) -> None:
+        """Bundle adjustment of the registered frames ``window`` and the known lines they see;
+        every other registered frame that sees those lines takes part, held (its observations
+        keep the lines where the earlier frames put them: in a stop, the window alone would
+        leave the lines' depths free)."""
+        tracks = self.tracks
+        obs = np.concatenate([self.frame_obs(int(k)) for k in window])
+        lines = np.unique(tracks.obs_track[obs])
+        lines = lines[self.known[lines]]
+        if len(lines) < 3:
+            return
+        obs = self.track_obs(lines)
+        obs = obs[self.est[tracks.obs_frame[obs]]]
+        frames = np.unique(tracks.obs_frame[obs])
+        held = np.setdiff1d(frames, window)
+        if len(held) == 0:
+            return
+        lines = np.sort(lines)
+        sub = _subtracks(tracks, obs, lines, frames)
+        held_sub = np.isin(frames, held)
+        c_held = self.c[held]
+        spread = len(held) > 1 and float(np.ptp(c_held, axis=0).max()) > 0
+        try:
+            res = bundle_adjust(sub, self.R[frames], self.c[frames], self.d[lines],
+                                self.p[lines], held_frames=held_sub,
+                                scale_frames=held_sub if spread else None, options=self.local)
+        except OmniSfmError:
+            return
+        ok = res.frames
+        self.R[frames[ok]], self.c[frames[ok]] = res.rotations[ok], res.positions[ok]
+        used = res.used_tracks
+        self.d[lines[used]], self.p[lines[used]] = res.line_directions[used], \
+            res.line_points[used]
+        bad = lines[res.outlier_tracks]
+        self.known[bad] = False
+        self.rejected[bad] = True
+        self.d[bad], self.p[bad] = np.nan, np.nan
+
+    # -- the growth ----------------------------------------------------------------------------
+    def grow(self, forward: bool) -> None:
+        o, F = self.o, self.tracks.num_frames
+        order = [int(k) for k in np.flatnonzero(self.est)]
+        if len(order) < 2:
+            return
+        if not forward:
+            order = order[::-1]
+        step = 1 if forward else -1
+        f = order[-1] + step
+        misses, first_miss, since = 0, -1, 0
+        while 0 <= f < F:
+            if self.est[f]:
+                f += step
+                continue
+            why = self.register(f, order[-1], order[-2] if len(order) > 1 else None)
+            if why is None:
+                order.append(f)
+                self.added += 1
+                self.reasons.pop(f, None)
+                misses = 0
+                self.triangulate(f)
+                since += 1
+                if (since >= o.local_every or self.refit) and len(order) > o.local_frames:
+                    since = 0
+                    self.adjust(np.asarray(order[-o.local_frames:]))
+            else:
+                self.reasons[f] = why
+                if misses == 0:
+                    first_miss = f
+                misses += 1
+                if misses >= o.max_misses:
+                    self.stops.append((first_miss, step))
+                    return
+            f += step
+
+
+def _subtracks(tracks: LineTracks, obs: np.ndarray, lines: np.ndarray,
+               frames: np.ndarray | None = None) -> LineTracks:
+    """The observations ``obs`` as tracks ``0..len(lines)-1`` (``lines`` sorted); their frames
+    renumbered ``0..len(frames)-1`` if ``frames`` (sorted) is given, else kept."""
+    f = tracks.obs_frame[obs]
+    num = tracks.num_frames
+    ts = tracks.timestamps
+    if frames is not None:
+        f = np.searchsorted(frames, f)
+        num, ts = len(frames), tracks.timestamps[frames]
+    return LineTracks(
+        num_frames=num, track_ids=tracks.track_ids[lines],
+        obs_track=np.searchsorted(lines, tracks.obs_track[obs]), obs_frame=f,
+        obs_normal=tracks.obs_normal[obs], timestamps=ts,
+        obs_ray=None if tracks.obs_ray is None else tracks.obs_ray[obs],
+        obs_sigma=None if tracks.obs_sigma is None else tracks.obs_sigma[obs])
+
+
+def register_frames(tracks: LineTracks, rotations: FloatArray, positions: FloatArray,
+                    estimated: np.ndarray, line_directions: FloatArray, line_points: FloatArray,
+                    sigma_deg: float, bundle: BundleOptions,
+                    options: IncrementalOptions | None = None) -> Registration:
+    """Grow the ``estimated`` frames (``(F,)`` bool, at least 2, with their poses and the known
+    lines ``(M, 3)``, NaN where unknown) forwards and backwards by resection (module docstring).
+
+    ``sigma_deg``: the NV noise (per axis) at the starting solution, which scales the inlier
+    test. Returns the grown poses and lines; the starting poses are adjusted along by the local
+    adjustments next to them.
+    """
+    o = options or IncrementalOptions()
+    g = _Growth(tracks, rotations, positions, estimated, line_directions, line_points,
+                float(np.radians(sigma_deg)), o, bundle)
+    g.grow(True)
+    g.grow(False)
+    R = np.where(g.est[:, None, None], g.R, np.nan)
+    c = np.where(g.est[:, None], g.c, np.nan)
+    d = np.where(g.known[:, None], g.d, np.nan)
+    p = np.where(g.known[:, None], g.p, np.nan)
+    return Registration(R, c, g.est, d, p, g.reasons, g.stops, g.added)
+
+

@@ -1,0 +1,99 @@
+"""Incremental registration beyond the windows (omni_sfm/estimate/incremental.py): frames posed
+from lines already reconstructed, through stops and turns in place."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from functools import lru_cache
+
+import numpy as np
+
+from omni_sfm.estimate.bundle import resect_pose
+from omni_sfm.estimate.incremental import centre_given_rotation, rotation_from_directions
+from omni_sfm.estimate.pipeline import estimate_poses
+from omni_sfm.evaluate import trajectory_errors
+from omni_sfm.geometry import line_plane_normals, normalize, rotvec_to_matrix
+from omni_sfm.lines.tracks import LineTracks, make_tracks
+from omni_sfm.poses import Trajectory
+from omni_sfm.synth.paths import PathOptions, Route, camera_path
+from omni_sfm.synth.scenes import SceneName, make_scene
+
+
+def _observe(gt: Trajectory, starts: np.ndarray, ends: np.ndarray, noise_deg: float,
+             max_range: float, seed: int) -> LineTracks:
+    """Each true segment's line as a track in the frames that see its middle within
+    ``max_range`` and under an angle of 5 deg or more, with Gaussian noise on the normals."""
+    rng = np.random.default_rng(seed)
+    mid, d = (starts + ends) / 2.0, normalize(ends - starts)
+    c = gt.positions
+    dist = np.linalg.norm(mid[:, None, :] - c[None], axis=2)  # (L, F)
+    a = normalize(starts[:, None, :] - c[None])
+    b = normalize(ends[:, None, :] - c[None])
+    span = np.degrees(np.arccos(np.clip(np.sum(a * b, 2), -1, 1)))
+    seen = (dist < max_range) & (span > 5.0)
+    m, f = np.nonzero(seen)
+    n_w = normalize(line_plane_normals(c[f], mid[m], d[m]))
+    n = np.einsum("kji,kj->ki", gt.rotations[f], n_w)
+    ax = normalize(np.cross(n, rng.normal(size=n.shape)))
+    ang = np.radians(noise_deg) * rng.normal(size=(len(n), 1))
+    n = n * np.cos(ang) + np.cross(ax, n) * np.sin(ang)
+    return make_tracks(len(gt), np.arange(len(starts)), m, f, n, source="test")
+
+
+@lru_cache(maxsize=1)
+def _stop_and_go() -> tuple[LineTracks, Trajectory]:
+    scene = make_scene(SceneName.OFFICE)
+    gt = camera_path(scene, PathOptions(num_frames=120, route=Route.STOP_AND_GO))
+    segs = scene.lines
+    return _observe(gt, segs.starts, segs.ends, 0.05, 5.0, 0), gt
+
+
+def test_stop_and_go_is_one_trajectory() -> None:
+    # drive, stop, turn 90 deg in place, drive on: one trajectory in one world and scale
+    tracks, gt = _stop_and_go()
+    step = np.linalg.norm(np.diff(gt.positions, axis=0), axis=1)
+    assert (step < 1e-9).sum() >= 20  # the stop is in the data
+    res = estimate_poses(tracks)
+    assert res.estimated.all()
+    err = trajectory_errors(res.trajectory, gt)
+    assert err.rot_max_deg < 0.5 and err.ate_rel < 0.01
+    # the stopped frames stay together (the estimate's path length is 1 from first to last)
+    pos = res.trajectory.positions[1:][step < 1e-9]
+    assert np.ptp(pos, axis=0).max() < 0.01
+
+
+def test_resection_from_known_lines_is_exact() -> None:
+    rng = np.random.default_rng(3)
+    d = normalize(rng.normal(size=(8, 3)))
+    p = rng.normal(size=(8, 3)) * 3
+    R = rotvec_to_matrix(np.array([0.2, -0.4, 0.9]))
+    c = np.array([0.3, -0.2, 0.5])
+    n = normalize(line_plane_normals(c[None], p, d)) @ R  # camera frame
+    n *= rng.choice([-1.0, 1.0], size=(8, 1))
+    # from a start 10 deg and 0.3 away
+    R0 = R @ rotvec_to_matrix(np.radians([6.0, -5.0, 6.0]))
+    R1 = rotation_from_directions(n, d, R0)
+    assert np.allclose(R1, R, atol=1e-9)
+    c1 = centre_given_rotation(n, d, p, R1)
+    assert c1 is not None and np.allclose(c1, c, atol=1e-9)
+    R2, c2, ang = resect_pose(n, d, p, R0, c + 0.3, scale=np.inf)
+    assert np.allclose(R2, R, atol=1e-9) and np.allclose(c2, c, atol=1e-9)
+    assert ang.max() < 1e-9
+    # lines of one direction leave the centre along it free
+    d1 = np.repeat(d[:1], 4, 0)
+    n1 = normalize(line_plane_normals(c[None], p[:4], d1)) @ R
+    assert centre_given_rotation(n1, d1, p[:4], R) is None
+
+
+def test_reasons_name_every_frame_not_registered() -> None:
+    tracks, gt = _stop_and_go()
+    # cut every line out of the last 15 frames but 2: nothing can pose them
+    last = tracks.obs_frame >= len(gt) - 15
+    keep = ~last | (tracks.obs_track < 2)
+    t2 = replace(tracks, obs_track=tracks.obs_track[keep], obs_frame=tracks.obs_frame[keep],
+                 obs_normal=tracks.obs_normal[keep])
+    res = estimate_poses(t2)
+    assert res.estimated[:len(gt) - 15].all() and not res.estimated[len(gt) - 15:].any()
+    reasons = res.report["frames_not_estimated_reasons"]
+    assert sorted(map(int, reasons)) == list(range(len(gt) - 15, len(gt)))
+    assert "lines already reconstructed" in reasons[str(len(gt) - 15)]
