@@ -115,6 +115,13 @@ def summary(rep: dict[str, Any], output: Path, estimated: list[str], not_estimat
              + ("rotation only: the camera turned without moving, positions are 0 and the "
                 "scale is undetermined" if "motion" in rep else
                 "first-to-last camera distance = 1")]
+    segs = rep.get("segments") or []
+    if segs:
+        n_seg = sum(int(sg["num_frames_estimated"]) for sg in segs)
+        lines.append(f"segments: {n_seg} more frames in {len(segs)} separate piece"
+                     f"{'' if len(segs) == 1 else 's'}, each in its own world and scale "
+                     f"({', '.join(sg['file'] for sg in segs)}): no line links them to the "
+                     "main trajectory")
     if not_estimated:
         lines.append(f"not estimated: {len(not_estimated)} frames ({_names(not_estimated)}; "
                      "reasons in report.json)")

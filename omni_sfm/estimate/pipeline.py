@@ -92,11 +92,43 @@ class EstimationOptions:
     explains the NVs this well (median angle, degrees); otherwise the paper's error stands.
     Translation changes the NVs by the parallax the paper's method needs (at least
     ``paper.min_parallax_deg``), which no rotation can explain."""
+    min_segment_frames: int = 30
+    """Where the registration stops and at least this many frames remain without a pose, the
+    estimator starts again on them: a new segment in its own world and scale
+    (``trajectory_segment_<k>.tum``). 0: no new segments."""
+    max_segments: int = 20
+    """At most this many segments besides the main trajectory."""
     multistart_min_difference: float = 0.05
     """An alternative start is refined only if its camera centres differ from every start
     already refined by more than this fraction (RMS, after least-squares scaling) of the RMS
     distance of the cameras from the first: nearby starts fall into the same basin (at low
     noise all starts agree and nothing extra is run)."""
+
+
+SEGMENT_FILE = "trajectory_segment_{}.tum"
+
+
+@dataclass(frozen=True)
+class Segment:
+    """A stretch of frames estimated on its own, in its own world and scale: nothing links it
+    to the main trajectory (no line is seen on both sides of the gap).
+
+    Attributes:
+        number: 1, 2, ... (in the order of their first frame).
+        frames: ``(F,)`` bool, its frames among all.
+        trajectory: world_from_cam of its frames (world: its first frame's camera; distance
+            between its first and last camera = 1).
+        report: what the estimator reported about it (frames, residuals, reflection).
+    """
+
+    number: int
+    frames: np.ndarray
+    trajectory: Trajectory
+    report: dict[str, Any]
+
+    @property
+    def file(self) -> str:
+        return SEGMENT_FILE.format(self.number)
 
 
 @dataclass(frozen=True)
@@ -123,6 +155,7 @@ class EstimationResult:
         sigma_deg: robust estimate of the NV noise (per axis) at the solution, degrees.
         scale_convention: the world and scale of the result, in words.
         report: the JSON-ready report (see docs/formats.md).
+        segments: the stretches estimated on their own, each in its own world and scale.
     """
 
     trajectory: Trajectory
@@ -142,6 +175,7 @@ class EstimationResult:
     sigma_deg: float
     scale_convention: str
     report: dict[str, Any]
+    segments: tuple[Segment, ...] = ()
 
 
 @dataclass
@@ -329,6 +363,7 @@ def estimate_poses(tracks: LineTracks,
     timings: dict[str, float] = defaultdict(float)
     try:
         result = _estimate_moving(tracks, options, timings, t_all)
+        result = _with_segments(tracks, result, options)
     except OmniSfmError as exc:
         rot_only = _try_rotation_only(tracks, options, timings)
         if rot_only is None:
@@ -426,6 +461,81 @@ def _estimate_moving(tracks: LineTracks, options: EstimationOptions,
         windows=windows, timings_ms=dict(timings), residual_rms_initial_deg=rms0,
         residual_rms_final_deg=rms1, sigma_deg=sigma, scale_convention=SCALE_CONVENTION,
         report=report)
+
+
+def frame_range(tracks: LineTracks, start: int, stop: int) -> LineTracks:
+    """The observations of frames ``start..stop-1``, renumbered from 0 (timestamps kept)."""
+    keep = (tracks.obs_frame >= start) & (tracks.obs_frame < stop)
+    used = np.unique(tracks.obs_track[keep])
+    return LineTracks(
+        num_frames=stop - start, track_ids=tracks.track_ids[used],
+        obs_track=np.searchsorted(used, tracks.obs_track[keep]),
+        obs_frame=tracks.obs_frame[keep] - start, obs_normal=tracks.obs_normal[keep],
+        timestamps=tracks.timestamps[start:stop].copy(),
+        obs_ray=None if tracks.obs_ray is None else tracks.obs_ray[keep],
+        obs_sigma=None if tracks.obs_sigma is None else tracks.obs_sigma[keep])
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """``[(start, stop)]`` of the runs of True in ``mask``."""
+    m = np.concatenate([[False], np.asarray(mask, bool), [False]])
+    edges = np.flatnonzero(np.diff(m.astype(np.int8)))
+    return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)]
+
+
+def _with_segments(tracks: LineTracks, result: EstimationResult,
+                   options: EstimationOptions) -> EstimationResult:
+    """Start again on the stretches the main trajectory leaves (docs/estimator.md, stage 8):
+    each estimated stretch is a segment in its own world and scale; its frames' reasons say so,
+    and the report lists the segments."""
+    if options.min_segment_frames <= 0:
+        return result
+    F = tracks.num_frames
+    covered = result.estimated.copy()
+    todo = [r for r in _runs(~covered) if r[1] - r[0] >= options.min_segment_frames]
+    found: list[tuple[np.ndarray, Trajectory, dict[str, Any], int]] = []
+    failures: dict[tuple[int, int], str] = {}
+    while todo and len(found) < options.max_segments:
+        a, b = todo.pop(0)
+        try:
+            sub = _estimate_moving(frame_range(tracks, a, b), options, defaultdict(float),
+                                   time.perf_counter())
+        except OmniSfmError as exc:
+            failures[(a, b)] = str(exc)
+            continue
+        frames = np.zeros(F, bool)
+        frames[a + np.flatnonzero(sub.estimated)] = True
+        covered |= frames
+        found.append((frames, sub.trajectory, sub.report, a))
+        todo += [(a + x, a + y) for x, y in _runs(~sub.estimated)
+                 if y - x >= options.min_segment_frames]
+    if not found and not failures:
+        return result
+    found.sort(key=lambda s: int(np.flatnonzero(s[0])[0]))
+    segments = tuple(Segment(k + 1, fr, tr, rep) for k, (fr, tr, rep, _) in enumerate(found))
+    report = dict(result.report)
+    reasons = dict(report.get("frames_not_estimated_reasons", {}))
+    for seg in segments:
+        for k in np.flatnonzero(seg.frames):
+            reasons[str(k)] = (f"estimated in segment {seg.number} ({seg.file}), in its own "
+                               f"world and scale: no line links it to the main trajectory")
+    for (a, b), why in failures.items():
+        for j in range(a, b):
+            if not covered[j]:
+                reasons[str(j)] = f"{reasons.get(str(j), 'not estimated')}; a new start on " \
+                                  f"frames {a}-{b - 1} failed: {why}"
+    report["frames_not_estimated_reasons"] = reasons
+    report["segments"] = [{
+        "file": seg.file,
+        "frames": [int(np.flatnonzero(seg.frames)[0]), int(np.flatnonzero(seg.frames)[-1])],
+        "num_frames_estimated": int(seg.frames.sum()),
+        "world": "camera of the segment's first estimated frame (world_from_cam, TUM)",
+        "scale_convention": "distance between the segment's first and last estimated camera "
+                            "centres = 1",
+        "residual_rms_deg": seg.report["residuals"]["rms_final_deg"],
+        "windows": [[w0 + a, w1 + a] for w0, w1 in seg.report["windows"]],
+    } for seg, (_, _, _, a) in zip(segments, found, strict=True)]
+    return replace(result, report=report, segments=segments)
 
 
 def _extend(tracks: LineTracks, ba: BundleResult, init: _Init, options: EstimationOptions,
@@ -601,11 +711,15 @@ def write_init_outputs(directory: Path, result: EstimationResult,
     """
     directory = Path(directory)
     write_tum(directory / TRAJECTORY_FILE, result.trajectory)
+    written = [directory / TRAJECTORY_FILE]
+    for seg in result.segments:
+        write_tum(directory / seg.file, seg.trajectory)
+        written.append(directory / seg.file)
     report = dict(result.report)
     if extra:
         report.update(extra)
     atomic_write_text(directory / REPORT_FILE, dumps_json(report))
-    return [directory / TRAJECTORY_FILE, directory / REPORT_FILE]
+    return [*written, directory / REPORT_FILE]
 
 
 def reflect_positions(traj: Trajectory) -> Trajectory:
