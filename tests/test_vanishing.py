@@ -10,12 +10,12 @@ from omni_sfm.lines.tracks import LineTracks, make_tracks
 from omni_sfm.synth.simulate import Simulation, SimulationOptions, simulate
 from omni_sfm.vanishing import (
     VanishingOptions,
-    _smallest_eigvec3,
-    _triple_eigs,
     chain_signs,
     detect_parallel_families,
     detect_parallel_family,
 )
+from omni_sfm.vanishing._groups import SortedMultiset, smallest_eigvec3
+from omni_sfm.vanishing._triples import triple_eigs
 
 
 def _true_vpv(sim: Simulation) -> np.ndarray:
@@ -155,14 +155,35 @@ def test_closed_form_eigen_helpers_match_numpy() -> None:
     n[2, :100] = np.cross(n[0, :100], n[1, :100] + 0.01 * rng.normal(size=(100, 3)))
     n[2, :100] = np.cross(n[2, :100], rng.normal(size=(100, 3)))  # nearly coplanar triples
     n /= np.linalg.norm(n, axis=-1, keepdims=True)
-    lam_min, lam_mid = _triple_eigs(n[0], n[1], n[2])
+    lam_min, lam_mid = triple_eigs(n[0], n[1], n[2])
     S = np.einsum("tki,tkj->kij", n, n)
     ref = np.linalg.eigvalsh(S)
     np.testing.assert_allclose(lam_min, ref[:, 0], atol=1e-12)
     np.testing.assert_allclose(lam_mid, ref[:, 1], atol=1e-12)
-    vec = _smallest_eigvec3(S)
+    vec = smallest_eigvec3(S)
     ref_vec = np.linalg.eigh(S)[1][:, :, 0]
     np.testing.assert_allclose(np.abs(np.sum(vec * ref_vec, 1)), 1.0, atol=1e-9)
+
+
+def test_sorted_multiset_median_is_numpys() -> None:
+    """The running median of a group's residuals (the noise level) is exactly np.median's,
+    ties, pending changes and merges into the sorted base included."""
+    rng = np.random.default_rng(2)
+    for ties in (False, True):
+        draw = (lambda k: np.round(rng.random(k) * 5) / 5) if ties else rng.random
+        values = list(draw(1500))
+        ms = SortedMultiset(np.array(values))
+        for _ in range(40):
+            gone = rng.choice(len(values), size=rng.integers(0, 150), replace=False)
+            removed = np.array([values[i] for i in gone])
+            values = [v for i, v in enumerate(values) if i not in set(gone.tolist())]
+            added = draw(int(rng.integers(0, 150)))
+            values += added.tolist()
+            ms.update(removed, added)
+            assert ms.size == len(values)
+            assert ms.median() == np.median(values)
+            k = int(rng.integers(len(values)))
+            assert ms.kth(k) == np.sort(values)[k]
 
 
 def _families(tracks: LineTracks, **options) -> list[list[int]]:
@@ -240,3 +261,70 @@ def test_every_option_is_checked() -> None:
     marks = test_options_are_respected.pytestmark  # type: ignore[attr-defined]
     covered = {k for m in marks if m.name == "parametrize" for _, o, _ in m.args[1] for k in o}
     assert covered == {f.name for f in fields(VanishingOptions)}
+
+
+def _long_corridor_walk(num_frames: int = 3000, per_frame: int = 25, seen: int = 50,
+                        noise_deg: float = 0.2, seed: int = 11
+                        ) -> tuple[LineTracks, np.ndarray, np.ndarray]:
+    """A long walk along x past Manhattan lines, each seen in ``seen`` +- 10 consecutive frames
+    (about ``per_frame`` lines per frame): vertical ones on the walls (the largest family),
+    horizontal ones along and across the walk on the floor and the ceiling. Only the visible
+    observations are built. Returns the tracks, each track's axis (0 x, 1 y, 2 z) and the
+    world_from_cam rotations ``(F, 3, 3)``."""
+    rng = np.random.default_rng(seed)
+    k = np.arange(num_frames)
+    centres = np.stack([0.05 * k, 0.3 * np.sin(k / 200), 0.03 * np.sin(k / 15)], 1)
+    yaw, pitch = 0.6 * np.sin(k / 350), np.radians(2.0) * np.sin(k / 40)
+    cy, sy, cp, sp = np.cos(yaw), np.sin(yaw), np.cos(pitch), np.sin(pitch)
+    zero, one = np.zeros(num_frames), np.ones(num_frames)
+    Rz = np.stack([np.stack([cy, -sy, zero], 1), np.stack([sy, cy, zero], 1),
+                   np.stack([zero, zero, one], 1)], 1)
+    Ry = np.stack([np.stack([cp, zero, sp], 1), np.stack([zero, one, zero], 1),
+                   np.stack([-sp, zero, cp], 1)], 1)
+    R = Rz @ Ry
+    M = per_frame * num_frames // seen
+    axis = rng.choice(3, size=M, p=[0.3, 0.25, 0.45])
+    length = rng.integers(seen - 10, seen + 11, size=M)
+    start = rng.integers(0, num_frames - length + 1)
+    height = np.where(rng.random(M) < 0.5, -1.5, 1.0) + rng.uniform(-0.2, 0.2, M)
+    offset = np.stack([rng.uniform(-1, 1, M),
+                       rng.choice([-1.0, 1.0], M) * rng.uniform(0.8, 2.5, M),
+                       np.where(axis == 2, 0.0, height)], 1)
+    points = centres[start + length // 2] + offset
+    tt = np.repeat(np.arange(M), length)
+    ff = np.repeat(start - (np.cumsum(length) - length), length) + np.arange(length.sum())
+    n = np.einsum("kji,kj->ki", R[ff], np.cross(points[tt] - centres[ff], np.eye(3)[axis[tt]]))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    across = np.cross(n, rng.normal(size=n.shape))
+    n += np.radians(noise_deg) * rng.normal(size=(len(n), 1)) * across \
+        / np.linalg.norm(across, axis=1, keepdims=True)
+    n *= rng.choice([-1.0, 1.0], size=(len(n), 1)) / np.linalg.norm(n, axis=1, keepdims=True)
+    return make_tracks(num_frames, np.arange(M), tt, ff, n), axis, R
+
+
+def test_long_sparse_sequence(monkeypatch: pytest.MonkeyPatch) -> None:
+    """3000 frames, ~1500 tracks each seen in ~50 of them: the families come from the sparse
+    observations (no tracks x frames arrays), one direction each, and the vertical one pure
+    and whole, with its VPV right and of one sign (groups grown in different stretches merge;
+    groups of different directions, which meet in many frames, do not)."""
+    tracks, axis, R = _long_corridor_walk()
+
+    def dense(*_: object) -> None:
+        raise AssertionError("parallel-family detection must not build (M, F) arrays")
+
+    monkeypatch.setattr(LineTracks, "visibility", dense)
+    monkeypatch.setattr(LineTracks, "dense_normals", dense)
+    fams = detect_parallel_families(tracks)
+    assert len(fams) == 3
+    for fam in fams:                                  # one direction each (the smaller ones
+        assert np.bincount(axis[fam.members]).max() >= 0.9 * fam.size  # may pick up a few)
+    vertical = fams[0]
+    assert np.all(axis[vertical.members] == 2)
+    assert vertical.size >= 0.97 * np.count_nonzero(axis == 2)
+    ok = np.isfinite(vertical.vpv).all(axis=1)
+    assert ok.mean() >= 0.97
+    dots = np.sum(vertical.vpv[ok] * R[ok, 2, :], axis=1)       # truth: R^T z
+    ang = np.degrees(np.arccos(np.clip(np.abs(dots), 0.0, 1.0)))
+    majority = np.sign(np.sum(np.sign(dots)))
+    # a few frames see only nearly coplanar members (an ill-determined VPV)
+    assert np.mean((np.sign(dots) == majority) & (ang < 1.0)) >= 0.99

@@ -12,8 +12,9 @@ frame, forwards then backwards, as incremental structure from motion does with p
    pose parameters, lines held), started from two predictions: constant velocity and turn rate
    from the last registered frames, and the rotation that best aligns the observed normals with
    the known line directions (``n . R^T d = 0``) with the centre then solved linearly given it
-   (``R n . c = R n . p``: each plane passes through its line); the lower robust cost wins. A camera that stands still
-   or turns in place is posed like any other: the known lines fix its position.
+   (``R n . c = R n . p``: each plane passes through its line); the lower robust cost
+   wins. A camera that stands still or turns in place is posed like any other: the known
+   lines fix its position.
 2. **Acceptance.** The frame is kept if at least ``min_lines`` of its known lines fit within
    ``inlier_sigmas`` times the noise, in at least two directions ``min_angle_deg`` apart (one
    direction leaves the position along it free); the pose is then solved again on those.

@@ -11,20 +11,32 @@ family, and the others (Manhattan scenes) are returned too. Its VPV is then
 recomputed in every frame from all the members seen there (eq. 5) and its sign chained through
 time, so that ``v_k`` points the same way in the world in every frame.
 
-Works with partial tracks: a triple is only tested on the frames all three share.
+Works with partial tracks: a triple is only tested on the frames all three share. Everything
+runs on the sparse observations (``_observations.ObsIndex``), never on ``tracks x frames``
+arrays, so long videos (tens of thousands of frames, tracks seen in a few dozen) cost about
+their number of observations: triples are drawn among tracks that share frames
+(``_triples``), and a group's residuals are updated only in the frames of the tracks that
+join or leave it (``_groups.GroupState``).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from itertools import combinations
-from math import comb
 
 import numpy as np
 
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.geometry import FloatArray, smallest_eigenvector
 from omni_sfm.lines.tracks import LineTracks
+from omni_sfm.vanishing._groups import (
+    GroupState,
+    StateCache,
+    family_arrays,
+    merge_groups,
+    refine_state,
+)
+from omni_sfm.vanishing._observations import ObsIndex
+from omni_sfm.vanishing._triples import draw_triples, seed_threshold, triple_means
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -168,232 +180,6 @@ def chain_signs(vpv: FloatArray, reference: FloatArray | None = None) -> FloatAr
     return out
 
 
-def _triple_eigs(n1: FloatArray, n2: FloatArray, n3: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Smallest and middle eigenvalue of ``sum n n^T`` for three unit normals ``(..., 3)``.
-
-    Via the Gram matrix ``G = [[1,a,b],[a,1,c],[b,c,1]]`` (same eigenvalues): ``G = I + B`` and
-    the eigenvalues of ``B`` solve the depressed cubic ``mu^3 - (a^2+b^2+c^2) mu - 2abc = 0``,
-    three real roots given by the trigonometric formula. Sign-invariant in each normal.
-    """
-    a = np.sum(n1 * n2, -1)
-    b = np.sum(n1 * n3, -1)
-    c = np.sum(n2 * n3, -1)
-    p = a * a + b * b + c * c
-    q = 2.0 * a * b * c
-    r = np.sqrt(np.maximum(p / 3.0, 1e-100))
-    th = np.arccos(np.clip(q / (2.0 * r ** 3), -1.0, 1.0)) / 3.0      # in [0, pi/3]
-    # roots 2 r cos(th - 2 pi k / 3): k = 2 is the smallest, k = 1 the middle one
-    lam_min = 1.0 + 2.0 * r * np.cos(th + 2.0 * np.pi / 3.0)
-    lam_mid = 1.0 + 2.0 * r * np.cos(th - 2.0 * np.pi / 3.0)
-    return np.maximum(lam_min, 0.0), lam_mid
-
-
-def _smallest_eigvec3(S: FloatArray) -> FloatArray:
-    """Unit eigenvectors ``(K, 3)`` of the smallest eigenvalue of symmetric PSD ``S (K, 3, 3)``.
-
-    Closed form (much faster than a batched ``eigh`` for many small matrices): the eigenvalue
-    by the trigonometric formula, the vector as the largest cross product of two rows of
-    ``S - lambda I``.
-    """
-    a, b, c = S[:, 0, 0], S[:, 1, 1], S[:, 2, 2]
-    d, e, f = S[:, 0, 1], S[:, 0, 2], S[:, 1, 2]
-    tr = (a + b + c) / 3.0
-    a0, b0, c0 = a - tr, b - tr, c - tr
-    p = np.sqrt(np.maximum((a0 * a0 + b0 * b0 + c0 * c0 + 2.0 * (d * d + e * e + f * f)) / 6.0,
-                           1e-200))
-    det = a0 * (b0 * c0 - f * f) - d * (d * c0 - f * e) + e * (d * f - b0 * e)
-    th = np.arccos(np.clip(det / (2.0 * p ** 3), -1.0, 1.0)) / 3.0
-    lam = tr + 2.0 * p * np.cos(th + 2.0 * np.pi / 3.0)
-    a1, b1, c1 = a - lam, b - lam, c - lam
-    # rows r0 = (a1, d, e), r1 = (d, b1, f), r2 = (e, f, c1) and their cross products
-    x01 = np.stack([d * f - e * b1, e * d - a1 * f, a1 * b1 - d * d], 1)
-    x02 = np.stack([d * c1 - e * f, e * e - a1 * c1, a1 * f - d * e], 1)
-    x12 = np.stack([b1 * c1 - f * f, f * e - d * c1, d * f - b1 * e], 1)
-    cand = np.stack([x01, x02, x12], 1)
-    norms = np.einsum("kij,kij->ki", cand, cand)
-    best = np.argmax(norms, axis=1)
-    k = np.arange(S.shape[0])
-    return cand[k, best] / np.sqrt(np.maximum(norms[k, best], 1e-300))[:, None]
-
-
-def _draw_triples(vis: np.ndarray, opts: VanishingOptions,
-                  rng: np.random.Generator) -> np.ndarray:
-    """``(T, 3)`` sorted unique track triples to test (all of them if few enough)."""
-    M = vis.shape[0]
-    if comb(M, 3) <= opts.max_triples:
-        return np.array(list(combinations(range(M), 3)), dtype=np.int64).reshape(-1, 3)
-    visf = vis.astype(np.float32)
-    overlap = visf @ visf.T
-    np.fill_diagonal(overlap, 0)
-    s = opts.min_shared_frames
-    T = opts.max_triples
-    ok_i = np.flatnonzero((overlap >= s).sum(1) >= 2)
-    if ok_i.size == 0:
-        return np.zeros((0, 3), dtype=np.int64)
-    i = rng.choice(ok_i, size=T)
-    key = rng.random((T, M)) * (overlap[i] >= s)
-    j = np.argmax(key, axis=1)
-    good = key[np.arange(T), j] > 0
-    i, j = i[good], j[good]
-    both = (vis[i] & vis[j]).astype(np.float32)
-    tri = both @ visf.T                                                  # (T, M) triple overlap
-    tri[np.arange(len(i)), i] = 0
-    tri[np.arange(len(i)), j] = 0
-    key = rng.random(tri.shape) * (tri >= s)
-    k = np.argmax(key, axis=1)
-    good = key[np.arange(len(i)), k] > 0
-    out = np.sort(np.stack([i[good], j[good], k[good]], 1), axis=1)
-    key = np.unique((out[:, 0] * M + out[:, 1]) * M + out[:, 2])
-    return np.stack([key // (M * M), (key // M) % M, key % M], 1)
-
-
-def _triple_means(normals: FloatArray, vis: np.ndarray, triples: np.ndarray,
-                  opts: VanishingOptions, chunk: int = 2000) -> FloatArray:
-    """``(T,)`` mean over the shared frames of ``min_v sum_i (n_i . v)^2`` (eq. 5-6) of each
-    triple; ``inf`` where fewer than ``min_shared_frames`` frames test it (``min_spread``)."""
-    out = np.full(len(triples), np.inf)
-    for s in range(0, len(triples), chunk):
-        t = triples[s:s + chunk]
-        n1, n2, n3 = normals[t[:, 0]], normals[t[:, 1]], normals[t[:, 2]]
-        shared = vis[t[:, 0]] & vis[t[:, 1]] & vis[t[:, 2]]
-        lam_min, lam_mid = _triple_eigs(n1, n2, n3)
-        use = shared & (lam_mid >= opts.min_spread)
-        cnt = use.sum(1)
-        mean = np.where(use, lam_min, 0.0).sum(1) / np.maximum(cnt, 1)
-        out[s:s + chunk] = np.where(cnt >= opts.min_shared_frames, mean, np.inf)
-    return out
-
-
-def _seed_threshold(means: FloatArray, opts: VanishingOptions) -> float:
-    """Noise-adaptive threshold on a triple's mean: ``min(p_th, seed_factor * q25)``.
-
-    ``q25`` is the lower quartile of the means that pass ``p_th``: parallel triples have the
-    smallest means (about the noise variance), so as long as they are a quarter of the passing
-    ones it measures the noise; accidental near-coplanar triples lie far above.
-    """
-    cand = means[means <= opts.p_th]
-    if cand.size == 0:
-        return opts.p_th
-    q = float(np.quantile(cand, 0.25))
-    return min(opts.p_th, max(opts.seed_factor * q, np.radians(opts.min_noise_deg) ** 2))
-
-
-def _quad_inv(T: FloatArray, n: FloatArray) -> FloatArray:
-    """``n^T T^-1 n`` for symmetric ``T (K, 3, 3)`` and ``n (K, 3)`` (adjugate formula)."""
-    a, b, c = T[:, 0, 0], T[:, 1, 1], T[:, 2, 2]
-    d, e, f = T[:, 0, 1], T[:, 0, 2], T[:, 1, 2]
-    A00, A11, A22 = b * c - f * f, a * c - e * e, a * b - d * d
-    A01, A02, A12 = e * f - d * c, d * f - e * b, d * e - a * f
-    det = a * A00 + d * A01 + e * A02
-    x, y, z = n[:, 0], n[:, 1], n[:, 2]
-    num = A00 * x * x + A11 * y * y + A22 * z * z + 2.0 * (A01 * x * y + A02 * x * z + A12 * y * z)
-    return num / np.where(np.abs(det) > 1e-300, det, 1e-300)
-
-
-def _track_residuals(normals: FloatArray, vis: np.ndarray, members: np.ndarray,
-                     opts: VanishingOptions) -> tuple[FloatArray, FloatArray, FloatArray,
-                                                      np.ndarray, np.ndarray]:
-    """Leave-one-out residuals of every track against the members' VPV, noise-normalised.
-
-    A member's normal is tested against the VPV of the *other* members seen in that frame, any
-    other track against the VPV of all members. The squared residual ``(n . v)^2`` is divided by
-    ``1 + n^T S^+ n`` (``S = sum n n^T`` of the lines defining ``v``, ``S^+`` its inverse across
-    ``v``): the variance that ``v``'s own error adds, large where ``v`` rests on 2 nearby
-    normals. Every normalised residual then has the same variance (that of ``n . v_true``).
-
-    Returns ``(M, F)`` normalised squared residuals, ``(M, F)`` usable mask (at least 2 other
-    members define the VPV), ``(M,)`` mean over usable frames (NaN where fewer than
-    ``min_shared_frames``), the VPV of all members ``(F, 3)`` and the member count ``(F,)``.
-    """
-    mask = vis & members[:, None]
-    n_mask = np.where(mask[..., None], normals, 0.0)
-    S = np.einsum("mfi,mfj->fij", n_mask, n_mask)
-    count = mask.sum(0)
-    v_all = np.full((vis.shape[1], 3), np.nan)
-    okf = count >= 2
-    if np.any(okf):
-        v_all[okf] = _smallest_eigvec3(S[okf])
-    others = count[None, :] - mask.astype(np.int64)
-    usable = vis & (others >= 2)
-    res = np.zeros(vis.shape)
-    mm, ff = np.nonzero(usable)
-    n = normals[mm, ff]
-    own = mask[mm, ff]
-    Sm = S[ff] - own[:, None, None] * (n[:, :, None] * n[:, None, :])
-    vecs = _smallest_eigvec3(Sm)
-    r2 = np.einsum("ki,ki->k", n, vecs) ** 2
-    trace = np.trace(Sm, axis1=1, axis2=2)
-    T = Sm + trace[:, None, None] * (vecs[:, :, None] * vecs[:, None, :])
-    factor = 1.0 + np.maximum(_quad_inv(T, n), 0.0)
-    res[mm, ff] = r2 / factor
-    cnt = usable.sum(1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        mean = np.where(usable, res, 0.0).sum(1) / cnt
-    mean[cnt < opts.min_shared_frames] = np.nan
-    return res, usable, mean, v_all, count
-
-
-def _noise_level(res: FloatArray, usable: np.ndarray, members: np.ndarray,
-                 opts: VanishingOptions) -> float:
-    """Robust variance of one residual ``n . v`` of the members (rad^2)."""
-    sel = usable & members[:, None]
-    med = float(np.median(res[sel])) / 0.455 if np.any(sel) else 0.0
-    return max(med, np.radians(opts.min_noise_deg) ** 2)
-
-
-def _fits(res: FloatArray, usable: np.ndarray, mean: FloatArray, s2: float,
-          opts: VanishingOptions) -> np.ndarray:
-    """``(M,)`` bool: the track fits the family (mean and every frame below the thresholds)."""
-    worst = np.where(usable, res, 0.0).max(axis=1)
-    return (mean <= min(opts.p_th, opts.outlier_factor * s2)) & \
-        (worst <= opts.frame_outlier_factor * s2)
-
-
-def _refine_group(normals: FloatArray, vis: np.ndarray, group: np.ndarray,
-                  allowed: np.ndarray, opts: VanishingOptions, noise: float = 0.0) -> np.ndarray:
-    """Trim a group to tracks that fit its VPV, then grow it by every allowed track that fits.
-
-    A track trimmed twice is not let back in (no oscillation at the threshold). ``noise`` is a
-    floor of the noise level (from all seed triples): a small group's own estimate is unreliable.
-    """
-    M = vis.shape[0]
-    members = np.zeros(M, dtype=bool)
-    members[group] = True
-    trimmed = np.zeros(M, dtype=np.int64)
-    for _ in range(opts.max_refine_iter):
-        res, usable, mean, _, _ = _track_residuals(normals, vis, members, opts)
-        s2 = max(_noise_level(res, usable, members, opts), noise)
-        fit = _fits(res, usable, mean, s2, opts)
-        bad = members & ~fit
-        if np.any(bad):
-            # drop the worst offender only: it may have biased the others' residuals
-            score = np.nan_to_num(mean / min(opts.p_th, opts.outlier_factor * s2), nan=np.inf)
-            worst_frame = np.where(usable, res, 0.0).max(axis=1) / (opts.frame_outlier_factor * s2)
-            score = np.maximum(score, worst_frame)
-            drop = np.flatnonzero(bad)[np.argmax(score[bad])]
-            members[drop] = False
-            trimmed[drop] += 1
-            if members.sum() < 3:
-                return members
-            continue
-        grow = allowed & ~members & (trimmed < 2) & fit
-        if not np.any(grow):
-            break
-        members |= grow
-    return members
-
-
-def _family(normals: FloatArray, vis: np.ndarray, members: np.ndarray,
-            opts: VanishingOptions) -> ParallelFamily:
-    _, _, resid, v, count = _track_residuals(normals, vis, members, opts)
-    v = chain_signs(v)
-    mask = vis & members[:, None]
-    r = np.einsum("mfi,fi->mf", np.where(mask[..., None], normals, 0.0), np.nan_to_num(v)) ** 2
-    with np.errstate(invalid="ignore", divide="ignore"):
-        frame_res = np.where(count >= 2, r.sum(0) / count, np.nan)
-    return ParallelFamily(members.copy(), v, resid, frame_res, count.astype(np.int64))
-
-
 def detect_parallel_families(tracks: LineTracks,
                              options: VanishingOptions | None = None) -> list[ParallelFamily]:
     """All parallel families with at least ``min_family_size`` tracks, largest first.
@@ -403,14 +189,13 @@ def detect_parallel_families(tracks: LineTracks,
     opts = options or VanishingOptions()
     if tracks.num_tracks < 3:
         return []
-    vis = tracks.visibility()
-    normals = np.nan_to_num(tracks.dense_normals())
+    idx = ObsIndex.from_tracks(tracks)
     rng = np.random.default_rng(opts.seed)
-    triples = _draw_triples(vis, opts, rng)
+    triples = draw_triples(idx, opts, rng)
     if len(triples) == 0:
         return []
-    means = _triple_means(normals, vis, triples, opts)
-    thresh = _seed_threshold(means, opts)
+    means = triple_means(idx, triples, opts)
+    thresh = seed_threshold(means, opts)
     order = np.argsort(means)
     order = order[means[order] <= thresh]
     # the noise level of one residual, from the seeds (mostly parallel triples): the mean
@@ -418,6 +203,7 @@ def detect_parallel_families(tracks: LineTracks,
     noise = float(np.median(means[order])) if order.size else 0.0
     groups: list[np.ndarray] = []
     taken = np.zeros(tracks.num_tracks, dtype=bool)
+    cache = StateCache(idx, opts)
     tried = 0
     for t in order:
         seed = triples[t]
@@ -426,43 +212,52 @@ def detect_parallel_families(tracks: LineTracks,
         tried += 1
         if tried > opts.max_seeds:
             break
-        members = _refine_group(normals, vis, seed, ~taken, opts, noise)
+        members = np.zeros(tracks.num_tracks, dtype=bool)
+        members[seed] = True
+        state = None
+        if opts.max_refine_iter > 0:
+            state = refine_state(GroupState.of(idx, opts, members), ~taken, noise)[0]
+            members = state.members.copy()
         if members.sum() < opts.min_family_size:
             continue
+        if state is not None:
+            cache.put(state)
         groups.append(members)
         taken |= members
-    groups = _merge_groups(normals, vis, groups, opts, noise)
-    families = [_family(normals, vis, g, opts) for g in groups]
+    groups = merge_groups(idx, groups, opts, noise, cache)
+    families = [_family(cache.state_of(g)) for g in groups]
     families.sort(key=lambda f: f.size, reverse=True)
     return families[:opts.max_families]
 
 
-def _merge_groups(normals: FloatArray, vis: np.ndarray, groups: list[np.ndarray],
-                  opts: VanishingOptions, noise: float) -> list[np.ndarray]:
-    """Merge groups of one direction that grew apart (partial tracks: two seeds in different
-    stretches of the sequence): two groups merge if, refined together, at least 90% of their
-    tracks stay; the merged group is then grown again."""
-    groups = list(groups)
-    merged = True
-    while merged and len(groups) > 1:
-        merged = False
-        for a in range(len(groups)):
-            for b in range(a + 1, len(groups)):
-                union = groups[a] | groups[b]
-                both = _refine_group(normals, vis, np.flatnonzero(union), union, opts, noise)
-                if both.sum() >= 0.9 * union.sum():
-                    others = np.zeros_like(union)
-                    for k, g in enumerate(groups):
-                        if k not in (a, b):
-                            others |= g
-                    groups[a] = _refine_group(normals, vis, np.flatnonzero(both), ~others, opts,
-                                              noise)
-                    del groups[b]
-                    merged = True
-                    break
-            if merged:
-                break
-    return [g for g in groups if g.sum() >= opts.min_family_size]
+def _family(state: GroupState) -> ParallelFamily:
+    v, resid, frame_res, count, firm = family_arrays(state)
+    return ParallelFamily(state.members.copy(), _chain_firm(v, firm), resid, frame_res,
+                          count.astype(np.int64))
+
+
+def _chain_firm(vpv: FloatArray, firm: np.ndarray) -> FloatArray:
+    """:func:`chain_signs` over the frames whose VPV is well determined (``firm``); every other
+    frame takes the sign that agrees with the nearest firm frame. A VPV resting on nearly
+    coplanar normals can be far off, and chaining through it could flip the sign of the rest
+    of the sequence (a sparse family in a long sequence). Where every frame is firm, as
+    :func:`chain_signs`."""
+    ok = np.isfinite(vpv).all(axis=1)
+    anchor = np.flatnonzero(firm & ok)
+    if anchor.size == 0:
+        return chain_signs(vpv)
+    out = chain_signs(np.where((firm & ok)[:, None], vpv, np.nan))
+    rest = np.flatnonzero(ok & ~firm)
+    right = np.minimum(np.searchsorted(anchor, rest), anchor.size - 1)
+    left = np.maximum(right - 1, 0)
+    near = np.where(np.abs(anchor[left] - rest) <= np.abs(anchor[right] - rest),
+                    anchor[left], anchor[right])
+    flip = np.sum(vpv[rest] * out[near], axis=1) < 0
+    out[rest] = np.where(flip[:, None], -vpv[rest], vpv[rest])
+    first = out[np.flatnonzero(ok)[0]]              # chain_signs' convention: the first
+    if first[np.argmax(np.abs(first))] < 0:         # defined row's largest component > 0
+        out = -out
+    return out
 
 
 def detect_parallel_family(tracks: LineTracks,
