@@ -36,6 +36,7 @@ from omni_sfm.estimate.rotation_only import (
     RotationOnlyResult,
     estimate_rotation_only,
 )
+from omni_sfm.estimate.segments import frame_range, runs, similarity_from_lines
 from omni_sfm.estimate.windows import (
     Window,
     WindowOptions,
@@ -96,8 +97,20 @@ class EstimationOptions:
     """Where the registration stops and at least this many frames remain without a pose, the
     estimator starts again on them: a new segment in its own world and scale
     (``trajectory_segment_<k>.tum``). 0: no new segments."""
-    max_segments: int = 20
-    """At most this many segments besides the main trajectory."""
+    max_segments: int = 50
+    """At most this many new starts (joined or not)."""
+    join_max_angle_deg: float = 1.0
+    """Two pieces are joined when their common lines' directions agree within this (median,
+    degrees) under the similarity between them ..."""
+    join_max_distance: float = 0.2
+    """... and the lines' points within this fraction of the lines' distance from the cameras
+    (median) ..."""
+    join_max_turn_deg: float = 10.0
+    """The camera turns at most this much per frame across a break (it picks the rotation
+    between the pieces among those the lines allow) ..."""
+    join_max_residual_factor: float = 1.5
+    """... and the bundle adjustment of the joined piece ends with an RMS residual at most this
+    times the larger of the two pieces' own."""
     multistart_min_difference: float = 0.05
     """An alternative start is refined only if its camera centres differ from every start
     already refined by more than this fraction (RMS, after least-squares scaling) of the RMS
@@ -362,8 +375,8 @@ def estimate_poses(tracks: LineTracks,
         raise OmniSfmError(f"tracks have {M} lines; need at least 6 (3 parallel and 3 others)")
     timings: dict[str, float] = defaultdict(float)
     try:
-        result = _estimate_moving(tracks, options, timings, t_all)
-        result = _with_segments(tracks, result, options)
+        result = _with_segments(tracks, _solve_moving(tracks, options, timings), options,
+                                timings, t_all)
     except OmniSfmError as exc:
         rot_only = _try_rotation_only(tracks, options, timings)
         if rot_only is None:
@@ -381,9 +394,34 @@ def estimate_poses(tracks: LineTracks,
     return result
 
 
+@dataclass
+class _Solved:
+    """A moving camera's solution before the conventions: poses ``(F, ...)``, lines ``(M, 3)``
+    (NaN where not estimated / not used), and how it was reached."""
+
+    init: _Init
+    R: FloatArray
+    c: FloatArray
+    frames: np.ndarray
+    d: FloatArray
+    p: FloatArray
+    used: np.ndarray
+    outliers: np.ndarray
+    rms0: float
+    rms1: float
+    sigma: float
+
+
 def _estimate_moving(tracks: LineTracks, options: EstimationOptions,
                      timings: dict[str, float], t_all: float) -> EstimationResult:
     """The paper's method, chaining and the bundle adjustment (a camera that moves)."""
+    return _moving_result(tracks, _solve_moving(tracks, options, timings), timings, t_all)
+
+
+def _solve_moving(tracks: LineTracks, options: EstimationOptions,
+                  timings: dict[str, float]) -> _Solved:
+    """Windows, chaining, refinement and registration of the frames beyond (world and scale of
+    the chain)."""
     M = tracks.num_tracks
     init = _initialise(tracks, options, timings)
     outliers = np.zeros(M, bool)
@@ -419,6 +457,14 @@ def _estimate_moving(tracks: LineTracks, options: EstimationOptions,
         rms0 = rms1 = float(np.degrees(np.sqrt(np.mean(ang[ok] ** 2)))) if ok.any() else np.nan
         sigma = float(np.degrees(np.median(ang[ok]) / np.sqrt(2 * np.log(2)))) if ok.any() \
             else np.nan
+    return _Solved(init, R, c, frames, d, p, used, outliers, rms0, rms1, sigma)
+
+
+def _moving_result(tracks: LineTracks, sol: _Solved, timings: dict[str, float],
+                   t_all: float) -> EstimationResult:
+    """The conventions (world, scale, reflection) and the report of a solution."""
+    init, R, c, frames, d, p = sol.init, sol.R, sol.c, sol.frames, sol.d, sol.p
+    used, outliers, rms0, rms1, sigma = sol.used, sol.outliers, sol.rms0, sol.rms1, sol.sigma
     R_n, c_n, d_n, p_n = _normalise(R, c, frames, d, p)
     R_i, c_i, _, _ = _normalise(init.rotations, init.positions, frames, d, p)
     idx = np.flatnonzero(frames)
@@ -463,79 +509,172 @@ def _estimate_moving(tracks: LineTracks, options: EstimationOptions,
         report=report)
 
 
-def frame_range(tracks: LineTracks, start: int, stop: int) -> LineTracks:
-    """The observations of frames ``start..stop-1``, renumbered from 0 (timestamps kept)."""
-    keep = (tracks.obs_frame >= start) & (tracks.obs_frame < stop)
-    used = np.unique(tracks.obs_track[keep])
-    return LineTracks(
-        num_frames=stop - start, track_ids=tracks.track_ids[used],
-        obs_track=np.searchsorted(used, tracks.obs_track[keep]),
-        obs_frame=tracks.obs_frame[keep] - start, obs_normal=tracks.obs_normal[keep],
-        timestamps=tracks.timestamps[start:stop].copy(),
-        obs_ray=None if tracks.obs_ray is None else tracks.obs_ray[keep],
-        obs_sigma=None if tracks.obs_sigma is None else tracks.obs_sigma[keep])
+def _lift(tracks: LineTracks, sub: _Solved, start: int, idx: np.ndarray) -> _Solved:
+    """A solution of frames ``start..`` and tracks ``idx`` (:func:`frame_range`) in the indices
+    of the whole ``tracks``."""
+    F, M = tracks.num_frames, tracks.num_tracks
+    n = len(sub.frames)
+
+    def frames_of(a: np.ndarray, fill: Any) -> np.ndarray:
+        out = np.full((F, *a.shape[1:]), fill, dtype=a.dtype)
+        out[start:start + n] = a
+        return out
+
+    def tracks_of(a: np.ndarray, fill: Any) -> np.ndarray:
+        out = np.full((M, *a.shape[1:]), fill, dtype=a.dtype)
+        out[idx] = a
+        return out
+
+    i = sub.init
+    init = _Init(frames_of(i.rotations, np.nan), frames_of(i.positions, np.nan),
+                 frames_of(i.frames, False),
+                 [Window(w.start + start, w.stop + start, idx[w.tracks]) for w in i.windows],
+                 list(i.failures), tracks_of(i.members, False), frames_of(i.vpv, np.nan),
+                 reasons={start + k: v for k, v in i.reasons.items()})
+    return _Solved(init, frames_of(sub.R, np.nan), frames_of(sub.c, np.nan),
+                   frames_of(sub.frames, False), tracks_of(sub.d, np.nan),
+                   tracks_of(sub.p, np.nan), tracks_of(sub.used, False),
+                   tracks_of(sub.outliers, False), sub.rms0, sub.rms1, sub.sigma)
 
 
-def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
-    """``[(start, stop)]`` of the runs of True in ``mask``."""
-    m = np.concatenate([[False], np.asarray(mask, bool), [False]])
-    edges = np.flatnonzero(np.diff(m.astype(np.int8)))
-    return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)]
+def _line_depth(sol: _Solved, lines: np.ndarray) -> float:
+    """Median distance of ``lines`` from their nearest estimated camera (the scene's scale)."""
+    c = sol.c[sol.frames]
+    d, p = sol.d[lines], sol.p[lines]
+    if len(c) > 400:
+        c = c[np.linspace(0, len(c) - 1, 400).astype(int)]
+    v = p[:, None, :] - c[None]
+    v = v - np.sum(v * d[:, None, :], axis=2, keepdims=True) * d[:, None, :]
+    return float(np.median(np.linalg.norm(v, axis=2).min(axis=1)))
 
 
-def _with_segments(tracks: LineTracks, result: EstimationResult,
-                   options: EstimationOptions) -> EstimationResult:
-    """Start again on the stretches the main trajectory leaves (docs/estimator.md, stage 8):
-    each estimated stretch is a segment in its own world and scale; its frames' reasons say so,
-    and the report lists the segments."""
-    if options.min_segment_frames <= 0:
-        return result
-    F = tracks.num_frames
-    covered = result.estimated.copy()
-    todo = [r for r in _runs(~covered) if r[1] - r[0] >= options.min_segment_frames]
-    found: list[tuple[np.ndarray, Trajectory, dict[str, Any], int]] = []
+def _join(a: _Solved, b: _Solved, options: EstimationOptions) -> _Solved | None:
+    """``b`` moved into ``a``'s world and merged with it, when their common lines fix the
+    similarity between the two (docs/estimator.md stage 8), else None."""
+    common = np.isfinite(a.d).all(1) & np.isfinite(b.d).all(1)
+    if common.sum() < 3:
+        return None
+    # the frames next to each other across the break: the camera turns little between them
+    fa, fb = np.flatnonzero(a.frames), np.flatnonzero(b.frames)
+    ka = int(np.argmin(np.minimum(np.abs(fa - fb[0]), np.abs(fa - fb[-1]))))
+    kb = int(np.argmin(np.abs(fb - fa[ka])))
+    steps = abs(int(fa[ka]) - int(fb[kb]))
+    near = a.R[fa[ka]] @ b.R[fb[kb]].T
+    sim = similarity_from_lines(a.d[common], a.p[common], b.d[common], b.p[common], near=near,
+                                near_deg=options.join_max_turn_deg * steps)
+    if sim is None or sim.angle_deg > options.join_max_angle_deg or \
+            sim.distance > options.join_max_distance * _line_depth(a, np.flatnonzero(common)):
+        return None
+    Rs, s, t = sim.rotation, sim.scale, sim.translation
+    R, c = a.R.copy(), a.c.copy()
+    R[b.frames] = np.einsum("ij,fjk->fik", Rs, b.R[b.frames])
+    c[b.frames] = s * b.c[b.frames] @ Rs.T + t
+    d, p = a.d.copy(), a.p.copy()
+    new = np.isfinite(b.d).all(1) & ~np.isfinite(a.d).all(1)
+    d[new] = b.d[new] @ Rs.T
+    q = s * b.p[new] @ Rs.T + t
+    p[new] = q - np.sum(q * d[new], axis=1, keepdims=True) * d[new]
+    ia, ib = a.init, b.init
+    frames = a.frames | b.frames
+    r0, c0 = ia.rotations.copy(), ia.positions.copy()
+    r0[b.frames] = np.einsum("ij,fjk->fik", Rs, ib.rotations[b.frames])
+    c0[b.frames] = s * ib.positions[b.frames] @ Rs.T + t
+    reasons = {k: v for k, v in {**ia.reasons, **ib.reasons}.items() if not frames[k]}
+    vpv = np.where(np.isfinite(ia.vpv).all(1, keepdims=True), ia.vpv, ib.vpv)
+    init = _Init(r0, c0, frames, ia.windows + ib.windows, ia.failures + ib.failures,
+                 ia.members | (ib.members & ~a.used), vpv, reasons=reasons)
+    return _Solved(init, R, c, frames, d, p, a.used | b.used,
+                   (a.outliers | b.outliers) & ~(a.used | b.used), max(a.rms0, b.rms0),
+                   max(a.rms1, b.rms1), max(a.sigma, b.sigma))
+
+
+def _adjusted(tracks: LineTracks, sol: _Solved, options: EstimationOptions) -> _Solved | None:
+    """The bundle adjustment of a joined piece (None if it fails)."""
+    try:
+        ba = bundle_adjust(tracks, sol.R, sol.c, sol.d, sol.p, frames=sol.frames,
+                           options=options.bundle)
+    except OmniSfmError:
+        return None
+    return replace(sol, R=ba.rotations, c=ba.positions, frames=ba.frames,
+                   d=ba.line_directions, p=ba.line_points, used=ba.used_tracks,
+                   outliers=ba.outlier_tracks, rms1=ba.rms_final_deg, sigma=ba.sigma_deg)
+
+
+def _with_segments(tracks: LineTracks, sol: _Solved, options: EstimationOptions,
+                   timings: dict[str, float], t_all: float) -> EstimationResult:
+    """Start again on the stretches the main solution leaves (docs/estimator.md, stage 8);
+    join each new piece to the main one where common lines fix the similarity, else keep it
+    as a segment in its own world and scale; then the result of the main one."""
+    covered = sol.frames.copy()
+    todo = [r for r in runs(~covered) if r[1] - r[0] >= max(options.min_segment_frames, 3)] \
+        if options.min_segment_frames > 0 else []
+    pieces = [sol]  # the main piece first
     failures: dict[tuple[int, int], str] = {}
-    while todo and len(found) < options.max_segments:
+    joined = 0
+    t0 = time.perf_counter()
+    while todo and len(pieces) - 1 + joined < options.max_segments:
         a, b = todo.pop(0)
+        sub_tracks, idx = frame_range(tracks, a, b)
         try:
-            sub = _estimate_moving(frame_range(tracks, a, b), options, defaultdict(float),
-                                   time.perf_counter())
+            sub = _solve_moving(sub_tracks, options, defaultdict(float))
         except OmniSfmError as exc:
             failures[(a, b)] = str(exc)
             continue
-        frames = np.zeros(F, bool)
-        frames[a + np.flatnonzero(sub.estimated)] = True
-        covered |= frames
-        found.append((frames, sub.trajectory, sub.report, a))
-        todo += [(a + x, a + y) for x, y in _runs(~sub.estimated)
+        lifted = _lift(tracks, sub, a, idx)
+        covered |= lifted.frames
+        todo += [(a + x, a + y) for x, y in runs(~sub.frames)
                  if y - x >= options.min_segment_frames]
-    if not found and not failures:
-        return result
-    found.sort(key=lambda s: int(np.flatnonzero(s[0])[0]))
-    segments = tuple(Segment(k + 1, fr, tr, rep) for k, (fr, tr, rep, _) in enumerate(found))
+        # join the nearest piece in time that shares enough lines with it
+        gap = [min(abs(int(np.flatnonzero(q.frames)[0]) - b), abs(int(np.flatnonzero(
+            q.frames)[-1]) - a)) for q in pieces]
+        for k in np.argsort(gap, kind="stable"):
+            merged = _join(pieces[k], lifted, options)
+            if merged is None:
+                continue
+            # the joint adjustment has the last word: the pieces must fit together
+            adjusted = _adjusted(tracks, merged, options)
+            if adjusted is not None and adjusted.frames.sum() >= 0.98 * merged.frames.sum() \
+                    and adjusted.rms1 <= options.join_max_residual_factor * merged.rms1:
+                pieces[k], joined = adjusted, joined + 1
+                break
+        else:
+            pieces.append(lifted)
+    timings["segments"] += (time.perf_counter() - t0) * 1e3
+    # the main trajectory is the largest piece
+    pieces.sort(key=lambda q: -int(q.frames.sum()))
+    result = _moving_result(tracks, pieces[0], timings, t_all)
     report = dict(result.report)
+    report["joined_pieces"] = joined
+    segments: list[Segment] = []
+    for piece in sorted(pieces[1:], key=lambda q: int(np.flatnonzero(q.frames)[0])):
+        try:
+            r = _moving_result(tracks, piece, defaultdict(float), time.perf_counter())
+        except OmniSfmError:
+            continue
+        segments.append(Segment(len(segments) + 1, r.estimated & ~result.estimated,
+                                r.trajectory, r.report))
     reasons = dict(report.get("frames_not_estimated_reasons", {}))
     for seg in segments:
         for k in np.flatnonzero(seg.frames):
             reasons[str(k)] = (f"estimated in segment {seg.number} ({seg.file}), in its own "
-                               f"world and scale: no line links it to the main trajectory")
+                               f"world and scale: too few lines link it to the main trajectory")
     for (a, b), why in failures.items():
         for j in range(a, b):
-            if not covered[j]:
-                reasons[str(j)] = f"{reasons.get(str(j), 'not estimated')}; a new start on " \
-                                  f"frames {a}-{b - 1} failed: {why}"
+            if str(j) in reasons and not covered[j]:
+                reasons[str(j)] = f"{reasons[str(j)]}; a new start on frames {a}-{b - 1} " \
+                                  f"failed: {why}"
     report["frames_not_estimated_reasons"] = reasons
-    report["segments"] = [{
-        "file": seg.file,
-        "frames": [int(np.flatnonzero(seg.frames)[0]), int(np.flatnonzero(seg.frames)[-1])],
-        "num_frames_estimated": int(seg.frames.sum()),
-        "world": "camera of the segment's first estimated frame (world_from_cam, TUM)",
-        "scale_convention": "distance between the segment's first and last estimated camera "
-                            "centres = 1",
-        "residual_rms_deg": seg.report["residuals"]["rms_final_deg"],
-        "windows": [[w0 + a, w1 + a] for w0, w1 in seg.report["windows"]],
-    } for seg, (_, _, _, a) in zip(segments, found, strict=True)]
-    return replace(result, report=report, segments=segments)
+    if segments:
+        report["segments"] = [{
+            "file": seg.file,
+            "frames": [int(np.flatnonzero(seg.frames)[0]), int(np.flatnonzero(seg.frames)[-1])],
+            "num_frames_estimated": int(seg.frames.sum()),
+            "world": "camera of the segment's first estimated frame (world_from_cam, TUM)",
+            "scale_convention": "distance between the segment's first and last estimated "
+                                "camera centres = 1",
+            "residual_rms_deg": seg.report["residuals"]["rms_final_deg"],
+        } for seg in segments]
+    return replace(result, report=report, segments=tuple(segments))
 
 
 def _extend(tracks: LineTracks, ba: BundleResult, init: _Init, options: EstimationOptions,
