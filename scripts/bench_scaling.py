@@ -63,7 +63,7 @@ with open(result, "w") as fh:
 
 COLUMNS = (("frames", 7), ("lines", 6), ("obs", 8), ("sim s", 7), ("wall s", 8), ("ms/frame", 9),
            ("peak MB", 8), ("estimated", 12), ("rot@500", 8), ("rot@last", 9), ("rot mean", 9),
-           ("ATE %", 7))
+           ("ATE %", 7), ("segments", 9), ("in segs", 8))
 
 
 def _last_error_line(log: Path) -> str:
@@ -113,7 +113,7 @@ def _run_one(n: int, args: argparse.Namespace, work: Path) -> dict[str, str]:
     del sim
     out_dir, log, result = work / f"init_{n}", work / f"init_{n}.log", work / f"init_{n}.json"
     cmd = [sys.executable, "-m", "omni_sfm", "init", "--lines", "--tracks",
-           str(sim_dir / "tracks.json"), "--output", str(out_dir), "--quiet",
+           str(sim_dir / "tracks.json"), "--output", str(out_dir), "--quiet", "--overwrite",
            *shlex.split(args.init_args)]
     env = dict(os.environ)
     env.setdefault("OPENBLAS_NUM_THREADS", "1")
@@ -133,6 +133,10 @@ def _run_one(n: int, args: argparse.Namespace, work: Path) -> dict[str, str]:
     if not traj.exists():
         return row | {"note": f"no {traj.name}: {_last_error_line(log)}"}
     try:
+        report = json.loads((out_dir / "report.json").read_text())
+        segs = report.get("segments") or []
+        row |= {"segments": str(len(segs)),
+                "in segs": str(sum(int(sg["num_frames_estimated"]) for sg in segs))}
         return row | _errors(traj, sim_dir / "groundtruth.tum", n)
     except (OmniSfmError, OSError) as exc:
         return row | {"note": f"evaluation failed: {exc}"}
