@@ -8,13 +8,15 @@ from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
+import pytest
 
+from omni_sfm.cli import main
 from omni_sfm.estimate.bundle import resect_pose
 from omni_sfm.estimate.incremental import centre_given_rotation, rotation_from_directions
 from omni_sfm.estimate.pipeline import estimate_poses, write_init_outputs
 from omni_sfm.evaluate import trajectory_errors
 from omni_sfm.geometry import line_plane_normals, normalize, rotvec_to_matrix
-from omni_sfm.lines.tracks import LineTracks, make_tracks
+from omni_sfm.lines.tracks import LineTracks, make_tracks, write_tracks
 from omni_sfm.poses import Trajectory, read_tum
 from omni_sfm.synth.paths import PathOptions, Route, camera_path
 from omni_sfm.synth.scenes import SceneName, make_scene
@@ -101,9 +103,8 @@ def test_reasons_name_every_frame_not_registered() -> None:
     assert "lines already reconstructed" in reasons[str(len(gt) - 15)]
 
 
-def test_a_gap_gives_a_separate_segment(tmp_path: Path) -> None:
-    # two walks with no line in common: the second is estimated again from scratch, in its own
-    # world and scale, written beside the main trajectory and listed in the report
+def _two_walks() -> tuple[LineTracks, Trajectory, Trajectory]:
+    """Two simulated walks one after the other (frames 0-49, 50-89), no line in common."""
     a = simulate(SimulationOptions(num_views=50, num_parallel=10, num_other=10, noise_deg=0.05,
                                    seed=1))
     b = simulate(SimulationOptions(num_views=40, num_parallel=10, num_other=10, noise_deg=0.05,
@@ -113,14 +114,21 @@ def test_a_gap_gives_a_separate_segment(tmp_path: Path) -> None:
                          np.concatenate([ta.obs_track, tb.obs_track + ta.num_tracks]),
                          np.concatenate([ta.obs_frame, tb.obs_frame + 50]),
                          np.concatenate([ta.obs_normal, tb.obs_normal]), source="test")
+    return tracks, a.groundtruth, b.groundtruth
+
+
+def test_a_gap_gives_a_separate_segment(tmp_path: Path) -> None:
+    # two walks with no line in common: the second is estimated again from scratch, in its own
+    # world and scale, written beside the main trajectory and listed in the report
+    tracks, gt_a, gt_b = _two_walks()
     res = estimate_poses(tracks)
     assert res.estimated[:50].all() and not res.estimated[50:].any()
-    assert trajectory_errors(res.trajectory, a.groundtruth).rot_max_deg < 0.2
+    assert trajectory_errors(res.trajectory, gt_a).rot_max_deg < 0.2
     (seg,) = res.segments
     assert seg.number == 1 and seg.frames[50:].all() and not seg.frames[:50].any()
     tr = seg.trajectory
     err = trajectory_errors(Trajectory(tr.timestamps - 50, tr.rotations, tr.positions),
-                            b.groundtruth)
+                            gt_b)
     assert err.rot_max_deg < 0.2 and err.ate_rel < 0.01
     assert res.report["segments"][0]["frames"] == [50, 89]
     assert "segment 1" in res.report["frames_not_estimated_reasons"]["60"]
@@ -128,3 +136,15 @@ def test_a_gap_gives_a_separate_segment(tmp_path: Path) -> None:
     assert tmp_path / "trajectory_segment_1.tum" in written
     assert len(read_tum(tmp_path / "trajectory_segment_1.tum")) == 40
     assert len(read_tum(tmp_path / "trajectory.tum")) == 50
+
+
+def test_init_names_the_segments(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    tracks, _, _ = _two_walks()
+    write_tracks(tmp_path / "tracks.json", tracks)
+    assert main(["init", "--lines", "--tracks", str(tmp_path / "tracks.json"), "--output",
+                 str(tmp_path / "out")]) == 0
+    out = capsys.readouterr().out
+    assert "init: 50 of 90 frames estimated" in out
+    assert "segments: 40 more frames in 1 separate piece" in out
+    assert "trajectory_segment_1.tum" in out
+    assert (tmp_path / "out" / "trajectory_segment_1.tum").is_file()
