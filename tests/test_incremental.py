@@ -13,7 +13,7 @@ import pytest
 from omni_sfm.cli import main
 from omni_sfm.estimate.bundle import resect_pose
 from omni_sfm.estimate.incremental import centre_given_rotation, rotation_from_directions
-from omni_sfm.estimate.pipeline import estimate_poses, write_init_outputs
+from omni_sfm.estimate.pipeline import estimate_poses, match_reflection, write_init_outputs
 from omni_sfm.evaluate import trajectory_errors
 from omni_sfm.geometry import line_plane_normals, normalize, rotvec_to_matrix
 from omni_sfm.lines.tracks import LineTracks, make_tracks, write_tracks
@@ -148,3 +148,33 @@ def test_init_names_the_segments(tmp_path: Path, capsys: pytest.CaptureFixture[s
     assert "segments: 40 more frames in 1 separate piece" in out
     assert "trajectory_segment_1.tum" in out
     assert (tmp_path / "out" / "trajectory_segment_1.tum").is_file()
+
+
+def test_a_walk_along_the_largest_family_uses_another_one() -> None:
+    # 14 lines along the corridor, the way the camera walks (the largest family: the paper's
+    # in-plane translation is degenerate), 9 vertical and 7 cross lines: the window is solved
+    # with the vertical family instead, and the report says so
+    rng = np.random.default_rng(0)
+    F = 40
+    along, up, cross = np.eye(3)[0], np.eye(3)[2], np.eye(3)[1]
+    s = np.linspace(0, 1, F)
+    pos = s[:, None] * along * 3.0
+    R = rotvec_to_matrix(np.stack([0.05 * np.sin(3 * s), 0.04 * np.cos(2 * s),
+                                   0.3 * np.sin(2 * s)], 1))
+    gt = Trajectory(np.arange(F, dtype=float), R, pos)
+    dirs = np.array([along] * 14 + [up] * 9 + [cross] * 7)
+    pts = rng.uniform(-2, 2, size=(len(dirs), 3))
+    pts[:, 0] = rng.uniform(0, 3, len(dirs))
+    pts[:, 1] += np.sign(pts[:, 1]) * 0.8
+    m, f = (a.ravel() for a in np.meshgrid(np.arange(len(dirs)), np.arange(F), indexing="ij"))
+    n = np.einsum("kji,kj->ki", R[f], normalize(line_plane_normals(pos[f], pts[m], dirs[m])))
+    ang = np.radians(0.05) * rng.normal(size=(len(n), 1))
+    n = n * np.cos(ang) + np.cross(normalize(np.cross(n, rng.normal(size=n.shape))), n) * \
+        np.sin(ang)
+    res = estimate_poses(make_tracks(F, np.arange(len(dirs)), m, f, n, source="test"))
+    assert res.estimated.all()
+    fam = res.report["parallel_families"]
+    assert fam["sizes"] == [14, 9, 7]
+    assert len(fam["windows_with_another_family"]) == 1
+    err = trajectory_errors(match_reflection(res.trajectory, gt), gt)
+    assert err.rot_max_deg < 0.2 and err.ate_rel < 0.005

@@ -348,12 +348,16 @@ def _solve_once(tracks: LineTracks, family: ParallelFamily, opts: PaperOptions, 
                              softening=opts.rotation_softening, polish=False,
                              search_views=search_views, continuity=opts.rotation_continuity)
     m_world = np.einsum("fij,fmj->fmi", rot.rotations, normals)
-    lp = np.median(line_parallax(m_world[:, oth]), axis=1)
-    if np.max(lp) < np.radians(opts.min_parallax_deg):
+    parallax = line_parallax(m_world[:, oth])
+    lp = np.median(parallax, axis=1)
+    # a quarter of the lines suffices: lines along the direction of travel (a corridor's
+    # baseboards, when another family is the parallel one) show none whatever the motion
+    lp_upper = np.percentile(parallax, 75, axis=1)
+    if np.max(lp_upper) < np.radians(opts.min_parallax_deg):
         raise OmniSfmError(
             f"degenerate motion: the non-parallel lines show at most "
-            f"{np.degrees(np.max(lp)):.3g} deg of parallax (min_parallax_deg="
-            f"{opts.min_parallax_deg:g}); the camera barely moved")
+            f"{np.degrees(np.max(lp_upper)):.3g} deg of parallax (upper quartile, "
+            f"min_parallax_deg={opts.min_parallax_deg:g}); the camera barely moved")
     if opts.second_view is None and opts.rerun_rotation:
         best = int(np.argmax(lp))
         if best != c_rot and lp[best] > 1.5 * lp[c_rot]:

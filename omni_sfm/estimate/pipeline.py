@@ -52,7 +52,12 @@ from omni_sfm.geometry import FloatArray, ray_line_closest
 from omni_sfm.lines.tracks import LineTracks
 from omni_sfm.poses import Trajectory, write_tum
 from omni_sfm.transforms import associate, paper_translation_errors
-from omni_sfm.vanishing import ParallelFamily, VanishingOptions, detect_parallel_family
+from omni_sfm.vanishing import (
+    ParallelFamily,
+    VanishingOptions,
+    detect_parallel_families,
+    detect_parallel_family,
+)
 
 SCALE_CONVENTION = ("world = camera of the first estimated frame; distance between the first "
                     "and the last estimated camera centres = 1")
@@ -203,6 +208,10 @@ class _Init:
     alternatives: list[tuple[FloatArray, FloatArray]] = field(default_factory=list)
     reasons: dict[int, str] = field(default_factory=dict)
     """Why frames the incremental registration reached were not registered."""
+    families: list[int] = field(default_factory=list)
+    """Sizes of the parallel families found (largest first; the windows use the first)."""
+    switched: list[str] = field(default_factory=list)
+    """Windows solved with another family, because the first was degenerate there."""
 
 
 def _check_counts(tracks: LineTracks, members: np.ndarray) -> None:
@@ -221,6 +230,8 @@ def _initialise(tracks: LineTracks, options: EstimationOptions,
     """Family, windows, the paper's method per window, chaining (world/scale of the chain)."""
     t0 = time.perf_counter()
     family = detect_parallel_family(tracks, options.vanishing)
+    others = [f for f in detect_parallel_families(tracks, options.vanishing)[1:]
+              if f.size >= 3]
     timings["parallel_lines"] += (time.perf_counter() - t0) * 1e3
     members = np.asarray(family.members, bool)
     _check_counts(tracks, members)
@@ -236,13 +247,20 @@ def _initialise(tracks: LineTracks, options: EstimationOptions,
     solutions: list[tuple[FloatArray, FloatArray] | None] = []
     failures: list[str] = []
     alternatives: list[tuple[FloatArray, FloatArray]] = []
+    switched: list[str] = []
     for w in windows:
         try:
             sol = _solve_window(tracks, family, w, options)
         except OmniSfmError as exc:
-            failures.append(f"frames {w.start}-{w.stop - 1}: {exc}")
-            solutions.append(None)
-            continue
+            # the family may be degenerate for this stretch (the corridor's direction, along
+            # which the camera walks): the window's other families may condition it
+            alt = _other_family(tracks, others, w, options)
+            if alt is None:
+                failures.append(f"frames {w.start}-{w.stop - 1}: {exc}")
+                solutions.append(None)
+                continue
+            sol, which = alt
+            switched.append(f"frames {w.start}-{w.stop - 1}: family {which + 2} ({exc})")
         for k, v in sol.timings_ms.items():
             timings[k] += float(v)
         solutions.append((np.asarray(sol.rotations), np.asarray(sol.positions)))
@@ -285,7 +303,24 @@ def _initialise(tracks: LineTracks, options: EstimationOptions,
             "no stretch of 3 or more frames sees 3 parallel and 3 other lines in every frame"
         raise OmniSfmError(f"cannot estimate any frame: {why}")
     return _Init(R, c, done, [windows[i] for i in chained], failures, members,
-                 np.asarray(family.vpv), alternatives if done.all() else [])
+                 np.asarray(family.vpv), alternatives if done.all() else [],
+                 families=[int(family.size)] + [int(f.size) for f in others],
+                 switched=switched)
+
+
+def _other_family(tracks: LineTracks, others: list[ParallelFamily], w: Window,
+                  options: EstimationOptions) -> tuple[PaperSolution, int] | None:
+    """The paper's solution of window ``w`` with the first other family that gives one (3 of
+    its tracks and 3 others seen throughout the window), and that family's index."""
+    for k, fam in enumerate(others):
+        m = np.asarray(fam.members, bool)[w.tracks]
+        if m.sum() < options.windows.min_parallel or (~m).sum() < options.windows.min_other:
+            continue
+        try:
+            return _solve_window(tracks, fam, w, options), k
+        except OmniSfmError:
+            continue
+    return None
 
 
 def _solve_window(tracks: LineTracks, family: ParallelFamily, w: Window,
@@ -441,7 +476,8 @@ def _solve_moving(tracks: LineTracks, options: EstimationOptions,
                 members2 = np.zeros(M, bool)
                 members2[idx] = init2.members
                 init = _Init(init2.rotations, init2.positions, init2.frames, init2.windows,
-                             init2.failures, members2, init2.vpv)
+                             init2.failures, members2, init2.vpv, families=init2.families,
+                             switched=init2.switched)
                 ba = _expand(ba2, idx, M, ba.outlier_tracks)
         if options.extend is not None and not ba.frames.all():
             ba, init = _extend(tracks, ba, init, options, timings)
@@ -496,6 +532,10 @@ def _moving_result(tracks: LineTracks, sol: _Solved, timings: dict[str, float],
     report = _report(tracks, frames, members, direction, outliers, used, windows,
                      init.failures, dict(timings), rms0, rms1, sigma)
     report["reflection"] = reflection
+    report["parallel_families"] = {
+        "sizes": init.families,
+        "windows_with_another_family": init.switched,
+    }
     report["frames_not_estimated_reasons"] = {
         str(k): init.reasons.get(int(k), "not reached: the registration of the frames beyond "
                                          "the chain stopped before it")
@@ -530,7 +570,8 @@ def _lift(tracks: LineTracks, sub: _Solved, start: int, idx: np.ndarray) -> _Sol
                  frames_of(i.frames, False),
                  [Window(w.start + start, w.stop + start, idx[w.tracks]) for w in i.windows],
                  list(i.failures), tracks_of(i.members, False), frames_of(i.vpv, np.nan),
-                 reasons={start + k: v for k, v in i.reasons.items()})
+                 reasons={start + k: v for k, v in i.reasons.items()}, families=i.families,
+                 switched=i.switched)
     return _Solved(init, frames_of(sub.R, np.nan), frames_of(sub.c, np.nan),
                    frames_of(sub.frames, False), tracks_of(sub.d, np.nan),
                    tracks_of(sub.p, np.nan), tracks_of(sub.used, False),
@@ -582,7 +623,8 @@ def _join(a: _Solved, b: _Solved, options: EstimationOptions) -> _Solved | None:
     reasons = {k: v for k, v in {**ia.reasons, **ib.reasons}.items() if not frames[k]}
     vpv = np.where(np.isfinite(ia.vpv).all(1, keepdims=True), ia.vpv, ib.vpv)
     init = _Init(r0, c0, frames, ia.windows + ib.windows, ia.failures + ib.failures,
-                 ia.members | (ib.members & ~a.used), vpv, reasons=reasons)
+                 ia.members | (ib.members & ~a.used), vpv, reasons=reasons,
+                 families=ia.families, switched=ia.switched + ib.switched)
     return _Solved(init, R, c, frames, d, p, a.used | b.used,
                    (a.outliers | b.outliers) & ~(a.used | b.used), max(a.rms0, b.rms0),
                    max(a.rms1, b.rms1), max(a.sigma, b.sigma))
