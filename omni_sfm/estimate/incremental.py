@@ -264,7 +264,7 @@ class _Growth:
         if not ready.any():
             return
         keep = ready[local_t]
-        sub = _subtracks(tracks, obs[keep], cand)
+        sub = subtracks(tracks, obs[keep], cand)
         dd, pp, ok = triangulate_lines(sub, self.R, self.c, min_observations=o.min_views)
         ang = observation_residuals(sub, self.R, self.c, dd, pp)
         rms = np.sqrt(np.bincount(sub.obs_track, ang ** 2, len(cand)) /
@@ -292,7 +292,7 @@ class _Growth:
         if len(held) == 0:
             return
         lines = np.sort(lines)
-        sub = _subtracks(tracks, obs, lines, frames)
+        sub = subtracks(tracks, obs, lines, frames)
         held_sub = np.isin(frames, held)
         c_held = self.c[held]
         spread = len(held) > 1 and float(np.ptp(c_held, axis=0).max()) > 0
@@ -349,7 +349,7 @@ class _Growth:
             f += step
 
 
-def _subtracks(tracks: LineTracks, obs: np.ndarray, lines: np.ndarray,
+def subtracks(tracks: LineTracks, obs: np.ndarray, lines: np.ndarray,
                frames: np.ndarray | None = None) -> LineTracks:
     """The observations ``obs`` as tracks ``0..len(lines)-1`` (``lines`` sorted); their frames
     renumbered ``0..len(frames)-1`` if ``frames`` (sorted) is given, else kept."""

@@ -27,9 +27,10 @@ from omni_sfm.estimate.bundle import (
     BundleResult,
     bundle_adjust,
     observation_residuals,
+    resect_pose,
     triangulate_lines,
 )
-from omni_sfm.estimate.incremental import IncrementalOptions, register_frames
+from omni_sfm.estimate.incremental import IncrementalOptions, register_frames, subtracks
 from omni_sfm.estimate.paper import PaperOptions, PaperSolution, estimate_paper
 from omni_sfm.estimate.rotation_only import (
     RotationOnlyOptions,
@@ -48,7 +49,7 @@ from omni_sfm.estimate.windows import (
 )
 from omni_sfm.fileio import atomic_write_text, dumps_json
 from omni_sfm.folders import REPORT_FILE, TRAJECTORY_FILE
-from omni_sfm.geometry import FloatArray, ray_line_closest
+from omni_sfm.geometry import FloatArray, ray_line_closest, rotation_angle
 from omni_sfm.lines.tracks import LineTracks
 from omni_sfm.poses import Trajectory, write_tum
 from omni_sfm.transforms import associate, paper_translation_errors
@@ -98,6 +99,11 @@ class EstimationOptions:
     explains the NVs this well (median angle, degrees); otherwise the paper's error stands.
     Translation changes the NVs by the parallax the paper's method needs (at least
     ``paper.min_parallax_deg``), which no rotation can explain."""
+    bootstrap_frames: int | None = 1000
+    """In a longer sequence, the chain of windows is built on the first stretch of this many
+    frames that gives one (then on the next half-overlapping stretch, ...), and the registration
+    of stage 5b poses the rest: the cost per frame does not grow with the length. None: the
+    windows cover the whole sequence."""
     min_segment_frames: int = 30
     """Where the registration stops and at least this many frames remain without a pose, the
     estimator starts again on them: a new segment in its own world and scale
@@ -110,6 +116,15 @@ class EstimationOptions:
     join_max_distance: float = 0.2
     """... and the lines' points within this fraction of the lines' distance from the cameras
     (median) ..."""
+    max_half_turn_run: int = 30
+    """Runs of at most this many frames turned by a half turn against the frames around them
+    are turned back where the lines allow it (``_repair_half_turns``)."""
+    join_max_gap: int = 20
+    """Only pieces at most this many frames apart are joined (a rotation the lines allow is
+    picked by the turn between them; Manhattan scenes allow several) ..."""
+    join_window: int = 30
+    """... and the frames this far from the junction are adjusted together to check that the
+    pieces fit ..."""
     join_max_turn_deg: float = 10.0
     """The camera turns at most this much per frame across a break (it picks the rotation
     between the pieces among those the lines allow) ..."""
@@ -225,8 +240,50 @@ def _check_counts(tracks: LineTracks, members: np.ndarray) -> None:
                            f"at least 3 lines not parallel to the family")
 
 
+def _lift_init(i: _Init, start: int, idx: np.ndarray, F: int, M: int) -> _Init:
+    """An :class:`_Init` of frames ``start..`` and tracks ``idx`` (:func:`frame_range`) in the
+    indices of the whole sequence (``F`` frames, ``M`` tracks)."""
+    n = len(i.frames)
+
+    def frames_of(a: np.ndarray, fill: Any) -> np.ndarray:
+        out = np.full((F, *a.shape[1:]), fill, dtype=a.dtype)
+        out[start:start + n] = a
+        return out
+
+    members = np.zeros(M, bool)
+    members[idx] = i.members
+    return _Init(frames_of(i.rotations, np.nan), frames_of(i.positions, np.nan),
+                 frames_of(i.frames, False),
+                 [Window(w.start + start, w.stop + start, idx[w.tracks]) for w in i.windows],
+                 list(i.failures), members, frames_of(i.vpv, np.nan),
+                 reasons={start + k: v for k, v in i.reasons.items()}, families=i.families,
+                 switched=i.switched)
+
+
 def _initialise(tracks: LineTracks, options: EstimationOptions,
                 timings: dict[str, float]) -> _Init:
+    """The chain of windows that starts the solution: on the whole sequence, or for a long one
+    on the first stretch of ``bootstrap_frames`` frames that gives one (the registration of
+    stage 5b poses the rest; the cost per frame then does not grow with the length)."""
+    F, M, L = tracks.num_frames, tracks.num_tracks, options.bootstrap_frames
+    if L is None or F <= L:
+        return _initialise_all(tracks, options, timings)
+    errors: list[str] = []
+    for start in range(0, F - 2, L // 2):
+        sub, idx = frame_range(tracks, start, min(F, start + L))
+        try:
+            init = _initialise_all(sub, options, timings)
+        except OmniSfmError as exc:
+            errors.append(f"frames {start}-{min(F, start + L) - 1}: {exc}")
+            continue
+        return _lift_init(init, start, idx, F, M)
+    raise OmniSfmError(errors[0] if len(errors) == 1 else
+                       f"cannot estimate any frame: no stretch of {L} frames starts a "
+                       f"solution ({errors[0]})")
+
+
+def _initialise_all(tracks: LineTracks, options: EstimationOptions,
+                    timings: dict[str, float]) -> _Init:
     """Family, windows, the paper's method per window, chaining (world/scale of the chain)."""
     t0 = time.perf_counter()
     family = detect_parallel_family(tracks, options.vanishing)
@@ -493,7 +550,55 @@ def _solve_moving(tracks: LineTracks, options: EstimationOptions,
         rms0 = rms1 = float(np.degrees(np.sqrt(np.mean(ang[ok] ** 2)))) if ok.any() else np.nan
         sigma = float(np.degrees(np.median(ang[ok]) / np.sqrt(2 * np.log(2)))) if ok.any() \
             else np.nan
-    return _Solved(init, R, c, frames, d, p, used, outliers, rms0, rms1, sigma)
+    sol = _Solved(init, R, c, frames, d, p, used, outliers, rms0, rms1, sigma)
+    if options.refine:
+        sol, _ = _repair_half_turns(tracks, sol, options)
+    return sol
+
+
+def _repair_half_turns(tracks: LineTracks, sol: _Solved,
+                       options: EstimationOptions) -> tuple[_Solved, int]:
+    """Short runs of frames turned by a half turn against the frames around them (a view that
+    sees mostly lines perpendicular to the turn's axis fits both; video frames do not turn
+    that much): each posed again from its lines, started at its (repaired) predecessor, and
+    kept if it stays continuous and its residual is at most twice that of the half turn.
+    Returns the solution (adjusted again if a frame changed) and the count."""
+    idx = np.flatnonzero(sol.frames)
+    if len(idx) < 3:
+        return sol, 0
+    R, c = sol.R.copy(), sol.c.copy()
+    step = np.degrees(rotation_angle(np.einsum("fji,fjk->fik", R[idx[:-1]], R[idx[1:]])))
+    jumps = np.flatnonzero(step > 90.0)
+    # a run of frames between two half-turn jumps, short against the frames around it
+    odd = [k for j0, j1 in zip(jumps[:-1], jumps[1:], strict=True)
+           if j1 - j0 <= options.max_half_turn_run for k in range(j0 + 1, j1 + 1)]
+    if not odd:
+        return sol, 0
+    by_frame = np.argsort(tracks.obs_frame, kind="stable")
+    starts = np.searchsorted(tracks.obs_frame[by_frame], np.arange(tracks.num_frames + 1))
+    known: np.ndarray = np.asarray(np.isfinite(sol.d).all(1) & np.isfinite(sol.p).all(1))
+    repaired = 0
+    for k in odd:
+        f, a = int(idx[k]), int(idx[k - 1])
+        b = int(idx[min(k + 1, len(idx) - 1)])
+        obs = by_frame[starts[f]:starts[f + 1]]
+        obs = obs[known[tracks.obs_track[obs]]]
+        if len(obs) < 3:
+            continue
+        t = tracks.obs_track[obs]
+        n, d, p = tracks.obs_normal[obs], sol.d[t], sol.p[t]
+        _, _, now = resect_pose(n, d, p, R[f], c[f], scale=np.inf, iterations=0)
+        R1, c1, ang = resect_pose(n, d, p, R[a], 0.5 * (c[a] + c[b]), scale=np.inf)
+        # lines perpendicular to the turn's axis fit both: continuity decides unless the
+        # lines clearly prefer the half turn
+        if float(np.degrees(rotation_angle(R1.T @ R[a]))) < 90.0 and \
+                np.sqrt(np.mean(ang ** 2)) <= 2.0 * np.sqrt(np.mean(now ** 2)):
+            R[f], c[f] = R1, c1
+            repaired += 1
+    if not repaired:
+        return sol, 0
+    fixed = replace(sol, R=R, c=c)
+    return _adjusted(tracks, fixed, options) or fixed, repaired
 
 
 def _moving_result(tracks: LineTracks, sol: _Solved, timings: dict[str, float],
@@ -565,13 +670,7 @@ def _lift(tracks: LineTracks, sub: _Solved, start: int, idx: np.ndarray) -> _Sol
         out[idx] = a
         return out
 
-    i = sub.init
-    init = _Init(frames_of(i.rotations, np.nan), frames_of(i.positions, np.nan),
-                 frames_of(i.frames, False),
-                 [Window(w.start + start, w.stop + start, idx[w.tracks]) for w in i.windows],
-                 list(i.failures), tracks_of(i.members, False), frames_of(i.vpv, np.nan),
-                 reasons={start + k: v for k, v in i.reasons.items()}, families=i.families,
-                 switched=i.switched)
+    init = _lift_init(sub.init, start, idx, F, M)
     return _Solved(init, frames_of(sub.R, np.nan), frames_of(sub.c, np.nan),
                    frames_of(sub.frames, False), tracks_of(sub.d, np.nan),
                    tracks_of(sub.p, np.nan), tracks_of(sub.used, False),
@@ -589,7 +688,8 @@ def _line_depth(sol: _Solved, lines: np.ndarray) -> float:
     return float(np.median(np.linalg.norm(v, axis=2).min(axis=1)))
 
 
-def _join(a: _Solved, b: _Solved, options: EstimationOptions) -> _Solved | None:
+def _join(tracks: LineTracks, a: _Solved, b: _Solved,
+          options: EstimationOptions) -> _Solved | None:
     """``b`` moved into ``a``'s world and merged with it, when their common lines fix the
     similarity between the two (docs/estimator.md stage 8), else None."""
     common = np.isfinite(a.d).all(1) & np.isfinite(b.d).all(1)
@@ -600,6 +700,8 @@ def _join(a: _Solved, b: _Solved, options: EstimationOptions) -> _Solved | None:
     ka = int(np.argmin(np.minimum(np.abs(fa - fb[0]), np.abs(fa - fb[-1]))))
     kb = int(np.argmin(np.abs(fb - fa[ka])))
     steps = abs(int(fa[ka]) - int(fb[kb]))
+    if steps > options.join_max_gap:
+        return None
     near = a.R[fa[ka]] @ b.R[fb[kb]].T
     sim = similarity_from_lines(a.d[common], a.p[common], b.d[common], b.p[common], near=near,
                                 near_deg=options.join_max_turn_deg * steps)
@@ -625,9 +727,48 @@ def _join(a: _Solved, b: _Solved, options: EstimationOptions) -> _Solved | None:
     init = _Init(r0, c0, frames, ia.windows + ib.windows, ia.failures + ib.failures,
                  ia.members | (ib.members & ~a.used), vpv, reasons=reasons,
                  families=ia.families, switched=ia.switched + ib.switched)
-    return _Solved(init, R, c, frames, d, p, a.used | b.used,
-                   (a.outliers | b.outliers) & ~(a.used | b.used), max(a.rms0, b.rms0),
-                   max(a.rms1, b.rms1), max(a.sigma, b.sigma))
+    merged = _Solved(init, R, c, frames, d, p, a.used | b.used,
+                     (a.outliers | b.outliers) & ~(a.used | b.used), max(a.rms0, b.rms0),
+                     max(a.rms1, b.rms1), max(a.sigma, b.sigma))
+    return _junction_adjusted(tracks, merged, min(fa[ka], fb[kb]), max(fa[ka], fb[kb]),
+                              options)
+
+
+def _junction_adjusted(tracks: LineTracks, sol: _Solved, first: int, last: int,
+                       options: EstimationOptions) -> _Solved | None:
+    """The bundle adjustment of the frames around a junction (``first..last`` and
+    ``join_window`` frames on each side) and their lines, every other frame that sees those
+    lines held; None if it fails or ends with a residual above ``join_max_residual_factor``
+    times the pieces' own (the pieces do not fit together)."""
+    w = options.join_window
+    at = np.arange(len(sol.frames))
+    free: np.ndarray = np.asarray(sol.frames & (at >= first - w) & (at <= last + w))
+    known: np.ndarray = np.asarray(np.isfinite(sol.d).all(1) & np.isfinite(sol.p).all(1))
+    obs = np.flatnonzero(free[tracks.obs_frame] & known[tracks.obs_track])
+    lines = np.unique(tracks.obs_track[obs])
+    obs = np.flatnonzero(np.isin(tracks.obs_track, lines) & sol.frames[tracks.obs_frame])
+    frames = np.unique(tracks.obs_frame[obs])
+    held = ~free[frames]
+    if len(lines) < 3 or not held.any():
+        return None
+    sub = subtracks(tracks, obs, lines, frames)
+    spread = held.sum() > 1 and float(np.ptp(sol.c[frames[held]], axis=0).max()) > 0
+    try:
+        ba = bundle_adjust(sub, sol.R[frames], sol.c[frames], sol.d[lines], sol.p[lines],
+                           held_frames=held, scale_frames=held if spread else None,
+                           options=options.bundle)
+    except OmniSfmError:
+        return None
+    # held frames that see fewer than 3 of these lines drop out of the problem; the frames
+    # around the junction must not
+    if not ba.frames[~held].all() or \
+            not ba.rms_final_deg <= options.join_max_residual_factor * sol.rms1:
+        return None
+    R, c, d, p = sol.R.copy(), sol.c.copy(), sol.d.copy(), sol.p.copy()
+    R[frames[ba.frames]], c[frames[ba.frames]] = ba.rotations[ba.frames], ba.positions[ba.frames]
+    u = ba.used_tracks
+    d[lines[u]], p[lines[u]] = ba.line_directions[u], ba.line_points[u]
+    return replace(sol, R=R, c=c, d=d, p=p)
 
 
 def _adjusted(tracks: LineTracks, sol: _Solved, options: EstimationOptions) -> _Solved | None:
@@ -651,6 +792,7 @@ def _with_segments(tracks: LineTracks, sol: _Solved, options: EstimationOptions,
     todo = [r for r in runs(~covered) if r[1] - r[0] >= max(options.min_segment_frames, 3)] \
         if options.min_segment_frames > 0 else []
     pieces = [sol]  # the main piece first
+    grown = [False]
     failures: dict[tuple[int, int], str] = {}
     joined = 0
     t0 = time.perf_counter()
@@ -670,17 +812,16 @@ def _with_segments(tracks: LineTracks, sol: _Solved, options: EstimationOptions,
         gap = [min(abs(int(np.flatnonzero(q.frames)[0]) - b), abs(int(np.flatnonzero(
             q.frames)[-1]) - a)) for q in pieces]
         for k in np.argsort(gap, kind="stable"):
-            merged = _join(pieces[k], lifted, options)
-            if merged is None:
-                continue
-            # the joint adjustment has the last word: the pieces must fit together
-            adjusted = _adjusted(tracks, merged, options)
-            if adjusted is not None and adjusted.frames.sum() >= 0.98 * merged.frames.sum() \
-                    and adjusted.rms1 <= options.join_max_residual_factor * merged.rms1:
-                pieces[k], joined = adjusted, joined + 1
+            merged = _join(tracks, pieces[k], lifted, options)
+            if merged is not None:
+                pieces[k], joined = merged, joined + 1
+                grown[k] = True
                 break
         else:
             pieces.append(lifted)
+            grown.append(False)
+    for k in np.flatnonzero(grown):
+        pieces[k] = _adjusted(tracks, pieces[k], options) or pieces[k]
     timings["segments"] += (time.perf_counter() - t0) * 1e3
     # the main trajectory is the largest piece
     pieces.sort(key=lambda q: -int(q.frames.sum()))
