@@ -116,15 +116,17 @@ def summary(rep: dict[str, Any], output: Path, estimated: list[str], not_estimat
                 "scale is undetermined" if "motion" in rep else
                 "first-to-last camera distance = 1")]
     segs = rep.get("segments") or []
+    n_seg = sum(int(sg["num_frames_estimated"]) for sg in segs)
     if segs:
-        n_seg = sum(int(sg["num_frames_estimated"]) for sg in segs)
+        files = [sg["file"] for sg in segs]
+        shown = ", ".join(files) if len(files) <= 3 else f"{files[0]} ... {files[-1]}"
         lines.append(f"segments: {n_seg} more frames in {len(segs)} separate piece"
                      f"{'' if len(segs) == 1 else 's'}, each in its own world and scale "
-                     f"({', '.join(sg['file'] for sg in segs)}): no line links them to the "
-                     "main trajectory")
-    if not_estimated:
-        lines.append(f"not estimated: {len(not_estimated)} frames ({_names(not_estimated)}; "
-                     "reasons in report.json)")
+                     f"({shown}): too few lines link them to the main trajectory")
+    if len(not_estimated) > n_seg:
+        lines.append(f"not estimated: {len(not_estimated) - n_seg} frames"
+                     + (f" besides the segments' {n_seg}" if n_seg else "")
+                     + f" ({_names(not_estimated)}; reasons in report.json)")
     if unreadable and reasons:
         lines.append(_skipped(unreadable, reasons))
     elif unreadable:
