@@ -132,6 +132,10 @@ def test_a_gap_gives_a_separate_segment(tmp_path: Path) -> None:
     assert err.rot_max_deg < 0.2 and err.ate_rel < 0.01
     assert res.report["segments"][0]["frames"] == [50, 89]
     assert "segment 1" in res.report["frames_not_estimated_reasons"]["60"]
+    (start,) = [a for a in res.report["attempts"] if a["strategy"] == "new start"]
+    assert start["frames"] == [50, 89] and start["result"] == "40 frames estimated"
+    (join,) = [a for a in res.report["attempts"] if a["strategy"] == "join"]
+    assert join["result"] == "kept apart" and "lines reconstructed in both" in join["why"]
     written = write_init_outputs(tmp_path, res)
     assert tmp_path / "trajectory_segment_1.tum" in written
     assert len(read_tum(tmp_path / "trajectory_segment_1.tum")) == 40

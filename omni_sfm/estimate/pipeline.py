@@ -227,6 +227,8 @@ class _Init:
     """Sizes of the parallel families found (largest first; the windows use the first)."""
     switched: list[str] = field(default_factory=list)
     """Windows solved with another family, because the first was degenerate there."""
+    repairs: int = 0
+    """Frames turned back from a half turn (``_repair_half_turns``)."""
 
 
 def _check_counts(tracks: LineTracks, members: np.ndarray) -> None:
@@ -257,7 +259,7 @@ def _lift_init(i: _Init, start: int, idx: np.ndarray, F: int, M: int) -> _Init:
                  [Window(w.start + start, w.stop + start, idx[w.tracks]) for w in i.windows],
                  list(i.failures), members, frames_of(i.vpv, np.nan),
                  reasons={start + k: v for k, v in i.reasons.items()}, families=i.families,
-                 switched=i.switched)
+                 switched=i.switched, repairs=i.repairs)
 
 
 def _initialise(tracks: LineTracks, options: EstimationOptions,
@@ -552,7 +554,8 @@ def _solve_moving(tracks: LineTracks, options: EstimationOptions,
             else np.nan
     sol = _Solved(init, R, c, frames, d, p, used, outliers, rms0, rms1, sigma)
     if options.refine:
-        sol, _ = _repair_half_turns(tracks, sol, options)
+        sol, repaired = _repair_half_turns(tracks, sol, options)
+        sol.init.repairs += repaired
     return sol
 
 
@@ -637,6 +640,7 @@ def _moving_result(tracks: LineTracks, sol: _Solved, timings: dict[str, float],
     report = _report(tracks, frames, members, direction, outliers, used, windows,
                      init.failures, dict(timings), rms0, rms1, sigma)
     report["reflection"] = reflection
+    report["half_turns_repaired"] = init.repairs
     report["parallel_families"] = {
         "sizes": init.families,
         "windows_with_another_family": init.switched,
@@ -689,25 +693,30 @@ def _line_depth(sol: _Solved, lines: np.ndarray) -> float:
 
 
 def _join(tracks: LineTracks, a: _Solved, b: _Solved,
-          options: EstimationOptions) -> _Solved | None:
+          options: EstimationOptions) -> tuple[_Solved | None, str]:
     """``b`` moved into ``a``'s world and merged with it, when their common lines fix the
     similarity between the two (docs/estimator.md stage 8), else None."""
     common = np.isfinite(a.d).all(1) & np.isfinite(b.d).all(1)
     if common.sum() < 3:
-        return None
+        return None, f"{int(common.sum())} lines reconstructed in both; need 3"
     # the frames next to each other across the break: the camera turns little between them
     fa, fb = np.flatnonzero(a.frames), np.flatnonzero(b.frames)
     ka = int(np.argmin(np.minimum(np.abs(fa - fb[0]), np.abs(fa - fb[-1]))))
     kb = int(np.argmin(np.abs(fb - fa[ka])))
     steps = abs(int(fa[ka]) - int(fb[kb]))
     if steps > options.join_max_gap:
-        return None
+        return None, f"{steps} frames apart; at most {options.join_max_gap} are joined"
     near = a.R[fa[ka]] @ b.R[fb[kb]].T
     sim = similarity_from_lines(a.d[common], a.p[common], b.d[common], b.p[common], near=near,
                                 near_deg=options.join_max_turn_deg * steps)
-    if sim is None or sim.angle_deg > options.join_max_angle_deg or \
-            sim.distance > options.join_max_distance * _line_depth(a, np.flatnonzero(common)):
-        return None
+    if sim is None:
+        return None, (f"the {int(common.sum())} common lines do not fix the similarity (fewer "
+                      f"than 3 agree, or all of one direction)")
+    depth = _line_depth(a, np.flatnonzero(common))
+    if sim.angle_deg > options.join_max_angle_deg or \
+            sim.distance > options.join_max_distance * depth:
+        return None, (f"the common lines disagree: {sim.angle_deg:.2g} deg, "
+                      f"{sim.distance / depth:.0%} of their distance")
     Rs, s, t = sim.rotation, sim.scale, sim.translation
     R, c = a.R.copy(), a.c.copy()
     R[b.frames] = np.einsum("ij,fjk->fik", Rs, b.R[b.frames])
@@ -726,12 +735,16 @@ def _join(tracks: LineTracks, a: _Solved, b: _Solved,
     vpv = np.where(np.isfinite(ia.vpv).all(1, keepdims=True), ia.vpv, ib.vpv)
     init = _Init(r0, c0, frames, ia.windows + ib.windows, ia.failures + ib.failures,
                  ia.members | (ib.members & ~a.used), vpv, reasons=reasons,
-                 families=ia.families, switched=ia.switched + ib.switched)
+                 families=ia.families, switched=ia.switched + ib.switched,
+                 repairs=ia.repairs + ib.repairs)
     merged = _Solved(init, R, c, frames, d, p, a.used | b.used,
                      (a.outliers | b.outliers) & ~(a.used | b.used), max(a.rms0, b.rms0),
                      max(a.rms1, b.rms1), max(a.sigma, b.sigma))
-    return _junction_adjusted(tracks, merged, min(fa[ka], fb[kb]), max(fa[ka], fb[kb]),
-                              options)
+    joint = _junction_adjusted(tracks, merged, min(fa[ka], fb[kb]), max(fa[ka], fb[kb]),
+                               options)
+    if joint is None:
+        return None, "the adjustment of the frames around the junction does not fit them"
+    return joint, f"{sim.lines} common lines, {sim.angle_deg:.2g} deg"
 
 
 def _junction_adjusted(tracks: LineTracks, sol: _Solved, first: int, last: int,
@@ -794,6 +807,7 @@ def _with_segments(tracks: LineTracks, sol: _Solved, options: EstimationOptions,
     pieces = [sol]  # the main piece first
     grown = [False]
     failures: dict[tuple[int, int], str] = {}
+    attempts: list[dict[str, Any]] = []
     joined = 0
     t0 = time.perf_counter()
     while todo and len(pieces) - 1 + joined < options.max_segments:
@@ -803,8 +817,12 @@ def _with_segments(tracks: LineTracks, sol: _Solved, options: EstimationOptions,
             sub = _solve_moving(sub_tracks, options, defaultdict(float))
         except OmniSfmError as exc:
             failures[(a, b)] = str(exc)
+            attempts.append({"strategy": "new start", "frames": [a, b - 1],
+                             "result": "failed", "why": str(exc)})
             continue
         lifted = _lift(tracks, sub, a, idx)
+        attempts.append({"strategy": "new start", "frames": [a, b - 1],
+                         "result": f"{int(sub.frames.sum())} frames estimated"})
         covered |= lifted.frames
         todo += [(a + x, a + y) for x, y in runs(~sub.frames)
                  if y - x >= options.min_segment_frames]
@@ -812,7 +830,12 @@ def _with_segments(tracks: LineTracks, sol: _Solved, options: EstimationOptions,
         gap = [min(abs(int(np.flatnonzero(q.frames)[0]) - b), abs(int(np.flatnonzero(
             q.frames)[-1]) - a)) for q in pieces]
         for k in np.argsort(gap, kind="stable"):
-            merged = _join(tracks, pieces[k], lifted, options)
+            merged, why = _join(tracks, pieces[k], lifted, options)
+            fk = np.flatnonzero(pieces[k].frames)
+            attempts.append({"strategy": "join", "frames": [a, b - 1],
+                             "to_frames": [int(fk[0]), int(fk[-1])],
+                             "result": "joined" if merged is not None else "kept apart",
+                             "why": why})
             if merged is not None:
                 pieces[k], joined = merged, joined + 1
                 grown[k] = True
@@ -828,6 +851,7 @@ def _with_segments(tracks: LineTracks, sol: _Solved, options: EstimationOptions,
     result = _moving_result(tracks, pieces[0], timings, t_all)
     report = dict(result.report)
     report["joined_pieces"] = joined
+    report["attempts"] = attempts
     segments: list[Segment] = []
     for piece in sorted(pieces[1:], key=lambda q: int(np.flatnonzero(q.frames)[0])):
         try:
