@@ -7,7 +7,8 @@ line-based ``init`` on the frames exactly as the command line does (automatic ma
 check included), and compares with the ground truth: frames estimated, maximum and mean rotation
 error relative to the first frame, ATE after similarity alignment over the path length, wall
 time. Also the camera-fixed body (operator / robot) unmasked against the same run with the body
-masked by hand, and a turn in place. Prints JSON lines and a Markdown table.
+masked by hand, a turn in place, and a stop-and-go walk (drive, stop, turn 90 deg in place,
+drive on). Prints JSON lines and a Markdown table.
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/eval_footage.py --work /tmp/footage \\
         --frames 600 --markdown /tmp/footage/table.md
@@ -86,6 +87,8 @@ def cases(frames: int, only: list[str] | None) -> list[Case]:
                         replace(base, effects=body), hand_mask=True))
         turn = replace(base, route=Route.TURN, frames=max(20, frames // 3))
         out.append(Case(f"{cam_name} | turn in place 120 deg", turn))
+        out.append(Case(f"{cam_name} | stop-and-go: drive, stop, turn 90 deg, drive on",
+                        replace(base, route=Route.STOP_AND_GO)))
     return [c for c in out if not only or any(o in c.name for o in only)]
 
 
