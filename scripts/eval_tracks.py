@@ -1,0 +1,86 @@
+#!/usr/bin/env python
+"""The estimator alone on saved tracks: `estimate_poses` on each `init` folder's `tracks.json`
+against the ground truth of the rendered sequence it came from.
+
+Re-running only the estimator separates what it does from the front end (the tracks are fixed),
+so a change of the estimator is measured on exactly the same input. For each pair it prints the
+frames of the main trajectory and their errors (maximum and mean rotation error relative to the
+first frame, ATE as a per cent of the path after similarity alignment), then each segment
+(pieces in their own world, docs/estimator.md stage 8) the same way, and the wall time.
+
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/eval_tracks.py \\
+        /tmp/f600/hyperboloid-800x600--clean-init:/tmp/f600/hyperboloid-800x600--clean ...
+
+Each argument is ``INIT_DIR:RENDER_DIR`` (``RENDER_DIR`` holds ``groundtruth.tum``); a bare
+``INIT_DIR`` ending in ``-init`` pairs with the folder of the same name without it, as
+``scripts/eval_footage.py`` lays them out.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+from omni_sfm.errors import OmniSfmError
+from omni_sfm.estimate.pipeline import estimate_poses, match_reflection
+from omni_sfm.evaluate import relative_rotation_errors_deg, trajectory_errors
+from omni_sfm.lines.tracks import read_tracks
+from omni_sfm.poses import Trajectory, read_tum
+from omni_sfm.transforms import associate
+
+
+def _pair(arg: str) -> tuple[Path, Path]:
+    if ":" in arg:
+        a, b = arg.split(":", 1)
+        return Path(a), Path(b)
+    d = Path(arg.rstrip("/"))
+    if not d.name.endswith("-init"):
+        raise SystemExit(f"eval_tracks: {arg}: give INIT_DIR:RENDER_DIR")
+    return d, d.with_name(d.name[: -len("-init")])
+
+
+def _errors(traj: Trajectory, gt: Trajectory, positions: bool) -> str:
+    if not positions:
+        e, g = associate(traj, gt)
+        rot = relative_rotation_errors_deg(e, g)
+        return f"{len(e)} frames, rotation {rot.max():.3f} / {rot.mean():.3f} deg, rotation only"
+    err = trajectory_errors(match_reflection(traj, gt), gt)
+    return (f"{err.num_common} frames, rotation {err.rot_max_deg:.3f} / {err.rot_mean_deg:.3f} "
+            f"deg (max / mean), ATE {100 * err.ate_rel:.3f} %")
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("pairs", nargs="+", help="INIT_DIR:RENDER_DIR (or INIT_DIR ending in -init)")
+    args = ap.parse_args()
+    print(f"# estimator alone on saved tracks; {os.cpu_count()} CPUs, "
+          f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}")
+    for arg in args.pairs:
+        init_dir, render_dir = _pair(arg)
+        try:
+            tracks = read_tracks(init_dir / "tracks.json")
+            gt = read_tum(render_dir / "groundtruth.tum")
+            t0 = time.perf_counter()
+            res = estimate_poses(tracks)
+            wall = time.perf_counter() - t0
+        except OmniSfmError as exc:
+            print(f"{init_dir.name}: error: {exc}")
+            continue
+        moving = "motion" not in res.report
+        in_segs = sum(int(s.frames.sum()) for s in res.segments)
+        print(f"{init_dir.name}: {int(res.estimated.sum())}/{tracks.num_frames} in the main "
+              f"trajectory, {in_segs} in {len(res.segments)} segments, {wall:.1f} s")
+        print(f"  main: {_errors(res.trajectory, gt, moving)}")
+        for seg in res.segments:
+            first, last = np.flatnonzero(seg.frames)[[0, -1]]
+            print(f"  segment {seg.number} (frames {first}-{last}): "
+                  f"{_errors(seg.trajectory, gt, True)}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
