@@ -830,6 +830,8 @@ def _with_segments(tracks: LineTracks, sol: _Solved, options: EstimationOptions,
         gap = [min(abs(int(np.flatnonzero(q.frames)[0]) - b), abs(int(np.flatnonzero(
             q.frames)[-1]) - a)) for q in pieces]
         for k in np.argsort(gap, kind="stable"):
+            if gap[k] > options.join_max_gap:
+                continue
             merged, why = _join(tracks, pieces[k], lifted, options)
             fk = np.flatnonzero(pieces[k].frames)
             attempts.append({"strategy": "join", "frames": [a, b - 1],
