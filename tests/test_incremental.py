@@ -182,3 +182,29 @@ def test_a_walk_along_the_largest_family_uses_another_one() -> None:
     assert len(fam["windows_with_another_family"]) == 1
     err = trajectory_errors(match_reflection(res.trajectory, gt), gt)
     assert err.rot_max_deg < 0.2 and err.ate_rel < 0.005
+
+
+def test_a_short_run_turned_by_a_half_turn_is_turned_back() -> None:
+    # the exact solution of a simulated walk with frames 20-22 turned by 180 deg about the
+    # vertical (as a window's solution can come out where the view fits both): the repair
+    # turns them back from their lines, and only them
+    from omni_sfm.estimate.pipeline import EstimationOptions, _Init, _repair_half_turns, _Solved
+    from omni_sfm.geometry import rotation_angle
+
+    sim = simulate(SimulationOptions(num_views=40, num_parallel=10, num_other=10, seed=3))
+    g, F, M = sim.groundtruth, 40, sim.tracks.num_tracks
+    R = g.rotations.copy()
+    half = rotvec_to_matrix(np.array([0.0, 0.0, np.pi]))
+    R[20:23] = R[20:23] @ half
+    frames = np.ones(F, bool)
+    init = _Init(R, g.positions, frames, [], [], sim.parallel, np.zeros((F, 3)))
+    sol = _Solved(init, R, g.positions.copy(), frames, sim.line_directions.copy(),
+                  sim.line_points.copy(), np.ones(M, bool), np.zeros(M, bool), 0.0, 0.0, 0.0)
+    fixed, count = _repair_half_turns(sim.tracks, sol, EstimationOptions())
+    assert count == 3
+    err = np.degrees(rotation_angle(np.einsum("fji,fjk->fik", fixed.R, g.rotations)))
+    assert err.max() < 1e-3
+    # nothing to repair: nothing changes
+    exact = _Solved(init, g.rotations, g.positions, frames, sim.line_directions,
+                    sim.line_points, np.ones(M, bool), np.zeros(M, bool), 0.0, 0.0, 0.0)
+    assert _repair_half_turns(sim.tracks, exact, EstimationOptions())[1] == 0
