@@ -37,6 +37,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 from enum import StrEnum
+from typing import Any
 
 import numpy as np
 import scipy.linalg
@@ -333,14 +334,15 @@ class _Problem:
         np.add.at(gl, t, np.einsum("kai,ka->ki", J_line * w[:, None, None], e))
         return Hpp, Hll, Hpl, gp, gl
 
-    def solve(self, Hpp: FloatArray, Hll: FloatArray, Hpl: FloatArray, gp: FloatArray,
-              gl: FloatArray, lam: float) -> tuple[FloatArray, FloatArray]:
-        """Damped step ``(H + lam diag(H)) dx = -g``: poses eliminated (Schur complement).
+    def solve(self, blocks: _Blocks, lam: float) -> tuple[FloatArray, FloatArray]:
+        """Damped step ``(H + lam diag(H)) dx = -g`` from :meth:`normal_equations`' blocks:
+        poses eliminated (Schur complement).
 
         The pose blocks are 6x6 and independent; eliminating them leaves a ``4M x 4M`` system
         in the lines whose sparse update ``G^T G`` (``G = L_f^-1 H_fl``, one 6x4 block per
         observation) is formed with scipy.sparse, then solved by dense Cholesky.
         """
+        Hpp, Hll, Hpl, gp, gl = blocks
         F, M, f, t = self.F, self.M, self.f, self.t
         eye6, eye4 = np.eye(6), np.eye(4)
         pf, lf = self.pose_free, self.line_free
@@ -421,7 +423,41 @@ def _robust_sigma(angles: FloatArray) -> float:
     return max(float(np.median(a)) / _RAYLEIGH_MEDIAN, _SIGMA_FLOOR)
 
 
-def _levenberg_marquardt(prob: _Problem, state: _State, loss: RobustLoss, scale: float,
+class _PoseProblem:
+    """The LM problem of one camera's 6 pose parameters with its lines held
+    (:func:`resect_pose`): state ``(R (3, 3), c (3,), d (K, 3), p (K, 3))``, one observation
+    of each line, residual bases ``B`` ``(K, 2, 3)``."""
+
+    def __init__(self, B: FloatArray) -> None:
+        self.B = B
+
+    def residuals(self, R: FloatArray, c: FloatArray, d: FloatArray,
+                  p: FloatArray) -> tuple[FloatArray, FloatArray]:
+        u = predicted_normals(R[None], c[None], p, d)
+        return np.einsum("kai,ki->ka", self.B, normalize(u)), u
+
+    def jacobian(self, R: FloatArray, c: FloatArray, d: FloatArray, p: FloatArray,
+                 u: FloatArray) -> tuple[FloatArray, FloatArray]:
+        _, J_rot, J_c = _pose_jacobian(np.broadcast_to(R, (len(d), 3, 3)), d, u, self.B)
+        return np.concatenate([J_rot, J_c], axis=2), np.zeros((len(d), 2, 0))
+
+    def normal_equations(self, J: FloatArray, _J_line: FloatArray, e: FloatArray,
+                         w: FloatArray) -> tuple[FloatArray, FloatArray]:
+        return np.einsum("kai,k,kaj->ij", J, w, J), np.einsum("kai,k,ka->i", J, w, e)
+
+    def solve(self, blocks: tuple[FloatArray, FloatArray],
+              lam: float) -> tuple[FloatArray, FloatArray]:
+        H, g = blocks
+        damped = H + lam * np.diag(np.maximum(np.diag(H), 1e-12))
+        return np.asarray(-np.linalg.solve(damped, g), np.float64), np.zeros(0)
+
+    def retract(self, R: FloatArray, c: FloatArray, d: FloatArray, p: FloatArray,
+                step: FloatArray, _dline: FloatArray) -> _State:
+        return R @ rotvec_to_matrix(step[:3]), c + step[3:], d, p
+
+
+def _levenberg_marquardt(prob: _Problem | _PoseProblem, state: _State, loss: RobustLoss,
+                         scale: float,
                          max_iterations: int, tolerance: float) -> tuple[_State, int]:
     def cost_of(e: FloatArray) -> float:
         return 0.5 * float(np.sum(_loss_weights(np.sum(e * e, 1), loss, scale)[0]))
@@ -432,11 +468,11 @@ def _levenberg_marquardt(prob: _Problem, state: _State, loss: RobustLoss, scale:
     it = 0
     for it in range(1, max_iterations + 1):  # noqa: B007
         _, w = _loss_weights(np.sum(e * e, 1), loss, scale)
-        blocks = prob.normal_equations(*prob.jacobian(*state, u), e, w)
+        blocks: Any = prob.normal_equations(*prob.jacobian(*state, u), e, w)
         improved = False
         for _ in range(12):
             try:
-                dpose, dline = prob.solve(*blocks, lam)
+                dpose, dline = prob.solve(blocks, lam)
             except np.linalg.LinAlgError:  # not positive definite: damp more
                 lam *= 10.0
                 continue
@@ -782,38 +818,9 @@ def resect_pose(normals: FloatArray, line_directions: FloatArray, line_points: F
     """
     n_obs = normalize(np.asarray(normals, np.float64))
     d, p = np.asarray(line_directions, np.float64), np.asarray(line_points, np.float64)
-    B = np.stack(_tangent_basis(n_obs), axis=1)
-    R, c = np.array(rotation, np.float64), np.array(position, np.float64)
+    prob = _PoseProblem(np.stack(_tangent_basis(n_obs), axis=1))
     loss = RobustLoss.HUBER if np.isfinite(scale) else RobustLoss.LINEAR
-
-    def residuals(R: FloatArray, c: FloatArray) -> tuple[FloatArray, FloatArray]:
-        u = predicted_normals(R[None], c[None], p, d)
-        return np.einsum("kai,ki->ka", B, normalize(u)), u
-
-    e, u = residuals(R, c)
-    cost = 0.5 * float(np.sum(_loss_weights(np.sum(e * e, 1), loss, scale)[0]))
-    lam = 1e-4
-    for _ in range(iterations):
-        _, w = _loss_weights(np.sum(e * e, 1), loss, scale)
-        _, J_rot, J_c = _pose_jacobian(np.broadcast_to(R, (len(d), 3, 3)), d, u, B)
-        J = np.concatenate([J_rot, J_c], axis=2)  # (K, 2, 6)
-        H = np.einsum("kai,k,kaj->ij", J, w, J)
-        g = np.einsum("kai,k,ka->i", J, w, e)
-        improved = False
-        for _ in range(10):
-            step = -np.linalg.solve(H + lam * np.diag(np.maximum(np.diag(H), 1e-12)), g)
-            R2, c2 = R @ rotvec_to_matrix(step[:3]), c + step[3:]
-            e2, u2 = residuals(R2, c2)
-            cost2 = 0.5 * float(np.sum(_loss_weights(np.sum(e2 * e2, 1), loss, scale)[0]))
-            if np.isfinite(cost2) and cost2 <= cost:
-                improved = True
-                break
-            lam *= 10.0
-        if not improved:
-            break
-        rel = (cost - cost2) / max(cost, 1e-300)
-        R, c, e, u, cost = R2, c2, e2, u2, cost2
-        lam = max(lam / 10.0, 1e-12)
-        if rel < 1e-10:
-            break
+    state: _State = (np.array(rotation, np.float64), np.array(position, np.float64), d, p)
+    (R, c, _, _), _ = _levenberg_marquardt(prob, state, loss, scale, iterations, 1e-10)
+    _, u = prob.residuals(R, c, d, p)
     return R, c, unsigned_angle(normalize(u), n_obs)
