@@ -108,7 +108,7 @@ class Registration:
     added: int = 0
 
 
-def _index(keys: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+def obs_index(keys: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
     """``(order, starts)``: observations of key ``k`` are ``order[starts[k]:starts[k + 1]]``."""
     order = np.argsort(keys, kind="stable")
     return order, np.searchsorted(keys[order], np.arange(n + 1))
@@ -171,8 +171,8 @@ class _Growth:
         self.thr = max(options.inlier_sigmas * sigma, np.radians(options.min_inlier_deg))
         self.last_median = 0.0  # median angle of the last registered frame at its pose
         self.refit = False  # the last frame fitted its lines worse than usual: adjust soon
-        self.by_frame, self.frame_starts = _index(tracks.obs_frame, F)
-        self.by_track, self.track_starts = _index(tracks.obs_track, M)
+        self.by_frame, self.frame_starts = obs_index(tracks.obs_frame, F)
+        self.by_track, self.track_starts = obs_index(tracks.obs_track, M)
         self.local = replace(bundle, max_rounds=2, max_iterations=options.local_iterations,
                              final_loss=None)
         self.reasons: dict[int, str] = {}

@@ -30,7 +30,12 @@ from omni_sfm.estimate.bundle import (
     resect_pose,
     triangulate_lines,
 )
-from omni_sfm.estimate.incremental import IncrementalOptions, register_frames, subtracks
+from omni_sfm.estimate.incremental import (
+    IncrementalOptions,
+    obs_index,
+    register_frames,
+    subtracks,
+)
 from omni_sfm.estimate.paper import PaperOptions, PaperSolution, estimate_paper
 from omni_sfm.estimate.rotation_only import (
     RotationOnlyOptions,
@@ -122,6 +127,9 @@ class EstimationOptions:
     join_max_gap: int = 20
     """Only pieces at most this many frames apart are joined (a rotation the lines allow is
     picked by the turn between them; Manhattan scenes allow several) ..."""
+    join_max_speed_ratio: float = 2.0
+    """... the camera's speed (median step) on the two sides of the junction differs by at
+    most this factor under the similarity ..."""
     join_window: int = 30
     """... and the frames this far from the junction are adjusted together to check that the
     pieces fit ..."""
@@ -577,8 +585,7 @@ def _repair_half_turns(tracks: LineTracks, sol: _Solved,
            if j1 - j0 <= options.max_half_turn_run for k in range(j0 + 1, j1 + 1)]
     if not odd:
         return sol, 0
-    by_frame = np.argsort(tracks.obs_frame, kind="stable")
-    starts = np.searchsorted(tracks.obs_frame[by_frame], np.arange(tracks.num_frames + 1))
+    by_frame, starts = obs_index(tracks.obs_frame, tracks.num_frames)
     known: np.ndarray = np.asarray(np.isfinite(sol.d).all(1) & np.isfinite(sol.p).all(1))
     repaired = 0
     for k in odd:
@@ -692,6 +699,15 @@ def _line_depth(sol: _Solved, lines: np.ndarray) -> float:
     return float(np.median(np.linalg.norm(v, axis=2).min(axis=1)))
 
 
+def _speed(c: FloatArray, frames: np.ndarray, at: int, span: int = 10) -> float:
+    """Median distance per frame between the consecutive ``frames`` (sorted) within ``span``
+    of frame ``at``; centres ``c`` ``(F, 3)``."""
+    near = frames[np.abs(frames - at) <= span]
+    if len(near) < 2:
+        return 0.0
+    return float(np.median(np.linalg.norm(np.diff(c[near], axis=0), axis=1) / np.diff(near)))
+
+
 def _join(tracks: LineTracks, a: _Solved, b: _Solved,
           options: EstimationOptions) -> tuple[_Solved | None, str]:
     """``b`` moved into ``a``'s world and merged with it, when their common lines fix the
@@ -718,6 +734,12 @@ def _join(tracks: LineTracks, a: _Solved, b: _Solved,
         return None, (f"the common lines disagree: {sim.angle_deg:.2g} deg, "
                       f"{sim.distance / depth:.0%} of their distance")
     Rs, s, t = sim.rotation, sim.scale, sim.translation
+    # lines triangulated near a piece's end fix its depth poorly: the scale must also keep the
+    # camera's speed across the break (video does not jump in speed)
+    va, vb = _speed(a.c, fa, int(fa[ka])), abs(s) * _speed(b.c, fb, int(fb[kb]))
+    if max(va, vb) > 0 and min(va, vb) < max(va, vb) / options.join_max_speed_ratio:
+        return None, (f"the similarity changes the camera's speed across the break by "
+                      f"{max(va, vb) / max(min(va, vb), 1e-300):.2g}x")
     R, c = a.R.copy(), a.c.copy()
     R[b.frames] = np.einsum("ij,fjk->fik", Rs, b.R[b.frames])
     c[b.frames] = s * b.c[b.frames] @ Rs.T + t
@@ -740,19 +762,19 @@ def _join(tracks: LineTracks, a: _Solved, b: _Solved,
     merged = _Solved(init, R, c, frames, d, p, a.used | b.used,
                      (a.outliers | b.outliers) & ~(a.used | b.used), max(a.rms0, b.rms0),
                      max(a.rms1, b.rms1), max(a.sigma, b.sigma))
-    joint = _junction_adjusted(tracks, merged, min(fa[ka], fb[kb]), max(fa[ka], fb[kb]),
-                               options)
-    if joint is None:
+    if not _junction_fits(tracks, merged, min(fa[ka], fb[kb]), max(fa[ka], fb[kb]), options):
         return None, "the adjustment of the frames around the junction does not fit them"
-    return joint, f"{sim.lines} common lines, {sim.angle_deg:.2g} deg"
+    return merged, f"{sim.lines} common lines, {sim.angle_deg:.2g} deg"
 
 
-def _junction_adjusted(tracks: LineTracks, sol: _Solved, first: int, last: int,
-                       options: EstimationOptions) -> _Solved | None:
-    """The bundle adjustment of the frames around a junction (``first..last`` and
+def _junction_fits(tracks: LineTracks, sol: _Solved, first: int, last: int,
+                   options: EstimationOptions) -> bool:
+    """Whether a bundle adjustment of the frames around a junction (``first..last`` and
     ``join_window`` frames on each side) and their lines, every other frame that sees those
-    lines held; None if it fails or ends with a residual above ``join_max_residual_factor``
-    times the pieces' own (the pieces do not fit together)."""
+    lines held, keeps those frames and ends with a residual of at most
+    ``join_max_residual_factor`` times the pieces' own (the pieces fit together). Only a test:
+    its poses are not kept (a short piece's weak lines can let it wander to another fit of the
+    same residual; the adjustment of the whole joined piece follows)."""
     w = options.join_window
     at = np.arange(len(sol.frames))
     free: np.ndarray = np.asarray(sol.frames & (at >= first - w) & (at <= last + w))
@@ -763,7 +785,7 @@ def _junction_adjusted(tracks: LineTracks, sol: _Solved, first: int, last: int,
     frames = np.unique(tracks.obs_frame[obs])
     held = ~free[frames]
     if len(lines) < 3 or not held.any():
-        return None
+        return False
     sub = subtracks(tracks, obs, lines, frames)
     spread = held.sum() > 1 and float(np.ptp(sol.c[frames[held]], axis=0).max()) > 0
     try:
@@ -771,17 +793,11 @@ def _junction_adjusted(tracks: LineTracks, sol: _Solved, first: int, last: int,
                            held_frames=held, scale_frames=held if spread else None,
                            options=options.bundle)
     except OmniSfmError:
-        return None
+        return False
     # held frames that see fewer than 3 of these lines drop out of the problem; the frames
     # around the junction must not
-    if not ba.frames[~held].all() or \
-            not ba.rms_final_deg <= options.join_max_residual_factor * sol.rms1:
-        return None
-    R, c, d, p = sol.R.copy(), sol.c.copy(), sol.d.copy(), sol.p.copy()
-    R[frames[ba.frames]], c[frames[ba.frames]] = ba.rotations[ba.frames], ba.positions[ba.frames]
-    u = ba.used_tracks
-    d[lines[u]], p[lines[u]] = ba.line_directions[u], ba.line_points[u]
-    return replace(sol, R=R, c=c, d=d, p=p)
+    return bool(ba.frames[~held].all()
+                and ba.rms_final_deg <= options.join_max_residual_factor * sol.rms1)
 
 
 def _adjusted(tracks: LineTracks, sol: _Solved, options: EstimationOptions) -> _Solved | None:

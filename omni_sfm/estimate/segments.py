@@ -13,6 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from omni_sfm.estimate.incremental import subtracks
+from omni_sfm.estimate.rotation_only import procrustes
 from omni_sfm.geometry import FloatArray, rotation_angle
 from omni_sfm.lines.tracks import LineTracks
 
@@ -20,16 +22,9 @@ from omni_sfm.lines.tracks import LineTracks
 def frame_range(tracks: LineTracks, start: int, stop: int) -> tuple[LineTracks, np.ndarray]:
     """The observations of frames ``start..stop-1``, renumbered from 0 (timestamps kept), and
     for each of its tracks the index of the track in ``tracks``."""
-    keep = (tracks.obs_frame >= start) & (tracks.obs_frame < stop)
+    keep = np.flatnonzero((tracks.obs_frame >= start) & (tracks.obs_frame < stop))
     used = np.unique(tracks.obs_track[keep])
-    sub = LineTracks(
-        num_frames=stop - start, track_ids=tracks.track_ids[used],
-        obs_track=np.searchsorted(used, tracks.obs_track[keep]),
-        obs_frame=tracks.obs_frame[keep] - start, obs_normal=tracks.obs_normal[keep],
-        timestamps=tracks.timestamps[start:stop].copy(),
-        obs_ray=None if tracks.obs_ray is None else tracks.obs_ray[keep],
-        obs_sigma=None if tracks.obs_sigma is None else tracks.obs_sigma[keep])
-    return sub, used
+    return subtracks(tracks, keep, used, np.arange(start, stop)), used
 
 
 def runs(mask: np.ndarray) -> list[tuple[int, int]]:
@@ -66,13 +61,6 @@ def _triad(a: FloatArray, b: FloatArray) -> FloatArray:
         e3 /= np.linalg.norm(e3)
         return np.stack([e1, np.cross(e3, e1), e3], axis=1)
     return np.asarray(frame(a[0], a[1]) @ frame(b[0], b[1]).T)
-
-
-def _procrustes(a: FloatArray, b: FloatArray) -> FloatArray:
-    """Rotation ``R`` minimising ``sum |a_k - R b_k|^2``."""
-    U, _, Vt = np.linalg.svd(a.T @ b)
-    D = np.diag([1.0, 1.0, float(np.sign(np.linalg.det(U @ Vt)))])
-    return np.asarray(U @ D @ Vt)
 
 
 def similarity_from_lines(d_a: FloatArray, p_a: FloatArray, d_b: FloatArray, p_b: FloatArray,
@@ -128,7 +116,7 @@ def _fit(d_a: FloatArray, p_a: FloatArray, d_b: FloatArray, p_b: FloatArray, R: 
     inl = np.abs(cosines) > cos_tol
     if inl.sum() < 3:
         return None
-    R = _procrustes(d_a[inl] * np.sign(cosines[inl])[:, None], d_b[inl])
+    R = procrustes(d_b[inl], d_a[inl] * np.sign(cosines[inl])[:, None], np.ones(int(inl.sum())))
     da, pa, pb = d_a[inl], p_a[inl], p_b[inl] @ R.T
     if np.linalg.svd(da, compute_uv=False)[1] < np.sin(np.radians(min_spread_deg)) * 0.5:
         return None  # one direction: the translation along it is free
