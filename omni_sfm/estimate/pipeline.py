@@ -250,22 +250,26 @@ def _check_counts(tracks: LineTracks, members: np.ndarray) -> None:
                            f"at least 3 lines not parallel to the family")
 
 
+def _scatter(a: np.ndarray, at: np.ndarray | slice, size: int, fill: Any) -> np.ndarray:
+    """``a`` placed at rows ``at`` of an array of ``size`` rows filled with ``fill``."""
+    out = np.full((size, *a.shape[1:]), fill, dtype=a.dtype)
+    out[at] = a
+    return out
+
+
 def _lift_init(i: _Init, start: int, idx: np.ndarray, F: int, M: int) -> _Init:
     """An :class:`_Init` of frames ``start..`` and tracks ``idx`` (:func:`frame_range`) in the
     indices of the whole sequence (``F`` frames, ``M`` tracks)."""
-    n = len(i.frames)
+    rows = slice(start, start + len(i.frames))
 
     def frames_of(a: np.ndarray, fill: Any) -> np.ndarray:
-        out = np.full((F, *a.shape[1:]), fill, dtype=a.dtype)
-        out[start:start + n] = a
-        return out
+        return _scatter(a, rows, F, fill)
 
-    members = np.zeros(M, bool)
-    members[idx] = i.members
     return _Init(frames_of(i.rotations, np.nan), frames_of(i.positions, np.nan),
                  frames_of(i.frames, False),
                  [Window(w.start + start, w.stop + start, idx[w.tracks]) for w in i.windows],
-                 list(i.failures), members, frames_of(i.vpv, np.nan),
+                 list(i.failures), _scatter(i.members, idx, M, False),
+                 frames_of(i.vpv, np.nan),
                  reasons={start + k: v for k, v in i.reasons.items()}, families=i.families,
                  switched=i.switched, repairs=i.repairs)
 
@@ -669,17 +673,13 @@ def _lift(tracks: LineTracks, sub: _Solved, start: int, idx: np.ndarray) -> _Sol
     """A solution of frames ``start..`` and tracks ``idx`` (:func:`frame_range`) in the indices
     of the whole ``tracks``."""
     F, M = tracks.num_frames, tracks.num_tracks
-    n = len(sub.frames)
+    rows = slice(start, start + len(sub.frames))
 
     def frames_of(a: np.ndarray, fill: Any) -> np.ndarray:
-        out = np.full((F, *a.shape[1:]), fill, dtype=a.dtype)
-        out[start:start + n] = a
-        return out
+        return _scatter(a, rows, F, fill)
 
     def tracks_of(a: np.ndarray, fill: Any) -> np.ndarray:
-        out = np.full((M, *a.shape[1:]), fill, dtype=a.dtype)
-        out[idx] = a
-        return out
+        return _scatter(a, idx, M, fill)
 
     init = _lift_init(sub.init, start, idx, F, M)
     return _Solved(init, frames_of(sub.R, np.nan), frames_of(sub.c, np.nan),
@@ -1021,9 +1021,7 @@ def side_votes(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArray, 
 def _expand(ba: BundleResult, idx: np.ndarray, M: int, first_outliers: np.ndarray) -> BundleResult:
     """A BundleResult on the tracks ``idx`` of M, expanded back to all M tracks."""
     def grow(a: np.ndarray, fill: Any) -> np.ndarray:
-        out = np.full((M, *a.shape[1:]), fill, dtype=a.dtype)
-        out[idx] = a
-        return out
+        return _scatter(a, idx, M, fill)
 
     outl = grow(ba.outlier_tracks, False) | first_outliers
     return BundleResult(ba.rotations, ba.positions, grow(ba.line_directions, np.nan),
