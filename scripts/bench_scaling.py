@@ -13,7 +13,8 @@ first, the mean rotation error and the ATE (RMS after a similarity alignment, pe
 path length). A run that fails or passes ``--timeout`` is reported with its last error line and
 the next N goes on.
 
-    .venv/bin/python scripts/bench_scaling.py [--frames 1000 5000 20000] [--timeout 3600]
+    .venv/bin/python scripts/bench_scaling.py [--frames 1000 5000 20000] [--timeout 3600] \
+        [--line-density 3.5]
 """
 
 from __future__ import annotations
@@ -103,6 +104,7 @@ def _run_one(n: int, args: argparse.Namespace, work: Path) -> dict[str, str]:
     row = {"frames": str(n)}
     opts = SimulationOptions(world="manhattan", num_views=n, path_length=0.05 * (n - 1),
                              noise_deg=args.noise_deg, visible_frames=args.visible_frames,
+                             line_density=args.line_density,
                              seed=args.seed)
     t0 = time.perf_counter()
     sim = simulate(opts)
@@ -155,6 +157,8 @@ def main() -> int:
                     help="seconds allowed to each init run (default 3600)")
     ap.add_argument("--noise-deg", type=float, default=0.1)
     ap.add_argument("--visible-frames", type=int, default=60)
+    ap.add_argument("--line-density", type=float, default=3.5,
+                    help="3D lines per metre of route (simulate --line-density)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--init-args", default="",
                     help="extra arguments for 'omni-sfm init', e.g. '--no-refine'")
@@ -166,7 +170,8 @@ def main() -> int:
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     print(f"# omni-sfm init --lines {args.init_args}".rstrip()
           + f" on Manhattan walks (0.05 m a frame, lines seen in about {args.visible_frames} "
-          f"frames), noise {args.noise_deg} deg, seed {args.seed}, timeout {args.timeout:g} s; "
+          f"frames, {args.line_density:g} lines per metre), noise {args.noise_deg} deg, "
+          f"seed {args.seed}, timeout {args.timeout:g} s; "
           f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, load average "
           f"{load:.1f}, OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', '1')}")
     print("# rot@500, rot@last, rot mean: rotation error (deg) relative to the first frame; "

@@ -340,7 +340,8 @@ class _Problem:
 
         The pose blocks are 6x6 and independent; eliminating them leaves a ``4M x 4M`` system
         in the lines whose sparse update ``G^T G`` (``G = L_f^-1 H_fl``, one 6x4 block per
-        observation) is formed with scipy.sparse, then solved by dense Cholesky.
+        observation) is formed with scipy.sparse (densely when most lines are seen in most
+        frames, else block-sparse), then solved by dense Cholesky or sparse LU.
         """
         Hpp, Hll, Hpl, gp, gl = blocks
         F, M, f, t = self.F, self.M, self.f, self.t
@@ -375,11 +376,12 @@ class _Problem:
             S_dense = bd.toarray() - Gm.T @ Gm
             rhs = -gl[act].ravel() + Gm.T @ gpt.ravel()
         else:
-            rows = (6 * f[:, None, None] + np.arange(6)[None, :, None]).repeat(4, axis=2)
-            cols = (4 * tc[:, None, None] + np.arange(4)[None, None, :]).repeat(6, axis=1)
-            Gs = sp.csr_matrix((G.ravel(), (rows.ravel(), cols.ravel())),
-                               shape=(6 * F, 4 * Ma))
-            S = (bd - Gs.T @ Gs).tocsc()
+            # block sparse, one 6x4 block per observation (row: frame, column: line): its
+            # product with itself is formed block by block, faster than element by element
+            order = np.lexsort((tc, f))
+            indptr = np.concatenate([[0], np.cumsum(np.bincount(f, minlength=F))])
+            Gs = sp.bsr_matrix((G[order], tc[order], indptr), shape=(6 * F, 4 * Ma))
+            S = (bd - (Gs.T @ Gs).tocsr()).tocsc()
             rhs = -gl[act].ravel() + Gs.T @ gpt.ravel()
             S_dense = S.toarray() if 4 * Ma <= 600 or S.nnz > 0.3 * (4 * Ma) ** 2 else None
         if S_dense is not None:
