@@ -394,6 +394,9 @@ def _other_family(tracks: LineTracks, others: list[ParallelFamily], w: Window,
     return None
 
 
+_HALF_TURN_DEG = 90.0
+
+
 def _solve_window(tracks: LineTracks, family: ParallelFamily, w: Window,
                   options: EstimationOptions) -> PaperSolution:
     """The paper's solution of one window; without the rotation polish where the polished
@@ -401,14 +404,21 @@ def _solve_window(tracks: LineTracks, family: ParallelFamily, w: Window,
     sub, fam = window_tracks(tracks, w), window_family(family, w)
     sol = estimate_paper(sub, fam, options.paper)
     limit = options.windows.max_rotation_step_deg
-    if not options.paper.polish_rotation or \
-            max_rotation_step_deg(np.asarray(sol.rotations)) <= limit:
-        return sol
-    try:
-        alt = estimate_paper(sub, fam, replace(options.paper, polish_rotation=False))
-    except OmniSfmError:
-        return sol
-    return alt if max_rotation_step_deg(np.asarray(alt.rotations)) <= limit else sol
+    if options.paper.polish_rotation and \
+            max_rotation_step_deg(np.asarray(sol.rotations)) > limit:
+        try:
+            alt = estimate_paper(sub, fam, replace(options.paper, polish_rotation=False))
+        except OmniSfmError:
+            alt = None
+        if alt is not None and max_rotation_step_deg(np.asarray(alt.rotations)) <= limit:
+            sol = alt
+    # a half turn between two video frames is a flip of the rotation search, not motion: the
+    # frames after it would carry the flip into the chain
+    step = max_rotation_step_deg(np.asarray(sol.rotations))
+    if step > _HALF_TURN_DEG:
+        raise OmniSfmError(f"its solution turns by {step:.0f} deg between two consecutive "
+                           f"frames (a flip of the rotation search)")
+    return sol
 
 
 def _normalise(R: FloatArray, c: FloatArray, frames: np.ndarray, d: FloatArray,
