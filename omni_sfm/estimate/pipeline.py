@@ -400,7 +400,13 @@ _HALF_TURN_DEG = 90.0
 def _solve_window(tracks: LineTracks, family: ParallelFamily, w: Window,
                   options: EstimationOptions) -> PaperSolution:
     """The paper's solution of one window; without the rotation polish where the polished
-    rotations jump between consecutive frames (see ``WindowOptions.max_rotation_step_deg``)."""
+    rotations jump between consecutive frames (see ``WindowOptions.max_rotation_step_deg``).
+
+    Raises:
+        OmniSfmError: the paper's method fails, or (frames consecutive:
+            ``PaperOptions.rotation_continuity``) its solution still turns by a half turn
+            between two consecutive frames.
+    """
     sub, fam = window_tracks(tracks, w), window_family(family, w)
     sol = estimate_paper(sub, fam, options.paper)
     limit = options.windows.max_rotation_step_deg
@@ -413,9 +419,10 @@ def _solve_window(tracks: LineTracks, family: ParallelFamily, w: Window,
         if alt is not None and max_rotation_step_deg(np.asarray(alt.rotations)) <= limit:
             sol = alt
     # a half turn between two video frames is a flip of the rotation search, not motion: the
-    # frames after it would carry the flip into the chain
+    # frames after it would carry the flip into the chain (frames that are not consecutive,
+    # rotation_continuity off, may turn that much)
     step = max_rotation_step_deg(np.asarray(sol.rotations))
-    if step > _HALF_TURN_DEG:
+    if options.paper.rotation_continuity and step > _HALF_TURN_DEG:
         raise OmniSfmError(f"its solution turns by {step:.0f} deg between two consecutive "
                            f"frames (a flip of the rotation search)")
     return sol
