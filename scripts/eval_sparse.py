@@ -74,13 +74,12 @@ def _run(seed: int, args: argparse.Namespace) -> None:
     print(f"  oracle: {_fmt(eo)}, RMS residual {o.rms_final_deg:.4f} deg (same frames)")
     print(f"  ratio:  rotation {e[0] / eo[0]:.1f}x, translation {e[2] / eo[2]:.1f}x")
     if args.polish:
-        F, M = tr.num_frames, tr.num_tracks
+        F = tr.num_frames
         R = np.full((F, 3, 3), np.nan)
         c = np.full((F, 3), np.nan)
         R[est], c[est] = res.trajectory.rotations, res.trajectory.positions
         t0 = time.perf_counter()
-        b = bundle_adjust(tr, R, c, res.line_directions.reshape(M, 3),
-                          res.line_points.reshape(M, 3),
+        b = bundle_adjust(tr, R, c, res.line_directions, res.line_points,
                           options=BundleOptions(reject_outliers=False,
                                                 max_iterations=args.polish, tolerance=1e-14))
         ep = _errors(Trajectory(g.timestamps[b.frames], b.rotations[b.frames],
