@@ -133,9 +133,13 @@ def test_a_gap_gives_a_separate_segment(tmp_path: Path) -> None:
     assert res.report["segments"][0]["frames"] == [50, 89]
     assert "segment 1" in res.report["frames_not_estimated_reasons"]["60"]
     (start,) = [a for a in res.report["attempts"] if a["strategy"] == "new start"]
-    assert start["frames"] == [50, 89] and start["result"] == "40 frames estimated"
+    assert start["frames"] == [50, 89] and start["result"] == "kept"
+    assert start["why"] == "40 frames estimated"
     (join,) = [a for a in res.report["attempts"] if a["strategy"] == "join"]
-    assert join["result"] == "kept apart" and "lines reconstructed in both" in join["why"]
+    assert join["result"] == "failed" and "lines reconstructed in both" in join["why"]
+    # the new start's own windows are recorded too, in the frames of the whole sequence
+    assert any(a["strategy"] == "paper window" and a["frames"][0] >= 50
+               for a in res.report["attempts"])
     written = write_init_outputs(tmp_path, res)
     assert tmp_path / "trajectory_segment_1.tum" in written
     assert len(read_tum(tmp_path / "trajectory_segment_1.tum")) == 40
@@ -180,6 +184,14 @@ def test_a_walk_along_the_largest_family_uses_another_one() -> None:
     fam = res.report["parallel_families"]
     assert fam["sizes"] == [14, 9, 7]
     assert len(fam["windows_with_another_family"]) == 1
+    # every attempt is in the report: the paper's method failed with the largest family, the
+    # vertical family (the second) gave the window, the adjustment of the chain was kept
+    tried = [(a["strategy"], a["result"]) for a in res.report["attempts"]]
+    assert tried[:2] == [("paper window", "failed"), ("paper window, another family", "kept")]
+    assert ("bundle adjustment", "kept") in tried
+    first, second = res.report["attempts"][:2]
+    assert "degenerate motion" in first["why"] and second["why"].startswith("family 2")
+    assert second["frames"] == [0, F - 1] and 0 < second["cost_rms_deg"] < 1.0
     err = trajectory_errors(match_reflection(res.trajectory, gt), gt)
     assert err.rot_max_deg < 0.2 and err.ate_rel < 0.005
 
@@ -188,6 +200,7 @@ def test_a_short_run_turned_by_a_half_turn_is_turned_back() -> None:
     # the exact solution of a simulated walk with frames 20-22 turned by 180 deg about the
     # vertical (as a window's solution can come out where the view fits both): the repair
     # turns them back from their lines, and only them
+    from omni_sfm.estimate.attempts import RunLog
     from omni_sfm.estimate.pipeline import EstimationOptions, _Init, _repair_half_turns, _Solved
     from omni_sfm.geometry import rotation_angle
 
@@ -200,11 +213,19 @@ def test_a_short_run_turned_by_a_half_turn_is_turned_back() -> None:
     init = _Init(R, g.positions, frames, [], [], sim.parallel, np.zeros((F, 3)))
     sol = _Solved(init, R, g.positions.copy(), frames, sim.line_directions.copy(),
                   sim.line_points.copy(), np.ones(M, bool), np.zeros(M, bool), 0.0, 0.0, 0.0)
-    fixed, count = _repair_half_turns(sim.tracks, sol, EstimationOptions())
-    assert count == 3
+    run = RunLog()
+    fixed = _repair_half_turns(sim.tracks, sol, EstimationOptions(), run)
+    assert fixed.init.repairs == 3
     err = np.degrees(rotation_angle(np.einsum("fji,fjk->fik", fixed.R, g.rotations)))
     assert err.max() < 1e-3
-    # nothing to repair: nothing changes
-    exact = _Solved(init, g.rotations, g.positions, frames, sim.line_directions,
-                    sim.line_points, np.ones(M, bool), np.zeros(M, bool), 0.0, 0.0, 0.0)
-    assert _repair_half_turns(sim.tracks, exact, EstimationOptions())[1] == 0
+    (repair, adjust) = run.entries
+    assert repair["strategy"] == "half-turn repair" and repair["frames"] == [20, 22]
+    assert repair["result"] == "kept" and repair["why"] == "3 of 3 frames turned back"
+    assert adjust["strategy"] == "bundle adjustment of a piece"
+    # nothing to repair: nothing changes, nothing is tried
+    exact = _Solved(replace(init, repairs=0), g.rotations, g.positions, frames,
+                    sim.line_directions, sim.line_points, np.ones(M, bool), np.zeros(M, bool),
+                    0.0, 0.0, 0.0)
+    run = RunLog()
+    assert _repair_half_turns(sim.tracks, exact, EstimationOptions(), run).init.repairs == 0
+    assert run.entries == []

@@ -80,7 +80,7 @@ def test_chain_exact_window_solutions():
         scale = rng.uniform(0.5, 3.0)
         sols.append((R0.T @ g.rotations[fr], sign * scale * (g.positions[fr] - c0) @ R0))
     sols[len(ws) // 2] = None if len(ws) > 4 else sols[len(ws) // 2]
-    R, c, done, chained = chain_windows(200, ws, sols)
+    R, c, done, chained, _ = chain_windows(200, ws, sols)
     assert len(chained) >= 1 and done.sum() >= 3
     est = Trajectory(g.timestamps[done], R[done], c[done])
     err = trajectory_errors(est, g.subset(np.flatnonzero(done)))
@@ -94,7 +94,7 @@ def test_chain_keeps_the_longest_run():
         n = w.stop - w.start
         sols.append((np.broadcast_to(np.eye(3), (n, 3, 3)).copy(),
                      np.c_[np.arange(n), np.zeros(n), np.zeros(n)].astype(float)))
-    R, c, done, chained = chain_windows(40, ws, sols)
+    R, c, done, chained, _ = chain_windows(40, ws, sols)
     assert chained == [1] and done[20:40].all() and not done[:20].any()
     assert np.isnan(c[:20]).all()
 
@@ -131,12 +131,12 @@ def test_chain_skips_a_disagreeing_window_or_takes_its_other_solution():
     rot[1::2] = rot[1::2] @ flip
     sols[1] = (rot, good[1])
     # without the check the flip goes into the chain
-    R, c, done, chained = chain_windows(200, ws, sols)
+    R, c, done, chained, _ = chain_windows(200, ws, sols)
     err = trajectory_errors(Trajectory(g.timestamps[done], R[done], c[done]),
                             g.subset(np.flatnonzero(done)))
     assert err.rot_max_deg > 90
     # with it the window is skipped; the chain goes on where the next window still overlaps
-    R, c, done, chained = chain_windows(200, ws, sols, max_disagreement_deg=5.0)
+    R, c, done, chained, _ = chain_windows(200, ws, sols, max_disagreement_deg=5.0)
     assert 1 not in chained and done.sum() >= 3
     err = trajectory_errors(Trajectory(g.timestamps[done], R[done], c[done]),
                             g.subset(np.flatnonzero(done)))
@@ -148,7 +148,7 @@ def test_chain_skips_a_disagreeing_window_or_takes_its_other_solution():
         asked.append(k)
         return good
 
-    R2, c2, done2, chained2 = chain_windows(200, ws, sols, max_disagreement_deg=5.0,
+    R2, c2, done2, chained2, _ = chain_windows(200, ws, sols, max_disagreement_deg=5.0,
                                             resolve=resolve)
     assert asked == [1] and 1 in chained2 and done2.sum() >= done.sum()
     err = trajectory_errors(Trajectory(g.timestamps[done2], R2[done2], c2[done2]),

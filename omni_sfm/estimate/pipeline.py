@@ -13,7 +13,6 @@ and the last estimated camera is 1 (the paper's convention, Sec. VII).
 from __future__ import annotations
 
 import time
-from collections import defaultdict
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -22,6 +21,7 @@ import numpy as np
 
 from omni_sfm import __version__
 from omni_sfm.errors import OmniSfmError
+from omni_sfm.estimate.attempts import Attempt, Outcome, RunLog, failed
 from omni_sfm.estimate.bundle import (
     BundleOptions,
     BundleResult,
@@ -274,36 +274,37 @@ def _lift_init(i: _Init, start: int, idx: np.ndarray, F: int, M: int) -> _Init:
                  switched=i.switched, repairs=i.repairs)
 
 
-def _initialise(tracks: LineTracks, options: EstimationOptions,
-                timings: dict[str, float]) -> _Init:
+def _initialise(tracks: LineTracks, options: EstimationOptions, run: RunLog) -> _Init:
     """The chain of windows that starts the solution: on the whole sequence, or for a long one
     on the first stretch of ``bootstrap_frames`` frames that gives one (the registration of
     stage 5b poses the rest; the cost per frame then does not grow with the length)."""
     F, M, L = tracks.num_frames, tracks.num_tracks, options.bootstrap_frames
     if L is None or F <= L:
-        return _initialise_all(tracks, options, timings)
+        return _initialise_all(tracks, options, run)
     errors: list[str] = []
     for start in range(0, F - 2, L // 2):
-        sub, idx = frame_range(tracks, start, min(F, start + L))
+        stop = min(F, start + L)
+        sub, idx = frame_range(tracks, start, stop)
         try:
-            init = _initialise_all(sub, options, timings)
+            init = _initialise_all(sub, options, run.at(start, share_timings=True))
         except OmniSfmError as exc:
-            errors.append(f"frames {start}-{min(F, start + L) - 1}: {exc}")
+            errors.append(f"frames {start}-{stop - 1}: {exc}")
+            run.record(failed("bootstrap stretch", (start, stop - 1), str(exc)))
             continue
+        run.record(Attempt("bootstrap stretch", (start, stop - 1), init,
+                           why=f"{int(init.frames.sum())} frames chained"))
         return _lift_init(init, start, idx, F, M)
     raise OmniSfmError(errors[0] if len(errors) == 1 else
                        f"cannot estimate any frame: no stretch of {L} frames starts a "
                        f"solution ({errors[0]})")
 
 
-def _initialise_all(tracks: LineTracks, options: EstimationOptions,
-                    timings: dict[str, float]) -> _Init:
+def _initialise_all(tracks: LineTracks, options: EstimationOptions, run: RunLog) -> _Init:
     """Family, windows, the paper's method per window, chaining (world/scale of the chain)."""
-    t0 = time.perf_counter()
-    family = detect_parallel_family(tracks, options.vanishing)
-    others = [f for f in detect_parallel_families(tracks, options.vanishing)[1:]
-              if f.size >= 3]
-    timings["parallel_lines"] += (time.perf_counter() - t0) * 1e3
+    with run.timed("parallel_lines"):
+        family = detect_parallel_family(tracks, options.vanishing)
+        others = [f for f in detect_parallel_families(tracks, options.vanishing)[1:]
+                  if f.size >= 3]
     members = np.asarray(family.members, bool)
     _check_counts(tracks, members)
     F, M = tracks.num_frames, tracks.num_tracks
@@ -315,30 +316,28 @@ def _initialise_all(tracks: LineTracks, options: EstimationOptions,
         windows = [Window(0, F, np.flatnonzero(full))]
     else:
         windows = plan_windows(tracks, members, frame_ok, options.windows)
-    solutions: list[tuple[FloatArray, FloatArray] | None] = []
+    # each window: the paper's method with the largest family, else with another one
+    solved: list[Attempt[PaperSolution]] = []
     failures: list[str] = []
-    alternatives: list[tuple[FloatArray, FloatArray]] = []
     switched: list[str] = []
     for w in windows:
-        try:
-            sol = _solve_window(tracks, family, w, options)
-        except OmniSfmError as exc:
+        att = _solve_window(tracks, family, w, options, run)
+        if not att.ok:
             # the family may be degenerate for this stretch (the corridor's direction, along
             # which the camera walks): the window's other families may condition it
-            alt = _other_family(tracks, others, w, options)
+            run.record(att)
+            alt = _other_family(tracks, others, w, options, run)
             if alt is None:
-                failures.append(f"frames {w.start}-{w.stop - 1}: {exc}")
-                solutions.append(None)
-                continue
-            sol, which = alt
-            switched.append(f"frames {w.start}-{w.stop - 1}: family {which + 2} ({exc})")
-        for k, v in sol.timings_ms.items():
-            timings[k] += float(v)
-        solutions.append((np.asarray(sol.rotations), np.asarray(sol.positions)))
-        if len(windows) == 1 and w.start == 0 and w.stop == F:
-            # the chain is this window's solution as it is: its alternatives apply directly
-            alternatives = [(np.asarray(R), np.asarray(c)) for R, c in sol.alternatives]
-    t0 = time.perf_counter()
+                failures.append(f"frames {w.start}-{w.stop - 1}: {att.why}")
+            else:
+                switched.append(f"frames {w.start}-{w.stop - 1}: {alt.why} ({att.why})")
+                att = alt
+        if att.solution is not None:
+            run.add_times(att.solution.timings_ms)
+        solved.append(att)
+    solutions = [None if a.solution is None else
+                 (np.asarray(a.solution.rotations), np.asarray(a.solution.positions))
+                 for a in solved]
     # a few iterations suffice to stop errors from accumulating along the chain
     local_opts = replace(options.bundle, max_rounds=2,
                          max_iterations=options.local_iterations,
@@ -349,7 +348,10 @@ def _initialise_all(tracks: LineTracks, options: EstimationOptions,
         try:
             res = bundle_adjust(tracks, R, c, np.full((M, 3), np.nan), np.full((M, 3), np.nan),
                                 frames=local, scale_frames=old, options=local_opts)
-        except OmniSfmError:
+        except OmniSfmError as exc:
+            idx = np.flatnonzero(local)
+            run.record(failed("local adjustment", (int(idx[0]), int(idx[-1])),
+                              f"{exc}; the chained poses stand unadjusted"))
             return R, c, local
         return res.rotations, res.positions, res.frames
 
@@ -358,74 +360,107 @@ def _initialise_all(tracks: LineTracks, options: EstimationOptions,
         if not options.paper.polish_rotation:
             return None
         w = windows[k]
-        try:
-            alt = estimate_paper(window_tracks(tracks, w), window_family(family, w),
-                                 replace(options.paper, polish_rotation=False))
-        except OmniSfmError:
+        att = _paper(tracks, family, w, replace(options.paper, polish_rotation=False),
+                     "paper window, unpolished")
+        if att.solution is None:
+            run.record(att)
             return None
-        return np.asarray(alt.rotations), np.asarray(alt.positions)
+        run.record(att, why="the polished solution disagrees with the chain")
+        return np.asarray(att.solution.rotations), np.asarray(att.solution.positions)
 
-    R, c, done, chained = chain_windows(F, windows, solutions,
-                                        refine if len(windows) > 1 else None,
-                                        options.windows.max_disagreement_deg, resolve)
-    timings["chaining"] += (time.perf_counter() - t0) * 1e3
+    with run.timed("chaining"):
+        chain = chain_windows(F, windows, solutions, refine if len(windows) > 1 else None,
+                              options.windows.max_disagreement_deg, resolve)
+    for k, att in enumerate(solved):
+        if att.solution is None or k in chain.chained:
+            run.record(att)
+        else:
+            run.record(att.judged(Outcome.REJECTED, chain.skipped.get(k, "not chained")))
+    done = chain.estimated
     if done.sum() < 3:
         why = "; ".join(failures[:3]) if failures else \
             "no stretch of 3 or more frames sees 3 parallel and 3 other lines in every frame"
         raise OmniSfmError(f"cannot estimate any frame: {why}")
-    return _Init(R, c, done, [windows[i] for i in chained], failures, members,
-                 np.asarray(family.vpv), alternatives if done.all() else [],
+    alternatives: list[tuple[FloatArray, FloatArray]] = []
+    only = solved[0].solution
+    if len(windows) == 1 and windows[0].start == 0 and windows[0].stop == F and \
+            only is not None and done.all():
+        # the chain is this window's solution as it is: its alternatives apply directly
+        alternatives = [(np.asarray(R), np.asarray(c)) for R, c in only.alternatives]
+    return _Init(chain.rotations, chain.positions, done, [windows[i] for i in chain.chained],
+                 failures, members, np.asarray(family.vpv), alternatives,
                  families=[int(family.size)] + [int(f.size) for f in others],
                  switched=switched)
 
 
 def _other_family(tracks: LineTracks, others: list[ParallelFamily], w: Window,
-                  options: EstimationOptions) -> tuple[PaperSolution, int] | None:
+                  options: EstimationOptions, run: RunLog) -> Attempt[PaperSolution] | None:
     """The paper's solution of window ``w`` with the first other family that gives one (3 of
-    its tracks and 3 others seen throughout the window), and that family's index."""
+    its tracks and 3 others seen throughout the window); the attempts that fail are recorded."""
     for k, fam in enumerate(others):
         m = np.asarray(fam.members, bool)[w.tracks]
         if m.sum() < options.windows.min_parallel or (~m).sum() < options.windows.min_other:
             continue
-        try:
-            return _solve_window(tracks, fam, w, options), k
-        except OmniSfmError:
-            continue
+        att = _solve_window(tracks, fam, w, options, run, "paper window, another family")
+        if att.ok:
+            return replace(att, why=f"family {k + 2}" + (f", {att.why}" if att.why else ""))
+        run.record(att, family=k + 2)
     return None
 
 
 _HALF_TURN_DEG = 90.0
 
 
-def _solve_window(tracks: LineTracks, family: ParallelFamily, w: Window,
-                  options: EstimationOptions) -> PaperSolution:
-    """The paper's solution of one window; without the rotation polish where the polished
-    rotations jump between consecutive frames (see ``WindowOptions.max_rotation_step_deg``).
+def _paper(tracks: LineTracks, family: ParallelFamily, w: Window, paper: PaperOptions,
+           strategy: str) -> Attempt[PaperSolution]:
+    """Strategy: the paper's method (:func:`estimate_paper`) on window ``w`` with ``family``."""
+    frames = (w.start, w.stop - 1)
+    try:
+        sol = estimate_paper(window_tracks(tracks, w), window_family(family, w), paper)
+    except OmniSfmError as exc:
+        return failed(strategy, frames, str(exc))
+    return Attempt(strategy, frames, sol, cost_deg=_paper_cost(sol))
 
-    Raises:
-        OmniSfmError: the paper's method fails, or (frames consecutive:
-            ``PaperOptions.rotation_continuity``) its solution still turns by a half turn
-            between two consecutive frames.
-    """
-    sub, fam = window_tracks(tracks, w), window_family(family, w)
-    sol = estimate_paper(sub, fam, options.paper)
+
+def _paper_cost(sol: PaperSolution) -> float:
+    """RMS angle (deg) of the paper's solution against the window's normals, when it says."""
+    return float(sol.costs.get("rms_deg", np.nan))
+
+
+def _solve_window(tracks: LineTracks, family: ParallelFamily, w: Window,
+                  options: EstimationOptions, run: RunLog,
+                  strategy: str = "paper window") -> Attempt[PaperSolution]:
+    """The paper's solution of one window; without the rotation polish where the polished
+    rotations jump between consecutive frames (see ``WindowOptions.max_rotation_step_deg``;
+    that attempt is recorded). Fails where the paper's method fails, or (frames consecutive:
+    ``PaperOptions.rotation_continuity``) its solution still turns by a half turn between two
+    consecutive frames."""
+    att = _paper(tracks, family, w, options.paper, strategy)
     limit = options.windows.max_rotation_step_deg
+    if att.solution is None:
+        return att
     if options.paper.polish_rotation and \
-            max_rotation_step_deg(np.asarray(sol.rotations)) > limit:
-        try:
-            alt = estimate_paper(sub, fam, replace(options.paper, polish_rotation=False))
-        except OmniSfmError:
-            alt = None
-        if alt is not None and max_rotation_step_deg(np.asarray(alt.rotations)) <= limit:
-            sol = alt
+            max_rotation_step_deg(np.asarray(att.solution.rotations)) > limit:
+        alt = _paper(tracks, family, w, replace(options.paper, polish_rotation=False),
+                     "paper window, unpolished")
+        jump = f"the polished rotations jump by more than {limit} deg between frames"
+        if alt.solution is not None and \
+                max_rotation_step_deg(np.asarray(alt.solution.rotations)) <= limit:
+            run.record(att.judged(Outcome.REJECTED, jump))
+            att = replace(alt, why=f"{strategy}: {jump}")
+        elif alt.solution is not None:
+            run.record(alt.judged(Outcome.REJECTED, "its rotations jump too"))
+        else:
+            run.record(alt)
     # a half turn between two video frames is a flip of the rotation search, not motion: the
     # frames after it would carry the flip into the chain (frames that are not consecutive,
     # rotation_continuity off, may turn that much)
-    step = max_rotation_step_deg(np.asarray(sol.rotations))
+    assert att.solution is not None
+    step = max_rotation_step_deg(np.asarray(att.solution.rotations))
     if options.paper.rotation_continuity and step > _HALF_TURN_DEG:
-        raise OmniSfmError(f"its solution turns by {step:.0f} deg between two consecutive "
-                           f"frames (a flip of the rotation search)")
-    return sol
+        return failed(att.strategy, att.frames, f"its solution turns by {step:.0f} deg between two "
+                                            f"consecutive frames (a flip of the rotation search)")
+    return att
 
 
 def _normalise(R: FloatArray, c: FloatArray, frames: np.ndarray, d: FloatArray,
@@ -445,41 +480,69 @@ def _normalise(R: FloatArray, c: FloatArray, frames: np.ndarray, d: FloatArray,
     return R_n, c_n, d_n, p_n
 
 
+def _bundle(tracks: LineTracks, R: FloatArray, c: FloatArray, frames: np.ndarray,
+            options: EstimationOptions, strategy: str) -> Attempt[BundleResult]:
+    """Strategy: the line bundle adjustment of ``frames`` from the poses ``R, c`` (lines
+    triangulated from them)."""
+    idx = np.flatnonzero(frames)
+    span = (int(idx[0]), int(idx[-1]))
+    try:
+        d, p, _ = triangulate_lines(tracks, R, c, frames)
+        ba = bundle_adjust(tracks, R, c, d, p, frames=frames, options=options.bundle)
+    except OmniSfmError as exc:
+        return failed(strategy, span, str(exc))
+    return Attempt(strategy, span, ba, cost_deg=ba.rms_final_deg,
+                   why=f"{int(ba.frames.sum())} frames, {int(ba.outlier_tracks.sum())} outlier "
+                       f"tracks")
+
+
 def _refine(tracks: LineTracks, init: _Init, options: EstimationOptions,
-            timings: dict[str, float]) -> BundleResult:
-    t0 = time.perf_counter()
-    d, p, _ = triangulate_lines(tracks, init.rotations, init.positions, init.frames)
-    res = bundle_adjust(tracks, init.rotations, init.positions, d, p, frames=init.frames,
-                        options=options.bundle)
-    timings["refinement"] += (time.perf_counter() - t0) * 1e3
-    if not options.multistart or not init.alternatives:
-        return res
-    # multi-start: the bundle adjustment from each distinct alternative start, the lowest final
-    # cost wins (same frames and at least as many tracks, so the costs are comparable)
-    idx = np.flatnonzero(init.frames)
-    c0 = init.positions[idx]
-    spread = float(np.sqrt(np.mean(np.sum((c0 - c0[0]) ** 2, axis=1))))
-    tried = [c0]
-    for R_alt, c_alt in init.alternatives:
-        ca = c_alt[idx]
-        if min(float(np.sqrt(np.mean(np.sum((ca - t) ** 2, axis=1)))) for t in tried) <= \
-                options.multistart_min_difference * spread:
+            run: RunLog) -> BundleResult:
+    """The bundle adjustment of the chain, and from the paper's distinct alternative starts
+    (multi-start): the lowest final cost wins. Raises where the adjustment of the chain fails."""
+    with run.timed("refinement"):
+        first = _bundle(tracks, init.rotations, init.positions, init.frames, options,
+                        "bundle adjustment")
+    if first.solution is None:
+        run.record(first)
+        raise OmniSfmError(f"the bundle adjustment failed: {first.why}")
+    best = first
+    tried: list[Attempt[BundleResult]] = []
+    if options.multistart and init.alternatives:
+        # the same frames and at least as many tracks, so the final costs are comparable
+        idx = np.flatnonzero(init.frames)
+        c0 = init.positions[idx]
+        spread = float(np.sqrt(np.mean(np.sum((c0 - c0[0]) ** 2, axis=1))))
+        starts = [c0]
+        for R_alt, c_alt in init.alternatives:
+            ca = c_alt[idx]
+            if min(float(np.sqrt(np.mean(np.sum((ca - t) ** 2, axis=1)))) for t in starts) <= \
+                    options.multistart_min_difference * spread:
+                continue  # the same basin as a start already refined
+            starts.append(ca)
+            with run.timed("refinement"):
+                alt = _bundle(tracks, R_alt, c_alt, init.frames, options,
+                              "bundle adjustment, another start")
+            tried.append(alt)
+            a, b = alt.solution, best.solution
+            if a is not None and b is not None and a.frames.sum() >= b.frames.sum() and \
+                    a.used_tracks.sum() >= b.used_tracks.sum() and \
+                    a.rms_final_deg < b.rms_final_deg:
+                best = alt
+    kept = best.solution
+    assert kept is not None
+    for att in [first, *tried]:
+        if att is best or att.solution is None:
+            run.record(att)
             continue
-        tried.append(ca)
-        t0 = time.perf_counter()
-        try:
-            d, p, _ = triangulate_lines(tracks, R_alt, c_alt, init.frames)
-            alt = bundle_adjust(tracks, R_alt, c_alt, d, p, frames=init.frames,
-                                options=options.bundle)
-        except OmniSfmError:
-            continue
-        finally:
-            timings["refinement"] += (time.perf_counter() - t0) * 1e3
-        if alt.frames.sum() >= res.frames.sum() and \
-                alt.used_tracks.sum() >= res.used_tracks.sum() and \
-                alt.rms_final_deg < res.rms_final_deg:
-            res = alt
-    return res
+        a = att.solution
+        if a.frames.sum() < kept.frames.sum() or a.used_tracks.sum() < kept.used_tracks.sum():
+            why = (f"{int(a.frames.sum())} frames and {int(a.used_tracks.sum())} tracks, the "
+                   f"kept start {int(kept.frames.sum())} and {int(kept.used_tracks.sum())}")
+        else:
+            why = f"final cost not below the kept start's {kept.rms_final_deg:.6g} deg"
+        run.record(att.judged(Outcome.REJECTED, f"{att.why}; {why}"))
+    return kept
 
 
 def estimate_poses(tracks: LineTracks,
@@ -496,25 +559,26 @@ def estimate_poses(tracks: LineTracks,
         raise OmniSfmError(f"tracks have {F} frames; need at least 3")
     if M < 6:
         raise OmniSfmError(f"tracks have {M} lines; need at least 6 (3 parallel and 3 others)")
-    timings: dict[str, float] = defaultdict(float)
+    run = RunLog()
     try:
-        result = _with_segments(tracks, _solve_moving(tracks, options, timings), options,
-                                timings, t_all)
+        result = _with_segments(tracks, _solve_moving(tracks, options, run), options, run,
+                                t_all)
     except OmniSfmError as exc:
-        rot_only = _try_rotation_only(tracks, options, timings)
+        rot_only = _try_rotation_only(tracks, options, run, f"the moving camera's solution "
+                                                            f"failed: {exc}")
         if rot_only is None:
             raise
-        return _rotation_only_result(tracks, rot_only, options, timings, str(exc), t_all)
+        return _rotation_only_result(tracks, rot_only, options, run, str(exc), t_all)
     if result.estimated.all():
         return result
     # the paper's method found motion in a part of the sequence only: if the rotations alone
     # explain every frame, the camera turned in place and that "motion" was noise
-    rot_only = _try_rotation_only(tracks, options, timings)
-    if rot_only is not None and rot_only.estimated.sum() > result.estimated.sum():
-        why = (f"the paper's method estimated only {int(result.estimated.sum())} of "
-               f"{tracks.num_frames} frames")
-        return _rotation_only_result(tracks, rot_only, options, timings, why, t_all)
-    return result
+    why = (f"the paper's method estimated only {int(result.estimated.sum())} of "
+           f"{tracks.num_frames} frames")
+    rot_only = _try_rotation_only(tracks, options, run, why, better_than=result)
+    if rot_only is not None:
+        return _rotation_only_result(tracks, rot_only, options, run, why, t_all)
+    return replace(result, report={**result.report, "attempts": run.entries})
 
 
 @dataclass
@@ -535,40 +599,27 @@ class _Solved:
     sigma: float
 
 
-def _estimate_moving(tracks: LineTracks, options: EstimationOptions,
-                     timings: dict[str, float], t_all: float) -> EstimationResult:
-    """The paper's method, chaining and the bundle adjustment (a camera that moves)."""
-    return _moving_result(tracks, _solve_moving(tracks, options, timings), timings, t_all)
-
-
-def _solve_moving(tracks: LineTracks, options: EstimationOptions,
-                  timings: dict[str, float]) -> _Solved:
+def _solve_moving(tracks: LineTracks, options: EstimationOptions, run: RunLog) -> _Solved:
     """Windows, chaining, refinement and registration of the frames beyond (world and scale of
     the chain)."""
     M = tracks.num_tracks
-    init = _initialise(tracks, options, timings)
+    init = _initialise(tracks, options, run)
     outliers = np.zeros(M, bool)
     if options.refine:
-        ba = _refine(tracks, init, options, timings)
+        ba = _refine(tracks, init, options, run)
         if options.restart_without_outliers and ba.outlier_tracks.any():
-            keep = ~ba.outlier_tracks
-            try:
-                sub = tracks.select_tracks(keep)
-                init2 = _initialise(sub, options, timings)
-                ba2 = _refine(sub, init2, options, timings)
-            except OmniSfmError:
-                ba2 = None
-            if ba2 is not None and ba2.frames.sum() >= ba.frames.sum() and \
-                    ba2.rms_final_deg <= ba.rms_final_deg:
-                idx = np.flatnonzero(keep)
-                members2 = np.zeros(M, bool)
-                members2[idx] = init2.members
-                init = _Init(init2.rotations, init2.positions, init2.frames, init2.windows,
-                             init2.failures, members2, init2.vpv, families=init2.families,
-                             switched=init2.switched)
-                ba = _expand(ba2, idx, M, ba.outlier_tracks)
+            att = _restart_without_outliers(tracks, ba, options, run)
+            if att.solution is not None and att.solution[1].frames.sum() >= ba.frames.sum() \
+                    and att.cost_deg <= ba.rms_final_deg:
+                run.record(att)
+                init, ba = att.solution
+            else:
+                run.record(att if att.solution is None else att.judged(
+                    Outcome.REJECTED, f"{att.why}, at {att.cost_deg:.4g} deg: fewer frames or "
+                                      f"a higher cost than with them ({int(ba.frames.sum())} "
+                                      f"frames, {ba.rms_final_deg:.4g} deg)"))
         if options.extend is not None and not ba.frames.all():
-            ba, init = _extend(tracks, ba, init, options, timings)
+            ba, init = _extend(tracks, ba, init, options, run)
         R, c, frames = ba.rotations, ba.positions, ba.frames
         d, p, used, outliers = ba.line_directions, ba.line_points, ba.used_tracks, \
             ba.outlier_tracks
@@ -583,21 +634,44 @@ def _solve_moving(tracks: LineTracks, options: EstimationOptions,
             else np.nan
     sol = _Solved(init, R, c, frames, d, p, used, outliers, rms0, rms1, sigma)
     if options.refine:
-        sol, repaired = _repair_half_turns(tracks, sol, options)
-        sol.init.repairs += repaired
+        sol = _repair_half_turns(tracks, sol, options, run)
     return sol
 
 
-def _repair_half_turns(tracks: LineTracks, sol: _Solved,
-                       options: EstimationOptions) -> tuple[_Solved, int]:
+def _restart_without_outliers(tracks: LineTracks, ba: BundleResult, options: EstimationOptions,
+                              run: RunLog) -> Attempt[tuple[_Init, BundleResult]]:
+    """Strategy: the whole solution again from scratch without the tracks the adjustment
+    rejected (robust initialisation); its init and adjustment in the indices of ``tracks``."""
+    M = tracks.num_tracks
+    keep = ~ba.outlier_tracks
+    idx = np.flatnonzero(keep)
+    n_out = int(ba.outlier_tracks.sum())
+    try:
+        sub = tracks.select_tracks(keep)
+        init = _initialise(sub, options, run)
+        ba2 = _refine(sub, init, options, run)
+    except OmniSfmError as exc:
+        return failed("restart without outliers", None, f"without {n_out} tracks: {exc}")
+    members = np.zeros(M, bool)
+    members[idx] = init.members
+    init = _Init(init.rotations, init.positions, init.frames, init.windows, init.failures,
+                 members, init.vpv, families=init.families, switched=init.switched)
+    return Attempt("restart without outliers", None, (init, _expand(ba2, idx, M,
+                                                                     ba.outlier_tracks)),
+                   cost_deg=ba2.rms_final_deg,
+                   why=f"without {n_out} tracks: {int(ba2.frames.sum())} frames")
+
+
+def _repair_half_turns(tracks: LineTracks, sol: _Solved, options: EstimationOptions,
+                       run: RunLog) -> _Solved:
     """Short runs of frames turned by a half turn against the frames around them (a view that
     sees mostly lines perpendicular to the turn's axis fits both; video frames do not turn
     that much): each posed again from its lines, started at its (repaired) predecessor, and
     kept if it stays continuous and its residual is at most twice that of the half turn.
-    Returns the solution (adjusted again if a frame changed) and the count."""
+    Returns the solution (adjusted again if a frame changed; ``init.repairs`` counts them)."""
     idx = np.flatnonzero(sol.frames)
     if len(idx) < 3:
-        return sol, 0
+        return sol
     R, c = sol.R.copy(), sol.c.copy()
     step = np.degrees(rotation_angle(np.einsum("fji,fjk->fik", R[idx[:-1]], R[idx[1:]])))
     jumps = np.flatnonzero(step > 90.0)
@@ -605,7 +679,7 @@ def _repair_half_turns(tracks: LineTracks, sol: _Solved,
     odd = [k for j0, j1 in zip(jumps[:-1], jumps[1:], strict=True)
            if j1 - j0 <= options.max_half_turn_run for k in range(j0 + 1, j1 + 1)]
     if not odd:
-        return sol, 0
+        return sol
     by_frame, starts = obs_index(tracks.obs_frame, tracks.num_frames)
     known: np.ndarray = np.asarray(np.isfinite(sol.d).all(1) & np.isfinite(sol.p).all(1))
     repaired = 0
@@ -626,13 +700,19 @@ def _repair_half_turns(tracks: LineTracks, sol: _Solved,
                 np.sqrt(np.mean(ang ** 2)) <= 2.0 * np.sqrt(np.mean(now ** 2)):
             R[f], c[f] = R1, c1
             repaired += 1
+    span = (int(idx[odd[0]]), int(idx[odd[-1]]))
     if not repaired:
-        return sol, 0
-    fixed = replace(sol, R=R, c=c)
-    return _adjusted(tracks, fixed, options) or fixed, repaired
+        run.record(failed("half-turn repair", span, f"none of the {len(odd)} frames turned by "
+                                                    f"a half turn fits its lines better turned "
+                                                    f"back"))
+        return sol
+    run.record(Attempt("half-turn repair", span, repaired,
+                       why=f"{repaired} of {len(odd)} frames turned back"))
+    sol.init.repairs += repaired
+    return _adjusted(tracks, replace(sol, R=R, c=c), options, run, "a half-turn repair")
 
 
-def _moving_result(tracks: LineTracks, sol: _Solved, timings: dict[str, float],
+def _moving_result(tracks: LineTracks, sol: _Solved, run: RunLog,
                    t_all: float) -> EstimationResult:
     """The conventions (world, scale, reflection) and the report of a solution."""
     init, R, c, frames, d, p = sol.init, sol.R, sol.c, sol.frames, sol.d, sol.p
@@ -663,10 +743,11 @@ def _moving_result(tracks: LineTracks, sol: _Solved, timings: dict[str, float],
     else:
         v0 = init.vpv[idx[0]]
         direction = R_n[idx[0]] @ v0
-    timings["total"] = (time.perf_counter() - t_all) * 1e3
+    run.timings["total"] = (time.perf_counter() - t_all) * 1e3
+    timings = dict(run.timings)
     windows = [(w.start, w.stop) for w in init.windows]
     report = _report(tracks, frames, members, direction, outliers, used, windows,
-                     init.failures, dict(timings), rms0, rms1, sigma)
+                     init.failures, timings, rms0, rms1, sigma)
     report["reflection"] = reflection
     report["half_turns_repaired"] = init.repairs
     report["parallel_families"] = {
@@ -681,7 +762,7 @@ def _moving_result(tracks: LineTracks, sol: _Solved, timings: dict[str, float],
         trajectory=traj, estimated=frames, initial_trajectory=traj0,
         track_ids=tracks.track_ids.copy(), parallel=members, parallel_direction=direction,
         outliers=outliers, used_tracks=used, line_directions=d_n, line_points=p_n,
-        windows=windows, timings_ms=dict(timings), residual_rms_initial_deg=rms0,
+        windows=windows, timings_ms=timings, residual_rms_initial_deg=rms0,
         residual_rms_final_deg=rms1, sigma_deg=sigma, scale_convention=SCALE_CONVENTION,
         report=report)
 
@@ -779,17 +860,20 @@ def _join(tracks: LineTracks, a: _Solved, b: _Solved,
     merged = _Solved(init, R, c, frames, d, p, a.used | b.used,
                      (a.outliers | b.outliers) & ~(a.used | b.used), max(a.rms0, b.rms0),
                      max(a.rms1, b.rms1), max(a.sigma, b.sigma))
-    if not _junction_fits(tracks, merged, min(fa[ka], fb[kb]), max(fa[ka], fb[kb]), options):
-        return None, "the adjustment of the frames around the junction does not fit them"
+    misfit = _junction_misfit(tracks, merged, min(fa[ka], fb[kb]), max(fa[ka], fb[kb]),
+                              options)
+    if misfit:
+        return None, f"the adjustment of the frames around the junction: {misfit}"
     return merged, f"{sim.lines} common lines, {sim.angle_deg:.2g} deg"
 
 
-def _junction_fits(tracks: LineTracks, sol: _Solved, first: int, last: int,
-                   options: EstimationOptions) -> bool:
-    """Whether a bundle adjustment of the frames around a junction (``first..last`` and
-    ``join_window`` frames on each side) and their lines, every other frame that sees those
-    lines held, keeps those frames and ends with a residual of at most
-    ``join_max_residual_factor`` times the pieces' own (the pieces fit together). Only a test:
+def _junction_misfit(tracks: LineTracks, sol: _Solved, first: int, last: int,
+                     options: EstimationOptions) -> str:
+    """Why the pieces do not fit together ("" where they do): whether a bundle adjustment of
+    the frames around a junction (``first..last`` and ``join_window`` frames on each side) and
+    their lines, every other frame that sees those lines held, keeps those frames and ends
+    with a residual of at most ``join_max_residual_factor`` times the pieces' own (the pieces
+    fit together). Only a test:
     its poses are not kept (a short piece's weak lines can let it wander to another fit of the
     same residual; the adjustment of the whole joined piece follows)."""
     w = options.join_window
@@ -802,35 +886,47 @@ def _junction_fits(tracks: LineTracks, sol: _Solved, first: int, last: int,
     frames = np.unique(tracks.obs_frame[obs])
     held = ~free[frames]
     if len(lines) < 3 or not held.any():
-        return False
+        return f"{len(lines)} lines seen around it, {int(held.sum())} frames to hold"
     sub = subtracks(tracks, obs, lines, frames)
     spread = held.sum() > 1 and float(np.ptp(sol.c[frames[held]], axis=0).max()) > 0
     try:
         ba = bundle_adjust(sub, sol.R[frames], sol.c[frames], sol.d[lines], sol.p[lines],
                            held_frames=held, scale_frames=held if spread else None,
                            options=options.bundle)
-    except OmniSfmError:
-        return False
+    except OmniSfmError as exc:
+        return str(exc)
     # held frames that see fewer than 3 of these lines drop out of the problem; the frames
     # around the junction must not
-    return bool(ba.frames[~held].all()
-                and ba.rms_final_deg <= options.join_max_residual_factor * sol.rms1)
+    if not ba.frames[~held].all():
+        return f"{int((~ba.frames[~held]).sum())} of its frames drop out"
+    if ba.rms_final_deg > options.join_max_residual_factor * sol.rms1:
+        return (f"residual {ba.rms_final_deg:.3g} deg, over {options.join_max_residual_factor}"
+                f" times the pieces' {sol.rms1:.3g} deg")
+    return ""
 
 
-def _adjusted(tracks: LineTracks, sol: _Solved, options: EstimationOptions) -> _Solved | None:
-    """The bundle adjustment of a joined piece (None if it fails)."""
+def _adjusted(tracks: LineTracks, sol: _Solved, options: EstimationOptions, run: RunLog,
+              why: str) -> _Solved:
+    """Strategy: the bundle adjustment of a piece after a join or a repair (``why``); the piece
+    as it is where it fails (recorded)."""
+    idx = np.flatnonzero(sol.frames)
+    span = (int(idx[0]), int(idx[-1]))
     try:
         ba = bundle_adjust(tracks, sol.R, sol.c, sol.d, sol.p, frames=sol.frames,
                            options=options.bundle)
-    except OmniSfmError:
-        return None
+    except OmniSfmError as exc:
+        run.record(failed("bundle adjustment of a piece", span,
+                          f"after {why}: {exc}; the piece stands unadjusted"))
+        return sol
+    run.record(Attempt("bundle adjustment of a piece", span, ba, cost_deg=ba.rms_final_deg,
+                       why=f"after {why}"))
     return replace(sol, R=ba.rotations, c=ba.positions, frames=ba.frames,
                    d=ba.line_directions, p=ba.line_points, used=ba.used_tracks,
                    outliers=ba.outlier_tracks, rms1=ba.rms_final_deg, sigma=ba.sigma_deg)
 
 
-def _with_segments(tracks: LineTracks, sol: _Solved, options: EstimationOptions,
-                   timings: dict[str, float], t_all: float) -> EstimationResult:
+def _with_segments(tracks: LineTracks, sol: _Solved, options: EstimationOptions, run: RunLog,
+                   t_all: float) -> EstimationResult:
     """Start again on the stretches the main solution leaves (docs/estimator.md, stage 8);
     join each new piece to the main one where common lines fix the similarity, else keep it
     as a segment in its own world and scale; then the result of the main one."""
@@ -840,22 +936,20 @@ def _with_segments(tracks: LineTracks, sol: _Solved, options: EstimationOptions,
     pieces = [sol]  # the main piece first
     grown = [False]
     failures: dict[tuple[int, int], str] = {}
-    attempts: list[dict[str, Any]] = []
     joined = 0
     t0 = time.perf_counter()
     while todo and len(pieces) - 1 + joined < options.max_segments:
         a, b = todo.pop(0)
         sub_tracks, idx = frame_range(tracks, a, b)
         try:
-            sub = _solve_moving(sub_tracks, options, defaultdict(float))
+            sub = _solve_moving(sub_tracks, options, run.at(a))
         except OmniSfmError as exc:
             failures[(a, b)] = str(exc)
-            attempts.append({"strategy": "new start", "frames": [a, b - 1],
-                             "result": "failed", "why": str(exc)})
+            run.record(failed("new start", (a, b - 1), str(exc)))
             continue
         lifted = _lift(tracks, sub, a, idx)
-        attempts.append({"strategy": "new start", "frames": [a, b - 1],
-                         "result": f"{int(sub.frames.sum())} frames estimated"})
+        run.record(Attempt("new start", (a, b - 1), sub, cost_deg=sub.rms1,
+                           why=f"{int(sub.frames.sum())} frames estimated"))
         covered |= lifted.frames
         todo += [(a + x, a + y) for x, y in runs(~sub.frames)
                  if y - x >= options.min_segment_frames]
@@ -867,10 +961,9 @@ def _with_segments(tracks: LineTracks, sol: _Solved, options: EstimationOptions,
                 continue
             merged, why = _join(tracks, pieces[k], lifted, options)
             fk = np.flatnonzero(pieces[k].frames)
-            attempts.append({"strategy": "join", "frames": [a, b - 1],
-                             "to_frames": [int(fk[0]), int(fk[-1])],
-                             "result": "joined" if merged is not None else "kept apart",
-                             "why": why})
+            run.record(Attempt("join", (a, b - 1), merged, why=why,
+                               outcome=Outcome.KEPT if merged is not None else Outcome.FAILED),
+                       to_frames=[int(fk[0]), int(fk[-1])])
             if merged is not None:
                 pieces[k], joined = merged, joined + 1
                 grown[k] = True
@@ -879,26 +972,31 @@ def _with_segments(tracks: LineTracks, sol: _Solved, options: EstimationOptions,
             pieces.append(lifted)
             grown.append(False)
     for k in np.flatnonzero(grown):
-        pieces[k] = _adjusted(tracks, pieces[k], options) or pieces[k]
-    timings["segments"] += (time.perf_counter() - t0) * 1e3
+        pieces[k] = _adjusted(tracks, pieces[k], options, run, "joining pieces")
+    run.timings["segments"] += (time.perf_counter() - t0) * 1e3
     # the main trajectory is the largest piece
     pieces.sort(key=lambda q: -int(q.frames.sum()))
-    result = _moving_result(tracks, pieces[0], timings, t_all)
+    result = _moving_result(tracks, pieces[0], run, t_all)
     report = dict(result.report)
     report["joined_pieces"] = joined
-    report["attempts"] = attempts
+    report["attempts"] = run.entries
     segments: list[Segment] = []
+    reasons_lost: dict[str, str] = {}
     for piece in sorted(pieces[1:], key=lambda q: int(np.flatnonzero(q.frames)[0])):
         try:
-            r = _moving_result(tracks, piece, defaultdict(float), time.perf_counter())
-        except OmniSfmError:
+            r = _moving_result(tracks, piece, RunLog(), time.perf_counter())
+        except OmniSfmError as exc:
+            fk = np.flatnonzero(piece.frames)
+            for g in fk:
+                reasons_lost[str(int(g))] = (f"its segment (frames {fk[0]}-{fk[-1]}) has no "
+                                             f"world and scale: {exc}")
             continue
         segments.append(Segment(len(segments) + 1, r.estimated & ~result.estimated,
                                 r.trajectory, r.report))
-    reasons = dict(report.get("frames_not_estimated_reasons", {}))
+    reasons = {**report.get("frames_not_estimated_reasons", {}), **reasons_lost}
     for seg in segments:
-        for k in np.flatnonzero(seg.frames):
-            reasons[str(k)] = (f"estimated in segment {seg.number} ({seg.file}), in its own "
+        for f in np.flatnonzero(seg.frames):
+            reasons[str(f)] = (f"estimated in segment {seg.number} ({seg.file}), in its own "
                                f"world and scale: too few lines link it to the main trajectory")
     for (a, b), why in failures.items():
         for j in range(a, b):
@@ -920,32 +1018,40 @@ def _with_segments(tracks: LineTracks, sol: _Solved, options: EstimationOptions,
 
 
 def _extend(tracks: LineTracks, ba: BundleResult, init: _Init, options: EstimationOptions,
-            timings: dict[str, float]) -> tuple[BundleResult, _Init]:
-    """Frames beyond the chain registered from its lines, then the bundle adjustment of all;
-    the result unchanged when no frame is added or the adjustment fails."""
+            run: RunLog) -> tuple[BundleResult, _Init]:
+    """Strategy: frames beyond the chain registered from its lines, then the bundle adjustment
+    of all; the result unchanged when no frame is added or the adjustment fails."""
     assert options.extend is not None
-    t0 = time.perf_counter()
     keep = ~ba.outlier_tracks
     sub = tracks.select_tracks(keep)
-    reg = register_frames(sub, ba.rotations, ba.positions, ba.frames,
-                          ba.line_directions[keep], ba.line_points[keep], ba.sigma_deg,
-                          options.bundle, options.extend)
+    with run.timed("extension"):
+        reg = register_frames(sub, ba.rotations, ba.positions, ba.frames,
+                              ba.line_directions[keep], ba.line_points[keep], ba.sigma_deg,
+                              options.bundle, options.extend)
     R, c, frames = reg.rotations, reg.positions, reg.estimated
     added = frames & ~ba.frames
-    timings["extension"] += (time.perf_counter() - t0) * 1e3
     init = replace(init, reasons=dict(reg.reasons))
+    F = tracks.num_frames
+    stops = "; ".join(f"stopped {'forwards' if way > 0 else 'backwards'} at frame {f}"
+                      for f, way in reg.stops)
     if not added.any():
+        run.record(failed("registration", (0, F - 1), f"no frame added{': ' if stops else ''}"
+                                                      f"{stops}"))
         return ba, init
-    t0 = time.perf_counter()
-    try:
+    run.record(Attempt("registration", (0, F - 1), reg,
+                       why=f"{int(added.sum())} frames added{'; ' if stops else ''}{stops}"))
+    with run.timed("refinement"):
         d = np.full((tracks.num_tracks, 3), np.nan)
         p = d.copy()
         d[keep], p[keep] = reg.line_directions, reg.line_points
-        new = bundle_adjust(tracks, R, c, d, p, frames=frames, options=options.bundle)
-    except OmniSfmError:
-        return ba, init
-    finally:
-        timings["refinement"] += (time.perf_counter() - t0) * 1e3
+        try:
+            new = bundle_adjust(tracks, R, c, d, p, frames=frames, options=options.bundle)
+        except OmniSfmError as exc:
+            run.record(failed("bundle adjustment after registration", (0, F - 1),
+                              f"{exc}; the chain's frames alone are kept"))
+            return ba, init
+    run.record(Attempt("bundle adjustment after registration", (0, F - 1), new,
+                       cost_deg=new.rms_final_deg, why=f"{int(new.frames.sum())} frames"))
     R0, c0 = init.rotations.copy(), init.positions.copy()
     R0[added], c0[added] = R[added], c[added]
     return new, replace(init, rotations=R0, positions=c0, frames=new.frames)
@@ -955,46 +1061,64 @@ ROTATION_ONLY_CONVENTION = ("world = camera of the first estimated frame; the ca
                             "turned: every position is 0, translation and scale are undetermined")
 
 
-def _try_rotation_only(tracks: LineTracks, options: EstimationOptions,
-                       timings: dict[str, float]) -> RotationOnlyResult | None:
-    """The rotation-only fit if it explains the NVs (the camera turned in place), else None."""
-    t0 = time.perf_counter()
-    try:
-        res = estimate_rotation_only(tracks, options.rotation_only)
-    except OmniSfmError:
+def _try_rotation_only(tracks: LineTracks, options: EstimationOptions, run: RunLog,
+                       why: str, better_than: EstimationResult | None = None
+                       ) -> RotationOnlyResult | None:
+    """Strategy: the rotation-only fit, tried because ``why``; kept if it explains the NVs (the
+    camera turned in place) and estimates more frames than ``better_than``, else None."""
+    span = (0, tracks.num_frames - 1)
+    with run.timed("rotation_only"):
+        try:
+            res = estimate_rotation_only(tracks, options.rotation_only)
+        except OmniSfmError as exc:
+            run.record(failed("rotation only", span, f"{why}; {exc}"))
+            return None
+    att = Attempt("rotation only", span, res, cost_deg=res.rms_final_deg,
+                  why=f"{why}; {int(res.estimated.sum())} frames, median "
+                      f"{res.median_deg:.3g} deg")
+    limit = options.rotation_only_max_median_deg
+    if res.estimated.sum() < 3 or not res.median_deg <= limit:
+        run.record(att.judged(Outcome.REJECTED, f"{att.why}: the rotations alone do not explain "
+                                                f"the lines (median over {limit} deg)"))
         return None
-    finally:
-        timings["rotation_only"] += (time.perf_counter() - t0) * 1e3
-    if res.estimated.sum() < 3 or not res.median_deg <= options.rotation_only_max_median_deg:
+    if better_than is not None and res.estimated.sum() <= better_than.estimated.sum():
+        run.record(att.judged(Outcome.REJECTED, f"{att.why}: no more frames than the moving "
+                                                f"camera's solution"))
         return None
+    run.record(att)
     return res
 
 
 def _rotation_only_result(tracks: LineTracks, res: RotationOnlyResult,
-                          options: EstimationOptions, timings: dict[str, float], why: str,
+                          options: EstimationOptions, run: RunLog, why: str,
                           t_all: float) -> EstimationResult:
     """An :class:`EstimationResult` of a camera that only turned: rotations, positions 0."""
     M = tracks.num_tracks
     frames = res.estimated
     idx = np.flatnonzero(frames)
-    t0 = time.perf_counter()
-    try:
-        family = detect_parallel_family(tracks, options.vanishing)
-        members = np.asarray(family.members, bool)
-        vpv = np.asarray(family.vpv)[idx]
-        ok = np.isfinite(vpv).all(axis=1)
-        direction = res.rotations[idx[ok][0]] @ vpv[ok][0] if ok.any() else \
-            np.full(3, np.nan)
-    except OmniSfmError:
-        members, direction = np.zeros(M, bool), np.full(3, np.nan)
-    timings["parallel_lines"] += (time.perf_counter() - t0) * 1e3
+    # the family is reported only (the rotations do not use it); a camera that turns may see
+    # none
+    no_family = ""
+    with run.timed("parallel_lines"):
+        try:
+            family = detect_parallel_family(tracks, options.vanishing)
+            members = np.asarray(family.members, bool)
+            vpv = np.asarray(family.vpv)[idx]
+            ok = np.isfinite(vpv).all(axis=1)
+            direction = res.rotations[idx[ok][0]] @ vpv[ok][0] if ok.any() else \
+                np.full(3, np.nan)
+        except OmniSfmError as exc:
+            members, direction, no_family = np.zeros(M, bool), np.full(3, np.nan), str(exc)
     ts = tracks.timestamps
     traj = Trajectory(ts[idx].copy(), res.rotations[idx], np.zeros((len(idx), 3)))
     sigma = float(res.median_deg / np.sqrt(2 * np.log(2)))
-    timings["total"] = (time.perf_counter() - t_all) * 1e3
+    run.timings["total"] = (time.perf_counter() - t_all) * 1e3
+    timings = dict(run.timings)
     nan3 = np.full((M, 3), np.nan)
     report = _report(tracks, frames, members, direction, res.outliers, res.used_tracks, [],
-                     [], dict(timings), res.rms_initial_deg, res.rms_final_deg, sigma)
+                     [], timings, res.rms_initial_deg, res.rms_final_deg, sigma)
+    if no_family:
+        report["parallel_family"]["none"] = no_family
     report["scale_convention"] = ROTATION_ONLY_CONVENTION
     report["motion"] = {
         "kind": "rotation only",
@@ -1004,11 +1128,12 @@ def _rotation_only_result(tracks: LineTracks, res: RotationOnlyResult,
                f"line normals to {res.median_deg:.3g} deg (median)"}
     report["frames_not_estimated_reasons"] = {str(k): v for k, v in res.reasons.items()}
     report["reflection"] = "none: no translation"
+    report["attempts"] = run.entries
     return EstimationResult(
         trajectory=traj, estimated=frames, initial_trajectory=traj,
         track_ids=tracks.track_ids.copy(), parallel=members, parallel_direction=direction,
         outliers=res.outliers, used_tracks=res.used_tracks, line_directions=nan3,
-        line_points=nan3.copy(), windows=[], timings_ms=dict(timings),
+        line_points=nan3.copy(), windows=[], timings_ms=timings,
         residual_rms_initial_deg=res.rms_initial_deg, residual_rms_final_deg=res.rms_final_deg,
         sigma_deg=sigma, scale_convention=ROTATION_ONLY_CONVENTION, report=report)
 

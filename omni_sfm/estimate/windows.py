@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -215,12 +216,27 @@ RefineFn = Callable[[FloatArray, FloatArray, np.ndarray, np.ndarray],
                     tuple[FloatArray, FloatArray, np.ndarray]]
 
 
+class Chain(NamedTuple):
+    """Windows chained into one trajectory (:func:`chain_windows`)."""
+
+    rotations: FloatArray
+    """``(F, 3, 3)`` world_from_cam, NaN for frames not chained."""
+    positions: FloatArray
+    """``(F, 3)`` camera centres, NaN for frames not chained."""
+    estimated: np.ndarray
+    """``(F,)`` bool."""
+    chained: list[int]
+    """Indices of the chained windows."""
+    skipped: dict[int, str]
+    """Solved windows left out of the chain, and why."""
+
+
 def chain_windows(num_frames: int, windows: list[Window],
                   solutions: list[tuple[FloatArray, FloatArray] | None],
                   refine: RefineFn | None = None,
                   max_disagreement_deg: float | None = None,
                   resolve: Callable[[int], tuple[FloatArray, FloatArray] | None] | None = None
-                  ) -> tuple[FloatArray, FloatArray, np.ndarray, list[int]]:
+                  ) -> Chain:
     """Chain per-window poses into one trajectory (world = the first chained window's frame 0).
 
     Args:
@@ -240,9 +256,9 @@ def chain_windows(num_frames: int, windows: list[Window],
         resolve: optional ``resolve(w)`` giving another solution of window ``w`` (or None),
             tried before a disagreeing window is skipped.
 
-    Returns ``(rotations (F,3,3), positions (F,3), estimated (F,) bool, chained window
-    indices)``. Only the longest run of windows linked by >= 3 shared frames is kept; the other
-    frames are NaN and not estimated. Where windows overlap, the earlier window's poses stand.
+    Returns the :class:`Chain`. Only the longest run of windows linked by >= 3 shared frames is
+    kept; the other frames are NaN and not estimated. Where windows overlap, the earlier
+    window's poses stand.
     """
     runs: list[list[int]] = []
     for w, sol in enumerate(solutions):
@@ -256,8 +272,10 @@ def chain_windows(num_frames: int, windows: list[Window],
     c = np.full((num_frames, 3), np.nan)
     done = np.zeros(num_frames, bool)
     if not runs:
-        return R, c, done, []
+        return Chain(R, c, done, [], {})
     best = max(runs, key=lambda r: windows[r[-1]].stop - windows[r[0]].start)
+    skipped = {w: "not in the longest run of windows linked by 3 shared frames (a gap)"
+               for r in runs if r is not best for w in r}
     prev_start = windows[best[0]].start
     chained: list[int] = []
     for w in best:
@@ -270,6 +288,8 @@ def chain_windows(num_frames: int, windows: list[Window],
             continue
         shared = fr[done[fr]]
         if len(shared) < 3:
+            skipped[w] = f"shares {len(shared)} frames with the chain (a window before it " \
+                         f"was skipped); need 3"
             continue
         idx = shared - windows[w].start
 
@@ -283,6 +303,8 @@ def chain_windows(num_frames: int, windows: list[Window],
                 if agree:
                     rot_w, pos_w = other
         if not agree:
+            skipped[w] = (f"its rotations disagree with the chain's on the shared frames by "
+                          f"more than {max_disagreement_deg} deg")
             continue
         new = fr[~done[fr]]
         jdx = new - windows[w].start
@@ -301,4 +323,4 @@ def chain_windows(num_frames: int, windows: list[Window],
         done[new] = True
         prev_start = windows[w].start
         chained.append(w)
-    return R, c, done, chained
+    return Chain(R, c, done, chained, skipped)

@@ -1,0 +1,160 @@
+"""What one estimation tried: every named strategy's attempt, in order, and the time per stage.
+
+The estimator (:mod:`omni_sfm.estimate.pipeline`) reaches its result through a small set of
+named strategies (:data:`STRATEGIES`): the paper's method on a window, the same with another
+parallel family, the bundle adjustment from another start, a new start after a gap, ... Each
+strategy returns an :class:`Attempt` (its solution or none, its cost, and why it stopped), the
+caller keeps or rejects it, and the :class:`RunLog` records every attempt with its outcome for
+``report.json`` (``attempts``, docs/formats.md). Nothing falls back silently.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import defaultdict
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, replace
+from enum import StrEnum
+from typing import Any, Generic, TypeVar
+
+T = TypeVar("T")
+
+
+class Outcome(StrEnum):
+    """What became of an attempt."""
+
+    KEPT = "kept"
+    """Its solution is (part of) the result."""
+    REJECTED = "rejected"
+    """It gave a solution, and another one was better (``why`` says by what)."""
+    FAILED = "failed"
+    """It gave no solution (``why`` says why it stopped)."""
+    SKIPPED = "skipped"
+    """Not run: it could not change the result (``why`` says why)."""
+
+
+STRATEGIES: dict[str, str] = {
+    "bootstrap stretch": "the windows and their chain on one stretch of a long sequence "
+                         "(EstimationOptions.bootstrap_frames), the next stretch if it fails",
+    "paper window": "the paper's method (docs/method.md §4-§5) on one window, with the "
+                    "largest parallel family",
+    "paper window, unpolished": "the same without the joint rotation polish, where the polished "
+                                "rotations jump between frames or disagree with the chain",
+    "paper window, another family": "the paper's method on a window with another parallel "
+                                    "family, where the first is degenerate there",
+    "local adjustment": "the few iterations of bundle adjustment after each chained window",
+    "bundle adjustment": "the line bundle adjustment of the chain's frames from the paper's "
+                         "solution",
+    "bundle adjustment, another start": "the same from one of the paper's alternative "
+                                        "starts (translations from another second view); the "
+                                        "lowest final cost wins",
+    "restart without outliers": "the whole solution again without the tracks the adjustment "
+                                "rejected; kept if it estimates as many frames at a cost no "
+                                "higher",
+    "registration": "frames beyond the chain posed from the lines already reconstructed, new "
+                    "lines triangulated, local adjustments (docs/estimator.md stage 5b)",
+    "bundle adjustment after registration": "the adjustment of the chain's and the "
+                                            "registered frames together",
+    "half-turn repair": "short runs of frames turned by a half turn posed again from their "
+                        "lines (docs/estimator.md stage 7b)",
+    "new start": "the whole estimator again on frames the main solution left (stage 8)",
+    "join": "a new piece moved into another's world where their common lines fix the "
+            "similarity",
+    "bundle adjustment of a piece": "the bundle adjustment of a piece after a join or a "
+                                    "half-turn repair",
+    "rotation only": "rotations alone from the lines, for a camera that turns without moving "
+                     "(docs/method.md §13)",
+}
+"""Every strategy the estimator may try, and what it does (docs/estimator.md)."""
+
+
+@dataclass(frozen=True)
+class Attempt(Generic[T]):
+    """One strategy tried on a stretch of frames.
+
+    Attributes:
+        strategy: its name, a key of :data:`STRATEGIES`.
+        frames: ``(first, last)`` frame it ran on (inclusive, indices of the whole sequence once
+            recorded), or None for the whole input.
+        solution: what it produced, None when it failed.
+        cost_deg: the RMS angle between observed and predicted line normals at its solution
+            (the cost that decides between attempts), NaN when it has none.
+        why: why it stopped, or why its solution was kept or rejected.
+        outcome: see :class:`Outcome`.
+    """
+
+    strategy: str
+    frames: tuple[int, int] | None
+    solution: T | None
+    cost_deg: float = float("nan")
+    why: str = ""
+    outcome: Outcome = Outcome.KEPT
+
+    def __post_init__(self) -> None:
+        if self.strategy not in STRATEGIES:
+            raise ValueError(f"unknown strategy {self.strategy!r}")
+
+    @property
+    def ok(self) -> bool:
+        """Whether it produced a solution."""
+        return self.solution is not None
+
+    def judged(self, outcome: Outcome, why: str | None = None) -> Attempt[T]:
+        """The same attempt with the caller's verdict."""
+        return replace(self, outcome=outcome, why=self.why if why is None else why)
+
+    def to_json(self, offset: int = 0) -> dict[str, Any]:
+        out: dict[str, Any] = {"strategy": self.strategy}
+        if self.frames is not None:
+            out["frames"] = [self.frames[0] + offset, self.frames[1] + offset]
+        out["result"] = str(self.outcome)
+        if self.cost_deg == self.cost_deg:  # not NaN
+            out["cost_rms_deg"] = round(float(self.cost_deg), 6)
+        if self.why:
+            out["why"] = self.why
+        return out
+
+
+def failed(strategy: str, frames: tuple[int, int] | None, why: str) -> Attempt[Any]:
+    """An attempt that gave no solution."""
+    return Attempt(strategy, frames, None, why=why, outcome=Outcome.FAILED)
+
+
+class RunLog:
+    """Every attempt of one estimation in order (shared by the sub-runs on stretches of frames,
+    whose frame indices it shifts to the whole sequence) and the wall time per stage (each run
+    its own)."""
+
+    def __init__(self, offset: int = 0, entries: list[dict[str, Any]] | None = None,
+                 timings: defaultdict[str, float] | None = None) -> None:
+        self.offset = offset
+        self.entries: list[dict[str, Any]] = [] if entries is None else entries
+        self.timings: defaultdict[str, float] = defaultdict(float) if timings is None \
+            else timings
+
+    def at(self, offset: int, *, share_timings: bool = False) -> RunLog:
+        """A log for a sub-run on frames ``offset..`` (of this run's frames): the same
+        attempts; its own timings, or these."""
+        return RunLog(self.offset + offset, self.entries,
+                      self.timings if share_timings else None)
+
+    def record(self, attempt: Attempt[T], **extra: Any) -> Attempt[T]:
+        """Record ``attempt`` (with ``extra`` JSON fields) and return it."""
+        entry = attempt.to_json(self.offset)
+        entry.update(extra)
+        self.entries.append(entry)
+        return attempt
+
+    @contextmanager
+    def timed(self, stage: str) -> Iterator[None]:
+        """Add the wall time of the ``with`` block to ``timings[stage]`` (milliseconds)."""
+        t0 = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.timings[stage] += (time.perf_counter() - t0) * 1e3
+
+    def add_times(self, timings: dict[str, float]) -> None:
+        for k, v in timings.items():
+            self.timings[k] += float(v)
