@@ -95,7 +95,10 @@ class BundleOptions:
     """Flag tracks whose residuals are far above the noise, drop them and solve again."""
     outlier_threshold: float = 3.0
     """A track is an outlier if its RMS residual norm exceeds this many times the expected
-    RMS for its noise (sqrt(2) sigma)."""
+    RMS for its noise (sqrt(2) sigma) ..."""
+    outlier_min_deg: float = 0.05
+    """... and this many degrees (a floor for precise data, whose robust noise estimate can be
+    far below what the line fits' small systematic errors give good tracks)."""
     max_rounds: int = 6
     """Solve / re-estimate the noise / reject (or take back) outlier tracks rounds at most."""
     min_spread_sigmas: float = 0.0
@@ -555,6 +558,13 @@ def _gauge(c: FloatArray, frames: np.ndarray, scale_frames: np.ndarray | None,
     return fixed, scale_frame, scale_axis
 
 
+def _outlier_limit(sigma: float, options: BundleOptions) -> float:
+    """The RMS residual (radians) above which a track is an outlier, for per-axis noise
+    ``sigma`` (radians)."""
+    return max(options.outlier_threshold * np.sqrt(2.0) * sigma,
+               float(np.radians(options.outlier_min_deg)))
+
+
 def _new_outliers(active: np.ndarray, rms: FloatArray, sigma: float,
                   options: BundleOptions) -> np.ndarray:
     """``(M,)`` bool: the active tracks to reject in this round (none unless
@@ -568,7 +578,7 @@ def _new_outliers(active: np.ndarray, rms: FloatArray, sigma: float,
     M = len(active)
     new_out = np.zeros(M, bool)
     if options.reject_outliers:
-        cand = active & (rms > options.outlier_threshold * np.sqrt(2.0) * sigma)
+        cand = active & (rms > _outlier_limit(sigma, options))
         if cand.any():
             worst = float(np.max(rms[cand]))
             new_out = cand & (rms >= 0.5 * worst)
@@ -670,7 +680,7 @@ class _Adjustment:
         ang2 = weighted_residuals(tracks, self.R, self.c, d2, p2)
         ang2[~self.obs_in] = np.nan
         rms2 = _track_rms(tracks, ang2, tracks.num_tracks)
-        readmit = self.outlier & ok2 & (rms2 <= o.outlier_threshold * np.sqrt(2.0) * self.sigma)
+        readmit = self.outlier & ok2 & (rms2 <= _outlier_limit(self.sigma, o))
         self.d[readmit], self.p[readmit] = d2[readmit], p2[readmit]
         self.line_ok[readmit] = True
         return readmit
