@@ -239,6 +239,19 @@ def observation_residuals(tracks: LineTracks, rotations: FloatArray, positions: 
     return unsigned_angle(normalize(u), tracks.obs_normal)
 
 
+def truncated_cost(tracks: LineTracks, rotations: FloatArray, positions: FloatArray,
+                   frames: np.ndarray, limit: float) -> float:
+    """The mean over the observations in ``frames`` of ``min(angle, limit)^2`` (radians^2),
+    every track's line triangulated from the poses (at least 3 observations): a score of a
+    solution that does not depend on which tracks it rejected (a wrong solution rejects the
+    tracks that disagree with it and fits the rest as well as the right one fits all)."""
+    d, p, ok = triangulate_lines(tracks, rotations, positions, frames, min_observations=3)
+    ang = observation_residuals(tracks, rotations, positions, d, p)
+    seen = frames[tracks.obs_frame]
+    ang = np.where(ok[tracks.obs_track], ang, limit)[seen]
+    return float(np.mean(np.minimum(np.nan_to_num(ang, nan=limit), limit) ** 2))
+
+
 def _loss_weights(s: FloatArray, loss: RobustLoss, scale: float) -> tuple[FloatArray, FloatArray]:
     """Robust cost rho(s) and its derivative (the IRLS weight) for squared norms ``s``."""
     f2 = scale * scale
@@ -558,7 +571,7 @@ def _gauge(c: FloatArray, frames: np.ndarray, scale_frames: np.ndarray | None,
     return fixed, scale_frame, scale_axis
 
 
-def _outlier_limit(sigma: float, options: BundleOptions) -> float:
+def outlier_limit(sigma: float, options: BundleOptions) -> float:
     """The RMS residual (radians) above which a track is an outlier, for per-axis noise
     ``sigma`` (radians)."""
     return max(options.outlier_threshold * np.sqrt(2.0) * sigma,
@@ -578,7 +591,7 @@ def _new_outliers(active: np.ndarray, rms: FloatArray, sigma: float,
     M = len(active)
     new_out = np.zeros(M, bool)
     if options.reject_outliers:
-        cand = active & (rms > _outlier_limit(sigma, options))
+        cand = active & (rms > outlier_limit(sigma, options))
         if cand.any():
             worst = float(np.max(rms[cand]))
             new_out = cand & (rms >= 0.5 * worst)
@@ -680,7 +693,7 @@ class _Adjustment:
         ang2 = weighted_residuals(tracks, self.R, self.c, d2, p2)
         ang2[~self.obs_in] = np.nan
         rms2 = _track_rms(tracks, ang2, tracks.num_tracks)
-        readmit = self.outlier & ok2 & (rms2 <= _outlier_limit(self.sigma, o))
+        readmit = self.outlier & ok2 & (rms2 <= outlier_limit(self.sigma, o))
         self.d[readmit], self.p[readmit] = d2[readmit], p2[readmit]
         self.line_ok[readmit] = True
         return readmit

@@ -27,8 +27,10 @@ from omni_sfm.estimate.bundle import (
     BundleResult,
     bundle_adjust,
     observation_residuals,
+    outlier_limit,
     resect_pose,
     triangulate_lines,
+    truncated_cost,
 )
 from omni_sfm.estimate.incremental import (
     IncrementalOptions,
@@ -365,7 +367,7 @@ def _initialise_all(tracks: LineTracks, options: EstimationOptions, run: RunLog)
         if att.solution is None:
             run.record(att)
             return None
-        run.record(att, why="the polished solution disagrees with the chain")
+        run.record(replace(att, why="the polished solution disagrees with the chain"))
         return np.asarray(att.solution.rotations), np.asarray(att.solution.positions)
 
     with run.timed("chaining"):
@@ -609,15 +611,26 @@ def _solve_moving(tracks: LineTracks, options: EstimationOptions, run: RunLog) -
         ba = _refine(tracks, init, options, run)
         if options.restart_without_outliers and ba.outlier_tracks.any():
             att = _restart_without_outliers(tracks, ba, options, run)
-            if att.solution is not None and att.solution[1].frames.sum() >= ba.frames.sum() \
-                    and att.cost_deg <= ba.rms_final_deg:
+            if att.solution is None:
                 run.record(att)
-                init, ba = att.solution
             else:
-                run.record(att if att.solution is None else att.judged(
-                    Outcome.REJECTED, f"{att.why}, at {att.cost_deg:.4g} deg: fewer frames or "
-                                      f"a higher cost than with them ({int(ba.frames.sum())} "
-                                      f"frames, {ba.rms_final_deg:.4g} deg)"))
+                # the two solutions rejected different tracks: they are compared on all of
+                # them, each track's misfit capped at the outlier limit
+                ba2 = att.solution[1]
+                limit = outlier_limit(np.radians(ba.sigma_deg), options.bundle)
+                both = ba.frames & ba2.frames
+                score = [np.degrees(np.sqrt(truncated_cost(tracks, b.rotations, b.positions,
+                                                           both, limit))) for b in (ba, ba2)]
+                why = (f"{att.why}; all tracks, misfits capped at {np.degrees(limit):.3g} deg: "
+                       f"{score[1]:.4g} deg RMS, {score[0]:.4g} with the outliers")
+                if ba2.frames.sum() >= ba.frames.sum() and score[1] <= score[0]:
+                    run.record(replace(att, why=why))
+                    init, ba = att.solution
+                else:
+                    fewer = ba2.frames.sum() < ba.frames.sum()
+                    run.record(att.judged(Outcome.REJECTED, why + (
+                        f" (and {int(ba2.frames.sum())} frames against "
+                        f"{int(ba.frames.sum())})" if fewer else "")))
         if options.extend is not None and not ba.frames.all():
             ba, init = _extend(tracks, ba, init, options, run)
         R, c, frames = ba.rotations, ba.positions, ba.frames
