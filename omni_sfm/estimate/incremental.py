@@ -36,10 +36,19 @@ only.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+import os, sys
+HOLD = os.environ.get("HOLD", "1") == "1"
 
 import numpy as np
 
 from omni_sfm.errors import OmniSfmError
+from omni_sfm.estimate.families import (
+    family_of_lines,
+    family_of_planes,
+    manhattan,
+    point_given_direction,
+    world_families,
+)
 from omni_sfm.estimate.bundle import (
     BundleOptions,
     bundle_adjust,
@@ -81,6 +90,20 @@ class IncrementalOptions:
     """Registered frames adjusted by each local adjustment (the latest ones)."""
     local_iterations: int = 10
     """Levenberg-Marquardt iterations of each local adjustment."""
+    families: bool = True
+    """Use the parallel families that the starting lines show as fixed world directions
+    (:mod:`omni_sfm.estimate.families`): their lines constrain a frame's rotation before they
+    are triangulated, are triangulated with their direction given and keep it in the
+    adjustments, so the rotation does not drift."""
+    min_cross_lines: int = 1
+    """A frame whose reconstructed lines (at least ``min_lines`` of them) are all of one
+    direction is registered when it also sees this many lines of other families' directions
+    (they fix the rotation about that direction; the position along it then continues the
+    motion of the last registered frames)."""
+    family_angle_deg: float = 2.0
+    """A line belongs to a family when its direction is within this angle of it."""
+    min_family_lines: int = 4
+    """A family needs this many starting lines."""
 
 
 @dataclass(frozen=True)
@@ -92,6 +115,9 @@ class Registration:
             estimated).
         estimated: ``(F,)`` bool.
         line_directions, line_points: ``(M, 3)`` the known lines (NaN where unknown).
+        families: ``(K, 3)`` the parallel families' world directions (fixed).
+        family: ``(M,)`` each line's family (index into ``families``), -1 for none; the known
+            lines of a family have exactly its direction.
         reasons: frame -> why it was not registered (frames the growth reached).
         stops: ``[(frame, direction)]`` where the growth stopped after ``max_misses`` failures
             (``direction`` +1 forwards, -1 backwards): the first frame of the failed run.
@@ -103,6 +129,8 @@ class Registration:
     estimated: np.ndarray
     line_directions: FloatArray
     line_points: FloatArray
+    families: FloatArray
+    family: np.ndarray
     reasons: dict[int, str] = field(default_factory=dict)
     stops: list[tuple[int, int]] = field(default_factory=list)
     added: int = 0
@@ -145,6 +173,14 @@ def centre_given_rotation(normals: FloatArray, directions: FloatArray, points: F
     return np.asarray(np.linalg.lstsq(m, b, rcond=None)[0])
 
 
+def _mean_direction(directions: FloatArray) -> FloatArray:
+    """The mean of the (unsigned, nearly parallel) unit directions ``(K, 3)``."""
+    s = np.sign(directions @ directions[0])
+    s[s == 0] = 1.0
+    m = np.sum(directions * s[:, None], axis=0)
+    return np.asarray(m / np.linalg.norm(m))
+
+
 def _spread(directions: FloatArray) -> float:
     """Largest angle (deg) between two of the (unsigned) directions ``(K, 3)``."""
     if len(directions) < 2:
@@ -173,11 +209,34 @@ class _Growth:
         self.refit = False  # the last frame fitted its lines worse than usual: adjust soon
         self.by_frame, self.frame_starts = obs_index(tracks.obs_frame, F)
         self.by_track, self.track_starts = obs_index(tracks.obs_track, M)
+        self.D = np.zeros((0, 3))
+        self.fam = np.full(M, -1)
+        if options.families and self.known.any():
+            self.D = world_families(self.d[self.known], max_angle_deg=options.family_angle_deg,
+                                    min_lines=options.min_family_lines)
+            self.fam = family_of_lines(np.where(self.known[:, None], self.d, np.nan), self.D,
+                                       max_angle_deg=options.family_angle_deg)
+            if os.environ.get("MANH", "1") == "1":
+                self.D = manhattan(self.D, np.bincount(self.fam[self.fam >= 0], minlength=len(self.D)))
+            if HOLD:
+                self.snap(np.flatnonzero(self.fam >= 0))
         self.local = replace(bundle, max_rounds=2, max_iterations=options.local_iterations,
                              final_loss=None)
         self.reasons: dict[int, str] = {}
         self.stops: list[tuple[int, int]] = []
         self.added = 0
+
+    def snap(self, lines: np.ndarray) -> None:
+        """Give the known ``lines`` of a family exactly its direction, turning each about its
+        point nearest the registered cameras that see it."""
+        for t in lines:
+            obs = self.track_obs(np.array([t]))
+            obs = obs[self.est[self.tracks.obs_frame[obs]]]
+            d, p, D = self.d[t], self.p[t], self.D[self.fam[t]]
+            s = float(np.mean((self.c[self.tracks.obs_frame[obs]] - p) @ d)) if len(obs) else 0.0
+            x = p + s * d
+            self.d[t] = D if float(D @ d) >= 0 else -D
+            self.p[t] = x - float(x @ self.d[t]) * self.d[t]
 
     def frame_obs(self, f: int) -> np.ndarray:
         return self.by_frame[self.frame_starts[f]:self.frame_starts[f + 1]]
@@ -203,14 +262,17 @@ class _Growth:
         obs = self.frame_obs(f)
         t = tracks.obs_track[obs]
         kn = self.known[t]
-        if kn.sum() < o.min_lines:
-            return (f"sees {int(kn.sum())} lines already reconstructed; need {o.min_lines} "
-                    f"(of {len(t)} lines seen)")
-        obs, t = obs[kn], t[kn]
-        n, d, p = tracks.obs_normal[obs], self.d[t], self.p[t]
+        fo = ~kn & (self.fam[t] >= 0)  # lines of a family, not triangulated yet
+        if kn.sum() < 3 or kn.sum() + fo.sum() < o.min_lines:
+            return (f"sees {int(kn.sum())} lines already reconstructed and "
+                    f"{int(fo.sum())} others of a known direction; need 3 and {o.min_lines} "
+                    f"in all (of {len(t)} lines seen)")
+        n, d, p = tracks.obs_normal[obs[kn]], self.d[t[kn]], self.p[t[kn]]
+        m, D = tracks.obs_normal[obs[fo]], self.D[self.fam[t[fo]]]
+        K = len(n)
         R_pred, c_pred = self.predict(f, a, b)
         starts = [(R_pred, c_pred)]
-        R_dir = rotation_from_directions(n, d, R_pred)
+        R_dir = rotation_from_directions(np.concatenate([n, m]), np.concatenate([d, D]), R_pred)
         c_dir = centre_given_rotation(n, d, p, R_dir)
         if c_dir is not None:
             starts.append((R_dir, c_dir))
@@ -219,24 +281,36 @@ class _Growth:
         thr = max(self.thr, o.relative_inlier * self.last_median)
         best = None
         for R0, c0 in starts:
-            R1, c1, ang = resect_pose(n, d, p, R0, c0, scale=thr / 2.0)
+            R1, c1, ang = resect_pose(n, d, p, R0, c0, scale=thr / 2.0,
+                                      direction_normals=m, directions=D)
             inl = ang <= thr
             score = (int(inl.sum()), -float(np.sum(np.minimum(ang, thr) ** 2)))
             if best is None or score > best[0]:
                 best = (score, R1, c1, inl)
         assert best is not None
         _, R1, c1, inl = best
-        if inl.sum() < o.min_lines:
-            return (f"{int(inl.sum())} of its {len(t)} reconstructed lines fit a pose; "
-                    f"need {o.min_lines}")
-        if _spread(d[inl]) < o.min_angle_deg:
-            return "the reconstructed lines it sees are all (nearly) parallel"
-        R2, c2, ang = resect_pose(n[inl], d[inl], p[inl], R1, c1, scale=np.inf)
+        il, idir = inl[:K], inl[K:]
+        if il.sum() < 3 or inl.sum() < o.min_lines:
+            return (f"{int(il.sum())} of its {K} reconstructed lines and {int(idir.sum())} of "
+                    f"{len(m)} of a known direction fit a pose; need 3 and {o.min_lines} in all")
+        along = None
+        if _spread(d[il]) < o.min_angle_deg:
+            # lines of one direction (a corridor's verticals, while its own direction has no
+            # parallax) fix all but the position along them; with lines of other known
+            # directions fixing the rotation, that position follows the motion so far
+            along = _mean_direction(d[il])
+            cross = idir & (np.abs(D @ along) < np.cos(np.radians(o.min_angle_deg)))
+            if b is None or cross.sum() < o.min_cross_lines or il.sum() < o.min_lines:
+                return "the reconstructed lines it sees are all (nearly) parallel"
+        R2, c2, ang = resect_pose(n[il], d[il], p[il], R1, c1, scale=np.inf,
+                                  direction_normals=m[idir], directions=D[idir])
+        if along is not None:
+            c2 = c2 + float(np.dot(c_pred - c2, along)) * along
         turn = float(np.degrees(rotation_angle(self.R[a].T @ R2)))
         if turn > o.max_turn_deg * abs(f - a):
             return f"its pose would turn {turn:.0f} deg from frame {a}"
         self.R[f], self.c[f], self.est[f] = R2, c2, True
-        self.last_median = float(np.median(ang))
+        self.last_median = float(np.median(ang[:int(il.sum())]))
         self.refit = self.last_median > self.thr / 2.0
         return None
 
@@ -255,6 +329,18 @@ class _Growth:
         local_t = np.searchsorted(cand, tracks.obs_track[obs])
         cnt = np.bincount(local_t, minlength=len(cand))
         n_w = np.einsum("kij,kj->ki", self.R[tracks.obs_frame[obs]], tracks.obs_normal[obs])
+        if len(self.D):
+            self.fam[cand] = family_of_planes(n_w, local_t, len(cand), self.D,
+                                              max_angle_deg=np.degrees(self.thr),
+                                              min_views=o.min_views)
+            of = self.fam[cand] >= 0
+            self.triangulate_in_family(cand[of], obs[of[local_t]], n_w[of[local_t]])
+            keep = ~of[local_t]
+            cand, obs, n_w = cand[~of], obs[keep], n_w[keep]
+            if len(cand) == 0:
+                return
+            local_t = np.searchsorted(cand, tracks.obs_track[obs])
+            cnt = np.bincount(local_t, minlength=len(cand))
         A = np.zeros((len(cand), 3, 3))
         np.add.at(A, local_t, n_w[:, :, None] * n_w[:, None, :])
         ev = np.linalg.eigvalsh(A)
@@ -272,6 +358,31 @@ class _Growth:
         good = ok & (rms <= self.thr)
         self.d[cand[good]], self.p[cand[good]] = dd[good], pp[good]
         self.known[cand[good]] = True
+        if len(self.D):  # a new line of a family takes its direction
+            new = cand[good]
+            self.fam[new] = family_of_lines(self.d[new], self.D,
+                                            max_angle_deg=self.o.family_angle_deg)
+            if HOLD:
+                self.snap(new[self.fam[new] >= 0])
+
+    def triangulate_in_family(self, lines: np.ndarray, obs: np.ndarray, n_w: FloatArray) -> None:
+        """Lines of a family (their direction known), from their registered views ``obs`` with
+        world normals ``n_w``: once their planes turn by ``min_parallax_deg`` about the direction
+        (only the line's position is unknown) in ``min_views`` views that fit."""
+        tracks, o = self.tracks, self.o
+        for t in lines:
+            mine = tracks.obs_track[obs] == t
+            if mine.sum() < o.min_views:
+                continue
+            D = self.D[self.fam[t]]
+            c = self.c[tracks.obs_frame[obs[mine]]]
+            p, spread = point_given_direction(n_w[mine], c, D)
+            if np.degrees(spread) < o.min_parallax_deg:
+                continue
+            sub = subtracks(tracks, obs[mine], np.array([t]))
+            ang = observation_residuals(sub, self.R, self.c, D[None], p[None])
+            if float(np.sqrt(np.mean(ang ** 2))) <= self.thr:
+                self.d[t], self.p[t], self.known[t] = D, p, True
 
     # -- 4: local adjustment -------------------------------------------------------------------
     def adjust(self, window: np.ndarray) -> None:
@@ -299,6 +410,7 @@ class _Growth:
         try:
             res = bundle_adjust(sub, self.R[frames], self.c[frames], self.d[lines],
                                 self.p[lines], held_frames=held_sub,
+                                held_directions=(self.fam[lines] >= 0) if HOLD else None,
                                 scale_frames=held_sub if spread else None, options=self.local)
         except OmniSfmError:
             return
@@ -311,6 +423,19 @@ class _Growth:
         self.known[bad] = False
         self.rejected[bad] = True
         self.d[bad], self.p[bad] = np.nan, np.nan
+        self.fam[bad] = -1
+        if not HOLD and len(self.D):
+            self.refresh_families()
+
+    def refresh_families(self) -> None:
+        kn = np.flatnonzero(self.known)
+        self.fam[kn] = family_of_lines(self.d[kn], self.D, max_angle_deg=self.o.family_angle_deg)
+        for k in range(len(self.D)):
+            mem = kn[self.fam[kn] == k]
+            if len(mem) >= self.o.min_family_lines:
+                dd = self.d[mem] * np.sign(self.d[mem] @ self.D[k])[:, None]
+                v = dd.sum(0)
+                self.D[k] = v / np.linalg.norm(v)
 
     # -- the growth ----------------------------------------------------------------------------
     def grow(self, forward: bool) -> None:
@@ -387,6 +512,7 @@ def register_frames(tracks: LineTracks, rotations: FloatArray, positions: FloatA
     c = np.where(g.est[:, None], g.c, np.nan)
     d = np.where(g.known[:, None], g.d, np.nan)
     p = np.where(g.known[:, None], g.p, np.nan)
-    return Registration(R, c, g.est, d, p, g.reasons, g.stops, g.added)
+    return Registration(R, c, g.est, d, p, g.D, np.where(g.known, g.fam, -1), g.reasons,
+                        g.stops, g.added)
 
 

@@ -934,7 +934,11 @@ def _extend(tracks: LineTracks, ba: BundleResult, init: _Init, options: Estimati
         d = np.full((tracks.num_tracks, 3), np.nan)
         p = d.copy()
         d[keep], p[keep] = reg.line_directions, reg.line_points
-        new = bundle_adjust(tracks, R, c, d, p, frames=frames, options=options.bundle)
+        held = np.zeros(tracks.num_tracks, bool)
+        held[keep] = reg.family >= 0
+        from omni_sfm.estimate.incremental import HOLD
+        new = bundle_adjust(tracks, R, c, d, p, frames=frames, held_directions=held if HOLD else None,
+                            options=options.bundle)
     except OmniSfmError:
         return ba, init
     finally:
