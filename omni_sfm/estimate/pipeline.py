@@ -12,6 +12,8 @@ and the last estimated camera is 1 (the paper's convention, Sec. VII).
 
 from __future__ import annotations
 
+import os
+
 import time
 from collections import defaultdict
 from dataclasses import dataclass, field, replace
@@ -812,8 +814,22 @@ def _junction_fits(tracks: LineTracks, sol: _Solved, first: int, last: int,
 
 def _adjusted(tracks: LineTracks, sol: _Solved, options: EstimationOptions) -> _Solved | None:
     """The bundle adjustment of a joined piece (None if it fails)."""
+    from omni_sfm.estimate.families import world_families, family_of_lines, manhattan
+    d, p = sol.d.copy(), sol.p.copy()
+    held = None
+    if os.environ.get("ADJHOLD", "1") == "1":
+        known = np.isfinite(d).all(1)
+        D = world_families(d[known], min_lines=4)
+        fam = family_of_lines(d, D)
+        D = manhattan(D, np.bincount(fam[fam >= 0], minlength=len(D)))
+        fam = family_of_lines(d, D)
+        held = fam >= 0
+        for t in np.flatnonzero(held):
+            Dt = D[fam[t]] if float(D[fam[t]] @ d[t]) >= 0 else -D[fam[t]]
+            d[t] = Dt
+            p[t] = p[t] - float(p[t] @ Dt) * Dt
     try:
-        ba = bundle_adjust(tracks, sol.R, sol.c, sol.d, sol.p, frames=sol.frames,
+        ba = bundle_adjust(tracks, sol.R, sol.c, d, p, frames=sol.frames, held_directions=held,
                            options=options.bundle)
     except OmniSfmError:
         return None
