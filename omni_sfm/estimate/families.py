@@ -146,3 +146,54 @@ def manhattan(families: FloatArray, sizes: np.ndarray, *,
     Q = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
     D[on] = sign[on, None] * (axes[ax[on]] @ Q.T)
     return D
+
+
+def line_families(directions: FloatArray, *, max_angle_deg: float = 2.0,
+                  min_lines: int = 4) -> tuple[FloatArray, np.ndarray]:
+    """The families of the lines ``(M, 3)`` (NaN rows: unknown lines): ``(D, family)``, the
+    :func:`world_families` of the known ones made Manhattan where they nearly are
+    (:func:`manhattan`, each weighted by its lines) and each line's family within
+    ``max_angle_deg`` of those (:func:`family_of_lines`, -1 for none)."""
+    d = np.asarray(directions, np.float64)
+    known = np.isfinite(d).all(1)
+    D = world_families(d[known], max_angle_deg=max_angle_deg, min_lines=min_lines)
+    fam = family_of_lines(d, D, max_angle_deg=max_angle_deg)
+    D = manhattan(D, np.bincount(fam[fam >= 0], minlength=len(D)))
+    return D, family_of_lines(d, D, max_angle_deg=max_angle_deg)
+
+
+def snap_to_families(directions: FloatArray, points: FloatArray, families: FloatArray,
+                     family: np.ndarray, anchors: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Copies of the lines ``(M, 3)`` (unit directions, points) with each line of a family
+    (``family`` ``(M,)`` >= 0, index into ``families`` ``(K, 3)``) given exactly its family's
+    direction (same sign), turned about its point nearest its ``anchors`` ``(M, 3)`` row (e.g.
+    the mean centre of the cameras that see it: the part of the line they see barely moves; a
+    NaN row turns it about its point nearest the origin). The points returned are the lines'
+    points nearest the origin."""
+    d = np.array(directions, np.float64)
+    p = np.array(points, np.float64)
+    k = np.flatnonzero(np.asarray(family) >= 0)
+    if len(k) == 0:
+        return d, p
+    D = np.asarray(families, np.float64)[np.asarray(family)[k]]
+    sign = np.where(np.sum(D * d[k], axis=1) < 0, -1.0, 1.0)
+    D = D * sign[:, None]
+    s = np.sum((np.asarray(anchors, np.float64)[k] - p[k]) * d[k], axis=1)
+    x = p[k] + np.where(np.isfinite(s), s, 0.0)[:, None] * d[k]
+    d[k] = D
+    p[k] = x - np.sum(x * D, axis=1, keepdims=True) * D
+    return d, p
+
+
+def camera_anchors(obs_frame: np.ndarray, obs_track: np.ndarray, centres: FloatArray,
+                   num_tracks: int) -> FloatArray:
+    """``(M, 3)`` the mean centre of the cameras that see each line, over the observations
+    ``(obs_frame, obs_track)`` whose frame has a finite centre in ``centres`` ``(F, 3)`` (NaN
+    for a line with none): the anchors of :func:`snap_to_families`."""
+    c = np.asarray(centres, np.float64)
+    ok = np.isfinite(c[obs_frame]).all(1)
+    s = np.zeros((num_tracks, 3))
+    np.add.at(s, obs_track[ok], c[obs_frame[ok]])
+    n = np.bincount(obs_track[ok], minlength=num_tracks).astype(float)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return s / n[:, None]

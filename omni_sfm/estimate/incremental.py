@@ -26,6 +26,13 @@ frame, forwards then backwards, as incremental structure from motion does with p
    and the known lines they see, with every other registered frame that sees those lines held
    (their observations keep the lines in place), stops errors from growing.
 
+**Families** (``families``, on by default). The parallel families that the starting lines show
+are fixed world directions (:mod:`omni_sfm.estimate.families`): a known line of a family is
+given its direction and keeps it in the local adjustments; a line not yet triangulated whose
+planes all contain one family's direction counts in the resection with that direction only
+(its normal is orthogonal to it: a constraint on the rotation) and is triangulated with the
+direction given. A frame still needs 3 reconstructed lines in two directions (its position).
+
 A frame that fails is listed with the reason and the growth goes on from the last registered
 frame; after ``max_misses`` failures in a row the growth in that direction stops (the caller
 restarts there). Cost per frame is bounded by the window: observations are reached through
@@ -36,25 +43,24 @@ only.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-import os, sys
-HOLD = os.environ.get("HOLD", "1") == "1"
 
 import numpy as np
 
 from omni_sfm.errors import OmniSfmError
-from omni_sfm.estimate.families import (
-    family_of_lines,
-    family_of_planes,
-    manhattan,
-    point_given_direction,
-    world_families,
-)
 from omni_sfm.estimate.bundle import (
     BundleOptions,
     bundle_adjust,
     observation_residuals,
     resect_pose,
     triangulate_lines,
+)
+from omni_sfm.estimate.families import (
+    camera_anchors,
+    family_of_lines,
+    family_of_planes,
+    line_families,
+    point_given_direction,
+    snap_to_families,
 )
 from omni_sfm.geometry import FloatArray, matrix_to_rotvec, rotation_angle, rotvec_to_matrix
 from omni_sfm.lines.tracks import LineTracks
@@ -94,12 +100,9 @@ class IncrementalOptions:
     """Use the parallel families that the starting lines show as fixed world directions
     (:mod:`omni_sfm.estimate.families`): their lines constrain a frame's rotation before they
     are triangulated, are triangulated with their direction given and keep it in the
-    adjustments, so the rotation does not drift."""
-    min_cross_lines: int = 1
-    """A frame whose reconstructed lines (at least ``min_lines`` of them) are all of one
-    direction is registered when it also sees this many lines of other families' directions
-    (they fix the rotation about that direction; the position along it then continues the
-    motion of the last registered frames)."""
+    adjustments (this one's, the adjustment of all frames after it, and those of pieces joined
+    later in :func:`omni_sfm.estimate.pipeline.estimate_poses`), so the rotation does not
+    drift."""
     family_angle_deg: float = 2.0
     """A line belongs to a family when its direction is within this angle of it."""
     min_family_lines: int = 4
@@ -173,14 +176,6 @@ def centre_given_rotation(normals: FloatArray, directions: FloatArray, points: F
     return np.asarray(np.linalg.lstsq(m, b, rcond=None)[0])
 
 
-def _mean_direction(directions: FloatArray) -> FloatArray:
-    """The mean of the (unsigned, nearly parallel) unit directions ``(K, 3)``."""
-    s = np.sign(directions @ directions[0])
-    s[s == 0] = 1.0
-    m = np.sum(directions * s[:, None], axis=0)
-    return np.asarray(m / np.linalg.norm(m))
-
-
 def _spread(directions: FloatArray) -> float:
     """Largest angle (deg) between two of the (unsigned) directions ``(K, 3)``."""
     if len(directions) < 2:
@@ -212,14 +207,10 @@ class _Growth:
         self.D = np.zeros((0, 3))
         self.fam = np.full(M, -1)
         if options.families and self.known.any():
-            self.D = world_families(self.d[self.known], max_angle_deg=options.family_angle_deg,
-                                    min_lines=options.min_family_lines)
-            self.fam = family_of_lines(np.where(self.known[:, None], self.d, np.nan), self.D,
-                                       max_angle_deg=options.family_angle_deg)
-            if os.environ.get("MANH", "1") == "1":
-                self.D = manhattan(self.D, np.bincount(self.fam[self.fam >= 0], minlength=len(self.D)))
-            if HOLD:
-                self.snap(np.flatnonzero(self.fam >= 0))
+            self.D, self.fam = line_families(np.where(self.known[:, None], self.d, np.nan),
+                                             max_angle_deg=options.family_angle_deg,
+                                             min_lines=options.min_family_lines)
+            self.snap(np.flatnonzero(self.fam >= 0))
         self.local = replace(bundle, max_rounds=2, max_iterations=options.local_iterations,
                              final_loss=None)
         self.reasons: dict[int, str] = {}
@@ -229,14 +220,15 @@ class _Growth:
     def snap(self, lines: np.ndarray) -> None:
         """Give the known ``lines`` of a family exactly its direction, turning each about its
         point nearest the registered cameras that see it."""
-        for t in lines:
-            obs = self.track_obs(np.array([t]))
-            obs = obs[self.est[self.tracks.obs_frame[obs]]]
-            d, p, D = self.d[t], self.p[t], self.D[self.fam[t]]
-            s = float(np.mean((self.c[self.tracks.obs_frame[obs]] - p) @ d)) if len(obs) else 0.0
-            x = p + s * d
-            self.d[t] = D if float(D @ d) >= 0 else -D
-            self.p[t] = x - float(x @ self.d[t]) * self.d[t]
+        lines = np.unique(lines)
+        if len(lines) == 0:
+            return
+        obs = self.track_obs(lines)
+        obs = obs[self.est[self.tracks.obs_frame[obs]]]
+        local = np.searchsorted(lines, self.tracks.obs_track[obs])
+        anchors = camera_anchors(self.tracks.obs_frame[obs], local, self.c, len(lines))
+        self.d[lines], self.p[lines] = snap_to_families(self.d[lines], self.p[lines], self.D,
+                                                        self.fam[lines], anchors)
 
     def frame_obs(self, f: int) -> np.ndarray:
         return self.by_frame[self.frame_starts[f]:self.frame_starts[f + 1]]
@@ -293,19 +285,11 @@ class _Growth:
         if il.sum() < 3 or inl.sum() < o.min_lines:
             return (f"{int(il.sum())} of its {K} reconstructed lines and {int(idir.sum())} of "
                     f"{len(m)} of a known direction fit a pose; need 3 and {o.min_lines} in all")
-        along = None
         if _spread(d[il]) < o.min_angle_deg:
-            # lines of one direction (a corridor's verticals, while its own direction has no
-            # parallax) fix all but the position along them; with lines of other known
-            # directions fixing the rotation, that position follows the motion so far
-            along = _mean_direction(d[il])
-            cross = idir & (np.abs(D @ along) < np.cos(np.radians(o.min_angle_deg)))
-            if b is None or cross.sum() < o.min_cross_lines or il.sum() < o.min_lines:
-                return "the reconstructed lines it sees are all (nearly) parallel"
+            # lines of other known directions fix the rotation, not the position along these
+            return "the reconstructed lines it sees are all (nearly) parallel"
         R2, c2, ang = resect_pose(n[il], d[il], p[il], R1, c1, scale=np.inf,
                                   direction_normals=m[idir], directions=D[idir])
-        if along is not None:
-            c2 = c2 + float(np.dot(c_pred - c2, along)) * along
         turn = float(np.degrees(rotation_angle(self.R[a].T @ R2)))
         if turn > o.max_turn_deg * abs(f - a):
             return f"its pose would turn {turn:.0f} deg from frame {a}"
@@ -362,8 +346,7 @@ class _Growth:
             new = cand[good]
             self.fam[new] = family_of_lines(self.d[new], self.D,
                                             max_angle_deg=self.o.family_angle_deg)
-            if HOLD:
-                self.snap(new[self.fam[new] >= 0])
+            self.snap(new[self.fam[new] >= 0])
 
     def triangulate_in_family(self, lines: np.ndarray, obs: np.ndarray, n_w: FloatArray) -> None:
         """Lines of a family (their direction known), from their registered views ``obs`` with
@@ -410,7 +393,7 @@ class _Growth:
         try:
             res = bundle_adjust(sub, self.R[frames], self.c[frames], self.d[lines],
                                 self.p[lines], held_frames=held_sub,
-                                held_directions=(self.fam[lines] >= 0) if HOLD else None,
+                                held_directions=self.fam[lines] >= 0,
                                 scale_frames=held_sub if spread else None, options=self.local)
         except OmniSfmError:
             return
@@ -424,18 +407,6 @@ class _Growth:
         self.rejected[bad] = True
         self.d[bad], self.p[bad] = np.nan, np.nan
         self.fam[bad] = -1
-        if not HOLD and len(self.D):
-            self.refresh_families()
-
-    def refresh_families(self) -> None:
-        kn = np.flatnonzero(self.known)
-        self.fam[kn] = family_of_lines(self.d[kn], self.D, max_angle_deg=self.o.family_angle_deg)
-        for k in range(len(self.D)):
-            mem = kn[self.fam[kn] == k]
-            if len(mem) >= self.o.min_family_lines:
-                dd = self.d[mem] * np.sign(self.d[mem] @ self.D[k])[:, None]
-                v = dd.sum(0)
-                self.D[k] = v / np.linalg.norm(v)
 
     # -- the growth ----------------------------------------------------------------------------
     def grow(self, forward: bool) -> None:

@@ -12,8 +12,6 @@ and the last estimated camera is 1 (the paper's convention, Sec. VII).
 
 from __future__ import annotations
 
-import os
-
 import time
 from collections import defaultdict
 from dataclasses import dataclass, field, replace
@@ -32,6 +30,7 @@ from omni_sfm.estimate.bundle import (
     resect_pose,
     triangulate_lines,
 )
+from omni_sfm.estimate.families import camera_anchors, line_families, snap_to_families
 from omni_sfm.estimate.incremental import (
     IncrementalOptions,
     obs_index,
@@ -813,21 +812,19 @@ def _junction_fits(tracks: LineTracks, sol: _Solved, first: int, last: int,
 
 
 def _adjusted(tracks: LineTracks, sol: _Solved, options: EstimationOptions) -> _Solved | None:
-    """The bundle adjustment of a joined piece (None if it fails)."""
-    from omni_sfm.estimate.families import world_families, family_of_lines, manhattan
-    d, p = sol.d.copy(), sol.p.copy()
-    held = None
-    if os.environ.get("ADJHOLD", "1") == "1":
-        known = np.isfinite(d).all(1)
-        D = world_families(d[known], min_lines=4)
-        fam = family_of_lines(d, D)
-        D = manhattan(D, np.bincount(fam[fam >= 0], minlength=len(D)))
-        fam = family_of_lines(d, D)
+    """The bundle adjustment of a joined piece (None if it fails). With
+    ``options.extend.families``, the lines of each parallel family that its lines show are
+    given the family's direction and hold it (:mod:`omni_sfm.estimate.families`), as in the
+    registration: the rotations are measured against the same world directions all along."""
+    d, p, held = sol.d, sol.p, None
+    fo = options.extend
+    if fo is not None and fo.families:
+        D, fam = line_families(d, max_angle_deg=fo.family_angle_deg,
+                               min_lines=fo.min_family_lines)
+        anchors = camera_anchors(tracks.obs_frame, tracks.obs_track,
+                                 np.where(sol.frames[:, None], sol.c, np.nan), tracks.num_tracks)
+        d, p = snap_to_families(d, p, D, fam, anchors)
         held = fam >= 0
-        for t in np.flatnonzero(held):
-            Dt = D[fam[t]] if float(D[fam[t]] @ d[t]) >= 0 else -D[fam[t]]
-            d[t] = Dt
-            p[t] = p[t] - float(p[t] @ Dt) * Dt
     try:
         ba = bundle_adjust(tracks, sol.R, sol.c, d, p, frames=sol.frames, held_directions=held,
                            options=options.bundle)
@@ -951,9 +948,8 @@ def _extend(tracks: LineTracks, ba: BundleResult, init: _Init, options: Estimati
         p = d.copy()
         d[keep], p[keep] = reg.line_directions, reg.line_points
         held = np.zeros(tracks.num_tracks, bool)
-        held[keep] = reg.family >= 0
-        from omni_sfm.estimate.incremental import HOLD
-        new = bundle_adjust(tracks, R, c, d, p, frames=frames, held_directions=held if HOLD else None,
+        held[keep] = reg.family >= 0  # the lines of a family keep its direction
+        new = bundle_adjust(tracks, R, c, d, p, frames=frames, held_directions=held,
                             options=options.bundle)
     except OmniSfmError:
         return ba, init
