@@ -22,7 +22,11 @@ Parameters (minimal, updated on the manifold at each step):
 Gauge (7 DOF: rotation, translation, scale): the first estimated frame's pose is held fixed,
 and the scale by holding one coordinate of the camera centre farthest from it (the one with the
 largest magnitude). The cost is gauge invariant, so the estimate is the same up to a similarity
-whatever coordinate is held; callers rescale to their convention afterwards.
+whatever coordinate is held; callers rescale to their convention afterwards. Lines whose
+directions are held (``held_directions``: parallel families with fixed world directions) in two
+directions or more fix the rotation themselves: the first frame's rotation is then free (held
+too, it would disagree with them by its own error, and every rotation measured from it would
+carry that error), only its centre is held.
 
 Solver: Levenberg-Marquardt with an analytic Jacobian assembled as a ``scipy.sparse`` matrix (10
 non-zeros per residual row), normal equations solved by sparse LU; robust loss by iteratively
@@ -60,6 +64,8 @@ from omni_sfm.lines.tracks import LineTracks
 # median of the norm of a 2D isotropic Gaussian with unit std-dev per axis (Rayleigh median)
 _RAYLEIGH_MEDIAN = float(np.sqrt(2.0 * np.log(2.0)))
 _SIGMA_FLOOR = 1e-9
+# held line directions this far apart fix the rotation gauge (bundle_adjust(held_directions=))
+_MIN_GAUGE_ANGLE_DEG = 10.0
 
 
 class RobustLoss(StrEnum):
@@ -115,7 +121,8 @@ class BundleResult:
     Attributes:
         rotations: ``(F, 3, 3)`` world_from_cam (NaN for frames not estimated).
         positions: ``(F, 3)`` camera centres in the world (NaN for frames not estimated); the
-            world and the scale are those of the initial values (first estimated frame fixed).
+            world and the scale are those of the initial values (first estimated frame fixed;
+            only its centre when held directions fix the rotation, module docstring).
         line_directions: ``(M, 3)`` unit directions (world; NaN for tracks not used).
         line_points: ``(M, 3)`` the point of each line closest to the world origin.
         frames: ``(F,)`` bool, frames estimated.
@@ -274,16 +281,16 @@ _Blocks = tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]
 class _Problem:
     """The LM problem on the active frames and tracks (everything else stays as given).
 
-    Free parameters: 6 per estimated frame except the fixed one (whose 6 are held), minus the
-    one held coordinate of the scale frame; 4 per active track (2 for a line whose direction is
-    held). Held parameters keep zero Jacobian columns and an identity block in the normal
-    equations.
+    Free parameters: 6 per estimated frame except the fixed one (whose 6 are held; its centre
+    only when ``hold_rotation`` is False), minus the one held coordinate of the scale frame; 4
+    per active track (2 for a line whose direction is held). Held parameters keep zero
+    Jacobian columns and an identity block in the normal equations.
     """
 
     def __init__(self, tracks: LineTracks, frames: np.ndarray, active: np.ndarray,
                  fixed_frame: int, scale_frame: int, scale_axis: int,
                  held: np.ndarray | None = None,
-                 held_directions: np.ndarray | None = None) -> None:
+                 held_directions: np.ndarray | None = None, hold_rotation: bool = True) -> None:
         F, M = tracks.num_frames, tracks.num_tracks
         sel = frames[tracks.obs_frame] & active[tracks.obs_track]
         self.F, self.M = F, M
@@ -292,7 +299,9 @@ class _Problem:
         self.B = _residual_basis(tracks)[sel]  # (K, 2, 3)
         pose_free = np.zeros((F, 6), bool)
         pose_free[frames] = True
-        pose_free[fixed_frame] = False
+        pose_free[fixed_frame, 3:] = False
+        if hold_rotation:
+            pose_free[fixed_frame, :3] = False
         pose_free[scale_frame, 3 + scale_axis] = False
         if held is not None:
             pose_free[held] = False
@@ -574,6 +583,20 @@ def _gauge(c: FloatArray, frames: np.ndarray, scale_frames: np.ndarray | None,
     return fixed, scale_frame, scale_axis
 
 
+def _directions_fix_rotation(d: FloatArray, held_directions: np.ndarray | None,
+                             active: np.ndarray) -> bool:
+    """Whether the active ``(M,)`` lines whose directions ``d`` ``(M, 3)`` are held
+    (``held_directions`` ``(M,)`` bool) fix the world's rotation: two of them at least
+    ``_MIN_GAUGE_ANGLE_DEG`` apart (one direction leaves the turn about it free)."""
+    if held_directions is None:
+        return False
+    h = d[np.asarray(held_directions, bool) & active]
+    if len(h) < 2:
+        return False
+    sines = np.linalg.norm(np.cross(h, h[0]), axis=1)
+    return bool(sines.max() >= np.sin(np.radians(_MIN_GAUGE_ANGLE_DEG)))
+
+
 def _new_outliers(active: np.ndarray, rms: FloatArray, sigma: float,
                   options: BundleOptions) -> np.ndarray:
     """``(M,)`` bool: the active tracks to reject in this round (none unless
@@ -673,7 +696,8 @@ class _Adjustment:
         """Run LM on the ``active`` ``(M,)`` tracks with the loss scaled to the current noise;
         returns the iterations it took."""
         prob = _Problem(self.tracks, self.frames, active, self.fixed, self.scale_frame,
-                        self.scale_axis, self.held, self.held_directions)
+                        self.scale_axis, self.held, self.held_directions,
+                        not _directions_fix_rotation(self.d, self.held_directions, active))
         (self.R, self.c, self.d, self.p), it = _levenberg_marquardt(
             prob, (self.R, self.c, self.d, self.p), loss, self.options.loss_scale * self.sigma,
             max_iterations, tolerance)
@@ -781,7 +805,9 @@ def bundle_adjust(tracks: LineTracks, rotations: FloatArray, positions: FloatArr
         held_frames: ``(F,)`` bool, estimated frames whose poses are held as given (anchors of
             a local adjustment: their observations fix the lines they share with the others).
         held_directions: ``(M,)`` bool, lines whose directions are held as given (members of a
-            parallel family whose world direction is fixed: only their positions move).
+            parallel family whose world direction is fixed: only their positions move). Held in
+            two directions or more, they fix the rotation gauge: the first frame's rotation is
+            then estimated too.
         options: see :class:`BundleOptions`.
 
     Raises:
