@@ -29,6 +29,7 @@ from omni_sfm.estimate.bundle import (
     observation_residuals,
     resect_pose,
     triangulate_lines,
+    weighted_residuals,
 )
 from omni_sfm.estimate.families import camera_anchors, line_families, snap_to_families
 from omni_sfm.estimate.incremental import (
@@ -815,24 +816,66 @@ def _adjusted(tracks: LineTracks, sol: _Solved, options: EstimationOptions) -> _
     """The bundle adjustment of a joined piece (None if it fails). With
     ``options.extend.families``, the lines of each parallel family that its lines show are
     given the family's direction and hold it (:mod:`omni_sfm.estimate.families`), as in the
-    registration: the rotations are measured against the same world directions all along."""
-    d, p, held = sol.d, sol.p, None
+    registration: the rotations are measured against the same world directions all along;
+    unless those lines do not fit their families (:func:`_held_in_families`)."""
     fo = options.extend
-    if fo is not None and fo.families:
-        D, fam = line_families(d, max_angle_deg=fo.family_angle_deg,
-                               min_lines=fo.min_family_lines)
-        anchors = camera_anchors(tracks.obs_frame, tracks.obs_track,
-                                 np.where(sol.frames[:, None], sol.c, np.nan), tracks.num_tracks)
-        d, p = snap_to_families(d, p, D, fam, anchors)
-        held = fam >= 0
     try:
-        ba = bundle_adjust(tracks, sol.R, sol.c, d, p, frames=sol.frames, held_directions=held,
-                           options=options.bundle)
+        ba = None
+        if fo is not None and fo.families:
+            D, fam = line_families(sol.d, max_angle_deg=fo.family_angle_deg,
+                                   min_lines=fo.min_family_lines)
+            if (fam >= 0).any():
+                anchors = camera_anchors(tracks.obs_frame, tracks.obs_track,
+                                         np.where(sol.frames[:, None], sol.c, np.nan),
+                                         tracks.num_tracks)
+                d, p = snap_to_families(sol.d, sol.p, D, fam, anchors)
+                free_rms = _line_rms_deg(tracks, sol.R, sol.c, sol.d, sol.p, sol.frames)
+                ba = _held_in_families(tracks, sol.R, sol.c, sol.frames, d, p, fam >= 0,
+                                       free_rms, options)
+        if ba is None:
+            ba = bundle_adjust(tracks, sol.R, sol.c, sol.d, sol.p, frames=sol.frames,
+                               options=options.bundle)
     except OmniSfmError:
         return None
     return replace(sol, R=ba.rotations, c=ba.positions, frames=ba.frames,
                    d=ba.line_directions, p=ba.line_points, used=ba.used_tracks,
                    outliers=ba.outlier_tracks, rms1=ba.rms_final_deg, sigma=ba.sigma_deg)
+
+
+def _line_rms_deg(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArray,
+                  p: FloatArray, frames: np.ndarray) -> FloatArray:
+    """``(M,)`` each line's RMS weighted residual (deg) over its observations in ``frames``
+    (NaN for a line with none or no 3D line)."""
+    ang = weighted_residuals(tracks, R, c, d, p)
+    ok = np.isfinite(ang) & frames[tracks.obs_frame]
+    M = tracks.num_tracks
+    cnt = np.bincount(tracks.obs_track[ok], minlength=M)
+    ss = np.bincount(tracks.obs_track[ok], weights=ang[ok] ** 2, minlength=M)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(cnt > 0, np.degrees(np.sqrt(ss / np.maximum(cnt, 1))), np.nan)
+
+
+def _held_in_families(tracks: LineTracks, R: FloatArray, c: FloatArray, frames: np.ndarray,
+                      d: FloatArray, p: FloatArray, held: np.ndarray, free_rms_deg: FloatArray,
+                      options: EstimationOptions) -> BundleResult | None:
+    """The bundle adjustment of ``frames`` with the directions of the ``held`` ``(M,)`` lines
+    held (lines ``d``, ``p``: those on their families' directions); None if those lines (the
+    ones it rejects as outliers too) fit more than ``options.extend.max_family_misfit`` times
+    as badly as with their directions free (median RMS residual, against theirs in
+    ``free_rms_deg`` ``(M,)``, NaN: unknown): the families do not describe the scene (lines
+    of other directions put in one, a place that is not Manhattan).
+
+    Raises:
+        OmniSfmError: the adjustment fails.
+    """
+    assert options.extend is not None
+    res = bundle_adjust(tracks, R, c, d, p, frames=frames, held_directions=held,
+                        options=options.bundle)
+    h = held & np.isfinite(res.track_rms_deg) & np.isfinite(free_rms_deg)
+    if h.any() and float(np.median(res.track_rms_deg[h])) > \
+            options.extend.max_family_misfit * float(np.median(free_rms_deg[h])):
+        return None
+    return res
 
 
 def _with_segments(tracks: LineTracks, sol: _Solved, options: EstimationOptions,
@@ -939,7 +982,7 @@ def _extend(tracks: LineTracks, ba: BundleResult, init: _Init, options: Estimati
     R, c, frames = reg.rotations, reg.positions, reg.estimated
     added = frames & ~ba.frames
     timings["extension"] += (time.perf_counter() - t0) * 1e3
-    init = replace(init, reasons=dict(reg.reasons))
+    init0, init = init, replace(init, reasons=dict(reg.reasons))
     if not added.any():
         return ba, init
     t0 = time.perf_counter()
@@ -949,12 +992,19 @@ def _extend(tracks: LineTracks, ba: BundleResult, init: _Init, options: Estimati
         d[keep], p[keep] = reg.line_directions, reg.line_points
         held = np.zeros(tracks.num_tracks, bool)
         held[keep] = reg.family >= 0  # the lines of a family keep its direction
-        new = bundle_adjust(tracks, R, c, d, p, frames=frames, held_directions=held,
-                            options=options.bundle)
+        if held.any():
+            # against how the chain's lines fitted with their directions free
+            new = _held_in_families(tracks, R, c, frames, d, p, held,
+                                    np.where(ba.used_tracks, ba.track_rms_deg, np.nan), options)
+        else:
+            new = bundle_adjust(tracks, R, c, d, p, frames=frames, options=options.bundle)
     except OmniSfmError:
         return ba, init
     finally:
         timings["refinement"] += (time.perf_counter() - t0) * 1e3
+    if new is None:  # the families do not fit the scene: the registration again without them
+        return _extend(tracks, ba, init0,
+                       replace(options, extend=replace(options.extend, families=False)), timings)
     R0, c0 = init.rotations.copy(), init.positions.copy()
     R0[added], c0[added] = R[added], c[added]
     return new, replace(init, rotations=R0, positions=c0, frames=new.frames)
