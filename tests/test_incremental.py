@@ -218,7 +218,7 @@ def test_a_short_run_turned_by_a_half_turn_is_turned_back() -> None:
     assert fixed.init.repairs == 3
     err = np.degrees(rotation_angle(np.einsum("fji,fjk->fik", fixed.R, g.rotations)))
     assert err.max() < 1e-3
-    (repair, adjust) = run.entries
+    repair, adjust = run.entries[0], run.entries[-1]
     assert repair["strategy"] == "half-turn repair" and repair["frames"] == [20, 22]
     assert repair["result"] == "kept" and repair["why"] == "3 of 3 frames turned back"
     assert adjust["strategy"] == "bundle adjustment of a piece"

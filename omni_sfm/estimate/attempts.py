@@ -56,6 +56,9 @@ STRATEGIES: dict[str, str] = {
                     "lines triangulated, local adjustments (docs/estimator.md stage 5b)",
     "bundle adjustment after registration": "the adjustment of the chain's and the "
                                             "registered frames together",
+    "families held": "an adjustment with the lines of each parallel family held on the "
+                     "family's world direction (docs/estimator.md stage 5b); rejected, and the "
+                     "directions freed, where those lines fit much worse held",
     "half-turn repair": "short runs of frames turned by a half turn posed again from their "
                         "lines (docs/estimator.md stage 7b)",
     "new start": "the whole estimator again on frames the main solution left (stage 8)",

@@ -22,7 +22,11 @@ Parameters (minimal, updated on the manifold at each step):
 Gauge (7 DOF: rotation, translation, scale): the first estimated frame's pose is held fixed,
 and the scale by holding one coordinate of the camera centre farthest from it (the one with the
 largest magnitude). The cost is gauge invariant, so the estimate is the same up to a similarity
-whatever coordinate is held; callers rescale to their convention afterwards.
+whatever coordinate is held; callers rescale to their convention afterwards. Lines whose
+directions are held (``held_directions``: parallel families with fixed world directions) in two
+directions or more fix the rotation themselves: the first frame's rotation is then free (held
+too, it would disagree with them by its own error, and every rotation measured from it would
+carry that error), only its centre is held.
 
 Solver: Levenberg-Marquardt with an analytic Jacobian assembled as a ``scipy.sparse`` matrix (10
 non-zeros per residual row), normal equations solved by sparse LU; robust loss by iteratively
@@ -60,6 +64,8 @@ from omni_sfm.lines.tracks import LineTracks
 # median of the norm of a 2D isotropic Gaussian with unit std-dev per axis (Rayleigh median)
 _RAYLEIGH_MEDIAN = float(np.sqrt(2.0 * np.log(2.0)))
 _SIGMA_FLOOR = 1e-9
+# held line directions this far apart fix the rotation gauge (bundle_adjust(held_directions=))
+_MIN_GAUGE_ANGLE_DEG = 10.0
 
 
 class RobustLoss(StrEnum):
@@ -118,7 +124,8 @@ class BundleResult:
     Attributes:
         rotations: ``(F, 3, 3)`` world_from_cam (NaN for frames not estimated).
         positions: ``(F, 3)`` camera centres in the world (NaN for frames not estimated); the
-            world and the scale are those of the initial values (first estimated frame fixed).
+            world and the scale are those of the initial values (first estimated frame fixed;
+            only its centre when held directions fix the rotation, module docstring).
         line_directions: ``(M, 3)`` unit directions (world; NaN for tracks not used).
         line_points: ``(M, 3)`` the point of each line closest to the world origin.
         frames: ``(F,)`` bool, frames estimated.
@@ -290,14 +297,16 @@ _Blocks = tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]
 class _Problem:
     """The LM problem on the active frames and tracks (everything else stays as given).
 
-    Free parameters: 6 per estimated frame except the fixed one (whose 6 are held), minus the
-    one held coordinate of the scale frame; 4 per active track. Held parameters keep zero
+    Free parameters: 6 per estimated frame except the fixed one (whose 6 are held; its centre
+    only when ``hold_rotation`` is False), minus the one held coordinate of the scale frame; 4
+    per active track (2 for a line whose direction is held). Held parameters keep zero
     Jacobian columns and an identity block in the normal equations.
     """
 
     def __init__(self, tracks: LineTracks, frames: np.ndarray, active: np.ndarray,
                  fixed_frame: int, scale_frame: int, scale_axis: int,
-                 held: np.ndarray | None = None) -> None:
+                 held: np.ndarray | None = None,
+                 held_directions: np.ndarray | None = None, hold_rotation: bool = True) -> None:
         F, M = tracks.num_frames, tracks.num_tracks
         sel = frames[tracks.obs_frame] & active[tracks.obs_track]
         self.F, self.M = F, M
@@ -306,12 +315,16 @@ class _Problem:
         self.B = _residual_basis(tracks)[sel]  # (K, 2, 3)
         pose_free = np.zeros((F, 6), bool)
         pose_free[frames] = True
-        pose_free[fixed_frame] = False
+        pose_free[fixed_frame, 3:] = False
+        if hold_rotation:
+            pose_free[fixed_frame, :3] = False
         pose_free[scale_frame, 3 + scale_axis] = False
         if held is not None:
             pose_free[held] = False
         self.pose_free = pose_free
         self.line_free = np.repeat(np.asarray(active, bool)[:, None], 4, axis=1)
+        if held_directions is not None:
+            self.line_free[held_directions, :2] = False
 
     def residuals(self, R: FloatArray, c: FloatArray, d: FloatArray,
                   p: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -330,7 +343,8 @@ class _Problem:
         pc = p[t] - c[f]
         V = np.stack([np.cross(pc, e1), np.cross(pc, e2), np.cross(e1, d[t]),
                       np.cross(e2, d[t])], axis=1)  # (K, 4, 3) world
-        J_line = A @ np.swapaxes(np.einsum("kji,kaj->kai", Rk, V), 1, 2)
+        J_line = A @ np.swapaxes(np.einsum("kji,kaj->kai", Rk, V), 1, 2) * \
+            self.line_free[t][:, None, :]
         J_pose = np.concatenate([J_rot, J_c], axis=2) * self.pose_free[f][:, None, :]
         return J_pose, J_line
 
@@ -377,7 +391,7 @@ class _Problem:
         G = Linv[f] @ Hpl  # (K, 6, 4)
         gpt = np.einsum("fij,fj->fi", Linv, gp)  # L^-1 g_p
         # only the lines with observations enter the reduced system
-        act = np.flatnonzero(lf[:, 0])
+        act = np.flatnonzero(lf.any(1))
         Ma = len(act)
         tc = np.searchsorted(act, t)
         ar = np.repeat(np.arange(Ma), 16)
@@ -423,7 +437,7 @@ class _Problem:
         moved = np.any(self.pose_free, axis=1)
         R2[moved] = R[moved] @ rotvec_to_matrix(dpose[moved, :3])
         c2 = c + dpose[:, 3:]
-        act = self.line_free[:, 0]
+        act = self.line_free.any(1)
         dl = dline[act]
         e1, e2 = _tangent_basis(d[act])
         d2, p2 = d.copy(), p.copy()
@@ -444,20 +458,34 @@ def _robust_sigma(angles: FloatArray) -> float:
 class _PoseProblem:
     """The LM problem of one camera's 6 pose parameters with its lines held
     (:func:`resect_pose`): state ``(R (3, 3), c (3,), d (K, 3), p (K, 3))``, one observation
-    of each line, residual bases ``B`` ``(K, 2, 3)``."""
+    of each line, residual bases ``B`` ``(K, 2, 3)``; and ``(J, 3)`` normals ``m`` of lines of
+    which only the world direction ``D`` is known, each with the one residual ``m . R^T D``
+    (the normal lies in the plane orthogonal to its line's direction; second component 0)."""
 
-    def __init__(self, B: FloatArray) -> None:
+    def __init__(self, B: FloatArray, dir_normals: FloatArray | None = None,
+                 dir_world: FloatArray | None = None) -> None:
         self.B = B
+        self.m = np.zeros((0, 3)) if dir_normals is None else dir_normals
+        self.D = np.zeros((0, 3)) if dir_world is None else dir_world
 
     def residuals(self, R: FloatArray, c: FloatArray, d: FloatArray,
                   p: FloatArray) -> tuple[FloatArray, FloatArray]:
         u = predicted_normals(R[None], c[None], p, d)
-        return np.einsum("kai,ki->ka", self.B, normalize(u)), u
+        e = np.einsum("kai,ki->ka", self.B, normalize(u))
+        if len(self.m):
+            r = np.sum(self.m * (self.D @ R), axis=1)
+            e = np.concatenate([e, np.stack([r, np.zeros_like(r)], axis=1)])
+        return e, u
 
     def jacobian(self, R: FloatArray, c: FloatArray, d: FloatArray, p: FloatArray,
                  u: FloatArray) -> tuple[FloatArray, FloatArray]:
         _, J_rot, J_c = _pose_jacobian(np.broadcast_to(R, (len(d), 3, 3)), d, u, self.B)
-        return np.concatenate([J_rot, J_c], axis=2), np.zeros((len(d), 2, 0))
+        J = np.concatenate([J_rot, J_c], axis=2)
+        if len(self.m):
+            Jd = np.zeros((len(self.m), 2, 6))
+            Jd[:, 0, :3] = np.cross(self.m, self.D @ R)  # d (m . R^T D) / d w, R <- R exp([w]x)
+            J = np.concatenate([J, Jd])
+        return J, np.zeros((len(J), 2, 0))
 
     def normal_equations(self, J: FloatArray, _J_line: FloatArray, e: FloatArray,
                          w: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -578,6 +606,20 @@ def outlier_limit(sigma: float, options: BundleOptions) -> float:
                float(np.radians(options.outlier_min_deg)))
 
 
+def _directions_fix_rotation(d: FloatArray, held_directions: np.ndarray | None,
+                             active: np.ndarray) -> bool:
+    """Whether the active ``(M,)`` lines whose directions ``d`` ``(M, 3)`` are held
+    (``held_directions`` ``(M,)`` bool) fix the world's rotation: two of them at least
+    ``_MIN_GAUGE_ANGLE_DEG`` apart (one direction leaves the turn about it free)."""
+    if held_directions is None:
+        return False
+    h = d[np.asarray(held_directions, bool) & active]
+    if len(h) < 2:
+        return False
+    sines = np.linalg.norm(np.cross(h, h[0]), axis=1)
+    return bool(sines.max() >= np.sin(np.radians(_MIN_GAUGE_ANGLE_DEG)))
+
+
 def _new_outliers(active: np.ndarray, rms: FloatArray, sigma: float,
                   options: BundleOptions) -> np.ndarray:
     """``(M,)`` bool: the active tracks to reject in this round (none unless
@@ -622,7 +664,8 @@ class _Adjustment:
 
     def __init__(self, tracks: LineTracks, state: _State, frames: np.ndarray,
                  scale_frames: np.ndarray | None, options: BundleOptions,
-                 held_frames: np.ndarray | None = None) -> None:
+                 held_frames: np.ndarray | None = None,
+                 held_directions: np.ndarray | None = None) -> None:
         """Set up from :func:`_initial_state`'s output.
 
         Raises:
@@ -644,6 +687,8 @@ class _Adjustment:
             raise OmniSfmError(f"bundle adjustment needs at least 3 frames that see 3 lines or "
                                f"more; got {int(self.frames.sum())}")
         self.held = None if held_frames is None else np.asarray(held_frames, bool) & self.frames
+        self.held_directions = None if held_directions is None else \
+            np.asarray(held_directions, bool)
         first_held = None if self.held is None or not self.held.any() else \
             int(np.flatnonzero(self.held)[0])
         self.fixed, self.scale_frame, self.scale_axis = _gauge(self.c, self.frames, scale_frames,
@@ -674,7 +719,8 @@ class _Adjustment:
         """Run LM on the ``active`` ``(M,)`` tracks with the loss scaled to the current noise;
         returns the iterations it took."""
         prob = _Problem(self.tracks, self.frames, active, self.fixed, self.scale_frame,
-                        self.scale_axis, self.held)
+                        self.scale_axis, self.held, self.held_directions,
+                        not _directions_fix_rotation(self.d, self.held_directions, active))
         (self.R, self.c, self.d, self.p), it = _levenberg_marquardt(
             prob, (self.R, self.c, self.d, self.p), loss, self.options.loss_scale * self.sigma,
             max_iterations, tolerance)
@@ -694,6 +740,8 @@ class _Adjustment:
         ang2[~self.obs_in] = np.nan
         rms2 = _track_rms(tracks, ang2, tracks.num_tracks)
         readmit = self.outlier & ok2 & (rms2 <= outlier_limit(self.sigma, o))
+        if self.held_directions is not None:  # refitted freely: it would leave its direction
+            readmit &= ~self.held_directions
         self.d[readmit], self.p[readmit] = d2[readmit], p2[readmit]
         self.line_ok[readmit] = True
         return readmit
@@ -760,6 +808,7 @@ def bundle_adjust(tracks: LineTracks, rotations: FloatArray, positions: FloatArr
                   frames: np.ndarray | None = None,
                   scale_frames: np.ndarray | None = None,
                   held_frames: np.ndarray | None = None,
+                  held_directions: np.ndarray | None = None,
                   options: BundleOptions = BundleOptions()) -> BundleResult:
     """Refine poses and lines jointly from all observations (partial tracks allowed).
 
@@ -778,6 +827,10 @@ def bundle_adjust(tracks: LineTracks, rotations: FloatArray, positions: FloatArr
             (default: all); e.g. the already refined part of a growing chain.
         held_frames: ``(F,)`` bool, estimated frames whose poses are held as given (anchors of
             a local adjustment: their observations fix the lines they share with the others).
+        held_directions: ``(M,)`` bool, lines whose directions are held as given (members of a
+            parallel family whose world direction is fixed: only their positions move). Held in
+            two directions or more, they fix the rotation gauge: the first frame's rotation is
+            then estimated too.
         options: see :class:`BundleOptions`.
 
     Raises:
@@ -785,7 +838,7 @@ def bundle_adjust(tracks: LineTracks, rotations: FloatArray, positions: FloatArr
     """
     t0 = time.perf_counter()
     state, fr = _initial_state(tracks, rotations, positions, line_directions, line_points, frames)
-    adj = _Adjustment(tracks, state, fr, scale_frames, options, held_frames)
+    adj = _Adjustment(tracks, state, fr, scale_frames, options, held_frames, held_directions)
     for round_ in range(max(1, options.max_rounds)):
         if adj.robust_round(round_):
             break
@@ -829,23 +882,33 @@ def oracle(tracks: LineTracks, rotations: FloatArray, positions: FloatArray,
 
 def resect_pose(normals: FloatArray, line_directions: FloatArray, line_points: FloatArray,
                 rotation: FloatArray, position: FloatArray, *, scale: float,
-                iterations: int = 10) -> tuple[FloatArray, FloatArray, FloatArray]:
+                iterations: int = 10, direction_normals: FloatArray | None = None,
+                directions: FloatArray | None = None
+                ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """The pose of one camera from lines known in 3D (absolute pose from lines).
 
     Minimises the adjustment's residual (module docstring) over the 6 pose parameters with the
     lines held, from ``rotation`` (world_from_cam) and ``position``, by Levenberg-Marquardt with
     a Huber loss of ``scale`` (radians; ``inf``: plain least squares). ``normals`` ``(K, 3)``
     are the camera's observed NVs of the lines ``line_directions``, ``line_points`` ``(K, 3)``
-    (world).
+    (world). ``direction_normals`` ``(J, 3)``: observed NVs of lines of which only the world
+    direction ``directions`` ``(J, 3)`` is known (a parallel family's): they constrain the
+    rotation only.
 
     Returns ``(R, c, angles)``: the pose and the ``(K,)`` angles (radians) between observed and
-    predicted normals at it.
+    predicted normals at it, followed by the ``(J,)`` angles of the direction-only normals out
+    of the planes orthogonal to their directions.
     """
     n_obs = normalize(np.asarray(normals, np.float64))
     d, p = np.asarray(line_directions, np.float64), np.asarray(line_points, np.float64)
-    prob = _PoseProblem(np.stack(_tangent_basis(n_obs), axis=1))
+    m = None if direction_normals is None else normalize(np.asarray(direction_normals, float))
+    prob = _PoseProblem(np.stack(_tangent_basis(n_obs), axis=1), m,
+                        None if directions is None else np.asarray(directions, np.float64))
     loss = RobustLoss.HUBER if np.isfinite(scale) else RobustLoss.LINEAR
     state: _State = (np.array(rotation, np.float64), np.array(position, np.float64), d, p)
     (R, c, _, _), _ = _levenberg_marquardt(prob, state, loss, scale, iterations, 1e-10)
-    _, u = prob.residuals(R, c, d, p)
-    return R, c, unsigned_angle(normalize(u), n_obs)
+    e, u = prob.residuals(R, c, d, p)
+    ang = unsigned_angle(normalize(u), n_obs)
+    if m is not None and len(m):
+        ang = np.concatenate([ang, np.arcsin(np.clip(np.abs(e[len(d):, 0]), 0.0, 1.0))])
+    return R, c, ang

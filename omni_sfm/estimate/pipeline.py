@@ -31,7 +31,9 @@ from omni_sfm.estimate.bundle import (
     resect_pose,
     triangulate_lines,
     truncated_cost,
+    weighted_residuals,
 )
+from omni_sfm.estimate.families import camera_anchors, line_families, snap_to_families
 from omni_sfm.estimate.incremental import (
     IncrementalOptions,
     obs_index,
@@ -921,12 +923,31 @@ def _junction_misfit(tracks: LineTracks, sol: _Solved, first: int, last: int,
 def _adjusted(tracks: LineTracks, sol: _Solved, options: EstimationOptions, run: RunLog,
               why: str) -> _Solved:
     """Strategy: the bundle adjustment of a piece after a join or a repair (``why``); the piece
-    as it is where it fails (recorded)."""
+    as it is where it fails (recorded). With ``options.extend.families``, the lines of each
+    parallel family that its lines show are given the family's direction and hold it
+    (:mod:`omni_sfm.estimate.families`), as in the registration, so that the rotations are
+    measured against the same world directions all along; unless those lines do not fit their
+    families (:func:`_held_in_families`: that attempt is recorded, and the directions are
+    freed)."""
     idx = np.flatnonzero(sol.frames)
     span = (int(idx[0]), int(idx[-1]))
+    fo = options.extend
     try:
-        ba = bundle_adjust(tracks, sol.R, sol.c, sol.d, sol.p, frames=sol.frames,
-                           options=options.bundle)
+        ba = None
+        if fo is not None and fo.families:
+            D, fam = line_families(sol.d, max_angle_deg=fo.family_angle_deg,
+                                   min_lines=fo.min_family_lines)
+            if (fam >= 0).any():
+                anchors = camera_anchors(tracks.obs_frame, tracks.obs_track,
+                                         np.where(sol.frames[:, None], sol.c, np.nan),
+                                         tracks.num_tracks)
+                d, p = snap_to_families(sol.d, sol.p, D, fam, anchors)
+                free_rms = _line_rms_deg(tracks, sol.R, sol.c, sol.d, sol.p, sol.frames)
+                ba = _held_in_families(tracks, sol.R, sol.c, sol.frames, d, p, fam >= 0,
+                                       free_rms, options, run, span)
+        if ba is None:
+            ba = bundle_adjust(tracks, sol.R, sol.c, sol.d, sol.p, frames=sol.frames,
+                               options=options.bundle)
     except OmniSfmError as exc:
         run.record(failed("bundle adjustment of a piece", span,
                           f"after {why}: {exc}; the piece stands unadjusted"))
@@ -936,6 +957,50 @@ def _adjusted(tracks: LineTracks, sol: _Solved, options: EstimationOptions, run:
     return replace(sol, R=ba.rotations, c=ba.positions, frames=ba.frames,
                    d=ba.line_directions, p=ba.line_points, used=ba.used_tracks,
                    outliers=ba.outlier_tracks, rms1=ba.rms_final_deg, sigma=ba.sigma_deg)
+
+
+def _line_rms_deg(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArray,
+                  p: FloatArray, frames: np.ndarray) -> FloatArray:
+    """``(M,)`` each line's RMS weighted residual (deg) over its observations in ``frames``
+    (NaN for a line with none or no 3D line)."""
+    ang = weighted_residuals(tracks, R, c, d, p)
+    ok = np.isfinite(ang) & frames[tracks.obs_frame]
+    M = tracks.num_tracks
+    cnt = np.bincount(tracks.obs_track[ok], minlength=M)
+    ss = np.bincount(tracks.obs_track[ok], weights=ang[ok] ** 2, minlength=M)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(cnt > 0, np.degrees(np.sqrt(ss / np.maximum(cnt, 1))), np.nan)
+
+
+def _held_in_families(tracks: LineTracks, R: FloatArray, c: FloatArray, frames: np.ndarray,
+                      d: FloatArray, p: FloatArray, held: np.ndarray, free_rms_deg: FloatArray,
+                      options: EstimationOptions, run: RunLog,
+                      span: tuple[int, int]) -> BundleResult | None:
+    """The bundle adjustment of ``frames`` with the directions of the ``held`` ``(M,)`` lines
+    held (lines ``d``, ``p``: those on their families' directions); None if those lines (the
+    ones it rejects as outliers too) fit more than ``options.extend.max_family_misfit`` times
+    as badly as with their directions free (median RMS residual, against theirs in
+    ``free_rms_deg`` ``(M,)``, NaN: unknown): the families do not describe the scene (lines
+    of other directions put in one, a place that is not Manhattan).
+
+    Raises:
+        OmniSfmError: the adjustment fails.
+    """
+    assert options.extend is not None
+    res = bundle_adjust(tracks, R, c, d, p, frames=frames, held_directions=held,
+                        options=options.bundle)
+    h = held & np.isfinite(res.track_rms_deg) & np.isfinite(free_rms_deg)
+    held_rms, free_rms = (float(np.median(r[h])) if h.any() else np.nan
+                          for r in (res.track_rms_deg, free_rms_deg))
+    att = Attempt("families held", span, res, cost_deg=res.rms_final_deg,
+                  why=f"{int(held.sum())} lines held on their families' directions: median "
+                      f"{held_rms:.3g} deg against {free_rms:.3g} free")
+    if h.any() and held_rms > options.extend.max_family_misfit * free_rms:
+        run.record(att.judged(Outcome.REJECTED, f"{att.why}, over "
+                                                f"{options.extend.max_family_misfit}x"))
+        return None
+    run.record(att)
+    return res
 
 
 def _with_segments(tracks: LineTracks, sol: _Solved, options: EstimationOptions, run: RunLog,
@@ -1043,7 +1108,7 @@ def _extend(tracks: LineTracks, ba: BundleResult, init: _Init, options: Estimati
                               options.bundle, options.extend)
     R, c, frames = reg.rotations, reg.positions, reg.estimated
     added = frames & ~ba.frames
-    init = replace(init, reasons=dict(reg.reasons))
+    init0, init = init, replace(init, reasons=dict(reg.reasons))
     F = tracks.num_frames
     stops = "; ".join(f"stopped {'forwards' if way > 0 else 'backwards'} at frame {f}"
                       for f, way in reg.stops)
@@ -1057,12 +1122,23 @@ def _extend(tracks: LineTracks, ba: BundleResult, init: _Init, options: Estimati
         d = np.full((tracks.num_tracks, 3), np.nan)
         p = d.copy()
         d[keep], p[keep] = reg.line_directions, reg.line_points
+        held = np.zeros(tracks.num_tracks, bool)
+        held[keep] = reg.family >= 0  # the lines of a family keep its direction
         try:
-            new = bundle_adjust(tracks, R, c, d, p, frames=frames, options=options.bundle)
+            if held.any():
+                # against how the chain's lines fitted with their directions free
+                new = _held_in_families(tracks, R, c, frames, d, p, held,
+                                        np.where(ba.used_tracks, ba.track_rms_deg, np.nan),
+                                        options, run, (0, F - 1))
+            else:
+                new = bundle_adjust(tracks, R, c, d, p, frames=frames, options=options.bundle)
         except OmniSfmError as exc:
             run.record(failed("bundle adjustment after registration", (0, F - 1),
                               f"{exc}; the chain's frames alone are kept"))
             return ba, init
+    if new is None:  # the families do not fit the scene: the registration again without them
+        return _extend(tracks, ba, init0,
+                       replace(options, extend=replace(options.extend, families=False)), run)
     run.record(Attempt("bundle adjustment after registration", (0, F - 1), new,
                        cost_deg=new.rms_final_deg, why=f"{int(new.frames.sum())} frames"))
     R0, c0 = init.rotations.copy(), init.positions.copy()
