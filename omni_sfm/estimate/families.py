@@ -19,7 +19,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from omni_sfm.geometry import FloatArray
+from omni_sfm.estimate.rotation_only import procrustes
+from omni_sfm.geometry import FloatArray, orthonormal_completion
 
 
 def _align(directions: FloatArray, ref: FloatArray) -> FloatArray:
@@ -104,10 +105,7 @@ def point_given_direction(world_normals: FloatArray, centres: FloatArray,
     through its camera centre ``(K, 3)``) fit best: ``(p, spread)``, its point closest to the
     origin, and the angle (radians) by which the planes turn about it (the parallax measure of
     the triangulation, :meth:`omni_sfm.estimate.incremental._Growth.triangulate`)."""
-    D = np.asarray(direction, np.float64)
-    a = np.cross(D, [1.0, 0.0, 0.0] if abs(D[0]) < 0.9 else [0.0, 1.0, 0.0])
-    a /= np.linalg.norm(a)
-    b = np.cross(D, a)
+    a, b = orthonormal_completion(np.asarray(direction, np.float64))
     m = np.asarray(world_normals, np.float64)
     A = np.stack([m @ a, m @ b], axis=1)  # m . (x a + y b) = m . c
     rhs = np.sum(m * centres, axis=1)
@@ -140,10 +138,7 @@ def manhattan(families: FloatArray, sizes: np.ndarray, *,
     on = np.abs(g[np.arange(len(D)), ax]) >= np.cos(np.radians(max_deviation_deg))
     sign = np.sign(g[np.arange(len(D)), ax])
     # Wahba: the rotation Q with Q axes[ax_k] closest to sign_k D_k, weighted by size
-    B = np.einsum("k,ki,kj->ij", np.asarray(sizes, float)[on], sign[on, None] * D[on],
-                  axes[ax[on]])
-    U, _, Vt = np.linalg.svd(B)
-    Q = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+    Q = procrustes(axes[ax[on]], sign[on, None] * D[on], np.asarray(sizes, float)[on])
     D[on] = sign[on, None] * (axes[ax[on]] @ Q.T)
     return D
 
