@@ -11,6 +11,10 @@ first frame, ATE as a per cent of the path after similarity alignment), then eac
     OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/eval_tracks.py \\
         /tmp/f600/hyperboloid-800x600--clean-init:/tmp/f600/hyperboloid-800x600--clean ...
 
+``--perturb N`` also runs the estimator N more times on each input with its normals turned by
+about 1e-7 (random, seeds 1..N): a result that changes with the last bits of the input is
+chaotic, and one run of it says little (docs/results.md, the stop-and-go walk).
+
 Each argument is ``INIT_DIR:RENDER_DIR`` (``RENDER_DIR`` holds ``groundtruth.tum``); a bare
 ``INIT_DIR`` ending in ``-init`` pairs with the folder of the same name without it, as
 ``scripts/eval_footage.py`` lays them out.
@@ -21,6 +25,7 @@ from __future__ import annotations
 import argparse
 import os
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -28,6 +33,7 @@ import numpy as np
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.estimate.pipeline import estimate_poses, match_reflection
 from omni_sfm.evaluate import relative_rotation_errors_deg, trajectory_errors
+from omni_sfm.geometry import normalize
 from omni_sfm.lines.tracks import read_tracks
 from omni_sfm.poses import Trajectory, read_tum
 from omni_sfm.transforms import associate
@@ -56,6 +62,8 @@ def _errors(traj: Trajectory, gt: Trajectory, positions: bool) -> str:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("pairs", nargs="+", help="INIT_DIR:RENDER_DIR (or INIT_DIR ending in -init)")
+    ap.add_argument("--perturb", type=int, default=0, metavar="N",
+                    help="also N runs with the normals perturbed by about 1e-7 (default 0)")
     args = ap.parse_args()
     print(f"# estimator alone on saved tracks; {os.cpu_count()} CPUs, "
           f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}")
@@ -79,6 +87,16 @@ def main() -> int:
             first, last = np.flatnonzero(seg.frames)[[0, -1]]
             print(f"  segment {seg.number} (frames {first}-{last}): "
                   f"{_errors(seg.trajectory, gt, True)}")
+        for seed in range(1, args.perturb + 1):
+            rng = np.random.default_rng(seed)
+            n = normalize(tracks.obs_normal + 1e-7 * rng.normal(size=tracks.obs_normal.shape))
+            try:
+                r = estimate_poses(replace(tracks, obs_normal=n))
+            except OmniSfmError as exc:
+                print(f"  perturbed {seed}: error: {exc}")
+                continue
+            print(f"  perturbed {seed}: {int(r.estimated.sum())} frames; main: "
+                  f"{_errors(r.trajectory, gt, 'motion' not in r.report)}")
     return 0
 
 
