@@ -21,7 +21,7 @@ complete or absent:
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -61,10 +61,17 @@ class InitOptions:
     """Stop before this frame; None: to the end."""
     step: int = 1
     """Use every ``step``-th frame."""
-    debug_view: str = "png"
-    """Debug view of tracked lines: ``png`` (folder ``debug/``), ``mp4`` or ``none``."""
+    debug_view: str = "auto"
+    """Debug view of tracked lines: ``auto`` (PNGs in ``debug/`` of every frame of a run of at
+    most :data:`DEBUG_FRAMES` frames, else of that many frames spread evenly over it), ``png``
+    (every frame), ``mp4`` (every frame, ``debug.mp4``) or ``none``. The frames come from the
+    front end's pass; ``png`` and ``mp4`` on longer runs read the input a second time."""
     colmap: bool = True
     """Write the COLMAP model seeded with the poses (``sparse/``, ``images_colmap/``)."""
+    colmap_images: bool | None = None
+    """Write ``images_colmap/`` (the frames as COLMAP must see them, for COLMAP's own tools;
+    ``omni-sfm refine`` reads the input itself) from the front end's pass; None: for runs of at
+    most :data:`COLMAP_IMAGE_FRAMES` frames."""
     colmap_text: bool = False
     """Also write the COLMAP model as text."""
     progress: bool = True
@@ -82,6 +89,12 @@ class InitOptions:
 
 SAMPLE_FRAMES = 40
 """Frames sampled (evenly over the range) for the automatic mask; the camera check uses 5."""
+DEBUG_FRAMES = 300
+"""The default debug view draws every frame of a run of at most this many frames, else this
+many spread evenly over it (held in memory as JPEG until the estimate colours their lines)."""
+COLMAP_IMAGE_FRAMES = 1000
+"""By default ``images_colmap/`` is written for runs of at most this many frames (a 10-minute
+video would give 18,000 images that ``refine`` does not need)."""
 
 
 @dataclass(frozen=True)
@@ -164,12 +177,6 @@ def _image_names(source: FrameSource, numbers: np.ndarray) -> list[str]:
     return [video_frame_name(int(n)) for n in numbers]
 
 
-def _frames_of(source: FrameSource, numbers: set[int]) -> Iterator[tuple[int, float, np.ndarray]]:
-    for number, stamp, image in source:
-        if int(number) in numbers:
-            yield int(number), float(stamp), image
-
-
 def plot_trajectory(path: Path, traj: Trajectory, gt: Trajectory | None = None,
                     title: str = "omni-sfm trajectory") -> None:
     """PNG: top view and side view of the camera centres (and ground truth, if given)."""
@@ -197,16 +204,6 @@ def plot_trajectory(path: Path, traj: Trajectory, gt: Trajectory | None = None,
     plt.close(fig)
 
 
-def _sample(images: Path | str, o: InitOptions, size: tuple[int, int],
-            count: int = SAMPLE_FRAMES) -> list[np.ndarray]:
-    """Up to ``count`` grey frames spread evenly over the frames ``init`` reads."""
-    n = len(read_frames(images, o.start, o.end, o.step, size=size))
-    every = max(1, n // count)
-    frames = [img for _, _, img in read_frames(images, o.start, o.end, o.step * every,
-                                                size=size)]
-    return frames[:count]
-
-
 @dataclass(frozen=True)
 class _Checks:
     """The automatic mask and the camera check of one ``init`` run."""
@@ -226,7 +223,8 @@ def _check_frames(images: Path | str, cam: CameraModel, o: InitOptions,
 
     if not (o.auto_mask or o.camera_check):
         return _Checks(user_mask, {}, (), "")
-    sample = _sample(images, o, (cam.width, cam.height))
+    sample = read_frames(images, o.start, o.end, o.step, size=(cam.width, cam.height)
+                         ).sample(SAMPLE_FRAMES)
     report: dict[str, Any] = {}
     warnings: list[str] = []
     if o.camera_check and sample:
@@ -270,14 +268,15 @@ def init_from_images(images: Path | str, camera: Path | str | CameraModel, outpu
             that are not straight) or no parallel family, degenerate motion.
     """
     from omni_sfm.estimate.pipeline import write_init_outputs
-    from omni_sfm.export.colmap import write_init_model
+    from omni_sfm.export.colmap import ColmapImages, write_init_model
     from omni_sfm.fileio import check_output_dir
-    from omni_sfm.lines.debug import write_debug_view
+    from omni_sfm.lines.debug import KeptFrames, write_debug_view
     from omni_sfm.lines.tracks import write_tracks
 
     o = options or InitOptions()
-    if o.debug_view not in ("png", "mp4", "none"):
-        raise OmniSfmError(f"debug view must be png, mp4 or none, got {o.debug_view!r}")
+    if o.debug_view not in DEBUG_VIEWS:
+        raise OmniSfmError(f"debug view must be one of {', '.join(DEBUG_VIEWS)}, got "
+                           f"{o.debug_view!r}")
     output = Path(output)
     check_output_dir(output, overwrite=overwrite, inputs=(Path(images),))
     cam = camera if isinstance(camera, CameraModel) else load_camera(camera)
@@ -285,41 +284,55 @@ def init_from_images(images: Path | str, camera: Path | str | CameraModel, outpu
     user_mask = read_mask(mask, size) if mask is not None else None
     source = read_frames(images, o.start, o.end, o.step, size=size)
     fe_opts = replace(o.frontend, progress=o.progress and o.frontend.progress)
-    t0 = time.perf_counter()
-    checks = _check_frames(images, cam, o, user_mask, warn)
-    line_mask = checks.mask
-    fe = track_lines(source, cam, fe_opts, line_mask)
-    auto_said, fixed_ids = checks.auto_mask, []
-    if o.auto_mask:  # what the mask left of structure fixed to the camera
-        fixed = fe.camera_fixed_tracks()
-        if fixed.any():
-            fixed_ids = fe.tracks.track_ids[fixed].tolist()
-            fe = fe.without_tracks(fixed)
-            auto_said += f"; {len(fixed_ids)} line tracks fixed to the camera dropped"
-    t1 = time.perf_counter()
-    too_few = fe.why_too_few_lines()
-    if too_few:
-        raise OmniSfmError(too_few)
-    tracks = fe.estimator_tracks()
-    try:
-        result = estimate_poses(tracks, o.estimation)
-    except OmniSfmError as exc:
-        problem = fe.image_problem()  # the likely cause, where the images have one
-        if problem:
-            raise OmniSfmError(f"{exc} ({problem})") from exc
-        raise
-    t2 = time.perf_counter()
-
-    est_frames = np.flatnonzero(result.estimated)
-    names = _image_names(source, fe.frame_numbers)
-    est_names = [names[f] for f in est_frames]
-    est_numbers = {int(fe.frame_numbers[f]) for f in est_frames}
-    skipped_not_estimated = [names[f] for f in np.flatnonzero(~result.estimated)]
-    unreadable = _image_names(source, np.asarray(fe.frames_skipped, dtype=int))
-    front_end = fe.summary()
-    for entry, name in zip(front_end["frames_skipped_reasons"], unreadable, strict=True):
-        entry["name"] = name
     with atomic_output_dir(output, overwrite=overwrite, inputs=(Path(images),)) as tmp:
+        t0 = time.perf_counter()
+        checks = _check_frames(images, cam, o, user_mask, warn)
+        line_mask = checks.mask
+        # what else needs the frames takes them from the front end's pass
+        n = len(source)
+        kept = KeptFrames(_debug_numbers(source, o.debug_view)) if o.debug_view != "none" \
+            else None
+        colmap_images = ColmapImages(tmp, cam,
+                                     lambda k: _image_names(source, np.asarray([k]))[0]) \
+            if o.colmap and (o.colmap_images or (o.colmap_images is None and
+                                                 n <= COLMAP_IMAGE_FRAMES)) else None
+        taps = [t for t in (kept, None if colmap_images is None else colmap_images.tap)
+                if t is not None]
+
+        def tap(number: int, stamp: float, gray: np.ndarray) -> None:
+            for t in taps:
+                t(number, stamp, gray)
+
+        fe = track_lines(source, cam, fe_opts, line_mask, tap=tap if taps else None)
+        auto_said, fixed_ids = checks.auto_mask, []
+        if o.auto_mask:  # what the mask left of structure fixed to the camera
+            fixed = fe.camera_fixed_tracks()
+            if fixed.any():
+                fixed_ids = fe.tracks.track_ids[fixed].tolist()
+                fe = fe.without_tracks(fixed)
+                auto_said += f"; {len(fixed_ids)} line tracks fixed to the camera dropped"
+        t1 = time.perf_counter()
+        too_few = fe.why_too_few_lines()
+        if too_few:
+            raise OmniSfmError(too_few)
+        tracks = fe.estimator_tracks()
+        try:
+            result = estimate_poses(tracks, o.estimation)
+        except OmniSfmError as exc:
+            problem = fe.image_problem()  # the likely cause, where the images have one
+            if problem:
+                raise OmniSfmError(f"{exc} ({problem})") from exc
+            raise
+        t2 = time.perf_counter()
+
+        est_frames = np.flatnonzero(result.estimated)
+        names = _image_names(source, fe.frame_numbers)
+        est_names = [names[f] for f in est_frames]
+        skipped_not_estimated = [names[f] for f in np.flatnonzero(~result.estimated)]
+        unreadable = _image_names(source, np.asarray(fe.frames_skipped, dtype=int))
+        front_end = fe.summary()
+        for entry, name in zip(front_end["frames_skipped_reasons"], unreadable, strict=True):
+            entry["name"] = name
         extra: dict[str, Any] = {
             "input": {"images": stored_path(images, output),
                       "camera": stored_path(camera, output) if not isinstance(
@@ -343,20 +356,39 @@ def init_from_images(images: Path | str, camera: Path | str | CameraModel, outpu
         plot_trajectory(tmp / InitFolder.TRAJECTORY_PLOT, result.trajectory)
         # colour 0: the parallel family, 1: other lines, grey (-1): rejected as outliers
         groups = np.where(result.outliers, -1, np.where(result.parallel, 0, 1))
-        if o.debug_view != "none":
+        if kept is not None:
             target = tmp / (InitFolder.DEBUG_VIDEO if o.debug_view == "mp4"
                             else InitFolder.DEBUG_FRAMES)
-            write_debug_view(read_frames(images, o.start, o.end, o.step, size=size), cam, fe,
-                             target, groups=groups)
+            all_kept = len(kept.numbers) >= n
+            frames = kept if all_kept or o.debug_view == "auto" else \
+                read_frames(images, o.start, o.end, o.step, size=size)
+            write_debug_view(frames, cam, fe, target, groups=groups)
         if o.colmap:
-            imgs = (img for _, _, img in _frames_of(
-                read_frames(images, o.start, o.end, o.step, size=size), est_numbers))
-            write_init_model(tmp, cam, result.trajectory, est_names, imgs, text=o.colmap_text)
+            write_init_model(tmp, cam, result.trajectory, est_names, text=o.colmap_text)
+            if colmap_images is not None:
+                colmap_images.keep(est_names)
     return InitResult(output=output, camera=cam, frontend=fe, estimation=result,
                       image_names=tuple(est_names), not_estimated=tuple(skipped_not_estimated),
                       unreadable=tuple(unreadable),
                       unreadable_reasons=fe.frames_skipped_reasons,
                       warnings=checks.warnings, auto_mask=auto_said)
+
+
+DEBUG_VIEWS = ("auto", "png", "mp4", "none")
+
+
+def _debug_numbers(source: FrameSource, view: str) -> list[int]:
+    """Source indices of the frames the debug view draws from the front end's pass: every
+    frame of a run of at most :data:`DEBUG_FRAMES`; of a longer one, that many spread evenly
+    (``auto``) or none (``png``, ``mp4``: the frames are read again)."""
+    n = len(source)
+    if n <= DEBUG_FRAMES:
+        ks = np.arange(n)
+    elif view == "auto":
+        ks = np.unique(np.linspace(0, n - 1, DEBUG_FRAMES).round().astype(int))
+    else:
+        ks = np.zeros(0, int)
+    return [source.start + source.step * int(k) for k in ks]
 
 
 @dataclass(frozen=True)

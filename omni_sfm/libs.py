@@ -34,3 +34,30 @@ def library_logging(verbose: bool) -> Iterator[None]:
             yield
     finally:
         pycolmap.logging.minloglevel = prev_colmap
+
+
+MALLOC_ENV = {"MALLOC_MMAP_THRESHOLD_": str(64 << 20), "MALLOC_TRIM_THRESHOLD_": str(256 << 20)}
+"""glibc's malloc settings for the per-frame work, as environment variables (for the front
+end's worker processes): arrays up to 64 MB come from the heap, and up to 256 MB of freed heap
+is kept for the next frame."""
+
+
+def keep_freed_memory() -> bool:
+    """Tell glibc's malloc (where there is one) to keep the memory that each frame's arrays free
+    for the next frame (:data:`MALLOC_ENV`), in this process. By default glibc returns large
+    freed blocks to the system at once, and the next frame page-faults them back in: measured
+    on a fresh process, 20 ms instead of 13 ms of CPU per 800x600 frame's line extraction.
+    Returns whether the settings were applied."""
+    import ctypes
+    import ctypes.util
+    import sys
+
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        m_trim_threshold, m_mmap_threshold = -1, -3  # glibc's mallopt parameters
+        ok = libc.mallopt(m_mmap_threshold, 64 << 20) == 1
+        return bool(ok and libc.mallopt(m_trim_threshold, 256 << 20) == 1)
+    except (OSError, AttributeError):
+        return False

@@ -83,9 +83,11 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _main(argv: Sequence[str] | None) -> int:
     from omni_sfm.errors import OmniSfmError
+    from omni_sfm.libs import keep_freed_memory
 
     parser = build_parser()
     args = parser.parse_args(argv)
+    keep_freed_memory()  # the per-frame stages run faster without giving memory back each time
     if not getattr(args, "func", None):
         parser.print_help()
         return 2

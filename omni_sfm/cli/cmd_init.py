@@ -67,11 +67,21 @@ def add_parser(subparsers: Any) -> None:
     p.add_argument("--edge-high", type=float, default=None, metavar="G",
                    help="high edge threshold of line extraction (default 50, same units): "
                         "lower finds fainter edges, and more noise")
-    p.add_argument("--debug-view", choices=["png", "mp4", "none"], default="png",
-                   help="frames with tracked lines coloured by parallel group: PNGs in "
-                        "OUTPUT/debug/ (default), OUTPUT/debug.mp4, or none")
+    p.add_argument("--debug-view", choices=["auto", "png", "mp4", "none"], default="auto",
+                   help="frames with tracked lines coloured by parallel group: auto (default): "
+                        "PNGs in OUTPUT/debug/ of every frame of a run of at most 300 frames, "
+                        "else of 300 frames spread over it; png: every frame; mp4: every frame "
+                        "in OUTPUT/debug.mp4; none. png and mp4 read a longer input twice")
     p.add_argument("--no-colmap", action="store_true",
                    help="do not write the COLMAP model (sparse/, images_colmap/)")
+    p.add_argument("--colmap-images", action=argparse.BooleanOptionalAction, default=None,
+                   help="write OUTPUT/images_colmap/, the frames as COLMAP's own tools must "
+                        "see them (omni-sfm refine reads the input itself); default: for runs "
+                        "of at most 1000 frames")
+    p.add_argument("--workers", type=int, default=None, metavar="N",
+                   help="processes extracting lines while this one decodes and tracks "
+                        "(default: one per CPU core; 1: all in this process); the result is "
+                        "the same for any N")
     p.add_argument("--text", action="store_true", help="also write the COLMAP model as text")
     p.add_argument("--output", "-o", type=Path, required=True, help="output folder")
     p.add_argument("--overwrite", action="store_true", help="replace a non-empty OUTPUT")
@@ -149,12 +159,16 @@ def run(args: argparse.Namespace) -> int:
 
         if args.camera is None:
             raise OmniSfmError("--images needs --camera CAMERA_FILE (docs/cameras.md)")
-        frontend = FrontEndOptions(extraction=_extraction(args), progress=not args.quiet)
+        if args.workers is not None and args.workers < 1:
+            raise OmniSfmError(f"--workers must be at least 1, got {args.workers}")
+        frontend = FrontEndOptions(extraction=_extraction(args), progress=not args.quiet,
+                                   workers=args.workers)
         res = init_from_images(
             args.images, args.camera, args.output,
             InitOptions(frontend=frontend, estimation=estimation,
                         start=args.start, end=args.end, step=args.step,
                         debug_view=args.debug_view, colmap=not args.no_colmap,
+                        colmap_images=args.colmap_images,
                         colmap_text=args.text, progress=not args.quiet,
                         auto_mask=not args.no_auto_mask, strict=args.strict),
             mask=args.mask, overwrite=args.overwrite,
@@ -166,7 +180,7 @@ def run(args: argparse.Namespace) -> int:
             print(res.auto_mask)
         return 0
 
-    for flag in ("camera", "mask", "edge_low", "edge_high"):
+    for flag in ("camera", "mask", "edge_low", "edge_high", "workers", "colmap_images"):
         if getattr(args, flag) is not None:
             raise OmniSfmError(f"--{flag.replace('_', '-')} applies to --images input, not to "
                                "--tracks")

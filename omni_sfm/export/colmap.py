@@ -9,7 +9,7 @@ centres are unchanged.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -133,6 +133,49 @@ class InitModel:
     directory: Path
 
 
+class ColmapImages:
+    """Writes ``DIR/images_colmap/<name>``: each frame as COLMAP must see it (mirrored where the
+    camera's export says so), as the front end reads it (a
+    :data:`~omni_sfm.lines.frontend.FrameTap` through :meth:`tap`); :meth:`keep` then deletes
+    the frames that got no pose, so that the folder holds the model's images."""
+
+    def __init__(self, directory: Path, camera: CameraModel,
+                 name_of: Callable[[int], str]) -> None:
+        self.directory = Path(directory) / IMAGES_DIR
+        self.export = camera.colmap_export()
+        self.name_of = name_of
+        self.written: list[str] = []
+
+    def write(self, name: str, image: np.ndarray) -> None:
+        """One image ``(H, W[, 3])`` (RGB if 3 channels) under ``name``."""
+        import cv2
+
+        out = self.export.image_to_colmap(image)
+        if out.ndim == 3 and out.shape[2] == 3:
+            out = np.ascontiguousarray(out[:, :, ::-1])
+        path = self.directory / name
+        path.parent.mkdir(parents=True, exist_ok=True)
+        # PNG: fast compression (a tenth larger, a third faster than OpenCV's default)
+        if not cv2.imwrite(str(path), out, [cv2.IMWRITE_PNG_COMPRESSION, 1]):
+            raise OmniSfmError(f"{path}: OpenCV cannot write this image")
+        self.written.append(name)
+
+    def tap(self, number: int, _stamp: float, gray: np.ndarray) -> None:
+        self.write(self.name_of(number), gray)
+
+    def keep(self, names: Sequence[str]) -> None:
+        """Delete every written image not in ``names``; each of ``names`` must be written."""
+        wanted = set(names)
+        missing = wanted - set(self.written)
+        if missing:
+            raise ValueError(f"{len(missing)} images were never written, e.g. "
+                             f"{sorted(missing)[0]}")
+        for name in self.written:
+            if name not in wanted:
+                (self.directory / name).unlink(missing_ok=True)
+        self.written = [n for n in self.written if n in wanted]
+
+
 def write_init_model(directory: Path, camera: CameraModel, traj: Trajectory,
                      image_names: Sequence[str], images: Iterable[np.ndarray] | None = None,
                      *, text: bool = False) -> ColmapSeed:
@@ -152,7 +195,6 @@ def write_init_model(directory: Path, camera: CameraModel, traj: Trajectory,
     Use inside :func:`omni_sfm.fileio.atomic_output_dir` so the directory appears complete or not
     at all. Returns the seeded model.
     """
-    import cv2
 
     from omni_sfm.cameras import write_camera_yaml
     from omni_sfm.fileio import atomic_write_text, dumps_json
@@ -179,15 +221,10 @@ def write_init_model(directory: Path, camera: CameraModel, traj: Trajectory,
     }
     atomic_write_text(directory / MANIFEST_FILE, dumps_json(manifest))
     if images is not None:
+        writer = ColmapImages(directory, camera, str)
         count = 0
         for name, img in zip(names, images, strict=False):
-            out = seed.export.image_to_colmap(img)
-            if out.ndim == 3 and out.shape[2] == 3:
-                out = np.ascontiguousarray(out[:, :, ::-1])
-            path = directory / IMAGES_DIR / name
-            path.parent.mkdir(parents=True, exist_ok=True)
-            if not cv2.imwrite(str(path), out):
-                raise OmniSfmError(f"{path}: OpenCV cannot write this image")
+            writer.write(name, img)
             count += 1
         if count != len(names):
             raise ValueError(f"got {count} images for {len(names)} image names")

@@ -9,7 +9,7 @@ no group, drawn grey). Output: a folder of PNGs, or a video when the path ends i
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 import cv2
@@ -28,6 +28,38 @@ PALETTE = np.array([[180, 119, 31], [14, 127, 255], [44, 160, 44], [40, 39, 214]
 UNGROUPED = (150, 150, 150)
 
 VIDEO_CODECS = {".mp4": "mp4v", ".avi": "MJPG"}
+KEPT_JPEG_QUALITY = 95
+"""Quality of the frames :class:`KeptFrames` holds (JPEG in memory, for drawing on)."""
+
+
+class KeptFrames:
+    """Frames kept from the front end's pass for the debug view drawn after the estimate (a
+    :data:`~omni_sfm.lines.frontend.FrameTap`): those whose source index is in ``numbers``,
+    held as JPEG in memory, so the input is decoded once and the memory is bounded by the
+    number kept. Iterate it for ``(index, timestamp, grey image)`` in order, as
+    :func:`write_debug_view` takes them."""
+
+    def __init__(self, numbers: Iterable[int]) -> None:
+        self.numbers = {int(n) for n in numbers}
+        self._kept: list[tuple[int, float, bytes]] = []
+
+    def __call__(self, number: int, stamp: float, gray: np.ndarray) -> None:
+        if int(number) in self.numbers:
+            ok, buf = cv2.imencode(".jpg", gray, [cv2.IMWRITE_JPEG_QUALITY, KEPT_JPEG_QUALITY])
+            if not ok:
+                raise OmniSfmError(f"frame {number}: cannot encode it for the debug view")
+            self._kept.append((int(number), float(stamp), buf.tobytes()))
+
+    def __len__(self) -> int:
+        return len(self._kept)
+
+    def __iter__(self) -> Iterator[tuple[int, float, np.ndarray]]:
+        for number, stamp, data in self._kept:
+            img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE)
+            if img is None:
+                raise OmniSfmError(f"frame {number}: the kept copy does not decode")
+            yield number, stamp, np.asarray(img)
+
 
 
 def group_colour(group: int) -> tuple[int, int, int]:
@@ -134,7 +166,8 @@ def write_debug_view(frames: Iterable[tuple[int, float, np.ndarray]], camera: Ca
             img = draw_lines(image, camera, result.obs_endpoint_rays[sel], colours, labels)
             if writer is not None:
                 writer.write(img)
-            elif not cv2.imwrite(str(output / f"{int(number):06d}.png"), img):
+            elif not cv2.imwrite(str(output / f"{int(number):06d}.png"), img,
+                                 [cv2.IMWRITE_PNG_COMPRESSION, 1]):
                 raise OmniSfmError(f"{output}: could not write frame {number}")
     finally:
         if writer is not None:

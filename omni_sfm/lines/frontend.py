@@ -9,8 +9,10 @@ or any iterable of ``(index, timestamp, image)``.
 
 from __future__ import annotations
 
+import os
 import time
-from collections.abc import Iterable
+from collections import deque
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -20,10 +22,11 @@ from tqdm import tqdm
 from omni_sfm.cameras.base import CameraModel
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.geometry import FloatArray, normalize
-from omni_sfm.lines.extract import ExtractionOptions, LineExtractor
+from omni_sfm.lines.extract import ExtractedLines, ExtractionOptions, LineExtractor
 from omni_sfm.lines.track import LineTracker, TrackingOptions
 from omni_sfm.lines.tracks import LineTracks, make_tracks
 from omni_sfm.lines.video import to_gray
+from omni_sfm.lines.workers import ExtractionWorkers, extract_timed
 
 IntArray = np.ndarray
 
@@ -48,6 +51,23 @@ class FrontEndOptions:
     """Frame-to-frame tracking."""
     progress: bool = True
     """Show a progress bar on stderr."""
+    workers: int | None = None
+    """Processes that extract the lines of upcoming frames while the calling process decodes
+    frames and tracks (a bounded, ordered pipeline: the result is the same whatever the
+    number). 1: everything in the calling process; None: one per CPU core (at most
+    :data:`MAX_WORKERS`), or 1 for fewer than :data:`MIN_FRAMES_PER_WORKER` frames per
+    worker."""
+
+
+MAX_WORKERS = 8
+"""Most extraction processes that ``workers=None`` starts."""
+MIN_FRAMES_PER_WORKER = 25
+"""With ``workers=None``, a sequence of fewer frames than this per core is done in the calling
+process (starting the processes costs more than they save)."""
+
+FrameTap = Callable[[int, float, np.ndarray], None]
+"""Called with every frame the front end reads, ``(index, timestamp, grey image)``, in order:
+what else needs the frames (the COLMAP images, the debug view) takes them from the same pass."""
 
 
 @dataclass(frozen=True)
@@ -231,9 +251,60 @@ class FrontEndResult:
                 "or images out of focus?)")
 
 
+def worker_count(options: FrontEndOptions, frames: int | None) -> int:
+    """Extraction processes :func:`track_lines` uses for ``frames`` frames (None: unknown)."""
+    if options.workers is not None:
+        if options.workers < 1:
+            raise OmniSfmError(f"workers must be at least 1, got {options.workers}")
+        return int(options.workers)
+    cores = min(os.cpu_count() or 1, MAX_WORKERS)
+    if frames is not None and frames < MIN_FRAMES_PER_WORKER * cores:
+        cores = max(1, frames // MIN_FRAMES_PER_WORKER)
+    return max(1, cores)
+
+
+def _extracted(frames: Iterator[tuple[int, float, np.ndarray]], extractor: LineExtractor,
+               workers: int, tap: FrameTap | None,
+               ) -> Iterator[tuple[int, float, np.ndarray, ExtractedLines, float, float]]:
+    """``(index, stamp, grey, lines, extract wall s, extract CPU s)`` in frame order; with
+    ``workers`` > 1 the next frames' extraction runs in worker processes
+    (:class:`~omni_sfm.lines.workers.ExtractionWorkers`) while the caller tracks."""
+    def read() -> tuple[int, float, np.ndarray] | None:
+        try:
+            number, stamp, image = next(frames)
+        except StopIteration:
+            return None
+        gray = to_gray(image)
+        if tap is not None:
+            tap(int(number), float(stamp), gray)
+        return int(number), float(stamp), gray
+
+    if workers <= 1:
+        while (got := read()) is not None:
+            lines, wall, cpu = extract_timed(extractor, got[2])
+            yield *got, lines, wall, cpu
+        return
+    with ExtractionWorkers(extractor, workers) as pool:
+        queue: deque[tuple[int, float, np.ndarray]] = deque()
+        done = False
+        while True:
+            while not done and pool.in_flight < workers:
+                got = read()
+                if got is None:
+                    done = True
+                    break
+                pool.submit(got[2])
+                queue.append(got)
+            if not queue:
+                return
+            lines, wall, cpu = pool.result()
+            yield *queue.popleft(), lines, wall, cpu
+
+
 def track_lines(frames: Iterable[tuple[int, float, np.ndarray]], camera: CameraModel,
                 options: FrontEndOptions | None = None,
-                mask: np.ndarray | None = None) -> FrontEndResult:
+                mask: np.ndarray | None = None, *,
+                tap: FrameTap | None = None) -> FrontEndResult:
     """Extract and track the straight lines of a frame sequence.
 
     Args:
@@ -244,6 +315,13 @@ def track_lines(frames: Iterable[tuple[int, float, np.ndarray]], camera: CameraM
         camera: the calibrated camera; images must be ``camera.width x camera.height``.
         options: extraction/tracking options.
         mask: optional ``(H, W)`` array, nonzero where the image may be used.
+        tap: called with every frame read, in order (:data:`FrameTap`).
+
+    With ``options.workers`` above 1 (by default on a multi-core machine), worker processes
+    extract the lines of the frames ahead while this process decodes and tracks; the tracks
+    are the same as with one worker (extraction is a function of the frame alone, and the
+    tracker takes the frames in order). ``timings_ms`` ``read`` then includes the time spent
+    waiting for a worker, and ``extract_cpu`` is measured in the worker.
     """
     o = options or FrontEndOptions()
     extractor = LineExtractor(camera, o.extraction, mask)
@@ -259,18 +337,12 @@ def track_lines(frames: Iterable[tuple[int, float, np.ndarray]], camera: CameraM
     c_trk: list[float] = []
     stats: list[tuple[float, float, float, int]] = []
     total = (len(frames) or None) if hasattr(frames, "__len__") else None  # type: ignore[arg-type]
-    it = iter(frames)
+    workers = worker_count(o, total)
     with tqdm(total=total, desc="lines", unit="frame", disable=None if o.progress else True,
               leave=False) as bar:
-        while True:
-            t0 = time.perf_counter()
-            try:
-                number, stamp, image = next(it)
-            except StopIteration:
-                break
-            t1, c1 = time.perf_counter(), time.thread_time()
-            gray = to_gray(image)
-            lines = extractor.extract(gray)
+        t0 = time.perf_counter()
+        for number, stamp, gray, lines, wall, cpu in _extracted(iter(frames), extractor,
+                                                                   workers, tap):
             t2, c2 = time.perf_counter(), time.thread_time()
             tracker.add_frame(gray, lines)
             t3, c3 = time.perf_counter(), time.thread_time()
@@ -278,15 +350,17 @@ def track_lines(frames: Iterable[tuple[int, float, np.ndarray]], camera: CameraM
             stamps.append(float(stamp))
             n_lines.append(lines.num_lines)
             n_rej.append(lines.num_rejected)
-            t_read.append(t1 - t0)
-            t_ext.append(t2 - t1)
+            # with workers, the wait for this frame's lines counts as reading
+            t_ext.append(wall)
+            t_read.append(max(0.0, t2 - t0 - (wall if workers <= 1 else 0.0)))
             t_trk.append(t3 - t2)
-            c_ext.append(c2 - c1)
+            c_ext.append(cpu)
             c_trk.append(c3 - c2)
             stats.append((lines.median_grey, lines.contrast, lines.threshold_scale,
                           lines.num_edge_points))
             bar.update(1)
             bar.set_postfix(lines=lines.num_lines, refresh=False)
+            t0 = time.perf_counter()
     skipped = tuple(int(s) for s in getattr(frames, "skipped", ()))
     reasons: dict[int, str] = getattr(frames, "skip_reasons", {})
     if not numbers:

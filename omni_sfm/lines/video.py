@@ -174,6 +174,12 @@ def to_gray(image: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(img)
 
 
+SEEK_GAP = 300
+""":meth:`FrameSource.sample` decodes through gaps of up to this many video frames instead of
+seeking (a seek decodes from the key frame before its target, which H.264 encoders place every
+250 frames or so)."""
+
+
 @dataclass
 class FrameSource:
     """Iterable frames of an image folder or a video (see module docstring).
@@ -210,6 +216,47 @@ class FrameSource:
         yield from self._iter_video() if self.is_video else self._iter_folder()
         if self._size_errors and not self._size_seen:
             raise OmniSfmError(self._size_errors[0])
+
+    def sample(self, count: int) -> list[np.ndarray]:
+        """Up to ``count`` grey frames spread evenly over the range, without reading the frames
+        between them: a video seeks to each (when its container gives the frame count), an
+        image folder decodes just those files. Frames that do not decode, are damaged or have
+        another size are left out (the pass over all frames reports them)."""
+        n = len(self)
+        if count < 1 or n == 0:
+            return []
+        picks = sorted({self.start + self.step * int(k)
+                        for k in np.linspace(0, n - 1, min(count, n)).round()})
+        probe = FrameSource(path=self.path, size=self.size, is_video=self.is_video,
+                            fps=self.fps, files=self.files, frame_count=self.frame_count)
+        out: list[np.ndarray] = []
+        if not self.is_video:
+            for i in picks:
+                img, _ = decode_image_file(self.files[i])
+                gray = None if img is None else probe._usable(img, i, str(self.files[i]))
+                if gray is not None:
+                    out.append(gray)
+            return out
+        with captured_stderr():
+            cap = open_video(self.path)
+        try:
+            at = 0  # the next frame read() returns
+            for i in picks:
+                with captured_stderr() as log:
+                    if 0 <= i - at <= SEEK_GAP:  # nearer than a seek's decoding from a key frame
+                        ok = all(cap.grab() for _ in range(i - at))
+                    else:
+                        ok = cap.set(cv2.CAP_PROP_POS_FRAMES, float(i))
+                    ok, img = cap.read() if ok else (False, None)
+                at = i + 1
+                if not ok or img is None or _damage(log[0] if log else ""):
+                    continue
+                gray = probe._usable(img, i, f"{self.path} frame {i}")
+                if gray is not None:
+                    out.append(gray)
+        finally:
+            cap.release()
+        return out
 
     def _skip(self, number: int, reason: str) -> None:
         self.skipped.append(number)

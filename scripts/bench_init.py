@@ -1,0 +1,132 @@
+#!/usr/bin/env python
+"""Benchmark the whole ``omni-sfm init --lines`` (all default outputs) beside COLMAP's
+incremental mapper (``omni-sfm init --initializer colmap``) on the same frames, in one run.
+
+Renders (once, reused from ``WORK``) the L-shaped office walk (23 m with a 90 deg turn) through
+an 800 x 600 hyperboloid camera, with texture so that COLMAP has points to match, in
+``--frames`` frames for each size asked (default 200 and 2,000),
+runs ``omni-sfm init --lines`` on each as a user would (a fresh process), and COLMAP on the
+first (smallest) size only, and prints per run: wall time, peak memory (the resident memory of
+the process and its worker processes, summed, sampled every 50 ms), frames posed, rotation
+error and ATE against the ground truth; then the ratios the speed issue asks about (``init``
+against COLMAP on the same frames; the longest ``init`` against the shortest).
+
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/bench_init.py --work /tmp/bench_init
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/bench_init.py --work /tmp/bench_init \\
+        --frames 200 --no-colmap
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from omni_sfm.evaluate import trajectory_errors
+from omni_sfm.poses import read_tum
+from omni_sfm.synth.paths import Route
+from omni_sfm.synth.render import RenderOptions, render_sequence
+from omni_sfm.synth.scenes import SceneName
+
+
+def _tree_rss_mb(pid: int) -> float:
+    """Resident memory (MB) of ``pid`` and all its descendants (Linux /proc)."""
+    children: dict[int, list[int]] = {}
+    rss: dict[int, int] = {}
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            with open(f"/proc/{entry}/stat") as f:
+                fields = f.read().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        p = int(entry)
+        children.setdefault(int(fields[1]), []).append(p)
+        rss[p] = int(fields[21]) * os.sysconf("SC_PAGE_SIZE")
+    total, todo = 0, [pid]
+    while todo:
+        p = todo.pop()
+        total += rss.get(p, 0)
+        todo.extend(children.get(p, []))
+    return total / 2**20
+
+
+def _run(cmd: list[str]) -> tuple[float, float, int, str]:
+    """``(wall s, peak MB, exit code, last line of output)`` of ``cmd``."""
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    peak = 0.0
+    while proc.poll() is None:
+        peak = max(peak, _tree_rss_mb(proc.pid))
+        time.sleep(0.05)
+    wall = time.perf_counter() - t0
+    out = (proc.stdout.read() if proc.stdout else "").strip().splitlines()
+    return wall, peak, proc.returncode, out[0] if out else ""
+
+
+def _errors(out: Path, render: Path) -> str:
+    est = read_tum(out / "trajectory.tum")
+    gt = read_tum(render / "groundtruth.tum")
+    e = trajectory_errors(est, gt)
+    return (f"{len(est)}/{len(gt)} frames, rotation max {e.rot_max_deg:.3f} deg, "
+            f"ATE {100 * e.ate_rel:.3f} %")
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--work", type=Path, required=True, help="working folder (renders reused)")
+    p.add_argument("--frames", type=int, nargs="+", default=[200, 2000])
+    p.add_argument("--no-colmap", action="store_true", help="skip COLMAP's mapper")
+    args = p.parse_args()
+    exe = [sys.executable, "-m", "omni_sfm"]
+    print(f"# bench_init: {os.cpu_count()} CPUs, OPENBLAS_NUM_THREADS="
+          f"{os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}, 800x600 hyperboloid, textured "
+          "office walk")
+    lines: dict[int, float] = {}
+    colmap = None
+    for n in sorted(args.frames):
+        render = args.work / f"render_{n}"
+        if not (render / "groundtruth.tum").is_file():
+            t0 = time.perf_counter()
+            render_sequence(render, RenderOptions(scene=SceneName.OFFICE, route=Route.OFFICE,
+                                                  camera="hyperboloid", frames=n,
+                                                  textured=True),
+                            progress=sys.stderr.isatty())
+            print(f"render {n} frames: {time.perf_counter() - t0:.1f} s", flush=True)
+        common = ["--images", str(render / "images"), "--camera", str(render / "camera.yaml"),
+                  "--overwrite", "--quiet"]
+        out = args.work / f"lines_{n}"
+        wall, peak, code, said = _run([*exe, "init", "--lines", *common, "--output", str(out)])
+        if code != 0:
+            print(f"init --lines, {n} frames: exit {code}: {said}")
+            return 1
+        lines[n] = wall
+        print(f"init --lines, {n} frames: {wall:.1f} s wall, {1000 * wall / n:.1f} ms a frame, "
+              f"peak {peak:.0f} MB; {_errors(out, render)}", flush=True)
+        if colmap is None and not args.no_colmap:
+            out = args.work / f"colmap_{n}"
+            wall, peak, code, said = _run([*exe, "init", "--initializer", "colmap", *common,
+                                           "--output", str(out)])
+            if code != 0:
+                print(f"COLMAP, {n} frames: exit {code}: {said}")
+            else:
+                colmap = (n, wall)
+                print(f"COLMAP incremental mapper, {n} frames: {wall:.1f} s wall, peak "
+                      f"{peak:.0f} MB; {_errors(out, render)}", flush=True)
+    if colmap is not None:
+        n, wall = colmap
+        print(f"init --lines is {wall / lines[n]:.1f}x faster than COLMAP on {n} frames "
+              "(the issue asks for 50x)")
+    if len(lines) > 1:
+        lo, hi = min(lines), max(lines)
+        print(f"{hi} frames took {lines[hi] / lines[lo]:.1f}x the time of {lo} "
+              f"({hi / lo:.0f}x the frames; the issue asks for at most 10x)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
