@@ -317,7 +317,7 @@ def init_from_images(images: Path | str, camera: Path | str | CameraModel, outpu
             raise OmniSfmError(too_few)
         tracks = fe.estimator_tracks()
         try:
-            result = estimate_poses(tracks, o.estimation)
+            result = estimate_poses(tracks, replace(o.estimation, progress=o.progress))
         except OmniSfmError as exc:
             problem = fe.image_problem()  # the likely cause, where the images have one
             if problem:
@@ -362,7 +362,7 @@ def init_from_images(images: Path | str, camera: Path | str | CameraModel, outpu
             all_kept = len(kept.numbers) >= n
             frames = kept if all_kept or o.debug_view == "auto" else \
                 read_frames(images, o.start, o.end, o.step, size=size)
-            write_debug_view(frames, cam, fe, target, groups=groups)
+            write_debug_view(frames, cam, fe, target, groups=groups, progress=o.progress)
         if o.colmap:
             write_init_model(tmp, cam, result.trajectory, est_names, text=o.colmap_text)
             if colmap_images is not None:

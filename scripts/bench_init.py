@@ -2,9 +2,10 @@
 """Benchmark the whole ``omni-sfm init --lines`` (all default outputs) beside COLMAP's
 incremental mapper (``omni-sfm init --initializer colmap``) on the same frames, in one run.
 
-Renders (once, reused from ``WORK``) the L-shaped office walk (23 m with a 90 deg turn) through
-an 800 x 600 hyperboloid camera, with texture so that COLMAP has points to match, in
-``--frames`` frames for each size asked (default 200 and 2,000),
+Renders (once, reused from ``WORK``) the L-shaped office walk through an 800 x 600 hyperboloid
+camera, with texture so that COLMAP has points to match, in ``--frames`` frames for each size
+asked (default 200 and 2,000), all at the same speed (``--metres-per-frame``, default 11.5 mm:
+the whole 23 m walk, with its 90 deg turn, in 2,000 frames; 200 frames walk its first 2.3 m),
 runs ``omni-sfm init --lines`` on each as a user would (a fresh process), and COLMAP on the
 first (smallest) size only, and prints per run: wall time, peak memory (the resident memory of
 the process and its worker processes, summed, sampled every 50 ms), frames posed, rotation
@@ -81,6 +82,8 @@ def main() -> int:
     p.add_argument("--work", type=Path, required=True, help="working folder (renders reused)")
     p.add_argument("--frames", type=int, nargs="+", default=[200, 2000])
     p.add_argument("--no-colmap", action="store_true", help="skip COLMAP's mapper")
+    p.add_argument("--metres-per-frame", type=float, default=0.0115,
+                   help="the camera's speed (default 0.0115: the office walk in 2,000 frames)")
     args = p.parse_args()
     exe = [sys.executable, "-m", "omni_sfm"]
     print(f"# bench_init: {os.cpu_count()} CPUs, OPENBLAS_NUM_THREADS="
@@ -89,14 +92,16 @@ def main() -> int:
     lines: dict[int, float] = {}
     colmap = None
     for n in sorted(args.frames):
-        render = args.work / f"render_{n}"
+        length = args.metres_per_frame * (n - 1)
+        render = args.work / f"render_{n}_{length:.2f}m"
         if not (render / "groundtruth.tum").is_file():
             t0 = time.perf_counter()
             render_sequence(render, RenderOptions(scene=SceneName.OFFICE, route=Route.OFFICE,
                                                   camera="hyperboloid", frames=n,
-                                                  textured=True),
+                                                  path_length=length, textured=True),
                             progress=sys.stderr.isatty())
-            print(f"render {n} frames: {time.perf_counter() - t0:.1f} s", flush=True)
+            print(f"render {n} frames, {length:.1f} m: {time.perf_counter() - t0:.1f} s",
+                  flush=True)
         common = ["--images", str(render / "images"), "--camera", str(render / "camera.yaml"),
                   "--overwrite", "--quiet"]
         out = args.work / f"lines_{n}"

@@ -3,14 +3,16 @@
 
 from __future__ import annotations
 
+import contextlib
 import re
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from omni_sfm.estimate import pipeline
 from omni_sfm.estimate.attempts import STRATEGIES, Attempt, Outcome, RunLog, failed
-from omni_sfm.estimate.pipeline import estimate_poses
+from omni_sfm.estimate.pipeline import EstimationOptions, estimate_poses
 from omni_sfm.synth.simulate import SimulationOptions, simulate
 
 DOCS = Path(__file__).resolve().parents[1] / "docs"
@@ -65,3 +67,43 @@ def test_a_sequence_with_outliers_records_the_restart_and_its_verdict() -> None:
     first = next(a for a in att if a["strategy"] == "bundle adjustment")
     kept = restart if restart["result"] == "kept" else first
     assert np.isclose(kept["cost_rms_deg"], res.residual_rms_final_deg, rtol=1e-5)
+
+
+class _Bar:
+    """Stands in for tqdm: what the estimate's progress bar was told."""
+
+    def __init__(self) -> None:
+        self.n = 0
+        self.stages: list[str] = []
+
+    def update(self, k: int) -> None:
+        self.n += k
+
+    def set_postfix_str(self, text: str, refresh: bool = True) -> None:
+        self.stages.append(text)
+
+
+def test_progress_shows_the_furthest_frame_reached_and_the_stage(monkeypatch) -> None:
+    bar = _Bar()
+    run = RunLog(progress=bar)
+    run.reached(9)
+    run.at(100).reached(4)  # a sub-run on frames 100.. reached frame 104
+    assert bar.n == 105
+    run.reached(50)  # an earlier frame: the bar does not go back
+    assert bar.n == 105
+    with run.at(3).timed("chaining"):
+        pass
+    assert bar.stages == ["chaining"]
+    # a whole estimate: the windows and the registration move it to the last frame posed
+    sim = simulate(SimulationOptions(num_views=60, num_parallel=10, num_other=10,
+                                     noise_deg=0.1, visible_frames=30, seed=2))
+    bars: list[_Bar] = []
+
+    def fake_tqdm(*args: object, **kwargs: object) -> contextlib.nullcontext[_Bar]:
+        bars.append(_Bar())
+        return contextlib.nullcontext(bars[-1])
+
+    monkeypatch.setattr(pipeline, "tqdm", fake_tqdm)
+    res = estimate_poses(sim.tracks, EstimationOptions(progress=True))
+    assert len(bars) == 1 and bars[0].n == int(np.flatnonzero(res.estimated).max()) + 1
+    assert "refinement" in bars[0].stages

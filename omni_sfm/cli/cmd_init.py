@@ -150,7 +150,7 @@ def run(args: argparse.Namespace) -> int:
     from omni_sfm.estimate.pipeline import EstimationOptions, estimate_poses, write_init_outputs
     from omni_sfm.fileio import atomic_output_dir, check_output_dir, stored_path
 
-    estimation = EstimationOptions(refine=not args.no_refine)
+    estimation = EstimationOptions(refine=not args.no_refine, progress=not args.quiet)
     if args.initializer is not None:
         return _run_plugin(args)
     if args.images is not None:

@@ -130,17 +130,27 @@ class RunLog:
     its own)."""
 
     def __init__(self, offset: int = 0, entries: list[dict[str, Any]] | None = None,
-                 timings: defaultdict[str, float] | None = None) -> None:
+                 timings: defaultdict[str, float] | None = None,
+                 progress: Any | None = None) -> None:
         self.offset = offset
         self.entries: list[dict[str, Any]] = [] if entries is None else entries
         self.timings: defaultdict[str, float] = defaultdict(float) if timings is None \
             else timings
+        self.progress = progress
+        """A tqdm bar over the whole sequence's frames (shared by the sub-runs), or None."""
 
     def at(self, offset: int, *, share_timings: bool = False) -> RunLog:
         """A log for a sub-run on frames ``offset..`` (of this run's frames): the same
-        attempts; its own timings, or these."""
+        attempts and progress bar; its own timings, or these."""
         return RunLog(self.offset + offset, self.entries,
-                      self.timings if share_timings else None)
+                      self.timings if share_timings else None, self.progress)
+
+    def reached(self, frame: int) -> None:
+        """The estimate has got as far as ``frame`` (of this run's frames): the progress bar
+        shows the furthest frame reached in the whole sequence."""
+        bar = self.progress
+        if bar is not None and self.offset + frame + 1 > bar.n:
+            bar.update(self.offset + frame + 1 - bar.n)
 
     def record(self, attempt: Attempt[T], **extra: Any) -> Attempt[T]:
         """Record ``attempt`` (with ``extra`` JSON fields) and return it."""
@@ -153,6 +163,8 @@ class RunLog:
     def timed(self, stage: str) -> Iterator[None]:
         """Add the wall time of the ``with`` block to ``timings[stage]`` (milliseconds)."""
         t0 = time.perf_counter()
+        if self.progress is not None:
+            self.progress.set_postfix_str(stage.replace("_", " "), refresh=False)
         try:
             yield
         finally:

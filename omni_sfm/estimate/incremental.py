@@ -42,6 +42,7 @@ only.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -223,6 +224,7 @@ class _Growth:
         self.reasons: dict[int, str] = {}
         self.stops: list[tuple[int, int]] = []
         self.added = 0
+        self.on_frame: Callable[[int], None] | None = None
 
     def snap(self, lines: np.ndarray) -> None:
         """Give the known ``lines`` of a family exactly its direction, turning each about its
@@ -434,6 +436,8 @@ class _Growth:
             if why is None:
                 order.append(f)
                 self.added += 1
+                if self.on_frame is not None:
+                    self.on_frame(f)
                 self.reasons.pop(f, None)
                 misses = 0
                 self.triangulate(f)
@@ -473,17 +477,19 @@ def subtracks(tracks: LineTracks, obs: np.ndarray, lines: np.ndarray,
 def register_frames(tracks: LineTracks, rotations: FloatArray, positions: FloatArray,
                     estimated: np.ndarray, line_directions: FloatArray, line_points: FloatArray,
                     sigma_deg: float, bundle: BundleOptions,
-                    options: IncrementalOptions | None = None) -> Registration:
+                    options: IncrementalOptions | None = None,
+                    on_frame: Callable[[int], None] | None = None) -> Registration:
     """Grow the ``estimated`` frames (``(F,)`` bool, at least 2, with their poses and the known
     lines ``(M, 3)``, NaN where unknown) forwards and backwards by resection (module docstring).
 
     ``sigma_deg``: the NV noise (per axis) at the starting solution, which scales the inlier
     test. Returns the grown poses and lines; the starting poses are adjusted along by the local
-    adjustments next to them.
+    adjustments next to them. ``on_frame`` is called with each frame registered (progress).
     """
     o = options or IncrementalOptions()
     g = _Growth(tracks, rotations, positions, estimated, line_directions, line_points,
                 float(np.radians(sigma_deg)), o, bundle)
+    g.on_frame = on_frame
     g.grow(True)
     g.grow(False)
     R = np.where(g.est[:, None, None], g.R, np.nan)

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from tqdm import tqdm
 
 from omni_sfm import __version__
 from omni_sfm.errors import OmniSfmError
@@ -88,6 +89,8 @@ class EstimationOptions:
     """The joint refinement (line bundle adjustment)."""
     refine: bool = True
     """Run the bundle adjustment after the paper's method (False: the paper's method alone)."""
+    progress: bool = False
+    """A progress bar on stderr: the furthest frame the estimate has reached, and the stage."""
     local_iterations: int = 10
     """Iterations of the local bundle adjustment after each window is chained."""
     restart_without_outliers: bool = True
@@ -326,6 +329,7 @@ def _initialise_all(tracks: LineTracks, options: EstimationOptions, run: RunLog)
     switched: list[str] = []
     for w in windows:
         att = _solve_window(tracks, family, w, options, run)
+        run.reached(w.stop - 1)
         if not att.ok:
             # the family may be degenerate for this stretch (the corridor's direction, along
             # which the camera walks): the window's other families may condition it
@@ -563,7 +567,14 @@ def estimate_poses(tracks: LineTracks,
         raise OmniSfmError(f"tracks have {F} frames; need at least 3")
     if M < 6:
         raise OmniSfmError(f"tracks have {M} lines; need at least 6 (3 parallel and 3 others)")
-    run = RunLog()
+    with tqdm(total=F, desc="poses", unit="frame", leave=False,
+              disable=None if options.progress else True) as bar:
+        return _estimate(tracks, options, RunLog(progress=bar if options.progress else None),
+                         t_all)
+
+
+def _estimate(tracks: LineTracks, options: EstimationOptions, run: RunLog,
+              t_all: float) -> EstimationResult:
     try:
         result = _with_segments(tracks, _solve_moving(tracks, options, run), options, run,
                                 t_all)
@@ -1105,7 +1116,7 @@ def _extend(tracks: LineTracks, ba: BundleResult, init: _Init, options: Estimati
     with run.timed("extension"):
         reg = register_frames(sub, ba.rotations, ba.positions, ba.frames,
                               ba.line_directions[keep], ba.line_points[keep], ba.sigma_deg,
-                              options.bundle, options.extend)
+                              options.bundle, options.extend, on_frame=run.reached)
     R, c, frames = reg.rotations, reg.positions, reg.estimated
     added = frames & ~ba.frames
     init0, init = init, replace(init, reasons=dict(reg.reasons))

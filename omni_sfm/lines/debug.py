@@ -14,6 +14,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from tqdm import tqdm
 
 from omni_sfm.cameras.base import CameraModel
 from omni_sfm.errors import OmniSfmError
@@ -124,7 +125,7 @@ def draw_lines(image: np.ndarray, camera: CameraModel, endpoint_rays: FloatArray
 def write_debug_view(frames: Iterable[tuple[int, float, np.ndarray]], camera: CameraModel,
                      result: FrontEndResult, output: Path | str,
                      groups: np.ndarray | None = None, fps: float = 15.0,
-                     label_tracks: bool = False) -> Path:
+                     label_tracks: bool = False, progress: bool = False) -> Path:
     """Draw every frame of ``result`` with its tracked lines and write PNGs or a video.
 
     Args:
@@ -133,6 +134,7 @@ def write_debug_view(frames: Iterable[tuple[int, float, np.ndarray]], camera: Ca
         output: a folder (PNGs ``NNNNNN.png``, named by source index) or a ``.mp4``/``.avi``
             file.
         label_tracks: write each track's id next to its line.
+        progress: a progress bar on stderr.
     Returns the path written.
     """
     output = Path(output)
@@ -154,8 +156,10 @@ def write_debug_view(frames: Iterable[tuple[int, float, np.ndarray]], camera: Ca
         raise OmniSfmError(f"{output}: debug view must be a folder, a .mp4 or an .avi file")
     else:
         output.mkdir(parents=True, exist_ok=True)
+    total = len(frames) if hasattr(frames, "__len__") else None  # type: ignore[arg-type]
     try:
-        for number, _, image in frames:
+        for number, _, image in tqdm(frames, total=total, desc="debug view", unit="frame",
+                                     leave=False, disable=None if progress else True):
             f = frame_of.get(int(number))
             if f is None:
                 continue
