@@ -359,9 +359,10 @@ def init_from_images(images: Path | str, camera: Path | str | CameraModel, outpu
         if kept is not None:
             target = tmp / (InitFolder.DEBUG_VIDEO if o.debug_view == "mp4"
                             else InitFolder.DEBUG_FRAMES)
-            all_kept = len(kept.numbers) >= n
-            frames = kept if all_kept or o.debug_view == "auto" else \
-                read_frames(images, o.start, o.end, o.step, size=size)
+            # a video whose container gives no frame count (n = 0) is read again
+            from_pass = n > 0 and (len(kept.numbers) >= n or o.debug_view == "auto")
+            frames = kept if from_pass else read_frames(images, o.start, o.end, o.step,
+                                                        size=size)
             write_debug_view(frames, cam, fe, target, groups=groups, progress=o.progress)
         if o.colmap:
             write_init_model(tmp, cam, result.trajectory, est_names, text=o.colmap_text)
@@ -380,7 +381,8 @@ DEBUG_VIEWS = ("auto", "png", "mp4", "none")
 def _debug_numbers(source: FrameSource, view: str) -> list[int]:
     """Source indices of the frames the debug view draws from the front end's pass: every
     frame of a run of at most :data:`DEBUG_FRAMES`; of a longer one, that many spread evenly
-    (``auto``) or none (``png``, ``mp4``: the frames are read again)."""
+    (``auto``) or none (``png``, ``mp4``: the frames are read again, as they are for a video
+    whose length is unknown)."""
     n = len(source)
     if n <= DEBUG_FRAMES:
         ks = np.arange(n)
