@@ -10,8 +10,9 @@ image ids are those of *their* database, ready for ``pycolmap.triangulate_points
     seeded_reconstruction = load(ADAPTERS, "pycolmap-seed")
 
 The image folder must hold the images as COLMAP must see them (``INIT_DIR/images_colmap/``
-when ``omni-sfm init`` wrote it; the hyperboloid camera's images are mirrored left-right, see
-docs/cameras.md). :func:`reader_options` gives pycolmap's ImageReaderOptions for extracting
+when ``omni-sfm init`` wrote it: by default for runs of at most 1,000 frames, with
+``--colmap-images`` for longer ones; the hyperboloid camera's images are mirrored left-right,
+see docs/cameras.md). :func:`reader_options` gives pycolmap's ImageReaderOptions for extracting
 features with the exact camera and its valid mask. Full example: docs/colmap.md.
 """
 
