@@ -52,7 +52,6 @@ def test_same_tracks_and_poses_with_one_and_two_workers(corridor):
     np.testing.assert_array_equal(ra.estimated, rb.estimated)
     np.testing.assert_allclose(ra.trajectory.rotations, rb.trajectory.rotations, atol=1e-6)
     np.testing.assert_allclose(ra.trajectory.positions, rb.trajectory.positions, atol=1e-6)
-    assert two.timings_ms["extract_cpu"].min() > 0  # measured in the workers
 
 
 def test_worker_count_defaults():
@@ -73,6 +72,20 @@ def test_a_worker_that_dies_is_a_one_line_error(corridor):
         with pytest.raises(OmniSfmError, match="a line extraction worker stopped"):
             pool.submit(frame)
             pool.result()
+
+
+def test_workers_holding_unread_results_end_on_close(corridor):
+    # after an error the caller stops reading: closing must end the workers, not kill them
+    # after a timeout (each result is larger than a pipe's buffer)
+    cam = load_camera(corridor / "camera.yaml")
+    frames = [f.image for f in read_frames(corridor / "images")][:2]
+    pool = ExtractionWorkers(LineExtractor(cam), 2)
+    procs = list(pool._procs)
+    for frame in frames:
+        pool.submit(frame)
+    procs[0].stdout.peek(1)  # a result is on its way
+    pool.close()
+    assert [p.returncode for p in procs] == [0, 0]
 
 
 def test_sample_reads_the_frames_it_names(corridor, video):

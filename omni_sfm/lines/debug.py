@@ -62,7 +62,6 @@ class KeptFrames:
             yield number, stamp, np.asarray(img)
 
 
-
 def group_colour(group: int) -> tuple[int, int, int]:
     """BGR colour of a group label (-1: grey)."""
     if group < 0:

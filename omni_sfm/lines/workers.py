@@ -15,6 +15,7 @@ script again (which a user's script without ``if __name__ == "__main__"`` does n
 
 from __future__ import annotations
 
+import contextlib
 import os
 import pickle
 import subprocess
@@ -137,21 +138,21 @@ class ExtractionWorkers:
                                         if proc.returncode is not None else "")
 
     def close(self) -> None:
-        """Stop the workers (they end when their input closes)."""
+        """Stop the workers: they end when their input closes, and one still writing a result
+        nobody will read (after an error here) ends when its output closes."""
         for proc in self._procs:
-            try:
-                if proc.stdin is not None:
-                    proc.stdin.close()
-            except OSError:
-                pass
+            for pipe in (proc.stdin, proc.stdout):
+                try:
+                    if pipe is not None:
+                        pipe.close()
+                except OSError:
+                    pass
         for proc in self._procs:
             try:
                 proc.wait(timeout=10)
             except subprocess.TimeoutExpired:
                 proc.kill()
                 proc.wait()
-            if proc.stdout is not None:
-                proc.stdout.close()
         for log in self._logs:
             log.close()
         self._procs, self._logs = [], []
@@ -184,10 +185,11 @@ def main() -> None:
     sys.stdout = sys.stderr
     try:
         _serve(sys.stdin.buffer, out)
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, BrokenPipeError):  # Ctrl-C, or the caller stopped reading
         pass
     finally:
-        out.close()
+        with contextlib.suppress(BrokenPipeError):
+            out.close()
 
 
 if __name__ == "__main__":
