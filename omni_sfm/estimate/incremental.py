@@ -97,6 +97,15 @@ class IncrementalOptions:
     """Registered frames adjusted by each local adjustment (the latest ones)."""
     local_iterations: int = 10
     """Levenberg-Marquardt iterations of each local adjustment."""
+    wide_every: int = 50
+    """A wider adjustment after every this many registered frames (0: none) ..."""
+    wide_frames: int = 200
+    """... of the last this many registered frames ..."""
+    wide_iterations: int = 20
+    """... with this many Levenberg-Marquardt iterations: the local adjustments alone let the
+    rotation drift slowly along a long sparse stretch (the turn about the one parallel family's
+    direction), beyond what the data allow, and the adjustment of all frames at the end
+    starts too far from the solution to remove it."""
     families: bool = True
     """Use the parallel families that the starting lines show as fixed world directions
     (:mod:`omni_sfm.estimate.families`): their lines constrain a frame's rotation before they
@@ -205,7 +214,6 @@ class _Growth:
         self.d, self.p = np.array(d, np.float64), np.array(p, np.float64)
         self.known: np.ndarray = np.asarray(np.isfinite(self.d).all(1) &
                                             np.isfinite(self.p).all(1))
-        self.rejected = np.zeros(M, bool)
         self.sigma = sigma
         self.thr = max(options.inlier_sigmas * sigma, np.radians(options.min_inlier_deg))
         self.last_median = 0.0  # median angle of the last registered frame at its pose
@@ -221,6 +229,8 @@ class _Growth:
             self.snap(np.flatnonzero(self.fam >= 0))
         self.local = replace(bundle, max_rounds=2, max_iterations=options.local_iterations,
                              final_loss=None)
+        self.wide = replace(bundle, max_rounds=2, max_iterations=options.wide_iterations,
+                            final_loss=None)
         self.reasons: dict[int, str] = {}
         self.stops: list[tuple[int, int]] = []
         self.added = 0
@@ -312,7 +322,7 @@ class _Growth:
         """Lines seen in ``f`` that are not known yet, from all registered frames seeing them."""
         tracks, o = self.tracks, self.o
         t = tracks.obs_track[self.frame_obs(f)]
-        cand = np.unique(t[~self.known[t] & ~self.rejected[t]])
+        cand = np.unique(t[~self.known[t]])
         if len(cand) == 0:
             return
         obs = self.track_obs(cand)
@@ -377,7 +387,7 @@ class _Growth:
                 self.d[t], self.p[t], self.known[t] = D, p, True
 
     # -- 4: local adjustment -------------------------------------------------------------------
-    def adjust(self, window: np.ndarray) -> None:
+    def adjust(self, window: np.ndarray, options: BundleOptions | None = None) -> None:
         """Bundle adjustment of the registered frames ``window`` and the known lines they see;
         every other registered frame that sees those lines takes part, held (its observations
         keep the lines where the earlier frames put them: in a stop, the window alone would
@@ -403,7 +413,8 @@ class _Growth:
             res = bundle_adjust(sub, self.R[frames], self.c[frames], self.d[lines],
                                 self.p[lines], held_frames=held_sub,
                                 held_directions=self.fam[lines] >= 0,
-                                scale_frames=held_sub if spread else None, options=self.local)
+                                scale_frames=held_sub if spread else None,
+                                options=options or self.local)
         except OmniSfmError:
             return
         ok = res.frames
@@ -413,7 +424,6 @@ class _Growth:
             res.line_points[used]
         bad = lines[res.outlier_tracks]
         self.known[bad] = False
-        self.rejected[bad] = True
         self.d[bad], self.p[bad] = np.nan, np.nan
         self.fam[bad] = -1
 
@@ -427,7 +437,7 @@ class _Growth:
             order = order[::-1]
         step = 1 if forward else -1
         f = order[-1] + step
-        misses, first_miss, since = 0, -1, 0
+        misses, first_miss, since, wide = 0, -1, 0, 0
         while 0 <= f < F:
             if self.est[f]:
                 f += step
@@ -445,6 +455,10 @@ class _Growth:
                 if (since >= o.local_every or self.refit) and len(order) > o.local_frames:
                     since = 0
                     self.adjust(np.asarray(order[-o.local_frames:]))
+                wide += 1
+                if o.wide_every and wide >= o.wide_every and len(order) > o.wide_frames:
+                    wide = 0
+                    self.adjust(np.asarray(order[-o.wide_frames:]), self.wide)
             else:
                 self.reasons[f] = why
                 if misses == 0:
