@@ -52,6 +52,10 @@ STRATEGIES: dict[str, str] = {
     "restart without outliers": "the whole solution again without the tracks the adjustment "
                                 "rejected; kept if it estimates as many frames at a cost no "
                                 "higher",
+    "adjustment from its own result": "the bundle adjustment again from the kept one's poses, "
+                                      "every track that is not an outlier triangulated from "
+                                      "them (tracks the first start could not triangulate take "
+                                      "part); kept if its capped cost on all tracks is lower",
     "registration": "frames beyond the chain posed from the lines already reconstructed, new "
                     "lines triangulated, local adjustments (docs/estimator.md stage 5b)",
     "bundle adjustment after registration": "the adjustment of the chain's and the "

@@ -111,6 +111,9 @@ class EstimationOptions:
     explains the NVs this well (median angle, degrees); otherwise the paper's error stands.
     Translation changes the NVs by the parallax the paper's method needs (at least
     ``paper.min_parallax_deg``), which no rotation can explain."""
+    readjust_rounds: int = 2
+    """Adjust again from the adjusted solution at most this many times, while it lowers the
+    cost (:func:`_readjusted`); 0: never."""
     bootstrap_frames: int | None = 1000
     """In a longer sequence, the chain of windows is built on the first stretch of this many
     frames that gives one (then on the next half-overlapping stretch, ...), and the registration
@@ -644,6 +647,7 @@ def _solve_moving(tracks: LineTracks, options: EstimationOptions, run: RunLog) -
                     run.record(att.judged(Outcome.REJECTED, why + (
                         f" (and {int(ba2.frames.sum())} frames against "
                         f"{int(ba.frames.sum())})" if fewer else "")))
+        ba = _readjusted(tracks, ba, options, run)
         if options.extend is not None and not ba.frames.all():
             ba, init = _extend(tracks, ba, init, options, run)
         R, c, frames = ba.rotations, ba.positions, ba.frames
@@ -662,6 +666,43 @@ def _solve_moving(tracks: LineTracks, options: EstimationOptions, run: RunLog) -
     if options.refine:
         sol = _repair_half_turns(tracks, sol, options, run)
     return sol
+
+
+def _readjusted(tracks: LineTracks, ba: BundleResult, options: EstimationOptions,
+                run: RunLog) -> BundleResult:
+    """Strategy: the bundle adjustment again from ``ba``'s poses, with the tracks it did not
+    use (but did not reject) triangulated from them, up to ``options.readjust_rounds`` times
+    while the cost on all tracks (each misfit capped at the outlier limit) drops by more than
+    1 %: from the paper's chained solution some tracks cannot be triangulated or are left
+    out, and the adjustment stops short of the solution that all of them fix."""
+    for _ in range(options.readjust_rounds):
+        idx = np.flatnonzero(ba.frames)
+        span = (int(idx[0]), int(idx[-1]))
+        d = np.where(ba.used_tracks[:, None], ba.line_directions, np.nan)
+        p = np.where(ba.used_tracks[:, None], ba.line_points, np.nan)
+        try:
+            with run.timed("refinement"):
+                new = bundle_adjust(tracks, ba.rotations, ba.positions, d, p, frames=ba.frames,
+                                    options=options.bundle)
+        except OmniSfmError as exc:
+            run.record(failed("adjustment from its own result", span, str(exc)))
+            return ba
+        limit = outlier_limit(np.radians(ba.sigma_deg), options.bundle)
+        both = ba.frames & new.frames
+        old_cost, new_cost = (np.degrees(np.sqrt(truncated_cost(tracks, b.rotations,
+                                                                b.positions, both, limit)))
+                              for b in (ba, new))
+        why = (f"{int(new.used_tracks.sum())} tracks (were {int(ba.used_tracks.sum())}); all "
+               f"tracks, misfits capped at {np.degrees(limit):.3g} deg: {new_cost:.4g} deg RMS, "
+               f"{old_cost:.4g} before")
+        att = Attempt("adjustment from its own result", span, new, cost_deg=new.rms_final_deg,
+                      why=why)
+        if new.frames.sum() < ba.frames.sum() or not new_cost < 0.99 * old_cost:
+            run.record(att.judged(Outcome.REJECTED, why))
+            return ba
+        run.record(att)
+        ba = new
+    return ba
 
 
 def _restart_without_outliers(tracks: LineTracks, ba: BundleResult, options: EstimationOptions,
