@@ -29,7 +29,7 @@ import numpy as np
 
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.estimate.bundle import BundleOptions, bundle_adjust, oracle
-from omni_sfm.estimate.pipeline import estimate_poses, match_reflection
+from omni_sfm.estimate.pipeline import EstimationOptions, estimate_poses, match_reflection
 from omni_sfm.evaluate import trajectory_errors
 from omni_sfm.poses import Trajectory
 from omni_sfm.synth.simulate import Simulation, SimulationOptions, simulate
@@ -56,7 +56,7 @@ def _run(seed: int, args: argparse.Namespace) -> None:
           f"{np.median(per):.0f}), {(per >= 4).sum()} frames see 4 or more")
     t0 = time.perf_counter()
     try:
-        res = estimate_poses(tr)
+        res = estimate_poses(tr, EstimationOptions(bootstrap_frames=args.bootstrap))
     except OmniSfmError as exc:
         print(f"  error: {exc}")
         return
@@ -96,6 +96,8 @@ def main() -> int:
     ap.add_argument("--other", type=int, default=40)
     ap.add_argument("--visible", type=int, default=60)
     ap.add_argument("--noise-deg", type=float, default=0.1)
+    ap.add_argument("--bootstrap", type=int, default=EstimationOptions().bootstrap_frames,
+                    help="EstimationOptions.bootstrap_frames (default: the estimator's)")
     ap.add_argument("--polish", type=int, default=0,
                     help="also adjust again from the estimate for this many LM iterations")
     args = ap.parse_args()
