@@ -37,6 +37,9 @@ class Outcome(StrEnum):
 STRATEGIES: dict[str, str] = {
     "bootstrap stretch": "the windows and their chain on one stretch of a long sequence "
                          "(EstimationOptions.bootstrap_frames), the next stretch if it fails",
+    "short bootstrap": "the whole estimate again from a chain of windows on a short first "
+                       "stretch (EstimationOptions.short_bootstrap_frames), the registration "
+                       "posing the rest; kept if its poses explain every observation better",
     "paper window": "the paper's method (docs/method.md §4-§5) on one window, with the "
                     "largest parallel family",
     "paper window, unpolished": "the same without the joint rotation polish, where the polished "

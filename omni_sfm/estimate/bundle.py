@@ -247,15 +247,21 @@ def observation_residuals(tracks: LineTracks, rotations: FloatArray, positions: 
 
 
 def truncated_cost(tracks: LineTracks, rotations: FloatArray, positions: FloatArray,
-                   frames: np.ndarray, limit: float) -> float:
+                   frames: np.ndarray, limit: float, *, everywhere: bool = False) -> float:
     """The mean over the observations in ``frames`` of ``min(angle, limit)^2`` (radians^2),
     every track's line triangulated from the poses (at least 3 observations): a score of a
     solution that does not depend on which tracks it rejected (a wrong solution rejects the
-    tracks that disagree with it and fits the rest as well as the right one fits all)."""
+    tracks that disagree with it and fits the rest as well as the right one fits all).
+
+    ``everywhere``: the mean over every observation of the sequence, those of the frames
+    without a pose (not in ``frames``) at ``limit``: a score of solutions that pose different
+    frames (a frame left out costs as much as a frame that fits none of its lines)."""
     d, p, ok = triangulate_lines(tracks, rotations, positions, frames, min_observations=3)
     ang = observation_residuals(tracks, rotations, positions, d, p)
-    seen = frames[tracks.obs_frame]
-    ang = np.where(ok[tracks.obs_track], ang, limit)[seen]
+    posed = frames[tracks.obs_frame]
+    ang = np.where(ok[tracks.obs_track] & posed, ang, limit)
+    if not everywhere:
+        ang = ang[posed]
     return float(np.mean(np.minimum(np.nan_to_num(ang, nan=limit), limit) ** 2))
 
 

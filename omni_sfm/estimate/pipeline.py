@@ -119,6 +119,14 @@ class EstimationOptions:
     frames that gives one (then on the next half-overlapping stretch, ...), and the registration
     of stage 5b poses the rest: the cost per frame does not grow with the length. None: the
     windows cover the whole sequence."""
+    short_bootstrap_frames: int | None = 100
+    """In a sequence of at least twice this many frames (and a longer ``bootstrap_frames``),
+    the whole estimate is also made from a chain of windows on a stretch of this many frames
+    only, the registration posing the rest, and the one of the two whose poses explain the
+    tracks better wins (:func:`_better_start`): a chain of windows can drift where each window
+    holds few lines (a turn, short tracks) and the adjustment then stays in a wrong basin,
+    where poses registered from lines already fixed do not; a short chain can itself start
+    wrong. None: only ``bootstrap_frames``."""
     min_segment_frames: int = 30
     """Where the registration stops and at least this many frames remain without a pose, the
     estimator starts again on them: a new segment in its own world and scale
@@ -579,8 +587,7 @@ def estimate_poses(tracks: LineTracks,
 def _estimate(tracks: LineTracks, options: EstimationOptions, run: RunLog,
               t_all: float) -> EstimationResult:
     try:
-        result = _with_segments(tracks, _solve_moving(tracks, options, run), options, run,
-                                t_all)
+        result = _better_start(tracks, options, run, t_all)
     except OmniSfmError as exc:
         rot_only = _try_rotation_only(tracks, options, run, f"the moving camera's solution "
                                                             f"failed: {exc}")
@@ -597,6 +604,60 @@ def _estimate(tracks: LineTracks, options: EstimationOptions, run: RunLog,
     if rot_only is not None:
         return _rotation_only_result(tracks, rot_only, options, run, why, t_all)
     return replace(result, report={**result.report, "attempts": run.entries})
+
+
+def _better_start(tracks: LineTracks, options: EstimationOptions, run: RunLog,
+                  t_all: float) -> EstimationResult:
+    """The moving camera's result from the chain of windows on ``bootstrap_frames`` and,
+    where ``short_bootstrap_frames`` applies, strategy "short bootstrap": the same from a
+    chain on that many frames; the kept one has the lower cost over every observation of the
+    sequence (each misfit capped at the first one's outlier limit, the observations of frames
+    that a result leaves without a pose at the cap). Raises where neither gives a result."""
+    F, short, long = tracks.num_frames, options.short_bootstrap_frames, options.bootstrap_frames
+    try:
+        first: EstimationResult | None = _with_segments(
+            tracks, _solve_moving(tracks, options, run), options, run, t_all)
+        error: OmniSfmError | None = None
+    except OmniSfmError as exc:
+        first, error = None, exc
+    if short is None or 2 * short > F or (long is not None and long <= short):
+        if first is None:
+            assert error is not None
+            raise error
+        return first
+    other = replace(options, bootstrap_frames=short, short_bootstrap_frames=None)
+    try:
+        alt = _with_segments(tracks, _solve_moving(tracks, other, run), other, run, t_all)
+    except OmniSfmError as exc:
+        run.record(failed("short bootstrap", (0, F - 1), str(exc)))
+        if first is None:
+            assert error is not None
+            raise error from exc
+        return replace(first, report={**first.report, "attempts": run.entries})
+    if first is None:
+        run.record(Attempt("short bootstrap", (0, F - 1), alt,
+                           why=f"{int(alt.estimated.sum())} frames; the chain on "
+                               f"{long} frames failed: {error}"))
+        return replace(alt, report={**alt.report, "attempts": run.entries})
+    limit = outlier_limit(np.radians(first.sigma_deg), options.bundle)
+    costs = []
+    for r in (first, alt):
+        R = np.full((F, 3, 3), np.nan)
+        c = np.full((F, 3), np.nan)
+        R[r.estimated], c[r.estimated] = r.trajectory.rotations, r.trajectory.positions
+        costs.append(float(np.degrees(np.sqrt(truncated_cost(
+            tracks, R, c, r.estimated, limit, everywhere=True)))))
+    why = (f"{int(alt.estimated.sum())} frames against {int(first.estimated.sum())}; every "
+           f"observation, misfits capped at {np.degrees(limit):.3g} deg (frames without a "
+           f"pose at the cap): {costs[1]:.4g} deg RMS against {costs[0]:.4g}")
+    att = Attempt("short bootstrap", (0, F - 1), alt, cost_deg=costs[1], why=why)
+    if costs[1] < 0.99 * costs[0]:
+        run.record(att)
+        kept = alt
+    else:
+        run.record(att.judged(Outcome.REJECTED, why))
+        kept = first
+    return replace(kept, report={**kept.report, "attempts": run.entries})
 
 
 @dataclass
