@@ -107,3 +107,15 @@ def test_progress_shows_the_furthest_frame_reached_and_the_stage(monkeypatch) ->
     res = estimate_poses(sim.tracks, EstimationOptions(progress=True))
     assert len(bars) == 1 and bars[0].n == int(np.flatnonzero(res.estimated).max()) + 1
     assert "refinement" in bars[0].stages
+
+
+def test_second_start_is_skipped_where_one_window_covers_the_sequence() -> None:
+    """200 frames that see every line: one window of the paper's method, no chain that could
+    drift, so the short bootstrap (docs/estimator.md stage 9) is recorded as skipped."""
+    sim = simulate(SimulationOptions(num_views=200, num_parallel=10, num_other=5,
+                                     noise_deg=0.1, seed=0))
+    res = estimate_poses(sim.tracks)
+    assert res.estimated.all()
+    short = [a for a in res.report["attempts"] if a["strategy"] == "short bootstrap"]
+    assert [(a["result"], a["why"]) for a in short] == \
+        [("skipped", "one window covers the sequence")]

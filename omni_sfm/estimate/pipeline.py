@@ -609,10 +609,11 @@ def _estimate(tracks: LineTracks, options: EstimationOptions, run: RunLog,
 def _better_start(tracks: LineTracks, options: EstimationOptions, run: RunLog,
                   t_all: float) -> EstimationResult:
     """The moving camera's result from the chain of windows on ``bootstrap_frames`` and,
-    where ``short_bootstrap_frames`` applies, strategy "short bootstrap": the same from a
-    chain on that many frames; the kept one has the lower cost over every observation of the
-    sequence (each misfit capped at the first one's outlier limit, the observations of frames
-    that a result leaves without a pose at the cap). Raises where neither gives a result."""
+    where ``short_bootstrap_frames`` applies and the first result chained more than one
+    window, strategy "short bootstrap": the same from a chain on that many frames. The kept
+    one has the lower cost over every observation of the sequence (each misfit capped at the
+    first one's outlier limit, the observations of frames that a result leaves without a pose
+    at the cap). Raises where neither gives a result."""
     F, short, long = tracks.num_frames, options.short_bootstrap_frames, options.bootstrap_frames
     try:
         first: EstimationResult | None = _with_segments(
@@ -625,6 +626,11 @@ def _better_start(tracks: LineTracks, options: EstimationOptions, run: RunLog,
             assert error is not None
             raise error
         return first
+    if first is not None and len(first.report.get("windows", [])) <= 1:
+        # one window of the paper's method covers the sequence: no chain to drift
+        run.record(Attempt("short bootstrap", (0, F - 1), None, outcome=Outcome.SKIPPED,
+                           why="one window covers the sequence"))
+        return replace(first, report={**first.report, "attempts": run.entries})
     other = replace(options, bootstrap_frames=short, short_bootstrap_frames=None)
     try:
         alt = _with_segments(tracks, _solve_moving(tracks, other, run), other, run, t_all)
