@@ -56,7 +56,10 @@ def _run(seed: int, args: argparse.Namespace) -> None:
           f"{np.median(per):.0f}), {(per >= 4).sum()} frames see 4 or more")
     t0 = time.perf_counter()
     try:
-        res = estimate_poses(tr, EstimationOptions(bootstrap_frames=args.bootstrap))
+        res = estimate_poses(tr, EstimationOptions(
+            bootstrap_frames=args.bootstrap,
+            short_bootstrap_frames=None if args.no_second_start
+            else EstimationOptions().short_bootstrap_frames))
     except OmniSfmError as exc:
         print(f"  error: {exc}")
         return
@@ -73,6 +76,9 @@ def _run(seed: int, args: argparse.Namespace) -> None:
     print(f"  main:   {_fmt(e)}, RMS residual {res.residual_rms_final_deg:.4f} deg")
     print(f"  oracle: {_fmt(eo)}, RMS residual {o.rms_final_deg:.4f} deg (same frames)")
     print(f"  ratio:  rotation {e[0] / eo[0]:.1f}x, translation {e[2] / eo[2]:.1f}x")
+    for a in res.report["attempts"]:
+        if a["strategy"] == "short bootstrap":
+            print(f"  second start: {a['result']}: {a['why']}")
     if args.polish:
         F = tr.num_frames
         R = np.full((F, 3, 3), np.nan)
@@ -98,6 +104,8 @@ def main() -> int:
     ap.add_argument("--noise-deg", type=float, default=0.1)
     ap.add_argument("--bootstrap", type=int, default=EstimationOptions().bootstrap_frames,
                     help="EstimationOptions.bootstrap_frames (default: the estimator's)")
+    ap.add_argument("--no-second-start", action="store_true",
+                    help="without the second start (short_bootstrap_frames=None)")
     ap.add_argument("--polish", type=int, default=0,
                     help="also adjust again from the estimate for this many LM iterations")
     args = ap.parse_args()

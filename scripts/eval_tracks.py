@@ -11,6 +11,12 @@ first frame, ATE as a per cent of the path after similarity alignment), then eac
     OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/eval_tracks.py \\
         /tmp/f600/hyperboloid-800x600--clean-init:/tmp/f600/hyperboloid-800x600--clean ...
 
+``--frames START STOP`` runs the estimator on those frames only (``STOP`` excluded), e.g. the
+turn of a long walk. The second start (docs/estimator.md stage 9) prints its verdict and
+scores; ``--no-second-start`` runs the estimator without it
+(``EstimationOptions.short_bootstrap_frames=None``) and ``--bootstrap 100`` with the second
+start's chain alone, to measure each on the same input.
+
 ``--perturb N`` also runs the estimator N more times on each input with its normals turned by
 about 1e-7 (random, seeds 1..N): a result that changes with the last bits of the input is
 chaotic, and one run of it says little (docs/results.md, the stop-and-go walk).
@@ -31,7 +37,8 @@ from pathlib import Path
 import numpy as np
 
 from omni_sfm.errors import OmniSfmError
-from omni_sfm.estimate.pipeline import estimate_poses, match_reflection
+from omni_sfm.estimate.pipeline import EstimationOptions, estimate_poses, match_reflection
+from omni_sfm.estimate.segments import frame_range
 from omni_sfm.evaluate import relative_rotation_errors_deg, trajectory_errors
 from omni_sfm.geometry import normalize
 from omni_sfm.lines.tracks import read_tracks
@@ -64,16 +71,28 @@ def main() -> int:
     ap.add_argument("pairs", nargs="+", help="INIT_DIR:RENDER_DIR (or INIT_DIR ending in -init)")
     ap.add_argument("--perturb", type=int, default=0, metavar="N",
                     help="also N runs with the normals perturbed by about 1e-7 (default 0)")
+    ap.add_argument("--frames", type=int, nargs=2, metavar=("START", "STOP"),
+                    help="only these frames (STOP excluded)")
+    ap.add_argument("--no-second-start", action="store_true",
+                    help="without the second start (short_bootstrap_frames=None)")
+    ap.add_argument("--bootstrap", type=int, default=EstimationOptions().bootstrap_frames,
+                    help="EstimationOptions.bootstrap_frames (default: the estimator's; at "
+                         "most short_bootstrap_frames: the second start alone)")
     args = ap.parse_args()
+    options = EstimationOptions(bootstrap_frames=args.bootstrap)
+    if args.no_second_start:
+        options = replace(options, short_bootstrap_frames=None)
     print(f"# estimator alone on saved tracks; {os.cpu_count()} CPUs, "
           f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}")
     for arg in args.pairs:
         init_dir, render_dir = _pair(arg)
         try:
             tracks = read_tracks(init_dir / "tracks.json")
+            if args.frames:
+                tracks = frame_range(tracks, *args.frames)[0]
             gt = read_tum(render_dir / "groundtruth.tum")
             t0 = time.perf_counter()
-            res = estimate_poses(tracks)
+            res = estimate_poses(tracks, options)
             wall = time.perf_counter() - t0
         except OmniSfmError as exc:
             print(f"{init_dir.name}: error: {exc}")
@@ -83,6 +102,9 @@ def main() -> int:
         print(f"{init_dir.name}: {int(res.estimated.sum())}/{tracks.num_frames} in the main "
               f"trajectory, {in_segs} in {len(res.segments)} segments, {wall:.1f} s")
         print(f"  main: {_errors(res.trajectory, gt, moving)}")
+        for a in res.report.get("attempts", []):
+            if a["strategy"] == "short bootstrap":
+                print(f"  second start: {a['result']}: {a['why']}")
         for seg in res.segments:
             first, last = np.flatnonzero(seg.frames)[[0, -1]]
             print(f"  segment {seg.number} (frames {first}-{last}): "
@@ -91,7 +113,7 @@ def main() -> int:
             rng = np.random.default_rng(seed)
             n = normalize(tracks.obs_normal + 1e-7 * rng.normal(size=tracks.obs_normal.shape))
             try:
-                r = estimate_poses(replace(tracks, obs_normal=n))
+                r = estimate_poses(replace(tracks, obs_normal=n), options)
             except OmniSfmError as exc:
                 print(f"  perturbed {seed}: error: {exc}")
                 continue

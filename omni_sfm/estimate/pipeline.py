@@ -606,6 +606,15 @@ def _estimate(tracks: LineTracks, options: EstimationOptions, run: RunLog,
     return replace(result, report={**result.report, "attempts": run.entries})
 
 
+def _capped_rms_deg(tracks: LineTracks, R: FloatArray, c: FloatArray, frames: np.ndarray,
+                    limit: float, *, everywhere: bool = False) -> float:
+    """:func:`~omni_sfm.estimate.bundle.truncated_cost` as an RMS angle in degrees: the score
+    by which two solutions that rejected different tracks (or posed different frames) are
+    compared."""
+    return float(np.degrees(np.sqrt(truncated_cost(tracks, R, c, frames, limit,
+                                                   everywhere=everywhere))))
+
+
 def _better_start(tracks: LineTracks, options: EstimationOptions, run: RunLog,
                   t_all: float) -> EstimationResult:
     """The moving camera's result from the chain of windows on ``bootstrap_frames`` and,
@@ -646,13 +655,9 @@ def _better_start(tracks: LineTracks, options: EstimationOptions, run: RunLog,
                                f"{long} frames failed: {error}"))
         return replace(alt, report={**alt.report, "attempts": run.entries})
     limit = outlier_limit(np.radians(first.sigma_deg), options.bundle)
-    costs = []
-    for r in (first, alt):
-        R = np.full((F, 3, 3), np.nan)
-        c = np.full((F, 3), np.nan)
-        R[r.estimated], c[r.estimated] = r.trajectory.rotations, r.trajectory.positions
-        costs.append(float(np.degrees(np.sqrt(truncated_cost(
-            tracks, R, c, r.estimated, limit, everywhere=True)))))
+    costs = [_capped_rms_deg(tracks, _scatter(r.trajectory.rotations, r.estimated, F, np.nan),
+                             _scatter(r.trajectory.positions, r.estimated, F, np.nan),
+                             r.estimated, limit, everywhere=True) for r in (first, alt)]
     why = (f"{int(alt.estimated.sum())} frames against {int(first.estimated.sum())}; every "
            f"observation, misfits capped at {np.degrees(limit):.3g} deg (frames without a "
            f"pose at the cap): {costs[1]:.4g} deg RMS against {costs[0]:.4g}")
@@ -702,8 +707,8 @@ def _solve_moving(tracks: LineTracks, options: EstimationOptions, run: RunLog) -
                 ba2 = att.solution[1]
                 limit = outlier_limit(np.radians(ba.sigma_deg), options.bundle)
                 both = ba.frames & ba2.frames
-                score = [np.degrees(np.sqrt(truncated_cost(tracks, b.rotations, b.positions,
-                                                           both, limit))) for b in (ba, ba2)]
+                score = [_capped_rms_deg(tracks, b.rotations, b.positions, both, limit)
+                         for b in (ba, ba2)]
                 why = (f"{att.why}; all tracks, misfits capped at {np.degrees(limit):.3g} deg: "
                        f"{score[1]:.4g} deg RMS, {score[0]:.4g} with the outliers")
                 if ba2.frames.sum() >= ba.frames.sum() and score[1] <= score[0]:
@@ -756,8 +761,7 @@ def _readjusted(tracks: LineTracks, ba: BundleResult, options: EstimationOptions
             return ba
         limit = outlier_limit(np.radians(ba.sigma_deg), options.bundle)
         both = ba.frames & new.frames
-        old_cost, new_cost = (np.degrees(np.sqrt(truncated_cost(tracks, b.rotations,
-                                                                b.positions, both, limit)))
+        old_cost, new_cost = (_capped_rms_deg(tracks, b.rotations, b.positions, both, limit)
                               for b in (ba, new))
         why = (f"{int(new.used_tracks.sum())} tracks (were {int(ba.used_tracks.sum())}); all "
                f"tracks, misfits capped at {np.degrees(limit):.3g} deg: {new_cost:.4g} deg RMS, "
