@@ -77,8 +77,8 @@ def _run(seed: int, args: argparse.Namespace) -> None:
     print(f"  oracle: {_fmt(eo)}, RMS residual {o.rms_final_deg:.4f} deg (same frames)")
     print(f"  ratio:  rotation {e[0] / eo[0]:.1f}x, translation {e[2] / eo[2]:.1f}x")
     for a in res.report["attempts"]:
-        if a["strategy"] == "short bootstrap":
-            print(f"  second start: {a['result']}: {a['why']}")
+        if a["strategy"] in ("short bootstrap", "merged starts"):
+            print(f"  {a['strategy']}: {a['result']}: {a.get('why', '')}")
     if args.polish:
         F = tr.num_frames
         R = np.full((F, 3, 3), np.nan)

@@ -103,8 +103,8 @@ def main() -> int:
               f"trajectory, {in_segs} in {len(res.segments)} segments, {wall:.1f} s")
         print(f"  main: {_errors(res.trajectory, gt, moving)}")
         for a in res.report.get("attempts", []):
-            if a["strategy"] == "short bootstrap":
-                print(f"  second start: {a['result']}: {a['why']}")
+            if a["strategy"] in ("short bootstrap", "merged starts"):
+                print(f"  {a['strategy']}: {a['result']}: {a.get('why', '')}")
         for seg in res.segments:
             first, last = np.flatnonzero(seg.frames)[[0, -1]]
             print(f"  segment {seg.number} (frames {first}-{last}): "

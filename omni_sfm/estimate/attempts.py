@@ -40,6 +40,9 @@ STRATEGIES: dict[str, str] = {
     "short bootstrap": "the whole estimate again from a chain of windows on a short first "
                        "stretch (EstimationOptions.short_bootstrap_frames), the registration "
                        "posing the rest; kept if its poses explain every observation better",
+    "merged starts": "the short bootstrap's main piece with the frames it lacks taken from "
+                     "the first start's, moved by the similarity of their poses nearby, then "
+                     "adjusted; kept if its poses explain every observation better",
     "paper window": "the paper's method (docs/method.md §4-§5) on one window, with the "
                     "largest parallel family",
     "paper window, unpolished": "the same without the joint rotation polish, where the polished "

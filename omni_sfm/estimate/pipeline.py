@@ -62,7 +62,7 @@ from omni_sfm.folders import REPORT_FILE, TRAJECTORY_FILE
 from omni_sfm.geometry import FloatArray, ray_line_closest, rotation_angle
 from omni_sfm.lines.tracks import LineTracks
 from omni_sfm.poses import Trajectory, write_tum
-from omni_sfm.transforms import associate, paper_translation_errors
+from omni_sfm.transforms import associate, paper_translation_errors, similarity_from_poses
 from omni_sfm.vanishing import (
     ParallelFamily,
     VanishingOptions,
@@ -619,17 +619,22 @@ def _better_start(tracks: LineTracks, options: EstimationOptions, run: RunLog,
                   t_all: float) -> EstimationResult:
     """The moving camera's result from the chain of windows on ``bootstrap_frames`` and,
     where ``short_bootstrap_frames`` applies and the first result chained more than one
-    window, strategy "short bootstrap": the same from a chain on that many frames. The kept
-    one has the lower cost over every observation of the sequence (each misfit capped at the
-    first one's outlier limit, the observations of frames that a result leaves without a pose
-    at the cap). Raises where neither gives a result."""
+    window, two more (docs/estimator.md stage 9): strategy "short bootstrap", the same from a
+    chain on that many frames, and strategy "merged starts", the short one's main piece with
+    the frames it lacks taken from the first one's (:func:`_merged_starts`). The kept one has
+    the lowest cost over every observation of the sequence (each misfit capped at the first
+    one's outlier limit, the observations of frames that a result leaves without a pose at
+    the cap); another than the first must be more than 1 % lower. Raises where none gives a
+    result."""
     F, short, long = tracks.num_frames, options.short_bootstrap_frames, options.bootstrap_frames
+    sol_a: _Solved | None = None
+    first: EstimationResult | None = None
+    error: OmniSfmError | None = None
     try:
-        first: EstimationResult | None = _with_segments(
-            tracks, _solve_moving(tracks, options, run), options, run, t_all)
-        error: OmniSfmError | None = None
+        sol_a = _solve_moving(tracks, options, run)
+        first = _with_segments(tracks, sol_a, options, run, t_all)
     except OmniSfmError as exc:
-        first, error = None, exc
+        error = exc
     if short is None or 2 * short > F or (long is not None and long <= short):
         if first is None:
             assert error is not None
@@ -642,33 +647,85 @@ def _better_start(tracks: LineTracks, options: EstimationOptions, run: RunLog,
         return replace(first, report={**first.report, "attempts": run.entries})
     other = replace(options, bootstrap_frames=short, short_bootstrap_frames=None)
     try:
-        alt = _with_segments(tracks, _solve_moving(tracks, other, run), other, run, t_all)
+        sol_b = _solve_moving(tracks, other, run)
+        alt = _with_segments(tracks, sol_b, other, run, t_all)
     except OmniSfmError as exc:
         run.record(failed("short bootstrap", (0, F - 1), str(exc)))
         if first is None:
             assert error is not None
             raise error from exc
         return replace(first, report={**first.report, "attempts": run.entries})
-    if first is None:
+    if first is None or sol_a is None:
         run.record(Attempt("short bootstrap", (0, F - 1), alt,
                            why=f"{int(alt.estimated.sum())} frames; the chain on "
                                f"{long} frames failed: {error}"))
         return replace(alt, report={**alt.report, "attempts": run.entries})
+    candidates = [("short bootstrap", alt)]
+    merged_sol = _merged_starts(tracks, sol_b, sol_a, other, run)
+    if merged_sol is not None:
+        candidates.append(("merged starts", _with_segments(tracks, merged_sol, other, run,
+                                                           t_all)))
     limit = outlier_limit(np.radians(first.sigma_deg), options.bundle)
-    costs = [_capped_rms_deg(tracks, _scatter(r.trajectory.rotations, r.estimated, F, np.nan),
-                             _scatter(r.trajectory.positions, r.estimated, F, np.nan),
-                             r.estimated, limit, everywhere=True) for r in (first, alt)]
-    why = (f"{int(alt.estimated.sum())} frames against {int(first.estimated.sum())}; every "
-           f"observation, misfits capped at {np.degrees(limit):.3g} deg (frames without a "
-           f"pose at the cap): {costs[1]:.4g} deg RMS against {costs[0]:.4g}")
-    att = Attempt("short bootstrap", (0, F - 1), alt, cost_deg=costs[1], why=why)
-    if costs[1] < 0.99 * costs[0]:
-        run.record(att)
-        kept = alt
-    else:
-        run.record(att.judged(Outcome.REJECTED, why))
-        kept = first
+
+    def score(r: EstimationResult) -> float:
+        return _capped_rms_deg(tracks, _scatter(r.trajectory.rotations, r.estimated, F, np.nan),
+                               _scatter(r.trajectory.positions, r.estimated, F, np.nan),
+                               r.estimated, limit, everywhere=True)
+
+    base = score(first)
+    scores = [score(r) for _, r in candidates]
+    best = int(np.argmin(scores))
+    kept = candidates[best][1] if scores[best] < 0.99 * base else first
+    for (name, r), sc in zip(candidates, scores, strict=True):
+        why = (f"{int(r.estimated.sum())} frames against {int(first.estimated.sum())}; every "
+               f"observation, misfits capped at {np.degrees(limit):.3g} deg (frames without a "
+               f"pose at the cap): {sc:.4g} deg RMS against {base:.4g}")
+        att = Attempt(name, (0, F - 1), r, cost_deg=sc, why=why)
+        run.record(att if r is kept else att.judged(Outcome.REJECTED, why))
     return replace(kept, report={**kept.report, "attempts": run.entries})
+
+
+def _merged_starts(tracks: LineTracks, base: _Solved, donor: _Solved, options: EstimationOptions,
+                   run: RunLog, near: int = 30) -> _Solved | None:
+    """Strategy: the main piece ``base`` with the frames it lacks taken from ``donor``'s main
+    piece, each run of them moved into ``base``'s world by the similarity between the two
+    pieces' poses on the common frames within ``near`` frames of it, then the bundle
+    adjustment of all (and again from its own result). None where ``donor`` adds no frame
+    (recorded as skipped) or the adjustment fails (recorded)."""
+    F = tracks.num_frames
+    add = donor.frames & ~base.frames
+    R, c, frames = base.R.copy(), base.c.copy(), base.frames.copy()
+    for a, b in runs(add):
+        around = np.zeros(F, bool)
+        around[max(0, a - near):min(F, b + near)] = True
+        common = around & base.frames & donor.frames
+        if common.sum() < 3:
+            continue
+        try:
+            sim = similarity_from_poses(base.R[common], base.c[common], donor.R[common],
+                                        donor.c[common], allow_reflection=True)
+        except OmniSfmError:
+            continue
+        R[a:b] = sim.rotation @ donor.R[a:b]
+        c[a:b] = sim.apply_points(donor.c[a:b])
+        frames[a:b] = True
+    if frames.sum() == base.frames.sum():
+        run.record(Attempt("merged starts", (0, F - 1), None, outcome=Outcome.SKIPPED,
+                           why="the first start's main piece poses no frame next to the "
+                               "second's that it lacks"))
+        return None
+    att = _bundle(tracks, R, c, frames, options, "merged starts")
+    if att.solution is None:
+        run.record(att)
+        return None
+    ba = _readjusted(tracks, att.solution, options, run)
+    R0, c0 = base.init.rotations.copy(), base.init.positions.copy()
+    added = ba.frames & ~base.frames
+    R0[added], c0[added] = ba.rotations[added], ba.positions[added]
+    init = replace(base.init, rotations=R0, positions=c0, frames=ba.frames)
+    return _Solved(init, ba.rotations, ba.positions, ba.frames, ba.line_directions,
+                   ba.line_points, ba.used_tracks, ba.outlier_tracks, ba.rms_initial_deg,
+                   ba.rms_final_deg, ba.sigma_deg)
 
 
 @dataclass
