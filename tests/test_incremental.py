@@ -231,7 +231,7 @@ def test_a_short_run_turned_by_a_half_turn_is_turned_back() -> None:
     assert run.entries == []
 
 
-@pytest.mark.parametrize(("seed", "strategy", "result"), [
+@pytest.mark.parametrize(("seed", "strategy", "how"), [
     # before the adjustment from its own result (and the wide adjustments of the
     # registration) this seed came out at 2.6x
     (1, "adjustment from its own result", "kept"),
@@ -245,11 +245,17 @@ def test_a_short_run_turned_by_a_half_turn_is_turned_back() -> None:
     # from the first start's, moved by the similarity of their poses nearby and adjusted,
     # reaches the oracle
     (3, "merged starts", "kept"),
+    # the registration of the second start stops at frame 532 (it sees too few known lines);
+    # the new start on frames 532-599 shares too few lines with the main piece to be joined
+    # by them (1.2 deg apart), but grown backwards by its own lines it poses 29 of the main
+    # piece's frames, whose poses join the two (before: 532 frames and a segment of 68)
+    (4, "join", "frames in common"),
 ])
-def test_sparse_tracks_reach_the_oracle(seed: int, strategy: str, result: str) -> None:
+def test_sparse_tracks_reach_the_oracle(seed: int, strategy: str, how: str) -> None:
     """The every-frame issue's sparse case (600 frames, 4-13 lines a frame, each seen for about
     60 frames, 0.1 deg noise): every frame in one trajectory, rotation and translation errors
-    within 2x of the maximum-likelihood oracle's, through the strategy named."""
+    within 2x of the maximum-likelihood oracle's, through the strategy named (kept, its
+    ``why`` saying how where given)."""
     from omni_sfm.estimate.bundle import oracle
 
     sim = simulate(SimulationOptions(num_views=600, num_parallel=40, num_other=40,
@@ -263,5 +269,5 @@ def test_sparse_tracks_reach_the_oracle(seed: int, strategy: str, result: str) -
                                       o.positions[o.frames]), g)
     assert e.rot_mean_deg <= 2.0 * eo.rot_mean_deg
     assert e.paper_trans.mean() <= 2.0 * eo.paper_trans.mean()
-    assert result in [a["result"] for a in res.report["attempts"]
-                      if a["strategy"] == strategy]
+    assert any(a["result"] == "kept" and (how == "kept" or how in a.get("why", ""))
+               for a in res.report["attempts"] if a["strategy"] == strategy)

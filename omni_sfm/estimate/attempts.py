@@ -72,8 +72,10 @@ STRATEGIES: dict[str, str] = {
     "half-turn repair": "short runs of frames turned by a half turn posed again from their "
                         "lines (docs/estimator.md stage 7b)",
     "new start": "the whole estimator again on frames the main solution left (stage 8)",
-    "join": "a new piece moved into another's world where their common lines fix the "
-            "similarity",
+    "overlap": "a new piece grown by the registration from its lines into the frames of "
+               "the pieces beside it, so that the two pose frames in common (stage 8)",
+    "join": "a new piece moved into another's world where the poses of the frames both pose, "
+            "else their common lines, fix the similarity",
     "bundle adjustment of a piece": "the bundle adjustment of a piece after a join or a "
                                     "half-turn repair",
     "rotation only": "rotations alone from the lines, for a camera that turns without moving "

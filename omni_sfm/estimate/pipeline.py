@@ -148,6 +148,19 @@ class EstimationOptions:
     join_max_speed_ratio: float = 2.0
     """... the camera's speed (median step) on the two sides of the junction differs by at
     most this factor under the similarity ..."""
+    restart_overlap: int = 30
+    """A new start next to a piece takes this many of that piece's frames too, so that the two
+    pieces pose some frames in common and are joined by those frames' poses (better fixed than
+    by the few lines they share); where that start fails or poses none of the frames it is
+    for, it is made again without them. 0: new starts only on the frames without a pose."""
+    join_min_frames: int = 5
+    """Two pieces that pose at least this many frames in common are joined by the similarity
+    of those frames' poses (their rotations within ``join_max_frame_angle_deg``, median, and
+    their centres within ``join_max_distance`` of the camera's path over those frames); fewer,
+    or where that join fails: by their common lines."""
+    join_max_frame_angle_deg: float = 3.0
+    """See ``join_min_frames`` (each piece's rotations drift by up to a degree or two over the
+    frames they share where each frame sees a handful of lines)."""
     join_window: int = 30
     """... and the frames this far from the junction are adjusted together to check that the
     pieces fit ..."""
@@ -1001,41 +1014,107 @@ def _speed(c: FloatArray, frames: np.ndarray, at: int, span: int = 10) -> float:
     return float(np.median(np.linalg.norm(np.diff(c[near], axis=0), axis=1) / np.diff(near)))
 
 
-def _join(tracks: LineTracks, a: _Solved, b: _Solved,
-          options: EstimationOptions) -> tuple[_Solved | None, str]:
-    """``b`` moved into ``a``'s world and merged with it, when their common lines fix the
-    similarity between the two (docs/estimator.md stage 8), else None."""
+def _join(tracks: LineTracks, a: _Solved, b: _Solved, options: EstimationOptions,
+          reach: _Solved | None = None) -> tuple[_Solved | None, str]:
+    """``b`` moved into ``a``'s world and merged with it (docs/estimator.md stage 8), else
+    None and why: by the poses of the frames that ``reach`` (``b`` grown into ``a``'s frames,
+    :func:`_reach_into`) and ``a`` both pose, where there are ``join_min_frames`` of them and
+    that join holds, else by the lines ``a`` and ``b`` have in common."""
+    whys: list[str] = []
+    if reach is not None and (a.frames & reach.frames).sum() >= options.join_min_frames:
+        fixed = _similarity_from_frames(a, reach, a.frames & reach.frames, options)
+        if isinstance(fixed, str):
+            whys.append(fixed)
+        else:
+            merged, why = _merge(tracks, a, reach, *fixed, options)
+            if merged is not None:
+                return merged, why
+            whys.append(why)
+    fixed = _similarity_from_common_lines(a, b, options)
+    if isinstance(fixed, str):
+        return None, "; ".join([*whys, fixed])
+    merged, why = _merge(tracks, a, b, *fixed, options)
+    return merged, why if merged is not None else "; ".join([*whys, why])
+
+
+_Sim = tuple[FloatArray, float, FloatArray]
+"""A similarity ``x_a = s R x_b + t`` as ``(R, s, t)``."""
+
+
+def _similarity_from_common_lines(a: _Solved, b: _Solved, options: EstimationOptions
+                                  ) -> tuple[_Sim, tuple[int, int], str] | str:
+    """The similarity taking piece ``b``'s world to ``a``'s from the lines both reconstructed,
+    the frames of ``a`` and ``b`` next to each other across the break, and how well it maps
+    the lines; or why it does not."""
     common = np.isfinite(a.d).all(1) & np.isfinite(b.d).all(1)
     if common.sum() < 3:
-        return None, f"{int(common.sum())} lines reconstructed in both; need 3"
+        return f"{int(common.sum())} lines reconstructed in both; need 3"
     # the frames next to each other across the break: the camera turns little between them
     fa, fb = np.flatnonzero(a.frames), np.flatnonzero(b.frames)
     ka = int(np.argmin(np.minimum(np.abs(fa - fb[0]), np.abs(fa - fb[-1]))))
     kb = int(np.argmin(np.abs(fb - fa[ka])))
     steps = abs(int(fa[ka]) - int(fb[kb]))
     if steps > options.join_max_gap:
-        return None, f"{steps} frames apart; at most {options.join_max_gap} are joined"
+        return f"{steps} frames apart; at most {options.join_max_gap} are joined"
     near = a.R[fa[ka]] @ b.R[fb[kb]].T
     sim = similarity_from_lines(a.d[common], a.p[common], b.d[common], b.p[common], near=near,
                                 near_deg=options.join_max_turn_deg * steps)
     if sim is None:
-        return None, (f"the {int(common.sum())} common lines do not fix the similarity (fewer "
-                      f"than 3 agree, or all of one direction)")
+        return (f"the {int(common.sum())} common lines do not fix the similarity (fewer "
+                f"than 3 agree, or all of one direction)")
     depth = _line_depth(a, np.flatnonzero(common))
     if sim.angle_deg > options.join_max_angle_deg or \
             sim.distance > options.join_max_distance * depth:
-        return None, (f"the common lines disagree: {sim.angle_deg:.2g} deg, "
-                      f"{sim.distance / depth:.0%} of their distance")
-    Rs, s, t = sim.rotation, sim.scale, sim.translation
+        return (f"the common lines disagree: {sim.angle_deg:.2g} deg, "
+                f"{sim.distance / depth:.0%} of their distance")
+    return ((sim.rotation, sim.scale, sim.translation), (int(fa[ka]), int(fb[kb])),
+            f"{sim.lines} common lines, {sim.angle_deg:.2g} deg")
+
+
+def _similarity_from_frames(a: _Solved, b: _Solved, both: np.ndarray,
+                            options: EstimationOptions
+                            ) -> tuple[_Sim, tuple[int, int], str] | str:
+    """The similarity taking piece ``b``'s world to ``a``'s from the poses of the frames
+    ``both`` that both pose, the first of them (twice: the junction), and how well it maps
+    them; or why it does not."""
+    try:
+        sim = similarity_from_poses(a.R[both], a.c[both], b.R[both], b.c[both],
+                                    allow_reflection=True)
+    except OmniSfmError as exc:
+        return f"the {int(both.sum())} frames both pieces pose: {exc}"
+    turn = np.degrees(rotation_angle(np.einsum("fji,jk,fkl->fil", a.R[both], sim.rotation,
+                                               b.R[both])))
+    off = np.linalg.norm(sim.apply_points(b.c[both]) - a.c[both], axis=1)
+    # against the way the camera went over those frames (the lines' distance is far larger
+    # than a few dozen frames' motion: it would let a wrong scale through)
+    path = float(np.linalg.norm(np.diff(a.c[both], axis=0), axis=1).sum())
+    angle, dist = float(np.median(turn)), float(np.median(off))
+    if angle > options.join_max_frame_angle_deg or dist > options.join_max_distance * path:
+        return (f"the {int(both.sum())} frames both pieces pose disagree: {angle:.2g} deg, "
+                f"{dist / max(path, 1e-300):.0%} of the way the camera went over them")
+    f0 = int(np.flatnonzero(both)[0])
+    return ((sim.rotation, sim.scale, sim.translation), (f0, f0),
+            f"{int(both.sum())} frames in common, {angle:.2g} deg")
+
+
+def _merge(tracks: LineTracks, a: _Solved, b: _Solved, sim: _Sim, at: tuple[int, int],
+           how: str, options: EstimationOptions) -> tuple[_Solved | None, str]:
+    """``b`` moved into ``a``'s world by ``sim`` and merged with it (the frames both pose keep
+    ``a``'s poses), where the camera's speed across the junction (frames ``at`` of ``a`` and
+    ``b``) is kept and the frames around it fit together (:func:`_junction_misfit`); else
+    None and why."""
+    Rs, s, t = sim
+    fa, fb = np.flatnonzero(a.frames), np.flatnonzero(b.frames)
     # lines triangulated near a piece's end fix its depth poorly: the scale must also keep the
     # camera's speed across the break (video does not jump in speed)
-    va, vb = _speed(a.c, fa, int(fa[ka])), abs(s) * _speed(b.c, fb, int(fb[kb]))
+    va, vb = _speed(a.c, fa, at[0]), abs(s) * _speed(b.c, fb, at[1])
     if max(va, vb) > 0 and min(va, vb) < max(va, vb) / options.join_max_speed_ratio:
         return None, (f"the similarity changes the camera's speed across the break by "
                       f"{max(va, vb) / max(min(va, vb), 1e-300):.2g}x")
     R, c = a.R.copy(), a.c.copy()
-    R[b.frames] = np.einsum("ij,fjk->fik", Rs, b.R[b.frames])
-    c[b.frames] = s * b.c[b.frames] @ Rs.T + t
+    only_b = b.frames & ~a.frames  # the frames both pose keep a's poses
+    R[only_b] = np.einsum("ij,fjk->fik", Rs, b.R[only_b])
+    c[only_b] = s * b.c[only_b] @ Rs.T + t
     d, p = a.d.copy(), a.p.copy()
     new = np.isfinite(b.d).all(1) & ~np.isfinite(a.d).all(1)
     d[new] = b.d[new] @ Rs.T
@@ -1044,8 +1123,8 @@ def _join(tracks: LineTracks, a: _Solved, b: _Solved,
     ia, ib = a.init, b.init
     frames = a.frames | b.frames
     r0, c0 = ia.rotations.copy(), ia.positions.copy()
-    r0[b.frames] = np.einsum("ij,fjk->fik", Rs, ib.rotations[b.frames])
-    c0[b.frames] = s * ib.positions[b.frames] @ Rs.T + t
+    r0[only_b] = np.einsum("ij,fjk->fik", Rs, ib.rotations[only_b])
+    c0[only_b] = s * ib.positions[only_b] @ Rs.T + t
     reasons = {k: v for k, v in {**ia.reasons, **ib.reasons}.items() if not frames[k]}
     vpv = np.where(np.isfinite(ia.vpv).all(1, keepdims=True), ia.vpv, ib.vpv)
     init = _Init(r0, c0, frames, ia.windows + ib.windows, ia.failures + ib.failures,
@@ -1055,11 +1134,10 @@ def _join(tracks: LineTracks, a: _Solved, b: _Solved,
     merged = _Solved(init, R, c, frames, d, p, a.used | b.used,
                      (a.outliers | b.outliers) & ~(a.used | b.used), max(a.rms0, b.rms0),
                      max(a.rms1, b.rms1), max(a.sigma, b.sigma))
-    misfit = _junction_misfit(tracks, merged, min(fa[ka], fb[kb]), max(fa[ka], fb[kb]),
-                              options)
+    misfit = _junction_misfit(tracks, merged, min(at), max(at), options)
     if misfit:
         return None, f"the adjustment of the frames around the junction: {misfit}"
-    return merged, f"{sim.lines} common lines, {sim.angle_deg:.2g} deg"
+    return merged, how
 
 
 def _junction_misfit(tracks: LineTracks, sol: _Solved, first: int, last: int,
@@ -1198,18 +1276,12 @@ def _with_segments(tracks: LineTracks, sol: _Solved, options: EstimationOptions,
     t0 = time.perf_counter()
     while todo and len(pieces) - 1 + joined < options.max_segments:
         a, b = todo.pop(0)
-        sub_tracks, idx = frame_range(tracks, a, b)
-        try:
-            sub = _solve_moving(sub_tracks, options, run.at(a))
-        except OmniSfmError as exc:
-            failures[(a, b)] = str(exc)
-            run.record(failed("new start", (a, b - 1), str(exc)))
+        lifted = _new_start(tracks, a, b, options, run, failures)
+        if lifted is None:
             continue
-        lifted = _lift(tracks, sub, a, idx)
-        run.record(Attempt("new start", (a, b - 1), sub, cost_deg=sub.rms1,
-                           why=f"{int(sub.frames.sum())} frames estimated"))
+        reach = _reach_into(tracks, lifted, covered, options, run)
         covered |= lifted.frames
-        todo += [(a + x, a + y) for x, y in runs(~sub.frames)
+        todo += [(a + x, a + y) for x, y in runs(~lifted.frames[a:b])
                  if y - x >= options.min_segment_frames]
         # join the nearest piece in time that shares enough lines with it
         gap = [min(abs(int(np.flatnonzero(q.frames)[0]) - b), abs(int(np.flatnonzero(
@@ -1217,7 +1289,7 @@ def _with_segments(tracks: LineTracks, sol: _Solved, options: EstimationOptions,
         for k in np.argsort(gap, kind="stable"):
             if gap[k] > options.join_max_gap:
                 continue
-            merged, why = _join(tracks, pieces[k], lifted, options)
+            merged, why = _join(tracks, pieces[k], lifted, options, reach)
             fk = np.flatnonzero(pieces[k].frames)
             run.record(Attempt("join", (a, b - 1), merged, why=why,
                                outcome=Outcome.KEPT if merged is not None else Outcome.FAILED),
@@ -1273,6 +1345,62 @@ def _with_segments(tracks: LineTracks, sol: _Solved, options: EstimationOptions,
             "residual_rms_deg": seg.report["residuals"]["rms_final_deg"],
         } for seg in segments]
     return replace(result, report=report, segments=tuple(segments))
+
+
+def _new_start(tracks: LineTracks, a: int, b: int, options: EstimationOptions, run: RunLog,
+               failures: dict[tuple[int, int], str]) -> _Solved | None:
+    """Strategy "new start": the moving camera's solution of frames ``a..b-1`` (none posed,
+    docs/estimator.md stage 8) in the indices of the whole sequence; None where it fails
+    (recorded, and in ``failures``)."""
+    sub_tracks, idx = frame_range(tracks, a, b)
+    try:
+        sub = _solve_moving(sub_tracks, options, run.at(a))
+    except OmniSfmError as exc:
+        failures[(a, b)] = str(exc)
+        run.record(failed("new start", (a, b - 1), str(exc)))
+        return None
+    run.record(Attempt("new start", (a, b - 1), sub, cost_deg=sub.rms1,
+                       why=f"{int(sub.frames.sum())} frames estimated"))
+    return _lift(tracks, sub, a, idx)
+
+
+def _reach_into(tracks: LineTracks, piece: _Solved, covered: np.ndarray,
+                options: EstimationOptions, run: RunLog) -> _Solved | None:
+    """Strategy "overlap": ``piece`` (a new start) grown by the registration from its lines
+    into up to ``restart_overlap`` frames of the pieces beside it (``covered``), so that the
+    two pose some frames in common and are joined by those frames' poses. None where it poses
+    none of them (recorded)."""
+    F, ov = tracks.num_frames, options.restart_overlap
+    fk = np.flatnonzero(piece.frames)
+    a, b = int(fk[0]), int(fk[-1]) + 1
+    lo = max(0, a - ov) if a > 0 and covered[a - 1] else a
+    hi = min(F, b + ov) if b < F and covered[b] else b
+    if ov <= 0 or options.extend is None or (lo, hi) == (a, b):
+        return None
+    sub, idx = frame_range(tracks, lo, hi)
+    keep = ~piece.outliers[idx]
+    rows = slice(lo, hi)
+    try:
+        reg = register_frames(sub.select_tracks(keep), piece.R[rows], piece.c[rows],
+                              piece.frames[rows], piece.d[idx[keep]], piece.p[idx[keep]],
+                              piece.sigma, options.bundle, options.extend)
+    except OmniSfmError as exc:
+        run.record(failed("overlap", (lo, hi - 1), str(exc)))
+        return None
+    R, c, frames = piece.R.copy(), piece.c.copy(), piece.frames.copy()
+    R[rows], c[rows], frames[rows] = reg.rotations, reg.positions, reg.estimated
+    both = int((frames & covered & ~piece.frames).sum())
+    if both == 0:
+        run.record(failed("overlap", (lo, hi - 1), "no frame of the pieces beside it "
+                                                   "registered from its lines"))
+        return None
+    d, p = piece.d.copy(), piece.p.copy()
+    d[idx[keep]], p[idx[keep]] = reg.line_directions, reg.line_points
+    used = piece.used.copy()
+    used[idx[keep]] |= np.isfinite(reg.line_directions).all(1)
+    run.record(Attempt("overlap", (lo, hi - 1), reg,
+                       why=f"{both} frames of the pieces beside it registered"))
+    return replace(piece, R=R, c=c, frames=frames, d=d, p=p, used=used)
 
 
 def _extend(tracks: LineTracks, ba: BundleResult, init: _Init, options: EstimationOptions,
