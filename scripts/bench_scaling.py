@@ -13,8 +13,12 @@ first, the mean rotation error and the ATE (RMS after a similarity alignment, pe
 path length). A run that fails or passes ``--timeout`` is reported with its last error line and
 the next N goes on.
 
+With ``--prefixes`` one walk of the longest length is simulated and each N runs on its first N
+frames: the lengths then differ in nothing else (separate walks differ in how hard they are,
+which the time per frame shows too).
+
     .venv/bin/python scripts/bench_scaling.py [--frames 1000 5000 20000] [--timeout 3600] \
-        [--line-density 3.5]
+        [--line-density 3.5] [--prefixes]
 """
 
 from __future__ import annotations
@@ -34,9 +38,11 @@ import numpy as np
 
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.estimate.pipeline import match_reflection
+from omni_sfm.estimate.segments import frame_range
 from omni_sfm.evaluate import trajectory_errors
-from omni_sfm.poses import read_tum
-from omni_sfm.synth.simulate import SimulationOptions, simulate, write_simulation
+from omni_sfm.lines.tracks import LineTracks, write_tracks
+from omni_sfm.poses import read_tum, write_tum
+from omni_sfm.synth.simulate import Simulation, SimulationOptions, simulate, write_simulation
 from omni_sfm.transforms import associate
 
 # Runs COMMAND with its output in LOG, kills its process group after TIMEOUT seconds, and
@@ -100,19 +106,37 @@ def _errors(traj_path: Path, gt_path: Path, n: int) -> dict[str, str]:
     return out
 
 
-def _run_one(n: int, args: argparse.Namespace, work: Path) -> dict[str, str]:
-    row = {"frames": str(n)}
-    opts = SimulationOptions(world="manhattan", num_views=n, path_length=0.05 * (n - 1),
+def _options(n: int, args: argparse.Namespace) -> SimulationOptions:
+    return SimulationOptions(world="manhattan", num_views=n, path_length=0.05 * (n - 1),
                              noise_deg=args.noise_deg, visible_frames=args.visible_frames,
-                             line_density=args.line_density,
-                             seed=args.seed)
+                             line_density=args.line_density, seed=args.seed)
+
+
+def _write_prefix(sim_dir: Path, sim: Simulation, n: int) -> LineTracks:
+    """The first ``n`` frames of ``sim`` as ``tracks.json`` and ``groundtruth.tum``."""
+    tracks = frame_range(sim.tracks, 0, n)[0]
+    sim_dir.mkdir(parents=True, exist_ok=True)
+    write_tracks(sim_dir / "tracks.json", tracks)
+    write_tum(sim_dir / "groundtruth.tum", sim.groundtruth.subset(np.arange(n)))
+    return tracks
+
+
+def _run_one(n: int, args: argparse.Namespace, work: Path,
+             whole: Simulation | None = None) -> dict[str, str]:
+    row = {"frames": str(n)}
     t0 = time.perf_counter()
-    sim = simulate(opts)
     sim_dir = work / f"sim_{n}"
-    write_simulation(sim_dir, sim, opts)
-    row |= {"lines": str(sim.tracks.num_tracks), "obs": str(sim.tracks.num_observations),
+    if whole is not None:
+        tracks = _write_prefix(sim_dir, whole, n)
+    else:
+        opts = _options(n, args)
+        sim = simulate(opts)
+        write_simulation(sim_dir, sim, opts)
+        tracks = sim.tracks
+        del sim
+    row |= {"lines": str(tracks.num_tracks), "obs": str(tracks.num_observations),
             "sim s": f"{time.perf_counter() - t0:.1f}"}
-    del sim
+    del tracks
     out_dir, log, result = work / f"init_{n}", work / f"init_{n}.log", work / f"init_{n}.json"
     cmd = [sys.executable, "-m", "omni_sfm", "init", "--lines", "--tracks",
            str(sim_dir / "tracks.json"), "--output", str(out_dir), "--quiet", "--overwrite",
@@ -162,6 +186,10 @@ def main() -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--init-args", default="",
                     help="extra arguments for 'omni-sfm init', e.g. '--no-refine'")
+    ap.add_argument("--prefixes", action="store_true",
+                    help="run each length on the first frames of one walk of the longest "
+                         "length (the same place; otherwise each length is a walk of its own, "
+                         "and the time per frame also varies with how hard each walk is)")
     ap.add_argument("--keep", type=Path, default=None,
                     help="keep the simulations, outputs and logs in this folder")
     args = ap.parse_args()
@@ -171,7 +199,8 @@ def main() -> int:
     print(f"# omni-sfm init --lines {args.init_args}".rstrip()
           + f" on Manhattan walks (0.05 m a frame, lines seen in about {args.visible_frames} "
           f"frames, {args.line_density:g} lines per metre), noise {args.noise_deg} deg, "
-          f"seed {args.seed}, timeout {args.timeout:g} s; "
+          f"seed {args.seed}{', each the first frames of one walk' if args.prefixes else ''}"
+          f", timeout {args.timeout:g} s; "
           f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, load average "
           f"{load:.1f}, OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', '1')}")
     print("# rot@500, rot@last, rot mean: rotation error (deg) relative to the first frame; "
@@ -180,9 +209,10 @@ def main() -> int:
     with tempfile.TemporaryDirectory(prefix="bench_scaling_") as tmp:
         work = Path(tmp) if args.keep is None else args.keep
         work.mkdir(parents=True, exist_ok=True)
+        whole = simulate(_options(max(args.frames), args)) if args.prefixes else None
         for n in args.frames:
             try:
-                row = _run_one(n, args, work)
+                row = _run_one(n, args, work, whole)
             except (OmniSfmError, OSError, MemoryError) as exc:
                 row = {"frames": str(n), "note": f"{type(exc).__name__}: {exc}"}
             _print_row(row)

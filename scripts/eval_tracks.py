@@ -17,7 +17,8 @@ scores; ``--no-second-start`` runs the estimator without it
 (``EstimationOptions.short_bootstrap_frames=None``) and ``--bootstrap 100`` with the second
 start's chain alone, to measure each on the same input.
 
-``--perturb N`` also runs the estimator N more times on each input with its normals turned by
+``--blocks N`` also prints the mean rotation error of each block of N frames. ``--perturb N``
+also runs the estimator N more times on each input with its normals turned by
 about 1e-7 (random, seeds 1..N): a result that changes with the last bits of the input is
 chaotic, and one run of it says little (docs/results.md, the stop-and-go walk).
 
@@ -66,6 +67,16 @@ def _errors(traj: Trajectory, gt: Trajectory, positions: bool) -> str:
             f"deg (max / mean), ATE {100 * err.ate_rel:.3f} %")
 
 
+def _blocks(traj: Trajectory, gt: Trajectory, n: int) -> str:
+    """The mean rotation error (relative to the first frame) of each block of ``n`` frames,
+    by the blocks' first frame index (timestamps matched to the ground truth's frames)."""
+    e, g = associate(traj, gt)
+    rot = relative_rotation_errors_deg(e, g)
+    frame = np.searchsorted(gt.timestamps, g.timestamps)
+    block = frame // n
+    return ", ".join(f"{b * n}: {rot[block == b].mean():.2f}" for b in np.unique(block))
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("pairs", nargs="+", help="INIT_DIR:RENDER_DIR (or INIT_DIR ending in -init)")
@@ -73,6 +84,10 @@ def main() -> int:
                     help="also N runs with the normals perturbed by about 1e-7 (default 0)")
     ap.add_argument("--frames", type=int, nargs=2, metavar=("START", "STOP"),
                     help="only these frames (STOP excluded)")
+    ap.add_argument("--blocks", type=int, default=0, metavar="N",
+                    help="also the main trajectory's mean rotation error per block of N frames "
+                         "(where the error comes from: drift grows along the blocks, a stretch "
+                         "turned against the rest shows as a step)")
     ap.add_argument("--no-second-start", action="store_true",
                     help="without the second start (short_bootstrap_frames=None)")
     ap.add_argument("--bootstrap", type=int, default=EstimationOptions().bootstrap_frames,
@@ -102,6 +117,8 @@ def main() -> int:
         print(f"{init_dir.name}: {int(res.estimated.sum())}/{tracks.num_frames} in the main "
               f"trajectory, {in_segs} in {len(res.segments)} segments, {wall:.1f} s")
         print(f"  main: {_errors(res.trajectory, gt, moving)}")
+        if args.blocks > 0:
+            print(f"  per {args.blocks} frames: {_blocks(res.trajectory, gt, args.blocks)}")
         for a in res.report.get("attempts", []):
             if a["strategy"] in ("short bootstrap", "merged starts"):
                 print(f"  {a['strategy']}: {a['result']}: {a.get('why', '')}")
