@@ -13,7 +13,12 @@ import pytest
 from omni_sfm.cli import main
 from omni_sfm.estimate.bundle import resect_pose
 from omni_sfm.estimate.incremental import centre_given_rotation, rotation_from_directions
-from omni_sfm.estimate.pipeline import estimate_poses, match_reflection, write_init_outputs
+from omni_sfm.estimate.pipeline import (
+    EstimationOptions,
+    estimate_poses,
+    match_reflection,
+    write_init_outputs,
+)
 from omni_sfm.evaluate import trajectory_errors
 from omni_sfm.geometry import line_plane_normals, normalize, rotvec_to_matrix
 from omni_sfm.lines.tracks import LineTracks, make_tracks, write_tracks
@@ -140,6 +145,9 @@ def test_a_gap_gives_a_separate_segment(tmp_path: Path) -> None:
     # the new start's own windows are recorded too, in the frames of the whole sequence
     assert any(a["strategy"] == "paper window" and a["frames"][0] >= 50
                for a in res.report["attempts"])
+    # no new start where none is allowed (by default as many as the stretches left need)
+    capped = estimate_poses(tracks, EstimationOptions(max_segments=0))
+    assert not capped.segments and not capped.estimated[50:].any()
     written = write_init_outputs(tmp_path, res)
     assert tmp_path / "trajectory_segment_1.tum" in written
     assert len(read_tum(tmp_path / "trajectory_segment_1.tum")) == 40
@@ -201,7 +209,7 @@ def test_a_short_run_turned_by_a_half_turn_is_turned_back() -> None:
     # vertical (as a window's solution can come out where the view fits both): the repair
     # turns them back from their lines, and only them
     from omni_sfm.estimate.attempts import RunLog
-    from omni_sfm.estimate.pipeline import EstimationOptions, _Init, _repair_half_turns, _Solved
+    from omni_sfm.estimate.pipeline import _Init, _repair_half_turns, _Solved
     from omni_sfm.geometry import rotation_angle
 
     sim = simulate(SimulationOptions(num_views=40, num_parallel=10, num_other=10, seed=3))

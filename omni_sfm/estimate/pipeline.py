@@ -131,8 +131,11 @@ class EstimationOptions:
     """Where the registration stops and at least this many frames remain without a pose, the
     estimator starts again on them: a new segment in its own world and scale
     (``trajectory_segment_<k>.tum``). 0: no new segments."""
-    max_segments: int = 50
-    """At most this many new starts (joined or not)."""
+    max_segments: int | None = None
+    """At most this many new starts (joined or not); None: as many as the stretches left
+    without a pose need (each is at least ``min_segment_frames`` long, so a sequence of F
+    frames has fewer than F / ``min_segment_frames`` new starts beside those that fail; a fixed
+    cap left the later parts of a long video without a pose)."""
     join_max_angle_deg: float = 1.0
     """Two pieces are joined when their common lines' directions agree within this (median,
     degrees) under the similarity between them ..."""
@@ -1274,7 +1277,8 @@ def _with_segments(tracks: LineTracks, sol: _Solved, options: EstimationOptions,
     failures: dict[tuple[int, int], str] = {}
     joined = 0
     t0 = time.perf_counter()
-    while todo and len(pieces) - 1 + joined < options.max_segments:
+    cap = options.max_segments
+    while todo and (cap is None or len(pieces) - 1 + joined < cap):
         a, b = todo.pop(0)
         lifted = _new_start(tracks, a, b, options, run, failures)
         if lifted is None:
