@@ -152,10 +152,10 @@ class EstimationOptions:
     """... the camera's speed (median step) on the two sides of the junction differs by at
     most this factor under the similarity ..."""
     restart_overlap: int = 30
-    """A new start next to a piece takes this many of that piece's frames too, so that the two
-    pieces pose some frames in common and are joined by those frames' poses (better fixed than
-    by the few lines they share); where that start fails or poses none of the frames it is
-    for, it is made again without them. 0: new starts only on the frames without a pose."""
+    """A new start next to a piece is grown, by the registration from its own lines, into up
+    to this many of that piece's frames (strategy "overlap"), so that the two pieces pose some
+    frames in common and are joined by those frames' poses (better fixed than by the few lines
+    they share). 0: joined by their common lines only."""
     join_min_frames: int = 5
     """Two pieces that pose at least this many frames in common are joined by the similarity
     of those frames' poses (their rotations within ``join_max_frame_angle_deg``, median, and
