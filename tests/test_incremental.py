@@ -204,6 +204,41 @@ def test_a_walk_along_the_largest_family_uses_another_one() -> None:
     assert err.rot_max_deg < 0.2 and err.ate_rel < 0.005
 
 
+def test_an_adjustment_stopped_short_is_adjusted_again_from_its_result() -> None:
+    # the strategy "adjustment from its own result": from an adjustment that stopped short
+    # (one iteration from poses 1 deg and 2 cm off) it adjusts again and keeps the result,
+    # which lowers the cost on all tracks; from that converged result it changes nothing
+    from omni_sfm.estimate.attempts import RunLog
+    from omni_sfm.estimate.bundle import BundleOptions, bundle_adjust
+    from omni_sfm.estimate.pipeline import _readjusted
+
+    sim = simulate(SimulationOptions(num_views=30, num_parallel=10, num_other=10,
+                                     noise_deg=0.1, seed=5))
+    g = sim.groundtruth
+    rng = np.random.default_rng(0)
+    R = g.rotations @ np.stack([rotvec_to_matrix(v) for v in
+                                rng.normal(scale=np.radians(1.0) / np.sqrt(3), size=(30, 3))])
+    c = g.positions + rng.normal(scale=0.02, size=(30, 3))
+    nan = np.full((sim.tracks.num_tracks, 3), np.nan)
+    short = bundle_adjust(sim.tracks, R, c, nan, nan,
+                          options=BundleOptions(max_rounds=1, robust_iterations=1,
+                                                final_loss=None))
+    run = RunLog()
+    again = _readjusted(sim.tracks, short, EstimationOptions(), run)
+    kept = [a for a in run.entries if a["result"] == "kept"]
+    assert kept and all(a["strategy"] == "adjustment from its own result" for a in run.entries)
+    assert again.rms_final_deg < short.rms_final_deg
+    # where the whole adjustment from the same start ends
+    full = bundle_adjust(sim.tracks, R, c, nan, nan)
+    errors = [trajectory_errors(Trajectory(g.timestamps, b.rotations, b.positions), g)
+              for b in (short, again, full)]
+    assert errors[1].rot_mean_deg < errors[0].rot_mean_deg
+    assert errors[1].rot_mean_deg <= 1.01 * errors[2].rot_mean_deg
+    run = RunLog()
+    assert _readjusted(sim.tracks, again, EstimationOptions(), run) is again
+    assert [a["result"] for a in run.entries] == ["rejected"]
+
+
 def test_a_short_run_turned_by_a_half_turn_is_turned_back() -> None:
     # the exact solution of a simulated walk with frames 20-22 turned by 180 deg about the
     # vertical (as a window's solution can come out where the view fits both): the repair
@@ -240,9 +275,9 @@ def test_a_short_run_turned_by_a_half_turn_is_turned_back() -> None:
 
 
 @pytest.mark.parametrize(("seed", "strategy", "how"), [
-    # before the adjustment from its own result (and the wide adjustments of the
-    # registration) this seed came out at 2.6x
-    (1, "adjustment from its own result", "kept"),
+    # the main start reaches the oracle (it took the adjustment from its own result, tested
+    # alone above, until the adjustment of a few frames ran on those frames alone)
+    (1, None, None),
     # the chain of windows over all 600 frames drifts (22.8 deg mean rotation error, 592
     # frames) and the adjustment stays in that basin; the second start (a chain on the first
     # 100 frames, the registration posing the rest) wins on the capped score over every
@@ -259,7 +294,8 @@ def test_a_short_run_turned_by_a_half_turn_is_turned_back() -> None:
     # piece's frames, whose poses join the two (before: 532 frames and a segment of 68)
     (4, "join", "frames in common"),
 ])
-def test_sparse_tracks_reach_the_oracle(seed: int, strategy: str, how: str) -> None:
+def test_sparse_tracks_reach_the_oracle(seed: int, strategy: str | None,
+                                       how: str | None) -> None:
     """The every-frame issue's sparse case (600 frames, 4-13 lines a frame, each seen for about
     60 frames, 0.1 deg noise): every frame in one trajectory, rotation and translation errors
     within 2x of the maximum-likelihood oracle's, through the strategy named (kept, its
@@ -277,5 +313,6 @@ def test_sparse_tracks_reach_the_oracle(seed: int, strategy: str, how: str) -> N
                                       o.positions[o.frames]), g)
     assert e.rot_mean_deg <= 2.0 * eo.rot_mean_deg
     assert e.paper_trans.mean() <= 2.0 * eo.paper_trans.mean()
-    assert any(a["result"] == "kept" and (how == "kept" or how in a.get("why", ""))
-               for a in res.report["attempts"] if a["strategy"] == strategy)
+    assert strategy is None or any(
+        a["result"] == "kept" and (how == "kept" or str(how) in a.get("why", ""))
+        for a in res.report["attempts"] if a["strategy"] == strategy)

@@ -39,7 +39,7 @@ problem solved again.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from enum import StrEnum
 from typing import Any
 
@@ -844,6 +844,19 @@ def bundle_adjust(tracks: LineTracks, rotations: FloatArray, positions: FloatArr
     """
     t0 = time.perf_counter()
     state, fr = _initial_state(tracks, rotations, positions, line_directions, line_points, frames)
+    F, M = tracks.num_frames, tracks.num_tracks
+    obs = np.flatnonzero(fr[tracks.obs_frame])
+    lines = np.unique(tracks.obs_track[obs])
+    keep = np.flatnonzero(fr)
+    if 2 * len(keep) < F or 2 * len(lines) < M:
+        # a few frames of a long sequence (a new start, a join): the problem on those frames
+        # and the tracks they see alone, so that its cost does not grow with the sequence
+        R, c, d, p = state
+        sub = bundle_adjust(tracks.subset(obs, lines, keep), R[keep], c[keep], d[lines],
+                            p[lines], scale_frames=_rows(scale_frames, keep),
+                            held_frames=_rows(held_frames, keep),
+                            held_directions=_rows(held_directions, lines), options=options)
+        return _scattered(sub, keep, lines, F, M, t0)
     adj = _Adjustment(tracks, state, fr, scale_frames, options, held_frames, held_directions)
     for round_ in range(max(1, options.max_rounds)):
         if adj.robust_round(round_):
@@ -851,6 +864,30 @@ def bundle_adjust(tracks: LineTracks, rotations: FloatArray, positions: FloatArr
     if options.final_loss is not None:
         adj.polish(options.final_loss)
     return adj.result(t0)
+
+
+def _rows(a: np.ndarray | None, idx: np.ndarray) -> np.ndarray | None:
+    return None if a is None else np.asarray(a, bool)[idx]
+
+
+def _scattered(res: BundleResult, frames: np.ndarray, lines: np.ndarray, F: int, M: int,
+               t0: float) -> BundleResult:
+    """``res``, the adjustment of frames ``frames`` and tracks ``lines`` alone, in the indices
+    of the whole sequence (``F`` frames, ``M`` tracks; NaN or False elsewhere)."""
+    def grow(a: np.ndarray, idx: np.ndarray, size: int, fill: Any) -> np.ndarray:
+        out = np.full((size,) + a.shape[1:], fill, dtype=a.dtype)
+        out[idx] = a
+        return out
+
+    return replace(res, rotations=grow(res.rotations, frames, F, np.nan),
+                   positions=grow(res.positions, frames, F, np.nan),
+                   line_directions=grow(res.line_directions, lines, M, np.nan),
+                   line_points=grow(res.line_points, lines, M, np.nan),
+                   frames=grow(res.frames, frames, F, False),
+                   used_tracks=grow(res.used_tracks, lines, M, False),
+                   outlier_tracks=grow(res.outlier_tracks, lines, M, False),
+                   track_rms_deg=grow(res.track_rms_deg, lines, M, np.nan),
+                   time_ms=(time.perf_counter() - t0) * 1e3)
 
 
 def _plane_spread(tracks: LineTracks, R: FloatArray, frames: np.ndarray, M: int) -> FloatArray:

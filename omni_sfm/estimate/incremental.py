@@ -353,7 +353,7 @@ class _Growth:
         if not ready.any():
             return
         keep = ready[local_t]
-        sub = subtracks(tracks, obs[keep], cand)
+        sub = tracks.subset(obs[keep], cand)
         dd, pp, ok = triangulate_lines(sub, self.R, self.c, min_observations=o.min_views)
         ang = observation_residuals(sub, self.R, self.c, dd, pp)
         rms = np.sqrt(np.bincount(sub.obs_track, ang ** 2, len(cand)) /
@@ -381,7 +381,7 @@ class _Growth:
             p, spread = point_given_direction(n_w[mine], c, D)
             if np.degrees(spread) < o.min_parallax_deg:
                 continue
-            sub = subtracks(tracks, obs[mine], np.array([t]))
+            sub = tracks.subset(obs[mine], np.array([t]))
             ang = observation_residuals(sub, self.R, self.c, D[None], p[None])
             if float(np.sqrt(np.mean(ang ** 2))) <= self.thr:
                 self.d[t], self.p[t], self.known[t] = D, p, True
@@ -405,7 +405,7 @@ class _Growth:
         if len(held) == 0:
             return
         lines = np.sort(lines)
-        sub = subtracks(tracks, obs, lines, frames)
+        sub = tracks.subset(obs, lines, frames)
         held_sub = np.isin(frames, held)
         c_held = self.c[held]
         spread = len(held) > 1 and float(np.ptp(c_held, axis=0).max()) > 0
@@ -468,24 +468,6 @@ class _Growth:
                     self.stops.append((first_miss, step))
                     return
             f += step
-
-
-def subtracks(tracks: LineTracks, obs: np.ndarray, lines: np.ndarray,
-               frames: np.ndarray | None = None) -> LineTracks:
-    """The observations ``obs`` as tracks ``0..len(lines)-1`` (``lines`` sorted); their frames
-    renumbered ``0..len(frames)-1`` if ``frames`` (sorted) is given, else kept."""
-    f = tracks.obs_frame[obs]
-    num = tracks.num_frames
-    ts = tracks.timestamps
-    if frames is not None:
-        f = np.searchsorted(frames, f)
-        num, ts = len(frames), tracks.timestamps[frames]
-    return LineTracks(
-        num_frames=num, track_ids=tracks.track_ids[lines],
-        obs_track=np.searchsorted(lines, tracks.obs_track[obs]), obs_frame=f,
-        obs_normal=tracks.obs_normal[obs], timestamps=ts,
-        obs_ray=None if tracks.obs_ray is None else tracks.obs_ray[obs],
-        obs_sigma=None if tracks.obs_sigma is None else tracks.obs_sigma[obs])
 
 
 def register_frames(tracks: LineTracks, rotations: FloatArray, positions: FloatArray,

@@ -39,7 +39,6 @@ from omni_sfm.estimate.incremental import (
     IncrementalOptions,
     obs_index,
     register_frames,
-    subtracks,
 )
 from omni_sfm.estimate.paper import PaperOptions, PaperSolution, estimate_paper
 from omni_sfm.estimate.rotation_only import (
@@ -775,23 +774,7 @@ def _solve_moving(tracks: LineTracks, options: EstimationOptions, run: RunLog) -
             if att.solution is None:
                 run.record(att)
             else:
-                # the two solutions rejected different tracks: they are compared on all of
-                # them, each track's misfit capped at the outlier limit
-                ba2 = att.solution[1]
-                limit = outlier_limit(np.radians(ba.sigma_deg), options.bundle)
-                both = ba.frames & ba2.frames
-                score = [_capped_rms_deg(tracks, b.rotations, b.positions, both, limit)
-                         for b in (ba, ba2)]
-                why = (f"{att.why}; all tracks, misfits capped at {np.degrees(limit):.3g} deg: "
-                       f"{score[1]:.4g} deg RMS, {score[0]:.4g} with the outliers")
-                if ba2.frames.sum() >= ba.frames.sum() and score[1] <= score[0]:
-                    run.record(replace(att, why=why))
-                    init, ba = att.solution
-                else:
-                    fewer = ba2.frames.sum() < ba.frames.sum()
-                    run.record(att.judged(Outcome.REJECTED, why + (
-                        f" (and {int(ba2.frames.sum())} frames against "
-                        f"{int(ba.frames.sum())})" if fewer else "")))
+                init, ba = _judge_restart(tracks, att, init, ba, options, run)
         ba = _readjusted(tracks, ba, options, run)
         if options.extend is not None and not ba.frames.all():
             ba, init = _extend(tracks, ba, init, options, run)
@@ -811,6 +794,34 @@ def _solve_moving(tracks: LineTracks, options: EstimationOptions, run: RunLog) -
     if options.refine:
         sol = _repair_half_turns(tracks, sol, options, run)
     return sol
+
+
+def _judge_restart(tracks: LineTracks, att: Attempt[tuple[_Init, BundleResult]], init: _Init,
+                   ba: BundleResult, options: EstimationOptions,
+                   run: RunLog) -> tuple[_Init, BundleResult]:
+    """The restart without outliers (``att``) against the first solution ``init, ba``: the two
+    rejected different tracks, so they are compared on all of them in the frames both pose,
+    each track's misfit capped at the outlier limit; the one kept (the restart where it poses
+    as many frames and scores no worse) and the judgement recorded."""
+    assert att.solution is not None
+    ba2 = att.solution[1]
+    both = ba.frames & ba2.frames
+    if both.sum() < 3:  # its chain started elsewhere: nothing to compare them on
+        run.record(att.judged(Outcome.REJECTED, f"{att.why}; {int(both.sum())} frames in "
+                                                f"common with the first solution"))
+        return init, ba
+    limit = outlier_limit(np.radians(ba.sigma_deg), options.bundle)
+    score = [_capped_rms_deg(tracks, b.rotations, b.positions, both, limit) for b in (ba, ba2)]
+    why = (f"{att.why}; all tracks, misfits capped at {np.degrees(limit):.3g} deg: "
+           f"{score[1]:.4g} deg RMS, {score[0]:.4g} with the outliers")
+    if ba2.frames.sum() >= ba.frames.sum() and score[1] <= score[0]:
+        run.record(replace(att, why=why))
+        return att.solution
+    fewer = ba2.frames.sum() < ba.frames.sum()
+    run.record(att.judged(Outcome.REJECTED, why + (
+        f" (and {int(ba2.frames.sum())} frames against {int(ba.frames.sum())})"
+        if fewer else "")))
+    return init, ba
 
 
 def _readjusted(tracks: LineTracks, ba: BundleResult, options: EstimationOptions,
@@ -1163,7 +1174,7 @@ def _junction_misfit(tracks: LineTracks, sol: _Solved, first: int, last: int,
     held = ~free[frames]
     if len(lines) < 3 or not held.any():
         return f"{len(lines)} lines seen around it, {int(held.sum())} frames to hold"
-    sub = subtracks(tracks, obs, lines, frames)
+    sub = tracks.subset(obs, lines, frames)
     spread = held.sum() > 1 and float(np.ptp(sol.c[frames[held]], axis=0).max()) > 0
     try:
         ba = bundle_adjust(sub, sol.R[frames], sol.c[frames], sol.d[lines], sol.p[lines],

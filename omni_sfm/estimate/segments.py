@@ -13,7 +13,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from omni_sfm.estimate.incremental import subtracks
 from omni_sfm.estimate.rotation_only import procrustes
 from omni_sfm.geometry import FloatArray, rotation_angle
 from omni_sfm.lines.tracks import LineTracks
@@ -24,7 +23,7 @@ def frame_range(tracks: LineTracks, start: int, stop: int) -> tuple[LineTracks, 
     for each of its tracks the index of the track in ``tracks``."""
     keep = np.flatnonzero((tracks.obs_frame >= start) & (tracks.obs_frame < stop))
     used = np.unique(tracks.obs_track[keep])
-    return subtracks(tracks, keep, used, np.arange(start, stop)), used
+    return tracks.subset(keep, used, np.arange(start, stop)), used
 
 
 def runs(mask: np.ndarray) -> list[tuple[int, int]]:

@@ -94,6 +94,23 @@ class LineTracks:
                           None if self.obs_ray is None else self.obs_ray[sel],
                           None if self.obs_sigma is None else self.obs_sigma[sel])
 
+    def subset(self, obs: np.ndarray, lines: np.ndarray,
+               frames: np.ndarray | None = None) -> LineTracks:
+        """The observations ``obs`` (indices, in order) as tracks ``0..len(lines)-1`` (``lines``
+        sorted, holding every track of ``obs``); their frames renumbered ``0..len(frames)-1`` if
+        ``frames`` (sorted, holding every frame of ``obs``) is given, else kept."""
+        f = self.obs_frame[obs]
+        num, ts = self.num_frames, self.timestamps
+        if frames is not None:
+            f = np.searchsorted(frames, f)
+            num, ts = len(frames), self.timestamps[frames]
+        return LineTracks(
+            num_frames=num, track_ids=self.track_ids[lines],
+            obs_track=np.searchsorted(lines, self.obs_track[obs]), obs_frame=f,
+            obs_normal=self.obs_normal[obs], timestamps=ts,
+            obs_ray=None if self.obs_ray is None else self.obs_ray[obs],
+            obs_sigma=None if self.obs_sigma is None else self.obs_sigma[obs])
+
     def to_json_dict(self) -> dict[str, Any]:
         tracks = []
         for m in range(self.num_tracks):
