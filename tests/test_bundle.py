@@ -252,3 +252,21 @@ def test_truncated_cost_ranks_solutions_on_all_tracks():
     assert wrong <= limit ** 2 and right < 0.2 * wrong
     # each outlier track costs at most the cap: 10 % of the tracks at 0.5 deg give 0.16 deg
     assert np.degrees(np.sqrt(right)) < 0.2
+
+
+def test_a_line_through_a_camera_is_left_out_of_the_polish_when_asked() -> None:
+    # BundleOptions.min_distance_ratio: a line moved to pass through camera 10's centre (its
+    # plane there undefined) is left out of the polish at 0.01, kept at 0 (the default)
+    sim = simulate(SimulationOptions(num_views=30, num_parallel=10, num_other=10,
+                                     noise_deg=0.1, seed=2))
+    g, tr = sim.groundtruth, sim.tracks
+    m = int(tr.obs_track[tr.obs_frame == 10][-1])  # a line camera 10 sees
+    d, p = sim.line_directions.copy(), sim.line_points.copy()
+    q = g.positions[10]
+    p[m] = q - np.dot(q, d[m]) * d[m]  # the same direction, through the camera's centre
+    kept = bundle_adjust(tr, g.rotations, g.positions, d, p,
+                         options=BundleOptions(reject_outliers=False))
+    left = bundle_adjust(tr, g.rotations, g.positions, d, p,
+                         options=BundleOptions(reject_outliers=False, min_distance_ratio=0.01))
+    assert kept.used_tracks[m] and not left.used_tracks[m]
+    assert (left.used_tracks | (np.arange(tr.num_tracks) == m)).all()

@@ -1281,26 +1281,30 @@ def _with_segments(tracks: LineTracks, sol: _Solved, options: EstimationOptions,
     join each new piece to the main one where common lines fix the similarity, else keep it
     as a segment in its own world and scale; then the result of the main one."""
     covered = sol.frames.copy()
-    todo = [r for r in runs(~covered) if r[1] - r[0] >= max(options.min_segment_frames, 3)] \
-        if options.min_segment_frames > 0 else []
+    todo = _stretches(covered, 0, tracks.num_frames, options)
     pieces = [sol]  # the main piece first
     grown = [False]
     failures: dict[tuple[int, int], str] = {}
     joined = 0
     t0 = time.perf_counter()
     cap = options.max_segments
+    tried: set[tuple[int, int]] = set()
     while todo and (cap is None or len(pieces) - 1 + joined < cap):
         a, b = todo.pop(0)
+        if (a, b) in tried:  # a widened stretch the new start on it left without a pose
+            continue
+        tried.add((a, b))
         lifted = _new_start(tracks, a, b, options, run, failures)
         if lifted is None:
             continue
         reach = _reach_into(tracks, lifted, covered, options, run)
+        if reach is None and (lifted.frames & covered).any():
+            reach = lifted  # a short stretch widened into its neighbour's frames
         covered |= lifted.frames
-        todo += [(a + x, a + y) for x, y in runs(~lifted.frames[a:b])
-                 if y - x >= options.min_segment_frames]
+        todo += _stretches(covered, a, b, options)
         # join the nearest piece in time that shares enough lines with it
-        gap = [min(abs(int(np.flatnonzero(q.frames)[0]) - b), abs(int(np.flatnonzero(
-            q.frames)[-1]) - a)) for q in pieces]
+        gap = [max(0, int(np.flatnonzero(q.frames)[0]) - b, a - int(np.flatnonzero(
+            q.frames)[-1])) for q in pieces]
         for k in np.argsort(gap, kind="stable"):
             if gap[k] > options.join_max_gap:
                 continue
@@ -1318,9 +1322,11 @@ def _with_segments(tracks: LineTracks, sol: _Solved, options: EstimationOptions,
             grown.append(False)
     for k in np.flatnonzero(grown):
         pieces[k] = _adjusted(tracks, pieces[k], options, run, "joining pieces")
-    run.timings["segments"] += (time.perf_counter() - t0) * 1e3
     # the main trajectory is the largest piece
     pieces.sort(key=lambda q: -int(q.frames.sum()))
+    if any(grown):
+        pieces[0] = _registered_again(tracks, pieces[0], options, run)
+    run.timings["segments"] += (time.perf_counter() - t0) * 1e3
     result = _moving_result(tracks, pieces[0], run, t_all)
     report = dict(result.report)
     report["joined_pieces"] = joined
@@ -1336,8 +1342,9 @@ def _with_segments(tracks: LineTracks, sol: _Solved, options: EstimationOptions,
                 reasons_lost[str(int(g))] = (f"its segment (frames {fk[0]}-{fk[-1]}) has no "
                                              f"world and scale: {exc}")
             continue
-        segments.append(Segment(len(segments) + 1, r.estimated & ~result.estimated,
-                                r.trajectory, r.report))
+        own = r.estimated & ~result.estimated
+        if own.any():  # a widened new start may pose only frames the main piece poses
+            segments.append(Segment(len(segments) + 1, own, r.trajectory, r.report))
     reasons = {**report.get("frames_not_estimated_reasons", {}), **reasons_lost}
     for seg in segments:
         for f in np.flatnonzero(seg.frames):
@@ -1360,6 +1367,61 @@ def _with_segments(tracks: LineTracks, sol: _Solved, options: EstimationOptions,
             "residual_rms_deg": seg.report["residuals"]["rms_final_deg"],
         } for seg in segments]
     return replace(result, report=report, segments=tuple(segments))
+
+
+def _registered_again(tracks: LineTracks, sol: _Solved, options: EstimationOptions,
+                      run: RunLog) -> _Solved:
+    """Strategy "registration after joins": the frames before and after the piece ``sol``
+    registered from the lines it knows now (the pieces joined to it bring lines that the first
+    registration lacked), then the adjustment of the piece; ``sol`` as it is where no frame is
+    added (recorded)."""
+    F = tracks.num_frames
+    if options.extend is None or sol.frames.all():
+        return sol
+    keep = ~sol.outliers
+    try:
+        reg = register_frames(tracks.select_tracks(keep), sol.R, sol.c, sol.frames, sol.d[keep],
+                              sol.p[keep], sol.sigma, options.bundle, options.extend)
+    except OmniSfmError as exc:
+        run.record(failed("registration after joins", (0, F - 1), str(exc)))
+        return sol
+    added = reg.estimated & ~sol.frames
+    if not added.any():
+        run.record(failed("registration after joins", (0, F - 1), "no frame added"))
+        return sol
+    run.record(Attempt("registration after joins", (0, F - 1), reg,
+                       why=f"{int(added.sum())} frames added"))
+    d, p, used = sol.d.copy(), sol.p.copy(), sol.used.copy()
+    d[keep], p[keep] = reg.line_directions, reg.line_points
+    used[keep] |= np.isfinite(reg.line_directions).all(1)
+    R0, c0 = sol.init.rotations.copy(), sol.init.positions.copy()
+    R0[added], c0[added] = reg.rotations[added], reg.positions[added]
+    init = replace(sol.init, rotations=R0, positions=c0, frames=reg.estimated)
+    return _adjusted(tracks, replace(sol, init=init, R=reg.rotations, c=reg.positions,
+                                     frames=reg.estimated, d=d, p=p, used=used), options, run,
+                     "registration after joins")
+
+
+def _stretches(covered: np.ndarray, a: int, b: int,
+               options: EstimationOptions) -> list[tuple[int, int]]:
+    """The stretches of frames ``a..b-1`` without a pose (``~covered``) to start again on:
+    those of ``min_segment_frames`` or more, and shorter ones of 3 or more next to posed
+    frames widened into them to that length (the new start then poses frames in common with
+    the piece beside it, by which the two are joined)."""
+    n, F = options.min_segment_frames, len(covered)
+    if n <= 0:
+        return []
+    out = []
+    for x, y in runs(~covered[a:b]):
+        x, y = a + x, a + y
+        if y - x >= n:
+            out.append((x, y))
+        elif y - x >= 3 and n <= F:
+            if x > 0 and covered[x - 1]:
+                out.append((max(0, y - n), max(y, n)))
+            elif y < F and covered[y]:
+                out.append((min(x, F - n), min(F, x + n)))
+    return out
 
 
 def _new_start(tracks: LineTracks, a: int, b: int, options: EstimationOptions, run: RunLog,
