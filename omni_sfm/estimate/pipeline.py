@@ -1371,34 +1371,23 @@ def _with_segments(tracks: LineTracks, sol: _Solved, options: EstimationOptions,
 
 def _registered_again(tracks: LineTracks, sol: _Solved, options: EstimationOptions,
                       run: RunLog) -> _Solved:
-    """Strategy "registration after joins": the frames before and after the piece ``sol``
-    registered from the lines it knows now (the pieces joined to it bring lines that the first
-    registration lacked), then the adjustment of the piece; ``sol`` as it is where no frame is
-    added (recorded)."""
-    F = tracks.num_frames
-    if options.extend is None or sol.frames.all():
+    """Strategy "registration after joins": up to ``restart_overlap`` frames before and after
+    the piece ``sol`` registered from the lines it knows now (the pieces joined to it bring
+    lines that its first registration lacked), then the adjustment of the piece; ``sol`` as
+    it is where no frame is added (recorded). The reach is bounded: registered on and on, the
+    piece ran into stretches that the other pieces pose better (measured: a 5,000-frame walk
+    of scripts/bench_scaling.py, 338 frames added and 18.8 % ATE)."""
+    if sol.frames.all():
         return sol
-    keep = ~sol.outliers
-    try:
-        reg = register_frames(tracks.select_tracks(keep), sol.R, sol.c, sol.frames, sol.d[keep],
-                              sol.p[keep], sol.sigma, options.bundle, options.extend)
-    except OmniSfmError as exc:
-        run.record(failed("registration after joins", (0, F - 1), str(exc)))
+    grown = _reach_into(tracks, sol, np.ones(tracks.num_frames, bool), options, run,
+                        "registration after joins")
+    if grown is None:
         return sol
-    added = reg.estimated & ~sol.frames
-    if not added.any():
-        run.record(failed("registration after joins", (0, F - 1), "no frame added"))
-        return sol
-    run.record(Attempt("registration after joins", (0, F - 1), reg,
-                       why=f"{int(added.sum())} frames added"))
-    d, p, used = sol.d.copy(), sol.p.copy(), sol.used.copy()
-    d[keep], p[keep] = reg.line_directions, reg.line_points
-    used[keep] |= np.isfinite(reg.line_directions).all(1)
+    added = grown.frames & ~sol.frames
     R0, c0 = sol.init.rotations.copy(), sol.init.positions.copy()
-    R0[added], c0[added] = reg.rotations[added], reg.positions[added]
-    init = replace(sol.init, rotations=R0, positions=c0, frames=reg.estimated)
-    return _adjusted(tracks, replace(sol, init=init, R=reg.rotations, c=reg.positions,
-                                     frames=reg.estimated, d=d, p=p, used=used), options, run,
+    R0[added], c0[added] = grown.R[added], grown.c[added]
+    init = replace(sol.init, rotations=R0, positions=c0, frames=grown.frames)
+    return _adjusted(tracks, replace(grown, init=init), options, run,
                      "registration after joins")
 
 
@@ -1442,7 +1431,8 @@ def _new_start(tracks: LineTracks, a: int, b: int, options: EstimationOptions, r
 
 
 def _reach_into(tracks: LineTracks, piece: _Solved, covered: np.ndarray,
-                options: EstimationOptions, run: RunLog) -> _Solved | None:
+                options: EstimationOptions, run: RunLog,
+                strategy: str = "overlap") -> _Solved | None:
     """Strategy "overlap": ``piece`` (a new start) grown by the registration from its lines
     into up to ``restart_overlap`` frames of the pieces beside it (``covered``), so that the
     two pose some frames in common and are joined by those frames' poses. None where it poses
@@ -1462,20 +1452,20 @@ def _reach_into(tracks: LineTracks, piece: _Solved, covered: np.ndarray,
                               piece.frames[rows], piece.d[idx[keep]], piece.p[idx[keep]],
                               piece.sigma, options.bundle, options.extend)
     except OmniSfmError as exc:
-        run.record(failed("overlap", (lo, hi - 1), str(exc)))
+        run.record(failed(strategy, (lo, hi - 1), str(exc)))
         return None
     R, c, frames = piece.R.copy(), piece.c.copy(), piece.frames.copy()
     R[rows], c[rows], frames[rows] = reg.rotations, reg.positions, reg.estimated
     both = int((frames & covered & ~piece.frames).sum())
     if both == 0:
-        run.record(failed("overlap", (lo, hi - 1), "no frame of the pieces beside it "
+        run.record(failed(strategy, (lo, hi - 1), "no frame of the pieces beside it "
                                                    "registered from its lines"))
         return None
     d, p = piece.d.copy(), piece.p.copy()
     d[idx[keep]], p[idx[keep]] = reg.line_directions, reg.line_points
     used = piece.used.copy()
     used[idx[keep]] |= np.isfinite(reg.line_directions).all(1)
-    run.record(Attempt("overlap", (lo, hi - 1), reg,
+    run.record(Attempt(strategy, (lo, hi - 1), reg,
                        why=f"{both} frames of the pieces beside it registered"))
     return replace(piece, R=R, c=c, frames=frames, d=d, p=p, used=used)
 
