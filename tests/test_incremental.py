@@ -278,7 +278,7 @@ def test_a_short_run_turned_by_a_half_turn_is_turned_back() -> None:
     # the registration of the short bootstrap's main piece stopped 6 frames before the end (3
     # known lines there); after the joins it knows their lines and poses them (before: 594
     # frames and 3.9x the oracle's translation error, the first start drifting)
-    (0, "registration after joins", "6 frames added"),
+    (0, "registration after joins", "kept"),
     # the chain of windows over all 600 frames drifts (22.8 deg mean rotation error, 592
     # frames) and the adjustment stays in that basin; the second start (a chain on the first
     # 100 frames, the registration posing the rest) wins on the capped score over every
