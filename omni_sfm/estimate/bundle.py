@@ -871,7 +871,8 @@ def bundle_adjust(tracks: LineTracks, rotations: FloatArray, positions: FloatArr
                             p[lines], scale_frames=_rows(scale_frames, keep),
                             held_frames=_rows(held_frames, keep),
                             held_directions=_rows(held_directions, lines), options=options)
-        return _scattered(sub, keep, lines, F, M, t0)
+        return replace(scattered(sub, keep, lines, F, M),
+                       time_ms=(time.perf_counter() - t0) * 1e3)
     adj = _Adjustment(tracks, state, fr, scale_frames, options, held_frames, held_directions)
     for round_ in range(max(1, options.max_rounds)):
         if adj.robust_round(round_):
@@ -885,24 +886,31 @@ def _rows(a: np.ndarray | None, idx: np.ndarray) -> np.ndarray | None:
     return None if a is None else np.asarray(a, bool)[idx]
 
 
-def _scattered(res: BundleResult, frames: np.ndarray, lines: np.ndarray, F: int, M: int,
-               t0: float) -> BundleResult:
-    """``res``, the adjustment of frames ``frames`` and tracks ``lines`` alone, in the indices
-    of the whole sequence (``F`` frames, ``M`` tracks; NaN or False elsewhere)."""
-    def grow(a: np.ndarray, idx: np.ndarray, size: int, fill: Any) -> np.ndarray:
-        out = np.full((size,) + a.shape[1:], fill, dtype=a.dtype)
-        out[idx] = a
-        return out
+def scatter_rows(a: np.ndarray, at: np.ndarray | slice, size: int, fill: Any) -> np.ndarray:
+    """``a`` placed at rows ``at`` of an array of ``size`` rows filled with ``fill``."""
+    out = np.full((size, *a.shape[1:]), fill, dtype=a.dtype)
+    out[at] = a
+    return out
 
-    return replace(res, rotations=grow(res.rotations, frames, F, np.nan),
-                   positions=grow(res.positions, frames, F, np.nan),
-                   line_directions=grow(res.line_directions, lines, M, np.nan),
-                   line_points=grow(res.line_points, lines, M, np.nan),
-                   frames=grow(res.frames, frames, F, False),
-                   used_tracks=grow(res.used_tracks, lines, M, False),
-                   outlier_tracks=grow(res.outlier_tracks, lines, M, False),
-                   track_rms_deg=grow(res.track_rms_deg, lines, M, np.nan),
-                   time_ms=(time.perf_counter() - t0) * 1e3)
+
+def scattered(res: BundleResult, frames: np.ndarray | None, lines: np.ndarray, F: int,
+              M: int) -> BundleResult:
+    """``res``, an adjustment of the frames ``frames`` (None: all ``F``) and the tracks
+    ``lines`` alone, in the indices of the whole sequence (``F`` frames, ``M`` tracks; NaN or
+    False elsewhere)."""
+    def rows(a: np.ndarray, fill: Any) -> np.ndarray:
+        return a if frames is None else scatter_rows(a, frames, F, fill)
+
+    def tracks(a: np.ndarray, fill: Any) -> np.ndarray:
+        return scatter_rows(a, lines, M, fill)
+
+    return replace(res, rotations=rows(res.rotations, np.nan),
+                   positions=rows(res.positions, np.nan), frames=rows(res.frames, False),
+                   line_directions=tracks(res.line_directions, np.nan),
+                   line_points=tracks(res.line_points, np.nan),
+                   used_tracks=tracks(res.used_tracks, False),
+                   outlier_tracks=tracks(res.outlier_tracks, False),
+                   track_rms_deg=tracks(res.track_rms_deg, np.nan))
 
 
 def _plane_spread(tracks: LineTracks, R: FloatArray, frames: np.ndarray, M: int) -> FloatArray:

@@ -30,6 +30,8 @@ from omni_sfm.estimate.bundle import (
     observation_residuals,
     outlier_limit,
     resect_pose,
+    scatter_rows,
+    scattered,
     triangulate_lines,
     truncated_cost,
     weighted_residuals,
@@ -283,25 +285,18 @@ def _check_counts(tracks: LineTracks, members: np.ndarray) -> None:
                            f"at least 3 lines not parallel to the family")
 
 
-def _scatter(a: np.ndarray, at: np.ndarray | slice, size: int, fill: Any) -> np.ndarray:
-    """``a`` placed at rows ``at`` of an array of ``size`` rows filled with ``fill``."""
-    out = np.full((size, *a.shape[1:]), fill, dtype=a.dtype)
-    out[at] = a
-    return out
-
-
 def _lift_init(i: _Init, start: int, idx: np.ndarray, F: int, M: int) -> _Init:
     """An :class:`_Init` of frames ``start..`` and tracks ``idx`` (:func:`frame_range`) in the
     indices of the whole sequence (``F`` frames, ``M`` tracks)."""
     rows = slice(start, start + len(i.frames))
 
     def frames_of(a: np.ndarray, fill: Any) -> np.ndarray:
-        return _scatter(a, rows, F, fill)
+        return scatter_rows(a, rows, F, fill)
 
     return _Init(frames_of(i.rotations, np.nan), frames_of(i.positions, np.nan),
                  frames_of(i.frames, False),
                  [Window(w.start + start, w.stop + start, idx[w.tracks]) for w in i.windows],
-                 list(i.failures), _scatter(i.members, idx, M, False),
+                 list(i.failures), scatter_rows(i.members, idx, M, False),
                  frames_of(i.vpv, np.nan),
                  reasons={start + k: v for k, v in i.reasons.items()}, families=i.families,
                  switched=i.switched, repairs=i.repairs)
@@ -683,8 +678,8 @@ def _better_start(tracks: LineTracks, options: EstimationOptions, run: RunLog,
     limit = outlier_limit(np.radians(first.sigma_deg), options.bundle)
 
     def score(r: EstimationResult) -> float:
-        return _capped_rms_deg(tracks, _scatter(r.trajectory.rotations, r.estimated, F, np.nan),
-                               _scatter(r.trajectory.positions, r.estimated, F, np.nan),
+        return _capped_rms_deg(tracks, scatter_rows(r.trajectory.rotations, r.estimated, F, np.nan),
+                               scatter_rows(r.trajectory.positions, r.estimated, F, np.nan),
                                r.estimated, limit, everywhere=True)
 
     base = score(first)
@@ -996,10 +991,10 @@ def _lift(tracks: LineTracks, sub: _Solved, start: int, idx: np.ndarray) -> _Sol
     rows = slice(start, start + len(sub.frames))
 
     def frames_of(a: np.ndarray, fill: Any) -> np.ndarray:
-        return _scatter(a, rows, F, fill)
+        return scatter_rows(a, rows, F, fill)
 
     def tracks_of(a: np.ndarray, fill: Any) -> np.ndarray:
-        return _scatter(a, idx, M, fill)
+        return scatter_rows(a, idx, M, fill)
 
     init = _lift_init(sub.init, start, idx, F, M)
     return _Solved(init, frames_of(sub.R, np.nan), frames_of(sub.c, np.nan),
@@ -1626,14 +1621,8 @@ def side_votes(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArray, 
 
 def _expand(ba: BundleResult, idx: np.ndarray, M: int, first_outliers: np.ndarray) -> BundleResult:
     """A BundleResult on the tracks ``idx`` of M, expanded back to all M tracks."""
-    def grow(a: np.ndarray, fill: Any) -> np.ndarray:
-        return _scatter(a, idx, M, fill)
-
-    outl = grow(ba.outlier_tracks, False) | first_outliers
-    return BundleResult(ba.rotations, ba.positions, grow(ba.line_directions, np.nan),
-                        grow(ba.line_points, np.nan), ba.frames, grow(ba.used_tracks, False),
-                        outl, ba.sigma_deg, grow(ba.track_rms_deg, np.nan), ba.rms_initial_deg,
-                        ba.rms_final_deg, ba.iterations, ba.time_ms, ba.history)
+    out = scattered(ba, None, idx, len(ba.frames), M)
+    return replace(out, outlier_tracks=out.outlier_tracks | first_outliers)
 
 
 def _report(tracks: LineTracks, frames: np.ndarray, members: np.ndarray, direction: FloatArray,
