@@ -317,3 +317,33 @@ def test_sparse_tracks_reach_the_oracle(seed: int, strategy: str | None,
     assert strategy is None or any(
         a["result"] == "kept" and (how == "kept" or str(how) in a.get("why", ""))
         for a in res.report["attempts"] if a["strategy"] == strategy)
+
+
+def test_frames_a_new_start_reaches_into_keep_an_initial_pose() -> None:
+    # a new start on frames 20-39 grown by its lines into frames 10-19 of the piece beside it:
+    # the frames it added carry their registered poses as their initial ones, so that the
+    # piece, when it stays a segment of its own, still gets its conventions (before, their
+    # initial poses were NaN and the whole segment was lost: 558 frames of a 5,000-frame walk)
+    from omni_sfm.estimate.attempts import RunLog
+    from omni_sfm.estimate.pipeline import _Init, _moving_result, _reach_into, _Solved
+
+    sim = simulate(SimulationOptions(num_views=40, num_parallel=10, num_other=10, seed=3,
+                                     noise_deg=0.05))
+    g, F, M = sim.groundtruth, 40, sim.tracks.num_tracks
+    frames = np.arange(F) >= 20
+    R = np.where(frames[:, None, None], g.rotations, np.nan)
+    c = np.where(frames[:, None], g.positions, np.nan)
+    init = _Init(R, c, frames, [], [], sim.parallel, np.zeros((F, 3)))
+    piece = _Solved(init, R, c, frames, sim.line_directions.copy(), sim.line_points.copy(),
+                    np.ones(M, bool), np.zeros(M, bool), 0.0, 0.0, 0.05)
+    covered = np.arange(F) < 20  # the neighbour's frames
+    opts = EstimationOptions()
+    grown = _reach_into(sim.tracks, piece, covered, opts, RunLog())
+    assert grown is not None
+    added = grown.frames & ~frames
+    assert added.sum() >= 5 and np.flatnonzero(added).min() >= 20 - opts.restart_overlap
+    assert np.isfinite(grown.init.positions[grown.frames]).all()
+    assert np.isfinite(grown.init.rotations[grown.frames]).all()
+    res = _moving_result(sim.tracks, grown, RunLog(), 0.0)
+    assert np.isfinite(res.initial_trajectory.positions).all()
+    assert len(res.initial_trajectory) == grown.frames.sum()

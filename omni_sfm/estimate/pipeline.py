@@ -273,6 +273,14 @@ class _Init:
     repairs: int = 0
     """Frames turned back from a half turn (``_repair_half_turns``)."""
 
+    def registered(self, R: FloatArray, c: FloatArray, added: np.ndarray) -> _Init:
+        """These initial poses with the frames ``added`` by a registration at their registered
+        poses ``R``, ``c`` (the paper's method gave them none: the initial trajectory of a
+        piece must have a pose for each of its frames)."""
+        R0, c0 = self.rotations.copy(), self.positions.copy()
+        R0[added], c0[added] = R[added], c[added]
+        return replace(self, rotations=R0, positions=c0, frames=self.frames | added)
+
 
 def _check_counts(tracks: LineTracks, members: np.ndarray) -> None:
     n_par = int(members.sum())
@@ -1462,7 +1470,8 @@ def _reach_into(tracks: LineTracks, piece: _Solved, covered: np.ndarray,
     used[idx[keep]] |= np.isfinite(reg.line_directions).all(1)
     run.record(Attempt(strategy, (lo, hi - 1), reg,
                        why=f"{both} frames of the pieces beside it registered"))
-    return replace(piece, R=R, c=c, frames=frames, d=d, p=p, used=used)
+    return replace(piece, R=R, c=c, frames=frames, d=d, p=p, used=used,
+                   init=piece.init.registered(R, c, frames & ~piece.frames))
 
 
 def _extend(tracks: LineTracks, ba: BundleResult, init: _Init, options: EstimationOptions,
@@ -1511,9 +1520,7 @@ def _extend(tracks: LineTracks, ba: BundleResult, init: _Init, options: Estimati
                        replace(options, extend=replace(options.extend, families=False)), run)
     run.record(Attempt("bundle adjustment after registration", (0, F - 1), new,
                        cost_deg=new.rms_final_deg, why=f"{int(new.frames.sum())} frames"))
-    R0, c0 = init.rotations.copy(), init.positions.copy()
-    R0[added], c0[added] = R[added], c[added]
-    return new, replace(init, rotations=R0, positions=c0, frames=new.frames)
+    return new, replace(init.registered(R, c, added), frames=new.frames)
 
 
 ROTATION_ONLY_CONVENTION = ("world = camera of the first estimated frame; the camera only "
