@@ -18,7 +18,7 @@ frames: the lengths then differ in nothing else (separate walks differ in how ha
 which the time per frame shows too).
 
     .venv/bin/python scripts/bench_scaling.py [--frames 1000 5000 20000] [--timeout 3600] \
-        [--line-density 3.5] [--prefixes]
+        [--line-density 3.5] [--prefixes [--pieces]]
 """
 
 from __future__ import annotations
@@ -87,8 +87,9 @@ def _last_error_line(log: Path) -> str:
     return lines[-1]
 
 
-def _errors(traj_path: Path, gt_path: Path, n: int) -> dict[str, str]:
-    """Frames estimated and the errors of the estimate, formatted for the table."""
+def _errors(traj_path: Path, gt_path: Path, n: int, start: int = 0) -> dict[str, str]:
+    """Frames estimated and the errors of the estimate, formatted for the table (a piece that
+    starts at frame ``start`` of the walk: its last frame, not the walk's 500th)."""
     est, gt = read_tum(traj_path), read_tum(gt_path)
     out = {"estimated": f"{len(est)}/{n}"}
     try:
@@ -98,7 +99,7 @@ def _errors(traj_path: Path, gt_path: Path, n: int) -> dict[str, str]:
         return out | {"rot@500": "-", "rot@last": "-", "rot mean": "-", "ATE %": "-",
                       "note": str(exc)}
     common = associate(matched, gt)[0].timestamps   # rot_deg is per common frame
-    for key, frame in (("rot@500", 499), ("rot@last", n - 1)):
+    for key, frame in (("rot@500", 499 if start == 0 else -1), ("rot@last", start + n - 1)):
         hit = np.flatnonzero(np.abs(common - frame) < 1e-6)
         out[key] = f"{err.rot_deg[hit[0]]:.3f}" if hit.size else "-"
     out["rot mean"] = f"{err.rot_mean_deg:.3f}"
@@ -112,22 +113,23 @@ def _options(n: int, args: argparse.Namespace) -> SimulationOptions:
                              line_density=args.line_density, seed=args.seed)
 
 
-def _write_prefix(sim_dir: Path, sim: Simulation, n: int) -> LineTracks:
-    """The first ``n`` frames of ``sim`` as ``tracks.json`` and ``groundtruth.tum``."""
-    tracks = frame_range(sim.tracks, 0, n)[0]
+def _write_range(sim_dir: Path, sim: Simulation, start: int, n: int) -> LineTracks:
+    """Frames ``start..start+n-1`` of ``sim`` as ``tracks.json`` and ``groundtruth.tum``,
+    renumbered from 0."""
+    tracks = frame_range(sim.tracks, start, start + n)[0]
     sim_dir.mkdir(parents=True, exist_ok=True)
     write_tracks(sim_dir / "tracks.json", tracks)
-    write_tum(sim_dir / "groundtruth.tum", sim.groundtruth.subset(np.arange(n)))
+    write_tum(sim_dir / "groundtruth.tum", sim.groundtruth.subset(np.arange(start, start + n)))
     return tracks
 
 
 def _run_one(n: int, args: argparse.Namespace, work: Path,
-             whole: Simulation | None = None) -> dict[str, str]:
-    row = {"frames": str(n)}
+             whole: Simulation | None = None, start: int = 0) -> dict[str, str]:
+    row = {"frames": str(n) if start == 0 else f"+{start}"}
     t0 = time.perf_counter()
-    sim_dir = work / f"sim_{n}"
+    sim_dir = work / f"sim_{start}_{n}"
     if whole is not None:
-        tracks = _write_prefix(sim_dir, whole, n)
+        tracks = _write_range(sim_dir, whole, start, n)
     else:
         opts = _options(n, args)
         sim = simulate(opts)
@@ -137,7 +139,7 @@ def _run_one(n: int, args: argparse.Namespace, work: Path,
     row |= {"lines": str(tracks.num_tracks), "obs": str(tracks.num_observations),
             "sim s": f"{time.perf_counter() - t0:.1f}"}
     del tracks
-    out_dir, log, result = work / f"init_{n}", work / f"init_{n}.log", work / f"init_{n}.json"
+    out_dir, log, result = (work / f"init_{start}_{n}{ext}" for ext in ("", ".log", ".json"))
     cmd = [sys.executable, "-m", "omni_sfm", "init", "--lines", "--tracks",
            str(sim_dir / "tracks.json"), "--output", str(out_dir), "--quiet", "--overwrite",
            *shlex.split(args.init_args)]
@@ -163,7 +165,7 @@ def _run_one(n: int, args: argparse.Namespace, work: Path,
         segs = report.get("segments") or []
         row |= {"segments": str(len(segs)),
                 "in segs": str(sum(int(sg["num_frames_estimated"]) for sg in segs))}
-        return row | _errors(traj, sim_dir / "groundtruth.tum", n)
+        return row | _errors(traj, sim_dir / "groundtruth.tum", n, start)
     except (OmniSfmError, OSError) as exc:
         return row | {"note": f"evaluation failed: {exc}"}
 
@@ -190,11 +192,18 @@ def main() -> int:
                     help="run each length on the first frames of one walk of the longest "
                          "length (the same place; otherwise each length is a walk of its own, "
                          "and the time per frame also varies with how hard each walk is)")
+    ap.add_argument("--pieces", action="store_true",
+                    help="with --prefixes: also run the longest walk cut into consecutive "
+                         "pieces of the shortest length (rows +START), and print the median "
+                         "time per frame of the pieces against the whole run's: the same "
+                         "frames, short runs against one long one")
     ap.add_argument("--keep", type=Path, default=None,
                     help="keep the simulations, outputs and logs in this folder")
     args = ap.parse_args()
     if any(n < 3 for n in args.frames):
         ap.error("every --frames value must be 3 or more")
+    if args.pieces and not args.prefixes:
+        ap.error("--pieces needs --prefixes")
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     print(f"# omni-sfm init --lines {args.init_args}".rstrip()
           + f" on Manhattan walks (0.05 m a frame, lines seen in about {args.visible_frames} "
@@ -210,12 +219,31 @@ def main() -> int:
         work = Path(tmp) if args.keep is None else args.keep
         work.mkdir(parents=True, exist_ok=True)
         whole = simulate(_options(max(args.frames), args)) if args.prefixes else None
+        rows = {}
         for n in args.frames:
             try:
-                row = _run_one(n, args, work, whole)
+                rows[n] = row = _run_one(n, args, work, whole)
             except (OmniSfmError, OSError, MemoryError) as exc:
                 row = {"frames": str(n), "note": f"{type(exc).__name__}: {exc}"}
             _print_row(row)
+        if args.pieces:
+            n, longest = min(args.frames), max(args.frames)
+            per = []
+            for start in range(n, longest - n + 1, n):
+                try:
+                    row = _run_one(n, args, work, whole, start)
+                except (OmniSfmError, OSError, MemoryError) as exc:
+                    row = {"frames": f"+{start}", "note": f"{type(exc).__name__}: {exc}"}
+                _print_row(row)
+                if "ms/frame" in row and "note" not in row:
+                    per.append(float(row["ms/frame"]))
+            if n in rows and "ms/frame" in rows[n]:
+                per.append(float(rows[n]["ms/frame"]))  # the first piece is the first prefix
+            whole_ms = rows.get(longest, {}).get("ms/frame", "-")
+            if per:
+                print(f"# pieces of {n} frames: median {np.median(per):.2f} ms per frame over "
+                      f"{len(per)} pieces (range {min(per):.2f}-{max(per):.2f}); the whole "
+                      f"{longest}-frame walk in one run: {whole_ms} ms per frame", flush=True)
     return 0
 
 
