@@ -24,8 +24,9 @@ demo: $(STAMP)
 	$(VENV)/bin/omni-sfm demo
 
 test: $(STAMP)
-	@# pytest exits 5 when it collected no test; that is not a failure of the suite
-	OPENBLAS_NUM_THREADS=1 $(VENV)/bin/python -m pytest -q; rc=$$?; if [ $$rc -eq 5 ]; then rc=0; fi; exit $$rc
+	@# pytest exits 5 when it collected no test; that is not a failure of the suite. One test
+	@# process per core (pytest-xdist): each renders the shared sequences it needs itself.
+	OPENBLAS_NUM_THREADS=1 $(VENV)/bin/python -m pytest -q -n auto; rc=$$?; if [ $$rc -eq 5 ]; then rc=0; fi; exit $$rc
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .
