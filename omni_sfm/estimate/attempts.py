@@ -62,6 +62,11 @@ STRATEGIES: dict[str, str] = {
                                       "every track that is not an outlier triangulated from "
                                       "them (tracks the first start could not triangulate take "
                                       "part); kept if its capped cost on all tracks is lower",
+    "lines off the cameras": "the main piece adjusted again where its lines pass through cameras "
+                             "that see them (a false minimum): those lines triangulated again "
+                             "from its poses, or left out of a first adjustment and triangulated "
+                             "from its poses; the lower of the two kept if its capped cost on "
+                             "all tracks is lower",
     "registration": "frames beyond the chain posed from the lines already reconstructed, new "
                     "lines triangulated, local adjustments (docs/estimator.md stage 5b)",
     "bundle adjustment after registration": "the adjustment of the chain's and the "

@@ -799,7 +799,7 @@ class _Adjustment:
         lines that pass through a camera left out (:class:`BundleOptions`)."""
         o, act = self.options, self.active_tracks()
         if o.min_distance_ratio > 0:
-            self.weak |= act & (_distance_ratio(self.tracks, self.R, self.c, self.d, self.p,
+            self.weak |= act & (camera_distance_ratio(self.tracks, self.R, self.c, self.d, self.p,
                                                 self.obs_in, self.tracks.num_tracks)
                                 < o.min_distance_ratio)
         it = self.solve(self.active_tracks(), loss, o.max_iterations, o.tolerance)
@@ -925,7 +925,7 @@ def _plane_spread(tracks: LineTracks, R: FloatArray, frames: np.ndarray, M: int)
     return np.arcsin(np.sqrt(np.clip(ev[:, 1] / cnt, 0.0, 1.0)))
 
 
-def _distance_ratio(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArray,
+def camera_distance_ratio(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArray,
                    p: FloatArray, obs: np.ndarray, M: int) -> FloatArray:
     """``(M,)`` the smallest distance between a track's line and the cameras that see it
     (observations ``obs``) over the median one; NaN for tracks without observations."""
