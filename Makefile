@@ -25,8 +25,9 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	@# pytest exits 5 when it collected no test; that is not a failure of the suite. One test
-	@# process per core (pytest-xdist): each renders the shared sequences it needs itself.
-	OPENBLAS_NUM_THREADS=1 $(VENV)/bin/python -m pytest -q -n auto; rc=$$?; if [ $$rc -eq 5 ]; then rc=0; fi; exit $$rc
+	@# process per core (pytest-xdist): each renders the shared sequences it needs itself; one
+	@# test sent at a time, the slow ones first (tests/conftest.py), so the processes end together.
+	OPENBLAS_NUM_THREADS=1 $(VENV)/bin/python -m pytest -q -n auto --maxschedchunk 1; rc=$$?; if [ $$rc -eq 5 ]; then rc=0; fi; exit $$rc
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .

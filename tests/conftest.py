@@ -13,6 +13,13 @@ import pytest
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """The tests marked ``slow`` first (in their order), so that with one test process per
+    core (``make test``) the long ones start at once and the short ones fill in around them,
+    instead of one process running a minute-long test alone at the end."""
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
+
+
 def _make_read_only(root: Path) -> None:
     """Remove every write permission below ``root`` (and of ``root``): a test that writes into
     a shared render fails at once instead of changing what other tests see."""

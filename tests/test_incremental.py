@@ -274,6 +274,7 @@ def test_a_short_run_turned_by_a_half_turn_is_turned_back() -> None:
     assert run.entries == []
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("seed", "strategy", "how"), [
     # the registration of the short bootstrap's main piece stopped 6 frames before the end (3
     # known lines there); after the joins it knows their lines and poses them (before: 594

@@ -125,6 +125,7 @@ def test_outlier_tracks_rejected_and_named():
     assert ref_m[0] <= 1.5 * orc_m[0] and ref_m[1] <= 1.5 * orc_m[1]
 
 
+@pytest.mark.slow
 def test_long_sequence_partial_tracks_within_2x_oracle():
     sim = simulate(SimulationOptions(num_views=600, num_parallel=100, num_other=100,
                                      noise_deg=0.1, visible_frames=60, seed=3))
