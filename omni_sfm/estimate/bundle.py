@@ -799,9 +799,9 @@ class _Adjustment:
         lines that pass through a camera left out (:class:`BundleOptions`)."""
         o, act = self.options, self.active_tracks()
         if o.min_distance_ratio > 0:
-            self.weak |= act & (camera_distance_ratio(self.tracks, self.R, self.c, self.d, self.p,
-                                                self.obs_in, self.tracks.num_tracks)
-                                < o.min_distance_ratio)
+            ratio = camera_distance_ratio(self.tracks, self.R, self.c, self.d, self.p,
+                                          self.obs_in, self.tracks.num_tracks)
+            self.weak |= act & (ratio < o.min_distance_ratio)
         it = self.solve(self.active_tracks(), loss, o.max_iterations, o.tolerance)
         self.history.append({"round": -1.0, "sigma_deg": float(np.degrees(self.sigma)),
                              "iterations": float(it), "new_outliers": 0.0})
@@ -926,7 +926,7 @@ def _plane_spread(tracks: LineTracks, R: FloatArray, frames: np.ndarray, M: int)
 
 
 def camera_distance_ratio(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArray,
-                   p: FloatArray, obs: np.ndarray, M: int) -> FloatArray:
+                          p: FloatArray, obs: np.ndarray, M: int) -> FloatArray:
     """``(M,)`` the smallest distance between a track's line and the cameras that see it
     (observations ``obs``) over the median one; NaN for tracks without observations."""
     f, t = tracks.obs_frame[obs], tracks.obs_track[obs]

@@ -122,7 +122,8 @@ class EstimationOptions:
     and moved off the camera (:func:`_lines_off_cameras`); 0: never. A real line that close
     would nearly touch the lens, where it is not imaged as a line."""
     line_camera_iterations: int = 1000
-    """Levenberg-Marquardt iterations of the adjustments of :func:`_lines_off_cameras`."""
+    """Levenberg-Marquardt iterations of the polish after :func:`_lines_off_cameras` moved
+    lines off the cameras (the frames around them come back slowly)."""
     bootstrap_frames: int | None = 1000
     """In a longer sequence, the chain of windows is built on the first stretch of this many
     frames that gives one (then on the next half-overlapping stretch, ...), and the registration
@@ -876,7 +877,8 @@ def _lines_off_cameras(tracks: LineTracks, sol: _Solved, options: EstimationOpti
     distance from those cameras), two adjustments of the piece from there: with those lines
     triangulated again from its poses, and first without them, then with them triangulated
     from the poses that the others give. The one of lower cost over every observation of
-    its frames (misfits capped at the outlier limit) is kept if it is lower than ``sol``'s.
+    its frames (misfits capped at the outlier limit) is kept if it is lower than ``sol``'s,
+    then polished for up to ``options.line_camera_iterations`` iterations.
 
     A line through a camera is a false minimum of the adjustment: the plane of an observation
     through a camera on the line turns freely, so it fits any normal there, and the frames
@@ -894,7 +896,7 @@ def _lines_off_cameras(tracks: LineTracks, sol: _Solved, options: EstimationOpti
     idx = np.flatnonzero(sol.frames)
     span = (int(idx[0]), int(idx[-1]))
     bo = options.bundle
-    limit = outlier_limit(np.radians(sol.sigma), options.bundle)
+    limit = outlier_limit(np.radians(sol.sigma), bo)
     old = _capped_rms_deg(tracks, sol.R, sol.c, sol.frames, limit)
     d = np.where((sol.used & ~bad)[:, None], sol.d, np.nan)
     p = np.where((sol.used & ~bad)[:, None], sol.p, np.nan)
