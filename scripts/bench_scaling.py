@@ -237,8 +237,9 @@ def main() -> int:
                 _print_row(row)
                 if "ms/frame" in row and "note" not in row:
                     per.append(float(row["ms/frame"]))
-            if n in rows and "ms/frame" in rows[n]:
-                per.append(float(rows[n]["ms/frame"]))  # the first piece is the first prefix
+            first = rows.get(n, {})
+            if "ms/frame" in first and "note" not in first:
+                per.append(float(first["ms/frame"]))  # the first piece is the first prefix
             whole_ms = rows.get(longest, {}).get("ms/frame", "-")
             if per:
                 print(f"# pieces of {n} frames: median {np.median(per):.2f} ms per frame over "
