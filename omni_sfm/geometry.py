@@ -7,40 +7,64 @@ that the stages call one implementation; tests/test_foundation.py tests them.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 FloatArray = NDArray[np.float64]
 
 
+def _norm(a: FloatArray, axis: int = -1, keepdims: bool = False) -> FloatArray:
+    """``np.linalg.norm(a, axis=axis, keepdims=keepdims)`` of a float array (the same
+    computation, without its argument handling, which costs more than the sum on small
+    arrays)."""
+    s: FloatArray = np.add.reduce(a * a, axis=axis, keepdims=keepdims)  # type: ignore[call-overload]
+    return np.sqrt(s)
+
+
 def normalize(v: ArrayLike, axis: int = -1) -> FloatArray:
     """Unit vectors along ``axis``; zero vectors become NaN (never silently zero)."""
     a = np.asarray(v, dtype=np.float64)
-    n = np.linalg.norm(a, axis=axis, keepdims=True)
+    n = _norm(a, axis, keepdims=True)
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(n > 0, a / n, np.nan)
+
+
+# flat indices of a 3x3 matrix's entries that hold +x, +y, +z and -x, -y, -z in skew(x, y, z)
+_SKEW_PLUS = np.array([7, 2, 3])
+_SKEW_MINUS = np.array([5, 6, 1])
 
 
 def skew(v: ArrayLike) -> FloatArray:
     """``(..., 3)`` -> ``(..., 3, 3)`` cross-product matrices: ``skew(a) @ b == cross(a, b)``."""
     a = np.asarray(v, dtype=np.float64)
-    z = np.zeros(a.shape[:-1])
-    return np.stack(
-        [
-            np.stack([z, -a[..., 2], a[..., 1]], -1),
-            np.stack([a[..., 2], z, -a[..., 0]], -1),
-            np.stack([-a[..., 1], a[..., 0], z], -1),
-        ],
-        -2,
-    )
+    out = np.zeros((*a.shape[:-1], 3, 3))
+    flat = out.reshape(*a.shape[:-1], 9)
+    flat[..., _SKEW_PLUS] = a  # (2, 1), (0, 2), (1, 0)
+    flat[..., _SKEW_MINUS] = -a  # (1, 2), (2, 0), (0, 1)
+    return out
 
 
-def cross3(a: FloatArray, b: FloatArray) -> FloatArray:
+def cross3(a: FloatArray, b: FloatArray, out: FloatArray | None = None) -> FloatArray:
     """``np.cross`` for ``(..., 3)`` arrays with broadcasting, without its axis bookkeeping
-    (several times faster on the small arrays of the per-evaluation loops; the same values)."""
+    (several times faster, on the small arrays of the per-evaluation loops as on large ones;
+    the same values). ``out``: an array of the broadcast shape to write into (a view of a
+    larger one, e.g. a Jacobian's columns)."""
     a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
     b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
-    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], -1)
+    if out is None:
+        shape = a.shape if a.shape == b.shape else np.broadcast_shapes(a.shape, b.shape)
+        out = np.empty(shape, np.result_type(a, b))
+    np.subtract(a1 * b2, a2 * b1, out=out[..., 0])
+    np.subtract(a2 * b0, a0 * b2, out=out[..., 1])
+    np.subtract(a0 * b1, a1 * b0, out=out[..., 2])
+    return out
+
+
+_X_AXIS, _Y_AXIS, _Z_AXIS = np.eye(3)
+for _axis in (_X_AXIS, _Y_AXIS, _Z_AXIS):
+    _axis.setflags(write=False)
 
 
 def orthonormal_completion(n: FloatArray, *, switch: float = 0.9
@@ -52,8 +76,7 @@ def orthonormal_completion(n: FloatArray, *, switch: float = 0.9
     below 1). The basis, unlike the plane it spans, depends on ``switch``: each caller keeps the
     one its basis was defined with.
     """
-    helper = np.where(np.abs(n[..., :1]) < switch, np.array([1.0, 0.0, 0.0]),
-                      np.array([0.0, 1.0, 0.0]))
+    helper = np.where(np.abs(n[..., :1]) < switch, _X_AXIS, _Y_AXIS)
     e1 = normalize(cross3(n, helper))
     return e1, cross3(n, e1)
 
@@ -80,7 +103,7 @@ def unsigned_angle(a: FloatArray, b: FloatArray) -> FloatArray:
     (as for line normals): ``atan2(|a x b|, |a . b|)``, accurate near 0 and pi/2.
 
     The inputs are not normalised here (see :func:`angle_between` for any vectors)."""
-    return np.arctan2(np.linalg.norm(cross3(a, b), axis=-1), np.abs(np.sum(a * b, axis=-1)))
+    return np.arctan2(_norm(cross3(a, b)), np.abs(np.sum(a * b, axis=-1)))
 
 
 def line_plane_normals(centres: FloatArray, points: FloatArray,
@@ -110,21 +133,55 @@ def rotation_about_axis(axis: ArrayLike, angle: ArrayLike) -> FloatArray:
     """
     k = normalize(axis)
     th = np.asarray(angle, dtype=np.float64)
+    if k.shape == (3,) and th.ndim == 0:
+        x, y, z = k.tolist()
+        return _rodrigues_one(x, y, z, float(th))
+    return _rodrigues(k, th)
+
+
+_EYE3 = np.eye(3)
+_EYE3.setflags(write=False)
+
+
+def _rodrigues_one(x: float, y: float, z: float, th: float) -> FloatArray:
+    """``I + sin(th) K + (1 - cos(th)) K^2``, ``K = [k]x``, for one unit axis ``k = (x, y, z)``:
+    the operations of :func:`_rodrigues` on one matrix (the same values, bit for bit: ``K^2``
+    is numpy's product as there) without its broadcasting and stacking, which cost several
+    times the arithmetic on one matrix."""
+    K = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+    return _EYE3 + np.sin(th) * K + (1.0 - np.cos(th)) * (K @ K)
+
+
+def _rodrigues(k: FloatArray, th: FloatArray) -> FloatArray:
+    """``I + sin(th) K + (1 - cos(th)) K^2`` ``(..., 3, 3)``, ``K = [k]x``, for unit axes ``k``
+    ``(..., 3)`` broadcast against angles ``th`` ``(...)``."""
     shape = np.broadcast_shapes(k.shape[:-1], th.shape)
-    k = np.broadcast_to(k, (*shape, 3))
-    th = np.broadcast_to(th, shape)[..., None, None]
-    K = skew(k)
-    eye = np.broadcast_to(np.eye(3), (*shape, 3, 3))
-    return eye + np.sin(th) * K + (1.0 - np.cos(th)) * (K @ K)
+    K = skew(np.broadcast_to(k, (*shape, 3)))
+    t = np.broadcast_to(th, shape)[..., None, None]
+    return _EYE3 + np.sin(t) * K + (1.0 - np.cos(t)) * (K @ K)
 
 
 def rotvec_to_matrix(rotvec: ArrayLike) -> FloatArray:
-    """Axis-angle vectors ``(..., 3)`` (radians) -> rotation matrices ``(..., 3, 3)``."""
+    """Axis-angle vectors ``(..., 3)`` (radians) -> rotation matrices ``(..., 3, 3)``.
+
+    A zero vector gives the identity. One vector is computed in Python floats up to the
+    matrix (its norms summed in numpy's order), a batch without stacking; both give
+    ``rotation_about_axis(r / |r|, |r|)`` bit for bit, the values they always had (the
+    estimator's discrete decisions turn on the last bits)."""
     r = np.asarray(rotvec, dtype=np.float64)
-    th = np.linalg.norm(r, axis=-1)
-    safe = np.where(th > 0, th, 1.0)[..., None]
-    axis = np.where(th[..., None] > 0, r / safe, np.array([0.0, 0.0, 1.0]))
-    return rotation_about_axis(axis, th)
+    if r.shape == (3,):
+        # one vector in Python floats: the sums in numpy's order, (x^2 + y^2) + z^2
+        x, y, z = r.tolist()
+        t = math.sqrt(x * x + y * y + z * z)
+        x, y, z = (x / t, y / t, z / t) if t > 0 else (0.0, 0.0, 1.0)
+        n = math.sqrt(x * x + y * y + z * z)
+        x, y, z = (x / n, y / n, z / n) if n > 0 else (math.nan, math.nan, math.nan)
+        return _rodrigues_one(x, y, z, t)
+    th = _norm(r)
+    pos = th > 0
+    safe = np.where(pos, th, 1.0)[..., None]
+    axis = np.where(pos[..., None], r / safe, _Z_AXIS)
+    return _rodrigues(normalize(axis), th)
 
 
 def matrix_to_rotvec(R: ArrayLike) -> FloatArray:

@@ -52,6 +52,7 @@ from omni_sfm.errors import OmniSfmError
 from omni_sfm.geometry import (
     FloatArray,
     completion_towards,
+    cross3,
     normalize,
     orthonormal_completion,
     predicted_normals,
@@ -280,8 +281,10 @@ def _loss_weights(s: FloatArray, loss: RobustLoss, scale: float) -> tuple[FloatA
     if loss == RobustLoss.LINEAR:
         return s, np.ones_like(s)
     if loss == RobustLoss.HUBER:
-        r = np.sqrt(s)
         inl = s <= f2
+        if inl.all():  # all in the quadratic part (the same values as below)
+            return s, np.ones_like(s)
+        r = np.sqrt(s)
         rho = np.where(inl, s, 2.0 * scale * r - f2)
         w = np.where(inl, 1.0, scale / np.maximum(r, 1e-300))
         return rho, w
@@ -291,21 +294,32 @@ def _loss_weights(s: FloatArray, loss: RobustLoss, scale: float) -> tuple[FloatA
 _State = tuple[FloatArray, FloatArray, FloatArray, FloatArray]
 
 
-def _pose_jacobian(R: FloatArray, d: FloatArray, u: FloatArray,
-                   B: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+def _pose_jacobian(R: FloatArray, d: FloatArray, u: FloatArray, B: FloatArray, *,
+                   rt_skew_d: FloatArray | None = None,
+                   norms: tuple[FloatArray, FloatArray] | None = None
+                   ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Per observation ``(A, J_rot, J_c)``: ``A = d e / d u`` ``(K, 2, 3)`` and the residual's
     derivatives ``(K, 2, 3)`` by the camera-frame rotation increment and by the centre.
 
     ``R`` ``(K, 3, 3)`` world_from_cam of each observation's frame, ``d`` ``(K, 3)`` its line's
     direction, ``u`` ``(K, 3)`` the unnormalised predicted normal, ``B`` ``(K, 2, 3)`` the
-    residual basis: ``e = B normalise(u)``, ``u = R^T ((p - c) x d)``.
+    residual basis: ``e = B normalise(u)``, ``u = R^T ((p - c) x d)``. Already formed, they
+    need not be again (the same values as here): ``rt_skew_d``, ``R^T [d]x`` ``(K, 3, 3)``
+    (``R`` is then not used); ``norms``, ``|u|`` ``(K,)`` and ``u / |u|`` ``(K, 3)``.
     """
-    nu = np.linalg.norm(u, axis=1)
-    n = u / nu[:, None]
+    if norms is None:
+        nu = np.linalg.norm(u, axis=1)
+        n = u / nu[:, None]
+    else:
+        nu, n = norms
     # d e / d u = B^T (I - n n^T) / |u|
-    A = (B - np.sum(B * n[:, None, :], axis=2, keepdims=True) * n[:, None, :]) / \
+    A = (B - np.add.reduce(B * n[:, None, :], axis=2, keepdims=True) * n[:, None, :]) / \
         nu[:, None, None]
-    return A, A @ skew(u), A @ (np.swapaxes(R, 1, 2) @ skew(d))
+    if rt_skew_d is None:
+        rt_skew_d = np.swapaxes(R, 1, 2) @ skew(d)
+    return A, A @ skew(u), A @ rt_skew_d
+
+
 _Blocks = tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]
 
 
@@ -356,8 +370,11 @@ class _Problem:
         A, J_rot, J_c = _pose_jacobian(Rk, d[t], u, self.B)
         e1, e2 = _tangent_basis(d[t])
         pc = p[t] - c[f]
-        V = np.stack([np.cross(pc, e1), np.cross(pc, e2), np.cross(e1, d[t]),
-                      np.cross(e2, d[t])], axis=1)  # (K, 4, 3) world
+        V = np.empty((len(t), 4, 3))  # (K, 4, 3) world
+        cross3(pc, e1, out=V[:, 0])
+        cross3(pc, e2, out=V[:, 1])
+        cross3(e1, d[t], out=V[:, 2])
+        cross3(e2, d[t], out=V[:, 3])
         J_line = A @ np.swapaxes(np.einsum("kji,kaj->kai", Rk, V), 1, 2) * \
             self.line_free[t][:, None, :]
         J_pose = np.concatenate([J_rot, J_c], axis=2) * self.pose_free[f][:, None, :]
@@ -475,18 +492,30 @@ class _PoseProblem:
     (:func:`resect_pose`): state ``(R (3, 3), c (3,), d (K, 3), p (K, 3))``, one observation
     of each line, residual bases ``B`` ``(K, 2, 3)``; and ``(J, 3)`` normals ``m`` of lines of
     which only the world direction ``D`` is known, each with the one residual ``m . R^T D``
-    (the normal lies in the plane orthogonal to its line's direction; second component 0)."""
+    (the normal lies in the plane orthogonal to its line's direction; second component 0).
 
-    def __init__(self, B: FloatArray, dir_normals: FloatArray | None = None,
+    Solved for every frame on a few dozen lines, where numpy's per-call overhead is the cost:
+    what does not change between evaluations is formed once (``[d]x`` of the held lines ``d``,
+    which must be the state's), and the Jacobian takes the norms of ``u`` from the residuals
+    at the same point. The operations are otherwise those of the adjustment's residuals and
+    :func:`_pose_jacobian`, so that the results are the same bit for bit."""
+
+    def __init__(self, B: FloatArray, d: FloatArray, dir_normals: FloatArray | None = None,
                  dir_world: FloatArray | None = None) -> None:
         self.B = B
+        self.skew_d = skew(d)
         self.m = np.zeros((0, 3)) if dir_normals is None else dir_normals
         self.D = np.zeros((0, 3)) if dir_world is None else dir_world
+        self._norms: tuple[FloatArray, FloatArray, FloatArray] | None = None
 
     def residuals(self, R: FloatArray, c: FloatArray, d: FloatArray,
                   p: FloatArray) -> tuple[FloatArray, FloatArray]:
         u = predicted_normals(R[None], c[None], p, d)
-        e = np.einsum("kai,ki->ka", self.B, normalize(u))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            nu = np.sqrt(np.add.reduce(u * u, axis=1, keepdims=True))  # np.linalg.norm's sum
+            n = u / nu
+        self._norms = (u, nu[:, 0], n)
+        e = np.einsum("kai,ki->ka", self.B, np.where(nu > 0, n, np.nan))  # normalize(u)
         if len(self.m):
             r = np.sum(self.m * (self.D @ R), axis=1)
             e = np.concatenate([e, np.stack([r, np.zeros_like(r)], axis=1)])
@@ -494,11 +523,15 @@ class _PoseProblem:
 
     def jacobian(self, R: FloatArray, c: FloatArray, d: FloatArray, p: FloatArray,
                  u: FloatArray) -> tuple[FloatArray, FloatArray]:
-        _, J_rot, J_c = _pose_jacobian(np.broadcast_to(R, (len(d), 3, 3)), d, u, self.B)
+        last = self._norms
+        norms = (last[1], last[2]) if last is not None and last[0] is u else None
+        # R^T broadcast against the K [d]x: numpy multiplies each pair, as with K copies of R
+        _, J_rot, J_c = _pose_jacobian(R, d, u, self.B, rt_skew_d=R.T @ self.skew_d,
+                                       norms=norms)
         J = np.concatenate([J_rot, J_c], axis=2)
         if len(self.m):
             Jd = np.zeros((len(self.m), 2, 6))
-            Jd[:, 0, :3] = np.cross(self.m, self.D @ R)  # d (m . R^T D) / d w, R <- R exp([w]x)
+            Jd[:, 0, :3] = cross3(self.m, self.D @ R)  # d (m . R^T D) / d w, R <- R exp([w]x)
             J = np.concatenate([J, Jd])
         return J, np.zeros((len(J), 2, 0))
 
@@ -520,15 +553,16 @@ class _PoseProblem:
 def _levenberg_marquardt(prob: _Problem | _PoseProblem, state: _State, loss: RobustLoss,
                          scale: float,
                          max_iterations: int, tolerance: float) -> tuple[_State, int]:
-    def cost_of(e: FloatArray) -> float:
-        return 0.5 * float(np.sum(_loss_weights(np.sum(e * e, 1), loss, scale)[0]))
+    def cost_of(e: FloatArray) -> tuple[float, FloatArray]:
+        """The cost of residuals ``e`` and their IRLS weights (for the step from there)."""
+        rho, w = _loss_weights(np.sum(e * e, 1), loss, scale)
+        return 0.5 * float(np.sum(rho)), w
 
     e, u = prob.residuals(*state)
-    cost = cost_of(e)
+    cost, w = cost_of(e)
     lam = 1e-4
     it = 0
     for it in range(1, max_iterations + 1):  # noqa: B007
-        _, w = _loss_weights(np.sum(e * e, 1), loss, scale)
         blocks: Any = prob.normal_equations(*prob.jacobian(*state, u), e, w)
         improved = False
         for _ in range(12):
@@ -539,7 +573,7 @@ def _levenberg_marquardt(prob: _Problem | _PoseProblem, state: _State, loss: Rob
                 continue
             new_state = prob.retract(*state, dpose, dline)
             e_new, u_new = prob.residuals(*new_state)
-            new_cost = cost_of(e_new)
+            new_cost, w_new = cost_of(e_new)
             if np.isfinite(new_cost) and new_cost <= cost:
                 improved = True
                 break
@@ -547,7 +581,7 @@ def _levenberg_marquardt(prob: _Problem | _PoseProblem, state: _State, loss: Rob
         if not improved:
             break
         rel = (cost - new_cost) / max(cost, 1e-300)
-        state, e, u, cost = new_state, e_new, u_new, new_cost
+        state, e, u, cost, w = new_state, e_new, u_new, new_cost, w_new
         lam = max(lam / 10.0, 1e-12)
         if rel < tolerance or cost <= 1e-300:
             break
@@ -989,7 +1023,7 @@ def resect_pose(normals: FloatArray, line_directions: FloatArray, line_points: F
     n_obs = normalize(np.asarray(normals, np.float64))
     d, p = np.asarray(line_directions, np.float64), np.asarray(line_points, np.float64)
     m = None if direction_normals is None else normalize(np.asarray(direction_normals, float))
-    prob = _PoseProblem(np.stack(_tangent_basis(n_obs), axis=1), m,
+    prob = _PoseProblem(np.stack(_tangent_basis(n_obs), axis=1), d, m,
                         None if directions is None else np.asarray(directions, np.float64))
     loss = RobustLoss.HUBER if np.isfinite(scale) else RobustLoss.LINEAR
     state: _State = (np.array(rotation, np.float64), np.array(position, np.float64), d, p)
