@@ -3,6 +3,8 @@ outlier tracks, line triangulation."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -244,8 +246,6 @@ def test_precise_tracks_with_a_heavy_tail_are_not_outliers():
     # on the stop-and-go walk: rejecting every track above 3 sqrt(2) times the (median-based)
     # noise kept 20 of 136 tracks in some runs (12 % ATE); the floor of outlier_min_deg keeps
     # the good tracks and still rejects a wrong one.
-    import dataclasses
-
     from omni_sfm.geometry import normalize
 
     sim = simulate(SimulationOptions(num_views=20, num_parallel=10, num_other=10,
@@ -307,3 +307,25 @@ def test_a_line_through_a_camera_is_left_out_of_the_polish_when_asked() -> None:
                          options=BundleOptions(reject_outliers=False, min_distance_ratio=0.01))
     assert kept.used_tracks[m] and not left.used_tracks[m]
     assert (left.used_tracks | (np.arange(tr.num_tracks) == m)).all()
+
+
+def test_a_frame_left_with_two_lines_after_rejection_has_no_pose() -> None:
+    # the last two frames see 7 lines; 5 of them are made outliers, which leaves those frames
+    # 2 lines: their poses would only follow the damping, so they are not estimated
+    sim = simulate(SimulationOptions(num_views=60, num_parallel=20, num_other=20,
+                                     visible_frames=20, noise_deg=0.05, seed=6))
+    tr, g = sim.tracks, sim.groundtruth
+    vis = tr.visibility()
+    bad = np.flatnonzero(vis[:, 59])[:5]
+    left = vis[~np.isin(np.arange(tr.num_tracks), bad)].sum(0)
+    assert left[58] == left[59] == 2 and (left[:58] >= 3).all()
+    n = tr.obs_normal.copy()
+    sel = np.isin(tr.obs_track, bad)
+    rot = rotvec_to_matrix(np.random.default_rng(0).normal(size=(sel.sum(), 3)) * np.radians(1))
+    n[sel] = np.einsum("kij,kj->ki", rot, n[sel])
+    M = tr.num_tracks
+    res = bundle_adjust(dataclasses.replace(tr, obs_normal=n), g.rotations, g.positions,
+                        np.full((M, 3), np.nan), np.full((M, 3), np.nan))
+    assert np.flatnonzero(res.outlier_tracks).tolist() == sorted(bad.tolist())
+    assert np.flatnonzero(~res.frames).tolist() == [58, 59]
+    assert np.isnan(res.rotations[58:]).all() and np.isfinite(res.rotations[:58]).all()

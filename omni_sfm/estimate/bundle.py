@@ -842,10 +842,14 @@ class _Adjustment:
 
     def result(self, t0: float) -> BundleResult:
         """The :class:`BundleResult` now (``t0``: ``time.perf_counter()`` at the start)."""
-        tracks, fr = self.tracks, self.frames
+        tracks = self.tracks
         act = self.active_tracks()
         ang = self.angles()
         used_obs = act[tracks.obs_track] & self.obs_in
+        # a frame left with fewer than 3 active tracks (its others rejected) has no pose of
+        # its own: its parameters only followed the damping
+        seen = np.bincount(tracks.obs_frame[used_obs], minlength=tracks.num_frames)
+        fr = self.frames & ((seen >= 3) if self.held is None else ((seen >= 3) | self.held))
         rms_final = float(np.degrees(np.sqrt(np.mean(ang[used_obs] ** 2))))
         rms_initial = float(np.degrees(np.sqrt(np.nanmean(self.ang0[used_obs] ** 2))))
         R_out = np.where(fr[:, None, None], self.R, np.nan)
