@@ -77,7 +77,7 @@ def _run(seed: int, args: argparse.Namespace) -> None:
     print(f"  oracle: {_fmt(eo)}, RMS residual {o.rms_final_deg:.4f} deg (same frames)")
     print(f"  ratio:  rotation {e[0] / eo[0]:.1f}x, translation {e[2] / eo[2]:.1f}x")
     for a in res.report["attempts"]:
-        if a["strategy"] in ("short bootstrap", "merged starts"):
+        if a["strategy"] in ("short bootstrap", "merged starts", "reversed start"):
             print(f"  {a['strategy']}: {a['result']}: {a.get('why', '')}")
     if args.polish:
         F = tr.num_frames

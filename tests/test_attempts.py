@@ -119,3 +119,28 @@ def test_second_start_is_skipped_where_one_window_covers_the_sequence() -> None:
     short = [a for a in res.report["attempts"] if a["strategy"] == "short bootstrap"]
     assert [(a["result"], a["why"]) for a in short] == \
         [("skipped", "one window covers the sequence")]
+
+
+def test_a_reversed_run_records_its_frames_in_the_sequence_order() -> None:
+    run = RunLog()
+    back = run.reversed(100)
+    back.record(failed("bootstrap stretch", (0, 9), "x"))
+    back.at(10).record(failed("new start", (0, 4), "y"))
+    run.record(failed("join", (3, 5), "z"))
+    first, second, third = run.entries
+    assert first["frames"] == [90, 99] and first["reversed"] is True
+    assert second["frames"] == [85, 89] and second["reversed"] is True
+    assert third["frames"] == [3, 5] and "reversed" not in third
+
+
+def test_frames_reversed_twice_are_the_tracks_again() -> None:
+    sim = simulate(SimulationOptions(num_views=30, num_parallel=5, num_other=5,
+                                     visible_frames=12, seed=1))
+    tr = sim.tracks
+    back = pipeline.reversed_frames(tr)
+    assert back.num_frames == tr.num_frames
+    vis, vis_back = tr.visibility(), back.visibility()
+    assert np.array_equal(vis_back, vis[:, ::-1])
+    again = pipeline.reversed_frames(back)
+    for name in ("obs_track", "obs_frame", "obs_normal"):
+        assert np.array_equal(getattr(again, name), getattr(tr, name)), name

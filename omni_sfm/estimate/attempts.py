@@ -40,6 +40,9 @@ STRATEGIES: dict[str, str] = {
     "short bootstrap": "the whole estimate again from a chain of windows on a short first "
                        "stretch (EstimationOptions.short_bootstrap_frames), the registration "
                        "posing the rest; kept if its poses explain every observation better",
+    "reversed start": "the short bootstrap run on the frames in reverse order (its chain of "
+                      "windows on the last frames, the registration posing the frames before "
+                      "them); kept if its poses explain every observation better",
     "merged starts": "the short bootstrap's main piece with the frames it lacks taken from "
                      "the first start's, moved by the similarity of their poses nearby, then "
                      "adjusted; kept if its poses explain every observation better",
@@ -151,19 +154,28 @@ class RunLog:
 
     def __init__(self, offset: int = 0, entries: list[dict[str, Any]] | None = None,
                  timings: defaultdict[str, float] | None = None,
-                 progress: Any | None = None) -> None:
+                 progress: Any | None = None, mirror: int | None = None) -> None:
         self.offset = offset
         self.entries: list[dict[str, Any]] = [] if entries is None else entries
         self.timings: defaultdict[str, float] = defaultdict(float) if timings is None \
             else timings
         self.progress = progress
         """A tqdm bar over the whole sequence's frames (shared by the sub-runs), or None."""
+        self.mirror = mirror
+        """The number of frames of the whole sequence where this run works on its frames in
+        reverse order (frame ``k`` of the run is frame ``mirror - 1 - k``), else None."""
 
     def at(self, offset: int, *, share_timings: bool = False) -> RunLog:
         """A log for a sub-run on frames ``offset..`` (of this run's frames): the same
         attempts and progress bar; its own timings, or these."""
         return RunLog(self.offset + offset, self.entries,
-                      self.timings if share_timings else None, self.progress)
+                      self.timings if share_timings else None, self.progress, self.mirror)
+
+    def reversed(self, num_frames: int) -> RunLog:
+        """A log for a run on the ``num_frames`` frames of this sequence in reverse order: the
+        same attempts, recorded in this sequence's frame indices and marked ``"reversed"``;
+        its own timings and no progress bar (the first run has been over every frame)."""
+        return RunLog(0, self.entries, None, None, num_frames)
 
     def reached(self, frame: int) -> None:
         """The estimate has got as far as ``frame`` (of this run's frames): the progress bar
@@ -175,6 +187,11 @@ class RunLog:
     def record(self, attempt: Attempt[T], **extra: Any) -> Attempt[T]:
         """Record ``attempt`` (with ``extra`` JSON fields) and return it."""
         entry = attempt.to_json(self.offset)
+        if self.mirror is not None:
+            if "frames" in entry:
+                a, b = entry["frames"]
+                entry["frames"] = [self.mirror - 1 - b, self.mirror - 1 - a]
+            entry["reversed"] = True
         entry.update(extra)
         self.entries.append(entry)
         return attempt

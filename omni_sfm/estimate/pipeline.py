@@ -132,11 +132,11 @@ class EstimationOptions:
     short_bootstrap_frames: int | None = 100
     """In a sequence of at least twice this many frames (and a longer ``bootstrap_frames``),
     the whole estimate is also made from a chain of windows on a stretch of this many frames
-    only, the registration posing the rest, and the one of the two whose poses explain the
-    tracks better wins (:func:`_better_start`): a chain of windows can drift where each window
-    holds few lines (a turn, short tracks) and the adjustment then stays in a wrong basin,
-    where poses registered from lines already fixed do not; a short chain can itself start
-    wrong. None: only ``bootstrap_frames``."""
+    only, the registration posing the rest; also on the frames in reverse order; and the one
+    whose poses explain the tracks best wins (:func:`_better_start`): a chain of windows can
+    drift where each window holds few lines (a turn, short tracks) and the adjustment then
+    stays in a wrong basin, where poses registered from lines already fixed do not; a short
+    chain can itself start wrong. None: only ``bootstrap_frames``."""
     min_segment_frames: int = 30
     """Where the registration stops and at least this many frames remain without a pose, the
     estimator starts again on them: a new segment in its own world and scale
@@ -646,13 +646,14 @@ def _better_start(tracks: LineTracks, options: EstimationOptions, run: RunLog,
                   t_all: float) -> EstimationResult:
     """The moving camera's result from the chain of windows on ``bootstrap_frames`` and,
     where ``short_bootstrap_frames`` applies and the first result chained more than one
-    window, two more (docs/estimator.md stage 9): strategy "short bootstrap", the same from a
-    chain on that many frames, and strategy "merged starts", the short one's main piece with
-    the frames it lacks taken from the first one's (:func:`_merged_starts`). The kept one has
-    the lowest cost over every observation of the sequence (each misfit capped at the first
-    one's outlier limit, the observations of frames that a result leaves without a pose at
-    the cap); another than the first must be more than 1 % lower. Raises where none gives a
-    result."""
+    window, three more (docs/estimator.md stage 9): strategy "short bootstrap", the same from a
+    chain on that many frames, strategy "merged starts", the short one's main piece with
+    the frames it lacks taken from the first one's (:func:`_merged_starts`), and strategy
+    "reversed start", the first one's on the frames in reverse order (:func:`_reversed_start`).
+    The kept one has the lowest cost over every observation of the sequence (each misfit
+    capped at the first one's outlier limit, the observations of frames that a result leaves
+    without a pose at the cap); another than the first must be more than 1 % lower. Raises
+    where none gives a result."""
     F, short, long = tracks.num_frames, options.short_bootstrap_frames, options.bootstrap_frames
     sol_a: _Solved | None = None
     first: EstimationResult | None = None
@@ -692,6 +693,9 @@ def _better_start(tracks: LineTracks, options: EstimationOptions, run: RunLog,
     if merged_sol is not None:
         candidates.append(("merged starts", _with_segments(tracks, merged_sol, other, run,
                                                            t_all)))
+    backwards = _reversed_start(tracks, options, run, t_all)
+    if backwards is not None:
+        candidates.append(("reversed start", backwards))
     limit = outlier_limit(np.radians(first.sigma_deg), options.bundle)
 
     def score(r: EstimationResult) -> float:
@@ -710,6 +714,50 @@ def _better_start(tracks: LineTracks, options: EstimationOptions, run: RunLog,
         att = Attempt(name, (0, F - 1), r, cost_deg=sc, why=why)
         run.record(att if r is kept else att.judged(Outcome.REJECTED, why))
     return replace(kept, report={**kept.report, "attempts": run.entries})
+
+
+def _reversed_start(tracks: LineTracks, options: EstimationOptions, run: RunLog,
+                    t_all: float) -> EstimationResult | None:
+    """Strategy "reversed start": the moving camera's solution of the frames in reverse order
+    (the chain of windows on the last frames, the registration posing those before them), in
+    this sequence's frame order, with its segments. A chain that starts wrong, or drifts as it
+    goes, does so at the other end of the sequence. None where it fails (recorded)."""
+    F = tracks.num_frames
+    try:
+        sol = _solve_moving(reversed_frames(tracks), options, run.reversed(F))
+    except OmniSfmError as exc:
+        run.record(failed("reversed start", (0, F - 1), str(exc)))
+        return None
+    return _with_segments(tracks, _flipped(sol, F), options, run, t_all)
+
+
+def reversed_frames(tracks: LineTracks) -> LineTracks:
+    """``tracks`` with frame ``k`` as frame ``F - 1 - k`` (the timestamps stay in order: the
+    estimator does not use them)."""
+    f = tracks.num_frames - 1 - tracks.obs_frame
+    order = np.lexsort((f, tracks.obs_track))  # by track, then frame, as every LineTracks
+
+    def rows(a: FloatArray | None) -> FloatArray | None:
+        return None if a is None else a[order]
+
+    return replace(tracks, obs_track=tracks.obs_track[order], obs_frame=f[order],
+                   obs_normal=tracks.obs_normal[order], obs_ray=rows(tracks.obs_ray),
+                   obs_sigma=rows(tracks.obs_sigma))
+
+
+def _flipped(sol: _Solved, F: int) -> _Solved:
+    """A solution of the ``F`` frames in reverse order (:func:`reversed_frames`) in their own
+    order: poses are per frame, lines per track."""
+    i = sol.init
+    init = replace(i, rotations=i.rotations[::-1].copy(), positions=i.positions[::-1].copy(),
+                   frames=i.frames[::-1].copy(),
+                   windows=[Window(F - w.stop, F - w.start, w.tracks) for w in i.windows[::-1]],
+                   failures=[f"(frames counted from the last) {x}" for x in i.failures],
+                   vpv=i.vpv[::-1].copy(),
+                   alternatives=[(R[::-1].copy(), c[::-1].copy()) for R, c in i.alternatives],
+                   reasons={F - 1 - k: v for k, v in i.reasons.items()})
+    return replace(sol, init=init, R=sol.R[::-1].copy(), c=sol.c[::-1].copy(),
+                   frames=sol.frames[::-1].copy())
 
 
 def _merged_starts(tracks: LineTracks, base: _Solved, donor: _Solved, options: EstimationOptions,
