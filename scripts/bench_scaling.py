@@ -13,12 +13,17 @@ first, the mean rotation error and the ATE (RMS after a similarity alignment, pe
 path length). A run that fails or passes ``--timeout`` is reported with its last error line and
 the next N goes on.
 
+With ``--oracle`` it also prints the rotation errors of the maximum-likelihood floor on the same
+frames (``orc@500``, ``orc@last``, ``orc mean``): the line bundle adjustment started from the
+ground truth, every line of a family held on its true direction (as the estimator holds the
+families it finds). Where the estimate's errors are the floor's, what is left is the noise.
+
 With ``--prefixes`` one walk of the longest length is simulated and each N runs on its first N
 frames: the lengths then differ in nothing else (separate walks differ in how hard they are,
 which the time per frame shows too).
 
     .venv/bin/python scripts/bench_scaling.py [--frames 1000 5000 20000] [--timeout 3600] \
-        [--line-density 3.5] [--prefixes [--pieces]]
+        [--line-density 3.5] [--prefixes [--pieces]] [--oracle]
 """
 
 from __future__ import annotations
@@ -37,11 +42,12 @@ from pathlib import Path
 import numpy as np
 
 from omni_sfm.errors import OmniSfmError
+from omni_sfm.estimate.bundle import BundleOptions, bundle_adjust
 from omni_sfm.estimate.pipeline import match_reflection
 from omni_sfm.estimate.segments import frame_range
 from omni_sfm.evaluate import trajectory_errors
 from omni_sfm.lines.tracks import LineTracks, write_tracks
-from omni_sfm.poses import read_tum, write_tum
+from omni_sfm.poses import Trajectory, read_tum, write_tum
 from omni_sfm.synth.simulate import Simulation, SimulationOptions, simulate, write_simulation
 from omni_sfm.transforms import associate
 
@@ -70,7 +76,8 @@ with open(result, "w") as fh:
 
 COLUMNS = (("frames", 7), ("lines", 6), ("obs", 8), ("sim s", 7), ("wall s", 8), ("ms/frame", 9),
            ("peak MB", 8), ("estimated", 12), ("rot@500", 8), ("rot@last", 9), ("rot mean", 9),
-           ("ATE %", 7), ("segments", 9), ("in segs", 8))
+           ("ATE %", 7), ("segments", 9), ("in segs", 8), ("orc@500", 8), ("orc@last", 9),
+           ("orc mean", 9))
 
 
 def _last_error_line(log: Path) -> str:
@@ -87,24 +94,44 @@ def _last_error_line(log: Path) -> str:
     return lines[-1]
 
 
-def _errors(traj_path: Path, gt_path: Path, n: int, start: int = 0) -> dict[str, str]:
+def _errors(est: Trajectory, gt: Trajectory, n: int, start: int = 0,
+            prefix: str = "rot") -> dict[str, str]:
     """Frames estimated and the errors of the estimate, formatted for the table (a piece that
     starts at frame ``start`` of the walk: its last frame, not the walk's 500th)."""
-    est, gt = read_tum(traj_path), read_tum(gt_path)
-    out = {"estimated": f"{len(est)}/{n}"}
+    out = {"estimated": f"{len(est)}/{n}"} if prefix == "rot" else {}
     try:
         matched = match_reflection(est, gt)
         err = trajectory_errors(matched, gt)
     except OmniSfmError as exc:
-        return out | {"rot@500": "-", "rot@last": "-", "rot mean": "-", "ATE %": "-",
+        return out | {f"{prefix}@500": "-", f"{prefix}@last": "-", f"{prefix} mean": "-",
                       "note": str(exc)}
     common = associate(matched, gt)[0].timestamps   # rot_deg is per common frame
-    for key, frame in (("rot@500", 499 if start == 0 else -1), ("rot@last", start + n - 1)):
+    for key, frame in (("@500", 499 if start == 0 else -1), ("@last", start + n - 1)):
         hit = np.flatnonzero(np.abs(common - frame) < 1e-6)
-        out[key] = f"{err.rot_deg[hit[0]]:.3f}" if hit.size else "-"
-    out["rot mean"] = f"{err.rot_mean_deg:.3f}"
-    out["ATE %"] = f"{100 * err.ate_rel:.2f}"
+        out[prefix + key] = f"{err.rot_deg[hit[0]]:.3f}" if hit.size else "-"
+    out[f"{prefix} mean"] = f"{err.rot_mean_deg:.3f}"
+    if prefix == "rot":
+        out["ATE %"] = f"{100 * err.ate_rel:.2f}"
     return out
+
+
+def _oracle(sim: Simulation, start: int, n: int) -> dict[str, str]:
+    """The maximum-likelihood floor's rotation errors on frames ``start..start+n-1``: the
+    line bundle adjustment from the ground truth, each line of a parallel family (every line of
+    the Manhattan walk) held on its true direction, as the estimator holds the families it
+    finds (docs/estimator.md stage 5b)."""
+    tracks, idx = frame_range(sim.tracks, start, start + n)
+    d, p = sim.line_directions[idx], sim.line_points[idx]
+    gt = sim.groundtruth.subset(np.arange(start, start + n))
+    held = (np.abs(d @ d.T) > 1.0 - 1e-12).sum(1) >= 2  # a direction that another line shares
+    try:
+        res = bundle_adjust(tracks, gt.rotations, gt.positions, d, p, held_directions=held,
+                            options=BundleOptions(reject_outliers=False))
+    except OmniSfmError as exc:
+        return {"note": f"oracle: {exc}"}
+    f = res.frames
+    traj = Trajectory(gt.timestamps[f], res.rotations[f], res.positions[f])
+    return _errors(traj, gt, n, start, prefix="orc")
 
 
 def _options(n: int, args: argparse.Namespace) -> SimulationOptions:
@@ -165,7 +192,10 @@ def _run_one(n: int, args: argparse.Namespace, work: Path,
         segs = report.get("segments") or []
         row |= {"segments": str(len(segs)),
                 "in segs": str(sum(int(sg["num_frames_estimated"]) for sg in segs))}
-        return row | _errors(traj, sim_dir / "groundtruth.tum", n, start)
+        row |= _errors(read_tum(traj), read_tum(sim_dir / "groundtruth.tum"), n, start)
+        if args.oracle:
+            row |= _oracle(whole if whole is not None else simulate(_options(n, args)), start, n)
+        return row
     except (OmniSfmError, OSError) as exc:
         return row | {"note": f"evaluation failed: {exc}"}
 
@@ -197,6 +227,11 @@ def main() -> int:
                          "pieces of the shortest length (rows +START), and print the median "
                          "time per frame of the pieces against the whole run's: the same "
                          "frames, short runs against one long one")
+    ap.add_argument("--oracle", action="store_true",
+                    help="also print the rotation errors of the maximum-likelihood floor "
+                         "(orc@500, orc@last, orc mean): the line bundle adjustment started from "
+                         "the ground truth, with the families' lines held on their true "
+                         "directions")
     ap.add_argument("--keep", type=Path, default=None,
                     help="keep the simulations, outputs and logs in this folder")
     args = ap.parse_args()
