@@ -13,10 +13,11 @@ first, the mean rotation error and the ATE (RMS after a similarity alignment, pe
 path length). A run that fails or passes ``--timeout`` is reported with its last error line and
 the next N goes on.
 
-With ``--oracle`` it also prints the rotation errors of the maximum-likelihood floor on the same
-frames (``orc@500``, ``orc@last``, ``orc mean``): the line bundle adjustment started from the
-ground truth, every line of a family held on its true direction (as the estimator holds the
-families it finds). Where the estimate's errors are the floor's, what is left is the noise.
+With ``--oracle`` it also prints the rotation errors of the maximum-likelihood floor on the frames
+of the main trajectory (``orc@500``, ``orc@last``, ``orc mean``): the line bundle adjustment of
+all frames started from the ground truth, every line of a family held on its true direction (as
+the estimator holds the families it finds). Where the estimate's errors are the floor's, what
+is left is the noise.
 
 With ``--prefixes`` one walk of the longest length is simulated and each N runs on its first N
 frames: the lengths then differ in nothing else (separate walks differ in how hard they are,
@@ -115,11 +116,12 @@ def _errors(est: Trajectory, gt: Trajectory, n: int, start: int = 0,
     return out
 
 
-def _oracle(sim: Simulation, start: int, n: int) -> dict[str, str]:
-    """The maximum-likelihood floor's rotation errors on frames ``start..start+n-1``: the
-    line bundle adjustment from the ground truth, each line of a parallel family (every line of
-    the Manhattan walk) held on its true direction, as the estimator holds the families it
-    finds (docs/estimator.md stage 5b)."""
+def _oracle(sim: Simulation, start: int, n: int, frames: np.ndarray) -> dict[str, str]:
+    """The maximum-likelihood floor's rotation errors on the frames of the main trajectory
+    (``frames``: its timestamps) of frames ``start..start+n-1``, as the estimate's are measured
+    on them: the line bundle adjustment of all those frames from the ground truth, each line
+    of a parallel family (every line of the Manhattan walk) held on its true direction, as the
+    estimator holds the families it finds (docs/estimator.md stage 5b)."""
     tracks, idx = frame_range(sim.tracks, start, start + n)
     d, p = sim.line_directions[idx], sim.line_points[idx]
     gt = sim.groundtruth.subset(np.arange(start, start + n))
@@ -129,7 +131,7 @@ def _oracle(sim: Simulation, start: int, n: int) -> dict[str, str]:
                             options=BundleOptions(reject_outliers=False))
     except OmniSfmError as exc:
         return {"note": f"oracle: {exc}"}
-    f = res.frames
+    f = res.frames & np.isin(gt.timestamps, frames)
     traj = Trajectory(gt.timestamps[f], res.rotations[f], res.positions[f])
     return _errors(traj, gt, n, start, prefix="orc")
 
@@ -192,9 +194,11 @@ def _run_one(n: int, args: argparse.Namespace, work: Path,
         segs = report.get("segments") or []
         row |= {"segments": str(len(segs)),
                 "in segs": str(sum(int(sg["num_frames_estimated"]) for sg in segs))}
-        row |= _errors(read_tum(traj), read_tum(sim_dir / "groundtruth.tum"), n, start)
+        est = read_tum(traj)
+        row |= _errors(est, read_tum(sim_dir / "groundtruth.tum"), n, start)
         if args.oracle:
-            row |= _oracle(whole if whole is not None else simulate(_options(n, args)), start, n)
+            row |= _oracle(whole if whole is not None else simulate(_options(n, args)), start, n,
+                           est.timestamps)
         return row
     except (OmniSfmError, OSError) as exc:
         return row | {"note": f"evaluation failed: {exc}"}
