@@ -40,9 +40,9 @@ STRATEGIES: dict[str, str] = {
     "short bootstrap": "the whole estimate again from a chain of windows on a short first "
                        "stretch (EstimationOptions.short_bootstrap_frames), the registration "
                        "posing the rest; kept if its poses explain every observation better",
-    "reversed start": "the short bootstrap run on the frames in reverse order (its chain of "
-                      "windows on the last frames, the registration posing the frames before "
-                      "them); kept if its poses explain every observation better",
+    "reversed start": "the first start's estimate run on the frames in reverse order (its "
+                      "chain of windows on the last frames, the registration posing the frames "
+                      "before them); kept if its poses explain every observation better",
     "merged starts": "the short bootstrap's main piece with the frames it lacks taken from "
                      "the first start's, moved by the similarity of their poses nearby, then "
                      "adjusted; kept if its poses explain every observation better",
