@@ -86,9 +86,9 @@ STRATEGIES: dict[str, str] = {
             "else their common lines, fix the similarity",
     "bundle adjustment of a piece": "the bundle adjustment of a piece after a join or a "
                                     "half-turn repair",
-    "registration after joins": "up to restart_overlap frames the main piece still lacks at "
-                                "each end registered from the lines it knows after the joins "
-                                "(stage 8)",
+    "registration again": "up to restart_overlap frames the main piece still lacks at each "
+                          "end registered from the lines it knows at the end, after the joins "
+                          "and adjustments (stage 8)",
     "rotation only": "rotations alone from the lines, for a camera that turns without moving "
                      "(docs/method.md §13)",
 }

@@ -1465,9 +1465,9 @@ def _with_segments(tracks: LineTracks, sol: _Solved, options: EstimationOptions,
         pieces[k] = _adjusted(tracks, pieces[k], options, run, "joining pieces")
     # the main trajectory is the largest piece
     pieces.sort(key=lambda q: -int(q.frames.sum()))
-    if any(grown):
-        pieces[0] = _registered_again(tracks, pieces[0], options, run)
     pieces[0] = _lines_off_cameras(tracks, pieces[0], options, run)
+    # after it: the lines it triangulates again may be the ones a frame lacked
+    pieces[0] = _registered_again(tracks, pieces[0], options, run)
     run.timings["segments"] += (time.perf_counter() - t0) * 1e3
     result = _moving_result(tracks, pieces[0], run, t_all)
     report = dict(result.report)
@@ -1513,19 +1513,20 @@ def _with_segments(tracks: LineTracks, sol: _Solved, options: EstimationOptions,
 
 def _registered_again(tracks: LineTracks, sol: _Solved, options: EstimationOptions,
                       run: RunLog) -> _Solved:
-    """Strategy "registration after joins": up to ``restart_overlap`` frames before and after
-    the piece ``sol`` registered from the lines it knows now (the pieces joined to it bring
-    lines that its first registration lacked), then the adjustment of the piece; ``sol`` as
-    it is where no frame is added (recorded). The reach is bounded: registered on and on, the
+    """Strategy "registration again": up to ``restart_overlap`` frames before and after the
+    piece ``sol`` registered from the lines it knows now (the pieces joined to it bring lines
+    that its first registration lacked, and the adjustments since may have taken back lines
+    that were outliers then), then the adjustment of the piece; ``sol`` as it is where no
+    frame is added (recorded). The reach is bounded: registered on and on, the
     piece ran into stretches that the other pieces pose better (measured: a 5,000-frame walk
     of scripts/bench_scaling.py, 338 frames added and 18.8 % ATE)."""
     if sol.frames.all():
         return sol
     grown = _reach_into(tracks, sol, np.ones(tracks.num_frames, bool), options, run,
-                        "registration after joins")
+                        "registration again")
     if grown is None:
         return sol
-    return _adjusted(tracks, grown, options, run, "registration after joins")
+    return _adjusted(tracks, grown, options, run, "registration again")
 
 
 def _stretches(covered: np.ndarray, a: int, b: int,
