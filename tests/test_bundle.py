@@ -11,9 +11,9 @@ import pytest
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.estimate.bundle import (
     BundleOptions,
+    LineProblem,
     _pose_jacobian,
     _PoseProblem,
-    _Problem,
     _tangent_basis,
     bundle_adjust,
     observation_residuals,
@@ -48,7 +48,7 @@ def test_jacobian_matches_finite_differences():
     F, M = tr.num_frames, tr.num_tracks
     d = sim.line_directions
     p = sim.line_points - np.sum(sim.line_points * d, 1, keepdims=True) * d
-    prob = _Problem(tr, np.ones(F, bool), np.ones(M, bool), 0, F - 1, 0)
+    prob = LineProblem(tr, np.ones(F, bool), np.ones(M, bool), 0, F - 1, 0)
     st = (g.rotations, g.positions, d, p)
     e, u = prob.residuals(*st)
     Jp, Jl = prob.jacobian(*st, u)

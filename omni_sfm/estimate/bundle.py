@@ -41,7 +41,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field, replace
 from enum import StrEnum
-from typing import Any
+from typing import Any, Protocol, TypeVar
 
 import numpy as np
 import scipy.linalg
@@ -275,7 +275,7 @@ def truncated_cost(tracks: LineTracks, rotations: FloatArray, positions: FloatAr
     return float(np.mean(np.minimum(np.nan_to_num(ang, nan=limit), limit) ** 2))
 
 
-def _loss_weights(s: FloatArray, loss: RobustLoss, scale: float) -> tuple[FloatArray, FloatArray]:
+def loss_weights(s: FloatArray, loss: RobustLoss, scale: float) -> tuple[FloatArray, FloatArray]:
     """Robust cost rho(s) and its derivative (the IRLS weight) for squared norms ``s``."""
     f2 = scale * scale
     if loss == RobustLoss.LINEAR:
@@ -323,7 +323,7 @@ def _pose_jacobian(R: FloatArray, d: FloatArray, u: FloatArray, B: FloatArray, *
 _Blocks = tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]
 
 
-class _Problem:
+class LineProblem:
     """The LM problem on the active frames and tracks (everything else stays as given).
 
     Free parameters: 6 per estimated frame except the fixed one (whose 6 are held; its centre
@@ -479,7 +479,7 @@ class _Problem:
         return R2, c2, d2, p2
 
 
-def _robust_sigma(angles: FloatArray) -> float:
+def robust_sigma(angles: FloatArray) -> float:
     """Per-axis noise std-dev (radians) from residual norms, robust to outliers."""
     a = angles[np.isfinite(angles)]
     if a.size == 0:
@@ -550,12 +550,34 @@ class _PoseProblem:
         return R @ rotvec_to_matrix(step[:3]), c + step[3:], d, p
 
 
-def _levenberg_marquardt(prob: _Problem | _PoseProblem, state: _State, loss: RobustLoss,
-                         scale: float,
-                         max_iterations: int, tolerance: float) -> tuple[_State, int]:
+class LMProblem(Protocol):
+    """What :func:`levenberg_marquardt` asks of a problem: residuals ``e`` ``(K, 2)`` at a state
+    (and what the Jacobian needs from them), the Jacobian, the blocks of the normal equations,
+    the damped step, and the state moved by it."""
+
+    def residuals(self, *state: Any) -> tuple[FloatArray, Any]: ...
+
+    def jacobian(self, *state_and_aux: Any) -> Any: ...
+
+    def normal_equations(self, *jacobian_e_w: Any) -> Any: ...
+
+    def solve(self, blocks: Any, lam: float) -> tuple[Any, Any]: ...
+
+    def retract(self, *state_and_step: Any) -> Any: ...
+
+
+S = TypeVar("S", bound=tuple[Any, ...])
+
+
+def levenberg_marquardt(prob: LMProblem, state: S, loss: RobustLoss, scale: float,
+                        max_iterations: int, tolerance: float) -> tuple[S, int]:
+    """Levenberg-Marquardt on ``prob`` from ``state`` with robust ``loss`` at ``scale``
+    (residual units), IRLS weights from the current residuals; stops after ``max_iterations``,
+    when the relative decrease of the cost falls below ``tolerance``, or when no damping
+    finds a lower cost. Returns the state and the iterations run."""
     def cost_of(e: FloatArray) -> tuple[float, FloatArray]:
         """The cost of residuals ``e`` and their IRLS weights (for the step from there)."""
-        rho, w = _loss_weights(np.sum(e * e, 1), loss, scale)
+        rho, w = loss_weights(np.sum(e * e, 1), loss, scale)
         return 0.5 * float(np.sum(rho)), w
 
     e, u = prob.residuals(*state)
@@ -623,7 +645,7 @@ def _initial_state(tracks: LineTracks, rotations: FloatArray, positions: FloatAr
     return (R, c, d, p), fr
 
 
-def _gauge(c: FloatArray, frames: np.ndarray, scale_frames: np.ndarray | None,
+def gauge(c: FloatArray, frames: np.ndarray, scale_frames: np.ndarray | None,
            fixed: int | None = None) -> tuple[int, int, int]:
     """``(fixed_frame, scale_frame, scale_axis)``: the gauge held during the adjustment.
 
@@ -705,7 +727,7 @@ class _Adjustment:
         outlier: ``(M,)`` bool, tracks currently rejected as outliers.
         weak: ``(M,)`` bool, tracks left out for their small plane spread or for passing
             through a camera (:class:`BundleOptions`).
-        fixed, scale_frame, scale_axis: the gauge (:func:`_gauge`).
+        fixed, scale_frame, scale_axis: the gauge (:func:`gauge`).
         obs_in: ``(K,)`` bool, observations in the estimated frames.
         ang0: ``(K,)`` weighted residual norms (radians) at the start, NaN outside ``frames``.
         sigma: current per-axis NV noise, radians.
@@ -741,12 +763,12 @@ class _Adjustment:
             np.asarray(held_directions, bool)
         first_held = None if self.held is None or not self.held.any() else \
             int(np.flatnonzero(self.held)[0])
-        self.fixed, self.scale_frame, self.scale_axis = _gauge(self.c, self.frames, scale_frames,
+        self.fixed, self.scale_frame, self.scale_axis = gauge(self.c, self.frames, scale_frames,
                                                                first_held)
         self.obs_in = self.frames[tracks.obs_frame]
         self.ang0 = self.angles()
         self.sigma = np.radians(options.noise_deg) if options.noise_deg else \
-            _robust_sigma(self.ang0[act[tracks.obs_track] & self.obs_in])
+            robust_sigma(self.ang0[act[tracks.obs_track] & self.obs_in])
         self.iterations = 0
         self.history: list[dict[str, float]] = []
 
@@ -768,10 +790,10 @@ class _Adjustment:
               tolerance: float) -> int:
         """Run LM on the ``active`` ``(M,)`` tracks with the loss scaled to the current noise;
         returns the iterations it took."""
-        prob = _Problem(self.tracks, self.frames, active, self.fixed, self.scale_frame,
+        prob = LineProblem(self.tracks, self.frames, active, self.fixed, self.scale_frame,
                         self.scale_axis, self.held, self.held_directions,
                         not _directions_fix_rotation(self.d, self.held_directions, active))
-        (self.R, self.c, self.d, self.p), it = _levenberg_marquardt(
+        (self.R, self.c, self.d, self.p), it = levenberg_marquardt(
             prob, (self.R, self.c, self.d, self.p), loss, self.options.loss_scale * self.sigma,
             max_iterations, tolerance)
         self.iterations += it
@@ -811,7 +833,7 @@ class _Adjustment:
         ang = self.angles()
         old_sigma = self.sigma
         if not o.noise_deg:
-            self.sigma = _robust_sigma(ang[act[tracks.obs_track]])
+            self.sigma = robust_sigma(ang[act[tracks.obs_track]])
         new_out = _new_outliers(act, _track_rms(tracks, ang, M), self.sigma, o)
         readmit = np.zeros(M, bool)
         if o.reject_outliers and self.outlier.any() and not new_out.any():
@@ -1031,7 +1053,7 @@ def resect_pose(normals: FloatArray, line_directions: FloatArray, line_points: F
                         None if directions is None else np.asarray(directions, np.float64))
     loss = RobustLoss.HUBER if np.isfinite(scale) else RobustLoss.LINEAR
     state: _State = (np.array(rotation, np.float64), np.array(position, np.float64), d, p)
-    (R, c, _, _), _ = _levenberg_marquardt(prob, state, loss, scale, iterations, 1e-10)
+    (R, c, _, _), _ = levenberg_marquardt(prob, state, loss, scale, iterations, 1e-10)
     e, u = prob.residuals(R, c, d, p)
     ang = unsigned_angle(normalize(u), n_obs)
     if m is not None and len(m):

@@ -1,0 +1,368 @@
+"""Joint adjustment of cameras, 3D lines and 3D points: the maximum-likelihood estimate from
+both kinds of evidence (docs/colmap.md, "Joint adjustment").
+
+Residuals, each a 2-vector in radians for small errors:
+
+- a line observation exactly as the line bundle adjustment weighs it
+  (:class:`omni_sfm.estimate.bundle.LineProblem`: the predicted interpretation-plane normal
+  against the observed one, in the observation's own uncertainty directions);
+- a point observation: the observed unit ray ``r`` (camera frame) against the predicted bearing
+  ``b = R^T (X - c) / |X - c|`` of the point ``X`` from the camera (world_from_cam ``R``,
+  centre ``c``): ``e = B_r b`` with ``B_r`` (2x3) an orthonormal basis of the plane
+  perpendicular to ``r``, so ``|e|`` is the sine of the angle between them. Angular residuals
+  through the exact camera model: any central camera, omnidirectional ones included.
+
+Each kind is divided by its own per-axis noise level, estimated robustly from its residuals
+(or given), so the cost is the sum of squared normalised residuals, the maximum-likelihood
+cost for Gaussian noise on both. Robust rounds (Huber at ``loss_scale`` noise levels) find the
+outliers: line tracks whose RMS residual is far above the noise, point observations likewise
+(a point left with fewer than two observations goes); then plain least squares on the inliers.
+
+Parameters: 6 per camera (``R <- R exp([w]x)``, ``c <- c + dc``), 4 per line (as the line
+adjustment), 3 per point. Gauge: the first camera's pose and one coordinate of the centre
+farthest from it are held (:func:`omni_sfm.estimate.bundle.gauge`), so the input's world and
+scale are kept. Solver: :func:`omni_sfm.estimate.bundle.levenberg_marquardt`; each step
+eliminates the lines and points (4x4 and 3x3 blocks) and solves the reduced ``6F x 6F``
+camera system (dense Cholesky up to 4,000 unknowns, sparse LU above).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import scipy.linalg
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from omni_sfm.errors import OmniSfmError
+from omni_sfm.estimate.bundle import (
+    LineProblem,
+    RobustLoss,
+    gauge,
+    levenberg_marquardt,
+    robust_sigma,
+)
+from omni_sfm.geometry import FloatArray, normalize, orthonormal_completion, skew
+from omni_sfm.lines.tracks import LineTracks
+
+_DENSE_MAX = 4000
+
+
+@dataclass(frozen=True)
+class PointObservations:
+    """Point evidence: observation ``k`` sees point ``point[k]`` in frame ``frame[k]`` along
+    the unit ray ``ray[k]`` (camera frame, the camera model's pixel -> ray)."""
+
+    frame: np.ndarray
+    point: np.ndarray
+    ray: FloatArray
+    num_points: int
+
+    def __post_init__(self) -> None:
+        K = len(self.frame)
+        if len(self.point) != K or self.ray.shape != (K, 3):
+            raise OmniSfmError(f"point observations: {K} frames, {len(self.point)} points and "
+                               f"rays of shape {self.ray.shape} do not match")
+        if K and (self.point.min() < 0 or self.point.max() >= self.num_points):
+            raise OmniSfmError("point observations: a point index is out of range")
+        if not np.isfinite(self.ray).all():
+            raise OmniSfmError("point observations: a ray is not finite")
+
+    def subset(self, keep: np.ndarray) -> PointObservations:
+        """The observations ``keep`` (bool or indices), the points numbered as before."""
+        return PointObservations(self.frame[keep], self.point[keep], self.ray[keep],
+                                 self.num_points)
+
+
+@dataclass(frozen=True)
+class JointOptions:
+    line_noise_deg: float | None = None
+    """Per-axis noise of the line observations (deg); None: estimated from their residuals."""
+    point_noise_deg: float | None = None
+    """The same for the point observations."""
+    loss_scale: float = 3.0
+    """Huber scale of the robust rounds, in noise levels."""
+    outlier_threshold: float = 3.0
+    """A line track (RMS) or a point observation is an outlier above this many times the
+    expected RMS of its noise (sqrt(2) sigma)."""
+    robust_rounds: int = 3
+    """Robust solve / noise estimate / rejection rounds."""
+    robust_iterations: int = 30
+    max_iterations: int = 100
+    """Levenberg-Marquardt iterations of the final least-squares solve."""
+    tolerance: float = 1e-10
+    """Relative decrease of the cost below which a solve stops."""
+
+
+@dataclass(frozen=True)
+class JointResult:
+    """Poses ``(F, ...)`` (NaN outside ``frames``), lines ``(M, 3)`` and points ``(P, 3)``
+    (NaN where not used), the inliers and the noise level of each kind."""
+
+    rotations: FloatArray
+    positions: FloatArray
+    frames: np.ndarray
+    line_directions: FloatArray
+    line_points: FloatArray
+    lines_used: np.ndarray
+    points: FloatArray
+    points_used: np.ndarray
+    point_inliers: np.ndarray
+    """``(K,)`` bool over the point observations."""
+    line_sigma_deg: float
+    point_sigma_deg: float
+    line_rms_deg: float
+    point_rms_deg: float
+    iterations: int
+
+    def evidence(self, lines: LineTracks, points: PointObservations) -> dict[str, np.ndarray]:
+        """Per frame ``(F,)``: the line and the point observations that took part."""
+        F = len(self.frames)
+        lo = self.lines_used[lines.obs_track] & self.frames[lines.obs_frame]
+        return {"lines": np.bincount(lines.obs_frame[lo], minlength=F),
+                "points": np.bincount(points.frame[self.point_inliers], minlength=F)}
+
+
+class _JointProblem:
+    """Lines (:class:`LineProblem`) and points together; state ``(R, c, d, p, X)``."""
+
+    def __init__(self, lines: LineProblem, points: PointObservations, active: np.ndarray,
+                 sigma_line: float, sigma_point: float) -> None:
+        self.lines, self.active = lines, active
+        self.F, self.M, self.P = lines.F, lines.M, points.num_points
+        self.f, self.j = points.frame[active], points.point[active]
+        r = points.ray[active]
+        e1, e2 = orthonormal_completion(r)
+        self.Bp = np.stack([e1, e2], axis=1)  # (Kp, 2, 3)
+        self.sl, self.sp = sigma_line, sigma_point
+        self.Kl = len(lines.f)
+        self.point_free = np.zeros(self.P, bool)
+        self.point_free[self.j] = True
+
+    def residuals(self, R: FloatArray, c: FloatArray, d: FloatArray, p: FloatArray,
+                  X: FloatArray) -> tuple[FloatArray, tuple[FloatArray, FloatArray]]:
+        el, u = self.lines.residuals(R, c, d, p)
+        v = _offsets(R, c, X, self.f, self.j)
+        b = v / np.linalg.norm(v, axis=1, keepdims=True)
+        ep = np.einsum("kai,ki->ka", self.Bp, b)
+        return np.concatenate([el / self.sl, ep / self.sp]), (u, v)
+
+    def jacobian(self, R: FloatArray, c: FloatArray, d: FloatArray, p: FloatArray,
+                 X: FloatArray, aux: tuple[FloatArray, FloatArray]) -> tuple[FloatArray, ...]:
+        u, v = aux
+        Jpl, Jl = self.lines.jacobian(R, c, d, p, u)
+        rho = np.linalg.norm(v, axis=1)
+        b = v / rho[:, None]
+        # d e / d v = B (I - b b^T) / |v|; v = R^T (X - c): dv/dw = [v]x, dv/dc = -R^T
+        A = (self.Bp - np.einsum("kai,ki->ka", self.Bp, b)[:, :, None] * b[:, None, :]) / \
+            rho[:, None, None]
+        ART = A @ np.swapaxes(R[self.f], 1, 2)
+        Jpp = np.concatenate([A @ skew(v), -ART], axis=2) * \
+            self.lines.pose_free[self.f][:, None, :]
+        return Jpl / self.sl, Jl / self.sl, Jpp / self.sp, ART / self.sp
+
+    def normal_equations(self, Jpl: FloatArray, Jl: FloatArray, Jpp: FloatArray,
+                         Jx: FloatArray, e: FloatArray, w: FloatArray) -> tuple[Any, ...]:
+        Kl = self.Kl
+        wl, wp, el, ep = w[:Kl], w[Kl:], e[:Kl], e[Kl:]
+        fl, tl, fp, jp = self.lines.f, self.lines.t, self.f, self.j
+        Hpp = np.zeros((self.F, 6, 6))
+        gp = np.zeros((self.F, 6))
+        wJpl, wJpp = Jpl * wl[:, None, None], Jpp * wp[:, None, None]
+        np.add.at(Hpp, fl, np.swapaxes(wJpl, 1, 2) @ Jpl)
+        np.add.at(Hpp, fp, np.swapaxes(wJpp, 1, 2) @ Jpp)
+        np.add.at(gp, fl, np.einsum("kai,ka->ki", wJpl, el))
+        np.add.at(gp, fp, np.einsum("kai,ka->ki", wJpp, ep))
+        wJl, wJx = Jl * wl[:, None, None], Jx * wp[:, None, None]
+        Hll = np.zeros((self.M, 4, 4))
+        np.add.at(Hll, tl, np.swapaxes(wJl, 1, 2) @ Jl)
+        gl = np.zeros((self.M, 4))
+        np.add.at(gl, tl, np.einsum("kai,ka->ki", wJl, el))
+        Hxx = np.zeros((self.P, 3, 3))
+        np.add.at(Hxx, jp, np.swapaxes(wJx, 1, 2) @ Jx)
+        gx = np.zeros((self.P, 3))
+        np.add.at(gx, jp, np.einsum("kai,ka->ki", wJx, ep))
+        return (Hpp, gp, (Hll, np.swapaxes(wJpl, 1, 2) @ Jl, gl, fl, tl, self.lines.line_free),
+                (Hxx, np.swapaxes(wJpp, 1, 2) @ Jx, gx, fp, jp,
+                 np.repeat(self.point_free[:, None], 3, axis=1)))
+
+    def solve(self, blocks: tuple[Any, ...], lam: float
+              ) -> tuple[FloatArray, tuple[FloatArray, FloatArray]]:
+        """Damped step ``(H + lam diag(H)) dx = -g``, the lines and points eliminated."""
+        Hpp, gp, *marks = blocks
+        F, pf = self.F, self.lines.pose_free
+        Hpp = _damped(Hpp, lam, pf)
+        S = sp.block_diag(list(Hpp), format="csr")
+        rhs = -gp.ravel()
+        reduced = []
+        for H, Hcross, g, f, t, free in marks:
+            n = H.shape[1]
+            Hd = _damped(H, lam, free)
+            Linv = np.linalg.inv(np.linalg.cholesky(Hd))  # (N, n, n)
+            G = Hcross @ np.swapaxes(Linv[t], 1, 2)  # H_pl L^-T, (K, 6, n)
+            rows = (6 * f)[:, None, None] + np.arange(6)[None, :, None]
+            cols = (n * t)[:, None, None] + np.arange(n)[None, None, :]
+            Gs = sp.csr_matrix((G.ravel(), (np.broadcast_to(rows, G.shape).ravel(),
+                                            np.broadcast_to(cols, G.shape).ravel())),
+                               shape=(6 * F, n * len(H)))
+            gt = np.einsum("nij,nj->ni", Linv, g)  # L^-1 g
+            S = S - Gs @ Gs.T
+            rhs = rhs + Gs @ gt.ravel()
+            reduced.append((Linv, Hcross, g, f, t, free))
+        if 6 * F <= _DENSE_MAX:
+            dp = scipy.linalg.cho_solve(scipy.linalg.cho_factor(S.toarray(), check_finite=False),
+                                        rhs, check_finite=False)
+        else:
+            lu = spla.splu(S.tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                           options={"SymmetricMode": True})
+            if np.any(lu.U.diagonal() <= 0):
+                raise np.linalg.LinAlgError("reduced system not positive definite")
+            dp = lu.solve(rhs)
+        dp = dp.reshape(F, 6) * pf
+        steps = []
+        for Linv, Hcross, g, f, t, free in reduced:
+            r = -g.copy()
+            np.add.at(r, t, -np.einsum("kji,kj->ki", Hcross, dp[f]))
+            steps.append(np.einsum("nji,nj->ni", Linv, np.einsum("nij,nj->ni", Linv, r)) * free)
+        return dp, (steps[0], steps[1])
+
+    def retract(self, R: FloatArray, c: FloatArray, d: FloatArray, p: FloatArray,
+                X: FloatArray, dpose: FloatArray, dmarks: tuple[FloatArray, FloatArray]
+                ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
+        R2, c2, d2, p2 = self.lines.retract(R, c, d, p, dpose, dmarks[0])
+        return R2, c2, d2, p2, X + dmarks[1]
+
+
+def _damped(H: FloatArray, lam: float, free: np.ndarray) -> FloatArray:
+    """``H + lam diag(H)`` per block (a floor on tiny diagonals), held parameters' rows and
+    columns replaced by the identity so that they stay at zero."""
+    n = H.shape[1]
+    dg = np.einsum("kii->ki", H)
+    eye = np.eye(n)
+    H = H + (lam * np.maximum(dg, 1e-12 * max(float(dg.max(initial=0.0)), 1e-30)))[:, :, None] \
+        * eye
+    return H * (free[:, :, None] & free[:, None, :]) + (~free)[:, :, None] * eye
+
+
+def joint_adjust(lines: LineTracks, rotations: FloatArray, positions: FloatArray,
+                 line_directions: FloatArray, line_points: FloatArray,
+                 points: PointObservations, point_positions: FloatArray,
+                 frames: np.ndarray | None = None,
+                 options: JointOptions = JointOptions()) -> JointResult:
+    """Cameras, lines and points adjusted together from their initial values.
+
+    ``rotations`` ``(F, 3, 3)`` world_from_cam and ``positions`` ``(F, 3)`` camera centres
+    (``frames`` ``(F,)`` bool: the ones to adjust, default those with a finite pose); lines
+    ``(M, 3)`` direction and point (NaN: not used) for the tracks of ``lines``; points
+    ``(P, 3)`` (NaN: not used) for ``points``' observations. Either kind may be empty.
+
+    Raises:
+        OmniSfmError: nothing to adjust, or too little evidence for a gauge.
+    """
+    M, P = lines.num_tracks, points.num_points
+    R = np.array(rotations, float)
+    c = np.array(positions, float)
+    if frames is None:
+        frames = np.isfinite(R).all((1, 2)) & np.isfinite(c).all(1)
+    frames = np.asarray(frames, bool) & np.isfinite(c).all(1) & np.isfinite(R).all((1, 2))
+    if frames.sum() < 2:
+        raise OmniSfmError("joint adjustment: fewer than 2 posed frames")
+    d = np.array(line_directions, float)
+    p = np.array(line_points, float)
+    X = np.array(point_positions, float)
+    lines_used = np.isfinite(d).all(1) & np.isfinite(p).all(1)
+    lines_used &= np.bincount(lines.obs_track[frames[lines.obs_frame]], minlength=M) >= 2
+    pin = frames[points.frame] & np.isfinite(X[points.point]).all(1)
+    for arr in (R, c, d, p, X):
+        arr[~np.isfinite(arr)] = 0.0
+    fixed, scale_frame, scale_axis = gauge(c, frames, None)
+    sl = np.radians(options.line_noise_deg) if options.line_noise_deg else None
+    spt = np.radians(options.point_noise_deg) if options.point_noise_deg else None
+    state: tuple[FloatArray, ...] = (R, c, d, p, X)
+    iterations = 0
+    sig_l, sig_p = 1.0, 1.0
+
+    candidate_lines, candidate_points = lines_used.copy(), pin.copy()
+
+    def problem(lines_on: np.ndarray, points_on: np.ndarray) -> _JointProblem:
+        points_on &= _enough(points.point, points_on, P)
+        lp = LineProblem(lines, frames, lines_on, fixed, scale_frame, scale_axis)
+        return _JointProblem(lp, points, points_on, sig_l, sig_p)
+
+    def angles(prob: _JointProblem) -> tuple[FloatArray, FloatArray]:
+        e, _ = prob.residuals(*state)
+        a = np.linalg.norm(e, axis=1)
+        return a[:prob.Kl] * prob.sl, a[prob.Kl:] * prob.sp
+
+    for round_ in range(options.robust_rounds + 1):
+        if round_ > 0:
+            # every candidate judged again from the last solve (a good observation pushed
+            # off by outliers in an early round comes back)
+            every = problem(candidate_lines.copy(), candidate_points.copy())
+            al, ap = angles(every)
+            sig_l = sl or (robust_sigma(al) if len(al) else 1.0)
+            sig_p = spt or (robust_sigma(ap) if len(ap) else 1.0)
+            lim_l = options.outlier_threshold * np.sqrt(2.0) * sig_l
+            lim_p = options.outlier_threshold * np.sqrt(2.0) * sig_p
+            t = every.lines.t
+            cnt = np.bincount(t, minlength=M)
+            ss = np.bincount(t, weights=al ** 2, minlength=M)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                lines_used = candidate_lines & ~(np.sqrt(ss / np.maximum(cnt, 1)) > lim_l)
+            pin = np.zeros_like(candidate_points)
+            pin[np.flatnonzero(every.active)[ap <= lim_p]] = True
+        prob = problem(lines_used, pin)
+        if prob.Kl + len(prob.f) == 0:
+            raise OmniSfmError("joint adjustment: no line or point observation")
+        if round_ == 0:
+            al, ap = angles(prob)
+            sig_l = sl or (robust_sigma(al) if len(al) else 1.0)
+            sig_p = spt or (robust_sigma(ap) if len(ap) else 1.0)
+            prob = problem(lines_used, pin)
+        final = round_ == options.robust_rounds
+        state, it = levenberg_marquardt(
+            prob, state, RobustLoss.LINEAR if final else RobustLoss.HUBER, options.loss_scale,
+            options.max_iterations if final else options.robust_iterations,
+            options.tolerance if final else 1e-6)
+        iterations += it
+    al, ap = angles(prob)
+    R, c, d, p, X = state
+    points_used = np.bincount(points.point[pin], minlength=P) >= 2
+    nan3 = np.full(3, np.nan)
+    return JointResult(
+        rotations=np.where(frames[:, None, None], R, np.nan),
+        positions=np.where(frames[:, None], c, nan3),
+        frames=frames,
+        line_directions=np.where(lines_used[:, None], d, nan3),
+        line_points=np.where(lines_used[:, None], p, nan3),
+        lines_used=lines_used.copy(),
+        points=np.where(points_used[:, None], X, nan3),
+        points_used=points_used,
+        point_inliers=pin.copy(),
+        line_sigma_deg=float(np.degrees(sig_l)), point_sigma_deg=float(np.degrees(sig_p)),
+        line_rms_deg=float(np.degrees(np.sqrt(np.mean(al ** 2)))) if len(al) else np.nan,
+        point_rms_deg=float(np.degrees(np.sqrt(np.mean(ap ** 2)))) if len(ap) else np.nan,
+        iterations=iterations)
+
+
+def _enough(point: np.ndarray, keep: np.ndarray, P: int) -> np.ndarray:
+    """``keep`` narrowed to the observations of points that keep two or more."""
+    return keep & (np.bincount(point[keep], minlength=P) >= 2)[point]
+
+
+def points_seen(rotations: FloatArray, positions: FloatArray, points: FloatArray,
+                frame: np.ndarray, point: np.ndarray) -> FloatArray:
+    """``(K, 3)`` the unit rays (camera frame) along which frames ``frame`` see ``points``
+    ``[point]``: the point model's prediction (the simulation of observations, tests)."""
+    return normalize(_offsets(rotations, positions, points, frame, point))
+
+
+def _offsets(R: FloatArray, c: FloatArray, X: FloatArray, frame: np.ndarray,
+             point: np.ndarray) -> FloatArray:
+    """``(K, 3)``: ``R^T (X - c)``, point ``point[k]`` in the camera of frame ``frame[k]``."""
+    return np.einsum("kji,kj->ki", R[frame], X[point] - c[frame])
+
+
+__all__ = ["JointOptions", "JointResult", "PointObservations", "joint_adjust", "points_seen"]
