@@ -40,6 +40,10 @@ def main() -> int:
     p.add_argument("--init", type=Path, default=None,
                    help="refine this init directory instead of the perturbed ground truth")
     p.add_argument("--seed", type=int, default=0, help="seed of the perturbation")
+    p.add_argument("--adjustment", nargs="+", choices=["joint", "colmap"],
+                   default=[RefineOptions().adjustment],
+                   help="the adjustments to run, one after the other on the same features and "
+                        "matches (the first run's database is reused)")
     args = p.parse_args()
 
     render = args.work / "render"
@@ -60,32 +64,46 @@ def main() -> int:
         init_dir = args.init
         kind = f"init directory {init_dir}"
     init = read_init_model(init_dir).trajectory
-    t0 = time.perf_counter()
-    res = refine(init_dir, render / "images", args.work / "refined",
-                 RefineOptions(overlap=args.overlap), overwrite=True,
-                 progress=sys.stderr.isatty())
-    total = time.perf_counter() - t0
-    r = res.report
-    before = trajectory_errors(init, gt)
-    after = trajectory_errors(res.trajectory, gt)
-    ba = r["bundle_adjustment"].get("rounds") or [{}]
     scene = "textured room" if args.scene == "room" else "texture-poor corridor"
     print(f"case: {scene}, hyperboloid {args.width}x{args.height}, {len(gt)} frames, "
           f"path {gt.path_length():.2f} m; seed: {kind}")
-    print(f"frames: {len(init)} seeded, {r['refined_frames']} refined, "
-          f"{len(r['kept_frames'])} kept ({r['kept_input_for_all'] or 'per frame'})")
-    print(f"features: {r['features']['keypoints']} keypoints; matching: "
-          f"{r['matching']['verified_pairs']} verified pairs, "
-          f"{r['matching']['inlier_matches']} inlier matches")
-    print(f"points: {r['model']['points']}, observations: {r['model']['observations']}, "
-          f"mean reprojection error: triangulated "
-          f"{r['triangulation']['mean_reprojection_error_px']:.3f} px -> after BA "
-          f"{ba[-1].get('mean_reprojection_error_after_px', float('nan')):.3f} px")
-    print("stage times (s): " + json.dumps(r["timings_s"]) + f"; total {total:.1f} s")
-    print(f"ATE / path length: before {100 * before.ate_rel:.3f} %  after "
-          f"{100 * after.ate_rel:.3f} %")
-    print(f"mean rotation error (deg): before {before.rot_mean_deg:.3f}  after "
-          f"{after.rot_mean_deg:.3f}")
+    before = trajectory_errors(init, gt)
+    print(f"input: ATE / path length {100 * before.ate_rel:.4f} %, rotation error mean / max "
+          f"{before.rot_mean_deg:.3f} / {before.rot_max_deg:.3f} deg")
+    database = args.work / "database.db"
+    for adjustment in args.adjustment:
+        t0 = time.perf_counter()
+        res = refine(init_dir, render / "images", args.work / f"refined_{adjustment}",
+                     RefineOptions(overlap=args.overlap, adjustment=adjustment),
+                     database=database, overwrite=True, progress=sys.stderr.isatty())
+        total = time.perf_counter() - t0
+        r = res.report
+        after = trajectory_errors(res.trajectory, gt)
+        ba = r["bundle_adjustment"]
+        print(f"--- adjustment: {adjustment}"
+              + (f" (joint skipped: {r['joint_adjustment']})" if "joint_adjustment" in r
+                 else ""))
+        print(f"frames: {len(init)} seeded, {r['refined_frames']} refined, "
+              f"{len(r['kept_frames'])} kept ({r['kept_input_for_all'] or 'per frame'})")
+        print(f"features: {r['features']['keypoints']} keypoints "
+              f"({r['features']['reused_images']} images reused from the database); "
+              f"matching: {r['matching']['verified_pairs']} verified pairs, "
+              f"{r['matching']['inlier_matches']} inlier matches")
+        if "joint" in ba:
+            j = ba["joint"]
+            print(f"joint: {j['line_observations']} line and {j['point_observations']} point "
+                  f"observations ({j['point_observations_rejected']} rejected), noise "
+                  f"{j['line_noise_deg']:.4f} / {j['point_noise_deg']:.4f} deg, "
+                  f"{j['iterations']} iterations")
+        else:
+            rounds = ba.get("rounds") or [{}]
+            print(f"points: {r['model']['points']}, observations: "
+                  f"{r['model']['observations']}, mean reprojection error: triangulated "
+                  f"{r['triangulation']['mean_reprojection_error_px']:.3f} px -> after BA "
+                  f"{rounds[-1].get('mean_reprojection_error_after_px', float('nan')):.3f} px")
+        print("stage times (s): " + json.dumps(r["timings_s"]) + f"; total {total:.1f} s")
+        print(f"ATE / path length: {100 * after.ate_rel:.4f} %; rotation error mean / max: "
+              f"{after.rot_mean_deg:.3f} / {after.rot_max_deg:.3f} deg")
     return 0
 
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -12,6 +14,8 @@ from omni_sfm.geometry import rotvec_to_matrix
 from omni_sfm.poses import Trajectory
 from omni_sfm.refine.joint import JointOptions, PointObservations, joint_adjust, points_seen
 from omni_sfm.synth.simulate import Simulation, SimulationOptions, simulate
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "docs" / "examples" / "cameras"
 
 
 def _scene(seed: int, line_noise: float, point_noise: float, num_points: int = 60
@@ -128,3 +132,44 @@ def test_the_sparse_solve_of_long_sequences_gives_the_dense_one(monkeypatch: pyt
     sparse = joint_adjust(sim.tracks, R, c, d, p, obs, X0)
     assert np.abs(sparse.positions - dense.positions).max() < 1e-9
     assert np.abs(sparse.rotations - dense.rotations).max() < 1e-9
+
+
+def test_pixel_jacobians_follow_the_equirectangular_image() -> None:
+    # an equirectangular image spends W / (2 pi) pixels on a radian of latitude everywhere,
+    # and W / (2 pi cos lat) on a radian along the parallel
+    from omni_sfm.cameras import load_camera
+    from omni_sfm.refine.joint_model import pixel_jacobians
+
+    cam = load_camera(EXAMPLES / "equirectangular.yaml")
+    lat = np.radians([0.0, 30.0, 60.0])
+    lon = np.radians([10.0, -50.0, 120.0])
+    ray = np.stack([np.cos(lat) * np.sin(lon), np.sin(lat), np.cos(lat) * np.cos(lon)], 1)
+    obs = PointObservations(np.zeros(3, int), np.arange(3), ray, 3)
+    s = np.linalg.svd(pixel_jacobians(cam, obs), compute_uv=False)[:, ::-1]
+    unit = cam.width / (2 * np.pi)
+    np.testing.assert_allclose(s[:, 0], unit, rtol=1e-4)
+    np.testing.assert_allclose(s[:, 1], unit / np.cos(lat), rtol=1e-4)
+
+
+def test_observations_weighed_by_pixels_follow_the_pixel_noise() -> None:
+    # rays with an error of 0.2 deg where the image is coarse and 0.02 deg where it is fine
+    # (the same pixel error): weighed by their pixel scales, the estimate is better than with
+    # every ray alike
+    sim, obs, X = _scene(6, 0.1, 0.0)
+    rng = np.random.default_rng(6)
+    fine = rng.random(len(obs.frame)) < 0.5
+    sigma = np.where(fine, 0.02, 0.2)
+    ray = obs.ray + rng.normal(size=obs.ray.shape) * np.radians(sigma)[:, None]
+    ray /= np.linalg.norm(ray, axis=1, keepdims=True)
+    plain = PointObservations(obs.frame, obs.point, ray, obs.num_points)
+    scaled = PointObservations(obs.frame, obs.point, ray, obs.num_points,
+                               np.eye(2) / sigma[:, None, None])
+    R, c, d, p, X0 = _perturbed(sim, X, 6)
+    nan = np.full_like(d, np.nan)
+    e_plain = _rot_err(*_poses(joint_adjust(sim.tracks, R, c, nan, nan, plain, X0)), sim)
+    e_scaled = _rot_err(*_poses(joint_adjust(sim.tracks, R, c, nan, nan, scaled, X0)), sim)
+    assert e_scaled < 0.7 * e_plain, (e_scaled, e_plain)
+
+
+def _poses(res: object) -> tuple[np.ndarray, np.ndarray]:
+    return res.rotations, res.positions  # type: ignore[attr-defined]

@@ -10,6 +10,7 @@ trajectory, the 3D lines and the map, and ``compare``'s ``lines`` trajectory mus
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import shlex
@@ -77,6 +78,11 @@ def test_readme_chain_end_to_end(tmp_path: Path, video: bool) -> None:
     # refine and dense found the frames init recorded, as stored paths
     for folder in ("refined", "dense"):
         assert (ex / folder / "camera.yaml").is_file()
+    # refine adjusted the init's lines with the points (the joint adjustment, its default)
+    refined = json.loads((ex / "refined" / "report.json").read_text())
+    joint = refined["bundle_adjustment"]["joint"]
+    assert joint["line_observations"] > 0 and joint["point_observations"] > 0
+    assert refined["lines3d"].startswith("adjusted")  # its lines3d.json: the adjusted lines
     # compare's lines are init's, on the same frames
     init = read_tum(ex / "init" / "trajectory.tum")
     lines = read_tum(ex / "cmp" / "trajectories" / "lines.tum")

@@ -41,6 +41,10 @@ def add_parser(sub: Any) -> None:
                    help="SIFT features per image (default: %(default)s)")
     p.add_argument("--no-mapper", action="store_true",
                    help="do not try to register frames the init did not pose")
+    p.add_argument("--adjustment", choices=["joint", "colmap"], default=d.adjustment,
+                   help="joint: cameras, the init's 3D lines and the points adjusted together "
+                        "(COLMAP's adjustment where the init has no line tracks); colmap: "
+                        "COLMAP's point bundle adjustment alone (default: %(default)s)")
     p.add_argument("--threads", type=int, default=d.num_threads,
                    help="pycolmap threads, -1 = all cores (default: %(default)s)")
     p.add_argument("--verbose", action="store_true", help="show COLMAP's log on stderr")
@@ -57,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
                                f"{getattr(args, key)}")
     opts = RefineOptions(overlap=args.overlap, max_features=args.max_features,
                          register_missing=not args.no_mapper, num_threads=args.threads,
-                         text=args.text)
+                         text=args.text, adjustment=args.adjustment)
     res = refine(args.input, args.images, args.output, opts, database=args.database,
                  overwrite=args.overwrite, progress=sys.stderr.isatty(), verbose=args.verbose)
     r = res.report
@@ -66,6 +70,10 @@ def run(args: argparse.Namespace) -> int:
     rounds = ba.get("rounds") or []
     err = (f", mean reprojection error {rounds[0]['mean_reprojection_error_before_px']:.3f} -> "
            f"{rounds[-1]['mean_reprojection_error_after_px']:.3f} px" if rounds else "")
+    if "joint" in ba:
+        j = ba["joint"]
+        err = (f", adjusted with {j['line_observations']} line and {j['point_observations']} "
+               f"point observations")
     print(f"refine: refined {r['refined_frames']} of {n} input poses "
           f"({r['model']['points']} points, {r['model']['observations']} observations{err}) "
           f"into {res.output}")

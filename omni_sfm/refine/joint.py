@@ -44,7 +44,7 @@ from omni_sfm.estimate.bundle import (
     levenberg_marquardt,
     robust_sigma,
 )
-from omni_sfm.geometry import FloatArray, normalize, orthonormal_completion, skew
+from omni_sfm.geometry import FloatArray, cross3, normalize, orthonormal_completion
 from omni_sfm.lines.tracks import LineTracks
 
 _DENSE_MAX = 4000
@@ -59,12 +59,23 @@ class PointObservations:
     point: np.ndarray
     ray: FloatArray
     num_points: int
+    pixel_jacobian: FloatArray | None = None
+    """``(K, 2, 2)`` the camera model's local map from angles (radians along the two
+    directions of :meth:`tangent_basis`) to pixels at each observation, or None (every
+    observation alike). With it, the residuals weigh as pixel errors do: a keypoint's error is
+    in pixels, and an omnidirectional image spends very different numbers of pixels on a
+    degree across it and along different directions."""
 
     def __post_init__(self) -> None:
         K = len(self.frame)
         if len(self.point) != K or self.ray.shape != (K, 3):
             raise OmniSfmError(f"point observations: {K} frames, {len(self.point)} points and "
                                f"rays of shape {self.ray.shape} do not match")
+        J = self.pixel_jacobian
+        if J is not None and (J.shape != (K, 2, 2) or not (
+                np.abs(np.linalg.det(J)) > 0).all()):
+            raise OmniSfmError("point observations: the pixel Jacobians must be (K, 2, 2) and "
+                               "invertible")
         if K and (self.point.min() < 0 or self.point.max() >= self.num_points):
             raise OmniSfmError("point observations: a point index is out of range")
         if not np.isfinite(self.ray).all():
@@ -73,7 +84,27 @@ class PointObservations:
     def subset(self, keep: np.ndarray) -> PointObservations:
         """The observations ``keep`` (bool or indices), the points numbered as before."""
         return PointObservations(self.frame[keep], self.point[keep], self.ray[keep],
-                                 self.num_points)
+                                 self.num_points,
+                                 None if self.pixel_jacobian is None else
+                                 self.pixel_jacobian[keep])
+
+    def tangent_basis(self) -> tuple[FloatArray, FloatArray]:
+        """``(K, 3)`` twice: the directions perpendicular to each ray that the residual (and
+        :attr:`pixel_jacobian`) is measured along."""
+        return orthonormal_completion(self.ray)
+
+    def residual_basis(self) -> FloatArray:
+        """``(K, 2, 3)``: rows ``b`` with residual ``e = b . bearing``: the tangent directions,
+        mapped by :attr:`pixel_jacobian` to pixels and divided by the median observation's
+        pixels per radian (so that residuals stay in radians of a typical observation and
+        the noise level an angle)."""
+        e1, e2 = self.tangent_basis()
+        B = np.stack([e1, e2], axis=1)
+        J = self.pixel_jacobian
+        if J is None or len(self.frame) == 0:
+            return B
+        ref = float(np.median(np.sqrt(np.abs(np.linalg.det(J)))))
+        return np.asarray(J @ B / ref)
 
 
 @dataclass(frozen=True)
@@ -133,9 +164,7 @@ class _JointProblem:
         self.lines, self.active = lines, active
         self.F, self.M, self.P = lines.F, lines.M, points.num_points
         self.f, self.j = points.frame[active], points.point[active]
-        r = points.ray[active]
-        e1, e2 = orthonormal_completion(r)
-        self.Bp = np.stack([e1, e2], axis=1)  # (Kp, 2, 3)
+        self.Bp = points.residual_basis()[active]  # (Kp, 2, 3)
         self.sl, self.sp = sigma_line, sigma_point
         self.Kl = len(lines.f)
         self.point_free = np.zeros(self.P, bool)
@@ -158,9 +187,11 @@ class _JointProblem:
         # d e / d v = B (I - b b^T) / |v|; v = R^T (X - c): dv/dw = [v]x, dv/dc = -R^T
         A = (self.Bp - np.einsum("kai,ki->ka", self.Bp, b)[:, :, None] * b[:, None, :]) / \
             rho[:, None, None]
-        ART = A @ np.swapaxes(R[self.f], 1, 2)
-        Jpp = np.concatenate([A @ skew(v), -ART], axis=2) * \
-            self.lines.pose_free[self.f][:, None, :]
+        ART = np.einsum("kaj,kij->kai", A, R[self.f])  # A R^T
+        Jpp = np.empty((len(v), 2, 6))
+        cross3(A, v[:, None, :], out=Jpp[:, :, :3])  # A [v]x: each row a -> a x v
+        np.negative(ART, out=Jpp[:, :, 3:])
+        Jpp *= self.lines.pose_free[self.f][:, None, :]
         return Jpl / self.sl, Jl / self.sl, Jpp / self.sp, ART / self.sp
 
     def normal_equations(self, Jpl: FloatArray, Jl: FloatArray, Jpp: FloatArray,
@@ -168,22 +199,16 @@ class _JointProblem:
         Kl = self.Kl
         wl, wp, el, ep = w[:Kl], w[Kl:], e[:Kl], e[Kl:]
         fl, tl, fp, jp = self.lines.f, self.lines.t, self.f, self.j
-        Hpp = np.zeros((self.F, 6, 6))
-        gp = np.zeros((self.F, 6))
         wJpl, wJpp = Jpl * wl[:, None, None], Jpp * wp[:, None, None]
-        np.add.at(Hpp, fl, np.swapaxes(wJpl, 1, 2) @ Jpl)
-        np.add.at(Hpp, fp, np.swapaxes(wJpp, 1, 2) @ Jpp)
-        np.add.at(gp, fl, np.einsum("kai,ka->ki", wJpl, el))
-        np.add.at(gp, fp, np.einsum("kai,ka->ki", wJpp, ep))
         wJl, wJx = Jl * wl[:, None, None], Jx * wp[:, None, None]
-        Hll = np.zeros((self.M, 4, 4))
-        np.add.at(Hll, tl, np.swapaxes(wJl, 1, 2) @ Jl)
-        gl = np.zeros((self.M, 4))
-        np.add.at(gl, tl, np.einsum("kai,ka->ki", wJl, el))
-        Hxx = np.zeros((self.P, 3, 3))
-        np.add.at(Hxx, jp, np.swapaxes(wJx, 1, 2) @ Jx)
-        gx = np.zeros((self.P, 3))
-        np.add.at(gx, jp, np.einsum("kai,ka->ki", wJx, ep))
+        Hpp = _sum_by(fl, np.swapaxes(wJpl, 1, 2) @ Jpl, self.F) + \
+            _sum_by(fp, np.swapaxes(wJpp, 1, 2) @ Jpp, self.F)
+        gp = _sum_by(fl, np.einsum("kai,ka->ki", wJpl, el), self.F) + \
+            _sum_by(fp, np.einsum("kai,ka->ki", wJpp, ep), self.F)
+        Hll = _sum_by(tl, np.swapaxes(wJl, 1, 2) @ Jl, self.M)
+        gl = _sum_by(tl, np.einsum("kai,ka->ki", wJl, el), self.M)
+        Hxx = _sum_by(jp, np.swapaxes(wJx, 1, 2) @ Jx, self.P)
+        gx = _sum_by(jp, np.einsum("kai,ka->ki", wJx, ep), self.P)
         return (Hpp, gp, (Hll, np.swapaxes(wJpl, 1, 2) @ Jl, gl, fl, tl, self.lines.line_free),
                 (Hxx, np.swapaxes(wJpp, 1, 2) @ Jx, gx, fp, jp,
                  np.repeat(self.point_free[:, None], 3, axis=1)))
@@ -193,38 +218,17 @@ class _JointProblem:
         """Damped step ``(H + lam diag(H)) dx = -g``, the lines and points eliminated."""
         Hpp, gp, *marks = blocks
         F, pf = self.F, self.lines.pose_free
-        Hpp = _damped(Hpp, lam, pf)
-        S = sp.block_diag(list(Hpp), format="csr")
-        rhs = -gp.ravel()
+        S = _ReducedSystem(_damped(Hpp, lam, pf), -gp)
         reduced = []
         for H, Hcross, g, f, t, free in marks:
-            n = H.shape[1]
-            Hd = _damped(H, lam, free)
-            Linv = np.linalg.inv(np.linalg.cholesky(Hd))  # (N, n, n)
+            Linv = np.linalg.inv(np.linalg.cholesky(_damped(H, lam, free)))  # (N, n, n)
             G = Hcross @ np.swapaxes(Linv[t], 1, 2)  # H_pl L^-T, (K, 6, n)
-            rows = (6 * f)[:, None, None] + np.arange(6)[None, :, None]
-            cols = (n * t)[:, None, None] + np.arange(n)[None, None, :]
-            Gs = sp.csr_matrix((G.ravel(), (np.broadcast_to(rows, G.shape).ravel(),
-                                            np.broadcast_to(cols, G.shape).ravel())),
-                               shape=(6 * F, n * len(H)))
-            gt = np.einsum("nij,nj->ni", Linv, g)  # L^-1 g
-            S = S - Gs @ Gs.T
-            rhs = rhs + Gs @ gt.ravel()
+            S.subtract(G, f, t, np.einsum("nij,nj->ni", Linv, g))  # L^-1 g
             reduced.append((Linv, Hcross, g, f, t, free))
-        if 6 * F <= _DENSE_MAX:
-            dp = scipy.linalg.cho_solve(scipy.linalg.cho_factor(S.toarray(), check_finite=False),
-                                        rhs, check_finite=False)
-        else:
-            lu = spla.splu(S.tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                           options={"SymmetricMode": True})
-            if np.any(lu.U.diagonal() <= 0):
-                raise np.linalg.LinAlgError("reduced system not positive definite")
-            dp = lu.solve(rhs)
-        dp = dp.reshape(F, 6) * pf
+        dp = S.solve().reshape(F, 6) * pf
         steps = []
         for Linv, Hcross, g, f, t, free in reduced:
-            r = -g.copy()
-            np.add.at(r, t, -np.einsum("kji,kj->ki", Hcross, dp[f]))
+            r = -g - _sum_by(t, np.einsum("kji,kj->ki", Hcross, dp[f]), len(g))
             steps.append(np.einsum("nji,nj->ni", Linv, np.einsum("nij,nj->ni", Linv, r)) * free)
         return dp, (steps[0], steps[1])
 
@@ -233,6 +237,86 @@ class _JointProblem:
                 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
         R2, c2, d2, p2 = self.lines.retract(R, c, d, p, dpose, dmarks[0])
         return R2, c2, d2, p2, X + dmarks[1]
+
+
+def _sum_by(index: np.ndarray, values: FloatArray, n: int) -> FloatArray:
+    """``(n, ...)``: the rows of ``values`` ``(K, ...)`` summed by ``index`` ``(K,)`` (a sparse
+    product: much faster than ``np.add.at``)."""
+    K = len(index)
+    if K == 0:
+        return np.zeros((n, *values.shape[1:]))
+    flat = values.reshape(K, -1)
+    A = sp.csr_matrix((np.ones(K), (index, np.arange(K))), shape=(n, K))
+    return np.asarray(A @ flat).reshape((n, *values.shape[1:]))
+
+
+class _ReducedSystem:
+    """The cameras' ``6F x 6F`` system ``S dp = rhs`` left after eliminating landmarks:
+    ``S = H_pp - sum_j G_j G_j^T`` with ``G_j`` ``(6F, n)`` the landmark's blocks ``H_pj
+    L_j^-T``. Each block of landmarks is handled as a dense window over the frames its
+    observations touch (matrix products, not element-wise sparse ones); the sum is kept dense
+    up to ``_DENSE_MAX`` unknowns, as sparse triplets above."""
+
+    def __init__(self, Hpp: FloatArray, rhs: FloatArray) -> None:
+        self.F = len(Hpp)
+        n6 = 6 * self.F
+        self.rhs = rhs.ravel().copy()
+        idx = np.arange(n6).reshape(self.F, 6)
+        if n6 <= _DENSE_MAX:
+            self.dense: FloatArray | None = np.zeros((n6, n6))
+            for k in range(self.F):
+                self.dense[6 * k:6 * k + 6, 6 * k:6 * k + 6] = Hpp[k]
+            self.parts: list[tuple[np.ndarray, np.ndarray, FloatArray]] = []
+        else:
+            self.dense = None
+            self.parts = [(np.repeat(idx, 6, axis=1).ravel(), np.tile(idx, (1, 6)).ravel(),
+                           Hpp.ravel())]
+
+    def subtract(self, G: FloatArray, f: np.ndarray, t: np.ndarray, gt: FloatArray,
+                 chunk: int = 20000) -> None:
+        """``S -= sum_j G_j G_j^T`` and ``rhs += sum_j G_j gt_j`` for the observations ``k``
+        (frame ``f[k]``, landmark ``t[k]``, block ``G[k]`` ``(6, n)``)."""
+        if len(t) == 0:
+            return
+        n = G.shape[2]
+        # landmarks ordered by their first frame, cut into chunks of about ``chunk``
+        # observations: each chunk touches a window of nearby frames
+        first = np.full(int(t.max()) + 1, np.iinfo(np.int64).max)
+        np.minimum.at(first, t, f)
+        order = np.lexsort((t, first[t]))
+        t_o = t[order]
+        new_mark = np.flatnonzero(np.r_[True, t_o[1:] != t_o[:-1]])
+        cuts = new_mark[np.searchsorted(new_mark, np.arange(chunk, len(t_o), chunk))]
+        for sel in np.split(order, np.unique(cuts)):
+            if len(sel) == 0:
+                continue
+            fr, inv_f = np.unique(f[sel], return_inverse=True)
+            lm, inv_t = np.unique(t[sel], return_inverse=True)
+            blocks = np.zeros((len(fr), 6, len(lm), n))
+            blocks[inv_f, :, inv_t, :] = G[sel]
+            Gc = blocks.reshape(6 * len(fr), n * len(lm))
+            rows = (6 * fr[:, None] + np.arange(6)).ravel()
+            self.rhs[rows] += Gc @ gt[lm].ravel()
+            Sc = Gc @ Gc.T
+            if self.dense is not None:
+                self.dense[np.ix_(rows, rows)] -= Sc
+            else:
+                self.parts.append((np.repeat(rows, len(rows)), np.tile(rows, len(rows)),
+                                   -Sc.ravel()))
+
+    def solve(self) -> FloatArray:
+        if self.dense is not None:
+            return np.asarray(scipy.linalg.cho_solve(
+                scipy.linalg.cho_factor(self.dense, check_finite=False), self.rhs,
+                check_finite=False))
+        n6 = 6 * self.F
+        r, c, v = (np.concatenate(x) for x in zip(*self.parts, strict=True))
+        S = sp.csc_matrix((v, (r, c)), shape=(n6, n6))
+        lu = spla.splu(S, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                       options={"SymmetricMode": True})
+        if np.any(lu.U.diagonal() <= 0):
+            raise np.linalg.LinAlgError("reduced system not positive definite")
+        return np.asarray(lu.solve(self.rhs))
 
 
 def _damped(H: FloatArray, lam: float, free: np.ndarray) -> FloatArray:

@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from omni_sfm.cameras import write_camera_yaml
+from omni_sfm.errors import OmniSfmError
 from omni_sfm.export.colmap import (
     IMAGES_DIR,
     MASK_FILE,
@@ -54,6 +55,7 @@ from omni_sfm.fileio import (
 )
 from omni_sfm.folders import (
     CAMERA_FILE,
+    LINES_FILE,
     REPORT_FILE,
     USER_MASK_FILE,
     RefineFolder,
@@ -63,12 +65,20 @@ from omni_sfm.folders import (
 from omni_sfm.geometry import FloatArray, rotation_angle
 from omni_sfm.libs import library_logging
 from omni_sfm.lines.video import FrameStore, read_mask
+from omni_sfm.lines3d import write_lines3d
 from omni_sfm.poses import Trajectory, write_tum
 from omni_sfm.refine.database import (
     check_image_names,
     extract_features,
     match_sequential,
     write_colmap_images,
+)
+from omni_sfm.refine.joint import JointResult
+from omni_sfm.refine.joint_model import (
+    LineEvidence,
+    adjust_model,
+    adjusted_segments,
+    read_line_evidence,
 )
 from omni_sfm.transforms import Similarity, similarity_from_poses
 
@@ -120,6 +130,10 @@ class RefineOptions:
     ``min_observations``) have a mean reprojection error at most this (px)."""
     max_mean_reprojection_error_px: float = 2.0
     """An adjusted model with a larger mean reprojection error is not trusted at all."""
+    adjustment: str = "joint"
+    """``joint``: cameras, the init's 3D lines and the triangulated points adjusted together
+    (:mod:`omni_sfm.refine.joint`; COLMAP's adjustment where the init folder has no line
+    tracks); ``colmap``: COLMAP's point bundle adjustment alone."""
     text: bool = False
     """Also write the output model as COLMAP text files."""
 
@@ -374,6 +388,10 @@ class _Run:
     stages: _Stages
     report: dict[str, Any]
     progress: bool
+    joint: bool = False
+    """The model was adjusted with the lines (:meth:`_joint`)."""
+    lines: tuple[LineEvidence, JointResult] | None = None
+    """The init's lines and the joint adjustment's result (:meth:`_joint`)."""
 
     @property
     def register(self) -> bool:
@@ -431,7 +449,12 @@ class _Run:
         need_points = max(o.min_points, int(np.ceil(o.min_points_per_frame * len(image_ids))))
         trusted = rec.num_points3D() >= need_points and (~weak).sum() >= 3
         with self.stages.stage("bundle adjustment"):
-            if trusted:
+            joint = self._joint(rec, image_ids) if o.adjustment == "joint" else None
+            if joint is not None:
+                self.joint = True
+                trusted = True
+                self.report["bundle_adjustment"] = joint
+            elif trusted:
                 priors = _position_priors(rec, image_ids, inp,
                                           o.prior_position_sigma * max(inp.path_length(), 1e-9))
                 ba = _bundle_adjust(rec, fixed, priors, o)
@@ -444,13 +467,36 @@ class _Run:
                                f"or well-observed frames ({int((~weak).sum())} < 3)"}
         return obs0, bool(trusted)
 
+    def _joint(self, rec: Any, image_ids: list[int]) -> dict[str, Any] | None:
+        """The joint adjustment of lines and points on ``rec`` (its report), or None where the
+        init folder has no line evidence or the adjustment fails (the reason reported)."""
+        lines = read_line_evidence(self.init_dir, self.init.trajectory)
+        if isinstance(lines, str):
+            self.report["joint_adjustment"] = {"skipped": lines}
+            return None
+        try:
+            res, rep = adjust_model(rec, image_ids, self.init.trajectory, lines,
+                                    self.init.camera)
+            self.lines = (lines, res)
+        except OmniSfmError as exc:
+            self.report["joint_adjustment"] = {"failed": str(exc)}
+            return None
+        # as after COLMAP's adjustment: points that the camera model does not image where
+        # they are seen (a few end up behind a mirror, errors of 1e150 px) go
+        import pycolmap
+
+        rep["removed_observations"] = int(pycolmap.ObservationManager(rec).filter_all_points3D(
+            self.o.max_reprojection_error_px, self.o.min_triangulation_angle_deg))
+        rep["after"] = model_statistics(rec)
+        return {"joint": rep}
+
     def accept_and_write(self, rec: Any, seed: Any, image_ids: list[int], obs0: np.ndarray,
                          trusted: bool) -> tuple[Trajectory, np.ndarray]:
         """Accept per frame, place the mapper's frames, write the model, trajectory and the
         files carried forward; the trajectory and which frames were refined."""
         o, init, tmp, report = self.o, self.init, self.tmp, self.report
         acc = _accept(rec, seed.export, init, image_ids, obs0, trusted, o,
-                      init.trajectory.path_length())
+                      init.trajectory.path_length(), lines_too=self.joint)
         report.update(acc.report())
         traj, refined = acc.trajectory, acc.refined
         ts_all, ts_why = _frame_timestamps(self.all_names, init)
@@ -476,6 +522,10 @@ class _Run:
             final.write_text(str(tmp / SPARSE_DIR))
         write_tum(tmp / TRAJECTORY_FILE, traj)
         write_camera_yaml(tmp / CAMERA_FILE, init.camera)
+        if self.lines is not None and acc.alignment is not None:
+            # the adjusted lines, in the output's world (carry_forward then skips the init's)
+            write_lines3d(tmp / LINES_FILE, adjusted_segments(*self.lines, acc.alignment))
+            report["lines3d"] = "adjusted with the points (joint adjustment)"
         report["carried_from_input"] = carry_forward(self.init_dir, tmp)
         report["trajectory_frames"] = len(image_ids) + len(added)
         return traj, refined
@@ -578,8 +628,11 @@ class Acceptance:
 
 
 def _accept(rec: Any, export: Any, init: InitModel, image_ids: list[int], obs0: np.ndarray,
-            trusted_model: bool, o: RefineOptions, path_length: float) -> Acceptance:
-    """Per frame: the adjusted pose (mapped onto the input's frame) or the input pose, and why."""
+            trusted_model: bool, o: RefineOptions, path_length: float, *,
+            lines_too: bool = False) -> Acceptance:
+    """Per frame: the adjusted pose (mapped onto the input's frame) or the input pose, and why.
+    ``lines_too``: the adjustment used the lines, which fix every frame, so a frame with few
+    point observations is not held to its input pose for that."""
     inp = init.trajectory
     n = len(inp)
     reasons: dict[str, str] = {}
@@ -595,7 +648,7 @@ def _accept(rec: Any, export: Any, init: InitModel, image_ids: list[int], obs0: 
     adjusted = Trajectory(inp.timestamps.copy(), full_R, full_c)
     obs = _observations(rec, image_ids)
     err = _frame_errors(rec, image_ids)
-    cand = ok & (obs0 >= o.min_observations) & (obs >= o.min_observations)
+    cand = ok if lines_too else ok & (obs0 >= o.min_observations) & (obs >= o.min_observations)
     # a change beyond the plausible bounds stands only where the frame's own observations
     # (at least min_observations of them) fit it to a small error: 6 pose parameters against
     # dozens of sub-pixel observations; otherwise the adjustment is not trusted there
