@@ -674,18 +674,19 @@ def _oriented_components(p: IntArray, shape: tuple[int, int], theta: FloatArray,
     from scipy.sparse.csgraph import connected_components
 
     n = len(p)
-    img = np.full(shape, -1, np.int64)
-    img[p[:, 1], p[:, 0]] = np.arange(n)
-    rows, cols = [], []
-    for dx, dy in ((1, 0), (-1, 1), (0, 1), (1, 1)):
-        nb = img[p[:, 1] + dy, p[:, 0] + dx]
-        has = np.flatnonzero(nb >= 0)
-        d = np.abs(theta[has] - theta[nb[has]])
-        d = np.minimum(d, np.pi - d)
-        ok = d < max_angle
-        rows.append(has[ok])
-        cols.append(nb[has[ok]])
-    r, c = np.concatenate(rows), np.concatenate(cols)
+    w = int(shape[1])
+    img = np.full(int(shape[0]) * w, -1, np.int32)
+    flat = p[:, 1].astype(np.int64) * w + p[:, 0]
+    img[flat] = np.arange(n, dtype=np.int32)
+    # the neighbours right, below-left, below and below-right of every point at once (each
+    # 8-neighbour pair once); the graph's edge order does not matter to its components
+    nb = np.take(img, flat[:, None] + np.array([1, w - 1, w, w + 1], np.int64)).ravel()
+    m = np.flatnonzero(nb >= 0)
+    r, c = m >> 2, nb[m].astype(np.int64)
+    d = np.abs(theta[r] - theta[c])
+    d = np.minimum(d, np.pi - d)
+    ok = d < max_angle
+    r, c = r[ok], c[ok]
     g = coo_matrix((np.ones(len(r), np.int8), (r, c)), shape=(n, n))
     ncomp, lab = connected_components(g, directed=False)
     return int(ncomp), lab.astype(np.int64)
