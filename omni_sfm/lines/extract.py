@@ -27,6 +27,12 @@ from omni_sfm.geometry import FloatArray, completion_towards, smallest_eigenvect
 
 IntArray = np.ndarray
 
+LONG_CHAIN_TEST_FRACTION = 0.05
+"""Where more than this share of the searched pixels are edge points (surface texture), the
+edge points outside 8-connected chains of at least ``min_points`` points are dropped before the
+corner test, which then costs less than the labelling of the chains (below it the labelling
+costs more than it saves)."""
+
 
 @dataclass(frozen=True, kw_only=True)
 class ExtractionOptions:
@@ -138,7 +144,9 @@ class ExtractedLines:
             ``v``. Across is the larger, by about ``sqrt(12) / arc`` (radians): a short
             line pins its plane's tilt about its own ray poorly.
         num_edge_points: Canny edge points inside the mask.
-        num_corner_points: edge points rejected as corner-like.
+        num_corner_points: edge points rejected as corner-like (where the frame has many edge
+            points, see :data:`LONG_CHAIN_TEST_FRACTION`, among those in chains of at least
+            ``min_points`` points only).
         num_segments: connected segments with at least ``min_points`` points (first round).
         num_rejected: segments that failed the straightness test.
         median_grey: median grey level (0-255) of the image inside the mask (NaN: no pixels).
@@ -365,11 +373,21 @@ class LineExtractor:
         np.multiply(dy, 8.0, out=dy16, casting="unsafe")
         edges = cv2.Canny(dx16, dy16, 8.0 * scale * o.canny_low, 8.0 * scale * o.canny_high,
                           L2gradient=True)
-        nz = cv2.findNonZero(cv2.bitwise_and(edges, self.search_mask))
+        edges = cv2.bitwise_and(edges, self.search_mask)
+        nz = cv2.findNonZero(edges)
         pix = np.zeros((0, 2), np.int32) if nz is None else nz.reshape(-1, 2)
         n_edge = len(pix)
         w = gray.shape[1]
         flat = pix[:, 1].astype(np.int64) * w + pix[:, 0]
+        if n_edge > LONG_CHAIN_TEST_FRACTION * self.valid_pixels:
+            # a segment is part of one 8-connected chain of edge points: the points of chains
+            # shorter than min_points can never be in a line (half the edge points of a
+            # textured image), so the corner test and all that follows skip them; the lines
+            # are the same either way, only num_corner_points counts fewer points
+            ncomp, comp_img = cv2.connectedComponents(edges, connectivity=8, ltype=cv2.CV_32S)
+            comp = np.take(comp_img.ravel(), flat)
+            long_chain = np.bincount(comp, minlength=ncomp)[comp] >= o.min_points
+            pix, flat = pix[long_chain], flat[long_chain]
         # second-moment matrix over a Gaussian window, evaluated only at the edge points (the
         # search mask keeps them far enough from the image border for the window); dx and dy
         # interleaved as one complex64 image so that one gather fetches both (np.take with
