@@ -227,13 +227,15 @@ class _EdgePoints:
     """The line-like edge points of one image (:meth:`LineExtractor._edge_points`):
     ``pix`` ``(N, 2)`` integer (x, y) pixels, ``theta`` ``(N,)`` gradient orientation (rad,
     modulo pi), ``grad`` ``(N,)`` complex64 gradient ``dx + i dy`` there, the ``dx``, ``dy``
-    Sobel images and ``counts`` (Canny edge points, corner-like points rejected)."""
+    Sobel images of the region the edges were searched in, whose top-left pixel is
+    ``origin`` (x, y), and ``counts`` (Canny edge points, corner-like points rejected)."""
 
     pix: IntArray
     theta: FloatArray
     grad: np.ndarray
     dx: np.ndarray
     dy: np.ndarray
+    origin: tuple[int, int]
     counts: dict[str, int]
 
     def subpixel(self, sel: IntArray) -> FloatArray:
@@ -243,12 +245,13 @@ class _EdgePoints:
         gx, gy = g.real, g.imag
         mag = cv2.magnitude(self.dx, self.dy)
         w = mag.shape[1]
-        m0 = mag.ravel()[pix[:, 1].astype(np.int64) * w + pix[:, 0]]
+        xl, yl = pix[:, 0] - self.origin[0], pix[:, 1] - self.origin[1]
+        m0 = mag.ravel()[yl.astype(np.int64) * w + xl]
         gn = np.where(m0 > 0, m0, 1.0)
         ux, uy = gx / gn, gy / gn
         xs, ys = pix[:, 0], pix[:, 1]
-        mp = _bilinear(mag, xs + ux, ys + uy)
-        mm = _bilinear(mag, xs - ux, ys - uy)
+        mp = _bilinear(mag, xl + ux, yl + uy)
+        mm = _bilinear(mag, xl - ux, yl - uy)
         den = mp - 2.0 * m0 + mm
         with np.errstate(divide="ignore", invalid="ignore"):
             off = np.where(den < 0, 0.5 * (mm - mp) / den, 0.0)
@@ -263,6 +266,10 @@ class LineExtractor:
     camera's valid mask).
     """
 
+    _segment_points_only = True
+    """Compute sub-pixel positions and rays for the points of the first round's segments only
+    (False: for all line-like edge points, the same lines more slowly; for tests)."""
+
     def __init__(self, camera: CameraModel, options: ExtractionOptions | None = None,
                  mask: np.ndarray | None = None) -> None:
         self.camera = camera
@@ -276,7 +283,6 @@ class LineExtractor:
         if o.reference_contrast < 0 or not 0 < o.min_threshold_scale <= 1:
             raise ValueError(f"need reference_contrast >= 0 and 0 < min_threshold_scale <= 1, "
                              f"got {o.reference_contrast} and {o.min_threshold_scale}")
-        w = camera.width
         valid = usable_pixels(camera, mask)
         self.scale = angular_pixel_scale(camera)
         valid &= np.isfinite(self.scale)
@@ -290,18 +296,38 @@ class LineExtractor:
         self._lut = None if o.gamma == 1.0 else \
             (255.0 * (np.arange(256) / 255.0) ** o.gamma).astype(np.float32)
         rad = max(1, int(np.ceil(1.5 * o.tensor_sigma)))
-        wy, wx = np.mgrid[-rad : rad + 1, -rad : rad + 1]
-        self._win_flat = (wy * w + wx).ravel().astype(np.int64)
+        self._win_yx = np.mgrid[-rad : rad + 1, -rad : rad + 1]
+        wy, wx = self._win_yx
         # edge points need a full tensor window and bilinear neighbours inside the image
         b = rad + 2
         self.search_mask[:b] = 0
         self.search_mask[-b:] = 0
         self.search_mask[:, :b] = 0
         self.search_mask[:, -b:] = 0
+        # edges are searched in the bounding box of the search mask and a margin (a
+        # hyperboloid's mirror: 68 % of an 800x600 image); the margin holds every pixel that
+        # the blur, the gradients, Canny's suppression, the tensor window and the sub-pixel
+        # interpolation read for a pixel in the mask
+        x, y, bw, bh = cv2.boundingRect(self.search_mask)
+        m = (2 * int(np.ceil(2.0 * o.blur_sigma)) + 1) // 2 + rad + 4
+        # OpenCV's magnitude gives values that differ in the last bit with a pixel's position
+        # in the array modulo its SIMD width: the region starts at a row that is a multiple of
+        # 32 and, where the image width is one, at such a column, and has that width, so that
+        # every pixel keeps its position modulo 32 (and its values)
+        y0, x0, x1 = (max(0, y - m) // 32) * 32, 0, camera.width
+        if camera.width % 32 == 0:
+            x0, x1 = (max(0, x - m) // 32) * 32, min(camera.width, -(-(x + bw + m) // 32) * 32)
+        self._set_region((slice(y0, min(camera.height, y + bh + m)), slice(x0, x1)))
         g = np.exp(-(wx**2 + wy**2).ravel() / (2.0 * o.tensor_sigma**2))
         self._win_w = (g / g.sum()).astype(np.float32)
         # pixels where edges are searched: the valid area and the user's mask, eroded
         self.valid_pixels = int(np.count_nonzero(self.search_mask))
+
+    def _set_region(self, roi: tuple[slice, slice]) -> None:
+        """Search edges in ``image[roi]`` (two slices with start and stop) only."""
+        self._roi = roi
+        wy, wx = self._win_yx
+        self._win_flat = (wy * (roi[1].stop - roi[1].start) + wx).ravel().astype(np.int64)
 
     def image_stats(self, gray: np.ndarray) -> tuple[float, float, float]:
         """``(median grey, contrast, threshold scale)`` of an ``(H, W)`` uint8 image inside the
@@ -313,7 +339,8 @@ class LineExtractor:
         histogram, about 0.3 ms for 800x600)."""
         if self.valid_pixels == 0:
             return float("nan"), float("nan"), 1.0
-        hist = cv2.calcHist([gray], [0], self.search_mask, [256], [0, 256]).ravel()
+        hist = cv2.calcHist([gray[self._roi]], [0], self.search_mask[self._roi], [256],
+                            [0, 256]).ravel()
         cdf = np.cumsum(hist) / self.valid_pixels
         q = np.searchsorted(cdf, [0.005, 0.05, 0.5, 0.95, 0.995])
         lut = np.arange(256.0) if self._lut is None else self._lut
@@ -359,6 +386,8 @@ class LineExtractor:
         computed later, by :meth:`_EdgePoints.subpixel`, for the points that need them).
         ``scale`` multiplies the Canny thresholds (contrast normalisation)."""
         o = self.options
+        gray = gray[self._roi]
+        x0, y0 = self._roi[1].start, self._roi[0].start
         # float pipeline: rounding the smoothed image to 8 bits would cost sub-pixel accuracy
         img = self._lut[gray] if self._lut is not None else gray.astype(np.float32)
         if o.blur_sigma > 0:
@@ -373,12 +402,12 @@ class LineExtractor:
         np.multiply(dy, 8.0, out=dy16, casting="unsafe")
         edges = cv2.Canny(dx16, dy16, 8.0 * scale * o.canny_low, 8.0 * scale * o.canny_high,
                           L2gradient=True)
-        edges = cv2.bitwise_and(edges, self.search_mask)
+        edges = cv2.bitwise_and(edges, self.search_mask[self._roi])
         nz = cv2.findNonZero(edges)
         pix = np.zeros((0, 2), np.int32) if nz is None else nz.reshape(-1, 2)
         n_edge = len(pix)
         w = gray.shape[1]
-        flat = pix[:, 1].astype(np.int64) * w + pix[:, 0]
+        flat = pix[:, 1].astype(np.int64) * w + pix[:, 0]  # in the region
         if n_edge > LONG_CHAIN_TEST_FRACTION * self.valid_pixels:
             # a segment is part of one 8-connected chain of edge points: the points of chains
             # shorter than min_points can never be in a line (half the edge points of a
@@ -405,7 +434,8 @@ class LineExtractor:
         pix, flat = pix[keep], flat[keep]
         g = np.take(dxy, flat)
         theta = np.mod(np.arctan2(g.imag, g.real), np.pi).astype(np.float64)
-        return _EdgePoints(pix=pix, theta=theta, grad=g, dx=dx, dy=dy,
+        return _EdgePoints(pix=pix + np.array([x0, y0], np.int32), theta=theta, grad=g, dx=dx,
+                           dy=dy, origin=(x0, y0),
                            counts={"edge": n_edge, "corner": int((~keep).sum())})
 
     def _segments(self, pix: IntArray, idx: IntArray,
@@ -432,7 +462,7 @@ class LineExtractor:
         idx, lab = idx[sel], lab[sel]
         order = np.argsort(lab, kind="stable")
         idx, lab = idx[order], lab[order]
-        _, seg, cnt = np.unique(lab, return_inverse=True, return_counts=True)
+        seg, cnt = _dense_sorted(lab)
         return idx, seg, cnt
 
     def _fit_lines(self, edges: _EdgePoints) -> ExtractedLines:
@@ -444,8 +474,8 @@ class LineExtractor:
         # those alone (a tenth of the edge points on a textured image). Points whose ray is not
         # finite are dropped before segmenting, which can split a segment: if a segment has
         # such a point, everything is computed for all points, as that requires.
-        first = self._segments(pix, np.arange(len(pix)), theta) if len(pix) >= o.min_points \
-            else None
+        first = self._segments(pix, np.arange(len(pix)), theta) \
+            if len(pix) >= o.min_points and self._segment_points_only else None
         if first is not None:
             use = np.zeros(len(pix), bool)
             use[first[0]] = True
@@ -549,7 +579,7 @@ class LineExtractor:
         o = self.options
         if len(idx) == 0:
             return idx, seg, np.zeros((0, 3))
-        t = _arc_parameter(rays[idx], normals[seg], seg, normals.shape[0])
+        t = _arc_parameter(rays[idx], normals, seg, normals.shape[0])
         order = np.lexsort((t, seg))
         idx, seg, t = idx[order], seg[order], t[order]
         lim = o.max_gap_px * scale[idx[1:]]
@@ -557,8 +587,8 @@ class LineExtractor:
         piece = np.concatenate([[0], np.cumsum(cut)])
         keep = np.bincount(piece)[piece] >= o.min_points
         idx, seg, piece = idx[keep], seg[keep], piece[keep]
-        used, piece = np.unique(piece, return_inverse=True)
-        piece_seg = np.zeros(len(used), np.int64)
+        piece, piece_cnt = _dense_sorted(piece)
+        piece_seg = np.zeros(len(piece_cnt), np.int64)
         piece_seg[piece] = seg
         return idx, piece, normals[piece_seg]
 
@@ -606,7 +636,7 @@ class LineExtractor:
         if nl == 0:
             return idx, lab
         normals = smallest_eigenvector(_scatter(rays[idx], np.ones(len(idx)), lab, nl))
-        t = _arc_parameter(rays[idx], normals[lab], lab, nl)
+        t = _arc_parameter(rays[idx], normals, lab, nl)
         lo = np.full(nl, np.inf)
         hi = np.full(nl, -np.inf)
         np.minimum.at(lo, lab, t)
@@ -636,7 +666,7 @@ class LineExtractor:
         # final normals: least squares on all points of each (merged) line
         normals = smallest_eigenvector(_scatter(rays[idx], np.ones(len(idx)), lab, nl))
         r = rays[idx]
-        t = _arc_parameter(r, normals[lab], lab, nl)
+        t = _arc_parameter(r, normals, lab, nl)
         order = np.lexsort((t, lab))
         idx, lab, t, r = idx[order], lab[order], t[order], r[order]
         sizes = np.bincount(lab, minlength=nl)
@@ -673,14 +703,24 @@ class LineExtractor:
             num_segments=n_segments, num_rejected=n_rejected)
 
 
+def _dense_sorted(lab: IntArray) -> tuple[IntArray, IntArray]:
+    """Labels ``0..K-1`` in place of the non-decreasing ``lab``, and each one's count (what
+    ``np.unique(lab, return_inverse=True, return_counts=True)`` gives, without its sort)."""
+    first = np.ones(len(lab), bool)
+    np.not_equal(lab[1:], lab[:-1], out=first[1:])
+    starts = np.flatnonzero(first)
+    return np.cumsum(first) - 1, np.diff(np.append(starts, len(lab)))
+
+
 def _arc_parameter(r: FloatArray, n: FloatArray, group: IntArray, ngroup: int) -> FloatArray:
-    """Angle of each ray along its great circle (normal ``n`` per row), measured from the mean
-    direction of its group, in ``(-pi, pi]``."""
+    """Angle of each ray along its great circle (normal ``n[group]``, ``n`` ``(ngroup, 3)``),
+    measured from the mean direction of its group, in ``(-pi, pi]``."""
     mean = np.zeros((ngroup, 3))
     for k in range(3):
         mean[:, k] = np.bincount(group, weights=r[:, k], minlength=ngroup)
-    e1, e2 = completion_towards(n, mean[group])
-    return np.arctan2(np.einsum("nk,nk->n", r, e2), np.einsum("nk,nk->n", r, e1))
+    # the basis per group, then per point (the same numbers as computing it per point)
+    e1, e2 = completion_towards(n, mean)
+    return np.arctan2(np.einsum("nk,nk->n", r, e2[group]), np.einsum("nk,nk->n", r, e1[group]))
 
 
 def _oriented_components(p: IntArray, shape: tuple[int, int], theta: FloatArray,
