@@ -226,15 +226,15 @@ def _scatter(rays: FloatArray, weight: np.ndarray, seg: IntArray, nseg: int) -> 
 class _EdgePoints:
     """The line-like edge points of one image (:meth:`LineExtractor._edge_points`):
     ``pix`` ``(N, 2)`` integer (x, y) pixels, ``theta`` ``(N,)`` gradient orientation (rad,
-    modulo pi), ``grad`` ``(N,)`` complex64 gradient ``dx + i dy`` there, the ``dx``, ``dy``
-    Sobel images of the region the edges were searched in, whose top-left pixel is
-    ``origin`` (x, y), and ``counts`` (Canny edge points, corner-like points rejected)."""
+    modulo pi), ``grad`` ``(N,)`` complex64 gradient ``dx + i dy`` there, ``dxy`` the
+    ``(h, w)`` complex64 gradient image of the region the edges were searched in, whose
+    top-left pixel is ``origin`` (x, y), and ``counts`` (Canny edge points, corner-like points
+    rejected)."""
 
     pix: IntArray
     theta: FloatArray
     grad: np.ndarray
-    dx: np.ndarray
-    dy: np.ndarray
+    dxy: np.ndarray
     origin: tuple[int, int]
     counts: dict[str, int]
 
@@ -243,15 +243,13 @@ class _EdgePoints:
         parabola through the gradient magnitude across the edge."""
         pix, g = self.pix[sel], self.grad[sel]
         gx, gy = g.real, g.imag
-        mag = cv2.magnitude(self.dx, self.dy)
-        w = mag.shape[1]
         xl, yl = pix[:, 0] - self.origin[0], pix[:, 1] - self.origin[1]
-        m0 = mag.ravel()[yl.astype(np.int64) * w + xl]
+        m0 = _magnitude(g)
         gn = np.where(m0 > 0, m0, 1.0)
         ux, uy = gx / gn, gy / gn
         xs, ys = pix[:, 0], pix[:, 1]
-        mp = _bilinear(mag, xl + ux, yl + uy)
-        mm = _bilinear(mag, xl - ux, yl - uy)
+        mp = _bilinear_magnitude(self.dxy, xl + ux, yl + uy)
+        mm = _bilinear_magnitude(self.dxy, xl - ux, yl - uy)
         den = mp - 2.0 * m0 + mm
         with np.errstate(divide="ignore", invalid="ignore"):
             off = np.where(den < 0, 0.5 * (mm - mp) / den, 0.0)
@@ -421,7 +419,8 @@ class LineExtractor:
         # search mask keeps them far enough from the image border for the window); dx and dy
         # interleaved as one complex64 image so that one gather fetches both (np.take with
         # int64 indices: several times faster than two fancy-indexing gathers)
-        dxy = cv2.merge([dx, dy]).view(np.complex64).ravel()
+        dxy_img = cv2.merge([dx, dy]).view(np.complex64)[..., 0]
+        dxy = dxy_img.ravel()
         wxy = np.take(dxy, flat[:, None] + self._win_flat)
         wx, wy = wxy.real, wxy.imag
         a = (wx * wx) @ self._win_w
@@ -434,8 +433,8 @@ class LineExtractor:
         pix, flat = pix[keep], flat[keep]
         g = np.take(dxy, flat)
         theta = np.mod(np.arctan2(g.imag, g.real), np.pi).astype(np.float64)
-        return _EdgePoints(pix=pix + np.array([x0, y0], np.int32), theta=theta, grad=g, dx=dx,
-                           dy=dy, origin=(x0, y0),
+        return _EdgePoints(pix=pix + np.array([x0, y0], np.int32), theta=theta, grad=g,
+                           dxy=dxy_img, origin=(x0, y0),
                            counts={"edge": n_edge, "corner": int((~keep).sum())})
 
     def _segments(self, pix: IntArray, idx: IntArray,
@@ -750,18 +749,27 @@ def _oriented_components(p: IntArray, shape: tuple[int, int], theta: FloatArray,
     return int(ncomp), lab.astype(np.int64)
 
 
-def _bilinear(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """``img`` bilinearly interpolated at points ``(x, y)`` (clamped to the image)."""
-    h, w = img.shape
+def _magnitude(g: np.ndarray) -> np.ndarray:
+    """``|g|`` of complex64 gradients as float32 ``sqrt(dx^2 + dy^2)`` (numpy's correctly
+    rounded operations: cv2.magnitude's last bit depends on the arrays' memory alignment)."""
+    gx, gy = g.real, g.imag
+    return np.sqrt(gx * gx + gy * gy)
+
+
+def _bilinear_magnitude(dxy: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """The gradient magnitude of the ``(h, w)`` complex64 gradient image ``dxy`` bilinearly
+    interpolated at points ``(x, y)`` (clamped to the image), from the four pixels around
+    each point."""
+    h, w = dxy.shape
     x = np.clip(x, 0, w - 1.001)
     y = np.clip(y, 0, h - 1.001)
     x0 = x.astype(np.int64)
     y0 = y.astype(np.int64)
     fx, fy = x - x0, y - y0
     i = y0 * w + x0
-    f = img.ravel()
-    top = f[i] * (1 - fx) + f[i + 1] * fx
-    bot = f[i + w] * (1 - fx) + f[i + w + 1] * fx
+    f = _magnitude(np.take(dxy.ravel(), i[:, None] + np.array([0, 1, w, w + 1])))
+    top = f[:, 0] * (1 - fx) + f[:, 1] * fx
+    bot = f[:, 2] * (1 - fx) + f[:, 3] * fx
     return np.asarray(top * (1 - fy) + bot * fy, dtype=np.float32)
 
 
