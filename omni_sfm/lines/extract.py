@@ -605,6 +605,28 @@ class LineExtractor:
         cand = np.argwhere(np.triu(cosang > np.cos(np.radians(o.merge_angle_deg)), 1))
         if len(cand) == 0:
             return lab
+        # the gap of every candidate pair at once: the points of both pieces by their angle
+        # along the great circle of the first, from the first's mean direction
+        in_order = idx[np.argsort(lab, kind="stable")]
+        size = np.bincount(lab, minlength=nl)
+        first = np.concatenate([[0], np.cumsum(size)[:-1]])
+        gaps = []
+        e1 = e2 = np.zeros((0, 3))
+        for side in (0, 1):
+            piece = cand[:, side]
+            n = size[piece]
+            starts = np.concatenate([[0], np.cumsum(n)[:-1]])
+            pair = np.repeat(np.arange(len(cand)), n)
+            r = rays[in_order[np.arange(int(n.sum())) - starts[pair] + first[piece][pair]]]
+            if side == 0:
+                mean = np.add.reduceat(r, starts, axis=0) / n[:, None]
+                e1, e2 = completion_towards(normals[piece], mean)
+            t = np.arctan2(np.einsum("nk,nk->n", r, e2[pair]),
+                           np.einsum("nk,nk->n", r, e1[pair]))
+            gaps.append((np.minimum.reduceat(t, starts), np.maximum.reduceat(t, starts)))
+        (lo_i, hi_i), (lo_j, hi_j) = gaps
+        gap = np.maximum(lo_j - hi_i, lo_i - hi_j)
+        join = (gap >= 0) & (gap <= np.radians(o.merge_gap_deg))
         parent = np.arange(nl)
 
         def find(i: int) -> int:
@@ -613,16 +635,8 @@ class LineExtractor:
                 i = parent[i]
             return int(i)
 
-        max_gap = np.radians(o.merge_gap_deg)
-        for i, j in cand:
-            ni = normals[i]
-            ri, rj = rays[idx[lab == i]], rays[idx[lab == j]]
-            e1, e2 = completion_towards(ni, ri.mean(axis=0))
-            ti = np.arctan2(ri @ e2, ri @ e1)
-            tj = np.arctan2(rj @ e2, rj @ e1)
-            gap = max(tj.min() - ti.max(), ti.min() - tj.max())
-            if 0 <= gap <= max_gap:
-                parent[find(int(i))] = find(int(j))
+        for i, j in cand[join]:
+            parent[find(int(i))] = find(int(j))
         roots = np.array([find(i) for i in range(nl)])
         _, new = np.unique(roots, return_inverse=True)
         return new[lab]
