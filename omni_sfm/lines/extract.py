@@ -695,11 +695,20 @@ class LineExtractor:
         # much narrower one way than the other (near the poles of an equirectangular image)
         mean_scale = np.bincount(lab, weights=scale[idx], minlength=nl) / sizes
         short = arc_rad / mean_scale < self.options.min_arc_px
+        if short.all():
+            z = np.zeros(0, np.int64)
+            return self._package(z, z, rays, uv, scale, counts, n_segments, n_rejected)
         if short.any():
-            keep = ~short[lab]
-            _, new = np.unique(lab[keep], return_inverse=True)
-            return self._package(idx[keep], new, rays, uv, scale, counts, n_segments,
-                                 n_rejected)
+            # the other lines as they are (fitting them again on the same points, in their
+            # new order, changes their numbers by round-off only)
+            line = ~short
+            keep = line[lab]
+            idx, lab, t, r = idx[keep], (np.cumsum(line) - 1)[lab[keep]], t[keep], r[keep]
+            normals, ends, resid, arc_rad = normals[line], ends[line], resid[line], arc_rad[line]
+            sizes = sizes[line]
+            nl = len(sizes)
+            offsets = np.concatenate([[0], np.cumsum(sizes)])
+            first, last = offsets[:-1], offsets[1:] - 1
         arc = np.degrees(arc_rad)
         # NV uncertainty: information of the fit along the middle ray m and across it (t)
         m, tdir = completion_towards(normals, ends[:, 0] + ends[:, 1])
