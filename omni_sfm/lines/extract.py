@@ -551,8 +551,13 @@ class LineExtractor:
         hn = np.linalg.norm(hyp, axis=2, keepdims=True)
         degenerate = hn[..., 0] < 1e-9
         hyp = (hyp / np.where(hn > 0, hn, 1.0)).astype(np.float32)
-        r32 = rays.astype(np.float32)
-        d = np.einsum("nk,nhk->nh", r32, hyp[seg])
+        # d = r . hyp[seg] (N, H), summed over x, y, z in that order as einsum does (the same
+        # float32 numbers), one component at a time: no (N, H, 3) gather
+        r32 = rays.T.astype(np.float32)
+        hyp_k = np.ascontiguousarray(hyp.transpose(2, 0, 1))
+        d = r32[0][:, None] * hyp_k[0][seg]
+        for k in (1, 2):
+            d += r32[k][:, None] * hyp_k[k][seg]
         t2 = (tol * tol).astype(np.float32)[:, None]
         cost = np.minimum(d * d, t2) / t2  # truncated quadratic (MSAC)
         seg_cost = np.add.reduceat(cost, start, axis=0)
