@@ -446,8 +446,9 @@ class LineExtractor:
         Returns the kept indices sorted by segment, their segment (0..S-1) and the counts.
         """
         p = pix[idx]
-        x0, y0 = p.min(axis=0) - 1
-        x1, y1 = p.max(axis=0) + 1
+        # (the reductions of an (N, 2) array along its first axis are slow; of its columns not)
+        x0, y0 = int(p[:, 0].min()) - 1, int(p[:, 1].min()) - 1
+        x1, y1 = int(p[:, 0].max()) + 1, int(p[:, 1].max()) + 1
         if self.options.link_angle_deg > 0:
             n, lab = _oriented_components(p - [x0, y0], (y1 - y0 + 1, x1 - x0 + 1),
                                           theta[idx], np.radians(self.options.link_angle_deg))
