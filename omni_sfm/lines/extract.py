@@ -241,7 +241,7 @@ class _EdgePoints:
     def subpixel(self, sel: IntArray) -> FloatArray:
         """``(len(sel), 2)`` sub-pixel positions of the points ``sel``: the vertex of the
         parabola through the gradient magnitude across the edge."""
-        pix, g = self.pix[sel], self.grad[sel]
+        pix, g = _rows(self.pix, sel), self.grad[sel]
         gx, gy = g.real, g.imag
         xl, yl = pix[:, 0] - self.origin[0], pix[:, 1] - self.origin[1]
         m0 = _magnitude(g)
@@ -414,7 +414,7 @@ class LineExtractor:
             ncomp, comp_img = cv2.connectedComponents(edges, connectivity=8, ltype=cv2.CV_32S)
             comp = np.take(comp_img.ravel(), flat)
             long_chain = np.bincount(comp, minlength=ncomp)[comp] >= o.min_points
-            pix, flat = pix[long_chain], flat[long_chain]
+            pix, flat = np.compress(long_chain, pix, axis=0), flat[long_chain]
         # second-moment matrix over a Gaussian window, evaluated only at the edge points (the
         # search mask keeps them far enough from the image border for the window); dx and dy
         # interleaved as one complex64 image so that one gather fetches both (np.take with
@@ -430,7 +430,7 @@ class LineExtractor:
         disc = np.sqrt(np.maximum(0.25 * (a - b) ** 2 + c * c, 0.0))
         lmax, lmin = half_tr + disc, np.maximum(half_tr - disc, 0.0)
         keep = lmax >= o.corner_ratio**2 * lmin
-        pix, flat = pix[keep], flat[keep]
+        pix, flat = np.compress(keep, pix, axis=0), flat[keep]
         g = np.take(dxy, flat)
         theta = np.mod(np.arctan2(g.imag, g.real), np.pi).astype(np.float64)
         return _EdgePoints(pix=pix + np.array([x0, y0], np.int32), theta=theta, grad=g,
@@ -445,7 +445,7 @@ class LineExtractor:
 
         Returns the kept indices sorted by segment, their segment (0..S-1) and the counts.
         """
-        p = pix[idx]
+        p = _rows(pix, idx)
         # (the reductions of an (N, 2) array along its first axis are slow; of its columns not)
         x0, y0 = int(p[:, 0].min()) - 1, int(p[:, 1].min()) - 1
         x1, y1 = int(p[:, 0].max()) + 1, int(p[:, 1].max()) + 1
@@ -484,7 +484,7 @@ class LineExtractor:
             rays = self.camera.rays_from_pixels(uv) if len(uv) else np.zeros((0, 3))
             if np.isfinite(rays).all():
                 new = np.cumsum(use) - 1  # monotone: the points keep their order
-                pix, theta = pix[sub], theta[sub]
+                pix, theta = _rows(pix, sub), theta[sub]
                 first = (new[first[0]], first[1], first[2])
             else:
                 first = None
@@ -509,7 +509,7 @@ class LineExtractor:
             if len(idx) == 0:
                 break
             nseg = len(cnt)
-            normals, inl = self._ransac(rays[idx], tol[idx], seg, cnt, rng)
+            normals, inl = self._ransac(_rows(rays, idx), tol[idx], seg, cnt, rng)
             n_in = np.bincount(seg, weights=inl, minlength=nseg)
             accept = (2 * n_in > cnt) & (n_in >= o.min_points)
             take = accept | ((n_in >= o.peel_min_points) if o.peel_min_points > 0 else accept)
@@ -565,12 +565,12 @@ class LineExtractor:
         seg_cost[degenerate] = np.inf
         best = np.argmin(seg_cost, axis=1)
         n = hyp[np.arange(nseg), best].astype(np.float64)
-        inl = np.abs(np.einsum("nk,nk->n", rays, n[seg])) < tol
+        inl = np.abs(np.einsum("nk,nk->n", rays, _rows(n, seg))) < tol
         for _ in range(max(1, o.refine_iterations)):
             n_new = smallest_eigenvector(_scatter(rays, inl.astype(np.float64), seg, nseg))
             good = np.bincount(seg, weights=inl, minlength=nseg) >= 3
             n = np.where(good[:, None], n_new, n)
-            inl = np.abs(np.einsum("nk,nk->n", rays, n[seg])) < tol
+            inl = np.abs(np.einsum("nk,nk->n", rays, _rows(n, seg))) < tol
         return n, inl
 
     def _split_gaps(self, idx: IntArray, seg: IntArray, normals: FloatArray, rays: FloatArray,
@@ -584,7 +584,7 @@ class LineExtractor:
         o = self.options
         if len(idx) == 0:
             return idx, seg, np.zeros((0, 3))
-        t = _arc_parameter(rays[idx], normals, seg, normals.shape[0])
+        t = _arc_parameter(_rows(rays, idx), normals, seg, normals.shape[0])
         order = np.lexsort((t, seg))
         idx, seg, t = idx[order], seg[order], t[order]
         lim = o.max_gap_px * scale[idx[1:]]
@@ -623,12 +623,12 @@ class LineExtractor:
             n = size[piece]
             starts = np.concatenate([[0], np.cumsum(n)[:-1]])
             pair = np.repeat(np.arange(len(cand)), n)
-            r = rays[in_order[np.arange(int(n.sum())) - starts[pair] + first[piece][pair]]]
+            r = _rows(rays, in_order[np.arange(int(n.sum())) - starts[pair] + first[piece][pair]])
             if side == 0:
                 mean = np.add.reduceat(r, starts, axis=0) / n[:, None]
                 e1, e2 = completion_towards(normals[piece], mean)
-            t = np.arctan2(np.einsum("nk,nk->n", r, e2[pair]),
-                           np.einsum("nk,nk->n", r, e1[pair]))
+            t = np.arctan2(np.einsum("nk,nk->n", r, _rows(e2, pair)),
+                           np.einsum("nk,nk->n", r, _rows(e1, pair)))
             gaps.append((np.minimum.reduceat(t, starts), np.maximum.reduceat(t, starts)))
         (lo_i, hi_i), (lo_j, hi_j) = gaps
         gap = np.maximum(lo_j - hi_i, lo_i - hi_j)
@@ -654,8 +654,9 @@ class LineExtractor:
         nl = int(lab.max()) + 1 if len(lab) else 0
         if nl == 0:
             return idx, lab
-        normals = smallest_eigenvector(_scatter(rays[idx], np.ones(len(idx)), lab, nl))
-        t = _arc_parameter(rays[idx], normals, lab, nl)
+        r = _rows(rays, idx)
+        normals = smallest_eigenvector(_scatter(r, np.ones(len(idx)), lab, nl))
+        t = _arc_parameter(r, normals, lab, nl)
         lo = np.full(nl, np.inf)
         hi = np.full(nl, -np.inf)
         np.minimum.at(lo, lab, t)
@@ -683,18 +684,18 @@ class LineExtractor:
                 num_corner_points=counts["corner"], num_segments=n_segments,
                 num_rejected=n_rejected)
         # final normals: least squares on all points of each (merged) line
-        normals = smallest_eigenvector(_scatter(rays[idx], np.ones(len(idx)), lab, nl))
-        r = rays[idx]
+        r = _rows(rays, idx)
+        normals = smallest_eigenvector(_scatter(r, np.ones(len(idx)), lab, nl))
         t = _arc_parameter(r, normals, lab, nl)
         order = np.lexsort((t, lab))
-        idx, lab, t, r = idx[order], lab[order], t[order], r[order]
+        idx, lab, t, r = idx[order], lab[order], t[order], _rows(r, order)
         sizes = np.bincount(lab, minlength=nl)
         offsets = np.concatenate([[0], np.cumsum(sizes)])
         first, last = offsets[:-1], offsets[1:] - 1
         ends = np.stack([r[first], r[last]], 1)
         ends -= np.einsum("lek,lk->le", ends, normals)[..., None] * normals[:, None, :]
         ends /= np.linalg.norm(ends, axis=2, keepdims=True)
-        px = np.abs(np.einsum("nk,nk->n", r, normals[lab])) / scale[idx]
+        px = np.abs(np.einsum("nk,nk->n", r, _rows(normals, lab))) / scale[idx]
         resid = np.sqrt(np.bincount(lab, weights=px * px, minlength=nl) / sizes)
         arc_rad = t[last] - t[first]
         # the arc in units of the local pixel size: far below the point count where pixels are
@@ -709,7 +710,8 @@ class LineExtractor:
             # new order, changes their numbers by round-off only)
             line = ~short
             keep = line[lab]
-            idx, lab, t, r = idx[keep], (np.cumsum(line) - 1)[lab[keep]], t[keep], r[keep]
+            idx, lab, t = idx[keep], (np.cumsum(line) - 1)[lab[keep]], t[keep]
+            r = np.compress(keep, r, axis=0)
             normals, ends, resid, arc_rad = normals[line], ends[line], resid[line], arc_rad[line]
             sizes = sizes[line]
             nl = len(sizes)
@@ -719,16 +721,23 @@ class LineExtractor:
         # NV uncertainty: information of the fit along the middle ray m and across it (t)
         m, tdir = completion_towards(normals, ends[:, 0] + ends[:, 1])
         w = 1.0 / (self.options.edge_noise_px * scale[idx].astype(np.float64)) ** 2
-        info = np.stack([np.bincount(lab, weights=w * np.einsum("nk,nk->n", r, v[lab]) ** 2,
+        info = np.stack([np.bincount(lab, weights=w * np.einsum("nk,nk->n", r, _rows(v, lab)) ** 2,
                                      minlength=nl) for v in (m, tdir)], axis=1)
         sigma = 1.0 / np.sqrt(np.maximum(info, 1e-300))
         return ExtractedLines(
-            normals=normals, offsets=offsets, points_uv=uv[idx], point_rays=r,
+            normals=normals, offsets=offsets, points_uv=_rows(uv, idx), point_rays=r,
             endpoint_rays=ends, endpoint_uv=np.stack([uv[idx[first]], uv[idx[last]]], 1),
             num_support=sizes.astype(np.int64), residual_px=resid, arc_deg=arc,
             normal_sigma=sigma,
             num_edge_points=counts["edge"], num_corner_points=counts["corner"],
             num_segments=n_segments, num_rejected=n_rejected)
+
+
+def _rows(a: np.ndarray, index: IntArray) -> np.ndarray:
+    """``a[index]`` for integer ``index`` along the first axis of a 2-D (or more) array:
+    np.take does it several times faster than fancy indexing (10 against 36 us for 5,000 rows
+    of 3 floats)."""
+    return np.take(a, index, axis=0)
 
 
 def _dense_sorted(lab: IntArray) -> tuple[IntArray, IntArray]:
@@ -748,7 +757,8 @@ def _arc_parameter(r: FloatArray, n: FloatArray, group: IntArray, ngroup: int) -
         mean[:, k] = np.bincount(group, weights=r[:, k], minlength=ngroup)
     # the basis per group, then per point (the same numbers as computing it per point)
     e1, e2 = completion_towards(n, mean)
-    return np.arctan2(np.einsum("nk,nk->n", r, e2[group]), np.einsum("nk,nk->n", r, e1[group]))
+    return np.arctan2(np.einsum("nk,nk->n", r, _rows(e2, group)),
+                      np.einsum("nk,nk->n", r, _rows(e1, group)))
 
 
 def _oriented_components(p: IntArray, shape: tuple[int, int], theta: FloatArray,
