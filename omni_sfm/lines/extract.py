@@ -766,7 +766,7 @@ def _oriented_components(p: IntArray, shape: tuple[int, int], theta: FloatArray,
     """Connected components of points ``p`` ``(N, 2)`` (x, y, at least 1 px inside ``shape``)
     where 8-neighbours are linked only if their orientations (mod pi) differ by less than
     ``max_angle`` (rad). Returns the number of components and the ``(N,)`` labels."""
-    from scipy.sparse import coo_matrix
+    from scipy.sparse import csr_matrix
     from scipy.sparse.csgraph import connected_components
 
     n = len(p)
@@ -783,7 +783,9 @@ def _oriented_components(p: IntArray, shape: tuple[int, int], theta: FloatArray,
     d = np.minimum(d, np.pi - d)
     ok = d < max_angle
     r, c = r[ok], c[ok]
-    g = coo_matrix((np.ones(len(r), np.int8), (r, c)), shape=(n, n))
+    # the rows come sorted: the compressed rows directly, no conversion from coordinates
+    indptr = np.concatenate([[0], np.cumsum(np.bincount(r, minlength=n))])
+    g = csr_matrix((np.ones(len(r), np.int8), c, indptr), shape=(n, n))
     ncomp, lab = connected_components(g, directed=False)
     return int(ncomp), lab.astype(np.int64)
 
