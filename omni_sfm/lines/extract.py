@@ -494,7 +494,8 @@ class LineExtractor:
             ok = np.isfinite(rays).all(axis=1)
             uv, pix, rays, theta = uv[ok], pix[ok], rays[ok], theta[ok]
         # angle (rad) per pixel at each point; l_th of eq. (3) is (line_threshold_px * scale)^2
-        scale = self.scale[pix[:, 1], pix[:, 0]].astype(np.float64)
+        scale = np.take(self.scale.ravel(), pix[:, 1].astype(np.int64) * self.camera.width
+                        + pix[:, 0]).astype(np.float64)
         tol = o.line_threshold_px * scale
         pool = np.arange(len(uv))
         piece_idx: list[IntArray] = []
