@@ -303,19 +303,15 @@ class LineExtractor:
         self.search_mask[:, :b] = 0
         self.search_mask[:, -b:] = 0
         # edges are searched in the bounding box of the search mask and a margin (a
-        # hyperboloid's mirror: 68 % of an 800x600 image); the margin holds every pixel that
+        # hyperboloid's mirror: 587x588 of 800x600 pixels); the margin holds every pixel that
         # the blur, the gradients, Canny's suppression, the tensor window and the sub-pixel
-        # interpolation read for a pixel in the mask
+        # interpolation read for a pixel in the mask. The one difference from searching the
+        # whole image: Canny's hysteresis no longer keeps a weak edge in the mask whose only
+        # strong pixels lie beyond the margin, outside the usable area.
         x, y, bw, bh = cv2.boundingRect(self.search_mask)
         m = (2 * int(np.ceil(2.0 * o.blur_sigma)) + 1) // 2 + rad + 4
-        # OpenCV's magnitude gives values that differ in the last bit with a pixel's position
-        # in the array modulo its SIMD width: the region starts at a row that is a multiple of
-        # 32 and, where the image width is one, at such a column, and has that width, so that
-        # every pixel keeps its position modulo 32 (and its values)
-        y0, x0, x1 = (max(0, y - m) // 32) * 32, 0, camera.width
-        if camera.width % 32 == 0:
-            x0, x1 = (max(0, x - m) // 32) * 32, min(camera.width, -(-(x + bw + m) // 32) * 32)
-        self._set_region((slice(y0, min(camera.height, y + bh + m)), slice(x0, x1)))
+        self._set_region((slice(max(0, y - m), min(camera.height, y + bh + m)),
+                          slice(max(0, x - m), min(camera.width, x + bw + m))))
         g = np.exp(-(wx**2 + wy**2).ravel() / (2.0 * o.tensor_sigma**2))
         self._win_w = (g / g.sum()).astype(np.float32)
         # pixels where edges are searched: the valid area and the user's mask, eroded
