@@ -456,7 +456,7 @@ class LineExtractor:
         area = np.bincount(lab, minlength=n)
         sel = area[lab] >= self.options.min_points
         idx, lab = idx[sel], lab[sel]
-        order = np.argsort(lab, kind="stable")
+        order = _stable_order(lab)
         idx, lab = idx[order], lab[order]
         seg, cnt = _dense_sorted(lab)
         return idx, seg, cnt
@@ -582,7 +582,7 @@ class LineExtractor:
         if len(idx) == 0:
             return idx, seg, np.zeros((0, 3))
         t = _arc_parameter(_rows(rays, idx), normals, seg, normals.shape[0])
-        order = np.lexsort((t, seg))
+        order = _order_by(seg, t)
         idx, seg, t = idx[order], seg[order], t[order]
         lim = o.max_gap_px * scale[idx[1:]]
         cut = (np.diff(seg) != 0) | (np.diff(t) > lim)
@@ -599,7 +599,7 @@ class LineExtractor:
         """Join pieces of one great circle (normals within ``merge_angle_deg``, arcs disjoint and
         at most ``merge_gap_deg`` apart). Returns the new label per point (0..L-1)."""
         o = self.options
-        used, lab = np.unique(lab, return_inverse=True)
+        used, lab = _dense_labels(lab)
         nl = len(used)
         if nl < 2 or o.merge_angle_deg <= 0:
             return lab
@@ -610,7 +610,7 @@ class LineExtractor:
             return lab
         # the gap of every candidate pair at once: the points of both pieces by their angle
         # along the great circle of the first, from the first's mean direction
-        in_order = idx[np.argsort(lab, kind="stable")]
+        in_order = idx[_stable_order(lab)]
         size = np.bincount(lab, minlength=nl)
         first = np.concatenate([[0], np.cumsum(size)[:-1]])
         gaps = []
@@ -663,7 +663,7 @@ class LineExtractor:
         idx, lab = idx[keep], lab[keep]
         big = np.bincount(lab, minlength=nl) >= self.options.min_points
         keep = big[lab]
-        _, lab = np.unique(lab[keep], return_inverse=True)
+        _, lab = _dense_labels(lab[keep])
         return idx[keep], lab
 
     def _package(self, idx: IntArray, lab: IntArray, rays: FloatArray, uv: FloatArray,
@@ -684,7 +684,7 @@ class LineExtractor:
         r = _rows(rays, idx)
         normals = smallest_eigenvector(_scatter(r, np.ones(len(idx)), lab, nl))
         t = _arc_parameter(r, normals, lab, nl)
-        order = np.lexsort((t, lab))
+        order = _order_by(lab, t)
         idx, lab, t, r = idx[order], lab[order], t[order], _rows(r, order)
         sizes = np.bincount(lab, minlength=nl)
         offsets = np.concatenate([[0], np.cumsum(sizes)])
@@ -735,6 +735,29 @@ def _rows(a: np.ndarray, index: IntArray) -> np.ndarray:
     np.take does it several times faster than fancy indexing (10 against 36 us for 5,000 rows
     of 3 floats)."""
     return np.take(a, index, axis=0)
+
+
+def _stable_order(key: IntArray) -> IntArray:
+    """``np.argsort(key, kind="stable")`` of non-negative integers, on 16-bit keys where they
+    fit (numpy's radix sort)."""
+    if len(key) and key.min() >= 0 and key.max() < 2**15:
+        key = key.astype(np.int16)
+    return np.argsort(key, kind="stable")
+
+
+def _dense_labels(lab: IntArray) -> tuple[IntArray, IntArray]:
+    """``np.unique(lab, return_inverse=True)`` of non-negative integers, by counting instead of
+    sorting: the labels used and each one's rank among them."""
+    present = np.bincount(lab) > 0 if len(lab) else np.zeros(0, bool)
+    return np.flatnonzero(present), (np.cumsum(present) - 1)[lab]
+
+
+def _order_by(key: IntArray, t: FloatArray) -> IntArray:
+    """``np.lexsort((t, key))``: the order by ``key``, then by ``t``, then by index. Two stable
+    argsorts, the second on 16-bit keys where they fit (numpy's radix sort): half the time of
+    lexsort on 5,000 points."""
+    order = np.argsort(t, kind="stable")
+    return order[_stable_order(key[order])]
 
 
 def _dense_sorted(lab: IntArray) -> tuple[IntArray, IntArray]:
