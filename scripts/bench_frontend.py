@@ -5,28 +5,35 @@ median milliseconds per frame for reading, extraction and tracking (against the 
 per frame for line tracking on a Core i7 975), the NV error of every extracted line and of every
 tracked observation against the renderer's true 3D lines (``lines3d.json`` with
 ``groundtruth.tum``), the share of false lines (NV further than 0.5 deg from every true NV), and
-track statistics.
+track statistics. ``--stages`` adds where the CPU time goes: each stage of the extraction and the
+KLT calls of the tracking, in one more pass over the frames.
 
     .venv/bin/python scripts/bench_frontend.py --frames 200
     .venv/bin/python scripts/bench_frontend.py --camera equirectangular --frames 50
     .venv/bin/python scripts/bench_frontend.py --input path/to/rendered/sequence
+    .venv/bin/python scripts/bench_frontend.py --frames 50 --threads 1 --stages
 """
 
 from __future__ import annotations
 
 import argparse
+import functools
 import os
 import sys
 import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from omni_sfm.cameras import load_camera
 from omni_sfm.libs import keep_freed_memory
+from omni_sfm.lines import extract as extract_module
 from omni_sfm.lines.extract import LineExtractor
 from omni_sfm.lines.frontend import FrontEndOptions, track_lines
-from omni_sfm.lines.track import TrackingOptions
+from omni_sfm.lines.track import LineTracker, TrackingOptions
 from omni_sfm.lines.video import read_frames
 from omni_sfm.lines3d import read_lines3d
 from omni_sfm.poses import read_tum
@@ -59,6 +66,75 @@ def describe(name: str, err: np.ndarray) -> str:
             f"{100 * np.mean(err > FALSE_DEG):.1f} %")
 
 
+# (owner, attribute, label) of the timed stages, in the order they run; an indented label is a
+# part of the stage above it
+EXTRACTION_STAGES: list[tuple[Any, str, str]] = [
+    (LineExtractor, "image_stats", "grey-level statistics (histogram)"),
+    (LineExtractor, "_edge_points", "edge points: blur, gradients, Canny, corner test"),
+    (LineExtractor, "_segments", "segments (orientation-linked components)"),
+    (extract_module, "_oriented_components", "  of which the components"),
+    (extract_module._EdgePoints, "subpixel", "sub-pixel positions"),
+    (LineExtractor, "_ransac", "great circles (MSAC, refits)"),
+    (LineExtractor, "_split_gaps", "cuts at gaps"),
+    (LineExtractor, "_merge", "merges"),
+    (LineExtractor, "_trim_ends", "end trimming"),
+    (LineExtractor, "_package", "final fits, ordering, uncertainties"),
+]
+
+
+@contextmanager
+def timed(stages: list[tuple[Any, str, str]], acc: dict[str, float]) -> Iterator[None]:
+    """Adds the CPU seconds spent in each ``owner.attribute`` to ``acc[label]`` meanwhile."""
+    saved = [(owner, name, getattr(owner, name)) for owner, name, _ in stages]
+
+    def wrap(f: Callable[..., Any], label: str) -> Callable[..., Any]:
+        @functools.wraps(f)
+        def g(*a: Any, **k: Any) -> Any:
+            c = time.process_time()
+            try:
+                return f(*a, **k)
+            finally:
+                acc[label] = acc.get(label, 0.0) + time.process_time() - c
+        return g
+
+    try:
+        for (owner, name, f), (_, _, label) in zip(saved, stages, strict=True):
+            setattr(owner, name, wrap(f, label))
+        yield
+    finally:
+        for owner, name, f in saved:
+            setattr(owner, name, f)
+
+
+def print_stages(src: Path, cam: Any, options: FrontEndOptions) -> None:
+    """CPU ms per frame of each stage (one more pass: extraction, then tracking)."""
+    import cv2
+
+    grey = [image for _, _, image in read_frames(src, size=(cam.width, cam.height))]
+    extractor = LineExtractor(cam, options.extraction)
+    acc: dict[str, float] = {}
+    stages = [*EXTRACTION_STAGES, (type(cam), "rays_from_pixels", "rays")]
+    with timed(stages, acc):
+        c = time.process_time()
+        lines = [extractor.extract(g) for g in grey]
+        total = time.process_time() - c
+    n = len(grey)
+    print(f"extraction, CPU ms per frame (mean of {n} frames): {1000 * total / n:.2f}")
+    for _, _, label in stages:
+        print(f"  {label:52s} {1000 * acc.get(label, 0.0) / n:6.2f}")
+    inner = sum(v for k, v in acc.items() if not k.startswith(" "))
+    print(f"  {'the rest':52s} {1000 * (total - inner) / n:6.2f}")
+    tracker = LineTracker(options.tracking)
+    acc.clear()
+    with timed([(cv2, "calcOpticalFlowPyrLK", "KLT")], acc):
+        c = time.process_time()
+        for g, ln in zip(grey, lines, strict=True):
+            tracker.add_frame(g, ln)
+        total = time.process_time() - c
+    print(f"tracking, CPU ms per frame: {1000 * total / n:.2f}, of which KLT (OpenCV) "
+          f"{1000 * acc.get('KLT', 0.0) / n:.2f}")
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--input", type=Path, help="a rendered sequence folder (else render one)")
@@ -73,6 +149,8 @@ def main() -> int:
     ap.add_argument("--workers", type=int, default=1,
                     help="extraction worker processes (1: all in this process, the per-frame "
                          "CPU figures; 0: the front end's default, one per core)")
+    ap.add_argument("--stages", action="store_true",
+                    help="also print the CPU time of each stage (one more pass over the frames)")
     args = ap.parse_args()
 
     seq = args.input
@@ -134,6 +212,8 @@ def main() -> int:
           f"{np.median(lengths):.0f} frames (max {lengths.max()}), lines per frame median "
           f"{np.median(res.lines_extracted):.0f}, continued per frame median "
           f"{np.median(res.lines_continued[1:]):.0f}")
+    if args.stages:
+        print_stages(src, cam, opts)
     return 0
 
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import cv2
 import numpy as np
 import pytest
@@ -17,6 +19,7 @@ from linetest_utils import (
 )
 
 from omni_sfm.errors import OmniSfmError
+from omni_sfm.lines import extract as extract_module
 from omni_sfm.lines.extract import ExtractionOptions, LineExtractor, extract_lines
 
 POSITION = np.array([0.3, 0.2, 0.1])
@@ -185,6 +188,37 @@ def test_orientation_linking_finds_lines_through_texture(hyper_scene):
     # measured: 7 lines, all on distinct true lines, median 0.035 deg, none false
     assert len(set(lab[lab >= 0].tolist())) >= 5
     assert np.median(err) < 0.1 and np.mean(err > 0.5) == 0.0
+
+
+def _assert_same_lines(a, b):
+    for f in dataclasses.fields(a):
+        if f.name != "num_corner_points":
+            np.testing.assert_array_equal(getattr(a, f.name), getattr(b, f.name), err_msg=f.name)
+
+
+@pytest.mark.parametrize("textured", [False, True])
+def test_shortcuts_give_the_same_lines(hyper_scene, monkeypatch, textured):
+    """What the extraction skips changes no line, bit for bit: the image outside the search
+    mask's region, the sub-pixel work for points outside the first round's segments, and the
+    points of short edge chains (dropped before the corner test on edge-rich frames)."""
+    cam, _, _, img = hyper_scene
+    if textured:
+        img = _textured(cam, img)
+    ex = LineExtractor(cam)
+    assert (ex._roi[0].stop - ex._roi[0].start) * (ex._roi[1].stop - ex._roi[1].start) \
+        < 0.8 * cam.width * cam.height
+    fast = ex.extract(img)
+    assert fast.num_lines >= 5
+    whole = LineExtractor(cam)
+    whole._set_region((slice(0, cam.height), slice(0, cam.width)))
+    whole._segment_points_only = False
+    monkeypatch.setattr(extract_module, "LONG_CHAIN_TEST_FRACTION", np.inf)
+    slow = whole.extract(img)
+    _assert_same_lines(fast, slow)
+    # the short chains' points are dropped only on the textured image (fewer corner points)
+    assert (fast.num_corner_points < slow.num_corner_points) == textured
+    monkeypatch.setattr(extract_module, "LONG_CHAIN_TEST_FRACTION", 0.0)
+    _assert_same_lines(LineExtractor(cam).extract(img), fast)
 
 
 def test_paper_options_on_clean_images(hyper_scene):

@@ -27,6 +27,12 @@ from omni_sfm.geometry import FloatArray, completion_towards, smallest_eigenvect
 
 IntArray = np.ndarray
 
+LONG_CHAIN_TEST_FRACTION = 0.05
+"""Where more than this share of the searched pixels are edge points (surface texture), the
+edge points outside 8-connected chains of at least ``min_points`` points are dropped before the
+corner test, which then costs less than the labelling of the chains (below it the labelling
+costs more than it saves)."""
+
 
 @dataclass(frozen=True, kw_only=True)
 class ExtractionOptions:
@@ -138,7 +144,9 @@ class ExtractedLines:
             ``v``. Across is the larger, by about ``sqrt(12) / arc`` (radians): a short
             line pins its plane's tilt about its own ray poorly.
         num_edge_points: Canny edge points inside the mask.
-        num_corner_points: edge points rejected as corner-like.
+        num_corner_points: edge points rejected as corner-like (where the frame has many edge
+            points, see :data:`LONG_CHAIN_TEST_FRACTION`, among those in chains of at least
+            ``min_points`` points only).
         num_segments: connected segments with at least ``min_points`` points (first round).
         num_rejected: segments that failed the straightness test.
         median_grey: median grey level (0-255) of the image inside the mask (NaN: no pixels).
@@ -214,12 +222,51 @@ def _scatter(rays: FloatArray, weight: np.ndarray, seg: IntArray, nseg: int) -> 
     return out
 
 
+@dataclass(frozen=True)
+class _EdgePoints:
+    """The line-like edge points of one image (:meth:`LineExtractor._edge_points`):
+    ``pix`` ``(N, 2)`` integer (x, y) pixels, ``theta`` ``(N,)`` gradient orientation (rad,
+    modulo pi), ``grad`` ``(N,)`` complex64 gradient ``dx + i dy`` there, ``dxy`` the
+    ``(h, w)`` complex64 gradient image of the region the edges were searched in, whose
+    top-left pixel is ``origin`` (x, y), and ``counts`` (Canny edge points, corner-like points
+    rejected)."""
+
+    pix: IntArray
+    theta: FloatArray
+    grad: np.ndarray
+    dxy: np.ndarray
+    origin: tuple[int, int]
+    counts: dict[str, int]
+
+    def subpixel(self, sel: IntArray) -> FloatArray:
+        """``(len(sel), 2)`` sub-pixel positions of the points ``sel``: the vertex of the
+        parabola through the gradient magnitude across the edge."""
+        pix, g = _rows(self.pix, sel), self.grad[sel]
+        gx, gy = g.real, g.imag
+        xl, yl = pix[:, 0] - self.origin[0], pix[:, 1] - self.origin[1]
+        m0 = _magnitude(g)
+        gn = np.where(m0 > 0, m0, 1.0)
+        ux, uy = gx / gn, gy / gn
+        xs, ys = pix[:, 0], pix[:, 1]
+        mp = _bilinear_magnitude(self.dxy, xl + ux, yl + uy)
+        mm = _bilinear_magnitude(self.dxy, xl - ux, yl - uy)
+        den = mp - 2.0 * m0 + mm
+        with np.errstate(divide="ignore", invalid="ignore"):
+            off = np.where(den < 0, 0.5 * (mm - mp) / den, 0.0)
+        off = np.clip(off, -0.5, 0.5)
+        return np.stack([xs + off * ux, ys + off * uy], 1).astype(np.float64)
+
+
 class LineExtractor:
     """Straight-line extractor for one camera (per-camera tables are computed once).
 
     ``mask``: optional ``(H, W)`` array, nonzero where the image may be used (combined with the
     camera's valid mask).
     """
+
+    _segment_points_only = True
+    """Compute sub-pixel positions and rays for the points of the first round's segments only
+    (False: for all line-like edge points, the same lines more slowly; for tests)."""
 
     def __init__(self, camera: CameraModel, options: ExtractionOptions | None = None,
                  mask: np.ndarray | None = None) -> None:
@@ -234,7 +281,6 @@ class LineExtractor:
         if o.reference_contrast < 0 or not 0 < o.min_threshold_scale <= 1:
             raise ValueError(f"need reference_contrast >= 0 and 0 < min_threshold_scale <= 1, "
                              f"got {o.reference_contrast} and {o.min_threshold_scale}")
-        w = camera.width
         valid = usable_pixels(camera, mask)
         self.scale = angular_pixel_scale(camera)
         valid &= np.isfinite(self.scale)
@@ -248,18 +294,34 @@ class LineExtractor:
         self._lut = None if o.gamma == 1.0 else \
             (255.0 * (np.arange(256) / 255.0) ** o.gamma).astype(np.float32)
         rad = max(1, int(np.ceil(1.5 * o.tensor_sigma)))
-        wy, wx = np.mgrid[-rad : rad + 1, -rad : rad + 1]
-        self._win_flat = (wy * w + wx).ravel().astype(np.int32)
+        self._win_yx = np.mgrid[-rad : rad + 1, -rad : rad + 1]
+        wy, wx = self._win_yx
         # edge points need a full tensor window and bilinear neighbours inside the image
         b = rad + 2
         self.search_mask[:b] = 0
         self.search_mask[-b:] = 0
         self.search_mask[:, :b] = 0
         self.search_mask[:, -b:] = 0
+        # edges are searched in the bounding box of the search mask and a margin (a
+        # hyperboloid's mirror: 587x588 of 800x600 pixels); the margin holds every pixel that
+        # the blur, the gradients, Canny's suppression, the tensor window and the sub-pixel
+        # interpolation read for a pixel in the mask. The one difference from searching the
+        # whole image: Canny's hysteresis no longer keeps a weak edge in the mask whose only
+        # strong pixels lie beyond the margin, outside the usable area.
+        x, y, bw, bh = cv2.boundingRect(self.search_mask)
+        m = (2 * int(np.ceil(2.0 * o.blur_sigma)) + 1) // 2 + rad + 4
+        self._set_region((slice(max(0, y - m), min(camera.height, y + bh + m)),
+                          slice(max(0, x - m), min(camera.width, x + bw + m))))
         g = np.exp(-(wx**2 + wy**2).ravel() / (2.0 * o.tensor_sigma**2))
         self._win_w = (g / g.sum()).astype(np.float32)
         # pixels where edges are searched: the valid area and the user's mask, eroded
         self.valid_pixels = int(np.count_nonzero(self.search_mask))
+
+    def _set_region(self, roi: tuple[slice, slice]) -> None:
+        """Search edges in ``image[roi]`` (two slices with start and stop) only."""
+        self._roi = roi
+        wy, wx = self._win_yx
+        self._win_flat = (wy * (roi[1].stop - roi[1].start) + wx).ravel().astype(np.int64)
 
     def image_stats(self, gray: np.ndarray) -> tuple[float, float, float]:
         """``(median grey, contrast, threshold scale)`` of an ``(H, W)`` uint8 image inside the
@@ -271,7 +333,8 @@ class LineExtractor:
         histogram, about 0.3 ms for 800x600)."""
         if self.valid_pixels == 0:
             return float("nan"), float("nan"), 1.0
-        hist = cv2.calcHist([gray], [0], self.search_mask, [256], [0, 256]).ravel()
+        hist = cv2.calcHist([gray[self._roi]], [0], self.search_mask[self._roi], [256],
+                            [0, 256]).ravel()
         cdf = np.cumsum(hist) / self.valid_pixels
         q = np.searchsorted(cdf, [0.005, 0.05, 0.5, 0.95, 0.995])
         lut = np.arange(256.0) if self._lut is None else self._lut
@@ -293,8 +356,8 @@ class LineExtractor:
             lines = self._package(z, z, np.zeros((0, 3)), np.zeros((0, 2)), np.zeros(0),
                                   {"edge": 0, "corner": 0}, 0, 0)
         else:
-            uv, pix, theta, counts = self._edge_points(gray, scale)
-            lines = self._fit_lines(uv, pix, theta, counts)
+            edges = self._edge_points(gray, scale)
+            lines = self._fit_lines(edges)
         return replace(lines, median_grey=median, contrast=contrast, threshold_scale=scale)
 
     # -- stages ---------------------------------------------------------------------------
@@ -312,12 +375,13 @@ class LineExtractor:
             img = np.clip(img, 0, 255).astype(np.uint8)
         return img
 
-    def _edge_points(self, gray: np.ndarray, scale: float = 1.0
-                     ) -> tuple[FloatArray, IntArray, FloatArray, dict[str, int]]:
-        """Line-like edge points: sub-pixel ``(N, 2)`` and integer ``(N, 2)`` (x, y) pixels and
-        ``(N,)`` gradient orientation (rad, modulo pi). ``scale`` multiplies the Canny
-        thresholds (contrast normalisation)."""
+    def _edge_points(self, gray: np.ndarray, scale: float = 1.0) -> _EdgePoints:
+        """Line-like edge points (see :class:`_EdgePoints`; their sub-pixel positions are
+        computed later, by :meth:`_EdgePoints.subpixel`, for the points that need them).
+        ``scale`` multiplies the Canny thresholds (contrast normalisation)."""
         o = self.options
+        gray = gray[self._roi]
+        x0, y0 = self._roi[1].start, self._roi[0].start
         # float pipeline: rounding the smoothed image to 8 bits would cost sub-pixel accuracy
         img = self._lut[gray] if self._lut is not None else gray.astype(np.float32)
         if o.blur_sigma > 0:
@@ -332,17 +396,29 @@ class LineExtractor:
         np.multiply(dy, 8.0, out=dy16, casting="unsafe")
         edges = cv2.Canny(dx16, dy16, 8.0 * scale * o.canny_low, 8.0 * scale * o.canny_high,
                           L2gradient=True)
-        nz = cv2.findNonZero(cv2.bitwise_and(edges, self.search_mask))
+        edges = cv2.bitwise_and(edges, self.search_mask[self._roi])
+        nz = cv2.findNonZero(edges)
         pix = np.zeros((0, 2), np.int32) if nz is None else nz.reshape(-1, 2)
         n_edge = len(pix)
         w = gray.shape[1]
-        flat = pix[:, 1] * np.int32(w) + pix[:, 0]
-        fdx, fdy = dx.ravel(), dy.ravel()
+        flat = pix[:, 1].astype(np.int64) * w + pix[:, 0]  # in the region
+        if n_edge > LONG_CHAIN_TEST_FRACTION * self.valid_pixels:
+            # a segment is part of one 8-connected chain of edge points: the points of chains
+            # shorter than min_points can never be in a line (half the edge points of a
+            # textured image), so the corner test and all that follows skip them; the lines
+            # are the same either way, only num_corner_points counts fewer points
+            ncomp, comp_img = cv2.connectedComponents(edges, connectivity=8, ltype=cv2.CV_32S)
+            comp = np.take(comp_img.ravel(), flat)
+            long_chain = np.bincount(comp, minlength=ncomp)[comp] >= o.min_points
+            pix, flat = np.compress(long_chain, pix, axis=0), flat[long_chain]
         # second-moment matrix over a Gaussian window, evaluated only at the edge points (the
-        # search mask keeps them far enough from the image border for the window)
-        win = flat[:, None] + self._win_flat
-        wx = fdx[win]
-        wy = fdy[win]
+        # search mask keeps them far enough from the image border for the window); dx and dy
+        # interleaved as one complex64 image so that one gather fetches both (np.take with
+        # int64 indices: several times faster than two fancy-indexing gathers)
+        dxy_img = cv2.merge([dx, dy]).view(np.complex64)[..., 0]
+        dxy = dxy_img.ravel()
+        wxy = np.take(dxy, flat[:, None] + self._win_flat)
+        wx, wy = wxy.real, wxy.imag
         a = (wx * wx) @ self._win_w
         b = (wy * wy) @ self._win_w
         c = (wx * wy) @ self._win_w
@@ -350,23 +426,12 @@ class LineExtractor:
         disc = np.sqrt(np.maximum(0.25 * (a - b) ** 2 + c * c, 0.0))
         lmax, lmin = half_tr + disc, np.maximum(half_tr - disc, 0.0)
         keep = lmax >= o.corner_ratio**2 * lmin
-        pix, flat = pix[keep], flat[keep]
-        # sub-pixel: vertex of the parabola through the gradient magnitude across the edge
-        gx, gy = fdx[flat], fdy[flat]
-        mag = cv2.magnitude(dx, dy)
-        m0 = mag.ravel()[flat]
-        gn = np.where(m0 > 0, m0, 1.0)
-        ux, uy = gx / gn, gy / gn
-        xs, ys = pix[:, 0], pix[:, 1]
-        mp = _bilinear(mag, xs + ux, ys + uy)
-        mm = _bilinear(mag, xs - ux, ys - uy)
-        den = mp - 2.0 * m0 + mm
-        with np.errstate(divide="ignore", invalid="ignore"):
-            off = np.where(den < 0, 0.5 * (mm - mp) / den, 0.0)
-        off = np.clip(off, -0.5, 0.5)
-        uv = np.stack([xs + off * ux, ys + off * uy], 1).astype(np.float64)
-        theta = np.mod(np.arctan2(gy, gx), np.pi).astype(np.float64)
-        return uv, pix, theta, {"edge": n_edge, "corner": int((~keep).sum())}
+        pix, flat = np.compress(keep, pix, axis=0), flat[keep]
+        g = np.take(dxy, flat)
+        theta = np.mod(np.arctan2(g.imag, g.real), np.pi).astype(np.float64)
+        return _EdgePoints(pix=pix + np.array([x0, y0], np.int32), theta=theta, grad=g,
+                           dxy=dxy_img, origin=(x0, y0),
+                           counts={"edge": n_edge, "corner": int((~keep).sum())})
 
     def _segments(self, pix: IntArray, idx: IntArray,
                   theta: FloatArray) -> tuple[IntArray, IntArray, IntArray]:
@@ -376,9 +441,10 @@ class LineExtractor:
 
         Returns the kept indices sorted by segment, their segment (0..S-1) and the counts.
         """
-        p = pix[idx]
-        x0, y0 = p.min(axis=0) - 1
-        x1, y1 = p.max(axis=0) + 1
+        p = _rows(pix, idx)
+        # (the reductions of an (N, 2) array along its first axis are slow; of its columns not)
+        x0, y0 = int(p[:, 0].min()) - 1, int(p[:, 1].min()) - 1
+        x1, y1 = int(p[:, 0].max()) + 1, int(p[:, 1].max()) + 1
         if self.options.link_angle_deg > 0:
             n, lab = _oriented_components(p - [x0, y0], (y1 - y0 + 1, x1 - x0 + 1),
                                           theta[idx], np.radians(self.options.link_angle_deg))
@@ -390,20 +456,42 @@ class LineExtractor:
         area = np.bincount(lab, minlength=n)
         sel = area[lab] >= self.options.min_points
         idx, lab = idx[sel], lab[sel]
-        order = np.argsort(lab, kind="stable")
+        order = _stable_order(lab)
         idx, lab = idx[order], lab[order]
-        _, seg, cnt = np.unique(lab, return_inverse=True, return_counts=True)
+        seg, cnt = _dense_sorted(lab)
         return idx, seg, cnt
 
-    def _fit_lines(self, uv: FloatArray, pix: IntArray, theta: FloatArray,
-                   counts: dict[str, int]) -> ExtractedLines:
+    def _fit_lines(self, edges: _EdgePoints) -> ExtractedLines:
         o = self.options
         rng = np.random.default_rng(o.seed)
-        rays = self.camera.rays_from_pixels(uv) if len(uv) else np.zeros((0, 3))
-        ok = np.isfinite(rays).all(axis=1)
-        uv, pix, rays, theta = uv[ok], pix[ok], rays[ok], theta[ok]
+        pix, theta, counts = edges.pix, edges.theta, edges.counts
+        # Only the points of the first round's segments are ever fitted (later rounds
+        # re-segment subsets of them), so the sub-pixel positions and rays are computed for
+        # those alone (a tenth of the edge points on a textured image). Points whose ray is not
+        # finite are dropped before segmenting, which can split a segment: if a segment has
+        # such a point, everything is computed for all points, as that requires.
+        first = self._segments(pix, np.arange(len(pix)), theta) \
+            if len(pix) >= o.min_points and self._segment_points_only else None
+        if first is not None:
+            use = np.zeros(len(pix), bool)
+            use[first[0]] = True
+            sub = np.flatnonzero(use)
+            uv = edges.subpixel(sub)
+            rays = self.camera.rays_from_pixels(uv) if len(uv) else np.zeros((0, 3))
+            if np.isfinite(rays).all():
+                new = np.cumsum(use) - 1  # monotone: the points keep their order
+                pix, theta = _rows(pix, sub), theta[sub]
+                first = (new[first[0]], first[1], first[2])
+            else:
+                first = None
+        if first is None:
+            uv = edges.subpixel(np.arange(len(pix)))
+            rays = self.camera.rays_from_pixels(uv) if len(uv) else np.zeros((0, 3))
+            ok = np.isfinite(rays).all(axis=1)
+            uv, pix, rays, theta = uv[ok], pix[ok], rays[ok], theta[ok]
         # angle (rad) per pixel at each point; l_th of eq. (3) is (line_threshold_px * scale)^2
-        scale = self.scale[pix[:, 1], pix[:, 0]].astype(np.float64)
+        scale = np.take(self.scale.ravel(), pix[:, 1].astype(np.int64) * self.camera.width
+                        + pix[:, 0]).astype(np.float64)
         tol = o.line_threshold_px * scale
         pool = np.arange(len(uv))
         piece_idx: list[IntArray] = []
@@ -413,11 +501,12 @@ class LineExtractor:
         for rnd in range(max(1, o.peel_rounds)):
             if len(pool) < o.min_points:
                 break
-            idx, seg, cnt = self._segments(pix, pool, theta)
+            idx, seg, cnt = first if rnd == 0 and first is not None else \
+                self._segments(pix, pool, theta)
             if len(idx) == 0:
                 break
             nseg = len(cnt)
-            normals, inl = self._ransac(rays[idx], tol[idx], seg, cnt, rng)
+            normals, inl = self._ransac(_rows(rays, idx), tol[idx], seg, cnt, rng)
             n_in = np.bincount(seg, weights=inl, minlength=nseg)
             accept = (2 * n_in > cnt) & (n_in >= o.min_points)
             take = accept | ((n_in >= o.peel_min_points) if o.peel_min_points > 0 else accept)
@@ -460,20 +549,25 @@ class LineExtractor:
         hn = np.linalg.norm(hyp, axis=2, keepdims=True)
         degenerate = hn[..., 0] < 1e-9
         hyp = (hyp / np.where(hn > 0, hn, 1.0)).astype(np.float32)
-        r32 = rays.astype(np.float32)
-        d = np.einsum("nk,nhk->nh", r32, hyp[seg])
+        # d = r . hyp[seg] (N, H), summed over x, y, z in that order as einsum does (the same
+        # float32 numbers), one component at a time: no (N, H, 3) gather
+        r32 = rays.T.astype(np.float32)
+        hyp_k = np.ascontiguousarray(hyp.transpose(2, 0, 1))
+        d = r32[0][:, None] * hyp_k[0][seg]
+        for k in (1, 2):
+            d += r32[k][:, None] * hyp_k[k][seg]
         t2 = (tol * tol).astype(np.float32)[:, None]
         cost = np.minimum(d * d, t2) / t2  # truncated quadratic (MSAC)
         seg_cost = np.add.reduceat(cost, start, axis=0)
         seg_cost[degenerate] = np.inf
         best = np.argmin(seg_cost, axis=1)
         n = hyp[np.arange(nseg), best].astype(np.float64)
-        inl = np.abs(np.einsum("nk,nk->n", rays, n[seg])) < tol
+        inl = np.abs(np.einsum("nk,nk->n", rays, _rows(n, seg))) < tol
         for _ in range(max(1, o.refine_iterations)):
             n_new = smallest_eigenvector(_scatter(rays, inl.astype(np.float64), seg, nseg))
             good = np.bincount(seg, weights=inl, minlength=nseg) >= 3
             n = np.where(good[:, None], n_new, n)
-            inl = np.abs(np.einsum("nk,nk->n", rays, n[seg])) < tol
+            inl = np.abs(np.einsum("nk,nk->n", rays, _rows(n, seg))) < tol
         return n, inl
 
     def _split_gaps(self, idx: IntArray, seg: IntArray, normals: FloatArray, rays: FloatArray,
@@ -487,16 +581,16 @@ class LineExtractor:
         o = self.options
         if len(idx) == 0:
             return idx, seg, np.zeros((0, 3))
-        t = _arc_parameter(rays[idx], normals[seg], seg, normals.shape[0])
-        order = np.lexsort((t, seg))
+        t = _arc_parameter(_rows(rays, idx), normals, seg, normals.shape[0])
+        order = _order_by(seg, t)
         idx, seg, t = idx[order], seg[order], t[order]
         lim = o.max_gap_px * scale[idx[1:]]
         cut = (np.diff(seg) != 0) | (np.diff(t) > lim)
         piece = np.concatenate([[0], np.cumsum(cut)])
         keep = np.bincount(piece)[piece] >= o.min_points
         idx, seg, piece = idx[keep], seg[keep], piece[keep]
-        used, piece = np.unique(piece, return_inverse=True)
-        piece_seg = np.zeros(len(used), np.int64)
+        piece, piece_cnt = _dense_sorted(piece)
+        piece_seg = np.zeros(len(piece_cnt), np.int64)
         piece_seg[piece] = seg
         return idx, piece, normals[piece_seg]
 
@@ -505,7 +599,7 @@ class LineExtractor:
         """Join pieces of one great circle (normals within ``merge_angle_deg``, arcs disjoint and
         at most ``merge_gap_deg`` apart). Returns the new label per point (0..L-1)."""
         o = self.options
-        used, lab = np.unique(lab, return_inverse=True)
+        used, lab = _dense_labels(lab)
         nl = len(used)
         if nl < 2 or o.merge_angle_deg <= 0:
             return lab
@@ -514,6 +608,28 @@ class LineExtractor:
         cand = np.argwhere(np.triu(cosang > np.cos(np.radians(o.merge_angle_deg)), 1))
         if len(cand) == 0:
             return lab
+        # the gap of every candidate pair at once: the points of both pieces by their angle
+        # along the great circle of the first, from the first's mean direction
+        in_order = idx[_stable_order(lab)]
+        size = np.bincount(lab, minlength=nl)
+        first = np.concatenate([[0], np.cumsum(size)[:-1]])
+        gaps = []
+        e1 = e2 = np.zeros((0, 3))
+        for side in (0, 1):
+            piece = cand[:, side]
+            n = size[piece]
+            starts = np.concatenate([[0], np.cumsum(n)[:-1]])
+            pair = np.repeat(np.arange(len(cand)), n)
+            r = _rows(rays, in_order[np.arange(int(n.sum())) - starts[pair] + first[piece][pair]])
+            if side == 0:
+                mean = np.add.reduceat(r, starts, axis=0) / n[:, None]
+                e1, e2 = completion_towards(normals[piece], mean)
+            t = np.arctan2(np.einsum("nk,nk->n", r, _rows(e2, pair)),
+                           np.einsum("nk,nk->n", r, _rows(e1, pair)))
+            gaps.append((np.minimum.reduceat(t, starts), np.maximum.reduceat(t, starts)))
+        (lo_i, hi_i), (lo_j, hi_j) = gaps
+        gap = np.maximum(lo_j - hi_i, lo_i - hi_j)
+        join = (gap >= 0) & (gap <= np.radians(o.merge_gap_deg))
         parent = np.arange(nl)
 
         def find(i: int) -> int:
@@ -522,16 +638,8 @@ class LineExtractor:
                 i = parent[i]
             return int(i)
 
-        max_gap = np.radians(o.merge_gap_deg)
-        for i, j in cand:
-            ni = normals[i]
-            ri, rj = rays[idx[lab == i]], rays[idx[lab == j]]
-            e1, e2 = completion_towards(ni, ri.mean(axis=0))
-            ti = np.arctan2(ri @ e2, ri @ e1)
-            tj = np.arctan2(rj @ e2, rj @ e1)
-            gap = max(tj.min() - ti.max(), ti.min() - tj.max())
-            if 0 <= gap <= max_gap:
-                parent[find(int(i))] = find(int(j))
+        for i, j in cand[join]:
+            parent[find(int(i))] = find(int(j))
         roots = np.array([find(i) for i in range(nl)])
         _, new = np.unique(roots, return_inverse=True)
         return new[lab]
@@ -543,8 +651,9 @@ class LineExtractor:
         nl = int(lab.max()) + 1 if len(lab) else 0
         if nl == 0:
             return idx, lab
-        normals = smallest_eigenvector(_scatter(rays[idx], np.ones(len(idx)), lab, nl))
-        t = _arc_parameter(rays[idx], normals[lab], lab, nl)
+        r = _rows(rays, idx)
+        normals = smallest_eigenvector(_scatter(r, np.ones(len(idx)), lab, nl))
+        t = _arc_parameter(r, normals, lab, nl)
         lo = np.full(nl, np.inf)
         hi = np.full(nl, -np.inf)
         np.minimum.at(lo, lab, t)
@@ -554,7 +663,7 @@ class LineExtractor:
         idx, lab = idx[keep], lab[keep]
         big = np.bincount(lab, minlength=nl) >= self.options.min_points
         keep = big[lab]
-        _, lab = np.unique(lab[keep], return_inverse=True)
+        _, lab = _dense_labels(lab[keep])
         return idx[keep], lab
 
     def _package(self, idx: IntArray, lab: IntArray, rays: FloatArray, uv: FloatArray,
@@ -572,38 +681,48 @@ class LineExtractor:
                 num_corner_points=counts["corner"], num_segments=n_segments,
                 num_rejected=n_rejected)
         # final normals: least squares on all points of each (merged) line
-        normals = smallest_eigenvector(_scatter(rays[idx], np.ones(len(idx)), lab, nl))
-        r = rays[idx]
-        t = _arc_parameter(r, normals[lab], lab, nl)
-        order = np.lexsort((t, lab))
-        idx, lab, t, r = idx[order], lab[order], t[order], r[order]
+        r = _rows(rays, idx)
+        normals = smallest_eigenvector(_scatter(r, np.ones(len(idx)), lab, nl))
+        t = _arc_parameter(r, normals, lab, nl)
+        order = _order_by(lab, t)
+        idx, lab, t, r = idx[order], lab[order], t[order], _rows(r, order)
         sizes = np.bincount(lab, minlength=nl)
         offsets = np.concatenate([[0], np.cumsum(sizes)])
         first, last = offsets[:-1], offsets[1:] - 1
         ends = np.stack([r[first], r[last]], 1)
         ends -= np.einsum("lek,lk->le", ends, normals)[..., None] * normals[:, None, :]
         ends /= np.linalg.norm(ends, axis=2, keepdims=True)
-        px = np.abs(np.einsum("nk,nk->n", r, normals[lab])) / scale[idx]
+        px = np.abs(np.einsum("nk,nk->n", r, _rows(normals, lab))) / scale[idx]
         resid = np.sqrt(np.bincount(lab, weights=px * px, minlength=nl) / sizes)
         arc_rad = t[last] - t[first]
         # the arc in units of the local pixel size: far below the point count where pixels are
         # much narrower one way than the other (near the poles of an equirectangular image)
         mean_scale = np.bincount(lab, weights=scale[idx], minlength=nl) / sizes
         short = arc_rad / mean_scale < self.options.min_arc_px
+        if short.all():
+            z = np.zeros(0, np.int64)
+            return self._package(z, z, rays, uv, scale, counts, n_segments, n_rejected)
         if short.any():
-            keep = ~short[lab]
-            _, new = np.unique(lab[keep], return_inverse=True)
-            return self._package(idx[keep], new, rays, uv, scale, counts, n_segments,
-                                 n_rejected)
+            # the other lines as they are (fitting them again on the same points, in their
+            # new order, changes their numbers by round-off only)
+            line = ~short
+            keep = line[lab]
+            idx, lab, t = idx[keep], (np.cumsum(line) - 1)[lab[keep]], t[keep]
+            r = np.compress(keep, r, axis=0)
+            normals, ends, resid, arc_rad = normals[line], ends[line], resid[line], arc_rad[line]
+            sizes = sizes[line]
+            nl = len(sizes)
+            offsets = np.concatenate([[0], np.cumsum(sizes)])
+            first, last = offsets[:-1], offsets[1:] - 1
         arc = np.degrees(arc_rad)
         # NV uncertainty: information of the fit along the middle ray m and across it (t)
         m, tdir = completion_towards(normals, ends[:, 0] + ends[:, 1])
         w = 1.0 / (self.options.edge_noise_px * scale[idx].astype(np.float64)) ** 2
-        info = np.stack([np.bincount(lab, weights=w * np.einsum("nk,nk->n", r, v[lab]) ** 2,
+        info = np.stack([np.bincount(lab, weights=w * np.einsum("nk,nk->n", r, _rows(v, lab)) ** 2,
                                      minlength=nl) for v in (m, tdir)], axis=1)
         sigma = 1.0 / np.sqrt(np.maximum(info, 1e-300))
         return ExtractedLines(
-            normals=normals, offsets=offsets, points_uv=uv[idx], point_rays=r,
+            normals=normals, offsets=offsets, points_uv=_rows(uv, idx), point_rays=r,
             endpoint_rays=ends, endpoint_uv=np.stack([uv[idx[first]], uv[idx[last]]], 1),
             num_support=sizes.astype(np.int64), residual_px=resid, arc_deg=arc,
             normal_sigma=sigma,
@@ -611,14 +730,55 @@ class LineExtractor:
             num_segments=n_segments, num_rejected=n_rejected)
 
 
+def _rows(a: np.ndarray, index: IntArray) -> np.ndarray:
+    """``a[index]`` for integer ``index`` along the first axis of a 2-D (or more) array:
+    np.take does it several times faster than fancy indexing (10 against 36 us for 5,000 rows
+    of 3 floats)."""
+    return np.take(a, index, axis=0)
+
+
+def _stable_order(key: IntArray) -> IntArray:
+    """``np.argsort(key, kind="stable")`` of non-negative integers, on 16-bit keys where they
+    fit (numpy's radix sort)."""
+    if len(key) and key.min() >= 0 and key.max() < 2**15:
+        key = key.astype(np.int16)
+    return np.argsort(key, kind="stable")
+
+
+def _dense_labels(lab: IntArray) -> tuple[IntArray, IntArray]:
+    """``np.unique(lab, return_inverse=True)`` of non-negative integers, by counting instead of
+    sorting: the labels used and each one's rank among them."""
+    present = np.bincount(lab) > 0 if len(lab) else np.zeros(0, bool)
+    return np.flatnonzero(present), (np.cumsum(present) - 1)[lab]
+
+
+def _order_by(key: IntArray, t: FloatArray) -> IntArray:
+    """``np.lexsort((t, key))``: the order by ``key``, then by ``t``, then by index. Two stable
+    argsorts, the second on 16-bit keys where they fit (numpy's radix sort): half the time of
+    lexsort on 5,000 points."""
+    order = np.argsort(t, kind="stable")
+    return order[_stable_order(key[order])]
+
+
+def _dense_sorted(lab: IntArray) -> tuple[IntArray, IntArray]:
+    """Labels ``0..K-1`` in place of the non-decreasing ``lab``, and each one's count (what
+    ``np.unique(lab, return_inverse=True, return_counts=True)`` gives, without its sort)."""
+    first = np.ones(len(lab), bool)
+    np.not_equal(lab[1:], lab[:-1], out=first[1:])
+    starts = np.flatnonzero(first)
+    return np.cumsum(first) - 1, np.diff(np.append(starts, len(lab)))
+
+
 def _arc_parameter(r: FloatArray, n: FloatArray, group: IntArray, ngroup: int) -> FloatArray:
-    """Angle of each ray along its great circle (normal ``n`` per row), measured from the mean
-    direction of its group, in ``(-pi, pi]``."""
+    """Angle of each ray along its great circle (normal ``n[group]``, ``n`` ``(ngroup, 3)``),
+    measured from the mean direction of its group, in ``(-pi, pi]``."""
     mean = np.zeros((ngroup, 3))
     for k in range(3):
         mean[:, k] = np.bincount(group, weights=r[:, k], minlength=ngroup)
-    e1, e2 = completion_towards(n, mean[group])
-    return np.arctan2(np.einsum("nk,nk->n", r, e2), np.einsum("nk,nk->n", r, e1))
+    # the basis per group, then per point (the same numbers as computing it per point)
+    e1, e2 = completion_towards(n, mean)
+    return np.arctan2(np.einsum("nk,nk->n", r, _rows(e2, group)),
+                      np.einsum("nk,nk->n", r, _rows(e1, group)))
 
 
 def _oriented_components(p: IntArray, shape: tuple[int, int], theta: FloatArray,
@@ -626,39 +786,51 @@ def _oriented_components(p: IntArray, shape: tuple[int, int], theta: FloatArray,
     """Connected components of points ``p`` ``(N, 2)`` (x, y, at least 1 px inside ``shape``)
     where 8-neighbours are linked only if their orientations (mod pi) differ by less than
     ``max_angle`` (rad). Returns the number of components and the ``(N,)`` labels."""
-    from scipy.sparse import coo_matrix
+    from scipy.sparse import csr_matrix
     from scipy.sparse.csgraph import connected_components
 
     n = len(p)
-    img = np.full(shape, -1, np.int64)
-    img[p[:, 1], p[:, 0]] = np.arange(n)
-    rows, cols = [], []
-    for dx, dy in ((1, 0), (-1, 1), (0, 1), (1, 1)):
-        nb = img[p[:, 1] + dy, p[:, 0] + dx]
-        has = np.flatnonzero(nb >= 0)
-        d = np.abs(theta[has] - theta[nb[has]])
-        d = np.minimum(d, np.pi - d)
-        ok = d < max_angle
-        rows.append(has[ok])
-        cols.append(nb[has[ok]])
-    r, c = np.concatenate(rows), np.concatenate(cols)
-    g = coo_matrix((np.ones(len(r), np.int8), (r, c)), shape=(n, n))
+    w = int(shape[1])
+    img = np.full(int(shape[0]) * w, -1, np.int32)
+    flat = p[:, 1].astype(np.int64) * w + p[:, 0]
+    img[flat] = np.arange(n, dtype=np.int32)
+    # the neighbours right, below-left, below and below-right of every point at once (each
+    # 8-neighbour pair once); the graph's edge order does not matter to its components
+    nb = np.take(img, flat[:, None] + np.array([1, w - 1, w, w + 1], np.int64)).ravel()
+    m = np.flatnonzero(nb >= 0)
+    r, c = m >> 2, nb[m].astype(np.int64)
+    d = np.abs(theta[r] - theta[c])
+    d = np.minimum(d, np.pi - d)
+    ok = d < max_angle
+    r, c = r[ok], c[ok]
+    # the rows come sorted: the compressed rows directly, no conversion from coordinates
+    indptr = np.concatenate([[0], np.cumsum(np.bincount(r, minlength=n))])
+    g = csr_matrix((np.ones(len(r), np.int8), c, indptr), shape=(n, n))
     ncomp, lab = connected_components(g, directed=False)
     return int(ncomp), lab.astype(np.int64)
 
 
-def _bilinear(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """``img`` bilinearly interpolated at points ``(x, y)`` (clamped to the image)."""
-    h, w = img.shape
+def _magnitude(g: np.ndarray) -> np.ndarray:
+    """``|g|`` of complex64 gradients as float32 ``sqrt(dx^2 + dy^2)`` (numpy's correctly
+    rounded operations: cv2.magnitude's last bit depends on the arrays' memory alignment)."""
+    gx, gy = g.real, g.imag
+    return np.sqrt(gx * gx + gy * gy)
+
+
+def _bilinear_magnitude(dxy: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """The gradient magnitude of the ``(h, w)`` complex64 gradient image ``dxy`` bilinearly
+    interpolated at points ``(x, y)`` (clamped to the image), from the four pixels around
+    each point."""
+    h, w = dxy.shape
     x = np.clip(x, 0, w - 1.001)
     y = np.clip(y, 0, h - 1.001)
     x0 = x.astype(np.int64)
     y0 = y.astype(np.int64)
     fx, fy = x - x0, y - y0
     i = y0 * w + x0
-    f = img.ravel()
-    top = f[i] * (1 - fx) + f[i + 1] * fx
-    bot = f[i + w] * (1 - fx) + f[i + w + 1] * fx
+    f = _magnitude(np.take(dxy.ravel(), i[:, None] + np.array([0, 1, w, w + 1])))
+    top = f[:, 0] * (1 - fx) + f[:, 1] * fx
+    bot = f[:, 2] * (1 - fx) + f[:, 3] * fx
     return np.asarray(top * (1 - fy) + bot * fy, dtype=np.float32)
 
 
