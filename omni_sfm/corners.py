@@ -31,6 +31,10 @@ class CornerTrackOptions:
     fb_max_px: float = 1.0
     """A step is kept only if tracking the new position back lands within this distance of
     where it started (inf: no check)."""
+    anchor_max_px: float = np.inf
+    """Drift control (inf: off): after each step every tracked corner is tracked again from its
+    first frame's image straight into the new one, starting at the frame-to-frame position; it
+    takes that position when the two agree within this distance, otherwise its track ends."""
     window_px: int = 15
     """KLT window side."""
     levels: int = 3
@@ -89,6 +93,29 @@ def klt_step(prev: np.ndarray, img: np.ndarray, pts: np.ndarray, mask: np.ndarra
     return p1.astype(np.float64), good
 
 
+def _anchor(anchors: dict[int, np.ndarray], img: np.ndarray, pts: np.ndarray,
+            born: np.ndarray, start: np.ndarray, o: CornerTrackOptions) -> np.ndarray:
+    """Track each corner from its first frame (``anchors[born]``, position ``start``) into
+    ``img`` starting at ``pts``; where that lands within ``anchor_max_px`` of ``pts`` the corner
+    moves there (in place), elsewhere it is dropped. Returns ``(N,)`` bool, kept."""
+    import cv2 as cv2_typed
+
+    cv2: Any = cv2_typed
+    keep = np.zeros(len(pts), bool)
+    lk = _lk_params(o)
+    for f in np.unique(born):
+        sel = np.flatnonzero(born == f)
+        guess = pts[sel].reshape(-1, 1, 2).copy()
+        q, st, _ = cv2.calcOpticalFlowPyrLK(anchors[int(f)], img,
+                                            start[sel].reshape(-1, 1, 2), guess,
+                                            flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **lk)
+        q = q.reshape(-1, 2)
+        ok = (st.ravel() == 1) & (np.linalg.norm(q - pts[sel], axis=1) < o.anchor_max_px)
+        pts[sel[ok]] = q[ok]
+        keep[sel[ok]] = True
+    return keep
+
+
 def track_corners(frames: Iterable[np.ndarray], mask: np.ndarray,
                   options: CornerTrackOptions | None = None) -> CornerTracks:
     """Corner tracks through ``frames`` (grey uint8 images of one size, in order) inside
@@ -107,11 +134,19 @@ def track_corners(frames: Iterable[np.ndarray], mask: np.ndarray,
     prev: np.ndarray | None = None
     pts = np.zeros((0, 2), np.float32)
     ids = np.zeros(0, np.int64)
+    born = np.zeros(0, np.int64)  # frame of each live track's first observation
+    start = np.zeros((0, 2), np.float32)  # and its position there
+    anchors: dict[int, np.ndarray] = {}
+    anchored = np.isfinite(o.anchor_max_px)
     next_id = 0
     for k, img in enumerate(frames):
         if prev is not None and len(pts):
             p1, good = klt_step(prev, img, pts, mask, o)
-            pts, ids = p1[good].astype(np.float32), ids[good]
+            pts, ids, born, start = p1[good].astype(np.float32), ids[good], born[good], \
+                start[good]
+            if anchored:
+                keep = _anchor(anchors, img, pts, born, start, o)
+                pts, ids, born, start = pts[keep], ids[keep], born[keep], start[keep]
         if len(pts) < o.redetect_fraction * o.max_corners:
             m = mask.copy()
             r = int(o.min_distance_px)
@@ -123,7 +158,11 @@ def track_corners(frames: Iterable[np.ndarray], mask: np.ndarray,
                 new = new.reshape(-1, 2).astype(np.float32)
                 pts = np.concatenate([pts, new])
                 ids = np.concatenate([ids, next_id + np.arange(len(new))])
+                born = np.concatenate([born, np.full(len(new), k)])
+                start = np.concatenate([start, new])
                 next_id += len(new)
+        if anchored:
+            anchors = {f: anchors.get(f, img) for f in np.unique(born).tolist()}
         tr.append(ids.copy())
         fr.append(np.full(len(ids), k, np.int64))
         uv.append(pts.astype(np.float64))
