@@ -72,6 +72,22 @@ def test_klt_refine_improves_the_seed_and_triangulates_points(klt_refined):
     assert rec.num_points3D() == r["model"]["points"]
 
 
+@pytest.mark.parametrize("overlap", [3, 10])
+def test_sequential_pairs_are_colmaps(klt_refined, overlap):
+    """The KLT pairs are the pairs COLMAP's own sequential matching would match."""
+    work, gt, _, _ = klt_refined
+    with pycolmap.Database.open(str(work / "out" / "database.db")) as d:
+        ids = {im.name: im.image_id for im in d.read_all_images()}
+        options = pycolmap.SequentialPairingOptions()
+        options.overlap = overlap
+        theirs = {tuple(sorted(p)) for p in
+                  pycolmap.SequentialPairGenerator(options, d).all_pairs()}
+    order = [ids[n] for n in sorted(ids)]
+    ours = {tuple(sorted((order[i], order[j])))
+            for i, j in sequential_pairs(len(order), overlap)}
+    assert ours == theirs and len(ours) > len(order)
+
+
 def test_klt_database_holds_keypoints_tracks_and_no_descriptors(klt_refined):
     """Keypoints on a common track are matched for the sequential pairs (and only those), each
     match written as an inlier; no SIFT descriptors."""

@@ -44,7 +44,8 @@ def add_parser(sub: Any) -> None:
                         "order: a video or an ordered folder; faster, less accurate) (default: "
                         "%(default)s)")
     p.add_argument("--overlap", type=int, default=d.overlap,
-                   help="frames matched with each frame's following ones (default: "
+                   help="COLMAP's sequential overlap (quadratic): each frame is matched "
+                        "with the frames 1, 2, 4, ... 2^(OVERLAP-1) ahead (default: "
                         "%(default)s)")
     p.add_argument("--max-features", type=int, default=d.max_features,
                    help="SIFT features per image (default: %(default)s)")

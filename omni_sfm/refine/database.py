@@ -270,10 +270,11 @@ def _write_keypoints(db: Any, ids: list[int], stale: set[int], tracks: CornerTra
 
 
 def sequential_pairs(n: int, overlap: int) -> list[tuple[int, int]]:
-    """The pairs COLMAP's sequential matching forms with its quadratic overlap, as indices
-    into ``n`` frames in order: each frame with the ``overlap`` following ones and with those
-    ``2**k`` ahead (``k < overlap``), which give the wide baselines."""
-    steps = sorted(set(range(1, overlap + 1)) | {2**k for k in range(min(overlap, 62))})
+    """The pairs COLMAP's sequential matching forms with its quadratic overlap (pycolmap
+    4.2.1's ``SequentialPairGenerator``, tested), as indices into ``n`` frames in order: each
+    frame with the frames ``2**k`` ahead, ``k < overlap`` (1, 2, 4, ..., so short and wide
+    baselines)."""
+    steps = [2**k for k in range(min(overlap, 62)) if 2**k < n]
     return [(i, i + d) for i in range(n) for d in steps if i + d < n]
 
 

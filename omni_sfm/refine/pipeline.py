@@ -7,8 +7,8 @@ Stages (all SfM work is pycolmap's; docs/colmap.md):
 2. features: one shared camera with the exact COLMAP model, and either KLT corner tracks through
    the ordered frames (``features="klt"``) or SIFT (``"sift"``); images that already have
    features in the database are not extracted again;
-3. matching: the pairs within the overlap window (KLT: corners on a common track; SIFT:
-   COLMAP's sequential matching) and COLMAP's geometric verification (pairs matched before are
+3. matching: the pairs of COLMAP's sequential matching (KLT: corners on a common track;
+   SIFT: COLMAP's matcher) and COLMAP's geometric verification (pairs matched before are
    skipped);
 4. triangulation: ``pycolmap.triangulate_points`` with the line-based poses held fixed;
 5. mapper (only when the folder holds frames the line stage did not pose): COLMAP's incremental
@@ -107,8 +107,9 @@ class RefineOptions:
     """KLT: run COLMAP's geometric verification on the track matches; off, they are written as
     the pairs' inlier matches (docs/colmap.md: why, and what verification costs)."""
     overlap: int = 10
-    """Each frame is matched with this many following frames (SIFT: COLMAP's sequential
-    ``overlap``, with its quadratic overlap on; KLT: the corners on a common track)."""
+    """COLMAP's sequential ``overlap`` with its quadratic overlap on: each frame is matched with
+    the frames 1, 2, 4, ..., ``2**(overlap - 1)`` ahead (SIFT: by COLMAP's matcher; KLT: the
+    corners on a common track)."""
     mask_erosion_px: int = 3
     """The valid mask is shrunk by this many pixels so the rim of the mirror gives no features."""
     num_threads: int = -1
