@@ -167,12 +167,12 @@ def test_klt_tracks_again_when_the_database_lacks_frames(room, klt_refined, tmp_
     work, gt, init, _ = klt_refined
     db = tmp_path / "database.db"
     refine(work / "init", room / "images", tmp_path / "posed_only",
-           RefineOptions(features="klt", overlap=5, register_missing=False), database=db,
+           RefineOptions(features="klt", overlap=3, register_missing=False), database=db,
            progress=False)
     n_posed = len(_table_rows(db, "keypoints"))
     assert n_posed == len(init)
     res = refine(work / "init", room / "images", tmp_path / "all",
-                 RefineOptions(features="klt", overlap=5), database=db, progress=False)
+                 RefineOptions(features="klt", overlap=3), database=db, progress=False)
     f = res.report["features"]
     assert (f["extracted_images"], f["reused_images"]) == (len(gt), 0)
     assert len(_table_rows(db, "keypoints")) == len(gt)
