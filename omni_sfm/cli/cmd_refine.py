@@ -19,9 +19,9 @@ def add_parser(sub: Any) -> None:
         description=(
             "Point evidence from SIFT features and sequential matching (default) or KLT corner "
             "tracks through the ordered frames, inside the camera's valid mask; COLMAP's "
-            "geometric verification, triangulation with the line-based poses fixed, COLMAP's "
-            "mapper for frames the init missed, bundle adjustment with the gauge fixed; frames "
-            "it cannot improve keep their input pose. "
+            "geometric verification (SIFT), triangulation with the line-based poses fixed, "
+            "COLMAP's mapper for frames the init missed, bundle adjustment with the gauge "
+            "fixed; frames it cannot improve keep their input pose. "
             "Writes sparse/, trajectory.tum, report.json, images_colmap/, camera_mask.png and "
             "database.db into OUTPUT, and carries camera.yaml, lines3d.json and mask.png over "
             "from INPUT for dense and view (see docs/colmap.md)."
