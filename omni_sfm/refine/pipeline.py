@@ -7,9 +7,9 @@ Stages (all SfM work is pycolmap's; docs/colmap.md):
 2. features: one shared camera with the exact COLMAP model, and either KLT corner tracks through
    the ordered frames (``features="klt"``) or SIFT (``"sift"``); images that already have
    features in the database are not extracted again;
-3. matching: the pairs of COLMAP's sequential matching (KLT: corners on a common track;
-   SIFT: COLMAP's matcher) and COLMAP's geometric verification (pairs matched before are
-   skipped);
+3. matching: the pairs of COLMAP's sequential matching, pairs matched before skipped. SIFT:
+   COLMAP's matcher and geometric verification; KLT: the corners on a common track, written as
+   the pairs' inlier matches (COLMAP's verification with ``klt_verify``);
 4. triangulation: ``pycolmap.triangulate_points`` with the line-based poses held fixed;
 5. mapper (only when the folder holds frames the line stage did not pose): COLMAP's incremental
    mapper continues from the triangulated model, the seeded frames held fixed;
@@ -102,7 +102,7 @@ class RefineOptions:
     max_features: int = 8192
     """SIFT features per image at most."""
     max_corners: int = 5000
-    """KLT: corners tracked at most (new ones are detected below 70 % of this)."""
+    """KLT: corners tracked at most (new ones are added in every frame up to this)."""
     klt_verify: bool = False
     """KLT: run COLMAP's geometric verification on the track matches; off, they are written as
     the pairs' inlier matches (docs/colmap.md: why, and what verification costs)."""
