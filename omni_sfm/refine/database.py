@@ -3,12 +3,13 @@ the point evidence in it, from one of two feature sources:
 
 - ``sift``: SIFT features with the camera's valid mask and sequential matching, both pycolmap's;
 - ``klt``: corners tracked through the ordered frames (:mod:`omni_sfm.corners`), written as
-  keypoints (no descriptors) and, for every pair of frames within the overlap window, the
-  corners on a common track as matches.
+  keypoints (no descriptors) and, for every pair of COLMAP's sequential matching, the corners
+  on a common track as matches, written as the pair's inlier matches too (or verified by
+  COLMAP: :func:`match_tracks`).
 
-Either way COLMAP's own geometric verification turns matches into two-view geometries. Images
-whose features the database already holds are not extracted again and matched pairs are not
-matched again; a database holds the features of one source only (:func:`feature_source`).
+Images whose features the database already holds are not extracted again and matched pairs
+are not matched again; a database holds the features of one source only
+(:func:`feature_source`).
 """
 
 from __future__ import annotations
