@@ -77,3 +77,29 @@ def test_track_corners_follows_a_panning_image_and_refills():
     # tracks leave on the right; the refill adds new ids
     ids_last, _ = t.in_frame(24)
     assert (ids_last > ids0.max()).any() and len(ids_last) >= opts.redetect_fraction * 300 * 0.8
+
+
+def test_anchoring_stops_drift_under_noise():
+    """A texture moving 1 px per frame under strong independent noise (sigma 16 grey levels):
+    frame-to-frame KLT passes every step's forward-backward check yet its errors add up over 39
+    steps; anchored to the first frame, the surviving tracks stay where the texture is."""
+    big = _texture(7, (240, 440))
+    rng = np.random.default_rng(8)
+    frames = [np.clip(big[:, 40 - k: 440 - k] + rng.normal(0, 16, (240, 400)), 0, 255)
+              .astype(np.uint8) for k in range(40)]
+    mask = np.zeros((240, 400), np.uint8)
+    mask[20:220, 60:380] = 255
+
+    def last_frame_errors(anchor: float) -> np.ndarray:
+        t = track_corners(frames, mask, CornerTrackOptions(max_corners=300, window_px=7,
+                                                          anchor_max_px=anchor))
+        ids0, uv0 = t.in_frame(0)
+        ids, uv = t.in_frame(39)
+        _, a, b = np.intersect1d(ids0, ids, return_indices=True)
+        return np.linalg.norm(uv[b] - (uv0[a] + [39.0, 0.0]), axis=1)
+
+    free = last_frame_errors(np.inf)
+    assert len(free) >= 100 and np.median(free) > 0.5 and free.max() > 2.0
+    anchored = last_frame_errors(0.5)
+    assert len(anchored) >= 50
+    assert np.median(anchored) < 0.4 and anchored.max() < 1.0
