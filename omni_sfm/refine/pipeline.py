@@ -97,8 +97,8 @@ class RefineOptions:
     features: str = "sift"
     """Point evidence: ``sift`` (SIFT features and COLMAP's sequential matching, also for
     images that are not in order) or ``klt`` (corners tracked through the frames in name order:
-    a video or an ordered image folder; about twice as fast, less accurate on the 120-frame
-    room of docs/colmap.md, hence not the default)."""
+    a video or an ordered image folder; 2-3x faster but less accurate: on the 120-frame room
+    of docs/colmap.md it made the line-based poses worse, hence not the default)."""
     max_features: int = 8192
     """SIFT features per image at most."""
     max_corners: int = 5000
