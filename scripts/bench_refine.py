@@ -2,6 +2,7 @@
 camera, 800 x 600, 100 frames. Prints the per-stage times and the ATE before and after.
 
     .venv/bin/python scripts/bench_refine.py --work /tmp/bench_refine
+    .venv/bin/python scripts/bench_refine.py --work /tmp/bench_refine --features klt sift
     .venv/bin/python scripts/bench_refine.py --work /tmp/bench_corridor --scene corridor
     .venv/bin/python scripts/bench_refine.py --work /tmp/bench_refine --init LINE_INIT_DIR
 
@@ -9,8 +10,10 @@ Without ``--init`` the seed is the ground truth with realistic errors (0.3 deg r
 0.5 % of the path position noise, fixed seed), written as an init directory by
 ``omni_sfm.refine.synthetic.write_perturbed_init``; with ``--init`` an existing init directory
 (e.g. from ``omni-sfm init``) of the same frames is refined instead. The rendering is reused when
-``WORK/render`` exists. The room is rendered with texture, the corridor without (texture-poor).
-ATE is after a similarity alignment, relative to the path length.
+``WORK/render`` exists. ``--features`` names the feature sources to compare (default: the
+default source only); they run back to back on the same render and seed, each with a fresh
+database, into ``WORK/refined_<source>``. The room is rendered with texture, the corridor
+without (texture-poor). ATE is after a similarity alignment, relative to the path length.
 """
 
 from __future__ import annotations
@@ -20,11 +23,13 @@ import json
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 from omni_sfm.evaluate import trajectory_errors
 from omni_sfm.export.colmap import read_init_model
 from omni_sfm.poses import read_tum
 from omni_sfm.refine import RefineOptions, refine
+from omni_sfm.refine.database import FEATURE_SOURCES
 from omni_sfm.refine.synthetic import write_perturbed_init
 from omni_sfm.synth.render import RenderOptions, render_sequence
 
@@ -43,7 +48,12 @@ def main() -> int:
     p.add_argument("--adjustment", nargs="+", choices=["joint", "colmap"],
                    default=[RefineOptions().adjustment],
                    help="the adjustments to run, one after the other on the same features and "
-                        "matches (the first run's database is reused)")
+                        "matches (each feature source's database is reused)")
+    p.add_argument("--features", nargs="+", choices=list(FEATURE_SOURCES),
+                   default=[RefineOptions().features],
+                   help="feature sources to run, one after the other (default: %(default)s)")
+    p.add_argument("--klt-verify", action="store_true",
+                   help="KLT: run COLMAP's geometric verification on the track matches")
     args = p.parse_args()
 
     render = args.work / "render"
@@ -70,41 +80,48 @@ def main() -> int:
     before = trajectory_errors(init, gt)
     print(f"input: ATE / path length {100 * before.ate_rel:.4f} %, rotation error mean / max "
           f"{before.rot_mean_deg:.3f} / {before.rot_max_deg:.3f} deg")
-    database = args.work / "database.db"
-    for adjustment in args.adjustment:
-        t0 = time.perf_counter()
-        res = refine(init_dir, render / "images", args.work / f"refined_{adjustment}",
-                     RefineOptions(overlap=args.overlap, adjustment=adjustment),
-                     database=database, overwrite=True, progress=sys.stderr.isatty())
-        total = time.perf_counter() - t0
-        r = res.report
-        after = trajectory_errors(res.trajectory, gt)
-        ba = r["bundle_adjustment"]
-        print(f"--- adjustment: {adjustment}"
-              + (f" (joint skipped: {r['joint_adjustment']})" if "joint_adjustment" in r
-                 else ""))
-        print(f"frames: {len(init)} seeded, {r['refined_frames']} refined, "
-              f"{len(r['kept_frames'])} kept ({r['kept_input_for_all'] or 'per frame'})")
-        print(f"features: {r['features']['keypoints']} keypoints "
-              f"({r['features']['reused_images']} images reused from the database); "
-              f"matching: {r['matching']['verified_pairs']} verified pairs, "
-              f"{r['matching']['inlier_matches']} inlier matches")
-        if "joint" in ba:
-            j = ba["joint"]
-            print(f"joint: {j['line_observations']} line and {j['point_observations']} point "
-                  f"observations ({j['point_observations_rejected']} rejected), noise "
-                  f"{j['line_noise_deg']:.4f} / {j['point_noise_deg']:.4f} deg, "
-                  f"{j['iterations']} iterations")
-        else:
-            rounds = ba.get("rounds") or [{}]
-            print(f"points: {r['model']['points']}, observations: "
-                  f"{r['model']['observations']}, mean reprojection error: triangulated "
-                  f"{r['triangulation']['mean_reprojection_error_px']:.3f} px -> after BA "
-                  f"{rounds[-1].get('mean_reprojection_error_after_px', float('nan')):.3f} px")
-        print("stage times (s): " + json.dumps(r["timings_s"]) + f"; total {total:.1f} s")
-        print(f"ATE / path length: {100 * after.ate_rel:.4f} %; rotation error mean / max: "
-              f"{after.rot_mean_deg:.3f} / {after.rot_max_deg:.3f} deg")
+    for features in args.features:
+        database = args.work / f"database_{features}.db"
+        for adjustment in args.adjustment:
+            t0 = time.perf_counter()
+            res = refine(init_dir, render / "images",
+                         args.work / f"refined_{features}_{adjustment}",
+                         RefineOptions(overlap=args.overlap, features=features,
+                                       klt_verify=args.klt_verify, adjustment=adjustment),
+                         database=database, overwrite=True, progress=sys.stderr.isatty())
+            total = time.perf_counter() - t0
+            _print_run(features, adjustment, res.report, total,
+                       trajectory_errors(res.trajectory, gt), len(init))
     return 0
+
+
+def _print_run(features: str, adjustment: str, r: dict[str, Any], total: float, after: Any,
+               seeded: int) -> None:
+    ba = r["bundle_adjustment"]
+    f = r["features"]
+    tracks = f" on {f['tracks']} tracks" if "tracks" in f else ""
+    print(f"--- features: {features}, adjustment: {adjustment}"
+          + (f" (joint skipped: {r['joint_adjustment']})" if "joint_adjustment" in r else ""))
+    print(f"frames: {seeded} seeded, {r['refined_frames']} refined, "
+          f"{len(r['kept_frames'])} kept ({r['kept_input_for_all'] or 'per frame'})")
+    print(f"features: {f['keypoints']} keypoints{tracks} ({f['reused_images']} images reused "
+          f"from the database); matching: {r['matching']['verified_pairs']} verified pairs, "
+          f"{r['matching']['inlier_matches']} inlier matches")
+    if "joint" in ba:
+        j = ba["joint"]
+        print(f"joint: {j['line_observations']} line and {j['point_observations']} point "
+              f"observations ({j['point_observations_rejected']} rejected), noise "
+              f"{j['line_noise_deg']:.4f} / {j['point_noise_deg']:.4f} deg, "
+              f"{j['iterations']} iterations")
+    else:
+        rounds = ba.get("rounds") or [{}]
+        print(f"points: {r['model']['points']}, observations: {r['model']['observations']}, "
+              f"mean reprojection error: triangulated "
+              f"{r['triangulation']['mean_reprojection_error_px']:.3f} px -> after BA "
+              f"{rounds[-1].get('mean_reprojection_error_after_px', float('nan')):.3f} px")
+    print("stage times (s): " + json.dumps(r["timings_s"]) + f"; total {total:.1f} s")
+    print(f"ATE / path length: {100 * after.ate_rel:.4f} %; rotation error mean / max: "
+          f"{after.rot_mean_deg:.3f} / {after.rot_max_deg:.3f} deg", flush=True)
 
 
 if __name__ == "__main__":

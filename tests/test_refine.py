@@ -65,8 +65,8 @@ def room_refined(room, tmp_path_factory):
     gt = read_tum(room / "groundtruth.tum")
     frames = np.array([k for k in range(len(gt)) if k not in MISSING])
     init = write_perturbed_init(room, work / "init", frames=frames, seed=1)
-    res = refine(work / "init", room / "images", work / "out", RefineOptions(overlap=5),
-                 progress=False)
+    res = refine(work / "init", room / "images", work / "out",
+                 RefineOptions(overlap=5, features="sift"), progress=False)
     return work, gt, init, res
 
 
@@ -147,8 +147,8 @@ def test_cli_reuses_the_features_of_a_database(room, room_refined, tmp_path, cap
     report = read_json(tmp_path / "out" / "report.json")
     # the keypoints reported are those the database held, none added
     assert stored > 100 * len(gt)
-    assert report["features"] == {"extracted_images": 0, "reused_images": len(gt),
-                                  "keypoints": stored}
+    assert report["features"] == {"source": "sift", "extracted_images": 0,
+                                  "reused_images": len(gt), "keypoints": stored}
     assert _keypoints_in_database(db) == stored
     assert not (tmp_path / "out" / "database.db").exists()  # the given database is used
     out = read_tum(tmp_path / "out" / "trajectory.tum")

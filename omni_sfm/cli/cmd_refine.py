@@ -10,15 +10,18 @@ from typing import Any
 
 def add_parser(sub: Any) -> None:
     from omni_sfm.refine import RefineOptions
+    from omni_sfm.refine.database import FEATURE_SOURCES
 
     d = RefineOptions()
     p = sub.add_parser(
         "refine",
         help="refine the line-based poses with COLMAP (pycolmap), never worse than its input",
         description=(
-            "SIFT features with the camera's valid mask, sequential matching, triangulation with "
-            "the line-based poses fixed, COLMAP's mapper for frames the init missed, bundle "
-            "adjustment with the gauge fixed; frames it cannot improve keep their input pose. "
+            "Point evidence from SIFT features and sequential matching (default) or KLT corner "
+            "tracks through the ordered frames, inside the camera's valid mask; COLMAP's "
+            "geometric verification (SIFT), triangulation with the line-based poses fixed, "
+            "COLMAP's mapper for frames the init missed, bundle adjustment with the gauge "
+            "fixed; frames it cannot improve keep their input pose. "
             "Writes sparse/, trajectory.tum, report.json, images_colmap/, camera_mask.png and "
             "database.db into OUTPUT, and carries camera.yaml, lines3d.json and mask.png over "
             "from INPUT for dense and view (see docs/colmap.md)."
@@ -35,10 +38,19 @@ def add_parser(sub: Any) -> None:
                    help="COLMAP database to use and keep (features and matches in it are "
                         "reused); default: a new OUTPUT/database.db")
     p.add_argument("--text", action="store_true", help="also write sparse/ as COLMAP text")
+    p.add_argument("--features", choices=list(FEATURE_SOURCES), default=d.features,
+                   help="point evidence: sift (SIFT and sequential matching, also for "
+                        "unordered images) or klt (corners tracked through the frames in name "
+                        "order: a video or an ordered folder; faster but less accurate, it "
+                        "can leave good line-based poses worse) (default: %(default)s)")
     p.add_argument("--overlap", type=int, default=d.overlap,
-                   help="sequential matching overlap (default: %(default)s)")
+                   help="COLMAP's sequential overlap (quadratic): each frame is matched "
+                        "with the frames 1, 2, 4, ... 2^(OVERLAP-1) ahead (default: "
+                        "%(default)s)")
     p.add_argument("--max-features", type=int, default=d.max_features,
                    help="SIFT features per image (default: %(default)s)")
+    p.add_argument("--max-corners", type=int, default=d.max_corners,
+                   help="KLT corners tracked at most (default: %(default)s)")
     p.add_argument("--no-mapper", action="store_true",
                    help="do not try to register frames the init did not pose")
     p.add_argument("--adjustment", choices=["joint", "colmap"], default=d.adjustment,
@@ -55,11 +67,12 @@ def run(args: argparse.Namespace) -> int:
     from omni_sfm.errors import OmniSfmError
     from omni_sfm.refine import RefineOptions, refine
 
-    for key in ("overlap", "max_features"):
+    for key in ("overlap", "max_features", "max_corners"):
         if getattr(args, key) <= 0:
             raise OmniSfmError(f"--{key.replace('_', '-')} must be positive, got "
                                f"{getattr(args, key)}")
-    opts = RefineOptions(overlap=args.overlap, max_features=args.max_features,
+    opts = RefineOptions(features=args.features, overlap=args.overlap,
+                         max_features=args.max_features, max_corners=args.max_corners,
                          register_missing=not args.no_mapper, num_threads=args.threads,
                          text=args.text, adjustment=args.adjustment)
     res = refine(args.input, args.images, args.output, opts, database=args.database,

@@ -1,20 +1,33 @@
-"""COLMAP's side of refinement before any geometry: the images COLMAP sees, the database, SIFT
-features with the camera's valid mask, and sequential matching with geometric verification.
+"""COLMAP's side of refinement before any geometry: the images COLMAP sees, the database, and
+the point evidence in it, from one of two feature sources:
 
-All work is done by pycolmap (its own threads); this module only prepares the inputs and never
-re-extracts features or re-matches pairs that the database already holds.
+- ``sift``: SIFT features with the camera's valid mask and sequential matching, both pycolmap's;
+- ``klt``: corners tracked through the ordered frames (:mod:`omni_sfm.corners`), written as
+  keypoints (no descriptors) and, for every pair of COLMAP's sequential matching, the corners
+  on a common track as matches, written as the pair's inlier matches too (or verified by
+  COLMAP: :func:`match_tracks`).
+
+Images whose features the database already holds are not extracted again and matched pairs
+are not matched again; a database holds the features of one source only
+(:func:`feature_source`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from omni_sfm.cameras.base import ColmapExport
+from omni_sfm.corners import CornerTrackOptions, CornerTracks, track_corners
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.lines.video import FrameStore
+
+FEATURE_SOURCES = ("klt", "sift")
+"""Where refine's point evidence comes from (:class:`omni_sfm.refine.RefineOptions`)."""
 
 
 def check_image_names(folder: Path, available: Sequence[str], model_names: Sequence[str],
@@ -57,12 +70,15 @@ class Features:
         extracted: names whose features were extracted in this run.
         reused: names whose features the database held already.
         num_keypoints: keypoints of all images in the database.
+        tracks: KLT only: the tracks found in this run (None: every image's keypoints were
+            reused, nothing tracked), their frames indexing ``names`` as given.
     """
 
     camera_id: int
     extracted: tuple[str, ...]
     reused: tuple[str, ...]
     num_keypoints: int
+    tracks: CornerTracks | None = None
 
 
 @dataclass(frozen=True)
@@ -101,6 +117,26 @@ def _shared_camera_id(db: Any, names: Sequence[str], export: ColmapExport,
     return int(db.write_camera(export.camera))
 
 
+def feature_source(db: Any) -> str | None:
+    """Which source made the features an open database holds: ``sift`` (descriptors),
+    ``klt`` (keypoints without any descriptors) or None (no keypoints)."""
+    if db.num_descriptors() > 0:
+        return "sift"
+    return "klt" if db.num_keypoints() > 0 else None
+
+
+def _check_source(db: Any, wanted: str, path: Path) -> None:
+    """OmniSfmError when the database holds features of another source than ``wanted``: the
+    two do not mix (KLT keypoints have no descriptors for SIFT matching, and SIFT keypoints are
+    not on tracks)."""
+    have = feature_source(db)
+    if have is not None and have != wanted:
+        what = "SIFT features" if have == "sift" else "KLT corners (keypoints, no descriptors)"
+        raise OmniSfmError(
+            f"{path}: the database holds {what}; refine --features {wanted} needs a database "
+            f"without them (a new --database, or --features {have} with this one)")
+
+
 def extract_features(database: Path, image_dir: Path, mask_path: Path, names: Sequence[str],
                      export: ColmapExport, *, max_features: int, num_threads: int) -> Features:
     """SIFT features of ``names`` (one shared camera with the exact model, the camera mask),
@@ -108,6 +144,7 @@ def extract_features(database: Path, image_dir: Path, mask_path: Path, names: Se
     import pycolmap
 
     with pycolmap.Database.open(str(database)) as db:
+        _check_source(db, "sift", database)
         cam_id = _shared_camera_id(db, names, export, database)
         known = {im.name: im.image_id for im in db.read_all_images()}
         done = {n for n in names if n in known and db.exists_keypoints(known[n])
@@ -150,5 +187,147 @@ def match_sequential(database: Path, *, overlap: int, num_threads: int,
     extra = {} if verification is None else {"verification_options": verification}
     pycolmap.match_sequential(str(database), matching_options=matching, pairing_options=pairing,
                               device=pycolmap.Device.cpu, **extra)
+    with pycolmap.Database.open(str(database)) as db:
+        return Matches(int(db.num_verified_image_pairs()), int(db.num_inlier_matches()))
+
+
+def _image_ids(db: Any, names: Sequence[str]) -> list[int]:
+    known = {im.name: int(im.image_id) for im in db.read_all_images()}
+    return [known[n] for n in names]
+
+
+def track_features(database: Path, image_dir: Path, mask_path: Path, names: Sequence[str],
+                   export: ColmapExport, options: CornerTrackOptions) -> Features:
+    """KLT corner tracks through ``names`` (in this order, a video's frames) of the images in
+    ``image_dir`` (as COLMAP sees them) inside the camera mask, written to ``database`` as
+    keypoints (COLMAP's pixels: +0.5 px) of images imported with one shared camera.
+
+    When every image of ``names`` already has keypoints in the database, nothing is tracked
+    (the matches written with them are reused). Otherwise all of ``names`` are tracked again
+    (tracks run through the whole sequence): their old keypoints are replaced and the matches
+    and two-view geometries of pairs that involve them deleted, since keypoint indices change.
+    """
+    import cv2
+    import pycolmap
+
+    with pycolmap.Database.open(str(database)) as db:
+        _check_source(db, "klt", database)
+        cam_id = _shared_camera_id(db, names, export, database)
+        known = {im.name: im.image_id for im in db.read_all_images()}
+        done = [n for n in names if n in known and db.exists_keypoints(known[n])]
+        if len(done) == len(names):
+            return Features(cam_id, (), tuple(sorted(done)), int(db.num_keypoints()))
+    new = [n for n in names if n not in known]
+    if new:
+        reader = pycolmap.ImageReaderOptions()
+        reader.existing_camera_id = cam_id
+        reader.camera_mask_path = str(mask_path)
+        pycolmap.import_images(str(database), str(image_dir), pycolmap.CameraMode.SINGLE,
+                               image_names=list(new), options=reader)
+    mask = cv2.imread(str(mask_path), cv2.IMREAD_GRAYSCALE)
+    if mask is None:
+        raise OmniSfmError(f"{mask_path}: OpenCV cannot read the camera mask")
+
+    def frames() -> Iterator[np.ndarray]:
+        for n in names:
+            img = cv2.imread(str(image_dir / n), cv2.IMREAD_GRAYSCALE)
+            if img is None:
+                raise OmniSfmError(f"{image_dir / n}: OpenCV cannot read this image")
+            yield img
+
+    tracks = track_corners(frames(), mask, options)
+    with pycolmap.Database.open(str(database)) as db:
+        missing = [n for n in names if n not in {im.name for im in db.read_all_images()}]
+        if missing:
+            raise OmniSfmError(f"{database}: COLMAP did not import {len(missing)} images "
+                               f"(first: {missing[0]!r})")
+        ids = _image_ids(db, names)
+        stale = {i for i, n in zip(ids, names, strict=True) if n in set(done)}
+        with pycolmap.DatabaseTransaction(db):
+            _write_keypoints(db, ids, stale, tracks)
+        num_keypoints = int(db.num_keypoints())
+    return Features(cam_id, tuple(names), (), num_keypoints, tracks)
+
+
+def _write_keypoints(db: Any, ids: list[int], stale: set[int], tracks: CornerTracks) -> None:
+    """Frame ``k``'s corners as the keypoints of image ``ids[k]``; the keypoints of ``stale``
+    images are replaced and every match or two-view geometry involving them deleted."""
+    import pycolmap
+
+    if stale:
+        for table in (db.read_all_matches()[0], db.read_two_view_geometries()[0]):
+            for pair_id in table:
+                i1, i2 = pycolmap.pair_id_to_image_pair(pair_id)
+                if i1 in stale or i2 in stale:
+                    db.delete_matches(i1, i2)
+                    db.delete_two_view_geometry(i1, i2)
+    for k, image_id in enumerate(ids):
+        _, uv = tracks.in_frame(k)
+        kp = (uv + 0.5).astype(np.float32)  # COLMAP's pixel centres are at +0.5
+        if image_id in stale:
+            db.update_keypoints(image_id, kp)
+        else:
+            db.write_keypoints(image_id, kp)
+
+
+def sequential_pairs(n: int, overlap: int) -> list[tuple[int, int]]:
+    """The pairs COLMAP's sequential matching forms with its quadratic overlap (pycolmap
+    4.2.1's ``SequentialPairGenerator``, tested), as indices into ``n`` frames in order: each
+    frame with the frames ``2**k`` ahead, ``k < overlap`` (1, 2, 4, ..., so short and wide
+    baselines)."""
+    steps = [2**k for k in range(min(overlap, 62)) if 2**k < n]
+    return [(i, i + d) for i in range(n) for d in steps if i + d < n]
+
+
+def _write_track_matches(db: Any, ids: list[int], tracks: CornerTracks,
+                         pairs: list[tuple[int, int]], verify: bool, min_matches: int) -> None:
+    """For each pair ``(i, j)`` of frames not matched yet, the keypoints on a common track as
+    the matches of images ``ids[i]``, ``ids[j]`` (and as their inlier matches unless
+    ``verify``)."""
+    import pycolmap
+
+    per_frame = [tracks.in_frame(k)[0] for k in range(len(ids))]
+    for i, j in pairs:
+        if db.exists_matches(ids[i], ids[j]):
+            continue
+        _, a, b = np.intersect1d(per_frame[i], per_frame[j], assume_unique=True,
+                                 return_indices=True)
+        if len(a) < min_matches:
+            continue
+        m = np.stack([a, b], 1).astype(np.uint32)
+        db.write_matches(ids[i], ids[j], m)
+        if not verify:
+            db.write_two_view_geometry(ids[i], ids[j], pycolmap.TwoViewGeometry(
+                config=pycolmap.TwoViewGeometryConfiguration.UNCALIBRATED, inlier_matches=m))
+
+
+def match_tracks(database: Path, names: Sequence[str], tracks: CornerTracks | None,
+                 work: Path, *, overlap: int, verify: bool = True, min_matches: int = 15,
+                 verification: Any | None = None) -> Matches:
+    """Matches from ``tracks`` (:func:`track_features`; frames index ``names``): for each pair
+    of :func:`sequential_pairs`, the keypoints on a common track (pairs with fewer than
+    ``min_matches`` are not written). Then, with ``verify``, COLMAP's geometric verification
+    (``pycolmap.verify_matches``, ``verification`` options or COLMAP's defaults) of every such
+    pair that has matches but no two-view geometry yet (``work``: a folder for its pairs file);
+    without, the matches are written as the pair's inlier matches directly. With ``tracks``
+    None (keypoints reused) only the verification of pairs left unverified runs."""
+    import pycolmap
+
+    with pycolmap.Database.open(str(database)) as db:
+        ids = _image_ids(db, names)
+        todo = sequential_pairs(len(names), overlap)
+        if tracks is not None:
+            with pycolmap.DatabaseTransaction(db):
+                _write_track_matches(db, ids, tracks, todo, verify, min_matches)
+        pairs = [(names[i], names[j]) for i, j in todo if db.exists_matches(ids[i], ids[j])
+                 and not db.exists_two_view_geometry(ids[i], ids[j])]
+    if pairs:
+        work.mkdir(parents=True, exist_ok=True)
+        pairs_file = work / "pairs.txt"
+        pairs_file.write_text("".join(f"{a} {b}\n" for a, b in pairs), encoding="utf-8")
+        if verification is None:
+            pycolmap.verify_matches(str(database), str(pairs_file))
+        else:
+            pycolmap.verify_matches(str(database), str(pairs_file), verification)
     with pycolmap.Database.open(str(database)) as db:
         return Matches(int(db.num_verified_image_pairs()), int(db.num_inlier_matches()))

@@ -4,9 +4,12 @@ Stages (all SfM work is pycolmap's; docs/colmap.md):
 
 1. images: the frames as COLMAP must see them (``images_colmap/``, mirrored where the camera
    export says so) and the camera's valid mask as COLMAP's camera mask;
-2. features: SIFT, one shared camera with the exact COLMAP model; images that already have
+2. features: one shared camera with the exact COLMAP model, and either KLT corner tracks through
+   the ordered frames (``features="klt"``) or SIFT (``"sift"``); images that already have
    features in the database are not extracted again;
-3. matching: sequential pairs and geometric verification (pairs matched before are skipped);
+3. matching: the pairs of COLMAP's sequential matching, pairs matched before skipped. SIFT:
+   COLMAP's matcher and geometric verification; KLT: the corners on a common track, written as
+   the pairs' inlier matches (COLMAP's verification with ``klt_verify``);
 4. triangulation: ``pycolmap.triangulate_points`` with the line-based poses held fixed;
 5. mapper (only when the folder holds frames the line stage did not pose): COLMAP's incremental
    mapper continues from the triangulated model, the seeded frames held fixed;
@@ -33,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from omni_sfm.cameras import write_camera_yaml
+from omni_sfm.corners import CornerTrackOptions
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.export.colmap import (
     IMAGES_DIR,
@@ -68,9 +72,12 @@ from omni_sfm.lines.video import FrameStore, read_mask
 from omni_sfm.lines3d import write_lines3d
 from omni_sfm.poses import Trajectory, write_tum
 from omni_sfm.refine.database import (
+    FEATURE_SOURCES,
     check_image_names,
     extract_features,
     match_sequential,
+    match_tracks,
+    track_features,
     write_colmap_images,
 )
 from omni_sfm.refine.joint import JointResult
@@ -85,13 +92,33 @@ from omni_sfm.transforms import Similarity, similarity_from_poses
 DATABASE_FILE = RefineFolder.DATABASE
 
 
+def klt_tracking(max_corners: int) -> CornerTrackOptions:
+    """How refine tracks corners (``features="klt"``). Against the rendered room's ground truth
+    (docs/colmap.md) the drift of frame-to-frame KLT dominated: a small window (7 px; the
+    hyperboloid bends larger patches), each step re-tracked from the corner's first frame
+    (``anchor_max_px``), and new corners in every frame wherever there is room."""
+    return CornerTrackOptions(max_corners=max_corners, min_distance_px=5.0, window_px=7,
+                              anchor_max_px=0.5, redetect_fraction=1.0)
+
+
 @dataclass(frozen=True, kw_only=True)
 class RefineOptions:
+    features: str = "sift"
+    """Point evidence: ``sift`` (SIFT features and COLMAP's sequential matching, also for
+    images that are not in order) or ``klt`` (corners tracked through the frames in name order:
+    a video or an ordered image folder; 2-3x faster but less accurate: on the 120-frame room
+    of docs/colmap.md it made the line-based poses worse, hence not the default)."""
     max_features: int = 8192
     """SIFT features per image at most."""
+    max_corners: int = 5000
+    """KLT: corners tracked at most (new ones are added in every frame up to this)."""
+    klt_verify: bool = False
+    """KLT: run COLMAP's geometric verification on the track matches; off, they are written as
+    the pairs' inlier matches (docs/colmap.md: why, and what verification costs)."""
     overlap: int = 10
-    """Sequential matching: each frame is matched with this many following frames (COLMAP's
-    ``overlap``, with its quadratic overlap on)."""
+    """COLMAP's sequential ``overlap`` with its quadratic overlap on: each frame is matched with
+    the frames 1, 2, 4, ..., ``2**(overlap - 1)`` ahead (SIFT: by COLMAP's matcher; KLT: the
+    corners on a common track)."""
     mask_erosion_px: int = 3
     """The valid mask is shrunk by this many pixels so the rim of the mirror gives no features."""
     num_threads: int = -1
@@ -333,6 +360,9 @@ def refine(init_dir: Path, images: Path | None, output: Path,
     Raises OmniSfmError (one line) for a bad init directory or image folder.
     """
     o = options or RefineOptions()
+    if o.features not in FEATURE_SOURCES:
+        raise OmniSfmError(f"unknown feature source {o.features!r} (known: "
+                           f"{', '.join(FEATURE_SOURCES)})")
     init_dir, output = Path(init_dir), Path(output)
     check_output_dir(output, overwrite=overwrite, inputs=(init_dir, images, database))
     images_dir = images_for(init_dir, images)
@@ -415,14 +445,30 @@ class _Run:
                                 progress=self.progress)
             self.frames.close()
             write_colmap_mask(tmp / MASK_FILE, camera, o.mask_erosion_px, user_mask)
+        klt = o.features == "klt"
+        if klt:  # tracks run through the frames in the folder's order
+            wanted = set(names)
+            names = [n for n in self.all_names if n in wanted]
         with self.stages.stage("features"):
-            feats = extract_features(db, tmp / IMAGES_DIR, tmp / MASK_FILE, names, export,
-                                     max_features=o.max_features, num_threads=o.num_threads)
-        report["features"] = {"extracted_images": len(feats.extracted),
+            if klt:
+                feats = track_features(db, tmp / IMAGES_DIR, tmp / MASK_FILE, names, export,
+                                       klt_tracking(o.max_corners))
+            else:
+                feats = extract_features(db, tmp / IMAGES_DIR, tmp / MASK_FILE, names, export,
+                                         max_features=o.max_features,
+                                         num_threads=o.num_threads)
+        report["features"] = {"source": o.features,
+                              "extracted_images": len(feats.extracted),
                               "reused_images": len(feats.reused),
                               "keypoints": feats.num_keypoints}
+        if feats.tracks is not None:
+            report["features"]["tracks"] = int(len(np.unique(feats.tracks.track)))
         with self.stages.stage("matching"):
-            matches = match_sequential(db, overlap=o.overlap, num_threads=o.num_threads)
+            if klt:
+                matches = match_tracks(db, names, feats.tracks, work, overlap=o.overlap,
+                                       verify=o.klt_verify)
+            else:
+                matches = match_sequential(db, overlap=o.overlap, num_threads=o.num_threads)
         report["matching"] = {"verified_pairs": matches.verified_pairs,
                               "inlier_matches": matches.inlier_matches}
         seed = seed_for_database(camera, init.trajectory, init.image_names, db)

@@ -85,49 +85,15 @@ def sift_tracks(seq: SequenceInput, max_features: int = 4000, ratio: float = 0.8
 def klt_tracks(seq: SequenceInput, max_corners: int = 2000, min_distance: float = 7.0,
                fb_max_px: float = 1.0) -> PointObservations:
     """Shi-Tomasi corners tracked by pyramidal KLT with a forward-backward check; new corners
-    are added away from the tracked ones whenever fewer than 70 % of ``max_corners`` remain."""
-    import cv2 as cv2_typed
+    are added away from the tracked ones whenever fewer than 70 % of ``max_corners`` remain
+    (the library's tracker, :func:`omni_sfm.corners.track_corners`)."""
+    from omni_sfm.corners import CornerTrackOptions, track_corners
 
-    cv2: Any = cv2_typed
-    mask = _mask(seq.camera)
-    lk: dict[str, Any] = {"winSize": (15, 15), "maxLevel": 3,
-          "criteria": (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01)}
-    tr: list[np.ndarray] = []
-    fr: list[np.ndarray] = []
-    uv: list[np.ndarray] = []
-    prev: np.ndarray | None = None
-    pts = np.zeros((0, 2), np.float32)
-    ids = np.zeros(0, np.int64)
-    next_id = 0
-    for k in range(seq.num_frames):
-        img = seq.read_gray(k)
-        if prev is not None and len(pts):
-            p1, st, _ = cv2.calcOpticalFlowPyrLK(prev, img, pts.reshape(-1, 1, 2), None, **lk)
-            p0, st2, _ = cv2.calcOpticalFlowPyrLK(img, prev, p1, None, **lk)
-            good = (st.ravel() == 1) & (st2.ravel() == 1) & \
-                (np.linalg.norm(p0.reshape(-1, 2) - pts, axis=1) < fb_max_px)
-            p1 = p1.reshape(-1, 2)
-            inside = (p1[:, 0] >= 0) & (p1[:, 1] >= 0) & (p1[:, 0] <= img.shape[1] - 1) & \
-                (p1[:, 1] <= img.shape[0] - 1)
-            good &= inside
-            good[good] &= mask[p1[good, 1].round().astype(int), p1[good, 0].round().astype(int)] > 0
-            pts, ids = p1[good].astype(np.float32), ids[good]
-        if len(pts) < 0.7 * max_corners:
-            m = mask.copy()
-            for p in pts:
-                cv2.circle(m, (int(round(p[0])), int(round(p[1]))), int(min_distance), 0, -1)
-            new = cv2.goodFeaturesToTrack(img, max_corners - len(pts), 0.01, min_distance,
-                                          mask=m)
-            if new is not None:
-                new = new.reshape(-1, 2).astype(np.float32)
-                pts = np.concatenate([pts, new])
-                ids = np.concatenate([ids, next_id + np.arange(len(new))])
-                next_id += len(new)
-        tr.append(ids.copy())
-        fr.append(np.full(len(ids), k))
-        uv.append(pts.astype(np.float64))
-        prev = img
-    return _observations(seq.camera, tr, fr, uv)
+    opts = CornerTrackOptions(max_corners=max_corners, min_distance_px=min_distance,
+                              fb_max_px=fb_max_px)
+    t = track_corners((seq.read_gray(k) for k in range(seq.num_frames)), _mask(seq.camera),
+                      opts)
+    return _observations(seq.camera, [t.track], [t.frame], [t.uv])
 
 
 def _observations(camera: CameraModel, tr: list[np.ndarray], fr: list[np.ndarray],
