@@ -495,10 +495,11 @@ class _Run:
         need_points = max(o.min_points, int(np.ceil(o.min_points_per_frame * len(image_ids))))
         trusted = rec.num_points3D() >= need_points and (~weak).sum() >= 3
         with self.stages.stage("bundle adjustment"):
-            joint = self._joint(rec, image_ids) if o.adjustment == "joint" else None
+            # too few points: they add nothing the init's own line adjustment lacked
+            joint = self._joint(rec, image_ids) if o.adjustment == "joint" and trusted \
+                else None
             if joint is not None:
                 self.joint = True
-                trusted = True
                 self.report["bundle_adjustment"] = joint
             elif trusted:
                 priors = _position_priors(rec, image_ids, inp,
