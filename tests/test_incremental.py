@@ -6,6 +6,7 @@ from __future__ import annotations
 from dataclasses import replace
 from functools import lru_cache
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -25,7 +26,7 @@ from omni_sfm.lines.tracks import LineTracks, make_tracks, write_tracks
 from omni_sfm.poses import Trajectory, read_tum
 from omni_sfm.synth.paths import PathOptions, Route, camera_path
 from omni_sfm.synth.scenes import SceneName, make_scene
-from omni_sfm.synth.simulate import SimulationOptions, simulate
+from omni_sfm.synth.simulate import Simulation, SimulationOptions, simulate
 
 
 def _observe(gt: Trajectory, starts: np.ndarray, ends: np.ndarray, noise_deg: float,
@@ -350,23 +351,34 @@ def test_a_chain_that_ends_wrong_is_started_again_from_the_end() -> None:
                         for a in back if "frames" in a)
 
 
+def _piece_of_the_truth(first: int) -> tuple[Simulation, Any]:
+    """40 simulated frames (0.05 deg noise) and a piece of the estimator posing frames
+    ``first``-39 at their true poses, with the true lines."""
+    from omni_sfm.estimate.pipeline import _Init, _Solved
+
+    sim = simulate(SimulationOptions(num_views=40, num_parallel=10, num_other=10, seed=3,
+                                     noise_deg=0.05))
+    g, F, M = sim.groundtruth, 40, sim.tracks.num_tracks
+    frames = np.arange(F) >= first
+    R = np.where(frames[:, None, None], g.rotations, np.nan)
+    c = np.where(frames[:, None], g.positions, np.nan)
+    init = _Init(R, c, frames, [], [], sim.parallel, np.zeros((F, 3)))
+    return sim, _Solved(init, R, c, frames, sim.line_directions.copy(),
+                        sim.line_points.copy(), np.ones(M, bool), np.zeros(M, bool), 0.0, 0.0,
+                        0.05)
+
+
 def test_frames_a_new_start_reaches_into_keep_an_initial_pose() -> None:
     # a new start on frames 20-39 grown by its lines into frames 10-19 of the piece beside it:
     # the frames it added carry their registered poses as their initial ones, so that the
     # piece, when it stays a segment of its own, still gets its conventions (before, their
     # initial poses were NaN and the whole segment was lost: 558 frames of a 5,000-frame walk)
     from omni_sfm.estimate.attempts import RunLog
-    from omni_sfm.estimate.pipeline import _Init, _moving_result, _reach_into, _Solved
+    from omni_sfm.estimate.pipeline import _moving_result, _reach_into
 
-    sim = simulate(SimulationOptions(num_views=40, num_parallel=10, num_other=10, seed=3,
-                                     noise_deg=0.05))
-    g, F, M = sim.groundtruth, 40, sim.tracks.num_tracks
-    frames = np.arange(F) >= 20
-    R = np.where(frames[:, None, None], g.rotations, np.nan)
-    c = np.where(frames[:, None], g.positions, np.nan)
-    init = _Init(R, c, frames, [], [], sim.parallel, np.zeros((F, 3)))
-    piece = _Solved(init, R, c, frames, sim.line_directions.copy(), sim.line_points.copy(),
-                    np.ones(M, bool), np.zeros(M, bool), 0.0, 0.0, 0.05)
+    sim, piece = _piece_of_the_truth(20)
+    F = 40
+    frames = piece.frames
     covered = np.arange(F) < 20  # the neighbour's frames
     opts = EstimationOptions()
     grown = _reach_into(sim.tracks, piece, covered, opts, RunLog())
@@ -421,17 +433,10 @@ def test_a_main_piece_that_lacks_its_first_frames_is_registered_again_without_a_
     # its first two frames stayed without a pose, as the registration had run without two of
     # their lines, outliers of the chain then and taken back later)
     from omni_sfm.estimate.attempts import RunLog
-    from omni_sfm.estimate.pipeline import _Init, _Solved, _with_segments
+    from omni_sfm.estimate.pipeline import _with_segments
 
-    sim = simulate(SimulationOptions(num_views=40, num_parallel=10, num_other=10, seed=3,
-                                     noise_deg=0.05))
-    g, F, M = sim.groundtruth, 40, sim.tracks.num_tracks
-    frames = np.arange(F) >= 2
-    R = np.where(frames[:, None, None], g.rotations, np.nan)
-    c = np.where(frames[:, None], g.positions, np.nan)
-    init = _Init(R, c, frames, [], [], sim.parallel, np.zeros((F, 3)))
-    piece = _Solved(init, R, c, frames, sim.line_directions.copy(), sim.line_points.copy(),
-                    np.ones(M, bool), np.zeros(M, bool), 0.0, 0.0, 0.05)
+    sim, piece = _piece_of_the_truth(2)
+    g = sim.groundtruth
     run = RunLog()
     res = _with_segments(sim.tracks, piece, EstimationOptions(), run, 0.0)
     assert res.estimated.all() and not res.segments
