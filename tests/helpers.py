@@ -3,6 +3,7 @@
 - :func:`assert_one_line_error`: a command's bad input became one ``omni-sfm: error:`` line.
 - :func:`independent_trajectory_errors`: the figures of ``omni_sfm.evaluate`` recomputed from
   two TUM files with numpy and scipy only (no omni_sfm code), to check reported figures against.
+- :func:`refine_perturbed`: ``refine`` from a perturbed ground truth with some frames missing.
 """
 
 from __future__ import annotations
@@ -93,3 +94,20 @@ def independent_trajectory_errors(est_tum: Path, gt_tum: Path, num_frames: int,
             "rot_mean_deg": float(rot.mean()), "ate_rel": ate, "rpe": rpe,
             "rpe_rot_deg": float(np.degrees(np.mean(step_rot))),
             "step_error_after_alignment": step}
+
+
+def refine_perturbed(render: Path, work: Path, missing: tuple[int, ...], options: object
+                     ) -> tuple[Path, object, object, object]:
+    """``refine`` of ``render``'s frames from its ground truth perturbed (seed 1), without the
+    frames ``missing`` (left for the mapper): ``(work, ground truth, init trajectory,
+    RefineResult)``."""
+    from omni_sfm.poses import read_tum
+    from omni_sfm.refine import refine
+    from omni_sfm.refine.synthetic import write_perturbed_init
+
+    gt = read_tum(render / "groundtruth.tum")
+    frames = np.array([k for k in range(len(gt)) if k not in missing])
+    init = write_perturbed_init(render, work / "init", frames=frames, seed=1)
+    res = refine(work / "init", render / "images", work / "out", options,  # type: ignore[arg-type]
+                 progress=False)
+    return work, gt, init, res

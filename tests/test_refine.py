@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 import pycolmap
 import pytest
-from helpers import assert_one_line_error
+from helpers import assert_one_line_error, refine_perturbed
 
 from omni_sfm.cameras import load_camera
 from omni_sfm.cli import main
@@ -61,13 +61,8 @@ def room(rendered) -> Path:
 
 @pytest.fixture(scope="module")
 def room_refined(room, tmp_path_factory):
-    work = tmp_path_factory.mktemp("refine")
-    gt = read_tum(room / "groundtruth.tum")
-    frames = np.array([k for k in range(len(gt)) if k not in MISSING])
-    init = write_perturbed_init(room, work / "init", frames=frames, seed=1)
-    res = refine(work / "init", room / "images", work / "out",
-                 RefineOptions(overlap=5, features="sift"), progress=False)
-    return work, gt, init, res
+    return refine_perturbed(room, tmp_path_factory.mktemp("refine"), MISSING,
+                            RefineOptions(overlap=5, features="sift"))
 
 
 def _on(traj: Trajectory, ts: np.ndarray) -> Trajectory:

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pycolmap
 import pytest
-from helpers import assert_one_line_error
+from helpers import assert_one_line_error, refine_perturbed
 
 from omni_sfm.cli import main
 from omni_sfm.evaluate import trajectory_errors
@@ -46,13 +46,8 @@ def room(rendered) -> Path:
 
 @pytest.fixture(scope="module")
 def klt_refined(room, tmp_path_factory):
-    work = tmp_path_factory.mktemp("refine_klt")
-    gt = read_tum(room / "groundtruth.tum")
-    frames = np.array([k for k in range(len(gt)) if k not in MISSING])
-    init = write_perturbed_init(room, work / "init", frames=frames, seed=1)
-    res = refine(work / "init", room / "images", work / "out",
-                 RefineOptions(features="klt", overlap=5), progress=False)
-    return work, gt, init, res
+    return refine_perturbed(room, tmp_path_factory.mktemp("refine_klt"), MISSING,
+                            RefineOptions(features="klt", overlap=5))
 
 
 def test_klt_refine_improves_the_seed_and_triangulates_points(klt_refined):
