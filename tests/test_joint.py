@@ -173,3 +173,22 @@ def test_observations_weighed_by_pixels_follow_the_pixel_noise() -> None:
 
 def _poses(res: object) -> tuple[np.ndarray, np.ndarray]:
     return res.rotations, res.positions  # type: ignore[attr-defined]
+
+
+def test_landmarks_cut_into_chunks_give_the_same_step() -> None:
+    # the cameras' system is built from chunks of landmarks (20,000 observations each by
+    # default); cut into chunks of 37 observations, the lines (360) and points (about 900) give
+    # the same adjustment (the cut after the last landmark start once indexed past the end)
+    import omni_sfm.refine.joint as joint
+
+    sim, obs, X = _scene(7, 0.1, 0.1)
+    R, c, d, p, X0 = _perturbed(sim, X, 7)
+    whole = joint_adjust(sim.tracks, R, c, d, p, obs, X0)
+    old = joint._ReducedSystem.subtract.__defaults__
+    joint._ReducedSystem.subtract.__defaults__ = (37,)
+    try:
+        cut = joint_adjust(sim.tracks, R, c, d, p, obs, X0)
+    finally:
+        joint._ReducedSystem.subtract.__defaults__ = old
+    assert np.abs(cut.positions - whole.positions).max() < 1e-9
+    assert np.abs(cut.rotations - whole.rotations).max() < 1e-9

@@ -286,7 +286,8 @@ class _ReducedSystem:
         order = np.lexsort((t, first[t]))
         t_o = t[order]
         new_mark = np.flatnonzero(np.r_[True, t_o[1:] != t_o[:-1]])
-        cuts = new_mark[np.searchsorted(new_mark, np.arange(chunk, len(t_o), chunk))]
+        pos = np.searchsorted(new_mark, np.arange(chunk, len(t_o), chunk))
+        cuts = new_mark[pos[pos < len(new_mark)]]  # the first landmark start at or after each
         for sel in np.split(order, np.unique(cuts)):
             if len(sel) == 0:
                 continue
