@@ -192,3 +192,11 @@ def test_landmarks_cut_into_chunks_give_the_same_step() -> None:
         joint._ReducedSystem.subtract.__defaults__ = old
     assert np.abs(cut.positions - whole.positions).max() < 1e-9
     assert np.abs(cut.rotations - whole.rotations).max() < 1e-9
+
+
+def test_segments_find_their_tracks_among_unsorted_ids() -> None:
+    from omni_sfm.refine.joint_model import _track_index
+
+    np.testing.assert_array_equal(_track_index(np.array([5, 2, 9]), np.array([9, 3, 5, 2, 10])),
+                                  [2, -1, 0, 1, -1])
+    np.testing.assert_array_equal(_track_index(np.zeros(0, int), np.array([1])), [-1])

@@ -46,6 +46,18 @@ def colmap_cam_from_world(export: ColmapExport, traj: Trajectory) -> tuple[Float
     return R_cw, t_cw
 
 
+def set_colmap_poses(rec: Any, export: ColmapExport, image_ids: Sequence[int],
+                     traj: Trajectory) -> None:
+    """Set the COLMAP poses of the images ``image_ids`` of ``rec`` (their frames, trivial
+    rigs) to ``traj`` (ours, world_from_cam), the ``k``-th image to the ``k``-th pose."""
+    import pycolmap
+
+    R_cw, t_cw = colmap_cam_from_world(export, traj)
+    for k, image_id in enumerate(image_ids):
+        frame = rec.frame(rec.images[image_id].frame_id)
+        frame.rig_from_world = pycolmap.Rigid3d(np.hstack([R_cw[k], t_cw[k, :, None]]))
+
+
 def build_reconstruction(camera: CameraModel, traj: Trajectory,
                          image_names: Sequence[str]) -> ColmapSeed:
     """A pycolmap Reconstruction holding ``camera`` and one posed image per trajectory frame."""

@@ -16,7 +16,7 @@ import numpy as np
 
 from omni_sfm.cameras.base import CameraModel, ColmapExport
 from omni_sfm.errors import OmniSfmError
-from omni_sfm.export.colmap import colmap_cam_from_world
+from omni_sfm.export.colmap import set_colmap_poses
 from omni_sfm.folders import InitFolder
 from omni_sfm.geometry import FloatArray
 from omni_sfm.lines.tracks import LineTracks, read_tracks
@@ -54,17 +54,23 @@ def read_line_evidence(init_dir: Path, traj: Trajectory) -> LineEvidence | str:
     k = np.clip(k, 0, len(ts) - 1)
     if len(ts) == 0 or not np.allclose(ts[k], traj.timestamps, rtol=0, atol=1e-6):
         return f"the frames of {folder.TRACKS} are not those of the trajectory"
-    index = {int(t): m for m, t in enumerate(tracks.track_ids)}
     M = tracks.num_tracks
     d, p = np.full((M, 3), np.nan), np.full((M, 3), np.nan)
-    dirs = lines.directions
-    for s, (tid, a) in enumerate(zip(lines.track_ids, lines.starts, strict=True)):
-        m = index.get(int(tid))
-        if m is not None:
-            d[m], p[m] = dirs[s], a
+    m = _track_index(tracks.track_ids, lines.track_ids)
+    d[m[m >= 0]], p[m[m >= 0]] = lines.directions[m >= 0], lines.starts[m >= 0]
     if not np.isfinite(d).all(1).any():
         return f"no line of {folder.LINES3D} belongs to a track of {folder.TRACKS}"
     return LineEvidence(tracks, d, p, k, lines)
+
+
+def _track_index(track_ids: np.ndarray, wanted: np.ndarray) -> np.ndarray:
+    """For each of the ``wanted`` track ids, its index in ``track_ids`` (-1: not there)."""
+    order = np.argsort(track_ids, kind="stable")
+    pos = np.clip(np.searchsorted(track_ids, wanted, sorter=order), 0, max(len(order) - 1, 0))
+    if len(order) == 0:
+        return np.full(len(wanted), -1)
+    found = track_ids[order[pos]] == wanted
+    return np.where(found, order[pos], -1)
 
 
 def adjusted_segments(lines: LineEvidence, res: JointResult,
@@ -75,15 +81,13 @@ def adjusted_segments(lines: LineEvidence, res: JointResult,
     their place, mapped likewise."""
     seg = lines.segments
     assert seg.track_ids is not None
-    index = {int(t): m for m, t in enumerate(lines.tracks.track_ids)}
+    m = _track_index(lines.tracks.track_ids, seg.track_ids)
+    on = m >= 0
+    on[on] = res.lines_used[m[on]]
+    d, p = res.line_directions[m[on]], res.line_points[m[on]]
     starts, ends = seg.starts.copy(), seg.ends.copy()
-    for s, tid in enumerate(seg.track_ids):
-        m = index.get(int(tid))
-        if m is None or not res.lines_used[m]:
-            continue
-        d, p = res.line_directions[m], res.line_points[m]
-        starts[s] = p + np.dot(starts[s] - p, d) * d
-        ends[s] = p + np.dot(ends[s] - p, d) * d
+    for x in (starts, ends):  # each endpoint to the nearest point of its adjusted line
+        x[on] = p + np.sum((x[on] - p) * d, axis=1, keepdims=True) * d
     if world_from_adjusted is not None:
         starts, ends = (world_from_adjusted.apply_points(x) for x in (starts, ends))
     dirs = ends - starts
@@ -172,11 +176,8 @@ def adjust_model(rec: Any, image_ids: list[int], traj: Trajectory, lines: LineEv
                        options=options or JointOptions())
     if not res.frames[k].all():
         raise OmniSfmError("joint adjustment: an input pose was lost")
-    adjusted = Trajectory(traj.timestamps, res.rotations[k], res.positions[k])
-    R_cw, t_cw = colmap_cam_from_world(export, adjusted)
-    for j, image_id in enumerate(image_ids):
-        fr = rec.frame(rec.images[image_id].frame_id)
-        fr.rig_from_world = pycolmap.Rigid3d(np.hstack([R_cw[j], t_cw[j, :, None]]))
+    set_colmap_poses(rec, export, image_ids,
+                     Trajectory(traj.timestamps, res.rotations[k], res.positions[k]))
     manager = pycolmap.ObservationManager(rec)
     for (image_id, idx), keep in zip(where, res.point_inliers.tolist(), strict=True):
         if not keep and rec.images[image_id].point2D(idx).has_point3D():

@@ -44,9 +44,9 @@ from omni_sfm.export.colmap import (
     SPARSE_DIR,
     TRAJECTORY_FILE,
     InitModel,
-    colmap_cam_from_world,
     read_init_model,
     seed_for_database,
+    set_colmap_poses,
     trajectory_from_reconstruction,
     write_colmap_mask,
 )
@@ -306,16 +306,6 @@ def _align_to_input(ref: Trajectory, inp: Trajectory) -> tuple[FloatArray, Float
     sim = similarity_from_poses(inp.rotations, inp.positions, ref.rotations, ref.positions,
                                 allow_reflection=False)
     return sim.rotation, sim.translation, sim.scale
-
-
-def _set_poses(rec: Any, seed_export: Any, image_ids: list[int], traj: Trajectory) -> None:
-    """Set the COLMAP poses of ``image_ids`` (their frames) to ``traj`` (our convention)."""
-    import pycolmap
-
-    R_cw, t_cw = colmap_cam_from_world(seed_export, traj)
-    for k, image_id in enumerate(image_ids):
-        frame = rec.frame(rec.images[image_id].frame_id)
-        frame.rig_from_world = pycolmap.Rigid3d(np.hstack([R_cw[k], t_cw[k, :, None]]))
 
 
 def _frame_timestamps(all_names: list[str], init: InitModel) -> tuple[FloatArray | None, str]:
@@ -772,7 +762,7 @@ def _final_model(rec: Any, export: Any, alignment: Similarity | None, image_ids:
                                      np.asarray(alignment.translation)))
     by_ts = {float(ts): k for k, ts in enumerate(traj.timestamps)}
     idx = [by_ts[float(ts)] for ts in init.trajectory.timestamps]
-    _set_poses(rec, export, image_ids, traj.subset(np.asarray(idx, dtype=np.intp)))
+    set_colmap_poses(rec, export, image_ids, traj.subset(np.asarray(idx, dtype=np.intp)))
     keep = {rec.find_image_with_name(n).image_id for n in added}
     for image_id in list(rec.reg_image_ids()):
         if image_id not in image_ids and image_id not in keep:
