@@ -165,7 +165,7 @@ class _JointProblem:
         self.F, self.M, self.P = lines.F, lines.M, points.num_points
         self.f, self.j = points.frame[active], points.point[active]
         self.Bp = points.residual_basis()[active]  # (Kp, 2, 3)
-        self.sl, self.sp = sigma_line, sigma_point
+        self.sigma_line, self.sigma_point = sigma_line, sigma_point
         self.Kl = len(lines.f)
         self.point_free = np.zeros(self.P, bool)
         self.point_free[self.j] = True
@@ -176,7 +176,7 @@ class _JointProblem:
         v = _offsets(R, c, X, self.f, self.j)
         b = v / np.linalg.norm(v, axis=1, keepdims=True)
         ep = np.einsum("kai,ki->ka", self.Bp, b)
-        return np.concatenate([el / self.sl, ep / self.sp]), (u, v)
+        return np.concatenate([el / self.sigma_line, ep / self.sigma_point]), (u, v)
 
     def jacobian(self, R: FloatArray, c: FloatArray, d: FloatArray, p: FloatArray,
                  X: FloatArray, aux: tuple[FloatArray, FloatArray]) -> tuple[FloatArray, ...]:
@@ -192,7 +192,8 @@ class _JointProblem:
         cross3(A, v[:, None, :], out=Jpp[:, :, :3])  # A [v]x: each row a -> a x v
         np.negative(ART, out=Jpp[:, :, 3:])
         Jpp *= self.lines.pose_free[self.f][:, None, :]
-        return Jpl / self.sl, Jl / self.sl, Jpp / self.sp, ART / self.sp
+        sl, sq = self.sigma_line, self.sigma_point
+        return Jpl / sl, Jl / sl, Jpp / sq, ART / sq
 
     def normal_equations(self, Jpl: FloatArray, Jl: FloatArray, Jpp: FloatArray,
                          Jx: FloatArray, e: FloatArray, w: FloatArray) -> tuple[Any, ...]:
@@ -379,7 +380,7 @@ def joint_adjust(lines: LineTracks, rotations: FloatArray, positions: FloatArray
     def angles(prob: _JointProblem) -> tuple[FloatArray, FloatArray]:
         e, _ = prob.residuals(*state)
         a = np.linalg.norm(e, axis=1)
-        return a[:prob.Kl] * prob.sl, a[prob.Kl:] * prob.sp
+        return a[:prob.Kl] * prob.sigma_line, a[prob.Kl:] * prob.sigma_point
 
     for round_ in range(options.robust_rounds + 1):
         if round_ > 0:
