@@ -200,3 +200,63 @@ def test_segments_find_their_tracks_among_unsorted_ids() -> None:
     np.testing.assert_array_equal(_track_index(np.array([5, 2, 9]), np.array([9, 3, 5, 2, 10])),
                                   [2, -1, 0, 1, -1])
     np.testing.assert_array_equal(_track_index(np.zeros(0, int), np.array([1])), [-1])
+
+
+def test_a_point_seen_twice_in_one_frame_gives_the_exact_step() -> None:
+    # COLMAP's tracks can hold two keypoints of one image: both observations enter the
+    # cameras' reduced system (an assignment kept one of them: an inexact step, LM crawling
+    # for a hundred iterations); the Schur step equals the solve of the whole system
+    from omni_sfm.estimate.bundle import LineProblem
+    from omni_sfm.refine.joint import _JointProblem
+
+    sim, obs, X = _scene(8, 0.1, 0.1, num_points=20)
+    twice = np.flatnonzero(np.random.default_rng(8).random(len(obs.frame)) < 0.3)
+    obs = PointObservations(np.r_[obs.frame, obs.frame[twice]], np.r_[obs.point, obs.point[twice]],
+                            np.r_[obs.ray, obs.ray[twice][:, [1, 2, 0]] * 0.1 + obs.ray[twice]],
+                            obs.num_points)
+    R, c, d, p, X0 = _perturbed(sim, X, 8)
+    F, M, P = len(R), sim.tracks.num_tracks, len(X0)
+    lp = LineProblem(sim.tracks, np.ones(F, bool), np.ones(M, bool), 0, F - 1, 0)
+    prob = _JointProblem(lp, obs, np.ones(len(obs.frame), bool), 0.01, 0.02)
+    e, aux = prob.residuals(R, c, d, p, X0)
+    Jpl, Jl, Jpp, Jx = prob.jacobian(R, c, d, p, X0, aux)
+    dp, (_, dx) = prob.solve(prob.normal_equations(Jpl, Jl, Jpp, Jx, e, np.ones(len(e))), 1e-12)
+    # the whole Jacobian, dense
+    n = 6 * F + 4 * M + 3 * P
+    J = np.zeros((len(e), 2, n))
+    k = np.arange(prob.Kl)
+    for i in range(6):
+        J[k, :, 6 * lp.f + i] = Jpl[:, :, i]
+    for i in range(4):
+        J[k, :, 6 * F + 4 * lp.t + i] = Jl[:, :, i]
+    k = prob.Kl + np.arange(len(prob.f))
+    for i in range(6):
+        J[k, :, 6 * prob.f + i] = Jpp[:, :, i]
+    for i in range(3):
+        J[k, :, 6 * F + 4 * M + 3 * prob.j + i] = Jx[:, :, i]
+    J = J.reshape(-1, n)
+    free = np.r_[lp.pose_free.ravel(), lp.line_free.ravel(), np.ones(3 * P, bool)]
+    H = J.T @ J
+    x = np.zeros(n)
+    x[free] = np.linalg.solve((H + 1e-12 * np.diag(np.diag(H)))[np.ix_(free, free)],
+                              -(J.T @ e.ravel())[free])
+    np.testing.assert_allclose(dp.ravel(), x[:6 * F], atol=1e-9 * np.abs(x[:6 * F]).max())
+    np.testing.assert_allclose(dx.ravel(), x[6 * F + 4 * M:], atol=1e-9 * np.abs(x).max())
+
+
+def test_the_share_of_each_kind_in_fixing_a_frame() -> None:
+    # frames 5 and 6 see no point: the lines alone fix them (share 1); trusting the points
+    # more (a smaller noise level given) gives the points a larger share everywhere else
+    sim, obs, X = _scene(9, 0.1, 0.1)
+    keep = (obs.frame != 5) & (obs.frame != 6)
+    obs = obs.subset(keep)
+    R, c, d, p, X0 = _perturbed(sim, X, 9)
+    a = joint_adjust(sim.tracks, R, c, d, p, obs, X0,
+                     options=JointOptions(line_noise_deg=0.1, point_noise_deg=0.1))
+    b = joint_adjust(sim.tracks, R, c, d, p, obs, X0,
+                     options=JointOptions(line_noise_deg=0.1, point_noise_deg=0.02))
+    np.testing.assert_allclose(a.line_share[[5, 6]], 1.0)
+    assert np.isnan(a.line_share[0]).all()  # the gauge's frame is held
+    others = np.setdiff1d(np.arange(2, len(R) - 1), [5, 6])
+    assert ((a.line_share[others] > 0.0) & (a.line_share[others] < 1.0)).all()
+    assert (b.line_share[others] < a.line_share[others]).all()

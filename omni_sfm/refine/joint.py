@@ -147,6 +147,10 @@ class JointResult:
     line_rms_deg: float
     point_rms_deg: float
     iterations: int
+    line_share: FloatArray
+    """``(F, 2)``: the lines' share of the information that fixes each frame's rotation
+    (column 0) and centre (column 1), the points' the rest (:func:`_frame_information`; NaN
+    where the frame is held or not adjusted)."""
 
     def evidence(self, lines: LineTracks, points: PointObservations) -> dict[str, np.ndarray]:
         """Per frame ``(F,)``: the line and the point observations that took part."""
@@ -294,8 +298,16 @@ class _ReducedSystem:
                 continue
             fr, inv_f = np.unique(f[sel], return_inverse=True)
             lm, inv_t = np.unique(t[sel], return_inverse=True)
+            # a landmark seen twice in one frame (two keypoints of one COLMAP point): its
+            # block is the sum of both (an assignment would keep one and leave the step
+            # inexact: linear convergence)
             blocks = np.zeros((len(fr), 6, len(lm), n))
-            blocks[inv_f, :, inv_t, :] = G[sel]
+            pair, inv_pair = np.unique(inv_f * len(lm) + inv_t, return_inverse=True)
+            if len(pair) == len(sel):
+                blocks[inv_f, :, inv_t, :] = G[sel]
+            else:
+                blocks[pair // len(lm), :, pair % len(lm), :] = _sum_by(inv_pair, G[sel],
+                                                                        len(pair))
             Gc = blocks.reshape(6 * len(fr), n * len(lm))
             rows = (6 * fr[:, None] + np.arange(6)).ravel()
             self.rhs[rows] += Gc @ gt[lm].ravel()
@@ -319,6 +331,32 @@ class _ReducedSystem:
         if np.any(lu.U.diagonal() <= 0):
             raise np.linalg.LinAlgError("reduced system not positive definite")
         return np.asarray(lu.solve(self.rhs))
+
+
+def _frame_information(prob: _JointProblem, state: tuple[FloatArray, ...]) -> FloatArray:
+    """``(2, F, 6, 6)``: the information of each frame's pose from the lines (0) and from the
+    points (1) at ``state``, each kind's landmarks eliminated: the diagonal blocks of each
+    kind's part of the cameras' reduced system (lines and points touch only the cameras, so the
+    system is the sum of the two parts). The other frames held: how firmly each kind alone
+    fixes the frame."""
+    R, c, d, p, X = state
+    e, aux = prob.residuals(R, c, d, p, X)
+    Jpl, Jl, Jpp, Jx = prob.jacobian(R, c, d, p, X, aux)
+    out = np.empty((2, prob.F, 6, 6))
+    for kind in range(2):
+        w = np.zeros(len(e))
+        if kind:
+            w[prob.Kl:] = 1.0
+        else:
+            w[:prob.Kl] = 1.0
+        Hpp, _, *marks = prob.normal_equations(Jpl, Jl, Jpp, Jx, e, w)
+        H, Hcross, _, f, t, free = marks[kind]
+        Linv = np.linalg.inv(np.linalg.cholesky(_damped(H, 1e-12, free)))
+        G = Hcross @ np.swapaxes(Linv[t], 1, 2)  # (K, 6, n)
+        pair, inv = np.unique(f * len(H) + t, return_inverse=True)
+        Gp = _sum_by(inv, G, len(pair))
+        out[kind] = Hpp - _sum_by(pair // len(H), Gp @ np.swapaxes(Gp, 1, 2), prob.F)
+    return out
 
 
 def _damped(H: FloatArray, lam: float, free: np.ndarray) -> FloatArray:
@@ -414,6 +452,14 @@ def joint_adjust(lines: LineTracks, rotations: FloatArray, positions: FloatArray
             options.tolerance if final else 1e-6)
         iterations += it
     al, ap = angles(prob)
+    info = _frame_information(prob, state)
+    tr = np.stack([np.einsum("kfii->kf", info[:, :, :3, :3]),
+                   np.einsum("kfii->kf", info[:, :, 3:, 3:])], axis=2)  # (2, F, 2)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        line_share = tr[0] / (tr[0] + tr[1])
+    line_share[~frames] = np.nan
+    line_share[~prob.lines.pose_free[:, :3].any(1), 0] = np.nan
+    line_share[~prob.lines.pose_free[:, 3:].any(1), 1] = np.nan
     R, c, d, p, X = state
     points_used = np.bincount(points.point[pin], minlength=P) >= 2
     nan3 = np.full(3, np.nan)
@@ -430,7 +476,7 @@ def joint_adjust(lines: LineTracks, rotations: FloatArray, positions: FloatArray
         line_sigma_deg=float(np.degrees(sig_l)), point_sigma_deg=float(np.degrees(sig_p)),
         line_rms_deg=float(np.degrees(np.sqrt(np.mean(al ** 2)))) if len(al) else np.nan,
         point_rms_deg=float(np.degrees(np.sqrt(np.mean(ap ** 2)))) if len(ap) else np.nan,
-        iterations=iterations)
+        iterations=iterations, line_share=line_share)
 
 
 def _enough(point: np.ndarray, keep: np.ndarray, P: int) -> np.ndarray:

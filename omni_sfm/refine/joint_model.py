@@ -18,7 +18,7 @@ from omni_sfm.cameras.base import CameraModel, ColmapExport
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.export.colmap import set_colmap_poses
 from omni_sfm.folders import InitFolder
-from omni_sfm.geometry import FloatArray
+from omni_sfm.geometry import FloatArray, rotation_angle
 from omni_sfm.lines.tracks import LineTracks, read_tracks
 from omni_sfm.lines3d import LineSegments3D
 from omni_sfm.poses import Trajectory
@@ -196,7 +196,20 @@ def adjust_model(rec: Any, image_ids: list[int], traj: Trajectory, lines: LineEv
         "line_noise_deg": res.line_sigma_deg, "point_noise_deg": res.point_sigma_deg,
         "line_rms_deg": res.line_rms_deg, "point_rms_deg": res.point_rms_deg,
         "iterations": res.iterations,
-        "evidence_per_frame": {"lines": ev["lines"][k].tolist(),
-                               "points": ev["points"][k].tolist()},
+        "evidence_per_frame": {
+            "lines": ev["lines"][k].tolist(),
+            "points": ev["points"][k].tolist(),
+            "line_share_rotation": _rounded(res.line_share[k, 0]),
+            "line_share_position": _rounded(res.line_share[k, 1]),
+            "rotation_change_deg": _rounded(np.degrees(rotation_angle(
+                np.swapaxes(traj.rotations, 1, 2) @ res.rotations[k]))),
+            "position_change": _rounded(np.linalg.norm(res.positions[k] - traj.positions,
+                                                       axis=1)),
+        },
     }
     return res, report
+
+
+def _rounded(values: FloatArray, digits: int = 6) -> list[float | None]:
+    """JSON-ready: rounded, None for NaN."""
+    return [None if not np.isfinite(v) else round(float(v), digits) for v in values]
