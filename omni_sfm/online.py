@@ -49,7 +49,7 @@ import numpy as np
 from omni_sfm.cameras.base import CameraModel
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.estimate.bundle import BundleOptions
-from omni_sfm.estimate.families import family_of_planes
+from omni_sfm.estimate.families import family_of_lines, family_of_planes, line_families
 from omni_sfm.estimate.incremental import Growth, IncrementalOptions, rotation_from_directions
 from omni_sfm.estimate.pipeline import EstimationOptions, estimate_poses
 from omni_sfm.geometry import FloatArray, quat_xyzw_from_matrix
@@ -98,9 +98,18 @@ class OnlineOptions:
     max_start_frames: int = 40
     """... on at most this many of the latest frames."""
     registration: IncrementalOptions = field(
-        default_factory=lambda: IncrementalOptions(wide_every=0))
+        default_factory=lambda: IncrementalOptions(wide_every=0, families=False))
     """Registration, triangulation and local adjustment (``local_every``, ``local_frames``,
-    ``max_misses``: failures in a row before a new start)."""
+    ``max_misses``: failures in a row before a new start). ``families`` is off: the families'
+    directions found from a start's few frames are off by tenths of a degree, and imposed on
+    every line they turned the rotations by as much (corridor: 0.5-1.8 deg instead of 0.1);
+    the families are still found, for the rotation-only fallback."""
+    bundle: BundleOptions = field(
+        default_factory=lambda: BundleOptions(reject_outliers=False))
+    """The local adjustments' line bundle adjustment. Outlier tracks are not rejected there
+    (the robust loss still bounds their weight): on the window's few frames the test flagged
+    a third of the corridor's good lines at a time, which then had to be triangulated
+    again."""
     window: int = 30
     """Frames kept: their observations and poses, and the lines they see; at least
     ``registration.local_frames + 2`` (the adjustment holds the older frames of the window)."""
@@ -320,13 +329,16 @@ class OnlineEstimator:
         self._lines, self._family = {}, {}
         for m in np.flatnonzero(known):
             self._lines[int(uniq[m])] = (res.line_directions[m], res.line_points[m])
-        # the parallel families of the start's lines (fixed world directions from now on)
+        # the parallel families of the start's lines (fixed world directions from now on):
+        # the registration's (found and imposed by the growth) or, without them, for the
+        # rotation-only fallback alone
         wt, wids = _window_tracks(window)
         d, p = self._line_arrays(wids)
+        ro = o.registration
         g = Growth(wt, np.stack([f.R for f in window]), np.stack([f.c for f in window]),
-                   np.array([f.registered for f in window]), d, p, self._sigma, o.registration,
-                   o.start.bundle)
-        self._D = g.D
+                   np.array([f.registered for f in window]), d, p, self._sigma, ro, o.bundle)
+        self._D = g.D if ro.families else line_families(
+            d, max_angle_deg=ro.family_angle_deg, min_lines=ro.min_family_lines)[0]
         self._store(g, window, wids)
         self._window = deque(window, maxlen=o.window)
         self._buffer.clear()
@@ -367,7 +379,19 @@ class OnlineEstimator:
         for m in np.flatnonzero(g.known):
             lines[int(ids[m])] = (g.d[m].copy(), g.p[m].copy())
         self._lines = lines
-        self._family = {int(ids[m]): int(g.fam[m]) for m in np.flatnonzero(g.fam >= 0)}
+        if self.options.registration.families:
+            self._family = {int(ids[m]): int(g.fam[m]) for m in np.flatnonzero(g.fam >= 0)}
+            return
+        # the known lines' families from their directions; the others keep what
+        # :meth:`_classify` gave them, while their track is in the window
+        fam = family_of_lines(g.d, self._D,
+                              max_angle_deg=self.options.registration.family_angle_deg)
+        before = self._family
+        self._family = {}
+        for m, t in enumerate(ids.tolist()):
+            f = int(fam[m]) if g.known[m] else before.get(t, -1)
+            if f >= 0:
+                self._family[t] = f
 
     def _track(self, fr: _Frame) -> TrackedPose:
         o, ro = self.options, self.options.registration
@@ -378,7 +402,7 @@ class OnlineEstimator:
         fam = np.array([self._family.get(t, -1) for t in ids.tolist()], np.int64)
         g = Growth(tracks, np.stack([f.R for f in window]), np.stack([f.c for f in window]),
                    np.array([f.registered for f in window]), d, p, self._sigma, ro,
-                   o.start.bundle, families=(self._D, fam))
+                   o.bundle, families=(self._D, fam) if ro.families else None)
         g.last_median, g.refit = self._last_median, self._refit
         reg = [k for k, f in enumerate(window[:-1]) if f.registered]
         f_new = len(window) - 1
