@@ -37,12 +37,15 @@ for callers with their own front end and for simulated lines.
 
 from __future__ import annotations
 
+import json
 import math
 import time
 from collections import deque
 from dataclasses import dataclass, field, replace
 from enum import StrEnum
-from typing import Any
+from pathlib import Path
+from types import TracebackType
+from typing import IO, Any
 
 import numpy as np
 
@@ -51,13 +54,15 @@ from omni_sfm.errors import OmniSfmError
 from omni_sfm.estimate.bundle import BundleOptions
 from omni_sfm.estimate.families import family_of_lines, family_of_planes, line_families
 from omni_sfm.estimate.incremental import Growth, IncrementalOptions, rotation_from_directions
-from omni_sfm.estimate.pipeline import EstimationOptions, estimate_poses
+from omni_sfm.estimate.pipeline import SEGMENT_FILE, EstimationOptions, estimate_poses
+from omni_sfm.folders import TRAJECTORY_FILE
 from omni_sfm.geometry import FloatArray, quat_xyzw_from_matrix
 from omni_sfm.lines.extract import ExtractionOptions, LineExtractor
 from omni_sfm.lines.frontend import middle_rays
 from omni_sfm.lines.track import LineTracker, TrackingOptions
-from omni_sfm.lines.tracks import LineTracks, make_tracks
+from omni_sfm.lines.tracks import LineTracks
 from omni_sfm.lines.video import to_gray
+from omni_sfm.poses import TUM_HEADER, Trajectory
 
 
 class Status(StrEnum):
@@ -205,8 +210,10 @@ def _window_tracks(frames: list[_Frame], min_views: int = 1
     nrm = np.concatenate([f.normals for f in frames]).reshape(-1, 3)
     with_rays = all(f.rays is not None for f in frames)
     with_sig = with_rays and all(f.sigmas is not None for f in frames)
-    rays = np.concatenate([f.rays for f in frames]).reshape(-1, 3) if with_rays else None  # type: ignore[misc]
-    sig = np.concatenate([f.sigmas for f in frames]).reshape(-1, 2) if with_sig else None  # type: ignore[misc]
+    rays = np.concatenate([f.rays for f in frames if f.rays is not None]).reshape(-1, 3) \
+        if with_rays else None
+    sig = np.concatenate([f.sigmas for f in frames if f.sigmas is not None]).reshape(-1, 2) \
+        if with_sig else None
     uniq, local, count = np.unique(ids, return_inverse=True, return_counts=True)
     keep = count[local] >= min_views
     if not keep.all():
@@ -320,8 +327,8 @@ class OnlineEstimator:
         est = np.flatnonzero(res.estimated)
         for k, f in enumerate(frames):
             f.registered = bool(res.estimated[k])
-        for j, k in enumerate(est):
-            frames[k].R, frames[k].c = traj.rotations[j].copy(), traj.positions[j].copy()
+        for j, e in enumerate(est.tolist()):
+            frames[e].R, frames[e].c = traj.rotations[j].copy(), traj.positions[j].copy()
         self._world += 1
         self._sigma = float(np.radians(res.sigma_deg))
         known = np.isfinite(res.line_directions).all(1) & np.isfinite(res.line_points).all(1)
@@ -389,9 +396,9 @@ class OnlineEstimator:
         before = self._family
         self._family = {}
         for m, t in enumerate(ids.tolist()):
-            f = int(fam[m]) if g.known[m] else before.get(t, -1)
-            if f >= 0:
-                self._family[t] = f
+            got = int(fam[m]) if g.known[m] else before.get(t, -1)
+            if got >= 0:
+                self._family[t] = got
 
     def _track(self, fr: _Frame) -> TrackedPose:
         o, ro = self.options, self.options.registration
@@ -510,3 +517,65 @@ class Tracker:
         pose = self.estimator.add(ids[keep], normals, rays, sig, timestamp)
         return replace(pose, lines=int(lines.num_lines),
                        latency_ms=1000.0 * (time.perf_counter() - t0))
+
+
+FRAMES_FILE = "frames.jsonl"
+"""Per-frame results of ``omni-sfm track``: one :meth:`TrackedPose.to_json` line per frame."""
+
+
+class TrackOutput:
+    """The output folder of ``omni-sfm track``, written as the poses come (a context manager).
+
+    :meth:`write` appends a frame's pose (and the start's poses it brings) to
+    ``trajectory.tum`` (the first start's world) or ``trajectory_segment_<k>.tum`` (the world
+    of the ``k``-th restart), and its :meth:`TrackedPose.to_json` line to ``frames.jsonl``;
+    each file is flushed after every frame, so a reader (or a crash) sees every frame so far.
+    Earlier runs' files of these names are replaced.
+    """
+
+    def __init__(self, directory: Path | str) -> None:
+        self.directory = Path(directory)
+        self.directory.mkdir(parents=True, exist_ok=True)
+        for old in self.directory.glob(SEGMENT_FILE.format("*")):
+            old.unlink()
+        self._files: dict[int, IO[str]] = {}
+        self._frames = open(self.directory / FRAMES_FILE, "w", encoding="utf-8")  # noqa: SIM115
+        self._trajectory(0)  # trajectory.tum exists (header only) until the first pose
+        self.poses = 0
+
+    def path(self, world: int) -> Path:
+        """The trajectory file of ``world``."""
+        return self.directory / (TRAJECTORY_FILE if world == 0 else SEGMENT_FILE.format(world))
+
+    def _trajectory(self, world: int) -> IO[str]:
+        if world not in self._files:
+            f = open(self.path(world), "w", encoding="utf-8")  # noqa: SIM115
+            f.write(TUM_HEADER)
+            f.flush()
+            self._files[world] = f
+        return self._files[world]
+
+    def write(self, pose: TrackedPose) -> None:
+        """Append ``pose`` (see the class docstring) and flush."""
+        posed = [p for p in (*pose.start_poses, pose) if p.has_pose]
+        if posed:
+            f = self._trajectory(pose.world)
+            traj = Trajectory(np.array([p.timestamp for p in posed]),
+                              np.stack([p.rotation for p in posed]),  # type: ignore[misc]
+                              np.stack([p.position for p in posed]))  # type: ignore[misc]
+            f.write(traj.tum_rows())
+            f.flush()
+            self.poses += len(posed)
+        self._frames.write(json.dumps(pose.to_json()) + "\n")
+        self._frames.flush()
+
+    def close(self) -> None:
+        for f in (*self._files.values(), self._frames):
+            f.close()
+
+    def __enter__(self) -> TrackOutput:
+        return self
+
+    def __exit__(self, kind: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.close()
