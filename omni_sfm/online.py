@@ -395,8 +395,8 @@ class OnlineEstimator:
                               max_angle_deg=self.options.registration.family_angle_deg)
         before = self._family
         self._family = {}
-        for m, t in enumerate(ids.tolist()):
-            got = int(fam[m]) if g.known[m] else before.get(t, -1)
+        for j, t in enumerate(ids.tolist()):
+            got = int(fam[j]) if g.known[j] else before.get(t, -1)
             if got >= 0:
                 self._family[t] = got
 
