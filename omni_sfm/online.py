@@ -41,6 +41,7 @@ import json
 import math
 import time
 from collections import deque
+from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
 from enum import StrEnum
 from pathlib import Path
@@ -519,6 +520,23 @@ class Tracker:
                        latency_ms=1000.0 * (time.perf_counter() - t0))
 
 
+def poses_trajectory(poses: Iterable[TrackedPose], world: int | None = None, *,
+                     with_start: bool = True) -> Trajectory:
+    """The full poses among ``poses`` (and, ``with_start``, their ``start_poses``) as a
+    :class:`~omni_sfm.poses.Trajectory` in frame order (one pose per frame: the latest given);
+    ``world``: only those of that world."""
+    got: dict[int, TrackedPose] = {}
+    for q in poses:
+        for p in (*(q.start_poses if with_start else ()), q):
+            if p.rotation is not None and p.position is not None and \
+                    (world is None or p.world == world):
+                got[p.frame] = p
+    ks = sorted(got)
+    R = np.array([got[k].rotation for k in ks], np.float64).reshape(-1, 3, 3)
+    c = np.array([got[k].position for k in ks], np.float64).reshape(-1, 3)
+    return Trajectory(np.array([got[k].timestamp for k in ks], np.float64), R, c)
+
+
 FRAMES_FILE = "frames.jsonl"
 """Per-frame results of ``omni-sfm track``: one :meth:`TrackedPose.to_json` line per frame."""
 
@@ -557,15 +575,12 @@ class TrackOutput:
 
     def write(self, pose: TrackedPose) -> None:
         """Append ``pose`` (see the class docstring) and flush."""
-        posed = [p for p in (*pose.start_poses, pose) if p.has_pose]
-        if posed:
+        traj = poses_trajectory([pose])
+        if len(traj):
             f = self._trajectory(pose.world)
-            traj = Trajectory(np.array([p.timestamp for p in posed]),
-                              np.stack([p.rotation for p in posed]),  # type: ignore[misc]
-                              np.stack([p.position for p in posed]))  # type: ignore[misc]
             f.write(traj.tum_rows())
             f.flush()
-            self.poses += len(posed)
+            self.poses += len(traj)
         self._frames.write(json.dumps(pose.to_json()) + "\n")
         self._frames.flush()
 

@@ -21,8 +21,15 @@ from omni_sfm.cameras import load_camera
 from omni_sfm.cli import main
 from omni_sfm.evaluate import trajectory_errors
 from omni_sfm.lines.video import Frame
-from omni_sfm.online import OnlineEstimator, OnlineOptions, Status, TrackedPose, Tracker
-from omni_sfm.poses import Trajectory, read_tum
+from omni_sfm.online import (
+    OnlineEstimator,
+    OnlineOptions,
+    Status,
+    TrackedPose,
+    Tracker,
+    poses_trajectory,
+)
+from omni_sfm.poses import read_tum
 from omni_sfm.synth.render import RenderOptions
 from omni_sfm.synth.simulate import SimulationOptions, simulate_manhattan
 
@@ -37,15 +44,6 @@ def _track(seq: Path, frames: int | None = None) -> list[TrackedPose]:
     files = sorted((seq / "images").glob("*.png"))[:frames]
     return [tracker.add_frame(cv2.imread(str(f), cv2.IMREAD_UNCHANGED), float(k))
             for k, f in enumerate(files)]
-
-
-def _trajectory(poses: list[TrackedPose]) -> Trajectory:
-    """Every pose given (the start's included), by frame."""
-    got = {p.frame: p for q in poses for p in (*q.start_poses, q) if p.has_pose}
-    ks = sorted(got)
-    return Trajectory(np.array([got[k].timestamp for k in ks], float),
-                      np.stack([got[k].rotation for k in ks]),
-                      np.stack([got[k].position for k in ks]))
 
 
 @pytest.fixture(scope="module")
@@ -73,13 +71,14 @@ def test_causal_accuracy_on_rendered_corridors(which, corridor_poses, rendered):
     # the start's frames are given with the frame where it succeeded
     assert [p.frame for p in poses[START - 1].start_poses] == list(range(START - 1))
     gt = read_tum(seq / "groundtruth.tum")
-    err = trajectory_errors(_trajectory(poses), gt)
+    err = trajectory_errors(poses_trajectory(poses), gt)
     assert err.num_common == len(gt)
     # measured: hyperboloid 0.025 deg, 0.018 %; equirectangular 800x400 0.11 deg, 0.026 %
     assert err.rot_max_deg <= 1.0
     assert err.ate_rel <= 0.02
     # the poses returned frame by frame (not the start's): the same bound
-    tracked = _trajectory([p for p in poses if p.status == Status.TRACKING])
+    tracked = poses_trajectory(poses, with_start=False)
+    assert len(tracked) == len(gt) - START + 1
     assert trajectory_errors(tracked, gt).rot_max_deg <= 1.0
 
 
@@ -145,7 +144,7 @@ def test_blank_frames_lost_then_relocalised_in_a_new_world(walk):
     assert all(p.world == 1 and p.status == Status.TRACKING for p in poses[back[0].frame + 1:])
     # the new world's poses fit the ground truth on their own (rotation; positions up to a
     # similarity and the reflection that normals without rays leave open)
-    new = _trajectory(poses[back[0].frame:])
+    new = poses_trajectory(poses[back[0].frame:])
     gt = sim.groundtruth.subset(new.timestamps.astype(int))
     rel_e = new.rotations[0].T @ new.rotations
     rel_g = gt.rotations[0].T @ gt.rotations
@@ -244,7 +243,7 @@ def test_video_read_as_a_stream_gives_the_folder_poses(corridor, corridor_poses,
     assert cap.err.startswith("track: ") and cap.err.count("\n") == 1
     # the stream's poses are the folder run's poses of those frames: none used a later frame
     traj = read_tum(out / "trajectory.tum")
-    ref = _trajectory(corridor_poses).subset(np.arange(n))
+    ref = poses_trajectory(corridor_poses).subset(np.arange(n))
     np.testing.assert_allclose(traj.positions, ref.positions, atol=1e-12)
     np.testing.assert_allclose(traj.rotations, ref.rotations, atol=1e-12)
     assert [json.loads(s) for s in (out / "frames.jsonl").read_text().splitlines()] == lines
@@ -271,7 +270,7 @@ def test_ctrl_c_ends_cleanly_with_the_poses_so_far(corridor, corridor_poses, tmp
     traj = read_tum(out / "trajectory.tum")
     assert len(traj) == n
     np.testing.assert_allclose(traj.positions,
-                               _trajectory(corridor_poses).positions[:n], atol=1e-12)
+                               poses_trajectory(corridor_poses).positions[:n], atol=1e-12)
     assert len((out / "frames.jsonl").read_text().splitlines()) == n
 
 
