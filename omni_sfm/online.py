@@ -173,17 +173,20 @@ class TrackedPose:
         """A full pose (rotation and position)."""
         return self.rotation is not None and self.position is not None
 
-    def to_json(self) -> dict[str, Any]:
-        """A JSON-ready dict: the ``--stream`` line (docs/track.md)."""
+    def _pose_json(self) -> dict[str, Any]:
         q = None if self.rotation is None else quat_xyzw_from_matrix(self.rotation[None])[0]
-        return {"frame": self.frame, "timestamp": self.timestamp, "status": str(self.status),
-                "world": self.world,
+        return {"frame": self.frame, "timestamp": self.timestamp,
                 "position": None if self.position is None else [float(x) for x in
                                                                  self.position],
-                "quaternion_xyzw": None if q is None else [float(x) for x in q],
+                "quaternion_xyzw": None if q is None else [float(x) for x in q]}
+
+    def to_json(self) -> dict[str, Any]:
+        """A JSON-ready dict: the ``--stream`` line (docs/track.md); ``start_poses``: the
+        start's poses (frame, timestamp, position, quaternion_xyzw)."""
+        return {**self._pose_json(), "status": str(self.status), "world": self.world,
                 "lines": self.lines, "lines_known": self.lines_known,
                 "latency_ms": round(self.latency_ms, 3), "reason": self.reason,
-                "start_frames": len(self.start_poses)}
+                "start_poses": [p._pose_json() for p in self.start_poses]}
 
 
 @dataclass

@@ -236,9 +236,12 @@ def test_video_read_as_a_stream_gives_the_folder_poses(corridor, corridor_poses,
     for d in lines:
         assert set(d) == {"frame", "timestamp", "status", "world", "position",
                           "quaternion_xyzw", "lines", "lines_known", "latency_ms", "reason",
-                          "start_frames"}
+                          "start_poses"}
         assert d["latency_ms"] > 0 and d["lines"] > 10
-    assert lines[START - 1]["start_frames"] == START - 1
+    given = lines[START - 1]["start_poses"]
+    assert [d["frame"] for d in given] == list(range(START - 1))
+    assert all(len(d["position"]) == 3 and len(d["quaternion_xyzw"]) == 4 for d in given)
+    assert all(d["start_poses"] == [] for d in lines[START:])
     np.testing.assert_allclose([d["timestamp"] for d in lines], np.arange(n) / 10.0)
     assert cap.err.startswith("track: ") and cap.err.count("\n") == 1
     # the stream's poses are the folder run's poses of those frames: none used a later frame
