@@ -256,6 +256,8 @@ class OnlineEstimator:
         self._last_R: FloatArray | None = None  # rotation of the latest frame that had one
         self._lost_since: int | None = None
         self._lost_reason = ""
+        self._tried = False  # a start was tried on the current buffer
+        self._since_try = 0  # frames buffered since
 
     # -- public ---------------------------------------------------------------------------
     def add(self, track_ids: np.ndarray, normals: FloatArray, rays: FloatArray | None = None,
@@ -308,9 +310,13 @@ class OnlineEstimator:
         head = (f"lost since frame {self._lost_since} ({self._lost_reason}); restarting: "
                 if lost else "")
         rot = self._rotation_only(fr) if lost else None
-        if n < o.start_frames or (n - o.start_frames) % o.start_retry:
-            why = f"{head}{n} frames buffered for the start (first try at {o.start_frames})"
+        self._since_try += 1
+        if n < o.start_frames or (self._tried and self._since_try < o.start_retry):
+            why = f"{head}{n} frames buffered for the start (" + \
+                (f"tried again every {o.start_retry} frames)" if self._tried else
+                 f"first try at {o.start_frames})")
             return self._rot_or(fr, status, why, rot)
+        self._tried, self._since_try = True, 0
         frames = list(self._buffer)
         try:
             tracks, uniq = _window_tracks(frames, min_views=3)
@@ -441,6 +447,7 @@ class OnlineEstimator:
             self._lost_reason = why
             self._starting = True
             self._buffer.clear()
+            self._tried, self._since_try = False, 0
             self._lines, self._family = {}, self._family
             why = f"{why}; {self._misses} frames in a row without a pose: restarting"
         if rot is not None:

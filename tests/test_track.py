@@ -154,6 +154,16 @@ def test_blank_frames_lost_then_relocalised_in_a_new_world(walk):
     assert est.num_frames_held <= OnlineOptions().window
 
 
+def test_a_start_is_tried_every_few_frames_while_nothing_is_seen():
+    o = OnlineOptions()
+    est = OnlineEstimator(o)
+    poses = [est.add(np.zeros(0, int), np.zeros((0, 3))) for _ in range(100)]
+    tries = [p.frame for p in poses if "start on" in (p.reason or "")]
+    assert tries == list(range(o.start_frames - 1, 100, o.start_retry))
+    assert all(p.status == Status.INITIALISING and not p.has_pose for p in poses)
+    assert est.num_frames_held == o.max_start_frames
+
+
 def test_vanishing_directions_keep_the_rotation(walk):
     sim, obs = walk
     few = range(100, 104)
