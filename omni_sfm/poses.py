@@ -58,14 +58,20 @@ class Trajectory:
 
     def to_tum(self) -> str:
         """TUM text, one pose per line (full float precision)."""
+        return TUM_HEADER + self.tum_rows()
+
+    def tum_rows(self) -> str:
+        """The poses as TUM lines, without the header."""
         q = quat_xyzw_from_matrix(self.rotations) if len(self) else np.zeros((0, 4))
         rows = [
             " ".join(f"{x:.17g}" for x in (t, *p, *qq))
             for t, p, qq in zip(self.timestamps, self.positions, q, strict=True)
         ]
-        return "# timestamp tx ty tz qx qy qz qw (world_from_cam)\n" + "".join(
-            r + "\n" for r in rows
-        )
+        return "".join(r + "\n" for r in rows)
+
+
+TUM_HEADER = "# timestamp tx ty tz qx qy qz qw (world_from_cam)\n"
+"""The comment line that starts every TUM file omni-sfm writes."""
 
 
 def write_tum(path: Path, traj: Trajectory) -> None:

@@ -104,7 +104,7 @@ def point_given_direction(world_normals: FloatArray, centres: FloatArray,
     """The line of known ``direction`` ``(3,)`` whose planes (world normals ``(K, 3)``, each
     through its camera centre ``(K, 3)``) fit best: ``(p, spread)``, its point closest to the
     origin, and the angle (radians) by which the planes turn about it (the parallax measure of
-    the triangulation, :meth:`omni_sfm.estimate.incremental._Growth.triangulate`)."""
+    the triangulation, :meth:`omni_sfm.estimate.incremental.Growth.triangulate`)."""
     a, b = orthonormal_completion(np.asarray(direction, np.float64))
     m = np.asarray(world_normals, np.float64)
     A = np.stack([m @ a, m @ b], axis=1)  # m . (x a + y b) = m . c

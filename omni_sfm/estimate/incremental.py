@@ -201,12 +201,17 @@ def _spread(directions: FloatArray) -> float:
     return float(np.degrees(np.arccos(np.clip(g.min(), 0.0, 1.0))))
 
 
-class _Growth:
+class Growth:
     """The growing reconstruction: poses, known lines and the indices into the observations."""
 
     def __init__(self, tracks: LineTracks, R: FloatArray, c: FloatArray, est: np.ndarray,
                  d: FloatArray, p: FloatArray, sigma: float, options: IncrementalOptions,
-                 bundle: BundleOptions) -> None:
+                 bundle: BundleOptions,
+                 families: tuple[FloatArray, np.ndarray] | None = None) -> None:
+        """``families``: the parallel families' world directions ``(K, 3)`` and each line's
+        family ``(M,)`` (-1: none; the known lines of a family already have its direction), as
+        an earlier growth found them (:mod:`omni_sfm.online` carries them from one window to
+        the next); None: found here from the known lines (``options.families``)."""
         self.tracks, self.o = tracks, options
         F, M = tracks.num_frames, tracks.num_tracks
         self.R, self.c = np.array(R, np.float64), np.array(c, np.float64)
@@ -222,7 +227,10 @@ class _Growth:
         self.by_track, self.track_starts = obs_index(tracks.obs_track, M)
         self.D = np.zeros((0, 3))
         self.fam = np.full(M, -1)
-        if options.families and self.known.any():
+        if families is not None:
+            self.D, self.fam = np.array(families[0], np.float64).reshape(-1, 3), \
+                np.array(families[1], np.int64)
+        elif options.families and self.known.any():
             self.D, self.fam = line_families(np.where(self.known[:, None], self.d, np.nan),
                                              max_angle_deg=options.family_angle_deg,
                                              min_lines=options.min_family_lines)
@@ -483,7 +491,7 @@ def register_frames(tracks: LineTracks, rotations: FloatArray, positions: FloatA
     adjustments next to them. ``on_frame`` is called with each frame registered (progress).
     """
     o = options or IncrementalOptions()
-    g = _Growth(tracks, rotations, positions, estimated, line_directions, line_points,
+    g = Growth(tracks, rotations, positions, estimated, line_directions, line_points,
                 float(np.radians(sigma_deg)), o, bundle)
     g.on_frame = on_frame
     g.grow(True)

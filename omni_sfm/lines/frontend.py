@@ -150,9 +150,8 @@ class FrontEndResult:
         the bundle adjustment weighs a short segment's poorly fixed tilt less.
         """
         tr = self.tracks
-        mid = self.obs_endpoint_rays[:, 0] + self.obs_endpoint_rays[:, 1]
-        mid -= np.sum(mid * tr.obs_normal, axis=1, keepdims=True) * tr.obs_normal
-        return replace(tr, obs_ray=normalize(mid), obs_sigma=self.obs_normal_sigma)
+        return replace(tr, obs_ray=middle_rays(self.obs_endpoint_rays, tr.obs_normal),
+                       obs_sigma=self.obs_normal_sigma)
 
     def track_lengths(self) -> IntArray:
         """``(M,)`` frames each track is seen in."""
@@ -249,6 +248,15 @@ class FrontEndResult:
                     "frames too large? try a smaller --step)")
         return (f"{head}: only {edges} edge points per frame (a scene without straight edges, "
                 "or images out of focus?)")
+
+
+def middle_rays(endpoint_rays: FloatArray, normals: FloatArray) -> FloatArray:
+    """``(K, 3)`` unit rays towards the middle of each segment: the middle of the arc between
+    its end rays ``(K, 2, 3)``, projected into its line's plane (normal ``(K, 3)``). The ray the
+    estimator takes with each observation (:meth:`FrontEndResult.estimator_tracks`)."""
+    mid = endpoint_rays[:, 0] + endpoint_rays[:, 1]
+    mid = mid - np.sum(mid * normals, axis=1, keepdims=True) * normals
+    return normalize(mid)
 
 
 def worker_count(options: FrontEndOptions, frames: int | None) -> int:

@@ -119,10 +119,17 @@ class TrackedObservations:
 
 
 class LineTracker:
-    """Feed frames in order with :meth:`add_frame`; :meth:`finish` returns the tracks."""
+    """Feed frames in order with :meth:`add_frame`; :meth:`finish` returns the tracks.
 
-    def __init__(self, options: TrackingOptions | None = None) -> None:
+    ``record=False`` (online use, :mod:`omni_sfm.online`): only what the next frames' tracking
+    needs is kept (the last ``max_gap_frames + 1`` frames), so memory does not grow with the
+    number of frames; pieces of one line are not joined into one track afterwards (the ids
+    :meth:`add_frame` returns are final) and :meth:`finish` is not available.
+    """
+
+    def __init__(self, options: TrackingOptions | None = None, *, record: bool = True) -> None:
         self.options = options or TrackingOptions()
+        self.record = record
         o = self.options
         self._win = (int(o.klt_window), int(o.klt_window))
         self._criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS,
@@ -156,17 +163,19 @@ class LineTracker:
                 and self._prev_lines.num_lines:
             track = self._associate(self._prev_pyr, pyr, self._prev_lines, lines)
         n_matched = int((track >= 0).sum())
-        self._ended.append(int(len(np.setdiff1d(self._prev_track, track))))
+        ended = int(len(np.setdiff1d(self._prev_track, track))) if self.record else 0
+        revived = 0
         if nl and self.options.max_gap_frames > 0 and len(self._history) > 1:
-            self._revived.append(self._revive(pyr, lines, track))
-        else:
-            self._revived.append(0)
+            revived = self._revive(pyr, lines, track)
         new = track < 0
         track[new] = self._next_id + np.arange(int(new.sum()))
         self._next_id += int(new.sum())
-        self._matched.append(n_matched)
-        self._started.append(int(new.sum()))
-        self._obs.append((track.copy(), self._frame, lines))
+        if self.record:
+            self._ended.append(ended)
+            self._revived.append(revived)
+            self._matched.append(n_matched)
+            self._started.append(int(new.sum()))
+            self._obs.append((track.copy(), self._frame, lines))
         self._prev_pyr, self._prev_lines, self._prev_track = pyr, lines, track
         self._history.append((pyr, lines, track))
         del self._history[: -(self.options.max_gap_frames + 1)]
@@ -176,6 +185,8 @@ class LineTracker:
     def finish(self) -> TrackedObservations:
         """Merge joined tracks, keep one observation per (track, frame), drop short tracks,
         and number tracks 0..M-1 in order of their first frame."""
+        if not self.record:
+            raise RuntimeError("LineTracker(record=False) keeps no tracks to finish")
         o = self.options
         if not self._obs:
             z = np.zeros(0, np.int64)
@@ -237,6 +248,8 @@ class LineTracker:
         return np.array([self._root(int(x)) for x in t], np.int64) if self._parent else t
 
     def _union(self, a: int, b: int) -> None:
+        if not self.record:
+            return
         ra, rb = self._root(a), self._root(b)
         if ra != rb:
             self._parent[max(ra, rb)] = min(ra, rb)

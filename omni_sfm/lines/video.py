@@ -198,6 +198,9 @@ class FrameSource:
     skipped: list[int] = field(default_factory=list)
     skip_reasons: dict[int, str] = field(default_factory=dict)
     is_video: bool = False
+    stream: str | None = None
+    """A camera device index (``"0"``) or a stream URL (:func:`read_stream`): read like a video,
+    from ``stream`` instead of ``path``."""
     fps: float | None = None
     files: list[Path] = field(default_factory=list)
     frame_count: int | None = None
@@ -297,9 +300,9 @@ class FrameSource:
 
     def _iter_video(self) -> Iterator[Frame]:
         with captured_stderr() as log:
-            cap = open_video(self.path)
+            cap = open_video(self.path) if self.stream is None else open_capture(self.stream)
         if not cap.isOpened():
-            raise OmniSfmError(f"{self.path}: OpenCV cannot open this video"
+            raise OmniSfmError(f"{self.stream or self.path}: OpenCV cannot open this video"
                                + (f" ({log[0]})" if log and log[0] else ""))
         try:
             i = 0
@@ -335,7 +338,7 @@ class FrameSource:
                 if reason:
                     self._skip(i - 1, reason)
                     continue
-                gray = self._usable(img, i - 1, f"{self.path} frame {i - 1}")
+                gray = self._usable(img, i - 1, f"{self.stream or self.path} frame {i - 1}")
                 if gray is not None:
                     ts = (i - 1) / self.fps if self.fps else float(i - 1)
                     yield Frame(i - 1, ts, gray)
@@ -412,6 +415,41 @@ def read_frames(path: Path | str, start: int = 0, end: int | None = None, step: 
     return FrameSource(path=path, start=start, end=end, step=step, size=size, is_video=True,
                        fps=fps if fps > 0 and np.isfinite(fps) else None,
                        frame_count=count if count > 0 else None)
+
+
+def is_stream(spec: str) -> bool:
+    """Whether an input names a camera device (an integer, ``"0"``) or a stream URL (anything
+    with ``://``) rather than a file or folder."""
+    return spec.strip().isdigit() or "://" in spec
+
+
+def open_capture(spec: str) -> cv2.VideoCapture:
+    """OpenCV's capture of a camera device index (``"0"``) or a stream URL; a file name or a
+    URL goes through :func:`open_video`."""
+    if spec.strip().isdigit():
+        return cv2.VideoCapture(int(spec))
+    return open_video(spec)
+
+
+def read_stream(spec: str, size: tuple[int, int] | None = None) -> FrameSource:
+    """Frames of a camera device (an integer index, ``"0"``) or a stream URL that OpenCV opens
+    (``rtsp://...``, ``http://...``, ``file:///path/video.mp4``), until it ends: a
+    :class:`FrameSource` read as a video file is (the same frame checks; timestamps: frame
+    index / the rate the stream reports, else the index), without a frame count. One line
+    :class:`OmniSfmError` if it does not open."""
+    with captured_stderr() as log:
+        cap = open_capture(spec)
+    try:
+        if not cap.isOpened():
+            note = log[0] if log else ""
+            what = "camera device" if spec.strip().isdigit() else "stream"
+            raise OmniSfmError(f"{spec}: OpenCV cannot open this {what}"
+                               + (f" ({note})" if note else ""))
+        fps = float(cap.get(cv2.CAP_PROP_FPS))
+    finally:
+        cap.release()
+    return FrameSource(path=Path("."), size=size, is_video=True, stream=spec,
+                       fps=fps if fps > 0 and np.isfinite(fps) else None)
 
 
 def read_mask(path: Path | str, size: tuple[int, int]) -> np.ndarray:

@@ -1,0 +1,606 @@
+"""Online poses, frame by frame, with no look-ahead: ``omni-sfm track`` (docs/track.md).
+
+:class:`Tracker` takes frames one at a time (:meth:`Tracker.add_frame`) and returns each
+frame's :class:`TrackedPose` as soon as the frames so far give it; the pose returned for frame
+``k`` depends on frames ``0..k`` only. It wires the stages' own pieces, nothing new:
+
+1. **Lines.** :class:`~omni_sfm.lines.extract.LineExtractor` on the frame, then
+   :class:`~omni_sfm.lines.track.LineTracker` (``record=False``: it keeps only the last few
+   frames) continues the tracks of the frames before.
+2. **Start.** The first frames are buffered (status ``initialising``, no pose) until the
+   offline estimator (:func:`~omni_sfm.estimate.pipeline.estimate_poses`: the paper's windows,
+   the line bundle adjustment) solves the buffered frames and poses the newest of them: the
+   first try after ``start_frames`` frames, again every ``start_retry`` frames, the oldest
+   frames dropped beyond ``max_start_frames``. The frame where the start succeeds gets its pose
+   (status ``tracking``) and, in :attr:`TrackedPose.start_poses`, the poses of the buffered
+   frames that the start solved (computed from the frames up to this one).
+3. **Tracking.** Each later frame is registered from the 3D lines already triangulated that it
+   sees (:meth:`omni_sfm.estimate.incremental.Growth.register`: absolute pose, acceptance by
+   inliers), its new lines are triangulated once they have parallax
+   (:meth:`~omni_sfm.estimate.incremental.Growth.triangulate`), and every ``local_every``
+   frames the last ``local_frames`` registered frames and their lines are adjusted with the
+   line bundle adjustment, the older frames of the window held
+   (:meth:`~omni_sfm.estimate.incremental.Growth.adjust`). The state is a sliding window of
+   the last ``window`` frames (observations and poses) and the lines they see; everything
+   older is dropped, so memory and time per frame do not grow with the sequence.
+4. **Lost.** A frame that cannot be registered (too few known lines: a blank wall, a dark
+   corridor) is ``lost`` with the reason; if it still sees lines of at least two of the
+   parallel families (vanishing directions) its rotation is kept (``rotation-only``: rotation,
+   no position). After ``max_misses`` frames in a row without a pose the tracker starts again
+   (step 2) on the frames that follow; the frame where that start succeeds is ``relocalised``
+   and its poses are in a new world and scale (:attr:`TrackedPose.world` counts the starts):
+   nothing joins them to the earlier ones.
+
+:class:`OnlineEstimator` is steps 2-4 on line observations (track ids and normals per frame),
+for callers with their own front end and for simulated lines.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from collections import deque
+from collections.abc import Iterable
+from dataclasses import dataclass, field, replace
+from enum import StrEnum
+from pathlib import Path
+from types import TracebackType
+from typing import IO, Any
+
+import numpy as np
+
+from omni_sfm.cameras.base import CameraModel
+from omni_sfm.errors import OmniSfmError
+from omni_sfm.estimate.bundle import BundleOptions
+from omni_sfm.estimate.families import family_of_lines, family_of_planes, line_families
+from omni_sfm.estimate.incremental import Growth, IncrementalOptions, rotation_from_directions
+from omni_sfm.estimate.pipeline import SEGMENT_FILE, EstimationOptions, estimate_poses
+from omni_sfm.folders import TRAJECTORY_FILE
+from omni_sfm.geometry import FloatArray, quat_xyzw_from_matrix
+from omni_sfm.lines.extract import ExtractionOptions, LineExtractor
+from omni_sfm.lines.frontend import middle_rays
+from omni_sfm.lines.track import LineTracker, TrackingOptions
+from omni_sfm.lines.tracks import LineTracks
+from omni_sfm.lines.video import to_gray
+from omni_sfm.poses import TUM_HEADER, Trajectory
+
+
+class Status(StrEnum):
+    """What :class:`TrackedPose` says about its frame."""
+
+    INITIALISING = "initialising"
+    """Buffered for the start: no pose yet (it may come later in ``start_poses``)."""
+    TRACKING = "tracking"
+    """Registered: full pose."""
+    ROTATION_ONLY = "rotation-only"
+    """Not registered, but the parallel families' directions give its rotation."""
+    LOST = "lost"
+    """No pose (``reason`` says why)."""
+    RELOCALISED = "relocalised"
+    """Full pose from a new start after a loss: a new world and scale."""
+
+
+def _default_start() -> EstimationOptions:
+    # the buffered frames are few: one window of the paper's method covers them
+    return EstimationOptions(progress=False, bootstrap_frames=None, short_bootstrap_frames=None,
+                             min_segment_frames=0)
+
+
+@dataclass(frozen=True, kw_only=True)
+class OnlineOptions:
+    """Options of :class:`Tracker` and :class:`OnlineEstimator`."""
+
+    extraction: ExtractionOptions = field(default_factory=ExtractionOptions)
+    """Line extraction (:class:`Tracker` only)."""
+    tracking: TrackingOptions = field(default_factory=TrackingOptions)
+    """Frame-to-frame line tracking (:class:`Tracker` only)."""
+    start: EstimationOptions = field(default_factory=_default_start)
+    """The offline estimator run on the buffered frames to start."""
+    start_frames: int = 15
+    """Frames buffered before the first try of a start."""
+    start_retry: int = 5
+    """A start that fails is tried again after this many more frames ..."""
+    max_start_frames: int = 40
+    """... on at most this many of the latest frames."""
+    registration: IncrementalOptions = field(
+        default_factory=lambda: IncrementalOptions(wide_every=0, families=False))
+    """Registration, triangulation and local adjustment (``local_every``, ``local_frames``,
+    ``max_misses``: failures in a row before a new start). ``families`` is off: the families'
+    directions found from a start's few frames are off by tenths of a degree, and imposed on
+    every line they turned the rotations by as much (corridor: 0.5-1.8 deg instead of 0.1);
+    the families are still found, for the rotation-only fallback."""
+    bundle: BundleOptions = field(
+        default_factory=lambda: BundleOptions(reject_outliers=False))
+    """The local adjustments' line bundle adjustment. Outlier tracks are not rejected there
+    (the robust loss still bounds their weight): on the window's few frames the test flagged
+    a third of the corridor's good lines at a time, which then had to be triangulated
+    again."""
+    window: int = 30
+    """Frames kept: their observations and poses, and the lines they see; at least
+    ``registration.local_frames + 2`` (the adjustment holds the older frames of the window)."""
+    min_rotation_lines: int = 3
+    """Lines of known directions a frame must see (and fit) to keep its rotation ..."""
+    min_rotation_families: int = 2
+    """... in at least this many parallel families."""
+
+    def __post_init__(self) -> None:
+        if self.window < self.registration.local_frames + 2:
+            raise OmniSfmError(f"window ({self.window}) must be at least local_frames + 2 "
+                               f"({self.registration.local_frames + 2})")
+        if not 3 <= self.start_frames <= self.max_start_frames:
+            raise OmniSfmError(f"need 3 <= start_frames ({self.start_frames}) <= "
+                               f"max_start_frames ({self.max_start_frames})")
+        if self.start_retry < 1:
+            raise OmniSfmError(f"start_retry must be at least 1, got {self.start_retry}")
+
+
+@dataclass(frozen=True)
+class TrackedPose:
+    """One frame's result.
+
+    Attributes:
+        frame: the frame's number, in the order fed (0, 1, ...).
+        timestamp: as given with the frame.
+        status: :class:`Status`.
+        rotation: ``(3, 3)`` world_from_cam rotation, or None (``initialising``, ``lost``).
+        position: ``(3,)`` camera centre in the world, or None (also ``rotation-only``).
+        lines: lines observed in the frame.
+        lines_known: of those, lines already triangulated (the registration's material).
+        latency_ms: wall-clock time spent on this frame (:class:`Tracker`: lines and pose).
+        reason: why there is no (full) pose, one line; None when there is one.
+        world: which start the pose is in (0: the first; each restart after a loss, +1): poses
+            of different worlds have different origins and scales.
+        start_poses: with the frame where a start succeeded, the poses of the buffered frames
+            it solved (status ``initialising``, world of this start), computed from the frames
+            up to this one; empty otherwise.
+    """
+
+    frame: int
+    timestamp: float
+    status: Status
+    rotation: FloatArray | None
+    position: FloatArray | None
+    lines: int
+    lines_known: int
+    latency_ms: float
+    reason: str | None = None
+    world: int = 0
+    start_poses: tuple[TrackedPose, ...] = ()
+
+    @property
+    def has_pose(self) -> bool:
+        """A full pose (rotation and position)."""
+        return self.rotation is not None and self.position is not None
+
+    def _pose_json(self) -> dict[str, Any]:
+        q = None if self.rotation is None else quat_xyzw_from_matrix(self.rotation[None])[0]
+        return {"frame": self.frame, "timestamp": self.timestamp,
+                "position": None if self.position is None else [float(x) for x in
+                                                                 self.position],
+                "quaternion_xyzw": None if q is None else [float(x) for x in q]}
+
+    def to_json(self) -> dict[str, Any]:
+        """A JSON-ready dict: the ``--stream`` line (docs/track.md); ``start_poses``: the
+        start's poses (frame, timestamp, position, quaternion_xyzw)."""
+        return {**self._pose_json(), "status": str(self.status), "world": self.world,
+                "lines": self.lines, "lines_known": self.lines_known,
+                "latency_ms": round(self.latency_ms, 3), "reason": self.reason,
+                "start_poses": [p._pose_json() for p in self.start_poses]}
+
+
+@dataclass
+class _Frame:
+    """A frame of the window: its observations and (once known) pose."""
+
+    frame: int
+    timestamp: float
+    ids: np.ndarray
+    normals: FloatArray
+    rays: FloatArray | None
+    sigmas: FloatArray | None
+    R: FloatArray = field(default_factory=lambda: np.full((3, 3), np.nan))
+    c: FloatArray = field(default_factory=lambda: np.full(3, np.nan))
+    registered: bool = False
+
+
+def _window_tracks(frames: list[_Frame], min_views: int = 1
+                   ) -> tuple[LineTracks, np.ndarray]:
+    """The observations of ``frames`` as :class:`LineTracks` (frames ``0..len-1``), and the
+    track ids of its tracks (sorted); tracks seen in fewer than ``min_views`` frames left
+    out."""
+    ids = np.concatenate([f.ids for f in frames])
+    fr = np.concatenate([np.full(len(f.ids), k) for k, f in enumerate(frames)])
+    nrm = np.concatenate([f.normals for f in frames]).reshape(-1, 3)
+    with_rays = all(f.rays is not None for f in frames)
+    with_sig = with_rays and all(f.sigmas is not None for f in frames)
+    rays = np.concatenate([f.rays for f in frames if f.rays is not None]).reshape(-1, 3) \
+        if with_rays else None
+    sig = np.concatenate([f.sigmas for f in frames if f.sigmas is not None]).reshape(-1, 2) \
+        if with_sig else None
+    uniq, local, count = np.unique(ids, return_inverse=True, return_counts=True)
+    keep = count[local] >= min_views
+    if not keep.all():
+        uniq, local = np.unique(ids[keep], return_inverse=True)
+        fr, nrm = fr[keep], nrm[keep]
+        rays = None if rays is None else rays[keep]
+        sig = None if sig is None else sig[keep]
+    order = np.lexsort((fr, local))
+    tracks = LineTracks(len(frames), uniq, local[order], fr[order], nrm[order],
+                        np.asarray([f.timestamp for f in frames], np.float64),
+                        None if rays is None else rays[order],
+                        None if sig is None else sig[order])
+    return tracks, uniq
+
+
+class OnlineEstimator:
+    """Steps 2-4 of the module docstring on line observations: feed each frame's tracked lines
+    with :meth:`add`, in order."""
+
+    def __init__(self, options: OnlineOptions | None = None) -> None:
+        self.options = options or OnlineOptions()
+        self._count = 0  # frames fed
+        self._world = -1  # no start yet
+        self._buffer: deque[_Frame] = deque(maxlen=self.options.max_start_frames)
+        self._window: deque[_Frame] = deque(maxlen=self.options.window)
+        self._starting = True
+        self._lines: dict[int, tuple[FloatArray, FloatArray]] = {}  # id -> (direction, point)
+        self._family: dict[int, int] = {}  # id -> parallel family (-1: none)
+        self._D: FloatArray = np.zeros((0, 3))
+        self._sigma = 0.0
+        self._thr = 0.0
+        self._last_median = 0.0
+        self._refit = False
+        self._since_adjust = 0
+        self._misses = 0
+        self._last_R: FloatArray | None = None  # rotation of the latest frame that had one
+        self._lost_since: int | None = None
+        self._lost_reason = ""
+        self._tried = False  # a start was tried on the current buffer
+        self._since_try = 0  # frames buffered since
+
+    # -- public ---------------------------------------------------------------------------
+    def add(self, track_ids: np.ndarray, normals: FloatArray, rays: FloatArray | None = None,
+            sigmas: FloatArray | None = None, timestamp: float | None = None) -> TrackedPose:
+        """The pose of the next frame from its lines: ``track_ids`` ``(L,)`` (the same id for
+        the same line in every frame it is seen in; one observation per id), ``normals``
+        ``(L, 3)`` unit NVs in the camera frame, optionally ``rays`` ``(L, 3)`` towards each
+        segment (settle the reflection, docs/formats.md) and ``sigmas`` ``(L, 2)`` (radians,
+        :attr:`LineTracks.obs_sigma`). ``timestamp`` defaults to the frame's number."""
+        t0 = time.perf_counter()
+        k = self._count
+        self._count += 1
+        ids = np.asarray(track_ids, np.int64).reshape(-1)
+        fr = _Frame(k, float(k if timestamp is None else timestamp), ids,
+                    np.asarray(normals, np.float64).reshape(-1, 3),
+                    None if rays is None else np.asarray(rays, np.float64).reshape(-1, 3),
+                    None if sigmas is None else np.asarray(sigmas, np.float64).reshape(-1, 2))
+        if len(np.unique(ids)) != len(ids):
+            raise OmniSfmError(f"frame {k}: a track id is given twice")
+        pose = self._start(fr) if self._starting else self._track(fr)
+        return replace(pose, latency_ms=1000.0 * (time.perf_counter() - t0))
+
+    @property
+    def num_lines(self) -> int:
+        """3D lines currently held (bounded by the window)."""
+        return len(self._lines)
+
+    @property
+    def num_frames_held(self) -> int:
+        """Frames currently held (the window, or the start's buffer)."""
+        return len(self._buffer) if self._starting else len(self._window)
+
+    # -- start ----------------------------------------------------------------------------
+    def _pose(self, fr: _Frame, status: Status, reason: str | None = None,
+              rotation: FloatArray | None = None, known: int = 0,
+              start_poses: tuple[TrackedPose, ...] = ()) -> TrackedPose:
+        full = status in (Status.TRACKING, Status.RELOCALISED, Status.INITIALISING) and \
+            fr.registered
+        return TrackedPose(fr.frame, fr.timestamp, status,
+                           fr.R.copy() if full else rotation,
+                           fr.c.copy() if full else None, len(fr.ids), known, 0.0, reason,
+                           max(self._world, 0), start_poses)
+
+    def _start(self, fr: _Frame) -> TrackedPose:
+        o = self.options
+        self._buffer.append(fr)
+        n = len(self._buffer)
+        lost = self._lost_since is not None
+        status = Status.LOST if lost else Status.INITIALISING
+        head = (f"lost since frame {self._lost_since} ({self._lost_reason}); restarting: "
+                if lost else "")
+        rot = self._rotation_only(fr) if lost else None
+        self._since_try += 1
+        if n < o.start_frames or (self._tried and self._since_try < o.start_retry):
+            why = f"{head}{n} frames buffered for the start (" + \
+                (f"tried again every {o.start_retry} frames)" if self._tried else
+                 f"first try at {o.start_frames})")
+            return self._rot_or(fr, status, why, rot)
+        self._tried, self._since_try = True, 0
+        frames = list(self._buffer)
+        try:
+            tracks, uniq = _window_tracks(frames, min_views=3)
+            if tracks.num_tracks < 6:
+                raise OmniSfmError(f"{tracks.num_tracks} lines seen in 3 or more of the "
+                                   f"{n} buffered frames; need 6")
+            res = estimate_poses(tracks, o.start)
+        except OmniSfmError as exc:
+            return self._rot_or(fr, status, f"{head}start on {n} frames failed: {exc}", rot)
+        if "motion" in res.report:
+            return self._rot_or(fr, status, f"{head}start on {n} frames: the camera turns "
+                                            "without moving (no position to start from)", rot)
+        if not res.estimated[-1] or res.estimated.sum() < 3:
+            return self._rot_or(fr, status, f"{head}start on {n} frames did not pose the "
+                                            "newest frame", rot)
+        # the start's poses and lines
+        traj = res.trajectory
+        est = np.flatnonzero(res.estimated)
+        for k, f in enumerate(frames):
+            f.registered = bool(res.estimated[k])
+        for j, e in enumerate(est.tolist()):
+            frames[e].R, frames[e].c = traj.rotations[j].copy(), traj.positions[j].copy()
+        self._world += 1
+        self._sigma = float(np.radians(res.sigma_deg))
+        known = np.isfinite(res.line_directions).all(1) & np.isfinite(res.line_points).all(1)
+        window = frames[-o.window:]
+        self._lines, self._family = {}, {}
+        for m in np.flatnonzero(known):
+            self._lines[int(uniq[m])] = (res.line_directions[m], res.line_points[m])
+        # the parallel families of the start's lines (fixed world directions from now on):
+        # the registration's (found and imposed by the growth) or, without them, for the
+        # rotation-only fallback alone
+        wt, wids = _window_tracks(window)
+        d, p = self._line_arrays(wids)
+        ro = o.registration
+        g = Growth(wt, np.stack([f.R for f in window]), np.stack([f.c for f in window]),
+                   np.array([f.registered for f in window]), d, p, self._sigma, ro, o.bundle)
+        self._D = g.D if ro.families else line_families(
+            d, max_angle_deg=ro.family_angle_deg, min_lines=ro.min_family_lines)[0]
+        self._store(g, window, wids)
+        self._window = deque(window, maxlen=o.window)
+        self._buffer.clear()
+        self._starting = False
+        self._thr, self._last_median, self._refit = g.thr, 0.0, False
+        self._since_adjust, self._misses = 0, 0
+        self._last_R = fr.R.copy()
+        self._lost_since = None
+        starts = tuple(self._pose(f, Status.INITIALISING) for f in frames[:-1] if f.registered)
+        return self._pose(fr, Status.RELOCALISED if lost else Status.TRACKING,
+                          known=self._known_count(fr), start_poses=starts)
+
+    def _rot_or(self, fr: _Frame, status: Status, why: str,
+                rot: FloatArray | None) -> TrackedPose:
+        if rot is None:
+            return self._pose(fr, status, why)
+        return self._pose(fr, Status.ROTATION_ONLY, why, rotation=rot)
+
+    # -- tracking -------------------------------------------------------------------------
+    def _line_arrays(self, ids: np.ndarray) -> tuple[FloatArray, FloatArray]:
+        d = np.full((len(ids), 3), np.nan)
+        p = np.full((len(ids), 3), np.nan)
+        for m, t in enumerate(ids.tolist()):
+            got = self._lines.get(t)
+            if got is not None:
+                d[m], p[m] = got
+        return d, p
+
+    def _known_count(self, fr: _Frame) -> int:
+        return sum(1 for t in fr.ids.tolist() if t in self._lines)
+
+    def _store(self, g: Growth, window: list[_Frame], ids: np.ndarray) -> None:
+        """Poses, lines and families back from the growth ``g`` over ``window``; lines no frame
+        of the window sees are dropped."""
+        for k, f in enumerate(window):
+            f.R, f.c, f.registered = g.R[k].copy(), g.c[k].copy(), bool(g.est[k])
+        lines: dict[int, tuple[FloatArray, FloatArray]] = {}
+        for m in np.flatnonzero(g.known):
+            lines[int(ids[m])] = (g.d[m].copy(), g.p[m].copy())
+        self._lines = lines
+        if self.options.registration.families:
+            self._family = {int(ids[m]): int(g.fam[m]) for m in np.flatnonzero(g.fam >= 0)}
+            return
+        # the known lines' families from their directions; the others keep what
+        # :meth:`_classify` gave them, while their track is in the window
+        fam = family_of_lines(g.d, self._D,
+                              max_angle_deg=self.options.registration.family_angle_deg)
+        before = self._family
+        self._family = {}
+        for j, t in enumerate(ids.tolist()):
+            got = int(fam[j]) if g.known[j] else before.get(t, -1)
+            if got >= 0:
+                self._family[t] = got
+
+    def _track(self, fr: _Frame) -> TrackedPose:
+        o, ro = self.options, self.options.registration
+        self._window.append(fr)
+        window = list(self._window)
+        tracks, ids = _window_tracks(window)
+        d, p = self._line_arrays(ids)
+        fam = np.array([self._family.get(t, -1) for t in ids.tolist()], np.int64)
+        g = Growth(tracks, np.stack([f.R for f in window]), np.stack([f.c for f in window]),
+                   np.array([f.registered for f in window]), d, p, self._sigma, ro,
+                   o.bundle, families=(self._D, fam) if ro.families else None)
+        g.last_median, g.refit = self._last_median, self._refit
+        reg = [k for k, f in enumerate(window[:-1]) if f.registered]
+        f_new = len(window) - 1
+        known = int(g.known[tracks.obs_track[g.frame_obs(f_new)]].sum())
+        why = "no registered frame in the window" if not reg else \
+            g.register(f_new, reg[-1], reg[-2] if len(reg) > 1 else None)
+        if why is None:
+            g.triangulate(f_new)
+            reg.append(f_new)
+            self._since_adjust += 1
+            if (self._since_adjust >= ro.local_every or g.refit) and len(reg) > ro.local_frames:
+                self._since_adjust = 0
+                g.adjust(np.asarray(reg[-ro.local_frames:]))
+            self._last_median, self._refit = g.last_median, g.refit
+        self._store(g, window, ids)
+        if why is None:
+            self._misses = 0
+            self._last_R = fr.R.copy()
+            return self._pose(fr, Status.TRACKING, known=known)
+        self._misses += 1
+        rot = self._rotation_only(fr)
+        if self._misses >= ro.max_misses:
+            # start again on the frames that follow
+            self._lost_since = fr.frame - self._misses + 1
+            self._lost_reason = why
+            self._starting = True
+            self._buffer.clear()
+            self._tried, self._since_try = False, 0
+            self._lines, self._family = {}, self._family
+            why = f"{why}; {self._misses} frames in a row without a pose: restarting"
+        if rot is not None:
+            return self._pose(fr, Status.ROTATION_ONLY, why, rotation=rot, known=known)
+        return self._pose(fr, Status.LOST, why, known=known)
+
+    # -- rotation only --------------------------------------------------------------------
+    def _rotation_only(self, fr: _Frame) -> FloatArray | None:
+        """The frame's rotation from the lines of known parallel families it sees (their
+        world directions fixed), started from the latest rotation; None when it sees too few
+        of them, in too few families, or they do not fit. Lines not yet of a family are given
+        one from their views in the frames of the window whose rotation is known."""
+        o = self.options
+        if self._last_R is None or len(self._D) == 0 or len(fr.ids) == 0:
+            return None
+        fam = np.array([self._family.get(t, -1) for t in fr.ids.tolist()], np.int64)
+        sel = fam >= 0
+        if sel.sum() < o.min_rotation_lines or \
+                len(np.unique(fam[sel])) < o.min_rotation_families:
+            return None
+        n, D = fr.normals[sel], self._D[fam[sel]]
+        R = rotation_from_directions(n, D, self._last_R)
+        off = np.abs(np.sum((n @ R.T) * D, axis=1))  # sines of the planes' misfit
+        inl = off <= math.sin(max(self._thr, 1e-6))
+        if inl.sum() < o.min_rotation_lines or \
+                len(np.unique(fam[sel][inl])) < o.min_rotation_families:
+            return None
+        R = rotation_from_directions(n[inl], D[inl], R)
+        self._last_R = R
+        self._classify(fr, R)
+        return R
+
+    def _classify(self, fr: _Frame, R: FloatArray) -> None:
+        """Give the frame's lines without a family the one family whose direction lies in
+        their plane (:func:`~omni_sfm.estimate.families.family_of_planes`, one view)."""
+        free = np.array([t not in self._family for t in fr.ids.tolist()], bool)
+        if not free.any():
+            return
+        n_w = fr.normals[free] @ R.T
+        got = family_of_planes(n_w, np.arange(int(free.sum())), int(free.sum()), self._D,
+                               max_angle_deg=float(np.degrees(self._thr)), min_views=1)
+        for t, f in zip(fr.ids[free].tolist(), got.tolist(), strict=True):
+            if f >= 0:
+                self._family[t] = f
+
+
+class Tracker:
+    """Frames in, poses out: the line front end and :class:`OnlineEstimator` (module
+    docstring). ``camera``: the calibrated camera (frames are ``camera.width x
+    camera.height``); ``mask``: ``(H, W)``, nonzero where pixels may be used."""
+
+    def __init__(self, camera: CameraModel, options: OnlineOptions | None = None,
+                 mask: np.ndarray | None = None) -> None:
+        self.options = options or OnlineOptions()
+        self.camera = camera
+        self.extractor = LineExtractor(camera, self.options.extraction, mask)
+        self.lines = LineTracker(self.options.tracking, record=False)
+        self.estimator = OnlineEstimator(self.options)
+
+    def add_frame(self, image: np.ndarray, timestamp: float | None = None) -> TrackedPose:
+        """The pose of the next frame (grey, BGR or BGRA image), from it and the frames before
+        only. ``latency_ms``: this call's wall-clock time."""
+        t0 = time.perf_counter()
+        gray = to_gray(image)
+        if (gray.shape[1], gray.shape[0]) != (self.camera.width, self.camera.height):
+            raise OmniSfmError(f"frame is {gray.shape[1]}x{gray.shape[0]} px but the camera is "
+                               f"{self.camera.width}x{self.camera.height} px")
+        lines = self.extractor.extract(gray)
+        ids = self.lines.add_frame(gray, lines)
+        # pieces of one line in one frame (one track): the best supported observation
+        order = np.lexsort((-np.asarray(lines.num_support), ids))
+        first = np.ones(len(order), bool)
+        first[1:] = ids[order][1:] != ids[order][:-1]
+        keep = order[first]
+        normals = np.asarray(lines.normals, np.float64).reshape(-1, 3)[keep]
+        rays = middle_rays(np.asarray(lines.endpoint_rays).reshape(-1, 2, 3)[keep], normals)
+        sig = np.asarray(lines.normal_sigma, np.float64).reshape(-1, 2)[keep]
+        pose = self.estimator.add(ids[keep], normals, rays, sig, timestamp)
+        return replace(pose, lines=int(lines.num_lines),
+                       latency_ms=1000.0 * (time.perf_counter() - t0))
+
+
+def poses_trajectory(poses: Iterable[TrackedPose], world: int | None = None, *,
+                     with_start: bool = True) -> Trajectory:
+    """The full poses among ``poses`` (and, ``with_start``, their ``start_poses``) as a
+    :class:`~omni_sfm.poses.Trajectory` in frame order (one pose per frame: the latest given);
+    ``world``: only those of that world."""
+    got: dict[int, TrackedPose] = {}
+    for q in poses:
+        for p in (*(q.start_poses if with_start else ()), q):
+            if p.rotation is not None and p.position is not None and \
+                    (world is None or p.world == world):
+                got[p.frame] = p
+    ks = sorted(got)
+    R = np.array([got[k].rotation for k in ks], np.float64).reshape(-1, 3, 3)
+    c = np.array([got[k].position for k in ks], np.float64).reshape(-1, 3)
+    return Trajectory(np.array([got[k].timestamp for k in ks], np.float64), R, c)
+
+
+FRAMES_FILE = "frames.jsonl"
+"""Per-frame results of ``omni-sfm track``: one :meth:`TrackedPose.to_json` line per frame."""
+
+
+class TrackOutput:
+    """The output folder of ``omni-sfm track``, written as the poses come (a context manager).
+
+    :meth:`write` appends a frame's pose (and the start's poses it brings) to
+    ``trajectory.tum`` (the first start's world) or ``trajectory_segment_<k>.tum`` (the world
+    of the ``k``-th restart), and its :meth:`TrackedPose.to_json` line to ``frames.jsonl``;
+    each file is flushed after every frame, so a reader (or a crash) sees every frame so far.
+    Earlier runs' files of these names are replaced.
+    """
+
+    def __init__(self, directory: Path | str) -> None:
+        self.directory = Path(directory)
+        self.directory.mkdir(parents=True, exist_ok=True)
+        for old in self.directory.glob(SEGMENT_FILE.format("*")):
+            old.unlink()
+        self._files: dict[int, IO[str]] = {}
+        self._frames = open(self.directory / FRAMES_FILE, "w", encoding="utf-8")  # noqa: SIM115
+        self._trajectory(0)  # trajectory.tum exists (header only) until the first pose
+        self.poses = 0
+
+    def path(self, world: int) -> Path:
+        """The trajectory file of ``world``."""
+        return self.directory / (TRAJECTORY_FILE if world == 0 else SEGMENT_FILE.format(world))
+
+    def _trajectory(self, world: int) -> IO[str]:
+        if world not in self._files:
+            f = open(self.path(world), "w", encoding="utf-8")  # noqa: SIM115
+            f.write(TUM_HEADER)
+            f.flush()
+            self._files[world] = f
+        return self._files[world]
+
+    def write(self, pose: TrackedPose) -> None:
+        """Append ``pose`` (see the class docstring) and flush."""
+        traj = poses_trajectory([pose])
+        if len(traj):
+            f = self._trajectory(pose.world)
+            f.write(traj.tum_rows())
+            f.flush()
+            self.poses += len(traj)
+        self._frames.write(json.dumps(pose.to_json()) + "\n")
+        self._frames.flush()
+
+    def close(self) -> None:
+        for f in (*self._files.values(), self._frames):
+            f.close()
+
+    def __enter__(self) -> TrackOutput:
+        return self
+
+    def __exit__(self, kind: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.close()
