@@ -21,52 +21,17 @@ from __future__ import annotations
 
 import argparse
 import os
-import subprocess
 import sys
 import time
 from pathlib import Path
+
+from benchlib import run_timed
 
 from omni_sfm.evaluate import trajectory_errors
 from omni_sfm.poses import read_tum
 from omni_sfm.synth.paths import Route
 from omni_sfm.synth.render import RenderOptions, render_sequence
 from omni_sfm.synth.scenes import SceneName
-
-
-def _tree_rss_mb(pid: int) -> float:
-    """Resident memory (MB) of ``pid`` and all its descendants (Linux /proc)."""
-    children: dict[int, list[int]] = {}
-    rss: dict[int, int] = {}
-    for entry in os.listdir("/proc"):
-        if not entry.isdigit():
-            continue
-        try:
-            with open(f"/proc/{entry}/stat") as f:
-                fields = f.read().rsplit(")", 1)[1].split()
-        except OSError:
-            continue
-        p = int(entry)
-        children.setdefault(int(fields[1]), []).append(p)
-        rss[p] = int(fields[21]) * os.sysconf("SC_PAGE_SIZE")
-    total, todo = 0, [pid]
-    while todo:
-        p = todo.pop()
-        total += rss.get(p, 0)
-        todo.extend(children.get(p, []))
-    return total / 2**20
-
-
-def _run(cmd: list[str]) -> tuple[float, float, int, str]:
-    """``(wall s, peak MB, exit code, last line of output)`` of ``cmd``."""
-    t0 = time.perf_counter()
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    peak = 0.0
-    while proc.poll() is None:
-        peak = max(peak, _tree_rss_mb(proc.pid))
-        time.sleep(0.2)
-    wall = time.perf_counter() - t0
-    out = (proc.stdout.read() if proc.stdout else "").strip().splitlines()
-    return wall, peak, proc.returncode, out[0] if out else ""
 
 
 def _errors(out: Path, render: Path) -> str:
@@ -105,7 +70,7 @@ def main() -> int:
         common = ["--images", str(render / "images"), "--camera", str(render / "camera.yaml"),
                   "--overwrite", "--quiet"]
         out = args.work / f"lines_{n}"
-        wall, peak, code, said = _run([*exe, "init", "--lines", *common, "--output", str(out)])
+        wall, peak, code, said = run_timed([*exe, "init", "--lines", *common, "--output", str(out)])
         if code != 0:
             print(f"init --lines, {n} frames: exit {code}: {said}")
             return 1
@@ -114,7 +79,7 @@ def main() -> int:
               f"peak {peak:.0f} MB; {_errors(out, render)}", flush=True)
         if colmap is None and not args.no_colmap:
             out = args.work / f"colmap_{n}"
-            wall, peak, code, said = _run([*exe, "init", "--initializer", "colmap", *common,
+            wall, peak, code, said = run_timed([*exe, "init", "--initializer", "colmap", *common,
                                            "--output", str(out)])
             if code != 0:
                 print(f"COLMAP, {n} frames: exit {code}: {said}")

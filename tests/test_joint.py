@@ -260,3 +260,23 @@ def test_the_share_of_each_kind_in_fixing_a_frame() -> None:
     others = np.setdiff1d(np.arange(2, len(R) - 1), [5, 6])
     assert ((a.line_share[others] > 0.0) & (a.line_share[others] < 1.0)).all()
     assert (b.line_share[others] < a.line_share[others]).all()
+
+
+def test_landmarks_with_slowly_varying_errors_weigh_as_fewer_observations() -> None:
+    # a landmark's residuals along its frames: white noise counts fully; an AR(1) series with
+    # correlation 0.9 (an edge fitted off by shading that changes slowly) as (1-0.9)/(1+0.9)
+    from omni_sfm.refine.joint import _correlation_weights
+
+    rng = np.random.default_rng(0)
+    K = 4000
+    white = rng.normal(size=(K, 2))
+    slow = np.zeros((K, 2))
+    for k in range(1, K):
+        slow[k] = 0.9 * slow[k - 1] + rng.normal(size=2)
+    frame = np.r_[np.arange(K), np.arange(K)]
+    order = rng.permutation(2 * K)  # any order of the observations
+    w = _correlation_weights(np.r_[white, slow][order], np.repeat([0, 1], K)[order],
+                             frame[order], 3)
+    assert w[0] > 0.95
+    assert abs(w[1] - 0.1 / 1.9) < 0.02
+    assert w[2] == 1.0  # no observation: untouched

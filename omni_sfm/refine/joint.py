@@ -125,6 +125,11 @@ class JointOptions:
     """Levenberg-Marquardt iterations of the final least-squares solve."""
     tolerance: float = 1e-10
     """Relative decrease of the cost below which a solve stops."""
+    correlated: tuple[str, ...] = ("lines", "points")
+    """The kinds whose errors may be correlated along a landmark's frames (a line that is not
+    quite straight, an edge fitted off by shading that changes slowly as the camera moves): each
+    landmark's observations weigh as many independent ones as their residuals' lag-1
+    correlation ``rho`` allows, ``(1 - rho) / (1 + rho)`` each (:func:`_correlation_weights`)."""
 
 
 @dataclass(frozen=True)
@@ -164,13 +169,21 @@ class _JointProblem:
     """Lines (:class:`LineProblem`) and points together; state ``(R, c, d, p, X)``."""
 
     def __init__(self, lines: LineProblem, points: PointObservations, active: np.ndarray,
-                 sigma_line: float, sigma_point: float) -> None:
+                 sigma_line: float, sigma_point: float, line_weight: FloatArray | None = None,
+                 point_weight: FloatArray | None = None) -> None:
         self.lines, self.active = lines, active
         self.F, self.M, self.P = lines.F, lines.M, points.num_points
         self.f, self.j = points.frame[active], points.point[active]
         self.Bp = points.residual_basis()[active]  # (Kp, 2, 3)
         self.sigma_line, self.sigma_point = sigma_line, sigma_point
         self.Kl = len(lines.f)
+        # per observation: 1 / (noise level), times the square root of its landmark's weight
+        self.line_scale = np.full(self.Kl, 1.0 / sigma_line)
+        if line_weight is not None:
+            self.line_scale *= np.sqrt(line_weight[lines.t])
+        self.point_scale = np.full(len(self.f), 1.0 / sigma_point)
+        if point_weight is not None:
+            self.point_scale *= np.sqrt(point_weight[self.j])
         self.point_free = np.zeros(self.P, bool)
         self.point_free[self.j] = True
 
@@ -180,7 +193,14 @@ class _JointProblem:
         v = _offsets(R, c, X, self.f, self.j)
         b = v / np.linalg.norm(v, axis=1, keepdims=True)
         ep = np.einsum("kai,ki->ka", self.Bp, b)
-        return np.concatenate([el / self.sigma_line, ep / self.sigma_point]), (u, v)
+        return np.concatenate([el * self.line_scale[:, None],
+                               ep * self.point_scale[:, None]]), (u, v)
+
+    def angles(self, e: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """The angular size (radians) of each line and point observation's residual, from
+        :meth:`residuals`' ``e``."""
+        a = np.linalg.norm(e, axis=1)
+        return a[:self.Kl] / self.line_scale, a[self.Kl:] / self.point_scale
 
     def jacobian(self, R: FloatArray, c: FloatArray, d: FloatArray, p: FloatArray,
                  X: FloatArray, aux: tuple[FloatArray, FloatArray]) -> tuple[FloatArray, ...]:
@@ -196,8 +216,8 @@ class _JointProblem:
         cross3(A, v[:, None, :], out=Jpp[:, :, :3])  # A [v]x: each row a -> a x v
         np.negative(ART, out=Jpp[:, :, 3:])
         Jpp *= self.lines.pose_free[self.f][:, None, :]
-        sl, sq = self.sigma_line, self.sigma_point
-        return Jpl / sl, Jl / sl, Jpp / sq, ART / sq
+        sl, sq = self.line_scale[:, None, None], self.point_scale[:, None, None]
+        return Jpl * sl, Jl * sl, Jpp * sq, ART * sq
 
     def normal_equations(self, Jpl: FloatArray, Jl: FloatArray, Jpp: FloatArray,
                          Jx: FloatArray, e: FloatArray, w: FloatArray) -> tuple[Any, ...]:
@@ -410,15 +430,15 @@ def joint_adjust(lines: LineTracks, rotations: FloatArray, positions: FloatArray
 
     candidate_lines, candidate_points = lines_used.copy(), pin.copy()
 
+    line_weight, point_weight = np.ones(M), np.ones(P)
+
     def problem(lines_on: np.ndarray, points_on: np.ndarray) -> _JointProblem:
         points_on &= _enough(points.point, points_on, P)
         lp = LineProblem(lines, frames, lines_on, fixed, scale_frame, scale_axis)
-        return _JointProblem(lp, points, points_on, sig_l, sig_p)
+        return _JointProblem(lp, points, points_on, sig_l, sig_p, line_weight, point_weight)
 
     def angles(prob: _JointProblem) -> tuple[FloatArray, FloatArray]:
-        e, _ = prob.residuals(*state)
-        a = np.linalg.norm(e, axis=1)
-        return a[:prob.Kl] * prob.sigma_line, a[prob.Kl:] * prob.sigma_point
+        return prob.angles(prob.residuals(*state)[0])
 
     for round_ in range(options.robust_rounds + 1):
         if round_ > 0:
@@ -437,6 +457,15 @@ def joint_adjust(lines: LineTracks, rotations: FloatArray, positions: FloatArray
                 lines_used = candidate_lines & ~(np.sqrt(ss / np.maximum(cnt, 1)) > lim_l)
             pin = np.zeros_like(candidate_points)
             pin[np.flatnonzero(every.active)[ap <= lim_p]] = True
+            e, (_, v) = every.residuals(*state)
+            if "lines" in options.correlated:
+                line_weight = _correlation_weights(e[:every.Kl] / every.line_scale[:, None],
+                                                   t, every.lines.f, M)
+            if "points" in options.correlated:
+                Rf = state[0][every.f]
+                off = normalize(v) - points.ray[every.active]
+                point_weight = _correlation_weights(np.einsum("kij,kj->ki", Rf, off), every.j,
+                                                    every.f, P)
         prob = problem(lines_used, pin)
         if prob.Kl + len(prob.f) == 0:
             raise OmniSfmError("joint adjustment: no line or point observation")
@@ -477,6 +506,23 @@ def joint_adjust(lines: LineTracks, rotations: FloatArray, positions: FloatArray
         line_rms_deg=float(np.degrees(np.sqrt(np.mean(al ** 2)))) if len(al) else np.nan,
         point_rms_deg=float(np.degrees(np.sqrt(np.mean(ap ** 2)))) if len(ap) else np.nan,
         iterations=iterations, line_share=line_share)
+
+
+def _correlation_weights(r: FloatArray, landmark: np.ndarray, frame: np.ndarray, n: int
+                         ) -> FloatArray:
+    """``(n,)``: each landmark's weight from its residual vectors ``r`` ``(K, d)`` (observation
+    ``k`` of landmark ``landmark[k]`` in frame ``frame[k]``): ``(1 - rho) / (1 + rho)``, the
+    share of independent errors in a series with lag-1 correlation ``rho`` (that of the
+    residuals of consecutive observations, clipped to [0, 0.95]); 1 for a landmark with
+    uncorrelated (or anti-correlated: fitting the landmark leaves some) errors."""
+    o = np.lexsort((frame, landmark))
+    lo, ro = landmark[o], r[o]
+    nxt = lo[1:] == lo[:-1]
+    num = np.bincount(lo[1:][nxt], weights=np.sum(ro[1:][nxt] * ro[:-1][nxt], axis=1),
+                      minlength=n)
+    den = np.bincount(lo, weights=np.sum(ro * ro, axis=1), minlength=n)
+    rho = np.clip(num / np.maximum(den, 1e-300), 0.0, 0.95)
+    return np.asarray((1.0 - rho) / (1.0 + rho))
 
 
 def _enough(point: np.ndarray, keep: np.ndarray, P: int) -> np.ndarray:
