@@ -303,3 +303,29 @@ def test_bad_input_is_one_line_and_exit_code_2(corridor, tmp_path, capsys):
     for argv, needle in cases:
         assert main(["track", *argv, "-o", out]) == 2, argv
         assert_one_line_error(capsys, needle)
+
+
+def test_offline_refinement_of_a_stream_at_the_end(corridor, tmp_path, capsys):
+    # --offline on a stream keeps its frames and runs init on the frames read (20 of 40):
+    # every one of them posed with the whole run's evidence, in init's output folder
+    n = 20
+    frames = sorted((corridor / "images").glob("*.png"))
+    video = tmp_path / "seq.avi"
+    first = cv2.imread(str(frames[0]))
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter.fourcc(*"FFV1"), 10.0,
+                             (first.shape[1], first.shape[0]))
+    for f in frames:
+        writer.write(cv2.imread(str(f)))
+    writer.release()
+    out = tmp_path / "out"
+    assert main(["track", "--images", video.resolve().as_uri(), "--camera",
+                 str(corridor / "camera.yaml"), "-o", str(out), "--frames", str(n),
+                 "--offline"]) == 0
+    assert f"offline: {n} of {n} frames" in capsys.readouterr().out
+    assert len(list((out / "frames").glob("*.png"))) == n
+    offline = read_tum(out / "offline" / "trajectory.tum")
+    np.testing.assert_array_equal(offline.timestamps, np.arange(n))
+    gt = read_tum(corridor / "groundtruth.tum").subset(np.arange(n))
+    e = trajectory_errors(offline, gt)
+    assert e.rot_max_deg < 0.5 and e.ate_rel < 0.01
+    assert (out / "offline" / "report.json").is_file() and (out / "offline" / "sparse").is_dir()

@@ -40,11 +40,17 @@ def add_parser(subparsers: Any) -> None:
                         "the summary then goes to stderr")
     p.add_argument("--frames", type=int, default=None, metavar="N",
                    help="stop after N frames (default: until the input ends)")
+    p.add_argument("--offline", action="store_true",
+                   help="at the end (the input's end, --frames or Ctrl-C), also run the "
+                        "offline `init --lines` on the same frames into OUTPUT/offline/ (every "
+                        "frame with the whole run's evidence; what `omni-sfm init` gives on "
+                        "them); a device or stream's frames are kept in OUTPUT/frames/ for it")
     p.add_argument("--overwrite", action="store_true", help="write into a non-empty OUTPUT")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    import cv2
     import numpy as np
 
     from omni_sfm.cameras import load_camera
@@ -69,10 +75,15 @@ def run(args: argparse.Namespace) -> int:
     counts = {s: 0 for s in Status}
     latency: list[float] = []
     interrupted = False
+    kept = args.output / "frames" if args.offline and stream else None
     with TrackOutput(args.output) as out:
+        if kept is not None:
+            kept.mkdir(exist_ok=True)
         try:
             for frame in source:
                 pose = tracker.add_frame(frame.image, frame.timestamp)
+                if kept is not None:
+                    cv2.imwrite(str(kept / f"{len(latency):06d}.png"), frame.image)
                 out.write(pose)
                 counts[pose.status] += 1
                 latency.append(pose.latency_ms)
@@ -92,4 +103,18 @@ def run(args: argparse.Namespace) -> int:
             + f"; latency median {np.median(lat):.1f} ms, 95th percentile "
               f"{np.percentile(lat, 95):.1f} ms")
     print(text, file=sys.stderr if args.stream else sys.stdout, flush=True)
+    if args.offline:
+        _offline(args, kept or Path(spec), len(lat), camera)
     return 130 if interrupted else 0
+
+
+def _offline(args: argparse.Namespace, images: Path, frames: int, camera: Any) -> None:
+    """``init --lines`` on the first ``frames`` frames of ``images`` into OUTPUT/offline."""
+    from omni_sfm.initialize import InitOptions, init_from_images
+
+    where = args.output / "offline"
+    res = init_from_images(images, camera, where, InitOptions(end=frames, progress=False),
+                           mask=args.mask, overwrite=True,
+                           warn=lambda w: print(f"offline: warning: {w}", file=sys.stderr))
+    print(f"offline: {len(res.image_names)} of {frames} frames -> {where / 'trajectory.tum'}",
+          file=sys.stderr if args.stream else sys.stdout, flush=True)
