@@ -4,6 +4,7 @@ camera, 800 x 600, 100 frames. Prints the per-stage times and the ATE before and
     .venv/bin/python scripts/bench_refine.py --work /tmp/bench_refine
     .venv/bin/python scripts/bench_refine.py --work /tmp/bench_refine --features klt sift
     .venv/bin/python scripts/bench_refine.py --work /tmp/bench_corridor --scene corridor
+    .venv/bin/python scripts/bench_refine.py --work /tmp/bench_office --scene office --frames 1000
     .venv/bin/python scripts/bench_refine.py --work /tmp/bench_refine --init LINE_INIT_DIR
     .venv/bin/python scripts/bench_refine.py --work /tmp/bench_refine --frames 120 --versus-colmap
 
@@ -43,13 +44,20 @@ from omni_sfm.poses import read_tum
 from omni_sfm.refine import RefineOptions, refine
 from omni_sfm.refine.database import FEATURE_SOURCES
 from omni_sfm.refine.synthetic import write_perturbed_init
+from omni_sfm.synth.paths import Route
 from omni_sfm.synth.render import RenderOptions, render_sequence
+from omni_sfm.synth.scenes import SceneName
 
 
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--work", type=Path, required=True, help="working folder (render reused)")
-    p.add_argument("--scene", choices=["room", "corridor"], default="room")
+    p.add_argument("--scene", choices=["room", "corridor", "office"], default="room",
+                   help="room (textured), corridor (texture-poor) or office: the textured "
+                        "L-shaped office walk of bench_init.py at --metres-per-frame, so that "
+                        "longer runs walk farther at the same speed")
+    p.add_argument("--metres-per-frame", type=float, default=0.0115,
+                   help="office: the camera's speed (default: bench_init's)")
     p.add_argument("--frames", type=int, default=100)
     p.add_argument("--width", type=int, default=800)
     p.add_argument("--height", type=int, default=600)
@@ -69,26 +77,35 @@ def main() -> int:
     p.add_argument("--versus-colmap", action="store_true",
                    help="seed with `init --lines` run here and compare init + refine with "
                         "COLMAP's incremental SfM on the same frames (times and errors)")
+    p.add_argument("--lines-init", action="store_true",
+                   help="seed with `init --lines` run here (timed), without COLMAP's SfM")
     args = p.parse_args()
-    if args.versus_colmap and args.init is not None:
-        p.error("--versus-colmap runs its own `init --lines`; leave out --init")
+    if (args.versus_colmap or args.lines_init) and args.init is not None:
+        p.error("--versus-colmap and --lines-init run their own `init --lines`; leave out "
+                "--init")
 
     render = args.work / "render"
     if not (render / "groundtruth.tum").is_file():
         t0 = time.perf_counter()
-        render_sequence(render, RenderOptions(scene=args.scene, camera="hyperboloid",
-                                              width=args.width, height=args.height,
-                                              frames=args.frames,
-                                              textured=args.scene == "room"),
-                        progress=sys.stderr.isatty())
+        if args.scene == "office":
+            opts = RenderOptions(scene=SceneName.OFFICE, route=Route.OFFICE,
+                                 camera="hyperboloid", width=args.width, height=args.height,
+                                 frames=args.frames, textured=True,
+                                 path_length=args.metres_per_frame * (args.frames - 1))
+        else:
+            opts = RenderOptions(scene=args.scene, camera="hyperboloid", width=args.width,
+                                 height=args.height, frames=args.frames,
+                                 textured=args.scene == "room")
+        render_sequence(render, opts, progress=sys.stderr.isatty())
         print(f"render: {time.perf_counter() - t0:.1f} s")
     gt = read_tum(render / "groundtruth.tum")
     init_wall = colmap_wall = None
-    if args.versus_colmap:
-        exe = [sys.executable, "-m", "omni_sfm", "init"]
-        common = ["--images", str(render / "images"), "--camera", str(render / "camera.yaml"),
-                  "--overwrite", "--quiet"]
+    exe = [sys.executable, "-m", "omni_sfm", "init"]
+    common = ["--images", str(render / "images"), "--camera", str(render / "camera.yaml"),
+              "--overwrite", "--quiet"]
+    if args.versus_colmap or args.lines_init:
         print(f"# {os.cpu_count()} CPUs; `init` and COLMAP each in a fresh process", flush=True)
+    if args.versus_colmap:
         out = args.work / "colmap_sfm"
         colmap_wall, peak, code, said = run_timed([*exe, "--initializer", "colmap", *common,
                                                    "--output", str(out)])
@@ -101,6 +118,7 @@ def main() -> int:
                   f"{len(read_tum(out / 'trajectory.tum'))}/{len(gt)} frames, ATE "
                   f"{100 * e.ate_rel:.4f} %, rotation mean / max {e.rot_mean_deg:.3f} / "
                   f"{e.rot_max_deg:.3f} deg", flush=True)
+    if args.versus_colmap or args.lines_init:
         args.init = args.work / "init_lines"
         init_wall, peak, code, said = run_timed([*exe, "--lines", *common,
                                                  "--output", str(args.init)])
@@ -116,7 +134,8 @@ def main() -> int:
         init_dir = args.init
         kind = f"init directory {init_dir}"
     init = read_init_model(init_dir).trajectory
-    scene = "textured room" if args.scene == "room" else "texture-poor corridor"
+    scene = {"room": "textured room", "corridor": "texture-poor corridor",
+             "office": "textured office walk"}[args.scene]
     print(f"case: {scene}, hyperboloid {args.width}x{args.height}, {len(gt)} frames, "
           f"path {gt.path_length():.2f} m; seed: {kind}")
     before = trajectory_errors(init, gt)
@@ -167,7 +186,8 @@ def _print_run(features: str, adjustment: str, r: dict[str, Any], total: float, 
               f"mean reprojection error: triangulated "
               f"{r['triangulation']['mean_reprojection_error_px']:.3f} px -> after BA "
               f"{rounds[-1].get('mean_reprojection_error_after_px', float('nan')):.3f} px")
-    print("stage times (s): " + json.dumps(r["timings_s"]) + f"; total {total:.1f} s")
+    print("stage times (s): " + json.dumps(r["timings_s"]) + f"; total {total:.1f} s, "
+          f"{1000 * total / max(seeded, 1):.0f} ms a frame")
     print(f"ATE / path length: {100 * after.ate_rel:.4f} %; rotation error mean / max: "
           f"{after.rot_mean_deg:.3f} / {after.rot_max_deg:.3f} deg", flush=True)
 
