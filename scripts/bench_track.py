@@ -20,6 +20,13 @@ and at the end. The front end's own state is the last ``max_gap_frames + 1`` fra
     .venv/bin/python scripts/bench_track.py --camera equirectangular
     .venv/bin/python scripts/bench_track.py --input path/to/rendered/sequence
     .venv/bin/python scripts/bench_track.py --memory --frames 10000
+    .venv/bin/python scripts/bench_track.py --memory-images 10000
+
+``--memory-images N``: the whole tracker, front end included, on N frames of images: the
+rendered corridor (``--input`` or the default render) played forth and back (frames 0..199,
+198..0, 1.., so that the camera walks the corridor to and fro) until N frames; prints the
+process's resident size now and its peak (``ru_maxrss``) at 1,000 frames, 5,000 and N, the
+statuses and the latency.
 """
 
 from __future__ import annotations
@@ -97,6 +104,45 @@ def bench_images(args: argparse.Namespace) -> None:
               f"{100 * err.ate_rel:.3f} % of the path")
 
 
+def _rss_now_mb() -> float:
+    with open("/proc/self/statm") as f:
+        return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+
+
+def bench_memory_images(args: argparse.Namespace, N: int) -> None:
+    seq = Path(args.input) if args.input else render(args)
+    camera = load_camera(seq / "camera.yaml")
+    files = sorted((seq / "images").glob("*.png"))
+    cycle = list(range(len(files))) + list(range(len(files) - 2, 0, -1))
+    tracker = Tracker(camera)
+    status: Counter[str] = Counter()
+    lat = np.zeros(N)
+    checkpoints = sorted({min(1000, N), min(5000, N), N})
+    peaks: dict[int, float] = {}
+    t0 = time.perf_counter()
+    for k in range(N):
+        img = cv2.imread(str(files[cycle[k % len(cycle)]]), cv2.IMREAD_UNCHANGED)
+        assert img is not None
+        p = tracker.add_frame(img, float(k))
+        status[str(p.status)] += 1
+        lat[k] = p.latency_ms
+        if k + 1 in checkpoints:
+            peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+            peaks[k + 1] = peak
+            print(f"{k + 1} frames: resident now {_rss_now_mb():.1f} MiB, peak {peak:.1f} MiB; "
+                  f"holding {tracker.estimator.num_frames_held} frames and "
+                  f"{tracker.estimator.num_lines} lines; {time.perf_counter() - t0:.0f} s",
+                  flush=True)
+    print(f"{seq} forth and back: {N} frames; statuses: "
+          + ", ".join(f"{n} {s}" for s, n in status.items()))
+    print(f"cores: {os.cpu_count()}; latency per frame (ms): median {np.median(lat):.1f}, 95th "
+          f"percentile {np.percentile(lat, 95):.1f}")
+    if len(checkpoints) > 1:
+        a, b = peaks[checkpoints[0]], peaks[checkpoints[-1]]
+        print(f"peak resident size at {checkpoints[-1]} frames / at {checkpoints[0]}: "
+              f"{b / a:.3f}")
+
+
 def bench_memory(args: argparse.Namespace) -> None:
     from omni_sfm.synth.simulate import SimulationOptions, simulate_manhattan
 
@@ -153,8 +199,17 @@ def main() -> None:
     ap.add_argument("--cache", default="/tmp/omni_sfm_bench_track", help="render cache folder")
     ap.add_argument("--memory", action="store_true",
                     help="memory over a long simulated walk instead (see above)")
+    ap.add_argument("--memory-images", type=int, default=None, metavar="N",
+                    help="memory of the whole tracker on N frames of the rendered corridor "
+                         "played forth and back (see above)")
     args = ap.parse_args()
     keep_freed_memory()  # as the command does
+    if args.memory_images:
+        args.frames = args.frames or 200
+        if args.seed is None:
+            args.seed = 1 if args.camera == "hyperboloid" else 2
+        bench_memory_images(args, args.memory_images)
+        return
     if args.memory:
         args.frames = args.frames or 10000
         args.seed = 0 if args.seed is None else args.seed
