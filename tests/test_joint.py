@@ -121,14 +121,19 @@ def test_bad_point_observations_get_a_clear_error() -> None:
         PointObservations(np.zeros(1, int), np.zeros(1, int), np.full((1, 3), np.nan), 1)
 
 
-def test_the_sparse_solve_of_long_sequences_gives_the_dense_one(monkeypatch: pytest.MonkeyPatch
-                                                                ) -> None:
+@pytest.mark.parametrize("pending", [20_000_000, 5000])
+def test_the_sparse_solve_of_long_sequences_gives_the_dense_one(monkeypatch: pytest.MonkeyPatch,
+                                                                pending: int) -> None:
+    # 5000: the waiting triplets summed into the sparse system after every few chunks (what
+    # bounds the memory of long sequences)
     import omni_sfm.refine.joint as joint
 
     sim, obs, X = _scene(5, 0.1, 0.1)
     R, c, d, p, X0 = _perturbed(sim, X, 5)
     dense = joint_adjust(sim.tracks, R, c, d, p, obs, X0)
     monkeypatch.setattr(joint, "_DENSE_MAX", 0)
+    monkeypatch.setattr(joint, "_PENDING_MAX", pending)
+    monkeypatch.setattr(joint._ReducedSystem.subtract, "__defaults__", (300,))
     sparse = joint_adjust(sim.tracks, R, c, d, p, obs, X0)
     assert np.abs(sparse.positions - dense.positions).max() < 1e-9
     assert np.abs(sparse.rotations - dense.rotations).max() < 1e-9

@@ -48,6 +48,8 @@ from omni_sfm.geometry import FloatArray, cross3, normalize, orthonormal_complet
 from omni_sfm.lines.tracks import LineTracks
 
 _DENSE_MAX = 4000
+_PENDING_MAX = 20_000_000
+"""Triplets of the cameras' sparse system waiting to be summed, at most (about 320 MB)."""
 
 
 @dataclass(frozen=True)
@@ -280,7 +282,10 @@ class _ReducedSystem:
     ``S = H_pp - sum_j G_j G_j^T`` with ``G_j`` ``(6F, n)`` the landmark's blocks ``H_pj
     L_j^-T``. Each block of landmarks is handled as a dense window over the frames its
     observations touch (matrix products, not element-wise sparse ones); the sum is kept dense
-    up to ``_DENSE_MAX`` unknowns, as sparse triplets above."""
+    up to ``_DENSE_MAX`` unknowns; above, as a sparse matrix into which the chunks' triplets are
+    summed whenever more than ``_PENDING_MAX`` of them wait (memory bounded by the system's
+    own nonzeros, not by the sum of every chunk's window: a 1,000-frame walk whose lines are
+    seen for hundreds of frames needed more than 24 GB when every triplet was kept)."""
 
     def __init__(self, Hpp: FloatArray, rhs: FloatArray) -> None:
         self.F = len(Hpp)
@@ -294,8 +299,10 @@ class _ReducedSystem:
             self.parts: list[tuple[np.ndarray, np.ndarray, FloatArray]] = []
         else:
             self.dense = None
-            self.parts = [(np.repeat(idx, 6, axis=1).ravel(), np.tile(idx, (1, 6)).ravel(),
-                           Hpp.ravel())]
+            self.parts = [(np.repeat(idx, 6, axis=1).ravel().astype(np.int32),
+                           np.tile(idx, (1, 6)).ravel().astype(np.int32), Hpp.ravel())]
+            self.pending = len(self.parts[0][0])
+            self.summed: sp.csr_matrix | None = None
 
     def subtract(self, G: FloatArray, f: np.ndarray, t: np.ndarray, gt: FloatArray,
                  chunk: int = 20000) -> None:
@@ -335,17 +342,31 @@ class _ReducedSystem:
             if self.dense is not None:
                 self.dense[np.ix_(rows, rows)] -= Sc
             else:
-                self.parts.append((np.repeat(rows, len(rows)), np.tile(rows, len(rows)),
+                rows32 = rows.astype(np.int32)
+                self.parts.append((np.repeat(rows32, len(rows)), np.tile(rows32, len(rows)),
                                    -Sc.ravel()))
+                self.pending += Sc.size
+                if self.pending > _PENDING_MAX:
+                    self._fold()
+
+    def _fold(self) -> None:
+        """The waiting triplets summed into :attr:`summed`."""
+        if not self.parts:
+            return
+        n6 = 6 * self.F
+        r, c, v = (np.concatenate(x) for x in zip(*self.parts, strict=True))
+        self.parts, self.pending = [], 0
+        add = sp.csr_matrix((v, (r, c)), shape=(n6, n6))
+        self.summed = add if self.summed is None else self.summed + add
 
     def solve(self) -> FloatArray:
         if self.dense is not None:
             return np.asarray(scipy.linalg.cho_solve(
                 scipy.linalg.cho_factor(self.dense, check_finite=False), self.rhs,
                 check_finite=False))
-        n6 = 6 * self.F
-        r, c, v = (np.concatenate(x) for x in zip(*self.parts, strict=True))
-        S = sp.csc_matrix((v, (r, c)), shape=(n6, n6))
+        self._fold()
+        assert self.summed is not None
+        S = self.summed.tocsc()
         lu = spla.splu(S, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
                        options={"SymmetricMode": True})
         if np.any(lu.U.diagonal() <= 0):
