@@ -223,17 +223,22 @@ def _stream_lines(out: str) -> list[dict]:
     return [json.loads(line) for line in out.splitlines()]
 
 
-def test_video_read_as_a_stream_gives_the_folder_poses(corridor, corridor_poses, tmp_path,
-                                                       capsys):
-    n = START + 4
-    frames = sorted((corridor / "images").glob("*.png"))[:n]
-    video = tmp_path / "seq.avi"
+def _lossless_video(frames: list[Path], video: Path) -> Path:
+    """``frames`` written as a lossless (FFV1) video at 10 frames a second."""
     first = cv2.imread(str(frames[0]))
     writer = cv2.VideoWriter(str(video), cv2.VideoWriter.fourcc(*"FFV1"), 10.0,
                              (first.shape[1], first.shape[0]))
     for f in frames:
         writer.write(cv2.imread(str(f)))
     writer.release()
+    return video
+
+
+def test_video_read_as_a_stream_gives_the_folder_poses(corridor, corridor_poses, tmp_path,
+                                                       capsys):
+    n = START + 4
+    video = _lossless_video(sorted((corridor / "images").glob("*.png"))[:n],
+                            tmp_path / "seq.avi")
     out = tmp_path / "out"
     capsys.readouterr()
     assert main(["track", "--images", video.resolve().as_uri(), "--camera",
@@ -309,14 +314,7 @@ def test_offline_refinement_of_a_stream_at_the_end(corridor, tmp_path, capsys):
     # --offline on a stream keeps its frames and runs init on the frames read (20 of 40):
     # every one of them posed with the whole run's evidence, in init's output folder
     n = 20
-    frames = sorted((corridor / "images").glob("*.png"))
-    video = tmp_path / "seq.avi"
-    first = cv2.imread(str(frames[0]))
-    writer = cv2.VideoWriter(str(video), cv2.VideoWriter.fourcc(*"FFV1"), 10.0,
-                             (first.shape[1], first.shape[0]))
-    for f in frames:
-        writer.write(cv2.imread(str(f)))
-    writer.release()
+    video = _lossless_video(sorted((corridor / "images").glob("*.png")), tmp_path / "seq.avi")
     out = tmp_path / "out"
     assert main(["track", "--images", video.resolve().as_uri(), "--camera",
                  str(corridor / "camera.yaml"), "-o", str(out), "--frames", str(n),
