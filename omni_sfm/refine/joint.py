@@ -14,9 +14,12 @@ Residuals, each a 2-vector in radians for small errors:
 
 Each kind is divided by its own per-axis noise level, estimated robustly from its residuals
 (or given), so the cost is the sum of squared normalised residuals, the maximum-likelihood
-cost for Gaussian noise on both. Robust rounds (Huber at ``loss_scale`` noise levels) find the
-outliers: line tracks whose RMS residual is far above the noise, point observations likewise
-(a point left with fewer than two observations goes); then plain least squares on the inliers.
+cost for Gaussian noise on both; and each landmark's observations weigh as the independent
+errors they hold (:func:`_correlation_weights`: errors that drift slowly along a track are
+not as many measurements as the track has frames). Robust rounds (Huber at ``loss_scale``
+noise levels) find the outliers: line tracks whose RMS residual is far above the noise, point
+observations likewise (a point left with fewer than two observations goes); then plain least
+squares on the inliers.
 
 Parameters: 6 per camera (``R <- R exp([w]x)``, ``c <- c + dc``), 4 per line (as the line
 adjustment), 3 per point. Gauge: the first camera's pose and one coordinate of the centre
@@ -325,16 +328,9 @@ class _ReducedSystem:
                 continue
             fr, inv_f = np.unique(f[sel], return_inverse=True)
             lm, inv_t = np.unique(t[sel], return_inverse=True)
-            # a landmark seen twice in one frame (two keypoints of one COLMAP point): its
-            # block is the sum of both (an assignment would keep one and leave the step
-            # inexact: linear convergence)
             blocks = np.zeros((len(fr), 6, len(lm), n))
-            pair, inv_pair = np.unique(inv_f * len(lm) + inv_t, return_inverse=True)
-            if len(pair) == len(sel):
-                blocks[inv_f, :, inv_t, :] = G[sel]
-            else:
-                blocks[pair // len(lm), :, pair % len(lm), :] = _sum_by(inv_pair, G[sel],
-                                                                        len(pair))
+            pf, pt, Gp = _pairs(inv_f, inv_t, len(lm), G[sel])
+            blocks[pf, :, pt, :] = Gp
             Gc = blocks.reshape(6 * len(fr), n * len(lm))
             rows = (6 * fr[:, None] + np.arange(6)).ravel()
             self.rhs[rows] += Gc @ gt[lm].ravel()
@@ -385,19 +381,25 @@ def _frame_information(prob: _JointProblem, state: tuple[FloatArray, ...]) -> Fl
     Jpl, Jl, Jpp, Jx = prob.jacobian(R, c, d, p, X, aux)
     out = np.empty((2, prob.F, 6, 6))
     for kind in range(2):
-        w = np.zeros(len(e))
-        if kind:
-            w[prob.Kl:] = 1.0
-        else:
-            w[:prob.Kl] = 1.0
+        w = ((np.arange(len(e)) >= prob.Kl) == bool(kind)).astype(np.float64)
         Hpp, _, *marks = prob.normal_equations(Jpl, Jl, Jpp, Jx, e, w)
         H, Hcross, _, f, t, free = marks[kind]
         Linv = np.linalg.inv(np.linalg.cholesky(_damped(H, 1e-12, free)))
-        G = Hcross @ np.swapaxes(Linv[t], 1, 2)  # (K, 6, n)
-        pair, inv = np.unique(f * len(H) + t, return_inverse=True)
-        Gp = _sum_by(inv, G, len(pair))
-        out[kind] = Hpp - _sum_by(pair // len(H), Gp @ np.swapaxes(Gp, 1, 2), prob.F)
+        pf, _, Gp = _pairs(f, t, len(H), Hcross @ np.swapaxes(Linv[t], 1, 2))  # (K, 6, n)
+        out[kind] = Hpp - _sum_by(pf, Gp @ np.swapaxes(Gp, 1, 2), prob.F)
     return out
+
+
+def _pairs(f: np.ndarray, t: np.ndarray, m: int, G: FloatArray
+           ) -> tuple[np.ndarray, np.ndarray, FloatArray]:
+    """The observations' blocks ``G`` ``(K, ...)`` (frame ``f``, landmark ``t`` of ``m``)
+    summed per (frame, landmark) pair: ``(frames, landmarks, blocks)`` of the distinct pairs. A
+    landmark seen twice in one frame (two keypoints of one COLMAP point) counts both; keeping
+    one left the Schur step inexact (linear convergence)."""
+    pair, inv = np.unique(f * m + t, return_inverse=True)
+    if len(pair) == len(f):
+        return f, t, G
+    return pair // m, pair % m, _sum_by(inv, G, len(pair))
 
 
 def _damped(H: FloatArray, lam: float, free: np.ndarray) -> FloatArray:
