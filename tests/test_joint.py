@@ -285,3 +285,63 @@ def test_landmarks_with_slowly_varying_errors_weigh_as_fewer_observations() -> N
     assert w[0] > 0.95
     assert abs(w[1] - 0.1 / 1.9) < 0.02
     assert w[2] == 1.0  # no observation: untouched
+
+
+def _long_scene(seed: int, noise: float, num_views: int = 75, num_points: int = 80
+                ) -> tuple[Simulation, PointObservations, np.ndarray]:
+    sim = simulate(SimulationOptions(num_views=num_views, num_parallel=6, num_other=6,
+                                     noise_deg=noise, seed=seed))
+    g = sim.groundtruth
+    rng = np.random.default_rng(seed)
+    X = rng.uniform(-3.0, 3.0, (num_points, 3))
+    # each point in view for 20 consecutive frames somewhere along the walk
+    start = rng.integers(0, num_views - 20, num_points)
+    f = (start[:, None] + np.arange(20)).ravel()
+    j = np.repeat(np.arange(num_points), 20)
+    ray = points_seen(g.rotations, g.positions, X, f, j)
+    if noise > 0:
+        ray = ray + rng.normal(0.0, np.radians(noise), ray.shape)
+        ray /= np.linalg.norm(ray, axis=1, keepdims=True)
+    return sim, PointObservations(f, j, ray, num_points), X
+
+
+def test_the_iterative_solver_gives_the_same_adjustment() -> None:
+    # 75 frames, points in view for 20 frames each: the cameras' system solved by conjugate
+    # gradients (windows of 10 frames as the preconditioner) gives the adjustment of the
+    # factored system, in as many iterations
+    sim, obs, X = _long_scene(11, 0.1)
+    R, c, d, p, X0 = _perturbed(sim, X, 11)
+    factored = joint_adjust(sim.tracks, R, c, d, p, obs, X0)
+    iterative = joint_adjust(sim.tracks, R, c, d, p, obs, X0,
+                             options=JointOptions(iterative_above=20, window_frames=10))
+    assert abs(iterative.iterations - factored.iterations) <= 2
+    assert np.abs(iterative.positions - factored.positions).max() < 1e-6
+    assert np.abs(iterative.rotations - factored.rotations).max() < 1e-6
+    assert np.array_equal(iterative.point_inliers, factored.point_inliers)
+
+
+def test_window_options_are_checked() -> None:
+    with pytest.raises(OmniSfmError, match="window_frames"):
+        JointOptions(window_frames=5)
+    with pytest.raises(OmniSfmError, match="cg_tolerance"):
+        JointOptions(cg_tolerance=0.0)
+
+
+def test_the_iterative_step_is_the_factored_step() -> None:
+    from omni_sfm.estimate.bundle import LineProblem
+    from omni_sfm.refine.joint import _JointProblem
+
+    sim, obs, X = _long_scene(14, 0.1)
+    R, c, d, p, X0 = _perturbed(sim, X, 14)
+    F, M = len(R), sim.tracks.num_tracks
+    lp = LineProblem(sim.tracks, np.ones(F, bool), np.ones(M, bool), 0, F - 1, 0)
+    steps = []
+    for opts in (JointOptions(), JointOptions(iterative_above=20, window_frames=10)):
+        prob = _JointProblem(lp, obs, np.ones(len(obs.frame), bool), 0.002, 0.002,
+                             options=opts)
+        e, aux = prob.residuals(R, c, d, p, X0)
+        blocks = prob.normal_equations(*prob.jacobian(R, c, d, p, X0, aux), e, np.ones(len(e)))
+        dp, (dl, dx) = prob.solve(blocks, 1e-6)
+        steps.append(np.r_[dp.ravel(), dl.ravel(), dx.ravel()])
+    assert prob.cg_iterations and 1 < prob.cg_iterations[0] < 6 * F
+    np.testing.assert_allclose(steps[1], steps[0], rtol=0, atol=1e-5 * np.abs(steps[0]).max())

@@ -426,8 +426,6 @@ class _Run:
     def colmap_model(self) -> tuple[Any, Any, list[int]]:
         """Images and mask for COLMAP, features, matches, triangulation on the fixed input
         poses, the mapper for unposed frames: the model, the seed and the seeded image ids."""
-        import pycolmap
-
         o, init, tmp, report = self.o, self.init, self.tmp, self.report
         camera, db = init.camera, self.db_path
         export = camera.colmap_export()
