@@ -469,7 +469,7 @@ class _Run:
         image_ids = [seed.reconstruction.find_image_with_name(n).image_id
                      for n in init.image_names]
         with self.stages.stage("triangulation"):
-            rec = _triangulate(seed.reconstruction, db, tmp / IMAGES_DIR)
+            rec = triangulate_seeded(seed.reconstruction, db, tmp / IMAGES_DIR)
         report["triangulation"] = model_statistics(rec)
         with self.stages.stage("mapper"):
             rec, report["mapper"] = _register_missing(
@@ -570,7 +570,7 @@ class _Run:
         return traj, refined
 
 
-def _triangulate(rec: Any, db_path: Path, image_dir: Path) -> Any:
+def triangulate_seeded(rec: Any, db_path: Path, image_dir: Path) -> Any:
     """COLMAP's points for the posed images of ``rec`` (poses held) from the database's
     verified matches: each image's observations triangulated, tracks completed and merged,
     points with large errors or small angles filtered, colours read from ``image_dir``. What
