@@ -129,9 +129,6 @@ class JointOptions:
     robust_rounds: int = 3
     """Robust solve / noise estimate / rejection rounds."""
     robust_iterations: int = 30
-    robust_tolerance: float = 1e-6
-    """Relative decrease of the cost below which a robust round's solve stops (they only find
-    the outliers; the final solve converges to :attr:`tolerance`)."""
     max_iterations: int = 100
     """Levenberg-Marquardt iterations of the final least-squares solve."""
     tolerance: float = 1e-10
@@ -278,18 +275,16 @@ class _JointProblem:
         """Damped step ``(H + lam diag(H)) dx = -g``, the lines and points eliminated."""
         Hpp, gp, *marks = blocks
         F, pf = self.F, self.lines.pose_free
-        # the system over the frames with a free parameter only (held frames' blocks of
-        # ``H_pl`` are zero: their observations add nothing to it)
+        # the system over the frames with a free parameter only (unposed frames and the
+        # gauge's frame have none: their blocks of ``H_pl`` are zero)
         moving: np.ndarray = np.asarray(pf.any(axis=1))
         compact = np.cumsum(moving) - 1
         o = self.options
+        Hd, rhs = _damped(Hpp[moving], lam, pf[moving]), -gp[moving]
         S: _ReducedSystem | _IterativeSystem = \
-            _IterativeSystem(_damped(Hpp[moving], lam, pf[moving]), -gp[moving],
-                             o.window_frames, o.cg_tolerance,
-                             _window_motions(self.at[0][moving], self.at[1][moving],
-                                             pf[moving], o.window_frames)) \
-            if moving.sum() > o.iterative_above else \
-            _ReducedSystem(_damped(Hpp[moving], lam, pf[moving]), -gp[moving])
+            _IterativeSystem(Hd, rhs, self.at[0][moving], self.at[1][moving], pf[moving],
+                             o.window_frames, o.cg_tolerance) \
+            if moving.sum() > o.iterative_above else _ReducedSystem(Hd, rhs)
         reduced = []
         for H, Hcross, g, f, t, free in marks:
             Linv = np.linalg.inv(np.linalg.cholesky(_damped(H, lam, free)))  # (N, n, n)
@@ -414,17 +409,21 @@ class _IterativeSystem:
     iterations is the coupling between windows, a few modes each (on the 1,000-frame office
     walk, windows of 100 frames: 30-40 iterations to 1e-8)."""
 
-    def __init__(self, Hpp: FloatArray, rhs: FloatArray, window: int, tolerance: float,
-                 motions: FloatArray) -> None:
+    def __init__(self, Hpp: FloatArray, rhs: FloatArray, R: FloatArray, c: FloatArray,
+                 free: np.ndarray, window: int, tolerance: float) -> None:
+        """The system ``Hpp`` ``(F, 6, 6)`` (damped), ``rhs`` ``(F, 6)`` before the
+        landmarks are subtracted, at the poses ``R``, ``c`` with ``free`` ``(F, 6)``
+        parameters."""
         self.F = len(Hpp)
         self.Hpp, self.rhs, self.tolerance = Hpp, rhs.ravel().copy(), tolerance
-        self.bounds = _window_bounds(self.F, window)
+        self.bounds = np.linspace(0, self.F, max(1, round(self.F / window)) + 1).astype(int)
         self.window_of = np.searchsorted(self.bounds, np.arange(self.F), side="right") - 1
         self.blocks = [_ReducedSystem(Hpp[a:b], np.zeros((b - a, 6)))
                        for a, b in zip(self.bounds[:-1], self.bounds[1:], strict=True)]
         self.kinds: list[tuple[Any, Any, Any, Any]] = []
         self.iterations = 0
         # the coarse space: each window's cameras moved together (:func:`_window_motions`)
+        motions = _window_motions(R, c, free, self.window_of)
         nw, m = len(self.blocks), motions.shape[2]
         self.motions = motions  # (F, 6, m)
         C = np.zeros((nw, nw, m, m))
@@ -513,24 +512,17 @@ class _IterativeSystem:
         return x
 
 
-def _window_bounds(F: int, window: int) -> np.ndarray:
-    """The first frame of each of about ``F / window`` windows of consecutive frames, and
-    ``F``."""
-    return np.linspace(0, F, max(1, round(F / window)) + 1).astype(int)
-
-
-def _window_motions(R: FloatArray, c: FloatArray, free: np.ndarray, window: int) -> FloatArray:
+def _window_motions(R: FloatArray, c: FloatArray, free: np.ndarray, window_of: np.ndarray
+                    ) -> FloatArray:
     """``(F, 6, 7)``: the pose steps (``R <- R exp([w]x)``, ``c <- c + dc``) of a window's
-    cameras moved together, per frame: a rotation of the world (3: ``w = R^T theta``, ``dc =
-    theta x (c - m)``, ``m`` the window's mean centre), a translation (3) and a scaling about
-    ``m`` (1); zero on held parameters. The modes that the windows' own blocks leave to the
-    iterations."""
-    F = len(R)
-    bounds = _window_bounds(F, window)
-    w = np.searchsorted(bounds, np.arange(F), side="right") - 1
-    m = _sum_by(w, c, len(bounds) - 1) / np.diff(bounds)[:, None]
-    rel = c - m[w]
-    Phi = np.zeros((F, 6, 7))
+    cameras moved together (frame ``f`` in window ``window_of[f]``), per frame: a rotation of
+    the world (3: ``w = R^T theta``, ``dc = theta x (c - m)``, ``m`` the window's mean centre),
+    a translation (3) and a scaling about ``m`` (1); zero on held parameters. The modes that
+    the windows' own blocks leave to the iterations."""
+    nw = int(window_of.max()) + 1
+    m = _sum_by(window_of, c, nw) / np.bincount(window_of, minlength=nw)[:, None]
+    rel = c - m[window_of]
+    Phi = np.zeros((len(R), 6, 7))
     Phi[:, :3, :3] = np.swapaxes(R, 1, 2)
     Phi[:, 3:, :3] = -np.cross(rel[:, :, None], np.eye(3)[None], axis=1)
     Phi[:, 3:, 3:6] = np.eye(3)
@@ -625,24 +617,14 @@ def joint_adjust(lines: LineTracks, rotations: FloatArray, positions: FloatArray
     Raises:
         OmniSfmError: nothing to adjust, or too little evidence for a gauge.
     """
-    R = np.asarray(rotations, float)
-    c = np.asarray(positions, float)
+    M, P = lines.num_tracks, points.num_points
+    R = np.array(rotations, float)
+    c = np.array(positions, float)
     if frames is None:
         frames = np.isfinite(R).all((1, 2)) & np.isfinite(c).all(1)
     frames = np.asarray(frames, bool) & np.isfinite(c).all(1) & np.isfinite(R).all((1, 2))
     if frames.sum() < 2:
         raise OmniSfmError("joint adjustment: fewer than 2 posed frames")
-    return _adjust(lines, R, c, line_directions, line_points, points, point_positions, frames,
-                   options)
-
-
-def _adjust(lines: LineTracks, R: FloatArray, c: FloatArray, line_directions: FloatArray,
-            line_points: FloatArray, points: PointObservations, point_positions: FloatArray,
-            frames: np.ndarray, options: JointOptions) -> JointResult:
-    """The adjustment of :func:`joint_adjust` on ``frames`` (checked)."""
-    M, P = lines.num_tracks, points.num_points
-    R = np.array(R, float)
-    c = np.array(c, float)
     d = np.array(line_directions, float)
     p = np.array(line_points, float)
     X = np.array(point_positions, float)
@@ -709,7 +691,7 @@ def _adjust(lines: LineTracks, R: FloatArray, c: FloatArray, line_directions: Fl
         state, it = levenberg_marquardt(
             prob, state, RobustLoss.LINEAR if final else RobustLoss.HUBER, options.loss_scale,
             options.max_iterations if final else options.robust_iterations,
-            options.tolerance if final else options.robust_tolerance)
+            options.tolerance if final else 1e-6)
         iterations += it
     al, ap = angles(prob)
     info = _frame_information(prob, state)

@@ -17,7 +17,8 @@ Stages (all SfM work is pycolmap's; docs/colmap.md):
 5. mapper (only when the folder holds frames the line stage did not pose): COLMAP's incremental
    mapper continues from the triangulated model, the seeded frames held fixed;
 6. adjustment: by default the joint adjustment of cameras, the init's 3D lines and the points
-   (:mod:`omni_sfm.refine.joint`, window by window on long sequences); with
+   (:mod:`omni_sfm.refine.joint`; the cameras' system by conjugate gradients on long
+   sequences); with
    ``adjustment="colmap"`` COLMAP's: poses and points free, intrinsics fixed, the gauge fixed
    by weak position priors at the input's camera centres (COLMAP's pose-prior adjuster),
    robust loss, in rounds with outlier filtering; frames with too few observations stay
