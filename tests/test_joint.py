@@ -345,3 +345,53 @@ def test_the_iterative_step_is_the_factored_step() -> None:
         steps.append(np.r_[dp.ravel(), dl.ravel(), dx.ravel()])
     assert prob.cg_iterations and 1 < prob.cg_iterations[0] < 6 * F
     np.testing.assert_allclose(steps[1], steps[0], rtol=0, atol=1e-5 * np.abs(steps[0]).max())
+
+
+def _with_degenerate_points(sim: Simulation, obs: PointObservations, X: np.ndarray,
+                            X0: np.ndarray, seed: int
+                            ) -> tuple[PointObservations, np.ndarray]:
+    """``obs`` and the initial points ``X0`` with six points added that the data barely fix:
+    three a kilometre away (every frame sees them along nearly parallel rays; started 50 m
+    off) and three a few millimetres from the camera path (seen from both sides of it)."""
+    g = sim.groundtruth
+    F, P = len(g), obs.num_points
+    rng = np.random.default_rng(seed)
+    own = np.array([5, 12, 20])
+    Xd = np.concatenate([g.positions.mean(0) + 1e3 * rng.normal(size=(3, 3)),
+                         g.positions[own] + 0.005 * rng.normal(size=(3, 3))])
+    f = np.tile(np.arange(F), len(Xd))
+    j = np.repeat(np.arange(len(Xd)), F)
+    keep = (j < 3) | (f != own[np.clip(j - 3, 0, 2)])
+    f, j = f[keep], j[keep]
+    ray = points_seen(g.rotations, g.positions, Xd, f, j)
+    ray = ray + rng.normal(0.0, np.radians(0.1), ray.shape)
+    ray /= np.linalg.norm(ray, axis=1, keepdims=True)
+    start = Xd + rng.normal(0.0, 0.05, Xd.shape) * np.array([1e3, 1e3, 1e3, 1, 1, 1])[:, None]
+    return (PointObservations(np.r_[obs.frame, f], np.r_[obs.point, P + j],
+                              np.r_[obs.ray, ray], P + len(Xd)),
+            np.concatenate([X0, start]))
+
+
+@pytest.mark.parametrize(("seed", "without"), [
+    (2, ("omni_sfm.refine.joint._JointProblem.damp_landmarks", lambda self, increase: False)),
+    (7, ("omni_sfm.estimate.bundle.POSE_STEP_TOLERANCE", 0.0))])
+def test_a_few_degenerate_points_do_not_stall_the_adjustment(
+        monkeypatch: pytest.MonkeyPatch, seed: int, without: tuple[str, object]) -> None:
+    # Points the data barely fix take steps far outside the linear model (seed 2: rejected
+    # steps, tried again with those points damped rather than the whole step) or creep towards
+    # infinity along their rays while the cameras stand still (seed 7: the adjustment stops
+    # when the cameras no longer move). On COLMAP's points of a 1,000-frame walk the first
+    # stalled the adjustment (docs/colmap.md)
+    sim, obs, X = _scene(seed, 0.1, 0.1)
+    R, c, d, p, X0 = _perturbed(sim, X, seed)
+    clean = joint_adjust(sim.tracks, R, c, d, p, obs, X0)
+    obs_d, X0_d = _with_degenerate_points(sim, obs, X, X0, seed)
+    res = joint_adjust(sim.tracks, R, c, d, p, obs_d, X0_d)
+    assert res.iterations <= 2 * clean.iterations + 2
+    assert np.abs(res.positions - clean.positions).max() < 0.005
+    assert _rot_err(res.rotations, res.positions, sim) < \
+        1.2 * _rot_err(clean.rotations, clean.positions, sim)
+    # without that safeguard the adjustment crawls
+    monkeypatch.setattr(*without)
+    crawl = joint_adjust(sim.tracks, R, c, d, p, obs_d, X0_d)
+    assert crawl.iterations > 1.5 * res.iterations

@@ -41,7 +41,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field, replace
 from enum import StrEnum
-from typing import Any, Protocol, TypeVar
+from typing import Any, Protocol, TypeVar, runtime_checkable
 
 import numpy as np
 import scipy.linalg
@@ -566,22 +566,48 @@ class LMProblem(Protocol):
     def retract(self, *state_and_step: Any) -> Any: ...
 
 
+@runtime_checkable
+class LandmarkDamping(Protocol):
+    """What a problem may add so that :func:`levenberg_marquardt` damps a few landmarks instead
+    of the whole step: a rejected step whose cost increase sits in a few landmarks (a point
+    drifting to infinity along its rays, a line whose observations all lie in one plane) is
+    tried again with those landmarks damped more and the rest as before."""
+
+    def damp_landmarks(self, increase: FloatArray) -> bool:
+        """``increase`` ``(K,)``: each residual's cost change in the rejected step. Damp the
+        landmarks that account for most of it; False if the increase is not theirs."""
+        ...
+
+    def relax_landmarks(self) -> None:
+        """A step was accepted: the landmarks' extra damping decays."""
+        ...
+
+
 S = TypeVar("S", bound=tuple[Any, ...])
+
+POSE_STEP_TOLERANCE = 1e-9
+""":func:`levenberg_marquardt` stops when an undamped step moves no camera by more than this
+(radians, and the problem's unit of length)."""
 
 
 def levenberg_marquardt(prob: LMProblem, state: S, loss: RobustLoss, scale: float,
                         max_iterations: int, tolerance: float) -> tuple[S, int]:
     """Levenberg-Marquardt on ``prob`` from ``state`` with robust ``loss`` at ``scale``
     (residual units), IRLS weights from the current residuals; stops after ``max_iterations``,
-    when the relative decrease of the cost falls below ``tolerance``, or when no damping
-    finds a lower cost. Returns the state and the iterations run."""
-    def cost_of(e: FloatArray) -> tuple[float, FloatArray]:
-        """The cost of residuals ``e`` and their IRLS weights (for the step from there)."""
+    when the relative decrease of the cost falls below ``tolerance``, when a step with little
+    damping moves the cameras by less than :data:`POSE_STEP_TOLERANCE`, or when no damping
+    finds a lower cost. A problem that is also a :class:`LandmarkDamping` gets a rejected step
+    whose cost increase sits in a few landmarks tried again with those damped, the damping of
+    the rest unchanged. Returns the state and the iterations run."""
+    def cost_of(e: FloatArray) -> tuple[float, FloatArray, FloatArray]:
+        """The cost of residuals ``e``, their IRLS weights (for the step from there) and each
+        residual's cost."""
         rho, w = loss_weights(np.sum(e * e, 1), loss, scale)
-        return 0.5 * float(np.sum(rho)), w
+        return 0.5 * float(np.sum(rho)), w, rho
 
+    local = prob if isinstance(prob, LandmarkDamping) else None
     e, u = prob.residuals(*state)
-    cost, w = cost_of(e)
+    cost, w, rho = cost_of(e)
     lam = 1e-4
     it = 0
     for it in range(1, max_iterations + 1):  # noqa: B007
@@ -595,17 +621,24 @@ def levenberg_marquardt(prob: LMProblem, state: S, loss: RobustLoss, scale: floa
                 continue
             new_state = prob.retract(*state, dpose, dline)
             e_new, u_new = prob.residuals(*new_state)
-            new_cost, w_new = cost_of(e_new)
+            new_cost, w_new, rho_new = cost_of(e_new)
             if np.isfinite(new_cost) and new_cost <= cost:
                 improved = True
                 break
-            lam *= 10.0
+            if not (local is not None and np.isfinite(new_cost)
+                    and local.damp_landmarks(0.5 * (rho_new - rho))):
+                lam *= 10.0
         if not improved:
             break
         rel = (cost - new_cost) / max(cost, 1e-300)
-        state, e, u, cost, w = new_state, e_new, u_new, new_cost, w_new
+        state, e, u, cost, w, rho = new_state, e_new, u_new, new_cost, w_new, rho_new
         lam = max(lam / 10.0, 1e-12)
-        if rel < tolerance or cost <= 1e-300:
+        if local is not None:
+            local.relax_landmarks()
+        # the cameras no longer move (what is left is a landmark creeping along a direction
+        # the data barely fix, such as a point towards infinity along its nearly parallel rays)
+        still = lam <= 1e-3 and float(np.abs(dpose).max(initial=0.0)) < POSE_STEP_TOLERANCE
+        if rel < tolerance or cost <= 1e-300 or still:
             break
     return state, it
 

@@ -217,6 +217,9 @@ class _JointProblem:
             self.point_scale *= np.sqrt(point_weight[self.j])
         self.point_free = np.zeros(self.P, bool)
         self.point_free[self.j] = True
+        # each landmark's damping beyond the step's (Levenberg-Marquardt's lam): raised for the
+        # few landmarks a rejected step went wrong in (:meth:`damp_landmarks`)
+        self.extra_damping = (np.zeros(self.M), np.zeros(self.P))
 
     def residuals(self, R: FloatArray, c: FloatArray, d: FloatArray, p: FloatArray,
                   X: FloatArray) -> tuple[FloatArray, tuple[FloatArray, FloatArray]]:
@@ -286,8 +289,8 @@ class _JointProblem:
                              o.window_frames, o.cg_tolerance) \
             if moving.sum() > o.iterative_above else _ReducedSystem(Hd, rhs)
         reduced = []
-        for H, Hcross, g, f, t, free in marks:
-            Linv = np.linalg.inv(np.linalg.cholesky(_damped(H, lam, free)))  # (N, n, n)
+        for (H, Hcross, g, f, t, free), extra in zip(marks, self.extra_damping, strict=True):
+            Linv = np.linalg.inv(np.linalg.cholesky(_damped(H, np.maximum(lam, extra), free)))
             on = moving[f]
             G = Hcross[on] @ np.swapaxes(Linv[t[on]], 1, 2)  # H_pl L^-T, (K, 6, n)
             S.subtract(G, compact[f[on]], t[on], np.einsum("nij,nj->ni", Linv, g))  # L^-1 g
@@ -302,6 +305,31 @@ class _JointProblem:
             r = -g - _sum_by(t, np.einsum("kji,kj->ki", Hcross, dp[f]), len(g))
             steps.append(np.einsum("nji,nj->ni", Linv, np.einsum("nij,nj->ni", Linv, r)) * free)
         return dp, (steps[0], steps[1])
+
+    def damp_landmarks(self, increase: FloatArray) -> bool:
+        """A rejected step's cost increase per residual ``(K,)``: if at most
+        ``max(10, 0.5 %)`` of the landmarks hold half of it (a point drifting to infinity along
+        its rays, one seen from both sides of the path, a line whose observations share one
+        plane: their steps are far outside the linear model), their damping is raised to at
+        least their Hessian block's diagonal, tenfold each time (:class:`LandmarkDamping`)."""
+        per = np.concatenate([np.bincount(self.lines.t, weights=increase[:self.Kl],
+                                          minlength=self.M),
+                              np.bincount(self.j, weights=increase[self.Kl:], minlength=self.P)])
+        total = float(per[per > 0].sum())
+        if not total > 0.0:
+            return False
+        order = np.argsort(-per)
+        n = int(np.searchsorted(np.cumsum(per[order]), 0.5 * total)) + 1
+        if n > max(10, 0.005 * len(per)):
+            return False
+        extra = np.concatenate(self.extra_damping)
+        extra[order[:n]] = np.maximum(10.0 * extra[order[:n]], 1.0)
+        self.extra_damping = (extra[:self.M], extra[self.M:])
+        return True
+
+    def relax_landmarks(self) -> None:
+        """After an accepted step the extra damping decays (by 3)."""
+        self.extra_damping = (self.extra_damping[0] / 3.0, self.extra_damping[1] / 3.0)
 
     def retract(self, R: FloatArray, c: FloatArray, d: FloatArray, p: FloatArray,
                 X: FloatArray, dpose: FloatArray, dmarks: tuple[FloatArray, FloatArray]
@@ -591,13 +619,15 @@ def _pairs(f: np.ndarray, t: np.ndarray, m: int, G: FloatArray
     return pair // m, pair % m, _sum_by(inv, G, len(pair))
 
 
-def _damped(H: FloatArray, lam: float, free: np.ndarray) -> FloatArray:
-    """``H + lam diag(H)`` per block (a floor on tiny diagonals), held parameters' rows and
-    columns replaced by the identity so that they stay at zero."""
+def _damped(H: FloatArray, lam: float | FloatArray, free: np.ndarray) -> FloatArray:
+    """``H + lam diag(H)`` per block (``lam`` one or ``(N,)``, one per block; a floor on tiny
+    diagonals), held parameters' rows and columns replaced by the identity so that they stay
+    at zero."""
     n = H.shape[1]
     dg = np.einsum("kii->ki", H)
     eye = np.eye(n)
-    H = H + (lam * np.maximum(dg, 1e-12 * max(float(dg.max(initial=0.0)), 1e-30)))[:, :, None] \
+    lam_k = np.broadcast_to(np.asarray(lam, float), (len(H),))[:, None]
+    H = H + (lam_k * np.maximum(dg, 1e-12 * max(float(dg.max(initial=0.0)), 1e-30)))[:, :, None] \
         * eye
     return H * (free[:, :, None] & free[:, None, :]) + (~free)[:, :, None] * eye
 
