@@ -7,6 +7,8 @@ camera, 800 x 600, 100 frames. Prints the per-stage times and the ATE before and
     .venv/bin/python scripts/bench_refine.py --work /tmp/bench_office --scene office --frames 1000
     .venv/bin/python scripts/bench_refine.py --work /tmp/bench_refine --init LINE_INIT_DIR
     .venv/bin/python scripts/bench_refine.py --work /tmp/bench_refine --frames 120 --versus-colmap
+    .venv/bin/python scripts/bench_refine.py --work /tmp/bench_eq --camera equirectangular \
+        --width 1920 --height 960 --lines-init --adjustment joint colmap
 
 Without ``--init`` the seed is the ground truth with realistic errors (0.3 deg rotation noise and
 0.5 % of the path position noise, fixed seed), written as an init directory by
@@ -59,6 +61,9 @@ def main() -> int:
     p.add_argument("--metres-per-frame", type=float, default=0.0115,
                    help="office: the camera's speed (default: bench_init's)")
     p.add_argument("--frames", type=int, default=100)
+    p.add_argument("--camera", choices=["hyperboloid", "equirectangular"],
+                   default="hyperboloid", help="the rendered camera (equirectangular: give "
+                   "--width and --height, say 1920 and 960)")
     p.add_argument("--width", type=int, default=800)
     p.add_argument("--height", type=int, default=600)
     p.add_argument("--overlap", type=int, default=RefineOptions().overlap)
@@ -89,11 +94,11 @@ def main() -> int:
         t0 = time.perf_counter()
         if args.scene == "office":
             opts = RenderOptions(scene=SceneName.OFFICE, route=Route.OFFICE,
-                                 camera="hyperboloid", width=args.width, height=args.height,
+                                 camera=args.camera, width=args.width, height=args.height,
                                  frames=args.frames, textured=True,
                                  path_length=args.metres_per_frame * (args.frames - 1))
         else:
-            opts = RenderOptions(scene=args.scene, camera="hyperboloid", width=args.width,
+            opts = RenderOptions(scene=args.scene, camera=args.camera, width=args.width,
                                  height=args.height, frames=args.frames,
                                  textured=args.scene == "room")
         render_sequence(render, opts, progress=sys.stderr.isatty())
@@ -136,7 +141,7 @@ def main() -> int:
     init = read_init_model(init_dir).trajectory
     scene = {"room": "textured room", "corridor": "texture-poor corridor",
              "office": "textured office walk"}[args.scene]
-    print(f"case: {scene}, hyperboloid {args.width}x{args.height}, {len(gt)} frames, "
+    print(f"case: {scene}, {args.camera} {args.width}x{args.height}, {len(gt)} frames, "
           f"path {gt.path_length():.2f} m; seed: {kind}")
     before = trajectory_errors(init, gt)
     print(f"input: ATE / path length {100 * before.ate_rel:.4f} %, rotation error mean / max "

@@ -325,6 +325,10 @@ def test_window_options_are_checked() -> None:
         JointOptions(window_frames=5)
     with pytest.raises(OmniSfmError, match="cg_tolerance"):
         JointOptions(cg_tolerance=0.0)
+    with pytest.raises(OmniSfmError, match="robust_cg_tolerance"):
+        JointOptions(robust_cg_tolerance=1.0)
+    with pytest.raises(OmniSfmError, match="pose_tolerance"):
+        JointOptions(pose_tolerance=-1.0)
 
 
 def test_the_iterative_step_is_the_factored_step() -> None:
@@ -372,16 +376,14 @@ def _with_degenerate_points(sim: Simulation, obs: PointObservations, X: np.ndarr
             np.concatenate([X0, start]))
 
 
-@pytest.mark.parametrize(("seed", "without"), [
-    (2, ("omni_sfm.refine.joint._JointProblem.damp_landmarks", lambda self, increase: False)),
-    (7, ("omni_sfm.estimate.bundle.POSE_STEP_TOLERANCE", 0.0))])
+@pytest.mark.parametrize(("seed", "safeguard"), [(2, "landmark damping"), (7, "pose stop")])
 def test_a_few_degenerate_points_do_not_stall_the_adjustment(
-        monkeypatch: pytest.MonkeyPatch, seed: int, without: tuple[str, object]) -> None:
+        monkeypatch: pytest.MonkeyPatch, seed: int, safeguard: str) -> None:
     # Points the data barely fix take steps far outside the linear model (seed 2: rejected
     # steps, tried again with those points damped rather than the whole step) or creep towards
     # infinity along their rays while the cameras stand still (seed 7: the adjustment stops
-    # when the cameras no longer move). On COLMAP's points of a 1,000-frame walk the first
-    # stalled the adjustment (docs/colmap.md)
+    # when the cameras no longer move). On COLMAP's points of a 1,000-frame walk both stalled
+    # the adjustment (docs/colmap.md)
     sim, obs, X = _scene(seed, 0.1, 0.1)
     R, c, d, p, X0 = _perturbed(sim, X, seed)
     clean = joint_adjust(sim.tracks, R, c, d, p, obs, X0)
@@ -392,6 +394,11 @@ def test_a_few_degenerate_points_do_not_stall_the_adjustment(
     assert _rot_err(res.rotations, res.positions, sim) < \
         1.2 * _rot_err(clean.rotations, clean.positions, sim)
     # without that safeguard the adjustment crawls
-    monkeypatch.setattr(*without)
-    crawl = joint_adjust(sim.tracks, R, c, d, p, obs_d, X0_d)
+    options = JointOptions()
+    if safeguard == "landmark damping":
+        monkeypatch.setattr("omni_sfm.refine.joint._JointProblem.damp_landmarks",
+                            lambda self, increase: False)
+    else:
+        options = JointOptions(pose_tolerance=0.0)
+    crawl = joint_adjust(sim.tracks, R, c, d, p, obs_d, X0_d, options=options)
     assert crawl.iterations > 1.5 * res.iterations

@@ -585,20 +585,19 @@ class LandmarkDamping(Protocol):
 
 S = TypeVar("S", bound=tuple[Any, ...])
 
-POSE_STEP_TOLERANCE = 1e-9
-""":func:`levenberg_marquardt` stops when an undamped step moves no camera by more than this
-(radians, and the problem's unit of length)."""
-
 
 def levenberg_marquardt(prob: LMProblem, state: S, loss: RobustLoss, scale: float,
-                        max_iterations: int, tolerance: float) -> tuple[S, int]:
+                        max_iterations: int, tolerance: float,
+                        pose_tolerance: tuple[float, float] | None = None) -> tuple[S, int]:
     """Levenberg-Marquardt on ``prob`` from ``state`` with robust ``loss`` at ``scale``
     (residual units), IRLS weights from the current residuals; stops after ``max_iterations``,
-    when the relative decrease of the cost falls below ``tolerance``, when a step with little
-    damping moves the cameras by less than :data:`POSE_STEP_TOLERANCE`, or when no damping
-    finds a lower cost. A problem that is also a :class:`LandmarkDamping` gets a rejected step
-    whose cost increase sits in a few landmarks tried again with those damped, the damping of
-    the rest unchanged. Returns the state and the iterations run."""
+    when the relative decrease of the cost falls below ``tolerance``, when a step with almost
+    no damping (at most 1e-8: soft modes, such as a long walk's drift, are not held back) moves
+    no camera by more than ``pose_tolerance`` (radians, units of length: that step is about
+    the distance left to the minimum), or when no damping finds a lower cost. A problem that
+    is also a :class:`LandmarkDamping` gets a rejected step whose cost increase sits in a few
+    landmarks tried again with those damped, the damping of the rest unchanged. Returns the
+    state and the iterations run."""
     def cost_of(e: FloatArray) -> tuple[float, FloatArray, FloatArray]:
         """The cost of residuals ``e``, their IRLS weights (for the step from there) and each
         residual's cost."""
@@ -637,7 +636,9 @@ def levenberg_marquardt(prob: LMProblem, state: S, loss: RobustLoss, scale: floa
             local.relax_landmarks()
         # the cameras no longer move (what is left is a landmark creeping along a direction
         # the data barely fix, such as a point towards infinity along its nearly parallel rays)
-        still = lam <= 1e-3 and float(np.abs(dpose).max(initial=0.0)) < POSE_STEP_TOLERANCE
+        still = pose_tolerance is not None and lam <= 1e-8 and \
+            float(np.abs(dpose[:, :3]).max(initial=0.0)) <= pose_tolerance[0] and \
+            float(np.abs(dpose[:, 3:]).max(initial=0.0)) <= pose_tolerance[1]
         if rel < tolerance or cost <= 1e-300 or still:
             break
     return state, it
