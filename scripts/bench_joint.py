@@ -30,6 +30,7 @@ def main() -> None:
     from omni_sfm.estimate.bundle import LineProblem, gauge
     from omni_sfm.evaluate import trajectory_errors
     from omni_sfm.export.colmap import read_init_model, seed_for_database
+    from omni_sfm.libs import library_logging
     from omni_sfm.poses import Trajectory, read_tum
     from omni_sfm.refine.joint import JointOptions, PointObservations, _JointProblem, joint_adjust
     from omni_sfm.refine.joint_model import model_points, read_line_evidence
@@ -45,7 +46,8 @@ def main() -> None:
     t = time.perf_counter()
     seed = seed_for_database(init.camera, init.trajectory, init.image_names,
                              W / "database_sift.db")
-    with tempfile.TemporaryDirectory() as empty:  # no images: no colours, nothing else lost
+    # no images: no colours (COLMAP's warning for each image silenced), nothing else lost
+    with tempfile.TemporaryDirectory() as empty, library_logging(verbose=False):
         rec = triangulate_seeded(seed.reconstruction, W / "database_sift.db", Path(empty))
     print(f"triangulation: {time.perf_counter() - t:.1f} s, {rec.num_points3D()} points, "
           f"{rec.compute_num_observations()} observations")

@@ -351,9 +351,8 @@ def test_the_iterative_step_is_the_factored_step() -> None:
     np.testing.assert_allclose(steps[1], steps[0], rtol=0, atol=1e-5 * np.abs(steps[0]).max())
 
 
-def _with_degenerate_points(sim: Simulation, obs: PointObservations, X: np.ndarray,
-                            X0: np.ndarray, seed: int
-                            ) -> tuple[PointObservations, np.ndarray]:
+def _with_degenerate_points(sim: Simulation, obs: PointObservations, X0: np.ndarray,
+                            seed: int) -> tuple[PointObservations, np.ndarray]:
     """``obs`` and the initial points ``X0`` with six points added that the data barely fix:
     three a kilometre away (every frame sees them along nearly parallel rays; started 50 m
     off) and three a few millimetres from the camera path (seen from both sides of it)."""
@@ -387,7 +386,7 @@ def test_a_few_degenerate_points_do_not_stall_the_adjustment(
     sim, obs, X = _scene(seed, 0.1, 0.1)
     R, c, d, p, X0 = _perturbed(sim, X, seed)
     clean = joint_adjust(sim.tracks, R, c, d, p, obs, X0)
-    obs_d, X0_d = _with_degenerate_points(sim, obs, X, X0, seed)
+    obs_d, X0_d = _with_degenerate_points(sim, obs, X0, seed)
     res = joint_adjust(sim.tracks, R, c, d, p, obs_d, X0_d)
     assert res.iterations <= 2 * clean.iterations + 2
     assert np.abs(res.positions - clean.positions).max() < 0.005

@@ -482,13 +482,11 @@ class _IterativeSystem:
         self.coarse = C
 
     def subtract(self, G: FloatArray, f: np.ndarray, t: np.ndarray, gt: FloatArray,
-                 plan: _ProductPlan | None = None) -> None:
+                 plan: _ProductPlan) -> None:
         """As :meth:`_ReducedSystem.subtract`, kept for the products (``plan``: the sparse
-        structure of these observations, if already built: it does not change from step to
-        step)."""
+        structure of these observations, built once: it does not change from step to step)."""
         K, n = len(t), G.shape[2]
         self.rhs += _sum_by(f, np.einsum("kai,ki->ka", G, gt[t]), self.F).ravel()
-        plan = plan or _ProductPlan(f, t, n, len(gt), self.F)
         obs, per_landmark = plan.matrices(G)
         self.kinds.append(per_landmark)
         w = self.window_of[f]
