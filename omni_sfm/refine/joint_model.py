@@ -8,7 +8,8 @@ world is ours, so the points need no change of frame.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -16,7 +17,7 @@ import numpy as np
 
 from omni_sfm.cameras.base import CameraModel, ColmapExport
 from omni_sfm.errors import OmniSfmError
-from omni_sfm.export.colmap import set_colmap_poses
+from omni_sfm.export.colmap import set_colmap_poses, trajectory_from_reconstruction
 from omni_sfm.folders import InitFolder
 from omni_sfm.geometry import FloatArray, rotation_angle
 from omni_sfm.lines.tracks import LineTracks, read_tracks
@@ -152,12 +153,18 @@ def pixel_jacobians(camera: CameraModel, obs: PointObservations, step: float = 1
 
 
 def adjust_model(rec: Any, image_ids: list[int], traj: Trajectory, lines: LineEvidence,
-                 camera: CameraModel, options: JointOptions | None = None
+                 camera: CameraModel, options: JointOptions | None = None, *,
+                 registered: Sequence[str] = (), registered_timestamps: FloatArray | None = None
                  ) -> tuple[JointResult, dict[str, Any]]:
     """The joint adjustment of the model's seeded images (``image_ids``, poses ``traj``), the
     init's lines and the model's points from their current positions; the model's poses and
     points set to its result, its rejected observations deleted. Returns the result (frames
-    in the tracks' numbering) and a report.
+    in the tracks' numbering, then one for each registered frame the tracks lack) and a
+    report.
+
+    ``registered``: names of images the mapper posed that have no input pose, with their
+    ``registered_timestamps``; they are adjusted with the rest from the model's poses (their
+    lines where the tracks have their frame), so that the whole model stays in one frame.
 
     Raises:
         OmniSfmError: the adjustment fails.
@@ -165,19 +172,25 @@ def adjust_model(rec: Any, image_ids: list[int], traj: Trajectory, lines: LineEv
     import pycolmap
 
     export = camera.colmap_export()
-    obs, X, where, ids = model_points(rec, image_ids, camera, export)
-    F, k = lines.tracks.num_frames, lines.frame_of_pose
+    extra, extra_ids = _registered_frames(rec, export, registered, registered_timestamps)
+    tracks, k_extra = _with_frames(lines.tracks, extra.timestamps)
+    k = lines.frame_of_pose
+    obs, X, where, ids = model_points(rec, list(image_ids) + extra_ids, camera, export)
+    F = tracks.num_frames
     R = np.full((F, 3, 3), np.nan)
     c = np.full((F, 3), np.nan)
     R[k], c[k] = traj.rotations, traj.positions
-    pobs = PointObservations(k[obs.frame], obs.point, obs.ray, obs.num_points,
+    R[k_extra], c[k_extra] = extra.rotations, extra.positions
+    k_all = np.concatenate([k, k_extra])
+    pobs = PointObservations(k_all[obs.frame], obs.point, obs.ray, obs.num_points,
                              obs.pixel_jacobian)
-    res = joint_adjust(lines.tracks, R, c, lines.directions, lines.points, pobs, X,
+    res = joint_adjust(tracks, R, c, lines.directions, lines.points, pobs, X,
                        options=options or JointOptions())
     if not res.frames[k].all():
         raise OmniSfmError("joint adjustment: an input pose was lost")
-    set_colmap_poses(rec, export, image_ids,
-                     Trajectory(traj.timestamps, res.rotations[k], res.positions[k]))
+    set_colmap_poses(rec, export, list(image_ids) + extra_ids,
+                     Trajectory(np.concatenate([traj.timestamps, extra.timestamps]),
+                                res.rotations[k_all], res.positions[k_all]))
     manager = pycolmap.ObservationManager(rec)
     for (image_id, idx), keep in zip(where, res.point_inliers.tolist(), strict=True):
         if not keep and rec.images[image_id].point2D(idx).has_point3D():
@@ -186,7 +199,7 @@ def adjust_model(rec: Any, image_ids: list[int], traj: Trajectory, lines: LineEv
         if res.points_used[j] and rec.exists_point3D(q):
             rec.points3D[q].xyz = res.points[j]
     rec.update_point_3d_errors()
-    ev = res.evidence(lines.tracks, pobs)
+    ev = res.evidence(tracks, pobs)
     report = {
         "line_observations": int(ev["lines"].sum()),
         "point_observations": int(res.point_inliers.sum()),
@@ -196,18 +209,56 @@ def adjust_model(rec: Any, image_ids: list[int], traj: Trajectory, lines: LineEv
         "line_noise_deg": res.line_sigma_deg, "point_noise_deg": res.point_sigma_deg,
         "line_rms_deg": res.line_rms_deg, "point_rms_deg": res.point_rms_deg,
         "iterations": res.iterations,
-        "evidence_per_frame": {
-            "lines": ev["lines"][k].tolist(),
-            "points": ev["points"][k].tolist(),
-            "line_share_rotation": _rounded(res.line_share[k, 0]),
-            "line_share_position": _rounded(res.line_share[k, 1]),
-            "rotation_change_deg": _rounded(np.degrees(rotation_angle(
-                np.swapaxes(traj.rotations, 1, 2) @ res.rotations[k]))),
-            "position_change": _rounded(np.linalg.norm(res.positions[k] - traj.positions,
-                                                       axis=1)),
-        },
+        "evidence_per_frame": _evidence(ev, res, k, traj),
     }
+    if len(extra_ids):
+        report["registered_frames"] = {
+            "names": [rec.images[i].name for i in extra_ids],
+            "evidence_per_frame": _evidence(ev, res, k_extra, extra)}
     return res, report
+
+
+def _evidence(ev: dict[str, np.ndarray], res: JointResult, k: np.ndarray, before: Trajectory
+              ) -> dict[str, Any]:
+    """Per frame ``k``: its line and point observations, the lines' share of its rotation and
+    position information, and how far the adjustment moved it from ``before``."""
+    return {
+        "lines": ev["lines"][k].tolist(),
+        "points": ev["points"][k].tolist(),
+        "line_share_rotation": _rounded(res.line_share[k, 0]),
+        "line_share_position": _rounded(res.line_share[k, 1]),
+        "rotation_change_deg": _rounded(np.degrees(rotation_angle(
+            np.swapaxes(before.rotations, 1, 2) @ res.rotations[k]))),
+        "position_change": _rounded(np.linalg.norm(res.positions[k] - before.positions,
+                                                   axis=1)),
+    }
+
+
+def _registered_frames(rec: Any, export: ColmapExport, names: Sequence[str],
+                       timestamps: FloatArray | None) -> tuple[Trajectory, list[int]]:
+    """The poses and image ids of the posed images among ``names``."""
+    if not len(names):
+        return Trajectory(np.zeros(0), np.zeros((0, 3, 3)), np.zeros((0, 3))), []
+    if timestamps is None or len(timestamps) != len(names):
+        raise OmniSfmError("joint adjustment: registered frames need one timestamp each")
+    traj, ok = trajectory_from_reconstruction(rec, export, list(names), timestamps)
+    ids = [rec.find_image_with_name(n).image_id for n, o in zip(names, ok, strict=True) if o]
+    return traj, ids
+
+
+def _with_frames(tracks: LineTracks, timestamps: FloatArray) -> tuple[LineTracks, np.ndarray]:
+    """``tracks`` with a frame for each of ``timestamps`` that it lacks (without
+    observations), and the frame index of each."""
+    ts = tracks.timestamps
+    k = np.clip(np.searchsorted(ts, timestamps), 0, max(len(ts) - 1, 0))
+    found = np.zeros(len(timestamps), bool) if len(ts) == 0 else \
+        np.isclose(ts[k], timestamps, rtol=0, atol=1e-6)
+    if found.all():
+        return tracks, k
+    k = k.copy()
+    k[~found] = tracks.num_frames + np.arange(int((~found).sum()))
+    return replace(tracks, num_frames=tracks.num_frames + int((~found).sum()),
+                   timestamps=np.concatenate([ts, np.asarray(timestamps)[~found]])), k
 
 
 def _rounded(values: FloatArray, digits: int = 6) -> list[float | None]:
