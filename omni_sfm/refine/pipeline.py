@@ -14,8 +14,10 @@ Stages (all SfM work is pycolmap's; docs/colmap.md):
    completed and merged and points with large errors filtered, without the global point
    adjustment of ``pycolmap.triangulate_points`` (half its time; the adjustment below moves
    the points anyway);
-5. mapper (only when the folder holds frames the line stage did not pose): COLMAP's incremental
-   mapper continues from the triangulated model, the seeded frames held fixed;
+5. mapper (only when the folder holds frames the line stage did not pose): COLMAP's
+   registration of the next image, with triangulation and local adjustment around it, from
+   the triangulated model, the seeded frames held fixed (no global refinement: the
+   adjustment that follows is global);
 6. adjustment: by default the joint adjustment of cameras, the init's 3D lines and the points
    (:mod:`omni_sfm.refine.joint`; the cameras' system by conjugate gradients on long
    sequences); with
@@ -473,8 +475,8 @@ class _Run:
             rec = triangulate_seeded(seed.reconstruction, db, tmp / IMAGES_DIR)
         report["triangulation"] = model_statistics(rec)
         with self.stages.stage("mapper"):
-            rec, report["mapper"] = _register_missing(
-                rec, self.register, self.unposed, db, tmp / IMAGES_DIR, work, o)
+            rec, report["mapper"] = _register_missing(rec, self.register, self.unposed,
+                                                      db, tmp / IMAGES_DIR, o)
         shutil.rmtree(work, ignore_errors=True)
         return rec, seed, image_ids
 
@@ -608,36 +610,46 @@ def triangulate_seeded(rec: Any, db_path: Path, image_dir: Path) -> Any:
 
 
 def _register_missing(rec: Any, register: bool, unposed: list[str], db_path: Path,
-                      image_dir: Path, work: Path, o: RefineOptions) -> tuple[Any, dict[str, Any]]:
-    """COLMAP's incremental mapper continuing from ``rec`` with its frames fixed."""
+                      image_dir: Path, o: RefineOptions) -> tuple[Any, dict[str, Any]]:
+    """COLMAP's registration of the frames ``unposed`` into ``rec`` (in place), the seeded
+    frames held: the incremental mapper's next-image loop (absolute pose, triangulation of the
+    new frame's observations, local adjustments around it) without its global refinements,
+    which on a long video took most of the stage (260 s for 61 frames of a 1,000-frame walk)
+    and which the global adjustment after this stage does anyway."""
     import pycolmap
 
     if not register:
         return rec, {"skipped": "every frame of the folder has an input pose" if not unposed
                      else "disabled"}
-    seeded = work / "seeded"
-    seeded.mkdir()
-    rec.write_binary(str(seeded))
     opts = pycolmap.IncrementalPipelineOptions()
     opts.fix_existing_frames = True
     opts.ba_refine_focal_length = False
     opts.ba_refine_principal_point = False
     opts.ba_refine_extra_params = False
-    opts.multiple_models = False
     opts.num_threads = o.num_threads
-    out = work / "mapper"
-    out.mkdir()
-    try:
-        models = pycolmap.incremental_mapping(str(db_path), str(image_dir), str(out), opts,
-                                              input_path=str(seeded))
-    except Exception as exc:  # pycolmap raises RuntimeError when the mapper gives up
-        return rec, {"failed": str(exc).splitlines()[0][:200]}
-    best = max(models.values(), key=lambda r: r.num_reg_images(), default=None)
-    if best is None or best.num_reg_images() < rec.num_reg_images():
-        return rec, {"failed": "the mapper returned no model containing the seeded frames"}
-    names = {im.name for im in best.images.values() if im.has_pose}
-    got = [n for n in unposed if n in names]
-    return best, {"registered": got, "not_registered": [n for n in unposed if n not in names]}
+    mapper_opts, tri = opts.get_mapper(), opts.get_triangulation()
+    local_ba = opts.get_local_bundle_adjustment()
+    with pycolmap.Database.open(str(db_path)) as db:
+        cache = pycolmap.DatabaseCache.create(db, pycolmap.DatabaseCacheOptions())
+    mapper = pycolmap.IncrementalMapper(cache)
+    mapper.begin_reconstruction(rec)
+    wanted = {im.image_id for im in rec.images.values() if im.name in set(unposed)}
+    while True:  # the best-connected candidate first, as the mapper chooses
+        got = next((i for i in mapper.find_next_images(mapper_opts, False)
+                    if i in wanted and mapper.register_next_image(mapper_opts, i)), None)
+        if got is None:
+            break
+        mapper.triangulate_image(tri, got)
+        mapper.iterative_local_refinement(opts.ba_local_max_refinements,
+                                          opts.ba_local_max_refinement_change, mapper_opts,
+                                          local_ba, tri, got)
+    mapper.end_reconstruction(False)
+    for image_id in wanted:
+        if rec.images[image_id].has_pose:
+            rec.extract_colors_for_image(image_id, str(image_dir))
+    names = {im.name for im in rec.images.values() if im.has_pose}
+    return rec, {"registered": [n for n in unposed if n in names],
+                 "not_registered": [n for n in unposed if n not in names]}
 
 
 def _merge(traj: Trajectory, refined: np.ndarray, new: Trajectory
