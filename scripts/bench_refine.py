@@ -67,6 +67,8 @@ def main() -> int:
     p.add_argument("--width", type=int, default=800)
     p.add_argument("--height", type=int, default=600)
     p.add_argument("--overlap", type=int, default=RefineOptions().overlap)
+    p.add_argument("--max-features", type=int, default=RefineOptions().max_features,
+                   help="SIFT features per image at most")
     p.add_argument("--init", type=Path, default=None,
                    help="refine this init directory instead of the perturbed ground truth")
     p.add_argument("--seed", type=int, default=0, help="seed of the perturbation")
@@ -153,6 +155,7 @@ def main() -> int:
             res = refine(init_dir, render / "images",
                          args.work / f"refined_{features}_{adjustment}",
                          RefineOptions(overlap=args.overlap, features=features,
+                                       max_features=args.max_features,
                                        klt_verify=args.klt_verify, adjustment=adjustment),
                          database=database, overwrite=True, progress=sys.stderr.isatty())
             total = time.perf_counter() - t0

@@ -329,6 +329,24 @@ def test_window_options_are_checked() -> None:
         JointOptions(robust_cg_tolerance=1.0)
     with pytest.raises(OmniSfmError, match="pose_tolerance"):
         JointOptions(pose_tolerance=-1.0)
+    with pytest.raises(OmniSfmError, match="robust_pose_tolerance"):
+        JointOptions(robust_pose_tolerance=float("nan"))
+
+
+def test_the_robust_rounds_stop_when_the_cameras_stand_still() -> None:
+    # the robust rounds only judge the observations: once the cameras no longer move they
+    # stop (here while a few barely fixed points still creep), and the final round ends where
+    # it would have
+    sim, obs, X = _scene(3, 0.1, 0.1)
+    R, c, d, p, X0 = _perturbed(sim, X, 3)
+    obs, X0 = _with_degenerate_points(sim, obs, X0, 3)
+    res = joint_adjust(sim.tracks, R, c, d, p, obs, X0)
+    full = joint_adjust(sim.tracks, R, c, d, p, obs, X0,
+                        options=JointOptions(robust_pose_tolerance=0.0))
+    assert res.iterations <= full.iterations - 3
+    assert np.abs(res.positions - full.positions).max() < 1e-5
+    assert _rot_err(res.rotations, res.positions, sim) == pytest.approx(
+        _rot_err(full.rotations, full.positions, sim), rel=0.02)
 
 
 def test_the_iterative_step_is_the_factored_step() -> None:
@@ -398,6 +416,6 @@ def test_a_few_degenerate_points_do_not_stall_the_adjustment(
         monkeypatch.setattr("omni_sfm.refine.joint._JointProblem.damp_landmarks",
                             lambda self, increase: False)
     else:
-        options = JointOptions(pose_tolerance=0.0)
+        options = JointOptions(pose_tolerance=0.0, robust_pose_tolerance=0.0)
     crawl = joint_adjust(sim.tracks, R, c, d, p, obs_d, X0_d, options=options)
     assert crawl.iterations > 1.5 * res.iterations
