@@ -11,7 +11,7 @@ import pycolmap
 
 from omni_sfm.cameras import load_camera
 from omni_sfm.evaluate import trajectory_errors
-from omni_sfm.export.colmap import colmap_cam_from_world, trajectory_from_reconstruction
+from omni_sfm.export.colmap import build_reconstruction, trajectory_from_reconstruction
 from omni_sfm.geometry import rotvec_to_matrix
 from omni_sfm.lines3d import LineSegments3D
 from omni_sfm.poses import Trajectory
@@ -26,20 +26,13 @@ REGISTERED = (12, 29)  # the mapper's frames; the tracks end before frame 29
 def _model(camera, truth: Trajectory, poses: Trajectory, X: np.ndarray) -> pycolmap.Reconstruction:
     """Every frame an image at ``poses`` that sees each point of ``X`` exactly (``truth``)."""
     export = camera.colmap_export()
-    rec = pycolmap.Reconstruction()
-    cam = export.camera
-    cam.camera_id = 1
-    rec.add_camera_with_trivial_rig(cam)
-    R_cw, t_cw = colmap_cam_from_world(export, poses)
     F, P = len(truth), len(X)
+    rec = build_reconstruction(camera, poses, [f"{k:06d}.png" for k in range(F)]).reconstruction
     f, j = np.repeat(np.arange(F), P), np.tile(np.arange(P), F)
     xy = export.pixels_to_colmap(camera.pixels_from_rays(
         points_seen(truth.rotations, truth.positions, X, f, j))).reshape(F, P, 2)
     for k in range(F):
-        image = pycolmap.Image(name=f"{k:06d}.png", keypoints=xy[k], camera_id=1,
-                               image_id=k + 1)
-        rec.add_image_with_trivial_frame(image, pycolmap.Rigid3d(
-            np.hstack([R_cw[k], t_cw[k, :, None]])))
+        rec.images[k + 1].points2D = pycolmap.Point2DList([pycolmap.Point2D(u) for u in xy[k]])
     for q in range(P):
         track = pycolmap.Track()
         for k in range(F):
