@@ -3,6 +3,7 @@ from lines already reconstructed, through stops and turns in place."""
 
 from __future__ import annotations
 
+import re
 from dataclasses import replace
 from functools import lru_cache
 from pathlib import Path
@@ -326,7 +327,8 @@ def test_a_chain_that_ends_wrong_is_started_again_from_the_end() -> None:
     """The sparse case's seed 13, its last 300 frames: every start from the first frames
     scores 0.087-0.093 deg (capped RMS over every observation; on all 600 frames they were
     2.7x / 12.8x the oracle's errors); run on the frames in reverse order, the chain of windows
-    and the registration score 0.078 and reach the oracle's errors, and that start is kept."""
+    and the registration score 0.078 and reach the oracle's errors, and that start is kept
+    (or ties with a forward start that later strategies repaired as far)."""
     from omni_sfm.estimate.bundle import oracle
     from omni_sfm.estimate.segments import frame_range
 
@@ -342,9 +344,15 @@ def test_a_chain_that_ends_wrong_is_started_again_from_the_end() -> None:
                                       o.positions[o.frames]), g)
     assert e.rot_mean_deg <= 2.0 * eo.rot_mean_deg
     assert e.paper_trans.mean() <= 2.0 * eo.paper_trans.mean()
-    kept = [a for a in res.report["attempts"]
-            if a["strategy"] == "reversed start" and a["result"] == "kept"]
-    assert len(kept) == 1 and kept[0]["frames"] == [0, 299]
+    # the reversed start reaches the best score over all frames: kept, or tied with the
+    # forward start as repaired by the later strategies (numpy 2.4 / scipy 1.17: "lines off
+    # the cameras" polished it to the same 0.0755 deg)
+    attempts = res.report["attempts"]
+    rev = [a for a in attempts if a["strategy"] == "reversed start"]
+    assert len(rev) == 1 and rev[0]["frames"] == [0, 299]
+    if rev[0]["result"] != "kept":  # "<its score> deg RMS against <the estimate's>"
+        m = re.search(r"([0-9.]+) deg RMS against ([0-9.]+)", rev[0]["why"])
+        assert m is not None and float(m.group(1)) <= float(m.group(2)), rev
     # its own attempts are in this sequence's frame order, marked
     back = [a for a in res.report["attempts"] if a.get("reversed")]
     assert back and all(0 <= a["frames"][0] <= a["frames"][1] <= 299
