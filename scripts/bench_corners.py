@@ -28,13 +28,7 @@ from omni_sfm.corners import CornerTrackOptions, track_corners
 from omni_sfm.poses import read_tum
 from omni_sfm.refine import RefineOptions
 from omni_sfm.refine.pipeline import klt_tracking
-
-
-def _resolution_rad(camera: object) -> float:
-    """Median angle between the rays of horizontally adjacent valid pixels."""
-    rays = camera.pixel_grid_rays()  # type: ignore[attr-defined]
-    dots = np.sum(rays[::4, :-1:4] * rays[::4, 1::4], axis=-1)
-    return float(np.median(np.arccos(np.clip(dots[np.isfinite(dots)], -1.0, 1.0))))
+from omni_sfm.refine.triangulation import angular_resolution_rad
 
 
 def main() -> int:
@@ -53,7 +47,7 @@ def main() -> int:
         if img is None:
             raise SystemExit(f"{args.render / 'images' / n}: cannot read")
         imgs.append(img)
-    res = _resolution_rad(cam)
+    res = angular_resolution_rad(cam)
     for text in args.options:
         o = klt_tracking(RefineOptions().max_corners) if text == "refine" else \
             CornerTrackOptions(**json.loads(text))

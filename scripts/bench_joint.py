@@ -34,7 +34,7 @@ def main() -> None:
     from omni_sfm.poses import Trajectory, read_tum
     from omni_sfm.refine.joint import JointOptions, PointObservations, _JointProblem, joint_adjust
     from omni_sfm.refine.joint_model import model_points, read_line_evidence
-    from omni_sfm.refine.pipeline import triangulate_seeded
+    from omni_sfm.refine.triangulation import triangulate_seeded
 
     W = args.work
     init = read_init_model(W / "init_lines")
@@ -48,7 +48,8 @@ def main() -> None:
                              W / "database_sift.db")
     # no images: no colours (COLMAP's warning for each image silenced), nothing else lost
     with tempfile.TemporaryDirectory() as empty, library_logging(verbose=False):
-        rec = triangulate_seeded(seed.reconstruction, W / "database_sift.db", Path(empty))
+        rec, _ = triangulate_seeded(seed.reconstruction, W / "database_sift.db", Path(empty),
+                                 init.camera, init.camera.colmap_export())
     print(f"triangulation: {time.perf_counter() - t:.1f} s, {rec.num_points3D()} points, "
           f"{rec.compute_num_observations()} observations")
     ids = [rec.find_image_with_name(n).image_id for n in init.image_names]

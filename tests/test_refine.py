@@ -112,6 +112,24 @@ def test_refine_improves_a_perturbed_seed_on_a_textured_room(room_refined):
     assert set(r["timings_s"]) >= {"features", "matching", "triangulation", "bundle adjustment"}
 
 
+def test_a_missed_frame_the_mapper_cannot_register_is_listed(room, tmp_path):
+    """A frame without an input pose that too few points can pose (here a black frame but for
+    a small patch: a few corners tracked through it) is listed as not registered, and the
+    rest is refined."""
+    render = tmp_path / "render"
+    shutil.copytree(room, render)
+    img = cv2.imread(str(render / "images" / "000013.png"))
+    dark = np.zeros_like(img)
+    dark[40:120, 160:240] = img[40:120, 160:240]
+    cv2.imwrite(str(render / "images" / "000013.png"), dark)
+    _, gt, _, res = refine_perturbed(render, tmp_path, MISSING,
+                                     RefineOptions(overlap=5, features="klt"))
+    r = res.report  # type: ignore[attr-defined]
+    assert r["mapper"]["registered"] == ["000006.png"]
+    assert r["mapper"]["not_registered"] == ["000013.png"]
+    assert len(res.trajectory) == len(gt) - 1  # type: ignore[attr-defined]
+
+
 def test_refined_model_opens_in_pycolmap_and_matches_the_trajectory(room_refined):
     work, gt, init, res = room_refined
     out = work / "out"

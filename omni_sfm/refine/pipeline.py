@@ -10,10 +10,11 @@ Stages (all SfM work is pycolmap's; docs/colmap.md):
 3. matching: the pairs of COLMAP's sequential matching, pairs matched before skipped. SIFT:
    COLMAP's matcher and geometric verification; KLT: the corners on a common track, written as
    the pairs' inlier matches (COLMAP's verification with ``klt_verify``);
-4. triangulation: COLMAP's triangulator on the line-based poses (held fixed), its tracks
-   completed and merged and points with large errors filtered, without the global point
-   adjustment of ``pycolmap.triangulate_points`` (half its time; the adjustment below moves
-   the points anyway);
+4. triangulation: the verified matches' tracks (connected components) triangulated on the
+   line-based poses (held fixed) by least squares over their rays, observations that miss
+   dropped, then COLMAP's filter (:mod:`omni_sfm.refine.triangulation`; one pass over the
+   observations, where COLMAP's incremental triangulator took 255 ms a frame and grew with
+   the sequence);
 5. mapper (only when the folder holds frames the line stage did not pose): COLMAP's
    registration of the next image, with triangulation and local adjustment around it, from
    the triangulated model, the seeded frames held fixed (no global refinement: the
@@ -96,6 +97,7 @@ from omni_sfm.refine.joint_model import (
     adjusted_segments,
     read_line_evidence,
 )
+from omni_sfm.refine.triangulation import triangulate_seeded
 from omni_sfm.transforms import Similarity, similarity_from_poses
 
 DATABASE_FILE = RefineFolder.DATABASE
@@ -421,6 +423,8 @@ class _Run:
     """The model was adjusted with the lines (:meth:`_joint`)."""
     lines: tuple[LineEvidence, JointResult] | None = None
     """The init's lines and the joint adjustment's result (:meth:`_joint`)."""
+    reposed: list[str] = field(default_factory=list)
+    """Seeded frames the triangulation posed again (their input disagreed with the points)."""
 
     @property
     def register(self) -> bool:
@@ -472,8 +476,12 @@ class _Run:
         image_ids = [seed.reconstruction.find_image_with_name(n).image_id
                      for n in init.image_names]
         with self.stages.stage("triangulation"):
-            rec = triangulate_seeded(seed.reconstruction, db, tmp / IMAGES_DIR)
+            rec, self.reposed = triangulate_seeded(
+                seed.reconstruction, db, tmp / IMAGES_DIR, camera, export,
+                max_error_px=o.max_reprojection_error_px,
+                min_angle_deg=o.min_triangulation_angle_deg)
         report["triangulation"] = model_statistics(rec)
+        report["triangulation"]["frames_posed_again"] = list(self.reposed)
         with self.stages.stage("mapper"):
             rec, report["mapper"] = _register_missing(rec, self.register, self.unposed,
                                                       db, tmp / IMAGES_DIR, o)
@@ -520,7 +528,7 @@ class _Run:
         # model's frame before the adjustment (0.9 m off on the 1,000-frame office walk)
         added, ts = self.registered(rec)
         try:
-            res, rep = adjust_model(rec, image_ids, self.init.trajectory, lines,
+            res, rep = adjust_model(rec, image_ids, self._start(rec, image_ids), lines,
                                     self.init.camera, registered=added,
                                     registered_timestamps=ts)
             self.lines = (lines, res)
@@ -535,6 +543,21 @@ class _Run:
             self.o.max_reprojection_error_px, self.o.min_triangulation_angle_deg))
         rep["after"] = model_statistics(rec)
         return {"joint": rep}
+
+    def _start(self, rec: Any, image_ids: list[int]) -> Trajectory:
+        """The adjustment's start: the input poses, those the triangulation posed again
+        from the model."""
+        inp = self.init.trajectory
+        if not self.reposed:
+            return inp
+        export = self.init.camera.colmap_export()
+        again, ok = trajectory_from_reconstruction(rec, export, self.reposed,
+                                                   np.zeros(len(self.reposed)))
+        R, c = inp.rotations.copy(), inp.positions.copy()
+        row = {n: k for k, n in enumerate(self.init.image_names)}
+        for j, name in enumerate(np.asarray(self.reposed)[ok].tolist()):
+            R[row[name]], c[row[name]] = again.rotations[j], again.positions[j]
+        return Trajectory(inp.timestamps, R, c)
 
     def registered(self, rec: Any) -> tuple[list[str], FloatArray | None]:
         """The frames without an input pose that the mapper posed, and their timestamps
@@ -585,30 +608,6 @@ class _Run:
         return traj, refined
 
 
-def triangulate_seeded(rec: Any, db_path: Path, image_dir: Path) -> Any:
-    """COLMAP's points for the posed images of ``rec`` (poses held) from the database's
-    verified matches: each image's observations triangulated, tracks completed and merged,
-    points with large errors or small angles filtered, colours read from ``image_dir``. What
-    ``pycolmap.triangulate_points`` does but for its rounds of global adjustment of the points
-    (half its time on the 300-frame office walk: 33.7 against 67.3 s), which the adjustment
-    after it repeats with the cameras free."""
-    import pycolmap
-
-    opts = pycolmap.IncrementalPipelineOptions()
-    with pycolmap.Database.open(str(db_path)) as db:
-        cache = pycolmap.DatabaseCache.create(db, pycolmap.DatabaseCacheOptions())
-    mapper = pycolmap.IncrementalMapper(cache)
-    mapper.begin_reconstruction(rec)
-    tri = opts.get_triangulation()
-    for image_id in sorted(rec.reg_image_ids()):
-        mapper.triangulate_image(tri, image_id)
-    mapper.complete_and_merge_tracks(tri)
-    mapper.filter_points(opts.get_mapper())
-    mapper.end_reconstruction(False)
-    rec.extract_colors_for_all_images(str(image_dir))
-    return rec
-
-
 def _register_missing(rec: Any, register: bool, unposed: list[str], db_path: Path,
                       image_dir: Path, o: RefineOptions) -> tuple[Any, dict[str, Any]]:
     """COLMAP's registration of the frames ``unposed`` into ``rec`` (in place), the seeded
@@ -644,8 +643,8 @@ def _register_missing(rec: Any, register: bool, unposed: list[str], db_path: Pat
                                           opts.ba_local_max_refinement_change, mapper_opts,
                                           local_ba, tri, got)
     mapper.end_reconstruction(False)
-    for image_id in wanted:
-        if rec.images[image_id].has_pose:
+    for image_id in wanted:  # (the mapper's end removes the frames it did not register)
+        if rec.exists_image(image_id) and rec.images[image_id].has_pose:
             rec.extract_colors_for_image(image_id, str(image_dir))
     names = {im.name for im in rec.images.values() if im.has_pose}
     return rec, {"registered": [n for n in unposed if n in names],
