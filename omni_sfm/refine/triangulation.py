@@ -73,14 +73,17 @@ def triangulate_rays(track: np.ndarray, rays: FloatArray, centres: FloatArray,
     X = np.full((T, 3), np.nan)
     for round_ in range(rounds + 1):
         w, c, t = rays[on], centres[on], track[on]
-        P = np.eye(3)[None] - w[:, :, None] * w[:, None, :]
-        Pc = np.einsum("kij,kj->ki", P, c)
-        A = np.stack([np.bincount(t, P[:, i, j], T) for i in range(3) for j in range(3)],
-                     1).reshape(T, 3, 3)
-        rhs = np.stack([np.bincount(t, Pc[:, i], T) for i in range(3)], 1)
-        count = np.bincount(t, minlength=T)
+        # sum over a track of (I - w w^T) and of (I - w w^T) c, without the (K, 3, 3) terms
+        count = np.bincount(t, minlength=T).astype(float)
+        ww = {(i, j): np.bincount(t, w[:, i] * w[:, j], T) for i in range(3) for j in range(i, 3)}
+        A = np.empty((T, 3, 3))
+        for (i, j), v in ww.items():
+            A[:, i, j] = A[:, j, i] = (count if i == j else 0.0) - v
+        wc = np.einsum("ki,ki->k", w, c)
+        rhs = np.stack([np.bincount(t, c[:, i] - w[:, i] * wc, T) for i in range(3)], 1)
         with np.errstate(invalid="ignore", divide="ignore"):
-            ok = (count >= 2) & (np.linalg.cond(A) < 1e8)
+            ev = np.linalg.eigvalsh(A)  # ascending; A is symmetric positive semi-definite
+            ok = (count >= 2) & (ev[:, 0] > 1e-8 * ev[:, 2])
         X[:] = np.nan
         X[ok] = np.linalg.solve(A[ok], rhs[ok][:, :, None])[:, :, 0]
         err = _angles(X[track] - centres, rays)
