@@ -194,6 +194,9 @@ def test_a_large_correction_is_taken_only_where_the_images_back_it(room, room_re
                  RefineOptions(overlap=5), database=db, progress=False)
     assert res.refined[bad]
     assert list(res.report["pose_changes"]["large_changes_backed_by_images"]) == [names[bad]]
+    # its observations disagree with the points the other frames triangulate: it is posed
+    # again from them before the adjustment (without that it would have none)
+    assert res.report["triangulation"]["frames_posed_again"] == [names[bad]]
 
     def rot_err(traj: Trajectory) -> float:  # frame `bad` relative to frame 0, vs ground truth
         rel = np.swapaxes(traj.rotations[0], 0, 1) @ traj.rotations[bad]
