@@ -30,7 +30,7 @@ def angular_resolution_rad(camera: CameraModel) -> float:
 
 
 def tracks_from_matches(pairs: list[tuple[int, int, np.ndarray]], num_keypoints: dict[int, int]
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Tracks of the match graph: ``pairs`` (image id 1, image id 2, ``(n, 2)`` keypoint index
     pairs) among the images of ``num_keypoints`` (image id -> keypoint count). Returns
     ``(image_id, keypoint, track)``, one row per keypoint on a track of two or more, track ids
