@@ -15,7 +15,7 @@ def test_tracks_are_the_connected_keypoints_of_the_match_graph() -> None:
     # second; unmatched keypoints belong to none
     pairs = [(1, 2, np.array([[0, 3], [2, 0]])), (2, 5, np.array([[3, 1]])),
              (1, 5, np.array([[0, 1]]))]
-    image, kp, track = tracks_from_matches(pairs, {1: 4, 2: 5, 5: 2})
+    image, kp, track = tracks_from_matches(pairs, {1: 4, 2: 5, 3: 0, 5: 2})  # 3: no keypoints
     got = {(int(i), int(k), int(t)) for i, k, t in zip(image, kp, track, strict=True)}
     assert len(got) == 5 and np.all(np.diff(track) >= 0)
     first = {(i, k) for i, k, t in got if t == track[image.tolist().index(5)]}

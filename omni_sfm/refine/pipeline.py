@@ -1,6 +1,7 @@
 """``omni-sfm refine``: COLMAP refinement seeded by the line-based poses, never worse than them.
 
-Stages (all SfM work is pycolmap's; docs/colmap.md):
+Stages (pycolmap's features, matching, mapper and bundle adjustment; the triangulation and the
+joint adjustment are omni-sfm's own; docs/colmap.md):
 
 1. images: the frames as COLMAP must see them (``images_colmap/``, mirrored where the camera
    export says so) and the camera's valid mask as COLMAP's camera mask;
@@ -528,7 +529,7 @@ class _Run:
         # model's frame before the adjustment (0.9 m off on the 1,000-frame office walk)
         added, ts = self.registered(rec)
         try:
-            res, rep = adjust_model(rec, image_ids, self._start(rec, image_ids), lines,
+            res, rep = adjust_model(rec, image_ids, self._start(rec), lines,
                                     self.init.camera, registered=added,
                                     registered_timestamps=ts)
             self.lines = (lines, res)
@@ -544,7 +545,7 @@ class _Run:
         rep["after"] = model_statistics(rec)
         return {"joint": rep}
 
-    def _start(self, rec: Any, image_ids: list[int]) -> Trajectory:
+    def _start(self, rec: Any) -> Trajectory:
         """The adjustment's start: the input poses, those the triangulation posed again
         from the model."""
         inp = self.init.trajectory

@@ -40,7 +40,8 @@ def tracks_from_matches(pairs: list[tuple[int, int, np.ndarray]], num_keypoints:
 
     ids = np.array(sorted(num_keypoints), np.int64)
     sizes = np.array([num_keypoints[i] for i in ids.tolist()], np.int64)
-    offset = dict(zip(ids.tolist(), (np.cumsum(sizes) - sizes).tolist(), strict=True))
+    first = np.cumsum(sizes) - sizes  # each image's first node
+    offset = dict(zip(ids.tolist(), first.tolist(), strict=True))
     n = int(sizes.sum())
     a = [offset[i] + m[:, 0] for i, j, m in pairs if len(m)]
     b = [offset[j] + m[:, 1] for i, j, m in pairs if len(m)]
@@ -54,8 +55,8 @@ def tracks_from_matches(pairs: list[tuple[int, int, np.ndarray]], num_keypoints:
     node = np.flatnonzero(size[label] >= 2)
     node = node[np.argsort(label[node], kind="stable")]
     _, track = np.unique(label[node], return_inverse=True)
-    which = np.searchsorted(np.cumsum(sizes), node, side="right")
-    return ids[which], node - (np.cumsum(sizes) - sizes)[which], track.astype(np.int64)
+    which = np.searchsorted(first, node, side="right") - 1
+    return ids[which], node - first[which], track.astype(np.int64)
 
 
 def triangulate_rays(track: np.ndarray, rays: FloatArray, centres: FloatArray,
