@@ -21,9 +21,9 @@ import numpy as np
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--work", type=Path, required=True, help="a bench_refine.py work folder")
-    ap.add_argument("--iterative-above", type=int, nargs="+", default=[400],
+    ap.add_argument("--iterative-above", type=int, nargs="+", default=[50],
                     help="whole adjustments to run, one per value of "
-                         "JointOptions.iterative_above (default: 400, the default)")
+                         "JointOptions.iterative_above (default: 50, the default)")
     ap.add_argument("--no-whole", action="store_true", help="only the one step")
     args = ap.parse_args()
 

@@ -311,7 +311,8 @@ def test_the_iterative_solver_gives_the_same_adjustment() -> None:
     # factored system, in as many iterations
     sim, obs, X = _long_scene(11, 0.1)
     R, c, d, p, X0 = _perturbed(sim, X, 11)
-    factored = joint_adjust(sim.tracks, R, c, d, p, obs, X0)
+    factored = joint_adjust(sim.tracks, R, c, d, p, obs, X0,
+                            options=JointOptions(iterative_above=10**9))
     iterative = joint_adjust(sim.tracks, R, c, d, p, obs, X0,
                              options=JointOptions(iterative_above=20, window_frames=10))
     assert abs(iterative.iterations - factored.iterations) <= 2
@@ -358,7 +359,8 @@ def test_the_iterative_step_is_the_factored_step() -> None:
     F, M = len(R), sim.tracks.num_tracks
     lp = LineProblem(sim.tracks, np.ones(F, bool), np.ones(M, bool), 0, F - 1, 0)
     steps = []
-    for opts in (JointOptions(), JointOptions(iterative_above=20, window_frames=10)):
+    for opts in (JointOptions(iterative_above=10**9),
+                 JointOptions(iterative_above=20, window_frames=10)):
         prob = _JointProblem(lp, obs, np.ones(len(obs.frame), bool), 0.002, 0.002,
                              options=opts)
         e, aux = prob.residuals(R, c, d, p, X0)
@@ -419,3 +421,31 @@ def test_a_few_degenerate_points_do_not_stall_the_adjustment(
         options = JointOptions(pose_tolerance=0.0, robust_pose_tolerance=0.0)
     crawl = joint_adjust(sim.tracks, R, c, d, p, obs_d, X0_d, options=options)
     assert crawl.iterations > 1.5 * res.iterations
+
+
+@pytest.mark.parametrize("in_landmark_order", [True, False])
+def test_the_iterative_products_are_the_reduced_system(in_landmark_order: bool) -> None:
+    # S x = H_pp x - sum_j G_j G_j^T x from the shared entries of the product plan, with the
+    # observations in landmark order (the points) or not (then gathered into it), a landmark
+    # seen twice in one frame included; and the per-observation products back in their order
+    from omni_sfm.refine.joint import _ProductPlan
+
+    rng = np.random.default_rng(3)
+    F, N, K, n = 9, 7, 40, 3
+    t = np.sort(rng.integers(0, N, K)) if in_landmark_order else rng.integers(0, N, K)
+    f = rng.integers(0, F, K)
+    f[1], t[1] = f[0], t[0]
+    G = rng.normal(size=(K, 6, n))
+    plan = _ProductPlan(f, t, n, N, F)
+    assert (plan.by is None) == in_landmark_order
+    obs, per_landmark = plan.matrices(G)
+    Gj = np.zeros((N, 6 * F, n))
+    for k in range(K):
+        Gj[t[k], 6 * f[k]:6 * f[k] + 6] += G[k]
+    x = rng.normal(size=6 * F)
+    expected = sum(Gj[j] @ (Gj[j].T @ x) for j in range(N))
+    np.testing.assert_allclose(per_landmark.T @ (per_landmark @ x), expected, atol=1e-12)
+    Z = rng.normal(size=(6 * F, 2))
+    per_obs = plan.per_observation(obs @ Z)
+    for k in range(K):
+        np.testing.assert_allclose(per_obs[k], G[k].T @ Z[6 * f[k]:6 * f[k] + 6], atol=1e-12)

@@ -54,6 +54,8 @@ from omni_sfm.geometry import FloatArray, cross3, normalize, orthonormal_complet
 from omni_sfm.lines.tracks import LineTracks
 
 _DENSE_MAX = 4000
+_CHUNK = 32768
+"""Observations per chunk where per-observation blocks are formed and summed."""
 _PENDING_MAX = 20_000_000
 """Triplets of the cameras' sparse system waiting to be summed, at most (about 320 MB)."""
 
@@ -138,16 +140,24 @@ class JointOptions:
     quite straight, an edge fitted off by shading that changes slowly as the camera moves): each
     landmark's observations weigh as many independent ones as their residuals' lag-1
     correlation ``rho`` allows, ``(1 - rho) / (1 + rho)`` each (:func:`_correlation_weights`)."""
-    iterative_above: int = 400
-    """More frames than this (a long video): the cameras' reduced system is solved by
-    preconditioned conjugate gradients without forming it (:class:`_IterativeSystem`; the
-    same step to :attr:`cg_tolerance`). Formed, its cost grows with the square of how long
-    points stay in view, and a point can stay in view of an omnidirectional camera for
-    hundreds of frames: on a 1,000-frame walk one iteration took 17 s, 5 of them factoring
-    a nearly dense system."""
+    iterative_above: int = 50
+    """More frames than this: the cameras' reduced system is solved by preconditioned
+    conjugate gradients without forming it (:class:`_IterativeSystem`; the same step to
+    :attr:`cg_tolerance`). Formed, its cost grows with the square of how long points stay in
+    view, and a point can stay in view of an omnidirectional camera for hundreds of frames:
+    on a 1,000-frame walk one iteration took 17 s, 5 of them factoring a nearly dense system.
+    Even on short sequences the iterations are cheaper, as their preconditioner serves
+    several steps (:attr:`preconditioner_reuse`): the 120-frame room's adjustment took 9.3 s
+    instead of 13.0 s formed every step, the same result (docs/colmap.md)."""
     window_frames: int = 100
     """The preconditioner's windows: the reduced system's diagonal blocks over this many
     consecutive frames, each formed and factored exactly."""
+    preconditioner_reuse: int = 8
+    """The conjugate gradients' preconditioner is built (formed and factored) for one step
+    and serves up to this many steps (1: a new one every step). The later steps' systems
+    differ by the damping and by how far the cameras moved, which costs a few more conjugate
+    gradient iterations and leaves the step as it is: on the 1,000-frame office walk (KLT)
+    the solves took 96 s instead of 152 s, the same result."""
     cg_tolerance: float = 1e-8
     """Conjugate gradients stop when the residual is below this fraction of the right-hand
     side (the final least-squares round)."""
@@ -222,8 +232,12 @@ class _JointProblem:
         self.lines, self.active, self.options = lines, active, options
         self.cg_iterations: list[int] = []
         self.F, self.M, self.P = lines.F, lines.M, points.num_points
-        self.f, self.j = points.frame[active], points.point[active]
-        self.Bp = points.residual_basis()[active]  # (Kp, 2, 3)
+        # the observations used, each point's together (by point, then frame): the iterative
+        # solver's products need them in that order (:class:`_ProductPlan`)
+        idx = np.flatnonzero(active)
+        self.obs_index = idx[np.lexsort((points.frame[idx], points.point[idx]))]
+        self.f, self.j = points.frame[self.obs_index], points.point[self.obs_index]
+        self.Bp = points.residual_basis()[self.obs_index]  # (Kp, 2, 3)
         self.sigma_line, self.sigma_point = sigma_line, sigma_point
         self.Kl = len(lines.f)
         # per observation: 1 / (noise level), times the square root of its landmark's weight
@@ -239,6 +253,7 @@ class _JointProblem:
         # few landmarks a rejected step went wrong in (:meth:`damp_landmarks`)
         self.extra_damping = (np.zeros(self.M), np.zeros(self.P))
         self.plans: dict[int, _ProductPlan] = {}  # the iterative solver's, per kind
+        self.preconditioner: _Preconditioner | None = None  # the iterative solver's, reused
         self.cg_tolerance = options.cg_tolerance
 
     def residuals(self, R: FloatArray, c: FloatArray, d: FloatArray, p: FloatArray,
@@ -261,37 +276,50 @@ class _JointProblem:
         u, v = aux
         self.at = (R, c)  # where the step is taken (the iterative solver's coarse space)
         Jpl, Jl = self.lines.jacobian(R, c, d, p, u)
-        rho = np.linalg.norm(v, axis=1)
-        b = v / rho[:, None]
-        # d e / d v = B (I - b b^T) / |v|; v = R^T (X - c): dv/dw = [v]x, dv/dc = -R^T
-        A = (self.Bp - np.einsum("kai,ki->ka", self.Bp, b)[:, :, None] * b[:, None, :]) / \
-            rho[:, None, None]
-        ART = np.einsum("kaj,kij->kai", A, R[self.f])  # A R^T
-        Jpp = np.empty((len(v), 2, 6))
-        cross3(A, v[:, None, :], out=Jpp[:, :, :3])  # A [v]x: each row a -> a x v
-        np.negative(ART, out=Jpp[:, :, 3:])
-        Jpp *= self.lines.pose_free[self.f][:, None, :]
-        sl, sq = self.line_scale[:, None, None], self.point_scale[:, None, None]
-        return Jpl * sl, Jl * sl, Jpp * sq, ART * sq
+        K = len(v)
+        Jpp, Jx = np.empty((K, 2, 6)), np.empty((K, 2, 3))
+        for a in range(0, K, _CHUNK):  # in chunks: the temporaries stay small
+            b = min(a + _CHUNK, K)
+            vk, Bk, fk = v[a:b], self.Bp[a:b], self.f[a:b]
+            rho = np.linalg.norm(vk, axis=1)
+            u_ = vk / rho[:, None]
+            # d e / d v = B (I - b b^T) / |v|; v = R^T (X - c): dv/dw = [v]x, dv/dc = -R^T
+            A = (Bk - np.einsum("kai,ki->ka", Bk, u_)[:, :, None] * u_[:, None, :]) / \
+                rho[:, None, None]
+            np.matmul(A, np.swapaxes(R[fk], 1, 2), out=Jx[a:b])  # A R^T
+            cross3(A, vk[:, None, :], out=Jpp[a:b, :, :3])  # A [v]x: each row a -> a x v
+            np.negative(Jx[a:b], out=Jpp[a:b, :, 3:])
+            sq = self.point_scale[a:b, None, None]
+            Jpp[a:b] *= self.lines.pose_free[fk][:, None, :] * sq
+            Jx[a:b] *= sq
+        sl = self.line_scale[:, None, None]
+        return Jpl * sl, Jl * sl, Jpp, Jx
 
     def normal_equations(self, Jpl: FloatArray, Jl: FloatArray, Jpp: FloatArray,
                          Jx: FloatArray, e: FloatArray, w: FloatArray) -> tuple[Any, ...]:
         Kl = self.Kl
         wl, wp, el, ep = w[:Kl], w[Kl:], e[:Kl], e[Kl:]
         fl, tl, fp, jp = self.lines.f, self.lines.t, self.f, self.j
-        wJpl, wJpp = Jpl * wl[:, None, None], Jpp * wp[:, None, None]
-        wJl, wJx = Jl * wl[:, None, None], Jx * wp[:, None, None]
-        Hpp = _sum_by(fl, np.swapaxes(wJpl, 1, 2) @ Jpl, self.F) + \
-            _sum_by(fp, np.swapaxes(wJpp, 1, 2) @ Jpp, self.F)
-        gp = _sum_by(fl, np.einsum("kai,ka->ki", wJpl, el), self.F) + \
-            _sum_by(fp, np.einsum("kai,ka->ki", wJpp, ep), self.F)
+        wJpl, wJl = Jpl * wl[:, None, None], Jl * wl[:, None, None]
+        Hpp = _sum_by(fl, np.swapaxes(wJpl, 1, 2) @ Jpl, self.F)
+        gp = _sum_by(fl, np.einsum("kai,ka->ki", wJpl, el), self.F)
         Hll = _sum_by(tl, np.swapaxes(wJl, 1, 2) @ Jl, self.M)
         gl = _sum_by(tl, np.einsum("kai,ka->ki", wJl, el), self.M)
-        Hxx = _sum_by(jp, np.swapaxes(wJx, 1, 2) @ Jx, self.P)
-        gx = _sum_by(jp, np.einsum("kai,ka->ki", wJx, ep), self.P)
+        # the points' blocks in chunks of observations (the products' temporaries stay small:
+        # 2.5 times faster on 1.5 million observations)
+        Kp = len(fp)
+        Hxx, gx = np.zeros((self.P, 3, 3)), np.zeros((self.P, 3))
+        Hpx = np.empty((Kp, 6, 3))
+        for a in range(0, Kp, _CHUNK):
+            b = min(a + _CHUNK, Kp)
+            wJpp, wJx = Jpp[a:b] * wp[a:b, None, None], Jx[a:b] * wp[a:b, None, None]
+            Hpp += _sum_by(fp[a:b], np.swapaxes(wJpp, 1, 2) @ Jpp[a:b], self.F)
+            gp += _sum_by(fp[a:b], np.einsum("kai,ka->ki", wJpp, ep[a:b]), self.F)
+            np.matmul(np.swapaxes(wJpp, 1, 2), Jx[a:b], out=Hpx[a:b])
+            Hxx += _sum_by(jp[a:b], np.swapaxes(wJx, 1, 2) @ Jx[a:b], self.P)
+            gx += _sum_by(jp[a:b], np.einsum("kai,ka->ki", wJx, ep[a:b]), self.P)
         return (Hpp, gp, (Hll, np.swapaxes(wJpl, 1, 2) @ Jl, gl, fl, tl, self.lines.line_free),
-                (Hxx, np.swapaxes(wJpp, 1, 2) @ Jx, gx, fp, jp,
-                 np.repeat(self.point_free[:, None], 3, axis=1)))
+                (Hxx, Hpx, gx, fp, jp, np.repeat(self.point_free[:, None], 3, axis=1)))
 
     def solve(self, blocks: tuple[Any, ...], lam: float
               ) -> tuple[FloatArray, tuple[FloatArray, FloatArray]]:
@@ -304,16 +332,22 @@ class _JointProblem:
         compact = np.cumsum(moving) - 1
         o = self.options
         Hd, rhs = _damped(Hpp[moving], lam, pf[moving]), -gp[moving]
+        pre = self.preconditioner
+        if pre is not None and pre.uses >= o.preconditioner_reuse:
+            pre = None
         S: _ReducedSystem | _IterativeSystem = \
             _IterativeSystem(Hd, rhs, self.at[0][moving], self.at[1][moving], pf[moving],
-                             o.window_frames, self.cg_tolerance) \
+                             o.window_frames, self.cg_tolerance, pre) \
             if moving.sum() > o.iterative_above else _ReducedSystem(Hd, rhs)
         reduced = []
         for kind, ((H, Hcross, g, f, t, free), extra) in enumerate(
                 zip(marks, self.extra_damping, strict=True)):
             Linv = np.linalg.inv(np.linalg.cholesky(_damped(H, np.maximum(lam, extra), free)))
-            on = moving[f]
-            G = Hcross[on] @ np.swapaxes(Linv[t[on]], 1, 2)  # H_pl L^-T, (K, 6, n)
+            on = np.flatnonzero(moving[f])
+            G = np.empty((len(on), 6, H.shape[1]))  # H_pl L^-T, in chunks
+            for a in range(0, len(on), _CHUNK):
+                k = on[a:a + _CHUNK]
+                np.matmul(Hcross[k], np.swapaxes(Linv[t[k]], 1, 2), out=G[a:a + _CHUNK])
             gt = np.einsum("nij,nj->ni", Linv, g)  # L^-1 g
             if isinstance(S, _IterativeSystem):
                 if kind not in self.plans:
@@ -328,9 +362,16 @@ class _JointProblem:
         dp *= pf
         if isinstance(S, _IterativeSystem):
             self.cg_iterations.append(S.iterations)
+            self.preconditioner = S.preconditioner
+            assert self.preconditioner is not None
+            self.preconditioner.uses += 1
         steps = []
         for Linv, Hcross, g, f, t, free in reduced:
-            r = -g - _sum_by(t, np.einsum("kji,kj->ki", Hcross, dp[f]), len(g))
+            r = -g
+            for a in range(0, len(f), _CHUNK):
+                b = min(a + _CHUNK, len(f))
+                r = r - _sum_by(t[a:b], np.einsum("kji,kj->ki", Hcross[a:b], dp[f[a:b]]),
+                                len(g))
             steps.append(np.einsum("nji,nj->ni", Linv, np.einsum("nij,nj->ni", Linv, r)) * free)
         return dp, (steps[0], steps[1])
 
@@ -466,18 +507,22 @@ class _IterativeSystem:
     walk, windows of 100 frames: 30-40 iterations to 1e-8)."""
 
     def __init__(self, Hpp: FloatArray, rhs: FloatArray, R: FloatArray, c: FloatArray,
-                 free: np.ndarray, window: int, tolerance: float) -> None:
+                 free: np.ndarray, window: int, tolerance: float,
+                 reuse: _Preconditioner | None = None) -> None:
         """The system ``Hpp`` ``(F, 6, 6)`` (damped), ``rhs`` ``(F, 6)`` before the
         landmarks are subtracted, at the poses ``R``, ``c`` with ``free`` ``(F, 6)``
-        parameters."""
+        parameters; ``reuse``: an earlier step's preconditioner instead of a new one."""
         self.F = len(Hpp)
         self.Hpp, self.rhs, self.tolerance = Hpp, rhs.ravel().copy(), tolerance
+        self.kinds: list[sp.csr_matrix] = []
+        self.iterations = 0
+        self.preconditioner = reuse
+        if reuse is not None:
+            return
         self.bounds = np.linspace(0, self.F, max(1, round(self.F / window)) + 1).astype(int)
         self.window_of = np.searchsorted(self.bounds, np.arange(self.F), side="right") - 1
         self.blocks = [_ReducedSystem(Hpp[a:b], np.zeros((b - a, 6)))
                        for a, b in zip(self.bounds[:-1], self.bounds[1:], strict=True)]
-        self.kinds: list[sp.csr_matrix] = []
-        self.iterations = 0
         # the coarse space: each window's cameras moved together (:func:`_window_motions`)
         motions = _window_motions(R, c, free, self.window_of)
         nw, m = len(self.blocks), motions.shape[2]
@@ -491,10 +536,11 @@ class _IterativeSystem:
                  plan: _ProductPlan) -> None:
         """As :meth:`_ReducedSystem.subtract`, kept for the products (``plan``: the sparse
         structure of these observations, built once: it does not change from step to step)."""
-        K, n = len(t), G.shape[2]
         self.rhs += _sum_by(f, np.einsum("kai,ki->ka", G, gt[t]), self.F).ravel()
         obs, per_landmark = plan.matrices(G)
         self.kinds.append(per_landmark)
+        if self.preconditioner is not None:
+            return
         w = self.window_of[f]
         for i, block in enumerate(self.blocks):
             s = w == i
@@ -504,7 +550,7 @@ class _IterativeSystem:
         nw = len(self.blocks)
         pair, inv = np.unique(t * nw + w, return_inverse=True)
         m = self.motions.shape[2]
-        GtPhi = np.asarray(obs @ self.motions.reshape(6 * self.F, m)).reshape(K, n, m)
+        GtPhi = plan.per_observation(obs @ self.motions.reshape(6 * self.F, m))  # (K, n, m)
         A = _sum_by(inv, GtPhi, len(pair))  # (pairs, n, m)
         lm, win = pair // nw, pair % nw
         for lag in range(int(np.bincount(lm).max())):
@@ -521,26 +567,9 @@ class _IterativeSystem:
         return np.asarray(y)
 
     def solve(self) -> FloatArray:
-        factors = []
-        for block in self.blocks:
-            assert block.dense is not None  # a window's system is small
-            factors.append(scipy.linalg.cho_factor(block.dense, check_finite=False))
-        spans = [(6 * a, 6 * b) for a, b in zip(self.bounds[:-1], self.bounds[1:], strict=True)]
-        nw, m = self.coarse.shape[0], self.coarse.shape[2]
-        C = self.coarse.transpose(0, 2, 1, 3).reshape(nw * m, nw * m)
-        coarse = scipy.linalg.cho_factor(C + 1e-12 * np.trace(C) / len(C) * np.eye(len(C)),
-                                         check_finite=False)
-        Phi = self.motions
-
-        def precondition(r: FloatArray) -> FloatArray:
-            z = np.empty_like(r)
-            for (a, b), fac in zip(spans, factors, strict=True):
-                z[a:b] = scipy.linalg.cho_solve(fac, r[a:b], check_finite=False)
-            # plus the windows' joint motions (additive two-level)
-            rc = _sum_by(self.window_of, np.einsum("fam,fa->fm", Phi, r.reshape(-1, 6)), nw)
-            yc = scipy.linalg.cho_solve(coarse, rc.ravel(), check_finite=False).reshape(nw, m)
-            return z + np.einsum("fam,fm->fa", Phi, yc[self.window_of]).ravel()
-
+        if self.preconditioner is None:
+            self.preconditioner = _Preconditioner(self)
+        precondition = self.preconditioner.apply
         b = self.rhs
         x = precondition(b)
         r = b - self._product(x)
@@ -561,37 +590,85 @@ class _IterativeSystem:
         return x
 
 
+class _Preconditioner:
+    """:class:`_IterativeSystem`'s preconditioner, factored: the windows' diagonal blocks and
+    the coarse system of their joint motions (additive two-level). Built from one step's
+    system, it stays a good preconditioner for the next few steps (their systems differ by
+    the damping and by how far the cameras moved), so :class:`_JointProblem` reuses it
+    (:attr:`JointOptions.preconditioner_reuse`): the step is the same, to the tolerance of
+    the conjugate gradients; only their count may change."""
+
+    def __init__(self, S: _IterativeSystem) -> None:
+        self.factors = []
+        for block in S.blocks:
+            assert block.dense is not None  # a window's system is small
+            self.factors.append(scipy.linalg.cho_factor(block.dense, check_finite=False))
+        self.spans = [(6 * a, 6 * b) for a, b in zip(S.bounds[:-1], S.bounds[1:], strict=True)]
+        nw, m = S.coarse.shape[0], S.coarse.shape[2]
+        C = S.coarse.transpose(0, 2, 1, 3).reshape(nw * m, nw * m)
+        self.coarse = scipy.linalg.cho_factor(C + 1e-12 * np.trace(C) / len(C) * np.eye(len(C)),
+                                              check_finite=False)
+        self.motions, self.window_of, self.nw, self.m = S.motions, S.window_of, nw, m
+        self.uses = 0
+
+    def apply(self, r: FloatArray) -> FloatArray:
+        z = np.empty_like(r)
+        for (a, b), fac in zip(self.spans, self.factors, strict=True):
+            z[a:b] = scipy.linalg.cho_solve(fac, r[a:b], check_finite=False)
+        # plus the windows' joint motions
+        Phi = self.motions
+        rc = _sum_by(self.window_of, np.einsum("fam,fa->fm", Phi, r.reshape(-1, 6)), self.nw)
+        yc = scipy.linalg.cho_solve(self.coarse, rc.ravel(), check_finite=False
+                                    ).reshape(self.nw, self.m)
+        return z + np.einsum("fam,fm->fa", Phi, yc[self.window_of]).ravel()
+
+
 class _ProductPlan:
     """The sparse structure of :class:`_IterativeSystem`'s products for one kind of landmark
     (observation ``k``: frame ``f[k]`` of ``F``, landmark ``t[k]`` of ``N``, ``n`` parameters),
     built once per problem: the blocks ``G_k`` change from step to step, their places do not.
 
-    ``obs`` ``(K n, 6F)``: row ``k n + i`` holds ``G_k[:, i]`` in frame ``f[k]``'s columns;
-    ``per_landmark`` ``(N n, 6F)`` the same rows summed per landmark (``sum_k G_k^T x`` over a
-    landmark's observations: its ``G_j^T x``), so that ``S x = H_pp x - P^T (P x)``: the same
-    entries as ``obs`` in landmark order (a landmark seen twice in one frame keeps both,
-    which the product sums)."""
+    ``obs`` ``(n K, 6F)``: row ``i K + q`` holds ``G_k[:, i]`` in frame ``f[k]``'s columns,
+    ``k = by[q]`` the observations in landmark order; ``per_landmark`` ``(n N, 6F)`` the same
+    entries with the rows of each landmark's observations summed (``sum_k G_k^T x`` over a
+    landmark's observations: its ``G_j^T x``; a landmark seen twice in one frame keeps both
+    entries, which the product sums), so that ``S x = H_pp x - P^T (P x)``. In landmark order
+    a landmark's rows are consecutive: the two matrices share one array of entries, written
+    once a step (:class:`_JointProblem` keeps its points in that order)."""
 
     def __init__(self, f: np.ndarray, t: np.ndarray, n: int, N: int, F: int) -> None:
         K = len(f)
-        self.shape_obs, self.shape_landmark = (K * n, 6 * F), (N * n, 6 * F)
-        cols = np.broadcast_to((6 * f.astype(np.int64))[:, None, None] + np.arange(6),
-                               (K, n, 6)).ravel()
-        self.obs_indices = cols.astype(np.int32)
-        self.obs_indptr = np.arange(0, 6 * K * n + 1, 6, dtype=np.int64)
-        rows = np.broadcast_to((t.astype(np.int64)[:, None] * n + np.arange(n))[:, :, None],
-                               (K, n, 6)).ravel()
-        self.order = np.lexsort((cols, rows))
-        self.landmark_indices = self.obs_indices[self.order]
-        self.landmark_indptr = np.r_[0, np.cumsum(np.bincount(rows, minlength=N * n))]
+        by = np.argsort(t, kind="stable")
+        self.by: np.ndarray | None = None if np.array_equal(by, np.arange(K)) else by
+        fs = f if self.by is None else f[by]
+        cols = np.broadcast_to(6 * fs.astype(np.int32)[None, :, None]
+                               + np.arange(6, dtype=np.int32), (n, K, 6)).ravel()
+        data = np.zeros(len(cols))
+        self.obs = sp.csr_matrix((data, cols, np.arange(0, 6 * K * n + 1, 6, dtype=np.int64)),
+                                 shape=(K * n, 6 * F))
+        ends = 6 * (np.arange(n)[:, None] * K + np.cumsum(np.bincount(t, minlength=N))[None])
+        self.per_landmark = sp.csr_matrix((data, cols, np.r_[0, ends.ravel()]),
+                                          shape=(N * n, 6 * F))
+        self.per_landmark.data, self.per_landmark.indices = self.obs.data, self.obs.indices
+        self.shape = (K, n)
 
     def matrices(self, G: FloatArray) -> tuple[sp.csr_matrix, sp.csr_matrix]:
-        """``obs`` and ``per_landmark`` for the blocks ``G`` ``(K, 6, n)``."""
-        data = np.swapaxes(G, 1, 2).ravel()
-        obs = sp.csr_matrix((data, self.obs_indices, self.obs_indptr), shape=self.shape_obs)
-        per = sp.csr_matrix((data[self.order], self.landmark_indices, self.landmark_indptr),
-                            shape=self.shape_landmark)
-        return obs, per
+        """``obs`` and ``per_landmark`` for the blocks ``G`` ``(K, 6, n)`` (the same two
+        matrices each call, their entries overwritten)."""
+        K, n = self.shape
+        Gs = G if self.by is None else G[self.by]
+        np.copyto(self.obs.data.reshape(n, K, 6), np.transpose(Gs, (2, 0, 1)))
+        return self.obs, self.per_landmark
+
+    def per_observation(self, Y: FloatArray) -> FloatArray:
+        """``obs @ Z`` ``(n K, m)`` as ``(K, n, m)``, observation ``k``'s rows at ``k``."""
+        K, n = self.shape
+        Z = np.asarray(Y).reshape(n, K, -1).transpose(1, 0, 2)
+        if self.by is None:
+            return np.ascontiguousarray(Z)
+        out = np.empty_like(Z)
+        out[self.by] = Z
+        return out
 
 
 def _window_motions(R: FloatArray, c: FloatArray, free: np.ndarray, window_of: np.ndarray
@@ -754,14 +831,14 @@ def joint_adjust(lines: LineTracks, rotations: FloatArray, positions: FloatArray
             with np.errstate(invalid="ignore", divide="ignore"):
                 lines_used = candidate_lines & ~(np.sqrt(ss / np.maximum(cnt, 1)) > lim_l)
             pin = np.zeros_like(candidate_points)
-            pin[np.flatnonzero(every.active)[ap <= lim_p]] = True
+            pin[every.obs_index[ap <= lim_p]] = True
             e, (_, v) = every.residuals(*state)
             if "lines" in options.correlated:
                 line_weight = _correlation_weights(e[:every.Kl] / every.line_scale[:, None],
                                                    t, every.lines.f, M)
             if "points" in options.correlated:
                 Rf = state[0][every.f]
-                off = normalize(v) - points.ray[every.active]
+                off = normalize(v) - points.ray[every.obs_index]
                 point_weight = _correlation_weights(np.einsum("kij,kj->ki", Rf, off), every.j,
                                                     every.f, P)
         prob = problem(lines_used, pin)
