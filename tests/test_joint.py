@@ -324,6 +324,8 @@ def test_the_iterative_solver_gives_the_same_adjustment() -> None:
 def test_window_options_are_checked() -> None:
     with pytest.raises(OmniSfmError, match="window_frames"):
         JointOptions(window_frames=5)
+    with pytest.raises(OmniSfmError, match="preconditioner_reuse"):
+        JointOptions(preconditioner_reuse=0)
     with pytest.raises(OmniSfmError, match="cg_tolerance"):
         JointOptions(cg_tolerance=0.0)
     with pytest.raises(OmniSfmError, match="robust_cg_tolerance"):

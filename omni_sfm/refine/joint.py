@@ -180,6 +180,9 @@ class JointOptions:
             if not getattr(self, name) >= 0.0:
                 raise OmniSfmError(f"joint adjustment: {name} must be >= 0, not "
                                    f"{getattr(self, name)}")
+        if self.preconditioner_reuse < 1:
+            raise OmniSfmError("joint adjustment: preconditioner_reuse must be >= 1, not "
+                               f"{self.preconditioner_reuse}")
         if not 10 <= self.window_frames <= _DENSE_MAX // 6:
             raise OmniSfmError(f"joint adjustment: window_frames must be in [10, "
                                f"{_DENSE_MAX // 6}], not {self.window_frames}")
