@@ -118,8 +118,9 @@ class RefineOptions:
     features: str = "sift"
     """Point evidence: ``sift`` (SIFT features and COLMAP's sequential matching, also for
     images that are not in order) or ``klt`` (corners tracked through the frames in name order:
-    a video or an ordered image folder; 2-3x faster but less accurate: on the 120-frame room
-    of docs/colmap.md it made the line-based poses worse, hence not the default)."""
+    a video or an ordered image folder; 3-4x faster than SIFT but less accurate along a walk:
+    on the 1,000-frame office walk of docs/colmap.md 0.088 deg mean rotation error against
+    SIFT's 0.008, hence not the default)."""
     max_features: int = 8192
     """SIFT features per image at most."""
     max_corners: int = 5000
