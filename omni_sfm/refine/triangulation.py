@@ -19,7 +19,7 @@ import numpy as np
 
 from omni_sfm.cameras.base import CameraModel
 from omni_sfm.export.colmap import ColmapExport
-from omni_sfm.geometry import FloatArray
+from omni_sfm.geometry import FloatArray, angle_between
 
 
 def angular_resolution_rad(camera: CameraModel) -> float:
@@ -87,7 +87,7 @@ def triangulate_rays(track: np.ndarray, rays: FloatArray, centres: FloatArray,
             ok = (count >= 2) & (ev[:, 0] > 1e-8 * ev[:, 2])
         X[:] = np.nan
         X[ok] = np.linalg.solve(A[ok], rhs[ok][:, :, None])[:, :, 0]
-        err = _angles(X[track] - centres, rays)
+        err = angle_between(X[track] - centres, rays)
         bad = ~(err <= max_error_rad)
         if round_ == rounds or not (bad & on).any():
             break
@@ -95,12 +95,6 @@ def triangulate_rays(track: np.ndarray, rays: FloatArray, centres: FloatArray,
         np.maximum.at(worst, track[on], np.nan_to_num(err[on], nan=np.pi))
         on &= ~(bad & ~(err < 0.5 * worst[track]))
     return X, on & ~bad
-
-
-def _angles(v: FloatArray, rays: FloatArray) -> FloatArray:
-    """``(K,)`` angle (radians) between each ``v`` and its unit ray; NaN where ``v`` is."""
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.arccos(np.clip(np.sum(v * rays, 1) / np.linalg.norm(v, axis=1), -1.0, 1.0))
 
 
 def _repose_outliers(rec: Any, rows: dict[int, np.ndarray], keypoints: dict[int, FloatArray],
@@ -191,7 +185,7 @@ def triangulate_seeded(rec: Any, db_path: Path, image_dir: Path, camera: CameraM
     reposed = _repose_outliers(rec, rows, keypoints, kp, track, X, on)
     for i in reposed:
         place(i)
-    err = _angles(X[track] - centres, rays)
+    err = angle_between(X[track] - centres, rays)
     on = (err <= loose) & _one_per_image(track, image, np.where(err <= loose, err, np.inf))
     X, on2 = triangulate_rays(track[on], rays[on], centres[on], loose)
     keep = np.flatnonzero(on)[on2]
