@@ -79,6 +79,11 @@ def main() -> int:
     p.add_argument("--features", nargs="+", choices=list(FEATURE_SOURCES),
                    default=[RefineOptions().features],
                    help="feature sources to run, one after the other (default: %(default)s)")
+    p.add_argument("--matching", nargs="+", choices=["guided", "colmap"],
+                   default=["guided" if RefineOptions().guided_matching else "colmap"],
+                   help="sift: match along the input poses (guided) or by COLMAP's matcher and "
+                        "verification; each its own database (database_sift.db, "
+                        "database_sift_colmap.db) and output folder")
     p.add_argument("--klt-verify", action="store_true",
                    help="KLT: run COLMAP's geometric verification on the track matches")
     p.add_argument("--versus-colmap", action="store_true",
@@ -148,19 +153,22 @@ def main() -> int:
     before = trajectory_errors(init, gt)
     print(f"input: ATE / path length {100 * before.ate_rel:.4f} %, rotation error mean / max "
           f"{before.rot_mean_deg:.3f} / {before.rot_max_deg:.3f} deg")
-    for features in args.features:
-        database = args.work / f"database_{features}.db"
+    runs = [(f, m) for f in args.features for m in (args.matching if f == "sift" else [""])]
+    for features, matching in runs:
+        tag = features + ("_colmap" if matching == "colmap" else "")
+        database = args.work / f"database_{tag}.db"
         for adjustment in args.adjustment:
             t0 = time.perf_counter()
             res = refine(init_dir, render / "images",
-                         args.work / f"refined_{features}_{adjustment}",
+                         args.work / f"refined_{tag}_{adjustment}",
                          RefineOptions(overlap=args.overlap, features=features,
                                        max_features=args.max_features,
+                                       guided_matching=matching != "colmap",
                                        klt_verify=args.klt_verify, adjustment=adjustment),
                          database=database, overwrite=True, progress=sys.stderr.isatty())
             total = time.perf_counter() - t0
-            _print_run(features, adjustment, res.report, total,
-                       trajectory_errors(res.trajectory, gt), len(init))
+            _print_run(features + (f" ({matching} matching)" if matching else ""), adjustment,
+                       res.report, total, trajectory_errors(res.trajectory, gt), len(init))
             if init_wall is not None and colmap_wall is not None and \
                     res.report["features"]["reused_images"] == 0:
                 both = init_wall + total
@@ -182,6 +190,10 @@ def _print_run(features: str, adjustment: str, r: dict[str, Any], total: float, 
     print(f"features: {f['keypoints']} keypoints{tracks} ({f['reused_images']} images reused "
           f"from the database); matching: {r['matching']['verified_pairs']} verified pairs, "
           f"{r['matching']['inlier_matches']} inlier matches")
+    if "matching_guided" in r:
+        g = r["matching_guided"]
+        print(f"guided matching: {g['written']} of {g['pairs']} pairs written, {g['matches']} "
+              "matches (the rest: COLMAP's matcher)")
     if "joint" in ba:
         j = ba["joint"]
         print(f"joint: {j['line_observations']} line and {j['point_observations']} point "

@@ -49,6 +49,9 @@ def add_parser(sub: Any) -> None:
                         "%(default)s)")
     p.add_argument("--max-features", type=int, default=d.max_features,
                    help="SIFT features per image (default: %(default)s)")
+    p.add_argument("--no-guided-matching", action="store_true",
+                   help="sift: match every pair with COLMAP's matcher and geometric "
+                        "verification instead of along the input poses' epipolar geometry")
     p.add_argument("--max-corners", type=int, default=d.max_corners,
                    help="KLT corners tracked at most (default: %(default)s)")
     p.add_argument("--no-mapper", action="store_true",
@@ -73,6 +76,7 @@ def run(args: argparse.Namespace) -> int:
                                f"{getattr(args, key)}")
     opts = RefineOptions(features=args.features, overlap=args.overlap,
                          max_features=args.max_features, max_corners=args.max_corners,
+                         guided_matching=not args.no_guided_matching,
                          register_missing=not args.no_mapper, num_threads=args.threads,
                          text=args.text, adjustment=args.adjustment)
     res = refine(args.input, args.images, args.output, opts, database=args.database,

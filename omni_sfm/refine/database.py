@@ -1,7 +1,9 @@
 """COLMAP's side of refinement before any geometry: the images COLMAP sees, the database, and
 the point evidence in it, from one of two feature sources:
 
-- ``sift``: SIFT features with the camera's valid mask and sequential matching, both pycolmap's;
+- ``sift``: SIFT features with the camera's valid mask (pycolmap's); pairs of posed frames
+  matched along their epipolar geometry (:mod:`omni_sfm.refine.guided`, :func:`match_guided`),
+  the other pairs by pycolmap's sequential matching;
 - ``klt``: corners tracked through the ordered frames (:mod:`omni_sfm.corners`), written as
   keypoints (no descriptors) and, for every pair of COLMAP's sequential matching, the corners
   on a common track as matches, written as the pair's inlier matches too (or verified by
@@ -14,17 +16,22 @@ are not matched again; a database holds the features of one source only
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterator, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from omni_sfm.cameras.base import ColmapExport
+from omni_sfm.cameras.base import CameraModel, ColmapExport
 from omni_sfm.corners import CornerTrackOptions, CornerTracks, track_corners
 from omni_sfm.errors import OmniSfmError
+from omni_sfm.geometry import angle_between
 from omni_sfm.lines.video import FrameStore
+from omni_sfm.poses import Trajectory
+from omni_sfm.refine.guided import FrameKeypoints, GuidedMatchOptions, match_pair
 
 FEATURE_SOURCES = ("klt", "sift")
 """Where refine's point evidence comes from (:class:`omni_sfm.refine.RefineOptions`)."""
@@ -189,6 +196,113 @@ def match_sequential(database: Path, *, overlap: int, num_threads: int,
                               device=pycolmap.Device.cpu, **extra)
     with pycolmap.Database.open(str(database)) as db:
         return Matches(int(db.num_verified_image_pairs()), int(db.num_inlier_matches()))
+
+
+@dataclass(frozen=True)
+class GuidedMatches:
+    """What guided matching did.
+
+    Attributes:
+        pairs: pairs of posed frames matched (pairs matched before are skipped).
+        written: pairs with at least ``min_matches`` matches, written as verified; the others
+            are left to COLMAP's matcher.
+        matches: matches written.
+    """
+
+    pairs: int
+    written: int
+    matches: int
+
+
+def _frame_keypoints(db: Any, image_id: int, camera: CameraModel,
+                     export: ColmapExport) -> FrameKeypoints:
+    """An image's keypoints as rays of ``camera`` with their pixel size, and descriptors."""
+    kp = np.asarray(db.read_keypoints(image_id), float)[:, :2]
+    desc = np.asarray(db.read_descriptors(image_id).data)
+    uv = export.pixels_from_colmap(kp) if len(kp) else np.zeros((0, 2))
+    rays = camera.rays_from_pixels(uv)
+    pixel = np.maximum(angle_between(rays, camera.rays_from_pixels(uv + [1.0, 0.0])),
+                       angle_between(rays, camera.rays_from_pixels(uv + [0.0, 1.0])))
+    return FrameKeypoints.build(rays, pixel, desc)
+
+
+def match_guided(database: Path, names: Sequence[str], trajectory: Trajectory,
+                 trajectory_names: Sequence[str], camera: CameraModel, export: ColmapExport,
+                 *, overlap: int, options: GuidedMatchOptions | None = None,
+                 min_matches: int = 15, num_threads: int = 1, progress: bool = False
+                 ) -> GuidedMatches:
+    """SIFT matches of the pairs of COLMAP's sequential matching (``names`` in name order, as
+    COLMAP orders them; :func:`sequential_pairs`) whose two frames ``trajectory`` poses (row k
+    is ``trajectory_names[k]``), found along the pair's epipolar geometry
+    (:func:`omni_sfm.refine.guided.match_pair`). A pair with at least ``min_matches`` matches
+    is written with them as its matches and its verified (calibrated) two-view geometry, the
+    relative pose the trajectory's; a pair with fewer is not written, so that COLMAP's own
+    matcher (:func:`match_sequential`) tries it. Pairs the database has matched already are
+    skipped. Frames are read as the pairs need them (at most ``2**(overlap-1)`` frames ahead
+    held), the pairs matched on ``num_threads`` threads (results independent of it)."""
+    import pycolmap
+    from tqdm import tqdm
+
+    order = sorted(names)
+    row = {n: k for k, n in enumerate(trajectory_names)}
+    colmap_from_cam = export.colmap_cam_from_cam
+    threads = max(1, num_threads if num_threads > 0 else (os.cpu_count() or 1))
+
+    def relative(pair: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+        """Rotation b_from_a of the pair's cameras and b's centre in a's camera frame."""
+        a, b = (row[order[k]] for k in pair)
+        world_from_a, world_from_b = trajectory.rotations[a], trajectory.rotations[b]
+        return (world_from_b.T @ world_from_a,
+                world_from_a.T @ (trajectory.positions[b] - trajectory.positions[a]))
+    with pycolmap.Database.open(str(database)) as db:
+        ids = _image_ids(db, order)
+        todo = [(i, j) for i, j in sequential_pairs(len(order), overlap)
+                if order[i] in row and order[j] in row
+                and not db.exists_matches(ids[i], ids[j])]
+        held: dict[int, FrameKeypoints] = {}
+        written = matches = 0
+        with ThreadPoolExecutor(threads) as pool, tqdm(
+                total=len(todo), desc="refine: guided matching", unit="pair",
+                disable=None if progress else True, leave=False) as bar:
+            step = 16 * threads
+            for s in range(0, len(todo), step):
+                batch = todo[s:s + step]
+                for k in sorted({k for pair in batch for k in pair} - set(held)):
+                    held[k] = _frame_keypoints(db, ids[k], camera, export)
+
+                def one(pair: tuple[int, int]) -> np.ndarray:
+                    return match_pair(held[pair[0]], held[pair[1]], *relative(pair), options)
+
+                with pycolmap.DatabaseTransaction(db):
+                    for (i, j), m in zip(batch, pool.map(one, batch), strict=True):
+                        if len(m) >= min_matches:
+                            b_from_a, baseline = relative((i, j))
+                            _write_guided(db, ids[i], ids[j], m.astype(np.uint32),
+                                          colmap_from_cam @ b_from_a @ colmap_from_cam.T,
+                                          -colmap_from_cam @ b_from_a @ baseline)
+                            written += 1
+                            matches += len(m)
+                        bar.update()
+                first = todo[s + step][0] if s + step < len(todo) else len(order)
+                for k in [k for k in held if k < first]:
+                    del held[k]
+    return GuidedMatches(len(todo), written, matches)
+
+
+def _write_guided(db: Any, id1: int, id2: int, matches: np.ndarray,
+                  cam2_from_cam1_rotation: np.ndarray, cam2_from_cam1_translation: np.ndarray
+                  ) -> None:
+    """Matches of images ``id1``, ``id2`` written as their matches and inlier matches, with
+    the calibrated relative pose (COLMAP's camera frames; translation made unit)."""
+    import pycolmap
+
+    t = np.asarray(cam2_from_cam1_translation, float)
+    norm = float(np.linalg.norm(t))
+    db.write_matches(id1, id2, matches)
+    db.write_two_view_geometry(id1, id2, pycolmap.TwoViewGeometry(
+        config=pycolmap.TwoViewGeometryConfiguration.CALIBRATED, inlier_matches=matches,
+        cam2_from_cam1=pycolmap.Rigid3d(pycolmap.Rotation3d(cam2_from_cam1_rotation),
+                                        t / norm if norm > 0 else t)))
 
 
 def _image_ids(db: Any, names: Sequence[str]) -> list[int]:
