@@ -110,6 +110,10 @@ def test_refine_improves_a_perturbed_seed_on_a_textured_room(room_refined):
     assert ba[-1]["mean_reprojection_error_after_px"] < ba[0]["mean_reprojection_error_before_px"]
     assert r["model"]["mean_reprojection_error_px"] < 1.0
     assert set(r["timings_s"]) >= {"features", "matching", "triangulation", "bundle adjustment"}
+    # pairs of seeded frames were matched along their poses, the mapper's frames by COLMAP
+    g = r["matching_guided"]
+    assert g["written"] >= 0.8 * g["pairs"] > 0 and g["matches"] > 100 * g["written"]
+    assert r["matching"]["verified_pairs"] > g["written"]
 
 
 def test_a_missed_frame_the_mapper_cannot_register_is_listed(room, tmp_path):
@@ -156,10 +160,12 @@ def test_cli_reuses_the_features_of_a_database(room, room_refined, tmp_path, cap
     stored = _keypoints_in_database(db)
     init = write_perturbed_init(room, tmp_path / "init", seed=2)
     rc = main(["refine", "--input", str(tmp_path / "init"), "--images", str(room / "images"),
-               "--output", str(tmp_path / "out"), "--database", str(db), "--overlap", "5"])
+               "--output", str(tmp_path / "out"), "--database", str(db), "--overlap", "5",
+               "--no-guided-matching"])
     assert rc == 0
     assert "refined" in capsys.readouterr().out
     report = read_json(tmp_path / "out" / "report.json")
+    assert "matching_guided" not in report and not report["options"]["guided_matching"]
     # the keypoints reported are those the database held, none added
     assert stored > 100 * len(gt)
     assert report["features"] == {"source": "sift", "extracted_images": 0,

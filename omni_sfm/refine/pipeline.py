@@ -130,9 +130,10 @@ class RefineOptions:
     """SIFT features per image at most."""
     guided_matching: bool = True
     """SIFT: match each pair of frames the input poses along its epipolar geometry (omni-sfm's
-    guided matcher, no RANSAC: 3x faster than COLMAP's matching and verification on the
-    120-frame room of docs/colmap.md, with 8 % more matches); off, or for pairs with a frame
-    the input does not pose or with too few guided matches, COLMAP's matcher."""
+    guided matcher, no RANSAC; 2.5-3x faster than COLMAP's matching and verification on the
+    120-frame room of docs/colmap.md, with 8 % more matches and the same refined result);
+    off, or for pairs with a frame the input does not pose or with too few guided matches,
+    COLMAP's matcher."""
     max_corners: int = 5000
     """KLT: corners tracked at most (new ones are added in every frame up to this)."""
     klt_verify: bool = False
