@@ -16,8 +16,11 @@ Without ``--init`` the seed is the ground truth with realistic errors (0.3 deg r
 (e.g. from ``omni-sfm init``) of the same frames is refined instead. The rendering is reused when
 ``WORK/render`` exists. ``--features`` names the feature sources to compare (default: the
 default source only); they run back to back on the same render and seed, each with a fresh
-database, into ``WORK/refined_<source>``. The room is rendered with texture, the corridor
-without (texture-poor). ATE is after a similarity alignment, relative to the path length.
+database, into ``WORK/refined_<source>``. ``--matching guided colmap`` runs the SIFT refinement
+with both matchers (guided along the input poses, the default; COLMAP's matcher), each with its
+own database and output folder (``WORK/database_sift_colmap.db``,
+``WORK/refined_sift_colmap_*``). The room is rendered with texture, the corridor without
+(texture-poor). ATE is after a similarity alignment, relative to the path length.
 
 ``--versus-colmap`` compares the whole line-based chain with COLMAP's own incremental SfM in one
 run: ``omni-sfm init --lines`` (a fresh process, timed) seeds the refinement instead of the
