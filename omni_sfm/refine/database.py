@@ -16,9 +16,7 @@ are not matched again; a database holds the features of one source only
 
 from __future__ import annotations
 
-import os
 from collections.abc import Iterator, Sequence
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -229,8 +227,7 @@ def _frame_keypoints(db: Any, image_id: int, camera: CameraModel,
 def match_guided(database: Path, names: Sequence[str], trajectory: Trajectory,
                  trajectory_names: Sequence[str], camera: CameraModel, export: ColmapExport,
                  *, overlap: int, options: GuidedMatchOptions | None = None,
-                 min_matches: int = 15, num_threads: int = 1, progress: bool = False
-                 ) -> GuidedMatches:
+                 min_matches: int = 15, progress: bool = False) -> GuidedMatches:
     """SIFT matches of the pairs of COLMAP's sequential matching (``names`` in name order, as
     COLMAP orders them; :func:`sequential_pairs`) whose two frames ``trajectory`` poses (row k
     is ``trajectory_names[k]``), found along the pair's epipolar geometry
@@ -239,14 +236,14 @@ def match_guided(database: Path, names: Sequence[str], trajectory: Trajectory,
     relative pose the trajectory's; a pair with fewer is not written, so that COLMAP's own
     matcher (:func:`match_sequential`) tries it. Pairs the database has matched already are
     skipped. Frames are read as the pairs need them (at most ``2**(overlap-1)`` frames ahead
-    held), the pairs matched on ``num_threads`` threads (results independent of it)."""
+    held). One thread (numpy's BLAS may use more): two threads over the pairs were no faster
+    on 2 CPUs (docs/colmap.md)."""
     import pycolmap
     from tqdm import tqdm
 
     order = sorted(names)
     row = {n: k for k, n in enumerate(trajectory_names)}
     colmap_from_cam = export.colmap_cam_from_cam
-    threads = max(1, num_threads if num_threads > 0 else (os.cpu_count() or 1))
 
     def relative(pair: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
         """Rotation b_from_a of the pair's cameras and b's centre in a's camera frame."""
@@ -261,22 +258,18 @@ def match_guided(database: Path, names: Sequence[str], trajectory: Trajectory,
                 and not db.exists_matches(ids[i], ids[j])]
         held: dict[int, FrameKeypoints] = {}
         written = matches = 0
-        with ThreadPoolExecutor(threads) as pool, tqdm(
-                total=len(todo), desc="refine: guided matching", unit="pair",
-                disable=None if progress else True, leave=False) as bar:
-            step = 16 * threads
+        with tqdm(total=len(todo), desc="refine: guided matching", unit="pair",
+                  disable=None if progress else True, leave=False) as bar:
+            step = 32
             for s in range(0, len(todo), step):
                 batch = todo[s:s + step]
                 for k in sorted({k for pair in batch for k in pair} - set(held)):
                     held[k] = _frame_keypoints(db, ids[k], camera, export)
-
-                def one(pair: tuple[int, int]) -> np.ndarray:
-                    return match_pair(held[pair[0]], held[pair[1]], *relative(pair), options)
-
                 with pycolmap.DatabaseTransaction(db):
-                    for (i, j), m in zip(batch, pool.map(one, batch), strict=True):
+                    for i, j in batch:
+                        b_from_a, baseline = relative((i, j))
+                        m = match_pair(held[i], held[j], b_from_a, baseline, options)
                         if len(m) >= min_matches:
-                            b_from_a, baseline = relative((i, j))
                             _write_guided(db, ids[i], ids[j], m.astype(np.uint32),
                                           colmap_from_cam @ b_from_a @ colmap_from_cam.T,
                                           -colmap_from_cam @ b_from_a @ baseline)

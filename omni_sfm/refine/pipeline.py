@@ -488,7 +488,7 @@ class _Run:
                 if o.guided_matching:
                     guided = match_guided(db, names, init.trajectory, init.image_names,
                                           camera, export, overlap=o.overlap,
-                                          num_threads=o.num_threads, progress=self.progress)
+                                          progress=self.progress)
                     report["matching_guided"] = asdict(guided)
                 matches = match_sequential(db, overlap=o.overlap, num_threads=o.num_threads)
         report["matching"] = {"verified_pairs": matches.verified_pairs,
