@@ -251,6 +251,7 @@ def match_guided(database: Path, names: Sequence[str], trajectory: Trajectory,
         world_from_a, world_from_b = trajectory.rotations[a], trajectory.rotations[b]
         return (world_from_b.T @ world_from_a,
                 world_from_a.T @ (trajectory.positions[b] - trajectory.positions[a]))
+
     with pycolmap.Database.open(str(database)) as db:
         ids = _image_ids(db, order)
         todo = [(i, j) for i, j in sequential_pairs(len(order), overlap)

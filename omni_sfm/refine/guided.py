@@ -96,22 +96,14 @@ class FrameKeypoints:
 
 
 def _top2(values: np.ndarray, axis: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Best value, its index and second best value along ``axis`` of a 2-D array."""
-    arg = np.argmax(values, axis=axis)
-    if axis == 1:
-        rows = np.arange(values.shape[0])
-        best = values[rows, arg]
-        saved = values[rows, arg].copy()
-        values[rows, arg] = _NONE
-        second = values.max(axis=1)
-        values[rows, arg] = saved
-    else:
-        cols = np.arange(values.shape[1])
-        best = values[arg, cols]
-        saved = best.copy()
-        values[arg, cols] = _NONE
-        second = values.max(axis=0)
-        values[arg, cols] = saved
+    """Best value, its index and second best value along ``axis`` of a 2-D array (restored)."""
+    v = values if axis == 1 else values.T  # a view: rows of v are the lines along ``axis``
+    rows = np.arange(v.shape[0])
+    arg = np.argmax(v, axis=1)
+    best = v[rows, arg].copy()
+    v[rows, arg] = _NONE
+    second = v.max(axis=1)
+    v[rows, arg] = best
     return best, arg, second
 
 
@@ -197,8 +189,8 @@ def match_pair(a: FrameKeypoints, b: FrameKeypoints, b_from_a_rotation: FloatArr
     # the arc: b's ray no nearer the pole than a's, z_j - delta_j <= z_i + delta_i
     zb_low = (zb - delta_b).astype(f32)
     za_high = (za + delta_a).astype(f32)
-    za_low = (za - delta_a).astype(f32)
-    zb_high = (zb + delta_b).astype(f32)
+    if not moved:  # and no farther: the same ray
+        za_low, zb_high = (za - delta_a).astype(f32), (zb + delta_b).astype(f32)
     ext = []
     for cols in bins:
         if len(cols) == 0:
