@@ -345,11 +345,64 @@ def test_the_robust_rounds_stop_when_the_cameras_stand_still() -> None:
     obs, X0 = _with_degenerate_points(sim, obs, X0, 3)
     res = joint_adjust(sim.tracks, R, c, d, p, obs, X0)
     full = joint_adjust(sim.tracks, R, c, d, p, obs, X0,
-                        options=JointOptions(robust_pose_tolerance=0.0))
+                        options=JointOptions(robust_pose_tolerance=0.0,
+                                             robust_step_tolerance=0.0))
     assert res.iterations <= full.iterations - 3
     assert np.abs(res.positions - full.positions).max() < 1e-5
     assert _rot_err(res.rotations, res.positions, sim) == pytest.approx(
         _rot_err(full.rotations, full.positions, sim), rel=0.02)
+
+
+def test_a_solve_stops_when_its_step_is_small_against_the_cameras_uncertainty() -> None:
+    # a step that moves the cameras by a fifth of their standard deviation ends the solve
+    # (half of it in the robust rounds): fewer iterations, the same cameras
+    sim, obs, X = _scene(3, 0.1, 0.1)
+    R, c, d, p, X0 = _perturbed(sim, X, 3)
+    obs, X0 = _with_degenerate_points(sim, obs, X0, 3)
+    res = joint_adjust(sim.tracks, R, c, d, p, obs, X0)
+    full = joint_adjust(sim.tracks, R, c, d, p, obs, X0,
+                        options=JointOptions(step_tolerance=0.0, robust_step_tolerance=0.0))
+    assert res.iterations <= full.iterations - 3
+    assert np.abs(res.positions - full.positions).max() < 1e-5
+    assert _rot_err(res.rotations, res.positions, sim) == pytest.approx(
+        _rot_err(full.rotations, full.positions, sim), rel=0.02)
+    with pytest.raises(OmniSfmError, match="robust_step_tolerance"):
+        JointOptions(robust_step_tolerance=-0.5)
+
+
+@pytest.mark.parametrize("iterative", [False, True])
+def test_the_step_distance_is_the_cameras_step_in_their_information(iterative: bool) -> None:
+    # sqrt(dp^T S dp), S the cameras' information with the landmarks eliminated: the length
+    # of the residuals' change when the cameras take the step and every landmark follows as
+    # best it can (least squares on the whole Jacobian, formed densely here)
+    from omni_sfm.estimate.bundle import LineProblem
+    from omni_sfm.refine.joint import _JointProblem
+
+    sim, obs, X = _long_scene(14, 0.1, num_views=30, num_points=40)
+    R, c, d, p, X0 = _perturbed(sim, X, 14)
+    F, M, P = len(R), sim.tracks.num_tracks, obs.num_points
+    lp = LineProblem(sim.tracks, np.ones(F, bool), np.ones(M, bool), 0, F - 1, 0)
+    opts = JointOptions(iterative_above=20, window_frames=10, cg_tolerance=1e-12) \
+        if iterative else JointOptions(iterative_above=10**9)
+    prob = _JointProblem(lp, obs, np.ones(len(obs.frame), bool), 0.002, 0.002, options=opts)
+    e, aux = prob.residuals(R, c, d, p, X0)
+    Jpl, Jl, Jpp, Jx = prob.jacobian(R, c, d, p, X0, aux)
+    dp, _ = prob.solve(prob.normal_equations(Jpl, Jl, Jpp, Jx, e, np.ones(len(e))), 1e-12)
+    Kl, Kp = len(Jpl), len(Jpp)
+    Ap = np.zeros((2 * (Kl + Kp), 6 * F))
+    Al = np.zeros((2 * (Kl + Kp), 4 * M + 3 * P))
+    for k in range(Kl):
+        f, t = prob.lines.f[k], prob.lines.t[k]
+        Ap[2 * k:2 * k + 2, 6 * f:6 * f + 6] = Jpl[k]
+        Al[2 * k:2 * k + 2, 4 * t:4 * t + 4] = Jl[k] * prob.lines.line_free[t]
+    for k in range(Kp):
+        r, f, j = 2 * (Kl + k), prob.f[k], prob.j[k]
+        Ap[r:r + 2, 6 * f:6 * f + 6] = Jpp[k]
+        Al[r:r + 2, 4 * M + 3 * j:4 * M + 3 * j + 3] = Jx[k]
+    change = Ap @ dp.ravel()
+    follow = np.linalg.lstsq(Al, -change, rcond=None)[0]
+    assert prob.step_distance() == pytest.approx(np.linalg.norm(change + Al @ follow), rel=1e-4)
+    assert prob.step_distance() > 0.0
 
 
 def test_the_iterative_step_is_the_factored_step() -> None:
@@ -397,7 +450,7 @@ def _with_degenerate_points(sim: Simulation, obs: PointObservations, X0: np.ndar
             np.concatenate([X0, start]))
 
 
-@pytest.mark.parametrize(("seed", "safeguard"), [(2, "landmark damping"), (7, "pose stop")])
+@pytest.mark.parametrize(("seed", "safeguard"), [(2, "landmark damping"), (7, "camera stops")])
 def test_a_few_degenerate_points_do_not_stall_the_adjustment(
         monkeypatch: pytest.MonkeyPatch, seed: int, safeguard: str) -> None:
     # Points the data barely fix take steps far outside the linear model (seed 2: rejected
@@ -420,7 +473,8 @@ def test_a_few_degenerate_points_do_not_stall_the_adjustment(
         monkeypatch.setattr("omni_sfm.refine.joint._JointProblem.damp_landmarks",
                             lambda self, increase: False)
     else:
-        options = JointOptions(pose_tolerance=0.0, robust_pose_tolerance=0.0)
+        options = JointOptions(pose_tolerance=0.0, robust_pose_tolerance=0.0,
+                               step_tolerance=0.0, robust_step_tolerance=0.0)
     crawl = joint_adjust(sim.tracks, R, c, d, p, obs_d, X0_d, options=options)
     assert crawl.iterations > 1.5 * res.iterations
 

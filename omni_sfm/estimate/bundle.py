@@ -583,19 +583,37 @@ class LandmarkDamping(Protocol):
         ...
 
 
+@runtime_checkable
+class StepDistance(Protocol):
+    """What a problem may add so that :func:`levenberg_marquardt` stops on a step's size in
+    the cameras' own uncertainty: the data decide when the cameras no longer move, however
+    many there are and however long the walk."""
+
+    def step_distance(self) -> float:
+        """The last solved step of the cameras in their standard deviations: ``sqrt(dp^T S
+        dp)``, ``S`` the cameras' information with every landmark eliminated (the system that
+        the step solved). No camera, nor any combination of cameras, moved by more than this
+        many of its standard deviations."""
+        ...
+
+
 S = TypeVar("S", bound=tuple[Any, ...])
 
 
 def levenberg_marquardt(prob: LMProblem, state: S, loss: RobustLoss, scale: float,
                         max_iterations: int, tolerance: float,
-                        pose_tolerance: tuple[float, float] | None = None) -> tuple[S, int]:
+                        pose_tolerance: tuple[float, float] | None = None,
+                        step_tolerance: float | None = None) -> tuple[S, int]:
     """Levenberg-Marquardt on ``prob`` from ``state`` with robust ``loss`` at ``scale``
     (residual units), IRLS weights from the current residuals; stops after ``max_iterations``,
     when the relative decrease of the cost falls below ``tolerance``, when a step with almost
     no damping (at most 1e-8: soft modes, such as a long walk's drift, are not held back) moves
     no camera by more than ``pose_tolerance`` (radians, units of length: that step is about
-    the distance left to the minimum), or when no damping finds a lower cost. A problem that
-    is also a :class:`LandmarkDamping` gets a rejected step whose cost increase sits in a few
+    the distance left to the minimum), when a step damped by at most 1e-7 moves the cameras
+    of a :class:`StepDistance` problem by no more than ``step_tolerance`` of their standard
+    deviations (damping shortens the step most along the modes the data fix least, which
+    the distance weighs least), or when no damping finds a lower cost. A problem that is
+    also a :class:`LandmarkDamping` gets a rejected step whose cost increase sits in a few
     landmarks tried again with those damped, the damping of the rest unchanged. Returns the
     state and the iterations run."""
     def cost_of(e: FloatArray) -> tuple[float, FloatArray, FloatArray]:
@@ -631,14 +649,17 @@ def levenberg_marquardt(prob: LMProblem, state: S, loss: RobustLoss, scale: floa
             break
         rel = (cost - new_cost) / max(cost, 1e-300)
         state, e, u, cost, w, rho = new_state, e_new, u_new, new_cost, w_new, rho_new
-        lam = max(lam / 10.0, 1e-12)
+        step_lam, lam = lam, max(lam / 10.0, 1e-12)
         if local is not None:
             local.relax_landmarks()
         # the cameras no longer move (what is left is a landmark creeping along a direction
         # the data barely fix, such as a point towards infinity along its nearly parallel rays)
-        still = pose_tolerance is not None and lam <= 1e-8 and \
+        # (the damping is a power of ten to round-off: 1.5 of one is between two)
+        still = step_lam <= 1.5e-8 and pose_tolerance is not None and \
             float(np.abs(dpose[:, :3]).max(initial=0.0)) <= pose_tolerance[0] and \
             float(np.abs(dpose[:, 3:]).max(initial=0.0)) <= pose_tolerance[1]
+        still |= step_lam <= 1.5e-7 and step_tolerance is not None and \
+            isinstance(prob, StepDistance) and prob.step_distance() <= step_tolerance
         if rel < tolerance or cost <= 1e-300 or still:
             break
     return state, it
