@@ -148,13 +148,12 @@ def triangulate_seeded(rec: Any, db_path: Path, image_dir: Path, camera: CameraM
     import pycolmap
 
     with pycolmap.Database.open(str(db_path)) as db:
-        cache = pycolmap.DatabaseCache.create(db, pycolmap.DatabaseCacheOptions())
         pair_ids, geoms = db.read_two_view_geometries()
         posed = sorted(i for i in rec.images if rec.images[i].has_pose)
         keypoints = {i: np.asarray(db.read_keypoints(i), float)[:, :2] for i in posed}
-    mapper = pycolmap.IncrementalMapper(cache)  # gives the seeded images their keypoints
-    mapper.begin_reconstruction(rec)
-    mapper.end_reconstruction(False)
+    for i in posed:  # the seeded images' keypoints, as COLMAP's mapper would load them
+        if rec.images[i].num_points2D() == 0:
+            rec.images[i].points2D = pycolmap.Image(keypoints=keypoints[i]).points2D
     inside = set(posed)
     pairs = []
     for pair_id, g in zip(pair_ids, geoms, strict=True):
