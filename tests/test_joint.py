@@ -370,6 +370,23 @@ def test_a_solve_stops_when_its_step_is_small_against_the_cameras_uncertainty() 
         JointOptions(robust_step_tolerance=-0.5)
 
 
+@pytest.mark.parametrize("seed", [2, 5])
+def test_solves_after_the_first_start_with_little_damping(seed: int) -> None:
+    # each solve after the first starts at the minimum of the one before: Gauss-Newton's step
+    # at once instead of climbing down from the first solve's damping; the same cameras
+    sim, obs, X = _long_scene(seed, 0.1)
+    R, c, d, p, X0 = _perturbed(sim, X, seed)
+    warm = joint_adjust(sim.tracks, R, c, d, p, obs, X0)
+    cold = joint_adjust(sim.tracks, R, c, d, p, obs, X0,
+                        options=JointOptions(warm_damping=1e-4))
+    assert warm.iterations <= cold.iterations - 3
+    assert np.abs(warm.positions - cold.positions).max() < 1e-5
+    assert _rot_err(warm.rotations, warm.positions, sim) == pytest.approx(
+        _rot_err(cold.rotations, cold.positions, sim), rel=0.01)
+    with pytest.raises(OmniSfmError, match="warm_damping"):
+        JointOptions(warm_damping=0.0)
+
+
 @pytest.mark.parametrize("iterative", [False, True])
 def test_the_step_distance_is_the_cameras_step_in_their_information(iterative: bool) -> None:
     # sqrt(dp^T S dp), S the cameras' information with the landmarks eliminated: the length

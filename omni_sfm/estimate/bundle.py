@@ -603,7 +603,8 @@ S = TypeVar("S", bound=tuple[Any, ...])
 def levenberg_marquardt(prob: LMProblem, state: S, loss: RobustLoss, scale: float,
                         max_iterations: int, tolerance: float,
                         pose_tolerance: tuple[float, float] | None = None,
-                        step_tolerance: float | None = None) -> tuple[S, int]:
+                        step_tolerance: float | None = None,
+                        damping: float = 1e-4) -> tuple[S, int]:
     """Levenberg-Marquardt on ``prob`` from ``state`` with robust ``loss`` at ``scale``
     (residual units), IRLS weights from the current residuals; stops after ``max_iterations``,
     when the relative decrease of the cost falls below ``tolerance``, when a step with almost
@@ -614,8 +615,9 @@ def levenberg_marquardt(prob: LMProblem, state: S, loss: RobustLoss, scale: floa
     deviations (damping shortens the step most along the modes the data fix least, which
     the distance weighs least), or when no damping finds a lower cost. A problem that is
     also a :class:`LandmarkDamping` gets a rejected step whose cost increase sits in a few
-    landmarks tried again with those damped, the damping of the rest unchanged. Returns the
-    state and the iterations run."""
+    landmarks tried again with those damped, the damping of the rest unchanged. ``damping``:
+    the first step's (a start near the minimum can take a lower one). Returns the state and
+    the iterations run."""
     def cost_of(e: FloatArray) -> tuple[float, FloatArray, FloatArray]:
         """The cost of residuals ``e``, their IRLS weights (for the step from there) and each
         residual's cost."""
@@ -625,7 +627,7 @@ def levenberg_marquardt(prob: LMProblem, state: S, loss: RobustLoss, scale: floa
     local = prob if isinstance(prob, LandmarkDamping) else None
     e, u = prob.residuals(*state)
     cost, w, rho = cost_of(e)
-    lam = 1e-4
+    lam = damping
     it = 0
     for it in range(1, max_iterations + 1):  # noqa: B007
         blocks: Any = prob.normal_equations(*prob.jacobian(*state, u), e, w)

@@ -185,6 +185,15 @@ class JointOptions:
     (docs/colmap.md). 0: off."""
     robust_step_tolerance: float = 0.5
     """:attr:`step_tolerance` of the robust rounds. 0: off."""
+    warm_damping: float = 1e-6
+    """The damping that each solve after the first starts with (the first: 1e-4). Each starts
+    at the minimum of the one before, which only its new weights and inliers move, so a step
+    close to Gauss-Newton's is taken at once; Levenberg-Marquardt raises the damping if it
+    is not. On the office walk's triangulated models (SIFT) the adjustment ran 14 iterations
+    instead of 18 at 300 frames and 17 instead of 19 at 1,000, with the same result, and the
+    conjugate gradients' preconditioner, built at the solve's first step, serves the
+    lower-damped steps after it better (22 iterations a final step at 1,000 frames instead of
+    28)."""
     robust_cg_tolerance: float = 1e-3
     """The same in the robust rounds, which only need to come near the minimum to judge the
     observations (on the 1,000-frame walk: 4.3 instead of 5.9 s a step, the same result)."""
@@ -195,6 +204,9 @@ class JointOptions:
             if not getattr(self, name) >= 0.0:
                 raise OmniSfmError(f"joint adjustment: {name} must be >= 0, not "
                                    f"{getattr(self, name)}")
+        if not 0.0 < self.warm_damping <= 1.0:
+            raise OmniSfmError("joint adjustment: warm_damping must be in (0, 1], not "
+                               f"{self.warm_damping}")
         if self.preconditioner_reuse < 1:
             raise OmniSfmError("joint adjustment: preconditioner_reuse must be >= 1, not "
                                f"{self.preconditioner_reuse}")
@@ -885,7 +897,8 @@ def joint_adjust(lines: LineTracks, rotations: FloatArray, positions: FloatArray
         state, it = levenberg_marquardt(
             prob, state, RobustLoss.LINEAR if final else RobustLoss.HUBER, options.loss_scale,
             options.max_iterations if final else options.robust_iterations,
-            options.tolerance if final else 1e-6, (tol, tol * extent), step_tol or None)
+            options.tolerance if final else 1e-6, (tol, tol * extent), step_tol or None,
+            1e-4 if round_ == 0 else options.warm_damping)
         iterations += it
     al, ap = angles(prob)
     info = _frame_information(prob, state)
