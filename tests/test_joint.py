@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -336,36 +337,41 @@ def test_window_options_are_checked() -> None:
         JointOptions(robust_pose_tolerance=float("nan"))
 
 
+def _degenerate_scene() -> tuple[Simulation, tuple[Any, ...]]:
+    """A simulated scene with barely fixed points, and joint_adjust's arguments for it."""
+    sim, obs, X = _scene(3, 0.1, 0.1)
+    R, c, d, p, X0 = _perturbed(sim, X, 3)
+    obs, X0 = _with_degenerate_points(sim, obs, X0, 3)
+    return sim, (sim.tracks, R, c, d, p, obs, X0)
+
+
+def _fewer_iterations_same_cameras(sim: Simulation, args: tuple[Any, ...],
+                                   without: JointOptions, rel: float) -> None:
+    """The default adjustment against one ``without`` a rule: at least 3 fewer iterations,
+    the same cameras."""
+    res = joint_adjust(*args)
+    full = joint_adjust(*args, options=without)
+    assert res.iterations <= full.iterations - 3
+    assert np.abs(res.positions - full.positions).max() < 1e-5
+    assert _rot_err(res.rotations, res.positions, sim) == pytest.approx(
+        _rot_err(full.rotations, full.positions, sim), rel=rel)
+
+
 def test_the_robust_rounds_stop_when_the_cameras_stand_still() -> None:
     # the robust rounds only judge the observations: once the cameras no longer move they
     # stop (here while a few barely fixed points still creep), and the final round ends where
     # it would have
-    sim, obs, X = _scene(3, 0.1, 0.1)
-    R, c, d, p, X0 = _perturbed(sim, X, 3)
-    obs, X0 = _with_degenerate_points(sim, obs, X0, 3)
-    res = joint_adjust(sim.tracks, R, c, d, p, obs, X0)
-    full = joint_adjust(sim.tracks, R, c, d, p, obs, X0,
-                        options=JointOptions(robust_pose_tolerance=0.0,
-                                             robust_step_tolerance=0.0))
-    assert res.iterations <= full.iterations - 3
-    assert np.abs(res.positions - full.positions).max() < 1e-5
-    assert _rot_err(res.rotations, res.positions, sim) == pytest.approx(
-        _rot_err(full.rotations, full.positions, sim), rel=0.02)
+    sim, args = _degenerate_scene()
+    _fewer_iterations_same_cameras(sim, args, JointOptions(robust_pose_tolerance=0.0,
+                                                           robust_step_tolerance=0.0), 0.02)
 
 
 def test_a_solve_stops_when_its_step_is_small_against_the_cameras_uncertainty() -> None:
     # a step that moves the cameras by a fifth of their standard deviation ends the solve
     # (half of it in the robust rounds): fewer iterations, the same cameras
-    sim, obs, X = _scene(3, 0.1, 0.1)
-    R, c, d, p, X0 = _perturbed(sim, X, 3)
-    obs, X0 = _with_degenerate_points(sim, obs, X0, 3)
-    res = joint_adjust(sim.tracks, R, c, d, p, obs, X0)
-    full = joint_adjust(sim.tracks, R, c, d, p, obs, X0,
-                        options=JointOptions(step_tolerance=0.0, robust_step_tolerance=0.0))
-    assert res.iterations <= full.iterations - 3
-    assert np.abs(res.positions - full.positions).max() < 1e-5
-    assert _rot_err(res.rotations, res.positions, sim) == pytest.approx(
-        _rot_err(full.rotations, full.positions, sim), rel=0.02)
+    sim, args = _degenerate_scene()
+    _fewer_iterations_same_cameras(
+        sim, args, JointOptions(step_tolerance=0.0, robust_step_tolerance=0.0), 0.02)
     with pytest.raises(OmniSfmError, match="robust_step_tolerance"):
         JointOptions(robust_step_tolerance=-0.5)
 
@@ -376,13 +382,8 @@ def test_solves_after_the_first_start_with_little_damping(seed: int) -> None:
     # at once instead of climbing down from the first solve's damping; the same cameras
     sim, obs, X = _long_scene(seed, 0.1)
     R, c, d, p, X0 = _perturbed(sim, X, seed)
-    warm = joint_adjust(sim.tracks, R, c, d, p, obs, X0)
-    cold = joint_adjust(sim.tracks, R, c, d, p, obs, X0,
-                        options=JointOptions(warm_damping=1e-4))
-    assert warm.iterations <= cold.iterations - 3
-    assert np.abs(warm.positions - cold.positions).max() < 1e-5
-    assert _rot_err(warm.rotations, warm.positions, sim) == pytest.approx(
-        _rot_err(cold.rotations, cold.positions, sim), rel=0.01)
+    _fewer_iterations_same_cameras(sim, (sim.tracks, R, c, d, p, obs, X0),
+                                   JointOptions(warm_damping=1e-4), 0.01)
     with pytest.raises(OmniSfmError, match="warm_damping"):
         JointOptions(warm_damping=0.0)
 
