@@ -179,10 +179,9 @@ class JointOptions:
     uncertainty). The rule of :attr:`pose_tolerance` in the data's own units: a long walk's
     cameras are fixed no worse than a short one's, but the largest of a thousand small steps
     is larger than the largest of a hundred, and its soft modes converge more slowly in
-    radians. On the 1,000-frame
-    office walk (SIFT) the final round's 3 iterations after its 4th step (0.17 deviations),
-    with 3 more steps rejected, changed no error by more than 3e-5 deg; it now stops there
-    (docs/colmap.md). 0: off."""
+    radians. On the 1,000-frame office walk (SIFT) the final round's 3 iterations after its
+    4th step (0.17 deviations), with 3 more steps rejected, changed no error by more than
+    3e-5 deg; it now stops there (docs/colmap.md). 0: off."""
     robust_step_tolerance: float = 0.5
     """:attr:`step_tolerance` of the robust rounds. 0: off."""
     warm_damping: float = 1e-6
