@@ -523,3 +523,20 @@ def test_the_iterative_products_are_the_reduced_system(in_landmark_order: bool) 
     per_obs = plan.per_observation(obs @ Z)
     for k in range(K):
         np.testing.assert_allclose(per_obs[k], G[k].T @ Z[6 * f[k]:6 * f[k] + 6], atol=1e-12)
+
+
+def test_rows_summed_into_the_span_of_their_indices() -> None:
+    # the normal equations' chunks add into the rows their observations touch only; repeated
+    # indices summed, the rows outside the span untouched
+    from omni_sfm.refine.joint import _add_by
+
+    rng = np.random.default_rng(3)
+    out = rng.normal(size=(50, 3, 3))
+    idx = rng.integers(20, 31, size=200)
+    vals = rng.normal(size=(200, 3, 3))
+    want = out.copy()
+    np.add.at(want, idx, vals)
+    _add_by(out, idx, vals)
+    np.testing.assert_allclose(out, want, rtol=0, atol=1e-12)
+    _add_by(out, idx[:0], vals[:0])  # no observation: nothing changes
+    np.testing.assert_allclose(out, want, rtol=0, atol=1e-12)
