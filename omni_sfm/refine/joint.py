@@ -586,7 +586,10 @@ class _IterativeSystem:
     def subtract(self, G: FloatArray, f: np.ndarray, t: np.ndarray, gt: FloatArray,
                  plan: _ProductPlan) -> None:
         """As :meth:`_ReducedSystem.subtract`, kept for the products (``plan``: the sparse
-        structure of these observations, built once: it does not change from step to step)."""
+        structure of these observations, built once: it does not change from step to step).
+        No observation (a kind of landmark that is not used): nothing to subtract."""
+        if len(t) == 0:
+            return
         self.rhs += _sum_by(f, np.einsum("kai,ki->ka", G, gt[t]), self.F).ravel()
         obs, per_landmark = plan.matrices(G)
         self.kinds.append(per_landmark)
