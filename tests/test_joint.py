@@ -52,10 +52,9 @@ def _perturbed(sim: Simulation, X: np.ndarray, seed: int
     return R, c, d, p, X + rng.normal(0, 0.02, X.shape)
 
 
-def _rot_err(res_R: np.ndarray, res_c: np.ndarray, sim: Simulation,
-             frames: slice = slice(None)) -> float:
+def _rot_err(res_R: np.ndarray, res_c: np.ndarray, sim: Simulation) -> float:
     g = sim.groundtruth
-    e = trajectory_errors(Trajectory(g.timestamps[frames], res_R, res_c), g)
+    e = trajectory_errors(Trajectory(g.timestamps, res_R, res_c), g)
     return float(e.rot_mean_deg)
 
 
@@ -312,8 +311,11 @@ def test_the_iterative_solver_gives_the_same_adjustment(kinds: str) -> None:
     # 75 frames, points in view for 20 frames each: the cameras' system solved by conjugate
     # gradients (windows of 10 frames as the preconditioner) gives the adjustment of the
     # factored system, in as many iterations; also with one kind of landmark only (either kind
-    # may be empty: with no line observed the iterative solver once failed on a reshape)
-    sim, obs, X = _long_scene(11, 0.1)
+    # may be empty: with no line observed the iterative solver once failed on a reshape). Points
+    # alone on the 30-frame scene whose every frame sees half of 60 points (the walk's points
+    # leave its last frames unseen and link its held first frame to the rest by one point:
+    # there the two solves end apart along the modes the data leave free)
+    sim, obs, X = _scene(11, 0.1, 0.1) if kinds == "points only" else _long_scene(11, 0.1)
     R, c, d, p, X0 = _perturbed(sim, X, 11)
     if kinds == "points only":
         d, p = np.full_like(d, np.nan), np.full_like(p, np.nan)
@@ -325,13 +327,6 @@ def test_the_iterative_solver_gives_the_same_adjustment(kinds: str) -> None:
     iterative = joint_adjust(sim.tracks, R, c, d, p, obs, X0,
                              options=JointOptions(iterative_above=20, window_frames=10))
     assert abs(iterative.iterations - factored.iterations) <= 2
-    if kinds == "points only":
-        # 80 points for 75 frames, the last frame seen by none: the two solves end 3.6e-3 apart
-        # (0.11 deg mean rotation error, 1.8 deg at the worst frame, either way); as accurate
-        rot = [_rot_err(r.rotations[:-1], r.positions[:-1], sim, slice(0, -1))
-               for r in (iterative, factored)]
-        assert rot[0] <= 1.1 * rot[1]
-        return
     assert np.abs(iterative.positions - factored.positions).max() < 1e-6
     assert np.abs(iterative.rotations - factored.rotations).max() < 1e-6
     assert np.array_equal(iterative.point_inliers, factored.point_inliers)
