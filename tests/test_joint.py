@@ -550,3 +550,31 @@ def test_rows_summed_into_the_span_of_their_indices() -> None:
     np.testing.assert_allclose(out, want, rtol=0, atol=1e-12)
     _add_by(out, idx[:0], vals[:0])  # no observation: nothing changes
     np.testing.assert_allclose(out, want, rtol=0, atol=1e-12)
+
+
+def test_line_observations_from_a_camera_on_the_line_are_left_out() -> None:
+    # a line moved through the camera of frame 20 of a simulated walk: its observations from
+    # cameras within 5 % of its median camera distance (frame 20 and its neighbours) are
+    # left out, no other; the line keeps the rest. The per-track minimum of the ratio is the
+    # one the estimator's "lines off the cameras" uses
+    from omni_sfm.estimate.bundle import camera_distance_ratio, observation_distance_ratio
+    from omni_sfm.refine.joint import _off_cameras
+
+    sim, _, _ = _long_scene(12, 0.0)
+    g, tr, M = sim.groundtruth, sim.tracks, sim.tracks.num_tracks
+    d, p = sim.line_directions.copy(), sim.line_points.copy()
+    k = int(tr.obs_track[tr.obs_frame == 20][0])
+    p[k] = g.positions[20] - (g.positions[20] @ d[k]) * d[k]
+    F = len(g)
+    state = (g.rotations, g.positions, d, p)
+    every = np.ones(tr.num_observations, bool)
+    ratio = observation_distance_ratio(tr, *state, every)
+    on_k20 = (tr.obs_track == k) & (tr.obs_frame == 20)
+    assert ratio[on_k20][0] < 1e-9
+    np.testing.assert_array_equal(camera_distance_ratio(tr, *state, every, M),
+                                  [ratio[tr.obs_track == m].min() for m in range(M)])
+    keep, used = _off_cameras(tr, state, np.ones(F, bool), np.ones(M, bool), 0.05)
+    assert not keep[on_k20].any() and (~keep).sum() <= 5
+    assert set(tr.obs_track[~keep]) == {k} and used.all()
+    with pytest.raises(OmniSfmError, match="near_camera_ratio"):
+        JointOptions(near_camera_ratio=-1.0)

@@ -335,9 +335,12 @@ class LineProblem:
     def __init__(self, tracks: LineTracks, frames: np.ndarray, active: np.ndarray,
                  fixed_frame: int, scale_frame: int, scale_axis: int,
                  held: np.ndarray | None = None,
-                 held_directions: np.ndarray | None = None, hold_rotation: bool = True) -> None:
+                 held_directions: np.ndarray | None = None, hold_rotation: bool = True,
+                 observations: np.ndarray | None = None) -> None:
         F, M = tracks.num_frames, tracks.num_tracks
         sel = frames[tracks.obs_frame] & active[tracks.obs_track]
+        if observations is not None:  # (K,) bool over the tracks' observations: those used
+            sel &= observations
         self.F, self.M = F, M
         self.f = tracks.obs_frame[sel]
         self.t = tracks.obs_track[sel]
@@ -1042,24 +1045,39 @@ def _plane_spread(tracks: LineTracks, R: FloatArray, frames: np.ndarray, M: int)
     return np.arcsin(np.sqrt(np.clip(ev[:, 1] / cnt, 0.0, 1.0)))
 
 
-def camera_distance_ratio(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArray,
-                          p: FloatArray, obs: np.ndarray, M: int) -> FloatArray:
-    """``(M,)`` the smallest distance between a track's line and the cameras that see it
-    (observations ``obs``) over the median one; NaN for tracks without observations."""
-    f, t = tracks.obs_frame[obs], tracks.obs_track[obs]
+def observation_distance_ratio(tracks: LineTracks, R: FloatArray, c: FloatArray,
+                               d: FloatArray, p: FloatArray, obs: np.ndarray) -> FloatArray:
+    """``(K,)`` for each observation of ``obs`` ``(K,)`` bool over all of ``tracks``'
+    observations (NaN elsewhere): the distance between its line and its camera over the
+    median one of the track's observations in ``obs``. Near 0: the camera nearly lies on the
+    line, where the plane through them turns fast with either (far from the linear model)."""
+    out = np.full(tracks.num_observations, np.nan)
+    k = np.flatnonzero(obs)
+    f, t = tracks.obs_frame[k], tracks.obs_track[k]
     dist = np.linalg.norm(predicted_normals(R[f], c[f], p[t], d[t]), axis=1)
-    out = np.full(M, np.nan)
     ok = np.isfinite(dist)
     if not ok.any():
         return out
-    t, dist = t[ok], dist[ok]
+    k, t, dist = k[ok], t[ok], dist[ok]
     order = np.lexsort((dist, t))
-    t, dist = t[order], dist[order]
+    k, t, dist = k[order], t[order], dist[order]
     starts = np.flatnonzero(np.r_[True, t[1:] != t[:-1]])
     counts = np.diff(np.r_[starts, len(t)])
     med = 0.5 * (dist[starts + (counts - 1) // 2] + dist[starts + counts // 2])
     with np.errstate(invalid="ignore", divide="ignore"):
-        out[t[starts]] = dist[starts] / med
+        out[k] = dist / np.repeat(med, counts)
+    return out
+
+
+def camera_distance_ratio(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArray,
+                          p: FloatArray, obs: np.ndarray, M: int) -> FloatArray:
+    """``(M,)`` the smallest distance between a track's line and the cameras that see it
+    (observations ``obs``) over the median one; NaN for tracks without observations."""
+    ratio = observation_distance_ratio(tracks, R, c, d, p, obs)
+    ok = np.isfinite(ratio)
+    out = np.full(M, np.inf)
+    np.minimum.at(out, tracks.obs_track[ok], ratio[ok])
+    out[np.isinf(out)] = np.nan
     return out
 
 
