@@ -189,9 +189,9 @@ class JointOptions:
     """A line observation whose camera is closer to the line than this fraction of the
     track's median camera distance is left out after the first round (as outliers are): the
     plane through a camera that nearly lies on the line turns fast with either, so its
-    residual is far from linear, and on the 1,000-frame office walk such observations of a
-    few lines (0.01-0.04 of their median distance) held the final round to steps of 0.3-0.6
-    standard deviations for 3 more iterations (docs/colmap.md). 0: off."""
+    residual is far from linear: on the 1,000-frame office walk one such observation (0.01-0.04
+    of its line's median distance as the cameras moved) held the final round to steps of
+    0.3-0.6 standard deviations for 2 more iterations (docs/colmap.md). 0: off."""
     warm_damping: float = 1e-6
     """The damping that each solve after the first starts with (the first: 1e-4). Each starts
     at the minimum of the one before, which only its new weights and inliers move, so a step
