@@ -5,7 +5,7 @@ it), then one Levenberg-Marquardt step with the cameras' system formed and facto
 conjugate gradients (time, agreement), then the whole adjustment (time, iterations, errors
 against the ground truth); with ``--repeat N``, N rounds of the whole adjustments, the folders
 alternated within each round, and the median time a posed frame of each (this machine's
-run-to-run spread is 10-15 %). Memory is kept between frames' arrays as the ``omni-sfm``
+run-to-run spread is 10-15 %). Freed memory is kept for reuse as the ``omni-sfm``
 command keeps it (:func:`omni_sfm.libs.keep_freed_memory`).
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/bench_joint.py --work W_300

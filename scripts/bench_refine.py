@@ -95,6 +95,10 @@ def main() -> int:
     p.add_argument("--lines-init", action="store_true",
                    help="seed with `init --lines` run here (timed), without COLMAP's SfM")
     args = p.parse_args()
+    # freed memory kept for reuse in this process, as the omni-sfm command keeps it
+    from omni_sfm.libs import keep_freed_memory
+
+    keep_freed_memory()
     if (args.versus_colmap or args.lines_init) and args.init is not None:
         p.error("--versus-colmap and --lines-init run their own `init --lines`; leave out "
                 "--init")
