@@ -53,10 +53,10 @@ def keep_freed_memory() -> bool:
     array of 32 MB or more afresh and returns it to the system when freed, so the next one
     page-faults it back in: measured on a fresh process, 20 ms instead of 13 ms of CPU per
     800x600 frame's line extraction, and the joint adjustment of the 1,000-frame office walk
-    (arrays of 50-160 MB each iteration) 69.7 / 74.6 ms a frame with 64 MB / 256 MB limits
-    against 55.6 / 49.0 with these (the same results and peak memory; the 300-frame walk, whose
-    arrays were under 64 MB: 61.2 / 53.0 against 54.5 / 49.7; docs/colmap.md). Returns whether
-    the settings were applied."""
+    (arrays of 50-160 MB each iteration) 70.1 ms a frame (median of 5 runs) with 64 MB /
+    256 MB limits against 43.1 (median of 3) with these, the same results and peak memory, and
+    now no more a frame than at 300 frames (docs/colmap.md). Returns whether the settings were
+    applied."""
     import ctypes
     import ctypes.util
     import sys
