@@ -124,3 +124,27 @@ def test_occlusion_split_stays_one_track():
     tracks_of_line = np.unique(obs.track[truth == true_id])
     assert len(tracks_of_line) == 1
     assert len(np.unique(obs.frame[obs.track == tracks_of_line[0]])) == 7
+
+
+def test_tracker_keeps_no_edge_points_of_past_frames():
+    # a long video's memory must not grow by each frame's edge points (0.8 MB a 1920x960
+    # frame): once a frame is older than the revival's history, only its lines' per-line
+    # arrays (what the tracks keep) may stay referenced
+    import weakref
+
+    cam = hyperboloid_camera()
+    extractor = LineExtractor(cam)
+    opts = TrackingOptions()
+    tracker = LineTracker(opts)
+    refs = []
+    poses = _poses(opts.max_gap_frames + 4)
+    for R, pos in poses:
+        img = render(cam, Room(), R, pos)
+        lines = extractor.extract(img)
+        assert lines.num_lines > 0
+        refs.append((weakref.ref(lines.points_uv), weakref.ref(lines.point_rays)))
+        tracker.add_frame(img, lines)
+        del lines
+    old = refs[: len(poses) - opts.max_gap_frames - 1]
+    assert old and all(a() is None and b() is None for a, b in old)
+    assert len(tracker.finish().track) > 0

@@ -118,6 +118,24 @@ class TrackedObservations:
         return int(self.track.max()) + 1 if len(self.track) else 0
 
 
+@dataclass(frozen=True)
+class _LineRecord:
+    """The per-line arrays of one frame's :class:`ExtractedLines` that the tracks keep."""
+
+    normals: FloatArray
+    endpoint_rays: FloatArray
+    num_support: np.ndarray
+    arc_deg: FloatArray
+    normal_sigma: FloatArray
+
+    @staticmethod
+    def of(lines: ExtractedLines) -> _LineRecord:
+        # copies: a view would keep the arrays it was cut from alive
+        return _LineRecord(np.array(lines.normals), np.array(lines.endpoint_rays),
+                           np.array(lines.num_support), np.array(lines.arc_deg),
+                           np.array(lines.normal_sigma))
+
+
 class LineTracker:
     """Feed frames in order with :meth:`add_frame`; :meth:`finish` returns the tracks.
 
@@ -140,7 +158,10 @@ class LineTracker:
         self._next_id = 0
         self._parent: dict[int, int] = {}
         self._frame = 0
-        self._obs: list[tuple[IntArray, int, ExtractedLines]] = []
+        # per frame: track ids, frame, and the per-line arrays that finish() needs (not the
+        # lines' edge points: kept for every frame of a long video they grew without bound,
+        # 0.8 MB a 1920x960 frame)
+        self._obs: list[tuple[IntArray, int, _LineRecord]] = []
         self._matched: list[int] = []
         self._started: list[int] = []
         self._ended: list[int] = []
@@ -175,7 +196,7 @@ class LineTracker:
             self._revived.append(revived)
             self._matched.append(n_matched)
             self._started.append(int(new.sum()))
-            self._obs.append((track.copy(), self._frame, lines))
+            self._obs.append((track.copy(), self._frame, _LineRecord.of(lines)))
         self._prev_pyr, self._prev_lines, self._prev_track = pyr, lines, track
         self._history.append((pyr, lines, track))
         del self._history[: -(self.options.max_gap_frames + 1)]
