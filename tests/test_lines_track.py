@@ -127,7 +127,7 @@ def test_occlusion_split_stays_one_track():
 
 
 def test_tracker_keeps_no_edge_points_of_past_frames():
-    # a long video's memory must not grow by each frame's edge points (0.8 MB a 1920x960
+    # a long video's memory must not grow by each frame's edge points (0.65 MB a 1920x960
     # frame): once a frame is older than the revival's history, only its lines' per-line
     # arrays (what the tracks keep) may stay referenced
     import weakref

@@ -160,7 +160,7 @@ class LineTracker:
         self._frame = 0
         # per frame: track ids, frame, and the per-line arrays that finish() needs (not the
         # lines' edge points: kept for every frame of a long video they grew without bound,
-        # 0.8 MB a 1920x960 frame)
+        # about 0.65 MB a 1920x960 frame)
         self._obs: list[tuple[IntArray, int, _LineRecord]] = []
         self._matched: list[int] = []
         self._started: list[int] = []
