@@ -19,11 +19,10 @@ from __future__ import annotations
 
 import argparse
 import os
-import subprocess
 import sys
 import time
 
-from benchlib import tree_rss_mb
+from benchlib import at_tenths, run_sampled
 
 
 def _child(video: str, camera: str, n: int) -> None:
@@ -54,20 +53,15 @@ def main() -> int:
           f"{os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}; {args.video}")
     print(f"{'frames':>7} {'wall s':>7} {'tracks':>7} {'obs':>8} {'peak MB':>8}  MB at each tenth")
     for n in args.frames:
-        p = subprocess.Popen([sys.executable, __file__, "--video", args.video, "--camera",
-                              args.camera, "--child", str(n)], stdout=subprocess.PIPE, text=True)
-        samples: list[float] = []
-        while p.poll() is None:
-            samples.append(tree_rss_mb(p.pid))
-            time.sleep(0.5)
-        out = (p.stdout.read() if p.stdout else "").split()
-        if p.returncode != 0 or len(out) != 3 or not samples:
-            print(f"{n:>7} failed (exit {p.returncode})")
+        wall, samples, rc, said = run_sampled([sys.executable, __file__, "--video", args.video,
+                                               "--camera", args.camera, "--child", str(n)])
+        out = said.splitlines()[-1].split() if said else []
+        if rc != 0 or len(out) != 3 or not samples:
+            print(f"{n:>7} failed (exit {rc}): {said[-500:]}")
             continue
-        k = len(samples)
-        tenths = " ".join(f"{samples[min(k - 1, k * j // 10)]:.0f}" for j in range(1, 11))
-        print(f"{n:>7} {float(out[0]):>7.1f} {out[1]:>7} {out[2]:>8} {max(samples):>8.0f}  "
-              f"{tenths}", flush=True)
+        peak = max(m for _, m in samples)
+        print(f"{n:>7} {float(out[0]):>7.1f} {out[1]:>7} {out[2]:>8} {peak:>8.0f}  "
+              f"{at_tenths(samples, wall)}", flush=True)
     return 0
 
 

@@ -24,12 +24,11 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import subprocess
 import sys
 import time
 from pathlib import Path
 
-from benchlib import tree_rss_mb
+from benchlib import at_tenths, run_sampled
 
 from omni_sfm.evaluate import trajectory_errors
 from omni_sfm.poses import read_tum
@@ -67,25 +66,14 @@ def main() -> int:
            "--overwrite", "--quiet", "--output", str(out)]
     print(f"# bench_long_video: {os.cpu_count()} CPUs, OPENBLAS_NUM_THREADS="
           f"{os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}; {' '.join(cmd[1:])}", flush=True)
-    t0 = time.perf_counter()
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    samples: list[tuple[float, float]] = []
-    while proc.poll() is None:
-        samples.append((time.perf_counter() - t0, tree_rss_mb(proc.pid)))
-        time.sleep(0.5)
-    wall = time.perf_counter() - t0
-    said = (proc.stdout.read() if proc.stdout else "").strip()
-    if proc.returncode != 0:
-        print(f"init exited {proc.returncode}: {said[-2000:]}")
+    wall, samples, rc, said = run_sampled(cmd)
+    if rc != 0:
+        print(f"init exited {rc}: {said[-2000:]}")
         return 1
     peak = max((m for _, m in samples), default=0.0)
     print(f"init --lines, {args.frames} frames: {wall:.1f} s wall, {1000 * wall / args.frames:.1f} "
           f"ms a frame, peak {peak:.0f} MB")
-    tenths = []
-    for k in range(1, 11):
-        at = [m for t, m in samples if t <= wall * k / 10]
-        tenths.append(f"{at[-1]:.0f}" if at else "-")
-    print("resident MB at each tenth of the run: " + " ".join(tenths))
+    print("resident MB at each tenth of the run: " + at_tenths(samples, wall))
     report = json.loads((out / "report.json").read_text())
     ws = report.get("wall_time_s", {})
     print(f"front end {ws.get('front_end', float('nan')):.1f} s, estimation "

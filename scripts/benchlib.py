@@ -42,3 +42,26 @@ def run_timed(cmd: list[str]) -> tuple[float, float, int, str]:
     wall = time.perf_counter() - t0
     out = (proc.stdout.read() if proc.stdout else "").strip().splitlines()
     return wall, peak, proc.returncode, out[0] if out else ""
+
+
+def run_sampled(cmd: list[str], every_s: float = 0.5) -> tuple[float, list[tuple[float, float]],
+                                                               int, str]:
+    """``(wall s, samples, exit code, output)`` of ``cmd``: ``samples`` are ``(seconds since the
+    start, resident MB of the process tree)`` every ``every_s``."""
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    samples: list[tuple[float, float]] = []
+    while proc.poll() is None:
+        samples.append((time.perf_counter() - t0, tree_rss_mb(proc.pid)))
+        time.sleep(every_s)
+    wall = time.perf_counter() - t0
+    return wall, samples, proc.returncode, (proc.stdout.read() if proc.stdout else "").strip()
+
+
+def at_tenths(samples: list[tuple[float, float]], wall: float) -> str:
+    """The last sample (MB) at or before each tenth of ``wall``, "-" where none."""
+    out = []
+    for k in range(1, 11):
+        at = [m for t, m in samples if t <= wall * k / 10]
+        out.append(f"{at[-1]:.0f}" if at else "-")
+    return " ".join(out)
