@@ -59,7 +59,7 @@ def _run(seed: int, args: argparse.Namespace) -> None:
         res = estimate_poses(tr, EstimationOptions(
             bootstrap_frames=args.bootstrap,
             short_bootstrap_frames=None if args.no_second_start
-            else EstimationOptions().short_bootstrap_frames))
+            else EstimationOptions().short_bootstrap_frames, start_margin=args.start_margin))
     except OmniSfmError as exc:
         print(f"  error: {exc}")
         return
@@ -102,6 +102,9 @@ def main() -> int:
     ap.add_argument("--other", type=int, default=40)
     ap.add_argument("--visible", type=int, default=60)
     ap.add_argument("--noise-deg", type=float, default=0.1)
+    ap.add_argument("--start-margin", type=float, default=EstimationOptions().start_margin,
+                    help="another start than the first is kept where its score is lower by "
+                         "more than this fraction (EstimationOptions.start_margin)")
     ap.add_argument("--bootstrap", type=int, default=EstimationOptions().bootstrap_frames,
                     help="EstimationOptions.bootstrap_frames (default: the estimator's)")
     ap.add_argument("--no-second-start", action="store_true",

@@ -329,3 +329,40 @@ def test_a_frame_left_with_two_lines_after_rejection_has_no_pose() -> None:
     assert np.flatnonzero(res.outlier_tracks).tolist() == sorted(bad.tolist())
     assert np.flatnonzero(~res.frames).tolist() == [58, 59]
     assert np.isnan(res.rotations[58:]).all() and np.isfinite(res.rotations[:58]).all()
+
+
+@pytest.mark.parametrize(("num_frames", "num_lines", "seen_for"), [
+    (300, 200, 250),  # most pairs of lines seen together: the dense system
+    (1200, 300, 40),  # a long walk, each line seen for 40 frames: the sparse system
+    (200, 100, 80),  # few lines: the block-sparse product of scipy
+])
+def test_reduced_system_by_runs_of_frames_is_the_schur_complement(
+        num_frames: int, num_lines: int, seen_for: int) -> None:
+    """``_reduced_system``'s ``S = diag(Hll) - G^T G`` and ``rhs = -gl + G^T gpt``, however it
+    forms them (runs of frames, dense or sparse; scipy's block-sparse product for few lines),
+    equal the dense products."""
+    from omni_sfm.estimate.bundle import _reduced_system
+
+    rng = np.random.default_rng(num_frames)
+    first = rng.integers(-seen_for // 2, num_frames, num_lines)
+    f_list, t_list = [], []
+    for t in range(num_lines):
+        frames = np.arange(max(first[t], 0), min(first[t] + seen_for, num_frames))
+        f_list.append(frames)
+        t_list.append(np.full(len(frames), t))
+    f, tc = np.concatenate(f_list), np.concatenate(t_list)
+    G = rng.normal(size=(len(f), 6, 4))
+    A = rng.normal(size=(num_lines, 4, 4))
+    Hll = A @ np.swapaxes(A, 1, 2) + 50.0 * np.eye(4)
+    gpt, gl = rng.normal(size=(num_frames, 6)), rng.normal(size=(num_lines, 4))
+    dense, sparse, rhs = _reduced_system(Hll, G, gpt, gl, f, tc, num_frames)
+    Gd = np.zeros((num_frames, 6, num_lines, 4))
+    Gd[f, :, tc, :] = G
+    Gm = Gd.reshape(6 * num_frames, 4 * num_lines)
+    want = -Gm.T @ Gm
+    for m in range(num_lines):
+        want[4 * m:4 * m + 4, 4 * m:4 * m + 4] += Hll[m]
+    assert (dense is None) == (num_frames == 1200)
+    got = dense if sparse is None else sparse.toarray()
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-9 * np.abs(want).max())
+    np.testing.assert_allclose(rhs, -gl.ravel() + Gm.T @ gpt.ravel(), rtol=0, atol=1e-9)

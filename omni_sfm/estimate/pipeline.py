@@ -137,6 +137,9 @@ class EstimationOptions:
     drift where each window holds few lines (a turn, short tracks) and the adjustment then
     stays in a wrong basin, where poses registered from lines already fixed do not; a short
     chain can itself start wrong. None: only ``bootstrap_frames``."""
+    start_margin: float = 0.01
+    """Another start than the first is kept only where its score (:func:`_better_start`) is
+    below the first start's by more than this fraction."""
     min_segment_frames: int = 30
     """Where the registration stops and at least this many frames remain without a pose, the
     estimator starts again on them: a new segment in its own world and scale
@@ -706,7 +709,7 @@ def _better_start(tracks: LineTracks, options: EstimationOptions, run: RunLog,
     base = score(first)
     scores = [score(r) for _, r in candidates]
     best = int(np.argmin(scores))
-    kept = candidates[best][1] if scores[best] < 0.99 * base else first
+    kept = candidates[best][1] if scores[best] < (1.0 - options.start_margin) * base else first
     for (name, r), sc in zip(candidates, scores, strict=True):
         why = (f"{int(r.estimated.sum())} frames against {int(first.estimated.sum())}; every "
                f"observation, misfits capped at {np.degrees(limit):.3g} deg (frames without a "
