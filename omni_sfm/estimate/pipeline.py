@@ -137,9 +137,11 @@ class EstimationOptions:
     drift where each window holds few lines (a turn, short tracks) and the adjustment then
     stays in a wrong basin, where poses registered from lines already fixed do not; a short
     chain can itself start wrong. None: only ``bootstrap_frames``."""
-    start_margin: float = 0.01
+    start_margin: float = 0.001
     """Another start than the first is kept only where its score (:func:`_better_start`) is
-    below the first start's by more than this fraction."""
+    below the first start's by more than this fraction: nearly equal scores (a tie) keep the
+    first. 0.01 until 2026-11-27, which kept the worse of two fits 0.5 % apart on a real
+    video's tracks (docs/results.md)."""
     min_segment_frames: int = 30
     """Where the registration stops and at least this many frames remain without a pose, the
     estimator starts again on them: a new segment in its own world and scale
@@ -655,7 +657,8 @@ def _better_start(tracks: LineTracks, options: EstimationOptions, run: RunLog,
     "reversed start", the first one's on the frames in reverse order (:func:`_reversed_start`).
     The kept one has the lowest cost over every observation of the sequence (each misfit
     capped at the first one's outlier limit, the observations of frames that a result leaves
-    without a pose at the cap); another than the first must be more than 1 % lower. Raises
+    without a pose at the cap); another than the first must be lower by more than
+    ``options.start_margin``. Raises
     where none gives a result."""
     F, short, long = tracks.num_frames, options.short_bootstrap_frames, options.bootstrap_frames
     sol_a: _Solved | None = None
