@@ -80,6 +80,27 @@ def test_point_given_direction_is_exact() -> None:
     assert spread > np.radians(5.0)
 
 
+def test_point_given_direction_fits_noisy_views_far_from_the_origin() -> None:
+    # a corridor's cross line 40 m along its direction from the world's origin, seen from
+    # cameras 0.6-2.5 m from it with 0.1 deg of noise: the distances from the planes must not
+    # take the noise of the normals along the direction times those 40 m (the formula before
+    # fitted such a line's views degrees off and the registration of a long walk stopped at it)
+    rng = np.random.default_rng(4)
+    D = normalize(np.array([1.0, 0.02, -0.01]))
+    p = np.array([40.0, 1.1, 0.7])
+    p -= float(p @ D) * D
+    c = p + 40.0 * D + np.column_stack([rng.uniform(-2, 2, 15), np.linspace(-2.5, -0.6, 15),
+                                        rng.uniform(-0.3, 0.3, 15)])
+    n = normalize(np.cross(p - c, D))
+    noisy = normalize(n + np.radians(0.1) * rng.normal(size=n.shape))
+    q, spread = point_given_direction(noisy, c, D)
+    assert spread > np.radians(10.0)
+    u = normalize(np.cross(q - c, D))
+    ang = np.degrees(np.arccos(np.clip(np.abs(np.sum(u * noisy, 1)), 0.0, 1.0)))
+    assert np.sqrt(np.mean(ang ** 2)) < 0.2
+    assert np.linalg.norm(q - p) < 0.02
+
+
 def test_held_directions_of_two_families_fix_the_rotation_gauge() -> None:
     # noise-free; frame 0 starts 1 deg off. Its rotation is part of the gauge only while the
     # held directions leave the world's rotation free: with lines of two directions or more

@@ -100,19 +100,35 @@ def family_of_planes(world_normals: FloatArray, track: np.ndarray, num_tracks: i
 
 
 def point_given_direction(world_normals: FloatArray, centres: FloatArray,
-                          direction: FloatArray) -> tuple[FloatArray, float]:
+                          direction: FloatArray, *,
+                          range_iterations: int = 2) -> tuple[FloatArray, float]:
     """The line of known ``direction`` ``(3,)`` whose planes (world normals ``(K, 3)``, each
     through its camera centre ``(K, 3)``) fit best: ``(p, spread)``, its point closest to the
     origin, and the angle (radians) by which the planes turn about it (the parallax measure of
-    the triangulation, :meth:`omni_sfm.estimate.incremental.Growth.triangulate`)."""
-    a, b = orthonormal_completion(np.asarray(direction, np.float64))
+    the triangulation, :meth:`omni_sfm.estimate.incremental.Growth.triangulate`).
+
+    The least squares of the distances from the planes, each normal first made orthogonal to
+    the direction (a normal's noise along the direction would otherwise count times its
+    camera's distance along the line from the world's origin: 40 m along a corridor, a tenth
+    of a degree of noise fitted a cross line's views 2-3 deg off), then ``range_iterations``
+    times again with each plane weighted by the inverse of its camera's distance from the line
+    found, so that what is minimised is close to the bundle adjustment's angular residual."""
+    direction = np.asarray(direction, np.float64)
+    a, b = orthonormal_completion(direction)
     m = np.asarray(world_normals, np.float64)
+    m = m - np.outer(m @ direction, direction)
+    m /= np.maximum(np.linalg.norm(m, axis=1, keepdims=True), 1e-300)
     A = np.stack([m @ a, m @ b], axis=1)  # m . (x a + y b) = m . c
     rhs = np.sum(m * centres, axis=1)
     u = A / np.maximum(np.linalg.norm(A, axis=1, keepdims=True), 1e-300)
     ev = np.linalg.eigvalsh(u.T @ u)  # the triangulation's parallax measure, in 2D
     spread = float(2.0 * np.arcsin(np.sqrt(np.clip(ev[0] / max(ev.sum(), 1e-300), 0.0, 1.0))))
     xy = np.linalg.lstsq(A, rhs, rcond=None)[0]
+    for _ in range(range_iterations):
+        q = centres - (xy[0] * a + xy[1] * b)
+        r = np.linalg.norm(q - np.outer(q @ direction, direction), axis=1)
+        w = 1.0 / np.maximum(r, 1e-9 * max(float(r.max()), 1e-300))
+        xy = np.linalg.lstsq(A * w[:, None], rhs * w, rcond=None)[0]
     return xy[0] * a + xy[1] * b, spread
 
 
