@@ -351,10 +351,10 @@ def _reduced_system(Hll: FloatArray, G: FloatArray, gpt: FloatArray, gl: FloatAr
     that matrix is zero. The two agree to round-off."""
     Ma = len(Hll)
     i4 = np.arange(4)
+    ar = np.repeat(np.arange(Ma), 16)  # the block diagonal diag(Hll): rows, columns
+    bd_rows, bd_cols = 4 * ar + np.tile(np.repeat(i4, 4), Ma), 4 * ar + np.tile(i4, 4 * Ma)
     if 4 * Ma <= 600:
-        ar = np.repeat(np.arange(Ma), 16)
-        bd = sp.csr_matrix((Hll.ravel(), (4 * ar + np.tile(np.repeat(i4, 4), Ma),
-                                          4 * ar + np.tile(i4, 4 * Ma))), shape=(4 * Ma, 4 * Ma))
+        bd = sp.csr_matrix((Hll.ravel(), (bd_rows, bd_cols)), shape=(4 * Ma, 4 * Ma))
         if len(f) > 0.3 * F * Ma:
             # most lines seen in most frames: G is dense, one matrix product
             Gd = np.zeros((F, 6, Ma, 4))
@@ -391,8 +391,7 @@ def _reduced_system(Hll: FloatArray, G: FloatArray, gpt: FloatArray, gl: FloatAr
         for lines, Gm in runs:
             g = (4 * lines[:, None] + i4).ravel()
             S_dense[np.ix_(g, g)] -= Gm.T @ Gm
-        idx = 4 * np.arange(Ma)[:, None] + i4
-        S_dense[idx[:, :, None], idx[:, None, :]] += Hll
+        S_dense[bd_rows, bd_cols] += Hll.ravel()
         return S_dense, None, rhs
     rows, cols, vals = [], [], []
     for lines, Gm in runs:
@@ -400,9 +399,8 @@ def _reduced_system(Hll: FloatArray, G: FloatArray, gpt: FloatArray, gl: FloatAr
         rows.append(np.repeat(g, len(g)))
         cols.append(np.tile(g, len(g)))
         vals.append(-(Gm.T @ Gm).ravel())
-    ar = np.repeat(np.arange(Ma), 16)
-    rows.append(4 * ar + np.tile(np.repeat(i4, 4), Ma))
-    cols.append(4 * ar + np.tile(i4, 4 * Ma))
+    rows.append(bd_rows)
+    cols.append(bd_cols)
     vals.append(Hll.ravel())
     S_sparse = sp.coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
                              shape=(4 * Ma, 4 * Ma)).tocsc()  # duplicates summed
