@@ -334,12 +334,13 @@ def test_a_frame_left_with_two_lines_after_rejection_has_no_pose() -> None:
 @pytest.mark.parametrize(("num_frames", "num_lines", "seen_for"), [
     (300, 200, 250),  # most pairs of lines seen together: the dense system
     (1200, 300, 40),  # a long walk, each line seen for 40 frames: the sparse system
-    (200, 100, 80),  # few lines: the block-sparse product of scipy
+    (200, 100, 80),  # few lines (at most 150), each seen in a part of the frames: dense
+    (20, 30, 20),  # few lines seen in every frame (the paper's views): one dense G
 ])
 def test_reduced_system_by_runs_of_frames_is_the_schur_complement(
         num_frames: int, num_lines: int, seen_for: int) -> None:
     """``_reduced_system``'s ``S = diag(Hll) - G^T G`` and ``rhs = -gl + G^T gpt``, however it
-    forms them (runs of frames, dense or sparse; scipy's block-sparse product for few lines),
+    forms them (runs of frames, dense or sparse; one dense ``G`` for the paper's few views),
     equal the dense products."""
     from omni_sfm.estimate.bundle import _reduced_system
 
@@ -366,3 +367,4 @@ def test_reduced_system_by_runs_of_frames_is_the_schur_complement(
     got = dense if sparse is None else sparse.toarray()
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-9 * np.abs(want).max())
     np.testing.assert_allclose(rhs, -gl.ravel() + Gm.T @ gpt.ravel(), rtol=0, atol=1e-9)
+

@@ -341,33 +341,29 @@ def _reduced_system(Hll: FloatArray, G: FloatArray, gpt: FloatArray, gl: FloatAr
     6)``). Returns ``(S, None, rhs)`` with ``S`` dense where the lines are few or most pairs of
     them are seen together, else ``(None, S, rhs)`` with ``S`` sparse (CSC).
 
-    With at most 150 lines, ``G`` is a block-sparse matrix (scipy.sparse, one block per
-    observation) and ``G^T G`` its product with itself. With more, that product dominated the
-    whole adjustment's time (0.2 s a step on 600 frames of a real video, 350 lines): ``G^T G``
-    sums, over the frames, the products of the blocks of the lines each frame sees, so the
-    frames are taken ``span`` at a time, the blocks of a run of frames fill a dense ``6 n x 4 u``
-    matrix (``n`` frames, ``u`` lines seen in them) and its product with itself (one BLAS call)
-    is that run's part of ``G^T G``. Consecutive frames see mostly the same lines, so little of
-    that matrix is zero. The two agree to round-off."""
+    Where at most 150 lines are seen in most frames (the paper's views), ``G`` is one dense
+    matrix and ``G^T G`` one product. Elsewhere ``G^T G`` sums, over the frames, the products
+    of the blocks of the lines each frame sees, so the frames are taken ``span`` at a time, the
+    blocks of a run of frames fill a dense ``6 n x 4 u`` matrix (``n`` frames, ``u`` lines
+    seen in them) and its product with itself (one BLAS call) is that run's part of ``G^T G``.
+    Consecutive frames see mostly the same lines, so little of that matrix is zero. It replaced
+    scipy's block-sparse product, which took half of the adjustment's time on a real video's
+    600 frames and 350 lines (0.2 s a step), and 14 % of the whole estimation on the sparse
+    simulations (80 lines): 5.6 against 12.4 ms for the system of 600 frames, 4,800
+    observations. The two agree to round-off."""
     Ma = len(Hll)
     i4 = np.arange(4)
     ar = np.repeat(np.arange(Ma), 16)  # the block diagonal diag(Hll): rows, columns
     bd_rows, bd_cols = 4 * ar + np.tile(np.repeat(i4, 4), Ma), 4 * ar + np.tile(i4, 4 * Ma)
-    if 4 * Ma <= 600:
-        bd = sp.csr_matrix((Hll.ravel(), (bd_rows, bd_cols)), shape=(4 * Ma, 4 * Ma))
-        if len(f) > 0.3 * F * Ma:
-            # most lines seen in most frames: G is dense, one matrix product
-            Gd = np.zeros((F, 6, Ma, 4))
-            Gd[f, :, tc, :] = G
-            Gm = Gd.reshape(6 * F, 4 * Ma)
-            return bd.toarray() - Gm.T @ Gm, None, -gl.ravel() + Gm.T @ gpt.ravel()
-        # block sparse, one 6x4 block per observation (row: frame, column: line): its
-        # product with itself is formed block by block, faster than element by element
-        order = np.lexsort((tc, f))
-        indptr = np.concatenate([[0], np.cumsum(np.bincount(f, minlength=F))])
-        Gs = sp.bsr_matrix((G[order], tc[order], indptr), shape=(6 * F, 4 * Ma))
-        S = bd - (Gs.T @ Gs).tocsr()
-        return S.toarray(), None, -gl.ravel() + Gs.T @ gpt.ravel()
+    small = 4 * Ma <= 600
+    if small and len(f) > 0.3 * F * Ma:
+        # most lines seen in most frames: G is dense, one matrix product
+        Gd = np.zeros((F, 6, Ma, 4))
+        Gd[f, :, tc, :] = G
+        Gm = Gd.reshape(6 * F, 4 * Ma)
+        S_full = -(Gm.T @ Gm)
+        S_full[bd_rows, bd_cols] += Hll.ravel()
+        return S_full, None, -gl.ravel() + Gm.T @ gpt.ravel()
     rhs = -gl.ravel() + _sum_rows(tc, np.einsum("kij,ki->kj", G, gpt[f]), Ma).ravel()
     order = np.lexsort((tc, f))
     fo, to, Go = f[order], tc[order], G[order]
@@ -380,8 +376,8 @@ def _reduced_system(Hll: FloatArray, G: FloatArray, gpt: FloatArray, gl: FloatAr
             Gc = np.zeros((len(frames), 6, len(lines), 4))
             Gc[floc, :, loc, :] = Go[a:b]
             runs.append((lines, Gc.reshape(6 * len(frames), -1)))
-    dense = False
-    if Ma <= 3000:  # most pairs of lines seen in a run together: dense
+    dense = small
+    if not dense and Ma <= 3000:  # most pairs of lines seen in a run together: dense
         seen = np.zeros((Ma, Ma), bool)
         for lines, _ in runs:
             seen[np.ix_(lines, lines)] = True
