@@ -342,6 +342,19 @@ def _sum_rows(index: np.ndarray, values: FloatArray, n: int) -> FloatArray:
         np.float64, copy=False).reshape(n, d)
 
 
+def damped(H: FloatArray, lam: float | FloatArray, free: np.ndarray) -> FloatArray:
+    """``H + lam diag(H)`` per block ``(N, n, n)`` (``lam`` one or ``(N,)``, one per block; a
+    floor on tiny diagonals), held parameters' rows and columns (``free`` ``(N, n)`` False)
+    replaced by the identity so that they stay at zero."""
+    n = H.shape[1]
+    dg = np.einsum("kii->ki", H)
+    eye = np.eye(n)
+    lam_k = np.broadcast_to(np.asarray(lam, float), (len(H),))[:, None]
+    H = H + (lam_k * np.maximum(dg, 1e-12 * max(float(dg.max(initial=0.0)), 1e-30)))[:, :, None] \
+        * eye
+    return H * (free[:, :, None] & free[:, None, :]) + (~free)[:, :, None] * eye
+
+
 def _reduced_system(Hll: FloatArray, G: FloatArray, gpt: FloatArray, gl: FloatArray,
                     f: np.ndarray, tc: np.ndarray, F: int, span: int = 64
                     ) -> tuple[FloatArray | None, sp.csc_matrix | None, FloatArray]:
@@ -516,17 +529,9 @@ class LineProblem:
         """
         Hpp, Hll, Hpl, gp, gl = blocks
         F, M, f, t = self.F, self.M, self.f, self.t
-        eye6, eye4 = np.eye(6), np.eye(4)
         pf, lf = self.pose_free, self.line_free
-        dp_ = np.einsum("fii->fi", Hpp)
-        Hpp = Hpp + (lam * np.maximum(dp_, 1e-12 * max(float(dp_.max(initial=0.0)), 1e-30))
-                     )[:, :, None] * eye6
         # held parameters: identity rows/columns, so they stay at zero
-        Hpp = Hpp * (pf[:, :, None] & pf[:, None, :]) + (~pf)[:, :, None] * eye6
-        dl_ = np.einsum("mii->mi", Hll)
-        Hll = Hll + (lam * np.maximum(dl_, 1e-12 * max(float(dl_.max(initial=0.0)), 1e-30))
-                     )[:, :, None] * eye4
-        Hll = Hll * (lf[:, :, None] & lf[:, None, :]) + (~lf)[:, :, None] * eye4
+        Hpp, Hll = damped(Hpp, lam, pf), damped(Hll, lam, lf)
         L = np.linalg.cholesky(Hpp)  # (F, 6, 6)
         Linv = np.linalg.inv(L)
         G = Linv[f] @ Hpl  # (K, 6, 4)
@@ -591,18 +596,14 @@ class LineProblem:
         e, u = self.residuals(R, c, d, p)
         cost, w = self._line_costs(e)
         mu = np.full(M, 1e-6)
-        eye4 = np.eye(4)
         zero = np.zeros((self.F, 6))
         for _ in range(self.line_iterations):
             J = self._line_jacobian(Rk, c, d, p, _normal_derivative(u, self.B))
             wJ = J * w[:, None, None]
             H = _sum_rows(t, (np.swapaxes(wJ, 1, 2) @ J).reshape(-1, 16), M).reshape(M, 4, 4)
             g = _sum_rows(t, np.einsum("kai,ka->ki", wJ, e), M)
-            dg = np.einsum("mii->mi", H)
-            H = H + (mu[:, None] * np.maximum(dg, 1e-300))[:, :, None] * eye4
-            H = H * (lf[:, :, None] & lf[:, None, :]) + (~lf)[:, :, None] * eye4
             try:
-                step = -np.linalg.solve(H, g[:, :, None])[:, :, 0] * lf
+                step = -np.linalg.solve(damped(H, mu, lf), g[:, :, None])[:, :, 0] * lf
             except np.linalg.LinAlgError:
                 break
             _, _, d3, p3 = self._moved(R, c, d, p, zero, step)

@@ -46,6 +46,7 @@ from omni_sfm.errors import OmniSfmError
 from omni_sfm.estimate.bundle import (
     LineProblem,
     RobustLoss,
+    damped,
     gauge,
     levenberg_marquardt,
     observation_distance_ratio,
@@ -369,7 +370,7 @@ class _JointProblem:
         moving: np.ndarray = np.asarray(pf.any(axis=1))
         compact = np.cumsum(moving) - 1
         o = self.options
-        Hd, rhs = _damped(Hpp[moving], lam, pf[moving]), -gp[moving]
+        Hd, rhs = damped(Hpp[moving], lam, pf[moving]), -gp[moving]
         pre = self.preconditioner
         if pre is not None and pre.uses >= o.preconditioner_reuse:
             pre = None
@@ -380,7 +381,7 @@ class _JointProblem:
         reduced = []
         for kind, ((H, Hcross, g, f, t, free), extra) in enumerate(
                 zip(marks, self.extra_damping, strict=True)):
-            Linv = np.linalg.inv(np.linalg.cholesky(_damped(H, np.maximum(lam, extra), free)))
+            Linv = np.linalg.inv(np.linalg.cholesky(damped(H, np.maximum(lam, extra), free)))
             on = np.flatnonzero(moving[f])
             G = np.empty((len(on), 6, H.shape[1]))  # H_pl L^-T, in chunks
             for a in range(0, len(on), _CHUNK):
@@ -794,7 +795,7 @@ def _frame_information(prob: _JointProblem, state: tuple[FloatArray, ...]) -> Fl
         w = ((np.arange(len(e)) >= prob.Kl) == bool(kind)).astype(np.float64)
         Hpp, _, *marks = prob.normal_equations(Jpl, Jl, Jpp, Jx, e, w)
         H, Hcross, _, f, t, free = marks[kind]
-        Linv = np.linalg.inv(np.linalg.cholesky(_damped(H, 1e-12, free)))
+        Linv = np.linalg.inv(np.linalg.cholesky(damped(H, 1e-12, free)))
         pf, _, Gp = _pairs(f, t, len(H), Hcross @ np.swapaxes(Linv[t], 1, 2))  # (K, 6, n)
         out[kind] = Hpp - _sum_by(pf, Gp @ np.swapaxes(Gp, 1, 2), prob.F)
     return out
@@ -810,19 +811,6 @@ def _pairs(f: np.ndarray, t: np.ndarray, m: int, G: FloatArray
     if len(pair) == len(f):
         return f, t, G
     return pair // m, pair % m, _sum_by(inv, G, len(pair))
-
-
-def _damped(H: FloatArray, lam: float | FloatArray, free: np.ndarray) -> FloatArray:
-    """``H + lam diag(H)`` per block (``lam`` one or ``(N,)``, one per block; a floor on tiny
-    diagonals), held parameters' rows and columns replaced by the identity so that they stay
-    at zero."""
-    n = H.shape[1]
-    dg = np.einsum("kii->ki", H)
-    eye = np.eye(n)
-    lam_k = np.broadcast_to(np.asarray(lam, float), (len(H),))[:, None]
-    H = H + (lam_k * np.maximum(dg, 1e-12 * max(float(dg.max(initial=0.0)), 1e-30)))[:, :, None] \
-        * eye
-    return H * (free[:, :, None] & free[:, None, :]) + (~free)[:, :, None] * eye
 
 
 def joint_adjust(lines: LineTracks, rotations: FloatArray, positions: FloatArray,
