@@ -717,7 +717,8 @@ def _better_start(tracks: LineTracks, options: EstimationOptions, run: RunLog,
         why = (f"{int(r.estimated.sum())} frames against {int(first.estimated.sum())}; every "
                f"observation, misfits capped at {np.degrees(limit):.3g} deg (frames without a "
                f"pose at the cap): {sc:.4g} deg RMS against {base:.4g}")
-        if best != int(np.argmin(scores)) and sc <= (1.0 + options.start_margin) * min(scores):
+        if kept is not first and best != int(np.argmin(scores)) \
+                and sc <= (1.0 + options.start_margin) * min(scores):
             why += (f"; a tie with the same observations, decided by the adjustment's least "
                     f"squares: {r.residual_rms_final_deg:.7g} deg RMS")
         att = Attempt(name, (0, F - 1), r, cost_deg=sc, why=why)
