@@ -196,8 +196,8 @@ def test_a_tie_between_starts_is_decided_by_the_least_squares_cost():
     a = estimate_poses(sim.tracks)
     b = replace(a, residual_rms_final_deg=a.residual_rms_final_deg * (1 - 1e-6))
     pick = _least_squares_among_ties
-    assert pick([("a", a), ("b", b)], [1.0, 1.0004], 0.001) == 1  # a tie: least squares
-    assert pick([("a", a), ("b", b)], [1.0, 1.002], 0.001) == 0  # no tie: the score
+    assert pick([("a", a), ("b", b)], [1.0, 1.0004], 0.001) == (1, [0, 1])  # a tie
+    assert pick([("a", a), ("b", b)], [1.0, 1.002], 0.001) == (0, [0])  # no tie: the score
     fewer = replace(b, used_tracks=np.r_[False, b.used_tracks[1:]])
-    assert pick([("a", a), ("b", fewer)], [1.0, 1.0004], 0.001) == 0  # other observations
-    assert pick([("a", b), ("b", a)], [1.0004, 1.0], 0.001) == 0
+    assert pick([("a", a), ("b", fewer)], [1.0, 1.0004], 0.001) == (0, [0])  # other tracks
+    assert pick([("a", b), ("b", a)], [1.0004, 1.0], 0.001) == (0, [0, 1])

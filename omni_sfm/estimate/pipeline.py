@@ -711,14 +711,14 @@ def _better_start(tracks: LineTracks, options: EstimationOptions, run: RunLog,
 
     base = score(first)
     scores = [score(r) for _, r in candidates]
-    best = _least_squares_among_ties(candidates, scores, options.start_margin)
+    best, ties = _least_squares_among_ties(candidates, scores, options.start_margin)
     kept = candidates[best][1] if scores[best] < (1.0 - options.start_margin) * base else first
-    for (name, r), sc in zip(candidates, scores, strict=True):
+    decided = kept is not first and best != int(np.argmin(scores))
+    for i, ((name, r), sc) in enumerate(zip(candidates, scores, strict=True)):
         why = (f"{int(r.estimated.sum())} frames against {int(first.estimated.sum())}; every "
                f"observation, misfits capped at {np.degrees(limit):.3g} deg (frames without a "
                f"pose at the cap): {sc:.4g} deg RMS against {base:.4g}")
-        if kept is not first and best != int(np.argmin(scores)) \
-                and sc <= (1.0 + options.start_margin) * min(scores):
+        if decided and i in ties:
             why += (f"; a tie with the same observations, decided by the adjustment's least "
                     f"squares: {r.residual_rms_final_deg:.7g} deg RMS")
         att = Attempt(name, (0, F - 1), r, cost_deg=sc, why=why)
@@ -727,7 +727,7 @@ def _better_start(tracks: LineTracks, options: EstimationOptions, run: RunLog,
 
 
 def _least_squares_among_ties(candidates: list[tuple[str, EstimationResult]],
-                              scores: list[float], margin: float) -> int:
+                              scores: list[float], margin: float) -> tuple[int, list[int]]:
     """The index of the best of ``candidates`` by their ``scores`` (capped, lines triangulated
     from the poses), except where others tie with it: one within ``margin`` of its score
     that explains the same observations (the same frames posed, the same tracks used) is
@@ -736,14 +736,15 @@ def _least_squares_among_ties(candidates: list[tuple[str, EstimationResult]],
     between two that kept the same it is only an approximation of that cost (lines
     triangulated, not adjusted; misfits capped), whose error can exceed their difference:
     sparse seed 5, two minima 2e-6 apart in the adjustment's cost ranked the other way round
-    by 4e-4 in the score (docs/estimator.md, stage 9)."""
+    by 4e-4 in the score (docs/estimator.md, stage 9). Also returns the indices of the tie
+    (the best alone where there is none)."""
     best = int(np.argmin(scores))
     ref = candidates[best][1]
     ties = [i for i, (_, r) in enumerate(candidates)
             if scores[i] <= (1.0 + margin) * scores[best]
             and np.array_equal(r.estimated, ref.estimated)
             and np.array_equal(r.used_tracks, ref.used_tracks)]
-    return min(ties, key=lambda i: (candidates[i][1].residual_rms_final_deg, i))
+    return min(ties, key=lambda i: (candidates[i][1].residual_rms_final_deg, i)), ties
 
 
 def _reversed_start(tracks: LineTracks, options: EstimationOptions, run: RunLog,
