@@ -201,3 +201,21 @@ def test_a_tie_between_starts_is_decided_by_the_least_squares_cost():
     fewer = replace(b, used_tracks=np.r_[False, b.used_tracks[1:]])
     assert pick([("a", a), ("b", fewer)], [1.0, 1.0004], 0.001) == (0, [0])  # other tracks
     assert pick([("a", b), ("b", a)], [1.0004, 1.0], 0.001) == (0, [0, 1])
+
+
+def test_same_result_with_one_and_two_workers():
+    # the other starts (docs/estimator.md stage 9) run in child processes beside the first
+    # with two workers, one after the other in this process with one: the same poses to the
+    # bit and the same attempts, in the same order
+    sim = simulate(SimulationOptions(num_views=200, num_parallel=20, num_other=20,
+                                     noise_deg=0.1, visible_frames=80, seed=3))
+    one = estimate_poses(sim.tracks, EstimationOptions(workers=1))
+    two = estimate_poses(sim.tracks, EstimationOptions(workers=2))
+    strategies = {a["strategy"] for a in one.report["attempts"]}
+    assert {"short bootstrap", "merged starts", "reversed start"} <= strategies
+    assert np.array_equal(one.estimated, two.estimated)
+    assert np.array_equal(one.trajectory.rotations, two.trajectory.rotations)
+    assert np.array_equal(one.trajectory.positions, two.trajectory.positions)
+    assert one.report["attempts"] == two.report["attempts"]
+    with pytest.raises(OmniSfmError, match="workers must be at least 1"):
+        estimate_poses(sim.tracks, EstimationOptions(workers=0))

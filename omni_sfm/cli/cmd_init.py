@@ -79,7 +79,8 @@ def add_parser(subparsers: Any) -> None:
                         "see them (omni-sfm refine reads the input itself); default: for runs "
                         "of at most 1000 frames")
     p.add_argument("--workers", type=int, default=None, metavar="N",
-                   help="processes extracting lines while this one decodes and tracks "
+                   help="processes extracting lines while this one decodes and tracks, "
+                        "and running the estimator's other starts beside its first "
                         "(default: one per CPU core; 1: all in this process); the result is "
                         "the same for any N")
     p.add_argument("--text", action="store_true", help="also write the COLMAP model as text")
@@ -150,17 +151,18 @@ def run(args: argparse.Namespace) -> int:
     from omni_sfm.estimate.pipeline import EstimationOptions, estimate_poses, write_init_outputs
     from omni_sfm.fileio import atomic_output_dir, check_output_dir, stored_path
 
-    estimation = EstimationOptions(refine=not args.no_refine, progress=not args.quiet)
     if args.initializer is not None:
         return _run_plugin(args)
+    if args.workers is not None and args.workers < 1:
+        raise OmniSfmError(f"--workers must be at least 1, got {args.workers}")
+    estimation = EstimationOptions(refine=not args.no_refine, progress=not args.quiet,
+                                   workers=args.workers)
     if args.images is not None:
         from omni_sfm.initialize import InitOptions, init_from_images
         from omni_sfm.lines.frontend import FrontEndOptions
 
         if args.camera is None:
             raise OmniSfmError("--images needs --camera CAMERA_FILE (docs/cameras.md)")
-        if args.workers is not None and args.workers < 1:
-            raise OmniSfmError(f"--workers must be at least 1, got {args.workers}")
         frontend = FrontEndOptions(extraction=_extraction(args), progress=not args.quiet,
                                    workers=args.workers)
         res = init_from_images(
@@ -180,7 +182,7 @@ def run(args: argparse.Namespace) -> int:
             print(res.auto_mask)
         return 0
 
-    for flag in ("camera", "mask", "edge_low", "edge_high", "workers", "colmap_images"):
+    for flag in ("camera", "mask", "edge_low", "edge_high", "colmap_images"):
         if getattr(args, flag) is not None:
             raise OmniSfmError(f"--{flag.replace('_', '-')} applies to --images input, not to "
                                "--tracks")
@@ -228,7 +230,8 @@ def _run_plugin(args: argparse.Namespace) -> int:
                  "--start/--end/--step": (args.start, args.end, args.step) != (0, None, 1),
                  "--edge-low/--edge-high": (args.edge_low, args.edge_high) != (None, None),
                  "--no-colmap": args.no_colmap, "--text": args.text,
-                 "--no-auto-mask": args.no_auto_mask, "--strict": args.strict}
+                 "--no-auto-mask": args.no_auto_mask, "--strict": args.strict,
+                 "--workers": args.workers is not None}
     given = [flag for flag, on in line_only.items() if on]
     if given:
         raise OmniSfmError(f"{given[0]} applies to the line-based method, not --initializer")

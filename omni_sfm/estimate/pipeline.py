@@ -12,7 +12,9 @@ and the last estimated camera is 1 (the paper's convention, Sec. VII).
 
 from __future__ import annotations
 
+import os
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -61,6 +63,7 @@ from omni_sfm.estimate.windows import (
 )
 from omni_sfm.fileio import atomic_write_text, dumps_json
 from omni_sfm.folders import REPORT_FILE, TRAJECTORY_FILE
+from omni_sfm.forked import Deferred
 from omni_sfm.geometry import FloatArray, ray_line_closest, rotation_angle
 from omni_sfm.lines.tracks import LineTracks
 from omni_sfm.poses import Trajectory, write_tum
@@ -188,6 +191,11 @@ class EstimationOptions:
     join_max_residual_factor: float = 1.5
     """... and the bundle adjustment of the joined piece ends with an RMS residual at most this
     times the larger of the two pieces' own."""
+    workers: int | None = None
+    """Processes that run the starts of :func:`_better_start` at once (docs/estimator.md stage
+    9): 1, one after the other in this process; 2 or more, the short bootstrap and the reversed
+    start each in a child process of its own beside the first start; None: 2 where the machine
+    has more than one core. The result is the same whatever the number."""
     multistart_min_difference: float = 0.05
     """An alternative start is refined only if its camera centres differ from every start
     already refined by more than this fraction (RMS, after least-squares scaling) of the RMS
@@ -610,6 +618,7 @@ def estimate_poses(tracks: LineTracks,
         raise OmniSfmError(f"tracks have {F} frames; need at least 3")
     if M < 6:
         raise OmniSfmError(f"tracks have {M} lines; need at least 6 (3 parallel and 3 others)")
+    start_workers(options)  # a bad number of workers fails here, whatever the sequence
     with tqdm(total=F, desc="poses", unit="frame", leave=False,
               disable=None if options.progress else True) as bar:
         return _estimate(tracks, options, RunLog(progress=bar if options.progress else None),
@@ -647,6 +656,44 @@ def _capped_rms_deg(tracks: LineTracks, R: FloatArray, c: FloatArray, frames: np
                                                    everywhere=everywhere))))
 
 
+@dataclass(frozen=True)
+class _OtherStart:
+    """A start beside the first one (:func:`_better_start`), computed on its own log: its
+    solution and result (or the error that stopped it) and the attempts it recorded."""
+
+    sol: _Solved | None
+    result: EstimationResult | None
+    error: OmniSfmError | None
+    entries: list[dict[str, Any]]
+
+
+def _short_start(tracks: LineTracks, other: EstimationOptions, t_all: float) -> _OtherStart:
+    """Strategy "short bootstrap": the moving camera's solution from a chain of windows on
+    ``other.bootstrap_frames`` frames, with its segments."""
+    log = RunLog()
+    try:
+        sol = _solve_moving(tracks, other, log)
+        return _OtherStart(sol, _with_segments(tracks, sol, other, log, t_all), None, log.entries)
+    except OmniSfmError as exc:
+        return _OtherStart(None, None, exc, log.entries)
+
+
+def _reversed_job(tracks: LineTracks, options: EstimationOptions, t_all: float) -> _OtherStart:
+    """:func:`_reversed_start` on its own log."""
+    log = RunLog()
+    return _OtherStart(None, _reversed_start(tracks, options, log, t_all), None, log.entries)
+
+
+def start_workers(options: EstimationOptions) -> int:
+    """The processes that run the starts of :func:`_better_start` at once (``options.workers``;
+    None: two where the machine has more than one core)."""
+    if options.workers is not None:
+        if options.workers < 1:
+            raise OmniSfmError(f"workers must be at least 1, got {options.workers}")
+        return int(options.workers)
+    return 2 if (os.cpu_count() or 1) > 1 else 1
+
+
 def _better_start(tracks: LineTracks, options: EstimationOptions, run: RunLog,
                   t_all: float) -> EstimationResult:
     """The moving camera's result from the chain of windows on ``bootstrap_frames`` and,
@@ -659,17 +706,49 @@ def _better_start(tracks: LineTracks, options: EstimationOptions, run: RunLog,
     capped at the first one's outlier limit, the observations of frames that a result leaves
     without a pose at the cap); another than the first must be lower by more than
     ``options.start_margin``. Raises
-    where none gives a result."""
+    where none gives a result.
+
+    With more than one worker (:func:`start_workers`) the short bootstrap and the reversed
+    start run in child processes of their own (:class:`~omni_sfm.forked.Deferred`) beside
+    the first start, from the moment its chain is known to have more than one window (with
+    one they are not run); with one worker, after it, in this process. Each start
+    records its attempts on its own log, added to ``run``'s in the same order either way, and
+    the result is the same."""
     F, short, long = tracks.num_frames, options.short_bootstrap_frames, options.bootstrap_frames
+    others = not (short is None or 2 * short > F or (long is not None and long <= short))
+    other = replace(options, bootstrap_frames=short, short_bootstrap_frames=None)
+    jobs = [Deferred(lambda: _short_start(tracks, other, t_all)),
+            Deferred(lambda: _reversed_job(tracks, options, t_all))] if others else []
+    try:
+        return _best_of_starts(tracks, options, other, run, t_all, jobs,
+                               fork=start_workers(options) > 1)
+    finally:
+        for job in jobs:
+            job.cancel()
+
+
+def _best_of_starts(tracks: LineTracks, options: EstimationOptions, other: EstimationOptions,
+                    run: RunLog, t_all: float, jobs: list[Deferred[_OtherStart]], *,
+                    fork: bool) -> EstimationResult:
+    """:func:`_better_start` with its other starts' ``jobs`` (none where they do not apply),
+    started in child processes (``fork``) once the first start's chain has more than one
+    window."""
+    F, long = tracks.num_frames, options.bootstrap_frames
     sol_a: _Solved | None = None
     first: EstimationResult | None = None
     error: OmniSfmError | None = None
+
+    def chained(init: _Init) -> None:
+        if fork and len(init.windows) > 1:
+            for job in jobs:
+                job.start()
+
     try:
-        sol_a = _solve_moving(tracks, options, run)
+        sol_a = _solve_moving(tracks, options, run, chained)
         first = _with_segments(tracks, sol_a, options, run, t_all)
     except OmniSfmError as exc:
         error = exc
-    if short is None or 2 * short > F or (long is not None and long <= short):
+    if not jobs:
         if first is None:
             assert error is not None
             raise error
@@ -679,16 +758,17 @@ def _better_start(tracks: LineTracks, options: EstimationOptions, run: RunLog,
         run.record(Attempt("short bootstrap", (0, F - 1), None, outcome=Outcome.SKIPPED,
                            why="one window covers the sequence"))
         return replace(first, report={**first.report, "attempts": run.entries})
-    other = replace(options, bootstrap_frames=short, short_bootstrap_frames=None)
-    try:
-        sol_b = _solve_moving(tracks, other, run)
-        alt = _with_segments(tracks, sol_b, other, run, t_all)
-    except OmniSfmError as exc:
-        run.record(failed("short bootstrap", (0, F - 1), str(exc)))
+    if run.progress is not None:
+        run.progress.set_postfix_str("other starts")
+    b = jobs[0].result()
+    run.entries.extend(b.entries)
+    if b.error is not None or b.sol is None or b.result is None:
+        run.record(failed("short bootstrap", (0, F - 1), str(b.error)))
         if first is None:
             assert error is not None
-            raise error from exc
+            raise error from b.error
         return replace(first, report={**first.report, "attempts": run.entries})
+    sol_b, alt = b.sol, b.result
     if first is None or sol_a is None:
         run.record(Attempt("short bootstrap", (0, F - 1), alt,
                            why=f"{int(alt.estimated.sum())} frames; the chain on "
@@ -699,7 +779,9 @@ def _better_start(tracks: LineTracks, options: EstimationOptions, run: RunLog,
     if merged_sol is not None:
         candidates.append(("merged starts", _with_segments(tracks, merged_sol, other, run,
                                                            t_all)))
-    backwards = _reversed_start(tracks, options, run, t_all)
+    c = jobs[1].result()
+    run.entries.extend(c.entries)
+    backwards = c.result
     if backwards is not None:
         candidates.append(("reversed start", backwards))
     limit = outlier_limit(np.radians(first.sigma_deg), options.bundle)
@@ -850,11 +932,14 @@ class _Solved:
     sigma: float
 
 
-def _solve_moving(tracks: LineTracks, options: EstimationOptions, run: RunLog) -> _Solved:
+def _solve_moving(tracks: LineTracks, options: EstimationOptions, run: RunLog,
+                  chained: Callable[[_Init], None] | None = None) -> _Solved:
     """Windows, chaining, refinement and registration of the frames beyond (world and scale of
-    the chain)."""
+    the chain); ``chained`` is called with the chain of windows as soon as it is known."""
     M = tracks.num_tracks
     init = _initialise(tracks, options, run)
+    if chained is not None:
+        chained(init)
     outliers = np.zeros(M, bool)
     if options.refine:
         ba = _refine(tracks, init, options, run)
