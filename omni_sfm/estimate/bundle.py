@@ -453,6 +453,10 @@ class LineProblem:
                  observations: np.ndarray | None = None, *, line_iterations: int = 0,
                  loss: RobustLoss = RobustLoss.LINEAR, loss_scale: float = 1.0) -> None:
         self.line_iterations, self.loss, self.loss_scale = line_iterations, loss, loss_scale
+        self._refit: tuple[_State, FloatArray, FloatArray] | None = None
+        """The last state :meth:`retract` returned from the lines' own iterations, with its
+        residuals and predicted normals (which :meth:`residuals` then need not compute
+        again: the same values)."""
         F, M = tracks.num_frames, tracks.num_tracks
         sel = frames[tracks.obs_frame] & active[tracks.obs_track]
         if observations is not None:  # (K,) bool over the tracks' observations: those used
@@ -476,6 +480,10 @@ class LineProblem:
 
     def residuals(self, R: FloatArray, c: FloatArray, d: FloatArray,
                   p: FloatArray) -> tuple[FloatArray, FloatArray]:
+        if self._refit is not None:
+            (R0, c0, d0, p0), e0, u0 = self._refit
+            if R is R0 and c is c0 and d is d0 and p is p0:
+                return e0, u0
         f, t = self.f, self.t
         u = predicted_normals(R[f], c[f], p[t], d[t])
         n = u / np.linalg.norm(u, axis=1, keepdims=True)
@@ -494,13 +502,15 @@ class LineProblem:
                        A: FloatArray) -> FloatArray:
         """``(K, 2, 4)`` d e / d line (``Rk``: each observation's rotation, ``A``: d e / d u)."""
         f, t = self.f, self.t
-        e1, e2 = _tangent_basis(d[t])
+        # per line, then per observation (the same values as computed per observation)
+        b1, b2 = _tangent_basis(d)
+        e1, e2 = b1[t], b2[t]
         pc = p[t] - c[f]
         V = np.empty((len(t), 4, 3))  # (K, 4, 3) world
         cross3(pc, e1, out=V[:, 0])
         cross3(pc, e2, out=V[:, 1])
-        cross3(e1, d[t], out=V[:, 2])
-        cross3(e2, d[t], out=V[:, 3])
+        V[:, 2] = cross3(b1, d)[t]
+        V[:, 3] = cross3(b2, d)[t]
         return A @ np.swapaxes(np.einsum("kji,kaj->kai", Rk, V), 1, 2) * \
             self.line_free[t][:, None, :]
 
@@ -562,7 +572,8 @@ class LineProblem:
                 dpose: FloatArray, dline: FloatArray) -> _State:
         R2, c2, d2, p2 = self._moved(R, c, d, p, dpose, dline)
         if self.line_iterations > 0:
-            d2, p2 = self._refit_lines(R2, c2, d2, p2)
+            d2, p2, e, u = self._refit_lines(R2, c2, d2, p2)
+            self._refit = ((R2, c2, d2, p2), e, u)
         return R2, c2, d2, p2
 
     def _moved(self, R: FloatArray, c: FloatArray, d: FloatArray, p: FloatArray,
@@ -587,10 +598,11 @@ class LineProblem:
         return np.bincount(self.t, weights=rho, minlength=self.M).astype(np.float64), w
 
     def _refit_lines(self, R: FloatArray, c: FloatArray, d: FloatArray, p: FloatArray
-                     ) -> tuple[FloatArray, FloatArray]:
+                     ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
         """``line_iterations`` Gauss-Newton iterations of each line alone at the poses ``R``,
         ``c`` (class docstring); an iteration that does not lower a line's cost is undone and
-        that line damped tenfold more for the next."""
+        that line damped tenfold more for the next. Returns the lines ``d, p`` and the
+        residuals and predicted normals there (:meth:`residuals`)."""
         M, t, lf = self.M, self.t, self.line_free
         Rk = R[self.f]
         e, u = self.residuals(R, c, d, p)
@@ -616,7 +628,7 @@ class LineProblem:
             w = np.where(k, w3, w)
             cost = np.where(ok, cost3, cost)
             mu = np.where(ok, mu / 10.0, mu * 10.0)
-        return d, p
+        return d, p, e, u
 
 
 def robust_sigma(angles: FloatArray) -> float:
