@@ -70,14 +70,19 @@ class Deferred(Generic[T]):
         """Whether ``fn`` runs in a child process."""
         return self._proc is not None
 
-    def result(self) -> T:
-        """``fn()``'s value (waiting for the child), or its exception raised here."""
+    def result(self, while_waiting: Callable[[], None] | None = None,
+               interval: float = 0.5) -> T:
+        """``fn()``'s value (waiting for the child, calling ``while_waiting`` every
+        ``interval`` seconds meanwhile), or its exception raised here."""
         if self._value is None:
             if self._proc is None:
                 self._value = ("ok", self._fn())
             else:
                 assert self._conn is not None
                 try:
+                    if while_waiting is not None:
+                        while not self._conn.poll(interval):
+                            while_waiting()
                     self._value = self._conn.recv()
                 except EOFError:
                     self._proc.join()
@@ -102,3 +107,20 @@ class Deferred(Generic[T]):
             self._proc = None
             if self._conn is not None:
                 self._conn.close()
+
+
+class SharedCounters:
+    """``n`` integers that forked children write and this process reads (shared memory where
+    the platform forks; a list otherwise, for work done in this process)."""
+
+    def __init__(self, n: int) -> None:
+        self._values: Any = mp.get_context("fork").RawArray("q", n) if can_fork() else [0] * n
+
+    def __getitem__(self, k: int) -> int:
+        return int(self._values[k])
+
+    def __setitem__(self, k: int, value: int) -> None:
+        self._values[k] = value
+
+    def total(self) -> int:
+        return int(sum(self._values))

@@ -210,7 +210,7 @@ def test_same_result_with_one_and_two_workers():
     sim = simulate(SimulationOptions(num_views=200, num_parallel=20, num_other=20,
                                      noise_deg=0.1, visible_frames=80, seed=3))
     one = estimate_poses(sim.tracks, EstimationOptions(workers=1))
-    two = estimate_poses(sim.tracks, EstimationOptions(workers=2))
+    two = estimate_poses(sim.tracks, EstimationOptions(workers=2, progress=True))
     strategies = {a["strategy"] for a in one.report["attempts"]}
     assert {"short bootstrap", "merged starts", "reversed start"} <= strategies
     assert np.array_equal(one.estimated, two.estimated)

@@ -10,13 +10,16 @@ caller keeps or rejects it, and the :class:`RunLog` records every attempt with i
 
 from __future__ import annotations
 
+import os
 import time
 from collections import defaultdict
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from enum import StrEnum
 from typing import Any, Generic, TypeVar
+
+from omni_sfm.forked import SharedCounters
 
 T = TypeVar("T")
 
@@ -147,6 +150,29 @@ def failed(strategy: str, frames: tuple[int, int] | None, why: str) -> Attempt[A
     return Attempt(strategy, frames, None, why=why, outcome=Outcome.FAILED)
 
 
+class CountedProgress:
+    """What :class:`RunLog` needs of a progress bar (``n``, ``update``, ``set_postfix_str``),
+    counting in slot ``k`` of shared counters (:class:`~omni_sfm.forked.SharedCounters`), so
+    that a run in a child process shows its progress through the caller's bar; ``on_update``
+    (the caller's refresh of that bar) is called only in the process that made this one."""
+
+    def __init__(self, counters: SharedCounters, k: int,
+                 on_update: Callable[[], None] | None = None) -> None:
+        self.counters, self.k, self.on_update, self.pid = counters, k, on_update, os.getpid()
+
+    @property
+    def n(self) -> int:
+        return self.counters[self.k]
+
+    def update(self, n: int) -> None:
+        self.counters[self.k] = self.counters[self.k] + int(n)
+        if self.on_update is not None and os.getpid() == self.pid:
+            self.on_update()
+
+    def set_postfix_str(self, s: str = "", refresh: bool = True) -> None:
+        """The stage is not shown for such a run."""
+
+
 class RunLog:
     """Every attempt of one estimation in order (shared by the sub-runs on stretches of frames,
     whose frame indices it shifts to the whole sequence) and the wall time per stage (each run
@@ -174,8 +200,9 @@ class RunLog:
     def reversed(self, num_frames: int) -> RunLog:
         """A log for a run on the ``num_frames`` frames of this sequence in reverse order: the
         same attempts, recorded in this sequence's frame indices and marked ``"reversed"``;
-        its own timings and no progress bar (the first run has been over every frame)."""
-        return RunLog(0, self.entries, None, None, num_frames)
+        its own timings; the same progress bar, which then counts the frames reached from
+        the end."""
+        return RunLog(0, self.entries, None, self.progress, num_frames)
 
     def reached(self, frame: int) -> None:
         """The estimate has got as far as ``frame`` (of this run's frames): the progress bar

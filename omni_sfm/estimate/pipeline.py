@@ -24,7 +24,7 @@ from tqdm import tqdm
 
 from omni_sfm import __version__
 from omni_sfm.errors import OmniSfmError
-from omni_sfm.estimate.attempts import Attempt, Outcome, RunLog, failed
+from omni_sfm.estimate.attempts import Attempt, CountedProgress, Outcome, RunLog, failed
 from omni_sfm.estimate.bundle import (
     BundleOptions,
     BundleResult,
@@ -63,7 +63,7 @@ from omni_sfm.estimate.windows import (
 )
 from omni_sfm.fileio import atomic_write_text, dumps_json
 from omni_sfm.folders import REPORT_FILE, TRAJECTORY_FILE
-from omni_sfm.forked import Deferred
+from omni_sfm.forked import Deferred, SharedCounters
 from omni_sfm.geometry import FloatArray, ray_line_closest, rotation_angle
 from omni_sfm.lines.tracks import LineTracks
 from omni_sfm.poses import Trajectory, write_tum
@@ -667,10 +667,11 @@ class _OtherStart:
     entries: list[dict[str, Any]]
 
 
-def _short_start(tracks: LineTracks, other: EstimationOptions, t_all: float) -> _OtherStart:
+def _short_start(tracks: LineTracks, other: EstimationOptions, t_all: float,
+                 progress: CountedProgress | None) -> _OtherStart:
     """Strategy "short bootstrap": the moving camera's solution from a chain of windows on
     ``other.bootstrap_frames`` frames, with its segments."""
-    log = RunLog()
+    log = RunLog(progress=progress)
     try:
         sol = _solve_moving(tracks, other, log)
         return _OtherStart(sol, _with_segments(tracks, sol, other, log, t_all), None, log.entries)
@@ -678,9 +679,10 @@ def _short_start(tracks: LineTracks, other: EstimationOptions, t_all: float) -> 
         return _OtherStart(None, None, exc, log.entries)
 
 
-def _reversed_job(tracks: LineTracks, options: EstimationOptions, t_all: float) -> _OtherStart:
+def _reversed_job(tracks: LineTracks, options: EstimationOptions, t_all: float,
+                  progress: CountedProgress | None) -> _OtherStart:
     """:func:`_reversed_start` on its own log."""
-    log = RunLog()
+    log = RunLog(progress=progress)
     return _OtherStart(None, _reversed_start(tracks, options, log, t_all), None, log.entries)
 
 
@@ -717,19 +719,37 @@ def _better_start(tracks: LineTracks, options: EstimationOptions, run: RunLog,
     F, short, long = tracks.num_frames, options.short_bootstrap_frames, options.bootstrap_frames
     others = not (short is None or 2 * short > F or (long is not None and long <= short))
     other = replace(options, bootstrap_frames=short, short_bootstrap_frames=None)
-    jobs = [Deferred(lambda: _short_start(tracks, other, t_all)),
-            Deferred(lambda: _reversed_job(tracks, options, t_all))] if others else []
+    if not others:
+        return _best_of_starts(tracks, options, other, run, t_all, [], fork=False)
+    # their progress: frames reached by each, summed on a bar of their own
+    counters = SharedCounters(2)
+    bars: list[tqdm[Any]] = []
+
+    def refresh() -> None:  # the bar appears when this process first waits for them
+        if run.progress is None:
+            return
+        if not bars:
+            bars.append(tqdm(total=2 * F, desc="other starts", unit="frame", leave=False,
+                             disable=None))
+        bars[0].update(counters.total() - bars[0].n)
+
+    shown = [CountedProgress(counters, k, refresh) if run.progress is not None else None
+             for k in range(2)]
+    jobs = [Deferred(lambda: _short_start(tracks, other, t_all, shown[0])),
+            Deferred(lambda: _reversed_job(tracks, options, t_all, shown[1]))]
     try:
         return _best_of_starts(tracks, options, other, run, t_all, jobs,
-                               fork=start_workers(options) > 1)
+                               fork=start_workers(options) > 1, refresh=refresh)
     finally:
         for job in jobs:
             job.cancel()
+        for bar in bars:
+            bar.close()
 
 
 def _best_of_starts(tracks: LineTracks, options: EstimationOptions, other: EstimationOptions,
                     run: RunLog, t_all: float, jobs: list[Deferred[_OtherStart]], *,
-                    fork: bool) -> EstimationResult:
+                    fork: bool, refresh: Callable[[], None] | None = None) -> EstimationResult:
     """:func:`_better_start` with its other starts' ``jobs`` (none where they do not apply),
     started in child processes (``fork``) once the first start's chain has more than one
     window."""
@@ -758,9 +778,9 @@ def _best_of_starts(tracks: LineTracks, options: EstimationOptions, other: Estim
         run.record(Attempt("short bootstrap", (0, F - 1), None, outcome=Outcome.SKIPPED,
                            why="one window covers the sequence"))
         return replace(first, report={**first.report, "attempts": run.entries})
-    if run.progress is not None:
-        run.progress.set_postfix_str("other starts")
-    b = jobs[0].result()
+    if refresh is not None:
+        refresh()
+    b = jobs[0].result(refresh)
     run.entries.extend(b.entries)
     if b.error is not None or b.sol is None or b.result is None:
         run.record(failed("short bootstrap", (0, F - 1), str(b.error)))
@@ -779,7 +799,7 @@ def _best_of_starts(tracks: LineTracks, options: EstimationOptions, other: Estim
     if merged_sol is not None:
         candidates.append(("merged starts", _with_segments(tracks, merged_sol, other, run,
                                                            t_all)))
-    c = jobs[1].result()
+    c = jobs[1].result(refresh)
     run.entries.extend(c.entries)
     backwards = c.result
     if backwards is not None:
