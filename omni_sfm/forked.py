@@ -33,9 +33,11 @@ def _child(fn: Callable[[], Any], conn: Connection) -> None:
         out = ("error", exc)
     try:
         conn.send(out)
-    except (pickle.PicklingError, TypeError, AttributeError):
-        text = "".join(traceback.format_exception(out[1])) if out[0] == "error" else ""
-        conn.send(("error", RuntimeError(f"a worker's result could not be sent back: {text}")))
+    except (pickle.PicklingError, TypeError, AttributeError) as exc:
+        what = "".join(traceback.format_exception(out[1])) if out[0] == "error" else \
+            f"{type(out[1]).__name__}"
+        conn.send(("error", RuntimeError(f"a worker's result could not be sent back ({exc}): "
+                                         f"{what}")))
     finally:
         conn.close()
 

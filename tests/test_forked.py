@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import signal
 import time
 
 import numpy as np
@@ -48,7 +49,7 @@ def test_an_error_in_the_job_is_raised_in_the_caller(fork: bool):
 @needs_fork
 def test_a_result_that_cannot_be_sent_back_is_a_clear_error():
     job = Deferred(lambda: (lambda: 1), fork=True)  # a lambda does not pickle
-    with pytest.raises(RuntimeError, match="could not be sent back"):
+    with pytest.raises(RuntimeError, match="could not be sent back .*function"):
         job.result()
 
 
@@ -57,9 +58,9 @@ def test_start_later_and_cancel():
     job = Deferred(lambda: time.sleep(60))
     job.start()
     assert job.forked
-    t0 = time.perf_counter()
-    job.cancel()  # stops the child now, not after its minute
-    assert not job.forked and time.perf_counter() - t0 < 30
+    proc = job._proc
+    job.cancel()  # stops the child now: terminated, not ended by itself after its minute
+    assert not job.forked and proc.exitcode == -signal.SIGTERM
     done = Deferred(lambda: 3)
     assert done.result() == 3
     done.start()  # already computed here: nothing is started
