@@ -7,6 +7,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+import scipy.sparse as sp
 
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.estimate.bundle import (
@@ -339,10 +340,12 @@ def test_a_frame_left_with_two_lines_after_rejection_has_no_pose() -> None:
 ])
 def test_reduced_system_by_runs_of_frames_is_the_schur_complement(
         num_frames: int, num_lines: int, seen_for: int) -> None:
-    """``_reduced_system``'s ``S = diag(Hll) - G^T G`` and ``rhs = -gl + G^T gpt``, however it
+    """``_ReducedSystem``'s ``S = diag(Hll) - G^T G`` and ``rhs = -gl + G^T gpt``, however it
     forms them (runs of frames, dense or sparse; one dense ``G`` for the paper's few views),
-    equal the dense products."""
-    from omni_sfm.estimate.bundle import _reduced_system
+    equal the dense products; the sparse one is, to the bit, scipy's ``tocsc`` of its entries
+    (the order in which duplicates are summed kept from a sort done once), also at a second
+    step of the same structure."""
+    from omni_sfm.estimate.bundle import _ReducedSystem
 
     rng = np.random.default_rng(num_frames)
     first = rng.integers(-seen_for // 2, num_frames, num_lines)
@@ -356,7 +359,8 @@ def test_reduced_system_by_runs_of_frames_is_the_schur_complement(
     A = rng.normal(size=(num_lines, 4, 4))
     Hll = A @ np.swapaxes(A, 1, 2) + 50.0 * np.eye(4)
     gpt, gl = rng.normal(size=(num_frames, 6)), rng.normal(size=(num_lines, 4))
-    dense, sparse, rhs = _reduced_system(Hll, G, gpt, gl, f, tc, num_frames)
+    system = _ReducedSystem(f, tc, num_frames, num_lines)
+    dense, sparse, rhs = system.assemble(Hll, G, gpt, gl)
     Gd = np.zeros((num_frames, 6, num_lines, 4))
     Gd[f, :, tc, :] = G
     Gm = Gd.reshape(6 * num_frames, 4 * num_lines)
@@ -367,6 +371,18 @@ def test_reduced_system_by_runs_of_frames_is_the_schur_complement(
     got = dense if sparse is None else sparse.toarray()
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-9 * np.abs(want).max())
     np.testing.assert_allclose(rhs, -gl.ravel() + Gm.T @ gpt.ravel(), rtol=0, atol=1e-9)
+    if sparse is not None:
+        rows = np.concatenate([np.repeat(g, len(g)) for _, g, *_ in system.runs]
+                              + [system.bd_rows])
+        cols = np.concatenate([np.tile(g, len(g)) for _, g, *_ in system.runs] + [system.bd_cols])
+        for G_k in (G, 1e3 * rng.normal(size=G.shape)):
+            got_k = system.assemble(Hll, G_k, gpt, gl)[1]
+            assert got_k is not None
+            want_k = sp.coo_matrix((system.entries(Hll, G_k), (rows, cols)),
+                                   shape=got_k.shape).tocsc()
+            assert np.array_equal(got_k.indptr, want_k.indptr)
+            assert np.array_equal(got_k.indices, want_k.indices)
+            assert np.array_equal(got_k.data, want_k.data)  # bit for bit
 
 
 def test_embedded_line_iterations_bring_far_lines_back() -> None:

@@ -333,13 +333,23 @@ def _normal_derivative(u: FloatArray, B: FloatArray,
 _Blocks = tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]
 
 
-def _sum_rows(index: np.ndarray, values: FloatArray, n: int) -> FloatArray:
-    """``out[i] = sum of values[k] over index[k] == i``, ``(n, d)`` from ``(K, d)`` (a bincount
-    per column: much faster than ``np.add.at``)."""
-    d = values.shape[1]
-    flat = (index[:, None] * d + np.arange(d)).ravel()
-    return np.bincount(flat, weights=values.ravel(), minlength=n * d).astype(
-        np.float64, copy=False).reshape(n, d)
+class _RowSums:
+    """``out[i] = sum of values[k] over index[k] == i``, ``(n, d)`` from ``(K, d)``, for one
+    ``index`` ``(K,)``: a bincount per column (much faster than ``np.add.at``), its flat
+    indices kept per width ``d`` (an adjustment sums by the same frames and lines at every
+    step; the indices took 40 % of the time)."""
+
+    def __init__(self, index: np.ndarray, n: int) -> None:
+        self.index, self.n = index, n
+        self._flat: dict[int, np.ndarray] = {}
+
+    def __call__(self, values: FloatArray) -> FloatArray:
+        d = values.shape[1]
+        flat = self._flat.get(d)
+        if flat is None:
+            flat = self._flat[d] = (self.index[:, None] * d + np.arange(d)).ravel()
+        return np.bincount(flat, weights=values.ravel(), minlength=self.n * d).astype(
+            np.float64, copy=False).reshape(self.n, d)
 
 
 def damped(H: FloatArray, lam: float | FloatArray, free: np.ndarray) -> FloatArray:
@@ -355,14 +365,12 @@ def damped(H: FloatArray, lam: float | FloatArray, free: np.ndarray) -> FloatArr
     return H * (free[:, :, None] & free[:, None, :]) + (~free)[:, :, None] * eye
 
 
-def _reduced_system(Hll: FloatArray, G: FloatArray, gpt: FloatArray, gl: FloatArray,
-                    f: np.ndarray, tc: np.ndarray, F: int, span: int = 64
-                    ) -> tuple[FloatArray | None, sp.csc_matrix | None, FloatArray]:
+class _ReducedSystem:
     """The lines' reduced system ``S x = rhs`` once the poses are eliminated: ``S = diag(Hll) -
     G^T G``, ``rhs = -gl + G^T gpt`` (``Hll``, ``gl``: the ``Ma`` active lines' blocks; ``G``:
     one ``6x4`` block per observation, of frame ``f`` and active line ``tc``; ``gpt``: ``(F,
-    6)``). Returns ``(S, None, rhs)`` with ``S`` dense where the lines are few or most pairs of
-    them are seen together, else ``(None, S, rhs)`` with ``S`` sparse (CSC).
+    6)``). :meth:`assemble` returns ``(S, None, rhs)`` with ``S`` dense where the lines are few
+    or most pairs of them are seen together, else ``(None, S, rhs)`` with ``S`` sparse (CSC).
 
     Where at most 150 lines are seen in most frames (the paper's views), ``G`` is one dense
     matrix and ``G^T G`` one product. Elsewhere ``G^T G`` sums, over the frames, the products
@@ -373,57 +381,121 @@ def _reduced_system(Hll: FloatArray, G: FloatArray, gpt: FloatArray, gl: FloatAr
     scipy's block-sparse product, which took half of the adjustment's time on a real video's
     600 frames and 350 lines (0.2 s a step), and 14 % of the whole estimation on the sparse
     simulations (80 lines): 5.6 against 12.4 ms for the system of 600 frames, 4,800
-    observations. The two agree to round-off."""
-    Ma = len(Hll)
-    i4 = np.arange(4)
-    ar = np.repeat(np.arange(Ma), 16)  # the block diagonal diag(Hll): rows, columns
-    bd_rows, bd_cols = 4 * ar + np.tile(np.repeat(i4, 4), Ma), 4 * ar + np.tile(i4, 4 * Ma)
-    small = 4 * Ma <= 600
-    if small and len(f) > 0.3 * F * Ma:
-        # most lines seen in most frames: G is dense, one matrix product
-        Gd = np.zeros((F, 6, Ma, 4))
-        Gd[f, :, tc, :] = G
-        Gm = Gd.reshape(6 * F, 4 * Ma)
-        S_full = -(Gm.T @ Gm)
-        S_full[bd_rows, bd_cols] += Hll.ravel()
-        return S_full, None, -gl.ravel() + Gm.T @ gpt.ravel()
-    rhs = -gl.ravel() + _sum_rows(tc, np.einsum("kij,ki->kj", G, gpt[f]), Ma).ravel()
-    order = np.lexsort((tc, f))
-    fo, to, Go = f[order], tc[order], G[order]
-    bounds = np.searchsorted(fo, np.arange(0, F + span, span))
-    runs = []  # per run of frames: its observations a:b, its lines, the dense G block
-    for a, b in zip(bounds[:-1], bounds[1:], strict=True):
-        if a < b:
-            lines, loc = np.unique(to[a:b], return_inverse=True)
-            frames, floc = np.unique(fo[a:b], return_inverse=True)
-            Gc = np.zeros((len(frames), 6, len(lines), 4))
-            Gc[floc, :, loc, :] = Go[a:b]
-            runs.append((lines, Gc.reshape(6 * len(frames), -1)))
-    dense = small
-    if not dense and Ma <= 3000:  # most pairs of lines seen in a run together: dense
-        seen = np.zeros((Ma, Ma), bool)
-        for lines, _ in runs:
-            seen[np.ix_(lines, lines)] = True
-        dense = int(seen.sum()) > 0.3 * Ma * Ma
-    if dense:
-        S_dense = np.zeros((4 * Ma, 4 * Ma))
-        for lines, Gm in runs:
-            g = (4 * lines[:, None] + i4).ravel()
-            S_dense[np.ix_(g, g)] -= Gm.T @ Gm
-        S_dense[bd_rows, bd_cols] += Hll.ravel()
-        return S_dense, None, rhs
-    rows, cols, vals = [], [], []
-    for lines, Gm in runs:
-        g = (4 * lines[:, None] + i4).ravel()
-        rows.append(np.repeat(g, len(g)))
-        cols.append(np.tile(g, len(g)))
-        vals.append(-(Gm.T @ Gm).ravel())
-    rows.append(bd_rows)
-    cols.append(bd_cols)
-    vals.append(Hll.ravel())
-    S_sparse = sp.coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                             shape=(4 * Ma, 4 * Ma)).tocsc()  # duplicates summed
-    return None, S_sparse, rhs
+    observations. The two agree to round-off.
+
+    Everything that depends on which frame sees which line alone (the runs, where each block
+    goes, the sparse matrix's structure and the order in which its duplicate entries are
+    summed) is worked out once here, for all the steps of an adjustment: the same matrix to
+    the bit as scipy's ``coo_matrix(...).tocsc()`` of the same entries, which sums duplicates
+    in the order its unstable per-column sort leaves them (taken from that sort once, on the
+    entries' positions). Measured on an adjustment of 728 frames of a real walk (186 lines,
+    11,000 observations): 28 against 12 ms a step (docs/estimator.md, "Speed")."""
+
+    def __init__(self, f: np.ndarray, tc: np.ndarray, F: int, Ma: int, span: int = 64) -> None:
+        self.f, self.tc, self.F, self.Ma = f, tc, F, Ma
+        self._by_line = _RowSums(tc, Ma)
+        i4 = np.arange(4)
+        ar = np.repeat(np.arange(Ma), 16)  # the block diagonal diag(Hll): rows, columns
+        self.bd_rows = 4 * ar + np.tile(np.repeat(i4, 4), Ma)
+        self.bd_cols = 4 * ar + np.tile(i4, 4 * Ma)
+        self.bd_flat = self.bd_rows * (4 * Ma) + self.bd_cols  # in the dense S, raveled
+        small = 4 * Ma <= 600
+        self.dense_g = small and len(f) > 0.3 * F * Ma  # most lines seen in most frames
+        if self.dense_g:
+            return
+        order = np.lexsort((tc, f))
+        fo, to = f[order], tc[order]
+        bounds = np.searchsorted(fo, np.arange(0, F + span, span))
+        # per run of frames: its lines' rows in S, the shape of its dense G block, and where
+        # each of G's values goes in the runs' blocks laid end to end
+        self.runs: list[tuple[np.ndarray, np.ndarray, int, int, int]] = []
+        where = np.empty((len(f), 6, 4), np.intp)
+        offset = 0
+        for a, b in zip(bounds[:-1], bounds[1:], strict=True):
+            if a < b:
+                lines, loc = np.unique(to[a:b], return_inverse=True)
+                frames, floc = np.unique(fo[a:b], return_inverse=True)
+                nf, nl = len(frames), len(lines)
+                # Gc[floc, :, loc, :] of Gc (nf, 6, nl, 4)
+                where[order[a:b]] = offset + ((floc[:, None, None] * 6 + np.arange(6)[:, None])
+                                              * nl + loc[:, None, None]) * 4 + i4
+                g = (4 * lines[:, None] + i4).ravel()
+                self.runs.append((lines, g, offset, 6 * nf, 4 * nl))
+                offset += nf * 6 * nl * 4
+        self.where, self.size = where.ravel(), offset
+        self.dense = small
+        if not self.dense and Ma <= 3000:  # most pairs of lines seen in a run together: dense
+            seen = np.zeros((Ma, Ma), bool)
+            for lines, *_ in self.runs:
+                seen[np.ix_(lines, lines)] = True
+            self.dense = int(seen.sum()) > 0.3 * Ma * Ma
+        if not self.dense:
+            self._sparse_structure()
+
+    def _sparse_structure(self) -> None:
+        """The CSC structure of the entries (the runs' blocks, then the block diagonal) and
+        the plan that sums their duplicates as scipy's ``tocsc`` does."""
+        n4 = 4 * self.Ma
+        rows = np.concatenate([np.repeat(g, len(g)) for _, g, *_ in self.runs] + [self.bd_rows])
+        cols = np.concatenate([np.tile(g, len(g)) for _, g, *_ in self.runs] + [self.bd_cols])
+        # scipy: a counting sort by column that keeps the entries' order (coo_tocsr), then
+        # each column sorted by row (csr_sort_indices: std::sort of (row, value) pairs, whose
+        # moves depend on the rows alone), then runs of equal rows summed one after the other
+        by_col = np.argsort(cols, kind="stable")
+        indptr = np.searchsorted(cols[by_col], np.arange(n4 + 1)).astype(np.int32)
+        m = sp.csc_matrix((by_col.astype(np.float64), rows[by_col].astype(np.int32), indptr),
+                          shape=(n4, n4))
+        m.sort_indices()
+        perm = m.data.astype(np.intp)  # the entries in the order tocsc sums them
+        r, c = m.indices, np.repeat(np.arange(n4), np.diff(m.indptr))
+        first = np.ones(len(perm), bool)
+        first[1:] = (r[1:] != r[:-1]) | (c[1:] != c[:-1])
+        starts = np.flatnonzero(first)
+        size = np.diff(np.append(starts, len(perm)))
+        self.perm, self.starts = perm, starts
+        self.more = [(np.flatnonzero(size > k), starts[size > k] + k)
+                     for k in range(1, int(size.max(initial=1)))]
+        self.indices = r[starts].astype(np.int32)
+        self.indptr = np.searchsorted(c[starts], np.arange(n4 + 1)).astype(np.int32)
+
+    def _run_blocks(self, G: FloatArray) -> list[tuple[np.ndarray, FloatArray]]:
+        """Per run of frames: its lines' rows in ``S`` and its dense block of ``G``."""
+        blocks = np.zeros(self.size)
+        blocks[self.where] = G.ravel()
+        return [(g, blocks[o:o + m * n].reshape(m, n)) for _, g, o, m, n in self.runs]
+
+    def entries(self, Hll: FloatArray, G: FloatArray) -> FloatArray:
+        """The sparse ``S``'s entries before their duplicates are summed: each run's ``-G^T
+        G`` block (rows ``np.repeat(g, len(g))``, columns ``np.tile(g, len(g))``), then the
+        block diagonal (``bd_rows``, ``bd_cols``)."""
+        return np.concatenate([-(Gm.T @ Gm).ravel() for _, Gm in self._run_blocks(G)]
+                              + [Hll.ravel()])
+
+    def assemble(self, Hll: FloatArray, G: FloatArray, gpt: FloatArray, gl: FloatArray
+                 ) -> tuple[FloatArray | None, sp.csc_matrix | None, FloatArray]:
+        f, tc, F, Ma = self.f, self.tc, self.F, self.Ma
+        if self.dense_g:
+            Gd = np.zeros((F, 6, Ma, 4))
+            Gd[f, :, tc, :] = G
+            Gm = Gd.reshape(6 * F, 4 * Ma)
+            S_full = -(Gm.T @ Gm)
+            S_full.reshape(-1)[self.bd_flat] += Hll.ravel()
+            return S_full, None, -gl.ravel() + Gm.T @ gpt.ravel()
+        rhs = -gl.ravel() + self._by_line(np.einsum("kij,ki->kj", G, np.take(gpt, f, axis=0))
+                                          ).ravel()
+        if self.dense:
+            S_dense = np.zeros((4 * Ma, 4 * Ma))
+            flat = S_dense.reshape(-1)  # (np.ix_ would take 5 times longer)
+            for g, Gm in self._run_blocks(G):
+                flat[(g[:, None] * (4 * Ma) + g).ravel()] -= (Gm.T @ Gm).ravel()
+            flat[self.bd_flat] += Hll.ravel()
+            return S_dense, None, rhs
+        v = self.entries(Hll, G)[self.perm]
+        data = v[self.starts]
+        for at, src in self.more:  # duplicates, each added after the one before it
+            data[at] += v[src]
+        return None, sp.csc_matrix((data, self.indices, self.indptr),
+                                   shape=(4 * Ma, 4 * Ma)), rhs
 
 
 class LineProblem:
@@ -453,6 +525,9 @@ class LineProblem:
                  observations: np.ndarray | None = None, *, line_iterations: int = 0,
                  loss: RobustLoss = RobustLoss.LINEAR, loss_scale: float = 1.0) -> None:
         self.line_iterations, self.loss, self.loss_scale = line_iterations, loss, loss_scale
+        self._basis: tuple[FloatArray, FloatArray, FloatArray] | None = None
+        self._reduced: tuple[np.ndarray, _ReducedSystem] | None = None
+        """The active lines and the reduced system's structure (:meth:`solve`)."""
         self._refit: tuple[_State, FloatArray, FloatArray] | None = None
         """The last state :meth:`retract` returned from the lines' own iterations, with its
         residuals and predicted normals (which :meth:`residuals` then need not compute
@@ -477,6 +552,11 @@ class LineProblem:
         self.line_free = np.repeat(np.asarray(active, bool)[:, None], 4, axis=1)
         if held_directions is not None:
             self.line_free[held_directions, :2] = False
+        self._by_frame, self._by_line = _RowSums(self.f, F), _RowSums(self.t, M)
+        self._moved_frames, self._moved_tracks = pose_free.any(1), self.line_free.any(1)
+        # per observation (K, 1, 6), (K, 1, 4): which of its Jacobian's columns are free
+        self._pose_free_k = np.take(pose_free, self.f, axis=0)[:, None, :]
+        self._line_free_k = np.take(self.line_free, self.t, axis=0)[:, None, :]
 
     def residuals(self, R: FloatArray, c: FloatArray, d: FloatArray,
                   p: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -485,7 +565,8 @@ class LineProblem:
             if R is R0 and c is c0 and d is d0 and p is p0:
                 return e0, u0
         f, t = self.f, self.t
-        u = predicted_normals(R[f], c[f], p[t], d[t])
+        u = predicted_normals(np.take(R, f, axis=0), np.take(c, f, axis=0), np.take(p, t, axis=0),
+                              np.take(d, t, axis=0))
         n = u / np.linalg.norm(u, axis=1, keepdims=True)
         return np.einsum("kai,ki->ka", self.B, n), u
 
@@ -493,9 +574,9 @@ class LineProblem:
                  u: FloatArray) -> tuple[FloatArray, FloatArray]:
         """Per observation: ``(K, 2, 6)`` d e / d pose and ``(K, 2, 4)`` d e / d line."""
         f = self.f
-        Rk = R[f]
-        A, J_rot, J_c = _pose_jacobian(Rk, d[self.t], u, self.B)
-        J_pose = np.concatenate([J_rot, J_c], axis=2) * self.pose_free[f][:, None, :]
+        Rk = np.take(R, f, axis=0)
+        A, J_rot, J_c = _pose_jacobian(Rk, np.take(d, self.t, axis=0), u, self.B)
+        J_pose = np.concatenate([J_rot, J_c], axis=2) * self._pose_free_k
         return J_pose, self._line_jacobian(Rk, c, d, p, A)
 
     def _line_jacobian(self, Rk: FloatArray, c: FloatArray, d: FloatArray, p: FloatArray,
@@ -503,29 +584,33 @@ class LineProblem:
         """``(K, 2, 4)`` d e / d line (``Rk``: each observation's rotation, ``A``: d e / d u)."""
         f, t = self.f, self.t
         # per line, then per observation (the same values as computed per observation)
-        b1, b2 = _tangent_basis(d)
-        e1, e2 = b1[t], b2[t]
-        pc = p[t] - c[f]
+        b1, b2 = self._basis_of(d)
+        e1, e2 = np.take(b1, t, axis=0), np.take(b2, t, axis=0)
+        pc = np.take(p, t, axis=0) - np.take(c, f, axis=0)
         V = np.empty((len(t), 4, 3))  # (K, 4, 3) world
         cross3(pc, e1, out=V[:, 0])
         cross3(pc, e2, out=V[:, 1])
-        V[:, 2] = cross3(b1, d)[t]
-        V[:, 3] = cross3(b2, d)[t]
-        return A @ np.swapaxes(np.einsum("kji,kaj->kai", Rk, V), 1, 2) * \
-            self.line_free[t][:, None, :]
+        V[:, 2] = np.take(cross3(b1, d), t, axis=0)
+        V[:, 3] = np.take(cross3(b2, d), t, axis=0)
+        # W = (Rk^T V^T) (K, 3, 4), term by term: the values of np.einsum("kji,kaj->kai") to
+        # the bit (its sum over j in the same order), in half its time
+        W = Rk[:, 0, :, None] * V[:, None, :, 0]
+        W += Rk[:, 1, :, None] * V[:, None, :, 1]
+        W += Rk[:, 2, :, None] * V[:, None, :, 2]
+        return A @ W * self._line_free_k
 
     def normal_equations(self, J_pose: FloatArray, J_line: FloatArray, e: FloatArray,
                          w: FloatArray) -> _Blocks:
         """Blocks of ``J^T W J`` and ``J^T W e``: (F,6,6), (M,4,4), (K,6,4), (F,6), (M,4)."""
-        F, M, f, t = self.F, self.M, self.f, self.t
-        K = len(f)
+        F, M, K = self.F, self.M, len(self.f)
         wJp = J_pose * w[:, None, None]
         wJl = J_line * w[:, None, None]
-        Hpp = _sum_rows(f, (np.swapaxes(wJp, 1, 2) @ J_pose).reshape(K, 36), F).reshape(F, 6, 6)
-        Hll = _sum_rows(t, (np.swapaxes(wJl, 1, 2) @ J_line).reshape(K, 16), M).reshape(M, 4, 4)
+        by_f, by_t = self._by_frame, self._by_line
+        Hpp = by_f((np.swapaxes(wJp, 1, 2) @ J_pose).reshape(K, 36)).reshape(F, 6, 6)
+        Hll = by_t((np.swapaxes(wJl, 1, 2) @ J_line).reshape(K, 16)).reshape(M, 4, 4)
         Hpl = np.swapaxes(wJp, 1, 2) @ J_line
-        gp = _sum_rows(f, np.einsum("kai,ka->ki", wJp, e), F)
-        gl = _sum_rows(t, np.einsum("kai,ka->ki", wJl, e), M)
+        gp = by_f(np.einsum("kai,ka->ki", wJp, e))
+        gl = by_t(np.einsum("kai,ka->ki", wJl, e))
         return Hpp, Hll, Hpl, gp, gl
 
     def solve(self, blocks: _Blocks, lam: float) -> tuple[FloatArray, FloatArray]:
@@ -534,7 +619,7 @@ class LineProblem:
 
         The pose blocks are 6x6 and independent; eliminating them leaves a ``4M x 4M`` system
         in the lines whose update ``G^T G`` (``G = L_f^-1 H_fl``, one 6x4 block per
-        observation) is formed by :func:`_reduced_system`, then
+        observation) is formed by :class:`_ReducedSystem`, then
         solved by dense Cholesky or sparse LU.
         """
         Hpp, Hll, Hpl, gp, gl = blocks
@@ -544,13 +629,15 @@ class LineProblem:
         Hpp, Hll = damped(Hpp, lam, pf), damped(Hll, lam, lf)
         L = np.linalg.cholesky(Hpp)  # (F, 6, 6)
         Linv = np.linalg.inv(L)
-        G = Linv[f] @ Hpl  # (K, 6, 4)
+        G = np.take(Linv, f, axis=0) @ Hpl  # (K, 6, 4)
         gpt = np.einsum("fij,fj->fi", Linv, gp)  # L^-1 g_p
         # only the lines with observations enter the reduced system
-        act = np.flatnonzero(lf.any(1))
+        if self._reduced is None:
+            act = np.flatnonzero(lf.any(1))
+            self._reduced = act, _ReducedSystem(f, np.searchsorted(act, t), F, len(act))
+        act, reduced = self._reduced
         Ma = len(act)
-        tc = np.searchsorted(act, t)
-        S_dense, S, rhs = _reduced_system(Hll[act], G, gpt, gl[act], f, tc, F)
+        S_dense, S, rhs = reduced.assemble(Hll[act], G, gpt, gl[act])
         if S_dense is not None:
             c_f = scipy.linalg.cho_factor(S_dense, check_finite=False)
             x = scipy.linalg.cho_solve(c_f, rhs, check_finite=False)
@@ -564,7 +651,7 @@ class LineProblem:
         dl[act] = x.reshape(Ma, 4)
         # back substitution: Hpp dp = -gp - Hpl dl
         r = -gp.copy()
-        np.add.at(r, f, -np.einsum("kij,kj->ki", Hpl, dl[t]))
+        np.add.at(r, f, -np.einsum("kij,kj->ki", Hpl, np.take(dl, t, axis=0)))
         dp = np.einsum("fji,fj->fi", Linv, np.einsum("fij,fj->fi", Linv, r))
         return dp * pf, dl * lf
 
@@ -580,17 +667,31 @@ class LineProblem:
                dpose: FloatArray, dline: FloatArray) -> _State:
         """The state moved by the step ``dpose`` ``(F, 6)``, ``dline`` ``(M, 4)``."""
         R2 = R.copy()
-        moved = np.any(self.pose_free, axis=1)
+        moved = self._moved_frames
         R2[moved] = R[moved] @ rotvec_to_matrix(dpose[moved, :3])
         c2 = c + dpose[:, 3:]
-        act = self.line_free.any(1)
+        d2, p2 = self._moved_lines(d, p, dline)
+        return R2, c2, d2, p2
+
+    def _moved_lines(self, d: FloatArray, p: FloatArray, dline: FloatArray
+                     ) -> tuple[FloatArray, FloatArray]:
+        """The lines ``d, p`` moved by ``dline`` ``(M, 4)``."""
+        act = self._moved_tracks
         dl = dline[act]
-        e1, e2 = _tangent_basis(d[act])
+        b1, b2 = self._basis_of(d)
+        e1, e2 = b1[act], b2[act]
         d2, p2 = d.copy(), p.copy()
         d2[act] = normalize(d[act] + dl[:, :1] * e1 + dl[:, 1:2] * e2)
         q = p[act] + dl[:, 2:3] * e1 + dl[:, 3:4] * e2
         p2[act] = q - np.sum(q * d2[act], 1, keepdims=True) * d2[act]
-        return R2, c2, d2, p2
+        return d2, p2
+
+    def _basis_of(self, d: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """:func:`_tangent_basis` of the lines' directions ``d`` ``(M, 3)``, kept for the last
+        ``d`` (a step's Jacobian and its move start from the same lines)."""
+        if self._basis is None or self._basis[0] is not d:
+            self._basis = (d, *_tangent_basis(d))
+        return self._basis[1], self._basis[2]
 
     def _line_costs(self, e: FloatArray) -> tuple[FloatArray, FloatArray]:
         """Each line's cost ``(M,)`` under the problem's loss, and each residual's IRLS weight."""
@@ -604,21 +705,20 @@ class LineProblem:
         that line damped tenfold more for the next. Returns the lines ``d, p`` and the
         residuals and predicted normals there (:meth:`residuals`)."""
         M, t, lf = self.M, self.t, self.line_free
-        Rk = R[self.f]
+        Rk = np.take(R, self.f, axis=0)
         e, u = self.residuals(R, c, d, p)
         cost, w = self._line_costs(e)
         mu = np.full(M, 1e-6)
-        zero = np.zeros((self.F, 6))
         for _ in range(self.line_iterations):
             J = self._line_jacobian(Rk, c, d, p, _normal_derivative(u, self.B))
             wJ = J * w[:, None, None]
-            H = _sum_rows(t, (np.swapaxes(wJ, 1, 2) @ J).reshape(-1, 16), M).reshape(M, 4, 4)
-            g = _sum_rows(t, np.einsum("kai,ka->ki", wJ, e), M)
+            H = self._by_line((np.swapaxes(wJ, 1, 2) @ J).reshape(-1, 16)).reshape(M, 4, 4)
+            g = self._by_line(np.einsum("kai,ka->ki", wJ, e))
             try:
                 step = -np.linalg.solve(damped(H, mu, lf), g[:, :, None])[:, :, 0] * lf
             except np.linalg.LinAlgError:
                 break
-            _, _, d3, p3 = self._moved(R, c, d, p, zero, step)
+            d3, p3 = self._moved_lines(d, p, step)
             e3, u3 = self.residuals(R, c, d3, p3)
             cost3, w3 = self._line_costs(e3)
             ok = np.isfinite(cost3) & (cost3 < cost)
