@@ -356,13 +356,18 @@ def damped(H: FloatArray, lam: float | FloatArray, free: np.ndarray) -> FloatArr
     """``H + lam diag(H)`` per block ``(N, n, n)`` (``lam`` one or ``(N,)``, one per block; a
     floor on tiny diagonals), held parameters' rows and columns (``free`` ``(N, n)`` False)
     replaced by the identity so that they stay at zero."""
-    n = H.shape[1]
-    dg = np.einsum("kii->ki", H)
-    eye = np.eye(n)
-    lam_k = np.broadcast_to(np.asarray(lam, float), (len(H),))[:, None]
-    H = H + (lam_k * np.maximum(dg, 1e-12 * max(float(dg.max(initial=0.0)), 1e-30)))[:, :, None] \
-        * eye
-    return H * (free[:, :, None] & free[:, None, :]) + (~free)[:, :, None] * eye
+    i = np.arange(H.shape[1])
+    dg = H.diagonal(0, 1, 2)
+    lam_k = np.asarray(lam, float)
+    add = (lam_k[:, None] if lam_k.ndim else lam_k) * \
+        np.maximum(dg, 1e-12 * max(float(dg.max(initial=0.0)), 1e-30))
+    # the values of (H + add I) * (free free^T) + diag(~free) to the bit, zeros' signs too
+    out = H + 0.0
+    out[:, i, i] = out.diagonal(0, 1, 2) + add
+    out *= free[:, :, None] & free[:, None, :]
+    out += 0.0
+    out[:, i, i] += ~free
+    return out
 
 
 class _ReducedSystem:
