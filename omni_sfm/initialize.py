@@ -20,6 +20,7 @@ complete or absent:
 
 from __future__ import annotations
 
+import contextlib
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -284,7 +285,8 @@ def init_from_images(images: Path | str, camera: Path | str | CameraModel, outpu
     user_mask = read_mask(mask, size) if mask is not None else None
     source = read_frames(images, o.start, o.end, o.step, size=size)
     fe_opts = replace(o.frontend, progress=o.progress and o.frontend.progress)
-    with atomic_output_dir(output, overwrite=overwrite, inputs=(Path(images),)) as tmp:
+    with atomic_output_dir(output, overwrite=overwrite, inputs=(Path(images),)) as tmp, \
+            contextlib.ExitStack() as stop:  # (the writing threads stop before tmp goes)
         t0 = time.perf_counter()
         checks = _check_frames(images, cam, o, user_mask, warn)
         line_mask = checks.mask
@@ -293,9 +295,12 @@ def init_from_images(images: Path | str, camera: Path | str | CameraModel, outpu
         kept = KeptFrames(_debug_numbers(source, o.debug_view)) if o.debug_view != "none" \
             else None
         colmap_images = ColmapImages(tmp, cam,
-                                     lambda k: _image_names(source, np.asarray([k]))[0]) \
+                                     lambda k: _image_names(source, np.asarray([k]))[0],
+                                     background=True) \
             if o.colmap and (o.colmap_images or (o.colmap_images is None and
                                                  n <= COLMAP_IMAGE_FRAMES)) else None
+        if colmap_images is not None:
+            stop.callback(colmap_images.close)
         taps = [t for t in (kept, None if colmap_images is None else colmap_images.tap)
                 if t is not None]
 
@@ -304,6 +309,9 @@ def init_from_images(images: Path | str, camera: Path | str | CameraModel, outpu
                 t(number, stamp, gray)
 
         fe = track_lines(source, cam, fe_opts, line_mask, tap=tap if taps else None)
+        if colmap_images is not None:  # its thread done before the estimator forks
+            colmap_images.wait()
+            colmap_images.close()
         auto_said, fixed_ids = checks.auto_mask, []
         if o.auto_mask:  # what the mask left of structure fixed to the camera
             fixed = fe.camera_fixed_tracks()

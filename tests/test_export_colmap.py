@@ -61,3 +61,23 @@ def test_projection_centres_equal_trajectory(tmp_path):
     centres = projection_centres(pycolmap.Reconstruction(str(tmp_path)))
     for k, n in enumerate(names):
         np.testing.assert_allclose(centres[n], traj.positions[k], atol=1e-9)
+
+
+def test_colmap_images_in_the_background_write_and_fail_as_in_the_caller(tmp_path):
+    from omni_sfm.export.colmap import ColmapImages
+
+    cam = CAMERAS["hyperboloid"]
+    img = np.full((cam.height, cam.width), 128, np.uint8)
+    images = ColmapImages(tmp_path, cam, str, background=True)
+    for k in range(5):
+        images.write(f"{k}.png", img)
+    images.keep(["1.png", "3.png"])
+    images.close()
+    folder = images.directory
+    assert sorted(p.name for p in folder.iterdir()) == ["1.png", "3.png"]
+    (folder / "sub").write_text("a file where a folder must go")
+    images = ColmapImages(tmp_path, cam, str, background=True)
+    images.write("sub/x.png", img)
+    with pytest.raises(OSError):
+        images.wait()
+    images.close()

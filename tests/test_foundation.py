@@ -121,6 +121,39 @@ def test_atomic_output_dir_leaves_nothing_on_failure(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+def test_background_writes_bounded_errors_raised_in_the_caller(tmp_path):
+    import threading
+
+    from omni_sfm.fileio import BackgroundWrites
+
+    gate = threading.Event()
+    started: list[int] = []
+
+    def write(k: int) -> None:
+        started.append(k)
+        gate.wait(10)
+        (tmp_path / f"{k}.txt").write_text(str(k))
+
+    with BackgroundWrites(threads=1, pending=2) as writes:
+        writes.submit(write, 0)
+        writes.submit(write, 1)
+        # a third waits for the oldest: at most `pending` queued or running
+        t = threading.Thread(target=writes.submit, args=(write, 2))
+        t.start()
+        t.join(0.2)
+        assert t.is_alive() and started == [0]
+        gate.set()
+        t.join(10)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["0.txt", "1.txt", "2.txt"]
+
+    def fail(_: int) -> None:
+        raise OmniSfmError("disk full")
+
+    with pytest.raises(OmniSfmError, match="disk full"), BackgroundWrites(1) as writes:
+        writes.submit(fail, 0)
+        writes.wait()
+
+
 def test_tracks_rays_round_trip_and_checks(tmp_path):
     from omni_sfm.lines.tracks import make_tracks
 

@@ -18,6 +18,7 @@ import numpy as np
 
 from omni_sfm.cameras.base import CameraModel, ColmapExport
 from omni_sfm.errors import OmniSfmError
+from omni_sfm.fileio import BackgroundWrites
 from omni_sfm.folders import CAMERA_FILE, TRAJECTORY_FILE, InitFolder
 from omni_sfm.geometry import FloatArray
 from omni_sfm.poses import Trajectory
@@ -149,34 +150,50 @@ class ColmapImages:
     """Writes ``DIR/images_colmap/<name>``: each frame as COLMAP must see it (mirrored where the
     camera's export says so), as the front end reads it (a
     :data:`~omni_sfm.lines.frontend.FrameTap` through :meth:`tap`); :meth:`keep` then deletes
-    the frames that got no pose, so that the folder holds the model's images."""
+    the frames that got no pose, so that the folder holds the model's images.
+
+    With ``background`` the PNGs are encoded and written in a thread beside the caller (at most
+    8 waiting): the front end's process decodes and tracks the next frames meanwhile. Then
+    :meth:`wait` for them (it raises a write's error) or :meth:`close` (on an error: the
+    writes not started are dropped)."""
 
     def __init__(self, directory: Path, camera: CameraModel,
-                 name_of: Callable[[int], str]) -> None:
+                 name_of: Callable[[int], str], *, background: bool = False) -> None:
         self.directory = Path(directory) / IMAGES_DIR
         self.export = camera.colmap_export()
         self.name_of = name_of
         self.written: list[str] = []
+        self._writes = BackgroundWrites(1, pending=8) if background else None
 
     def write(self, name: str, image: np.ndarray) -> None:
         """One image ``(H, W[, 3])`` (RGB if 3 channels) under ``name``."""
-        import cv2
 
         out = self.export.image_to_colmap(image)
         if out.ndim == 3 and out.shape[2] == 3:
             out = np.ascontiguousarray(out[:, :, ::-1])
         path = self.directory / name
-        path.parent.mkdir(parents=True, exist_ok=True)
-        # PNG: fast compression (a tenth larger, a third faster than OpenCV's default)
-        if not cv2.imwrite(str(path), out, [cv2.IMWRITE_PNG_COMPRESSION, 1]):
-            raise OmniSfmError(f"{path}: OpenCV cannot write this image")
+        if self._writes is not None:
+            self._writes.submit(_write_png, path, out)
+        else:
+            _write_png(path, out)
         self.written.append(name)
 
     def tap(self, number: int, _stamp: float, gray: np.ndarray) -> None:
         self.write(self.name_of(number), gray)
 
+    def wait(self) -> None:
+        """Wait for the images being written in the background (raises a write's error)."""
+        if self._writes is not None:
+            self._writes.wait()
+
+    def close(self) -> None:
+        """Stop the background writes (those not started are dropped)."""
+        if self._writes is not None:
+            self._writes.close()
+
     def keep(self, names: Sequence[str]) -> None:
         """Delete every written image not in ``names``; each of ``names`` must be written."""
+        self.wait()
         wanted = set(names)
         missing = wanted - set(self.written)
         if missing:
@@ -186,6 +203,15 @@ class ColmapImages:
             if name not in wanted:
                 (self.directory / name).unlink(missing_ok=True)
         self.written = [n for n in self.written if n in wanted]
+
+
+def _write_png(path: Path, image: np.ndarray) -> None:
+    import cv2
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    # PNG: fast compression (a tenth larger, a third faster than OpenCV's default)
+    if not cv2.imwrite(str(path), image, [cv2.IMWRITE_PNG_COMPRESSION, 1]):
+        raise OmniSfmError(f"{path}: OpenCV cannot write this image")
 
 
 def write_init_model(directory: Path, camera: CameraModel, traj: Trajectory,

@@ -9,6 +9,7 @@ no group, drawn grey). Output: a folder of PNGs, or a video when the path ends i
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
@@ -18,6 +19,7 @@ from tqdm import tqdm
 
 from omni_sfm.cameras.base import CameraModel
 from omni_sfm.errors import OmniSfmError
+from omni_sfm.fileio import BackgroundWrites
 from omni_sfm.geometry import FloatArray
 from omni_sfm.lines.frontend import FrontEndResult
 from omni_sfm.lines.video import to_gray
@@ -156,22 +158,32 @@ def write_debug_view(frames: Iterable[tuple[int, float, np.ndarray]], camera: Ca
     else:
         output.mkdir(parents=True, exist_ok=True)
     total = len(frames) if hasattr(frames, "__len__") else None  # type: ignore[arg-type]
+
+    def drawn(number: int, image: np.ndarray, f: int) -> np.ndarray:
+        sel = np.flatnonzero(tr.obs_frame == f)
+        tid = tr.obs_track[sel]
+        colours = [group_colour(int(g[t])) for t in tid]
+        labels = [str(int(tr.track_ids[t])) for t in tid] if label_tracks else None
+        return draw_lines(image, camera, result.obs_endpoint_rays[sel], colours, labels)
+
+    def png(number: int, image: np.ndarray, f: int) -> None:
+        if not cv2.imwrite(str(output / f"{int(number):06d}.png"), drawn(number, image, f),
+                           [cv2.IMWRITE_PNG_COMPRESSION, 1]):
+            raise OmniSfmError(f"{output}: could not write frame {number}")
+
+    # PNGs: drawn and written in threads (OpenCV's drawing and encoding release the GIL)
+    threads = 1 if writer is not None else min(2, os.cpu_count() or 1)
     try:
-        for number, _, image in tqdm(frames, total=total, desc="debug view", unit="frame",
-                                     leave=False, disable=None if progress else True):
-            f = frame_of.get(int(number))
-            if f is None:
-                continue
-            sel = np.flatnonzero(tr.obs_frame == f)
-            tid = tr.obs_track[sel]
-            colours = [group_colour(int(g[t])) for t in tid]
-            labels = [str(int(tr.track_ids[t])) for t in tid] if label_tracks else None
-            img = draw_lines(image, camera, result.obs_endpoint_rays[sel], colours, labels)
-            if writer is not None:
-                writer.write(img)
-            elif not cv2.imwrite(str(output / f"{int(number):06d}.png"), img,
-                                 [cv2.IMWRITE_PNG_COMPRESSION, 1]):
-                raise OmniSfmError(f"{output}: could not write frame {number}")
+        with BackgroundWrites(threads, pending=2 * threads) as writes:
+            for number, _, image in tqdm(frames, total=total, desc="debug view", unit="frame",
+                                         leave=False, disable=None if progress else True):
+                f = frame_of.get(int(number))
+                if f is None:
+                    continue
+                if writer is not None:
+                    writer.write(drawn(number, image, f))
+                else:
+                    writes.submit(png, number, image, f)
     finally:
         if writer is not None:
             writer.release()
