@@ -159,7 +159,7 @@ def write_debug_view(frames: Iterable[tuple[int, float, np.ndarray]], camera: Ca
         output.mkdir(parents=True, exist_ok=True)
     total = len(frames) if hasattr(frames, "__len__") else None  # type: ignore[arg-type]
 
-    def drawn(number: int, image: np.ndarray, f: int) -> np.ndarray:
+    def drawn(image: np.ndarray, f: int) -> np.ndarray:
         sel = np.flatnonzero(tr.obs_frame == f)
         tid = tr.obs_track[sel]
         colours = [group_colour(int(g[t])) for t in tid]
@@ -167,7 +167,7 @@ def write_debug_view(frames: Iterable[tuple[int, float, np.ndarray]], camera: Ca
         return draw_lines(image, camera, result.obs_endpoint_rays[sel], colours, labels)
 
     def png(number: int, image: np.ndarray, f: int) -> None:
-        if not cv2.imwrite(str(output / f"{int(number):06d}.png"), drawn(number, image, f),
+        if not cv2.imwrite(str(output / f"{int(number):06d}.png"), drawn(image, f),
                            [cv2.IMWRITE_PNG_COMPRESSION, 1]):
             raise OmniSfmError(f"{output}: could not write frame {number}")
 
@@ -181,7 +181,7 @@ def write_debug_view(frames: Iterable[tuple[int, float, np.ndarray]], camera: Ca
                 if f is None:
                     continue
                 if writer is not None:
-                    writer.write(drawn(number, image, f))
+                    writer.write(drawn(image, f))
                 else:
                     writes.submit(png, number, image, f)
     finally:
