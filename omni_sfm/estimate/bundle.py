@@ -394,7 +394,9 @@ class _ReducedSystem:
     the bit as scipy's ``coo_matrix(...).tocsc()`` of the same entries, which sums duplicates
     in the order its unstable per-column sort leaves them (taken from that sort once, on the
     entries' positions). Measured on an adjustment of 728 frames of a real walk (186 lines,
-    11,000 observations): 28 against 12 ms a step (docs/estimator.md, "Speed")."""
+    11,000 observations; ``scripts/bench_adjust.py``'s problem under line_profiler, 144 steps):
+    the assembly took 28 ms a step before, 11 ms after (the whole adjustment, docs/estimator.md
+    "Speed")."""
 
     def __init__(self, f: np.ndarray, tc: np.ndarray, F: int, Ma: int, span: int = 64) -> None:
         self.f, self.tc, self.F, self.Ma = f, tc, F, Ma
