@@ -7,7 +7,7 @@ STAMP := $(VENV)/.installed
 
 setup: $(STAMP)
 
-$(STAMP): pyproject.toml
+$(STAMP): pyproject.toml setup.py omni_sfm/estimate/_lines.c
 	@# Open3D's wheel needs libusb-1.0 at import time (Debian package libusb-1.0-0);
 	@# tests/test_view.py opens the HTML viewer in a headless browser (Debian package chromium)
 	@if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0' || ! command -v chromium >/dev/null 2>&1; then \

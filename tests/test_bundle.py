@@ -7,7 +7,6 @@ import dataclasses
 
 import numpy as np
 import pytest
-import scipy.sparse as sp
 
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.estimate.bundle import (
@@ -338,13 +337,12 @@ def test_a_frame_left_with_two_lines_after_rejection_has_no_pose() -> None:
     (200, 100, 80),  # few lines (at most 150), each seen in a part of the frames: dense
     (20, 30, 20),  # few lines seen in every frame (the paper's views): one dense G
 ])
-def test_reduced_system_by_runs_of_frames_is_the_schur_complement(
+def test_reduced_system_is_the_schur_complement(
         num_frames: int, num_lines: int, seen_for: int) -> None:
     """``_ReducedSystem``'s ``S = diag(Hll) - G^T G`` and ``rhs = -gl + G^T gpt``, however it
-    forms them (runs of frames, dense or sparse; one dense ``G`` for the paper's few views),
-    equal the dense products; the sparse one is, to the bit, scipy's ``tocsc`` of its entries
-    (the order in which duplicates are summed kept from a sort done once), also at a second
-    step of the same structure."""
+    forms them (the pairs of each frame's observations, dense or sparse; one dense ``G`` for
+    the paper's few views), equal the dense products, also at a second step of the same
+    structure; the sparse one holds the pairs of lines seen in a frame together."""
     from omni_sfm.estimate.bundle import _ReducedSystem
 
     rng = np.random.default_rng(num_frames)
@@ -371,18 +369,21 @@ def test_reduced_system_by_runs_of_frames_is_the_schur_complement(
     got = dense if sparse is None else sparse.toarray()
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-9 * np.abs(want).max())
     np.testing.assert_allclose(rhs, -gl.ravel() + Gm.T @ gpt.ravel(), rtol=0, atol=1e-9)
+    for G_k in (1e3 * rng.normal(size=G.shape),):
+        again = system.assemble(Hll, G_k, gpt, gl)
+        got_k = again[0] if again[1] is None else again[1].toarray()
+        Gd[f, :, tc, :] = G_k
+        want_k = -Gm.T @ Gm
+        for m in range(num_lines):
+            want_k[4 * m:4 * m + 4, 4 * m:4 * m + 4] += Hll[m]
+        np.testing.assert_allclose(got_k, want_k, rtol=0, atol=1e-9 * np.abs(want_k).max())
     if sparse is not None:
-        rows = np.concatenate([np.repeat(g, len(g)) for _, g, *_ in system.runs]
-                              + [system.bd_rows])
-        cols = np.concatenate([np.tile(g, len(g)) for _, g, *_ in system.runs] + [system.bd_cols])
-        for G_k in (G, 1e3 * rng.normal(size=G.shape)):
-            got_k = system.assemble(Hll, G_k, gpt, gl)[1]
-            assert got_k is not None
-            want_k = sp.coo_matrix((system.entries(Hll, G_k), (rows, cols)),
-                                   shape=got_k.shape).tocsc()
-            assert np.array_equal(got_k.indptr, want_k.indptr)
-            assert np.array_equal(got_k.indices, want_k.indices)
-            assert np.array_equal(got_k.data, want_k.data)  # bit for bit
+        # exactly the pairs of lines that share a frame (and each line with itself)
+        shares = (Gd != 0).any(axis=(1, 3)).astype(float)
+        together = (shares.T @ shares) > 0
+        blocks = np.abs(sparse.toarray()).reshape(num_lines, 4, num_lines, 4).sum((1, 3)) > 0
+        assert sparse.nnz == 16 * int(together.sum())
+        assert (blocks <= together).all()
 
 
 def test_embedded_line_iterations_bring_far_lines_back() -> None:

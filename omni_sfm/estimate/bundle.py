@@ -49,6 +49,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from omni_sfm.errors import OmniSfmError
+from omni_sfm.estimate import kernels
 from omni_sfm.geometry import (
     FloatArray,
     completion_towards,
@@ -378,105 +379,42 @@ class _ReducedSystem:
     or most pairs of them are seen together, else ``(None, S, rhs)`` with ``S`` sparse (CSC).
 
     Where at most 150 lines are seen in most frames (the paper's views), ``G`` is one dense
-    matrix and ``G^T G`` one product. Elsewhere ``G^T G`` sums, over the frames, the products
-    of the blocks of the lines each frame sees, so the frames are taken ``span`` at a time, the
-    blocks of a run of frames fill a dense ``6 n x 4 u`` matrix (``n`` frames, ``u`` lines
-    seen in them) and its product with itself (one BLAS call) is that run's part of ``G^T G``.
-    Consecutive frames see mostly the same lines, so little of that matrix is zero. It replaced
-    scipy's block-sparse product, which took half of the adjustment's time on a real video's
-    600 frames and 350 lines (0.2 s a step), and 14 % of the whole estimation on the sparse
-    simulations (80 lines): 5.6 against 12.4 ms for the system of 600 frames, 4,800
-    observations. The two agree to round-off.
+    matrix and ``G^T G`` one product (BLAS). Elsewhere each frame adds ``-G_a^T G_b`` for each
+    pair of the observations it holds, in one compiled loop
+    (:func:`omni_sfm.estimate.kernels.reduce_lines`): the work of the pairs that share a frame
+    and no more. The sparse matrix's structure (the pairs of lines seen in a frame together,
+    :func:`omni_sfm.estimate.kernels.block_pattern`) is worked out once here, for all the steps
+    of an adjustment. Until 2026-11-28 the frames were taken 64 at a time and each run's dense
+    ``G`` block multiplied by itself (one BLAS call a run), which also multiplied the zeros of
+    the pairs of lines seen in a run but not in one frame (docs/estimator.md, "Solver")."""
 
-    Everything that depends on which frame sees which line alone (the runs, where each block
-    goes, the sparse matrix's structure and the order in which its duplicate entries are
-    summed) is worked out once here, for all the steps of an adjustment: the same matrix to
-    the bit as scipy's ``coo_matrix(...).tocsc()`` of the same entries, which sums duplicates
-    in the order its unstable per-column sort leaves them (taken from that sort once, on the
-    entries' positions). Measured on an adjustment of 728 frames of a real walk (186 lines,
-    11,000 observations; ``scripts/bench_adjust.py``'s problem under line_profiler, 144 steps):
-    the assembly took 28 ms a step before, 11 ms after (the whole adjustment, docs/estimator.md
-    "Speed")."""
-
-    def __init__(self, f: np.ndarray, tc: np.ndarray, F: int, Ma: int, span: int = 64) -> None:
+    def __init__(self, f: np.ndarray, tc: np.ndarray, F: int, Ma: int) -> None:
         self.f, self.tc, self.F, self.Ma = f, tc, F, Ma
-        self._by_line = _RowSums(tc, Ma)
         i4 = np.arange(4)
         ar = np.repeat(np.arange(Ma), 16)  # the block diagonal diag(Hll): rows, columns
-        self.bd_rows = 4 * ar + np.tile(np.repeat(i4, 4), Ma)
-        self.bd_cols = 4 * ar + np.tile(i4, 4 * Ma)
-        self.bd_flat = self.bd_rows * (4 * Ma) + self.bd_cols  # in the dense S, raveled
+        self.bd_flat = (4 * ar + np.tile(np.repeat(i4, 4), Ma)) * (4 * Ma) + \
+            4 * ar + np.tile(i4, 4 * Ma)  # in the dense S, raveled
         small = 4 * Ma <= 600
         self.dense_g = small and len(f) > 0.3 * F * Ma  # most lines seen in most frames
         if self.dense_g:
             return
-        order = np.lexsort((tc, f))
-        fo, to = f[order], tc[order]
-        bounds = np.searchsorted(fo, np.arange(0, F + span, span))
-        # per run of frames: its lines' rows in S, the shape of its dense G block, and where
-        # each of G's values goes in the runs' blocks laid end to end
-        self.runs: list[tuple[np.ndarray, np.ndarray, int, int, int]] = []
-        where = np.empty((len(f), 6, 4), np.intp)
-        offset = 0
-        for a, b in zip(bounds[:-1], bounds[1:], strict=True):
-            if a < b:
-                lines, loc = np.unique(to[a:b], return_inverse=True)
-                frames, floc = np.unique(fo[a:b], return_inverse=True)
-                nf, nl = len(frames), len(lines)
-                # Gc[floc, :, loc, :] of Gc (nf, 6, nl, 4)
-                where[order[a:b]] = offset + ((floc[:, None, None] * 6 + np.arange(6)[:, None])
-                                              * nl + loc[:, None, None]) * 4 + i4
-                g = (4 * lines[:, None] + i4).ravel()
-                self.runs.append((lines, g, offset, 6 * nf, 4 * nl))
-                offset += nf * 6 * nl * 4
-        self.where, self.size = where.ravel(), offset
-        self.dense = small
-        if not self.dense and Ma <= 3000:  # most pairs of lines seen in a run together: dense
-            seen = np.zeros((Ma, Ma), bool)
-            for lines, *_ in self.runs:
-                seen[np.ix_(lines, lines)] = True
-            self.dense = int(seen.sum()) > 0.3 * Ma * Ma
+        self.index = kernels.PairIndex(f, tc, F, Ma)
+        self.pattern: tuple[np.ndarray, np.ndarray] | None = None
+        ptr, rows = kernels.block_pattern(self.index)
+        # dense where the lines are few or most pairs of them are seen in a frame together
+        self.dense = small or (Ma <= 3000 and len(rows) > 0.3 * Ma * Ma)
         if not self.dense:
-            self._sparse_structure()
-
-    def _sparse_structure(self) -> None:
-        """The CSC structure of the entries (the runs' blocks, then the block diagonal) and
-        the plan that sums their duplicates as scipy's ``tocsc`` does."""
-        n4 = 4 * self.Ma
-        rows = np.concatenate([np.repeat(g, len(g)) for _, g, *_ in self.runs] + [self.bd_rows])
-        cols = np.concatenate([np.tile(g, len(g)) for _, g, *_ in self.runs] + [self.bd_cols])
-        # scipy: a counting sort by column that keeps the entries' order (coo_tocsr), then
-        # each column sorted by row (csr_sort_indices: std::sort of (row, value) pairs, whose
-        # moves depend on the rows alone), then runs of equal rows summed one after the other
-        by_col = np.argsort(cols, kind="stable")
-        indptr = np.searchsorted(cols[by_col], np.arange(n4 + 1)).astype(np.int32)
-        m = sp.csc_matrix((by_col.astype(np.float64), rows[by_col].astype(np.int32), indptr),
-                          shape=(n4, n4))
-        m.sort_indices()
-        perm = m.data.astype(np.intp)  # the entries in the order tocsc sums them
-        r, c = m.indices, np.repeat(np.arange(n4), np.diff(m.indptr))
-        first = np.ones(len(perm), bool)
-        first[1:] = (r[1:] != r[:-1]) | (c[1:] != c[:-1])
-        starts = np.flatnonzero(first)
-        size = np.diff(np.append(starts, len(perm)))
-        self.perm, self.starts = perm, starts
-        self.more = [(np.flatnonzero(size > k), starts[size > k] + k)
-                     for k in range(1, int(size.max(initial=1)))]
-        self.indices = r[starts].astype(np.int32)
-        self.indptr = np.searchsorted(c[starts], np.arange(n4 + 1)).astype(np.int32)
-
-    def _run_blocks(self, G: FloatArray) -> list[tuple[np.ndarray, FloatArray]]:
-        """Per run of frames: its lines' rows in ``S`` and its dense block of ``G``."""
-        blocks = np.zeros(self.size)
-        blocks[self.where] = G.ravel()
-        return [(g, blocks[o:o + m * n].reshape(m, n)) for _, g, o, m, n in self.runs]
-
-    def entries(self, Hll: FloatArray, G: FloatArray) -> FloatArray:
-        """The sparse ``S``'s entries before their duplicates are summed: each run's ``-G^T
-        G`` block (rows ``np.repeat(g, len(g))``, columns ``np.tile(g, len(g))``), then the
-        block diagonal (``bd_rows``, ``bd_cols``)."""
-        return np.concatenate([-(Gm.T @ Gm).ravel() for _, Gm in self._run_blocks(G)]
-                              + [Hll.ravel()])
+            self.pattern = ptr, rows
+            nb = np.diff(ptr)
+            # block column j's column 4 j + c: its block rows' 4 rows each
+            self.indptr = np.zeros(4 * Ma + 1, np.int64)
+            self.indptr[1:] = np.cumsum(np.repeat(4 * nb, 4))
+            col_rows = 4 * rows[:, None] + i4  # (nb_total, 4): a block row's rows
+            self.indices = np.concatenate(
+                [np.tile(col_rows[a:b].ravel(), 4) for a, b in zip(ptr[:-1], ptr[1:],
+                                                                    strict=True)]
+                + [np.zeros(0, np.int64)]).astype(np.int32)
+            self.indptr = self.indptr.astype(np.int32)
 
     def assemble(self, Hll: FloatArray, G: FloatArray, gpt: FloatArray, gl: FloatArray
                  ) -> tuple[FloatArray | None, sp.csc_matrix | None, FloatArray]:
@@ -488,21 +426,10 @@ class _ReducedSystem:
             S_full = -(Gm.T @ Gm)
             S_full.reshape(-1)[self.bd_flat] += Hll.ravel()
             return S_full, None, -gl.ravel() + Gm.T @ gpt.ravel()
-        rhs = -gl.ravel() + self._by_line(np.einsum("kij,ki->kj", G, np.take(gpt, f, axis=0))
-                                          ).ravel()
-        if self.dense:
-            S_dense = np.zeros((4 * Ma, 4 * Ma))
-            flat = S_dense.reshape(-1)  # (np.ix_ would take 5 times longer)
-            for g, Gm in self._run_blocks(G):
-                flat[(g[:, None] * (4 * Ma) + g).ravel()] -= (Gm.T @ Gm).ravel()
-            flat[self.bd_flat] += Hll.ravel()
-            return S_dense, None, rhs
-        v = self.entries(Hll, G)[self.perm]
-        data = v[self.starts]
-        for at, src in self.more:  # duplicates, each added after the one before it
-            data[at] += v[src]
-        return None, sp.csc_matrix((data, self.indices, self.indptr),
-                                   shape=(4 * Ma, 4 * Ma)), rhs
+        S, rhs = kernels.reduce_lines(self.index, G, Hll, gpt, gl, self.pattern)
+        if self.pattern is None:
+            return S, None, rhs
+        return None, sp.csc_matrix((S, self.indices, self.indptr), shape=(4 * Ma, 4 * Ma)), rhs
 
 
 class LineProblem:
@@ -559,11 +486,7 @@ class LineProblem:
         self.line_free = np.repeat(np.asarray(active, bool)[:, None], 4, axis=1)
         if held_directions is not None:
             self.line_free[held_directions, :2] = False
-        self._by_frame, self._by_line = _RowSums(self.f, F), _RowSums(self.t, M)
         self._moved_frames, self._moved_tracks = pose_free.any(1), self.line_free.any(1)
-        # per observation (K, 1, 6), (K, 1, 4): which of its Jacobian's columns are free
-        self._pose_free_k = np.take(pose_free, self.f, axis=0)[:, None, :]
-        self._line_free_k = np.take(self.line_free, self.t, axis=0)[:, None, :]
 
     def residuals(self, R: FloatArray, c: FloatArray, d: FloatArray,
                   p: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -571,54 +494,21 @@ class LineProblem:
             (R0, c0, d0, p0), e0, u0 = self._refit
             if R is R0 and c is c0 and d is d0 and p is p0:
                 return e0, u0
-        f, t = self.f, self.t
-        u = predicted_normals(np.take(R, f, axis=0), np.take(c, f, axis=0), np.take(p, t, axis=0),
-                              np.take(d, t, axis=0))
-        n = u / np.linalg.norm(u, axis=1, keepdims=True)
-        return np.einsum("kai,ki->ka", self.B, n), u
+        return kernels.residuals(R, c, d, p, self.f, self.t, self.B)
 
     def jacobian(self, R: FloatArray, c: FloatArray, d: FloatArray, p: FloatArray,
                  u: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """Per observation: ``(K, 2, 6)`` d e / d pose and ``(K, 2, 4)`` d e / d line."""
-        f = self.f
-        Rk = np.take(R, f, axis=0)
-        A, J_rot, J_c = _pose_jacobian(Rk, np.take(d, self.t, axis=0), u, self.B)
-        J_pose = np.concatenate([J_rot, J_c], axis=2) * self._pose_free_k
-        return J_pose, self._line_jacobian(Rk, c, d, p, A)
-
-    def _line_jacobian(self, Rk: FloatArray, c: FloatArray, d: FloatArray, p: FloatArray,
-                       A: FloatArray) -> FloatArray:
-        """``(K, 2, 4)`` d e / d line (``Rk``: each observation's rotation, ``A``: d e / d u)."""
-        f, t = self.f, self.t
-        # per line, then per observation (the same values as computed per observation)
+        """Per observation: ``(K, 2, 6)`` d e / d pose and ``(K, 2, 4)`` d e / d line
+        (:func:`_pose_jacobian`'s formulas, and the line moved along its tangent basis:
+        :func:`omni_sfm.estimate.kernels.jacobians`)."""
         b1, b2 = self._basis_of(d)
-        e1, e2 = np.take(b1, t, axis=0), np.take(b2, t, axis=0)
-        pc = np.take(p, t, axis=0) - np.take(c, f, axis=0)
-        V = np.empty((len(t), 4, 3))  # (K, 4, 3) world
-        cross3(pc, e1, out=V[:, 0])
-        cross3(pc, e2, out=V[:, 1])
-        V[:, 2] = np.take(cross3(b1, d), t, axis=0)
-        V[:, 3] = np.take(cross3(b2, d), t, axis=0)
-        # W = (Rk^T V^T) (K, 3, 4), term by term: the values of np.einsum("kji,kaj->kai") to
-        # the bit (its sum over j in the same order), in half its time
-        W = Rk[:, 0, :, None] * V[:, None, :, 0]
-        W += Rk[:, 1, :, None] * V[:, None, :, 1]
-        W += Rk[:, 2, :, None] * V[:, None, :, 2]
-        return A @ W * self._line_free_k
+        return kernels.jacobians(R, c, d, p, self.f, self.t, self.B, u, self.pose_free,
+                                 self.line_free, b1, b2)
 
     def normal_equations(self, J_pose: FloatArray, J_line: FloatArray, e: FloatArray,
                          w: FloatArray) -> _Blocks:
         """Blocks of ``J^T W J`` and ``J^T W e``: (F,6,6), (M,4,4), (K,6,4), (F,6), (M,4)."""
-        F, M, K = self.F, self.M, len(self.f)
-        wJp = J_pose * w[:, None, None]
-        wJl = J_line * w[:, None, None]
-        by_f, by_t = self._by_frame, self._by_line
-        Hpp = by_f((np.swapaxes(wJp, 1, 2) @ J_pose).reshape(K, 36)).reshape(F, 6, 6)
-        Hll = by_t((np.swapaxes(wJl, 1, 2) @ J_line).reshape(K, 16)).reshape(M, 4, 4)
-        Hpl = np.swapaxes(wJp, 1, 2) @ J_line
-        gp = by_f(np.einsum("kai,ka->ki", wJp, e))
-        gl = by_t(np.einsum("kai,ka->ki", wJl, e))
-        return Hpp, Hll, Hpl, gp, gl
+        return kernels.normal_blocks(J_pose, J_line, e, w, self.f, self.t, self.F, self.M)
 
     def solve(self, blocks: _Blocks, lam: float) -> tuple[FloatArray, FloatArray]:
         """Damped step ``(H + lam diag(H)) dx = -g`` from :meth:`normal_equations`' blocks:
@@ -634,10 +524,8 @@ class LineProblem:
         pf, lf = self.pose_free, self.line_free
         # held parameters: identity rows/columns, so they stay at zero
         Hpp, Hll = damped(Hpp, lam, pf), damped(Hll, lam, lf)
-        L = np.linalg.cholesky(Hpp)  # (F, 6, 6)
-        Linv = np.linalg.inv(L)
-        G = np.take(Linv, f, axis=0) @ Hpl  # (K, 6, 4)
-        gpt = np.einsum("fij,fj->fi", Linv, gp)  # L^-1 g_p
+        # Hpp = L L^T per frame; G = L_f^-1 Hpl (K, 6, 4), gpt = L^-1 g_p
+        Linv, G, gpt = kernels.eliminate_poses(Hpp, Hpl, gp, f)
         # only the lines with observations enter the reduced system
         if self._reduced is None:
             act = np.flatnonzero(lf.any(1))
@@ -657,9 +545,7 @@ class LineProblem:
         dl = np.zeros((M, 4))
         dl[act] = x.reshape(Ma, 4)
         # back substitution: Hpp dp = -gp - Hpl dl
-        r = -gp.copy()
-        np.add.at(r, f, -np.einsum("kij,kj->ki", Hpl, np.take(dl, t, axis=0)))
-        dp = np.einsum("fji,fj->fi", Linv, np.einsum("fij,fj->fi", Linv, r))
+        dp = kernels.back_substitute(Linv, Hpl, gp, dl, f, t)
         return dp * pf, dl * lf
 
     def retract(self, R: FloatArray, c: FloatArray, d: FloatArray, p: FloatArray,
@@ -700,42 +586,17 @@ class LineProblem:
             self._basis = (d, *_tangent_basis(d))
         return self._basis[1], self._basis[2]
 
-    def _line_costs(self, e: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """Each line's cost ``(M,)`` under the problem's loss, and each residual's IRLS weight."""
-        rho, w = loss_weights(np.sum(e * e, 1), self.loss, self.loss_scale)
-        return np.bincount(self.t, weights=rho, minlength=self.M).astype(np.float64), w
-
     def _refit_lines(self, R: FloatArray, c: FloatArray, d: FloatArray, p: FloatArray
                      ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
         """``line_iterations`` Gauss-Newton iterations of each line alone at the poses ``R``,
-        ``c`` (class docstring); an iteration that does not lower a line's cost is undone and
-        that line damped tenfold more for the next. Returns the lines ``d, p`` and the
-        residuals and predicted normals there (:meth:`residuals`)."""
-        M, t, lf = self.M, self.t, self.line_free
-        Rk = np.take(R, self.f, axis=0)
-        e, u = self.residuals(R, c, d, p)
-        cost, w = self._line_costs(e)
-        mu = np.full(M, 1e-6)
-        for _ in range(self.line_iterations):
-            J = self._line_jacobian(Rk, c, d, p, _normal_derivative(u, self.B))
-            wJ = J * w[:, None, None]
-            H = self._by_line((np.swapaxes(wJ, 1, 2) @ J).reshape(-1, 16)).reshape(M, 4, 4)
-            g = self._by_line(np.einsum("kai,ka->ki", wJ, e))
-            try:
-                step = -np.linalg.solve(damped(H, mu, lf), g[:, :, None])[:, :, 0] * lf
-            except np.linalg.LinAlgError:
-                break
-            d3, p3 = self._moved_lines(d, p, step)
-            e3, u3 = self.residuals(R, c, d3, p3)
-            cost3, w3 = self._line_costs(e3)
-            ok = np.isfinite(cost3) & (cost3 < cost)
-            d, p = np.where(ok[:, None], d3, d), np.where(ok[:, None], p3, p)
-            k = ok[t]
-            e, u = np.where(k[:, None], e3, e), np.where(k[:, None], u3, u)
-            w = np.where(k, w3, w)
-            cost = np.where(ok, cost3, cost)
-            mu = np.where(ok, mu / 10.0, mu * 10.0)
-        return d, p, e, u
+        ``c`` (class docstring): each line's cost under the problem's loss, its step from
+        ``H + mu diag(H)`` of its own observations (:func:`damped`, ``mu`` from 1e-6); an
+        iteration that does not lower a line's cost is undone and that line damped tenfold
+        more for the next; a singular system stops them all. Returns the lines ``d, p`` and
+        the residuals and predicted normals there (:meth:`residuals`). One compiled loop over
+        the observations (:func:`omni_sfm.estimate.kernels.refit_lines`)."""
+        return kernels.refit_lines(R, c, d, p, self.f, self.t, self.B, self.line_free,
+                                   str(self.loss), self.loss_scale, self.line_iterations)
 
 
 def robust_sigma(angles: FloatArray) -> float:

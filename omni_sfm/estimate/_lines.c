@@ -1,0 +1,1000 @@
+/* The line bundle adjustment's per-observation loops over lines (omni_sfm.estimate.bundle):
+ * the residuals of line observations and the lines' own Gauss-Newton iterations
+ * (LineProblem._refit_lines), in C.
+ *
+ * Why C: these loops run after every step of every adjustment; in numpy each is some sixty
+ * calls on arrays of a few thousand rows, and numpy's per-call overhead, not the arithmetic,
+ * was most of the estimator's time (docs/estimator.md, "Speed"). Every formula is the one of
+ * bundle.py, written out per observation in the same order of operations where numpy's is
+ * known (element-wise products, sums in observation order); matrix products and the 4x4
+ * solves round differently from numpy's BLAS and LAPACK, by about 1e-16 relative.
+ *
+ * Arrays come in through the buffer protocol, C-contiguous, float64 / int64 / uint8 as the
+ * Python wrapper (omni_sfm.estimate.kernels) makes them; outputs are written into arrays it
+ * allocates. Compiled with -ffp-contract=off so that no fused multiply-add changes the
+ * rounding from one processor to another.
+ */
+#define PY_SSIZE_T_CLEAN
+#include <Python.h>
+#include <math.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+
+enum { LOSS_LINEAR = 0, LOSS_HUBER = 1, LOSS_CAUCHY = 2 };
+
+/* ---- buffers ---------------------------------------------------------------------------- */
+
+static int take(PyObject *o, Py_buffer *v, Py_ssize_t itemsize, Py_ssize_t n, int writable,
+                const char *name)
+{
+    int flags = PyBUF_C_CONTIGUOUS | (writable ? PyBUF_WRITABLE : 0);
+    if (PyObject_GetBuffer(o, v, flags) < 0)
+        return -1;
+    if (v->itemsize != itemsize || v->len != n * itemsize) {
+        PyErr_Format(PyExc_ValueError, "%s: expected %zd items of %zd bytes, got %zd bytes",
+                     name, n, itemsize, v->len);
+        PyBuffer_Release(v);
+        return -1;
+    }
+    return 0;
+}
+
+static void release_all(int n, Py_buffer *b)
+{
+    for (int i = 0; i < n; i++)
+        PyBuffer_Release(&b[i]);
+}
+
+/* One argument array: its name, bytes an item, items, whether it is written */
+typedef struct {
+    const char *name;
+    Py_ssize_t itemsize, count;
+    int writable;
+} Spec;
+
+/* All ``n`` buffers of ``o`` as ``spec`` says, or none (the error set, -1) */
+static int take_all(int n, PyObject *const *o, const Spec *spec, Py_buffer *b)
+{
+    for (int i = 0; i < n; i++)
+        if (take(o[i], &b[i], spec[i].itemsize, spec[i].count, spec[i].writable,
+                 spec[i].name) < 0) {
+            release_all(i, b);
+            return -1;
+        }
+    return 0;
+}
+
+/* every observation's frame in 0..F-1 and line in 0..M-1 (else IndexError set, 0) */
+static int in_range(Py_ssize_t K, const int64_t *f, Py_ssize_t F, const int64_t *t,
+                    Py_ssize_t M)
+{
+    for (Py_ssize_t k = 0; k < K; k++)
+        if (f[k] < 0 || f[k] >= F || t[k] < 0 || t[k] >= M) {
+            PyErr_Format(PyExc_IndexError,
+                         "observation %zd: frame %lld of %zd or line %lld of %zd out of range",
+                         k, (long long)f[k], F, (long long)t[k], M);
+            return 0;
+        }
+    return 1;
+}
+
+/* ---- geometry, per observation ---------------------------------------------------------- */
+
+/* u = R^T ((p - c) x d), R row-major world_from_cam (bundle.predicted_normals) */
+static void predict(const double *R, const double *c, const double *d, const double *p,
+                    double u[3])
+{
+    double q0 = p[0] - c[0], q1 = p[1] - c[1], q2 = p[2] - c[2];
+    double w0 = q1 * d[2] - q2 * d[1];
+    double w1 = q2 * d[0] - q0 * d[2];
+    double w2 = q0 * d[1] - q1 * d[0];
+    for (int i = 0; i < 3; i++)
+        u[i] = R[i] * w0 + R[3 + i] * w1 + R[6 + i] * w2;
+}
+
+/* e = B normalise(u); returns |u| */
+static double residual(const double *B, const double u[3], double n[3], double e[2])
+{
+    double nu = sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2]);
+    n[0] = u[0] / nu;
+    n[1] = u[1] / nu;
+    n[2] = u[2] / nu;
+    e[0] = B[0] * n[0] + B[1] * n[1] + B[2] * n[2];
+    e[1] = B[3] * n[0] + B[4] * n[1] + B[5] * n[2];
+    return nu;
+}
+
+/* robust cost rho(s) and IRLS weight of a squared norm s (bundle.loss_weights) */
+static void loss(double s, int kind, double scale, double *rho, double *w)
+{
+    double f2 = scale * scale;
+    if (kind == LOSS_LINEAR) {
+        *rho = s;
+        *w = 1.0;
+    } else if (kind == LOSS_HUBER) {
+        if (s <= f2) {
+            *rho = s;
+            *w = 1.0;
+        } else {
+            double r = sqrt(s);
+            *rho = 2.0 * scale * r - f2;
+            *w = scale / (r > 1e-300 ? r : 1e-300);
+        }
+    } else {
+        *rho = f2 * log1p(s / f2);
+        *w = 1.0 / (1.0 + s / f2);
+    }
+}
+
+static void cross(const double a[3], const double b[3], double out[3])
+{
+    out[0] = a[1] * b[2] - a[2] * b[1];
+    out[1] = a[2] * b[0] - a[0] * b[2];
+    out[2] = a[0] * b[1] - a[1] * b[0];
+}
+
+/* e1 = normalise(d x h), e2 = d x e1, h = x where |d_x| < 0.6 else y
+ * (bundle._tangent_basis: geometry.orthonormal_completion(switch=0.6)) */
+static void tangent_basis(const double d[3], double e1[3], double e2[3])
+{
+    double h[3] = {0.0, 0.0, 0.0};
+    if (fabs(d[0]) < 0.6)
+        h[0] = 1.0;
+    else
+        h[1] = 1.0;
+    double a[3];
+    cross(d, h, a);
+    double na = sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
+    for (int i = 0; i < 3; i++)
+        e1[i] = na > 0 ? a[i] / na : NAN;
+    cross(d, e1, e2);
+}
+
+
+/* A = d e / d u = (B - (B n) n^T) / |u| (bundle._normal_derivative) */
+static void normal_derivative(const double *B, const double u[3], double A[2][3])
+{
+    double n[3];
+    double nu = sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2]);
+    n[0] = u[0] / nu;
+    n[1] = u[1] / nu;
+    n[2] = u[2] / nu;
+    for (int r = 0; r < 2; r++) {
+        double bn = B[3 * r] * n[0] + B[3 * r + 1] * n[1] + B[3 * r + 2] * n[2];
+        for (int i = 0; i < 3; i++)
+            A[r][i] = (B[3 * r + i] - bn * n[i]) / nu;
+    }
+}
+
+/* d e / d line (2, 4) of one observation (LineProblem._line_jacobian): the line moved by
+ * (a, b, s, t) has direction d + a e1 + b e2 and point p + s e1 + t e2; held columns zero */
+static void line_row(const double *R, const double *c, const double *d, const double *p,
+                     const double *e1, const double *e2, double A[2][3], const uint8_t *fr,
+                     double J[2][4])
+{
+    double pc[3] = {p[0] - c[0], p[1] - c[1], p[2] - c[2]};
+    double V[4][3];
+    cross(pc, e1, V[0]);
+    cross(pc, e2, V[1]);
+    cross(e1, d, V[2]);
+    cross(e2, d, V[3]);
+    for (int a = 0; a < 4; a++) {
+        double W[3];
+        for (int i = 0; i < 3; i++)
+            W[i] = R[i] * V[a][0] + R[3 + i] * V[a][1] + R[6 + i] * V[a][2];
+        for (int r = 0; r < 2; r++)
+            J[r][a] = fr[a] ? A[r][0] * W[0] + A[r][1] * W[1] + A[r][2] * W[2] : 0.0;
+    }
+}
+
+/* ---- residuals ---------------------------------------------------------------------------- */
+
+static void all_residuals(Py_ssize_t K, const double *R, const double *c, const double *d,
+                          const double *p, const int64_t *f, const int64_t *t, const double *B,
+                          double *e, double *u)
+{
+    double n[3];
+    for (Py_ssize_t k = 0; k < K; k++) {
+        predict(R + 9 * f[k], c + 3 * f[k], d + 3 * t[k], p + 3 * t[k], u + 3 * k);
+        residual(B + 6 * k, u + 3 * k, n, e + 2 * k);
+    }
+}
+
+static PyObject *py_residuals(PyObject *Py_UNUSED(self), PyObject *args)
+{
+    PyObject *oR, *oc, *od, *op, *of, *ot, *oB, *oe, *ou;
+    Py_ssize_t F, M, K;
+    if (!PyArg_ParseTuple(args, "nnnOOOOOOOOO", &F, &M, &K, &oR, &oc, &od, &op, &of, &ot, &oB,
+                          &oe, &ou))
+        return NULL;
+    Py_buffer b[9];
+    PyObject *in[9] = {oR, oc, od, op, of, ot, oB, oe, ou};
+    const Spec spec[9] = {
+        {"R", 8, 9 * F, 0},
+        {"c", 8, 3 * F, 0},
+        {"d", 8, 3 * M, 0},
+        {"p", 8, 3 * M, 0},
+        {"f", 8, K, 0},
+        {"t", 8, K, 0},
+        {"B", 8, 6 * K, 0},
+        {"e", 8, 2 * K, 1},
+        {"u", 8, 3 * K, 1},
+    };
+    if (take_all(9, in, spec, b) < 0)
+        return NULL;
+    if (!in_range(K, b[4].buf, F, b[5].buf, M))
+        goto fail;
+    all_residuals(K, b[0].buf, b[1].buf, b[2].buf, b[3].buf, b[4].buf, b[5].buf, b[6].buf,
+                  b[7].buf, b[8].buf);
+    release_all(9, b);
+    Py_RETURN_NONE;
+fail:
+    release_all(9, b);
+    return NULL;
+}
+
+/* ---- the lines' own iterations ------------------------------------------------------------ */
+
+/* Solve the 4x4 system A x = b by Gaussian elimination with partial pivoting (A, b
+ * overwritten); 0 where a pivot is exactly zero (numpy.linalg.solve raises there). */
+static int solve4(double A[16], double b[4], double x[4])
+{
+    for (int col = 0; col < 4; col++) {
+        int piv = col;
+        double best = fabs(A[4 * col + col]);
+        for (int r = col + 1; r < 4; r++)
+            if (fabs(A[4 * r + col]) > best) {
+                best = fabs(A[4 * r + col]);
+                piv = r;
+            }
+        if (A[4 * piv + col] == 0.0)
+            return 0;
+        if (piv != col) {
+            for (int j = 0; j < 4; j++) {
+                double tmp = A[4 * col + j];
+                A[4 * col + j] = A[4 * piv + j];
+                A[4 * piv + j] = tmp;
+            }
+            double tmp = b[col];
+            b[col] = b[piv];
+            b[piv] = tmp;
+        }
+        for (int r = col + 1; r < 4; r++) {
+            double m = A[4 * r + col] / A[4 * col + col];
+            for (int j = col; j < 4; j++)
+                A[4 * r + j] -= m * A[4 * col + j];
+            b[r] -= m * b[col];
+        }
+    }
+    for (int r = 3; r >= 0; r--) {
+        double s = b[r];
+        for (int j = r + 1; j < 4; j++)
+            s -= A[4 * r + j] * x[j];
+        x[r] = s / A[4 * r + r];
+    }
+    return 1;
+}
+
+typedef struct {
+    Py_ssize_t F, M, K;
+    const double *R, *c, *B;
+    const int64_t *f, *t;
+    const uint8_t *free; /* (M, 4) */
+    int loss;
+    double scale;
+    int iterations;
+    double *d, *p, *e, *u; /* in/out: lines; out: residuals and predicted normals */
+} Refit;
+
+/* LineProblem._refit_lines: ``iterations`` Gauss-Newton iterations of each line alone at the
+ * poses; an iteration that does not lower a line's cost is undone and that line damped
+ * tenfold more for the next. Returns 0 on success, -1 where memory ran out. */
+static int refit(const Refit *q)
+{
+    Py_ssize_t M = q->M, K = q->K;
+    double *work = malloc(sizeof(double) * (size_t)(M * (16 + 4 + 3 + 3 + 3 + 3 + 1 + 1 + 1 + 1)
+                                                    + K * (2 + 3 + 1 + 1 + 1)));
+    if (work == NULL)
+        return -1;
+    double *H = work, *g = H + 16 * M, *b1 = g + 4 * M, *b2 = b1 + 3 * M, *d3 = b2 + 3 * M,
+           *p3 = d3 + 3 * M, *cost = p3 + 3 * M, *cost3 = cost + M, *mu = cost3 + M,
+           *okl = mu + M, *e3 = okl + M, *u3 = e3 + 2 * K, *w = u3 + 3 * K, *w3 = w + K,
+           *rho = w3 + K;
+    const int64_t *f = q->f, *t = q->t;
+    double *d = q->d, *p = q->p, *e = q->e, *u = q->u;
+    double n[3];
+
+    all_residuals(K, q->R, q->c, d, p, f, t, q->B, e, u);
+    memset(cost, 0, sizeof(double) * (size_t)M);
+    for (Py_ssize_t k = 0; k < K; k++) {
+        loss(e[2 * k] * e[2 * k] + e[2 * k + 1] * e[2 * k + 1], q->loss, q->scale, &rho[k],
+             &w[k]);
+        cost[t[k]] += rho[k];
+    }
+    for (Py_ssize_t m = 0; m < M; m++)
+        mu[m] = 1e-6;
+    for (int it = 0; it < q->iterations; it++) {
+        memset(H, 0, sizeof(double) * (size_t)(16 * M));
+        memset(g, 0, sizeof(double) * (size_t)(4 * M));
+        for (Py_ssize_t m = 0; m < M; m++)
+            tangent_basis(d + 3 * m, b1 + 3 * m, b2 + 3 * m);
+        for (Py_ssize_t k = 0; k < K; k++) {
+            Py_ssize_t m = t[k];
+            const double *R = q->R + 9 * f[k], *c = q->c + 3 * f[k], *Bk = q->B + 6 * k;
+            const double *dm = d + 3 * m, *pm = p + 3 * m, *e1 = b1 + 3 * m, *e2 = b2 + 3 * m;
+            const uint8_t *fr = q->free + 4 * m;
+            double A[2][3], J[2][4];
+            normal_derivative(Bk, u + 3 * k, A);
+            line_row(R, c, dm, pm, e1, e2, A, fr, J);
+            double wk = w[k], *Hm = H + 16 * m, *gm = g + 4 * m;
+            const double *ek = e + 2 * k;
+            for (int a = 0; a < 4; a++) {
+                double wa0 = wk * J[0][a], wa1 = wk * J[1][a];
+                for (int bb = 0; bb < 4; bb++)
+                    Hm[4 * a + bb] += wa0 * J[0][bb] + wa1 * J[1][bb];
+                gm[a] += wa0 * ek[0] + wa1 * ek[1];
+            }
+        }
+        /* damped: H + mu diag(H), tiny diagonals floored at 1e-12 of the largest */
+        double top = 0.0;
+        for (Py_ssize_t m = 0; m < M; m++)
+            for (int a = 0; a < 4; a++)
+                if (H[16 * m + 5 * a] > top)
+                    top = H[16 * m + 5 * a];
+        double floor_ = 1e-12 * (top > 1e-30 ? top : 1e-30);
+        int singular = 0;
+        for (Py_ssize_t m = 0; m < M && !singular; m++) {
+            const uint8_t *fr = q->free + 4 * m;
+            double Am[16], bm[4], x[4];
+            for (int a = 0; a < 4; a++) {
+                for (int bb = 0; bb < 4; bb++)
+                    Am[4 * a + bb] = fr[a] && fr[bb] ? H[16 * m + 4 * a + bb] : 0.0;
+                double dg = H[16 * m + 5 * a];
+                Am[5 * a] = fr[a] ? Am[5 * a] + mu[m] * (dg > floor_ ? dg : floor_) : 1.0;
+                bm[a] = g[4 * m + a];
+            }
+            if (!solve4(Am, bm, x)) {
+                singular = 1;
+                break;
+            }
+            double s[4];
+            for (int a = 0; a < 4; a++)
+                s[a] = fr[a] ? -x[a] : 0.0;
+            double *dm = d + 3 * m, *pm = p + 3 * m, *e1 = b1 + 3 * m, *e2 = b2 + 3 * m;
+            double *dn = d3 + 3 * m, *pn = p3 + 3 * m;
+            if (fr[0] || fr[1] || fr[2] || fr[3]) {
+                double v[3], qq[3];
+                for (int i = 0; i < 3; i++)
+                    v[i] = dm[i] + s[0] * e1[i] + s[1] * e2[i];
+                double nv = sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+                for (int i = 0; i < 3; i++)
+                    dn[i] = nv > 0 ? v[i] / nv : NAN;
+                for (int i = 0; i < 3; i++)
+                    qq[i] = pm[i] + s[2] * e1[i] + s[3] * e2[i];
+                double qd = qq[0] * dn[0] + qq[1] * dn[1] + qq[2] * dn[2];
+                for (int i = 0; i < 3; i++)
+                    pn[i] = qq[i] - qd * dn[i];
+            } else {
+                memcpy(dn, dm, 3 * sizeof(double));
+                memcpy(pn, pm, 3 * sizeof(double));
+            }
+        }
+        if (singular)
+            break;
+        /* the moved lines' residuals and costs; each line keeps its move where its cost fell */
+        memset(cost3, 0, sizeof(double) * (size_t)M);
+        for (Py_ssize_t k = 0; k < K; k++) {
+            Py_ssize_t m = t[k];
+            predict(q->R + 9 * f[k], q->c + 3 * f[k], d3 + 3 * m, p3 + 3 * m, u3 + 3 * k);
+            residual(q->B + 6 * k, u3 + 3 * k, n, e3 + 2 * k);
+            double r3;
+            loss(e3[2 * k] * e3[2 * k] + e3[2 * k + 1] * e3[2 * k + 1], q->loss, q->scale, &r3,
+                 &w3[k]);
+            cost3[m] += r3;
+        }
+        for (Py_ssize_t m = 0; m < M; m++) {
+            int ok = isfinite(cost3[m]) && cost3[m] < cost[m];
+            okl[m] = ok;
+            if (ok) {
+                memcpy(d + 3 * m, d3 + 3 * m, 3 * sizeof(double));
+                memcpy(p + 3 * m, p3 + 3 * m, 3 * sizeof(double));
+                cost[m] = cost3[m];
+                mu[m] = mu[m] / 10.0;
+            } else {
+                mu[m] = mu[m] * 10.0;
+            }
+        }
+        for (Py_ssize_t k = 0; k < K; k++)
+            if (okl[t[k]] != 0.0) {
+                memcpy(e + 2 * k, e3 + 2 * k, 2 * sizeof(double));
+                memcpy(u + 3 * k, u3 + 3 * k, 3 * sizeof(double));
+                w[k] = w3[k];
+            }
+    }
+    free(work);
+    return 0;
+}
+
+static PyObject *py_refit_lines(PyObject *Py_UNUSED(self), PyObject *args)
+{
+    PyObject *oR, *oc, *od, *op, *of, *ot, *oB, *ofree, *oe, *ou;
+    Refit q;
+    if (!PyArg_ParseTuple(args, "nnnOOOOOOOOidiOO", &q.F, &q.M, &q.K, &oR, &oc, &od, &op, &of,
+                          &ot, &oB, &ofree, &q.loss, &q.scale, &q.iterations, &oe, &ou))
+        return NULL;
+    if (q.loss < LOSS_LINEAR || q.loss > LOSS_CAUCHY) {
+        PyErr_Format(PyExc_ValueError, "unknown loss code %d", q.loss);
+        return NULL;
+    }
+    Py_buffer b[10];
+    PyObject *in[10] = {oR, oc, od, op, of, ot, oB, ofree, oe, ou};
+    const Spec spec[10] = {
+        {"R", 8, 9 * q.F, 0},
+        {"c", 8, 3 * q.F, 0},
+        {"d", 8, 3 * q.M, 1},
+        {"p", 8, 3 * q.M, 1},
+        {"f", 8, q.K, 0},
+        {"t", 8, q.K, 0},
+        {"B", 8, 6 * q.K, 0},
+        {"free", 1, 4 * q.M, 0},
+        {"e", 8, 2 * q.K, 1},
+        {"u", 8, 3 * q.K, 1},
+    };
+    if (take_all(10, in, spec, b) < 0)
+        return NULL;
+    const int64_t *f = b[4].buf, *t = b[5].buf;
+    if (!in_range(q.K, f, q.F, t, q.M))
+        goto fail;
+    q.R = b[0].buf;
+    q.c = b[1].buf;
+    q.d = b[2].buf;
+    q.p = b[3].buf;
+    q.f = f;
+    q.t = t;
+    q.B = b[6].buf;
+    q.free = b[7].buf;
+    q.e = b[8].buf;
+    q.u = b[9].buf;
+    int rc;
+    Py_BEGIN_ALLOW_THREADS
+    rc = refit(&q);
+    Py_END_ALLOW_THREADS
+    release_all(10, b);
+    if (rc < 0)
+        return PyErr_NoMemory();
+    Py_RETURN_NONE;
+fail:
+    release_all(10, b);
+    return NULL;
+}
+
+
+/* ---- the adjustment's Jacobians and normal equations -------------------------------------- */
+
+/* LineProblem.jacobian: per observation d e / d pose (2, 6) (rotation increment in the camera
+ * frame, then the centre; bundle._pose_jacobian) and d e / d line (2, 4), held columns zero */
+static void jacobians(Py_ssize_t K, const double *Rs, const double *cs, const double *d,
+                      const double *p, const int64_t *f, const int64_t *t, const double *B,
+                      const double *u, const uint8_t *pose_free, const uint8_t *line_free,
+                      const double *b1, const double *b2, double *Jp, double *Jl)
+{
+    for (Py_ssize_t k = 0; k < K; k++) {
+        const double *R = Rs + 9 * f[k], *uk = u + 3 * k, *dm = d + 3 * t[k];
+        const uint8_t *pf = pose_free + 6 * f[k];
+        double A[2][3], J[2][4];
+        normal_derivative(B + 6 * k, uk, A);
+        /* skew(u), and R^T skew(d) */
+        double Su[3][3] = {{0.0, -uk[2], uk[1]}, {uk[2], 0.0, -uk[0]}, {-uk[1], uk[0], 0.0}};
+        double Sd[3][3] = {{0.0, -dm[2], dm[1]}, {dm[2], 0.0, -dm[0]}, {-dm[1], dm[0], 0.0}};
+        double RtSd[3][3];
+        for (int i = 0; i < 3; i++)
+            for (int j = 0; j < 3; j++)
+                RtSd[i][j] = R[i] * Sd[0][j] + R[3 + i] * Sd[1][j] + R[6 + i] * Sd[2][j];
+        double *jp = Jp + 12 * k;
+        for (int r = 0; r < 2; r++)
+            for (int j = 0; j < 3; j++) {
+                double rot = A[r][0] * Su[0][j] + A[r][1] * Su[1][j] + A[r][2] * Su[2][j];
+                double cen = A[r][0] * RtSd[0][j] + A[r][1] * RtSd[1][j] + A[r][2] * RtSd[2][j];
+                jp[6 * r + j] = pf[j] ? rot : 0.0;
+                jp[6 * r + 3 + j] = pf[3 + j] ? cen : 0.0;
+            }
+        line_row(R, cs + 3 * f[k], dm, p + 3 * t[k], b1 + 3 * t[k], b2 + 3 * t[k], A,
+                 line_free + 4 * t[k], J);
+        double *jl = Jl + 8 * k;
+        for (int r = 0; r < 2; r++)
+            for (int a = 0; a < 4; a++)
+                jl[4 * r + a] = J[r][a];
+    }
+}
+
+static PyObject *py_jacobians(PyObject *Py_UNUSED(self), PyObject *args)
+{
+    PyObject *o[14];
+    Py_ssize_t F, M, K;
+    if (!PyArg_ParseTuple(args, "nnnOOOOOOOOOOOOOO", &F, &M, &K, &o[0], &o[1], &o[2], &o[3],
+                          &o[4], &o[5], &o[6], &o[7], &o[8], &o[9], &o[10], &o[11], &o[12],
+                          &o[13]))
+        return NULL;
+    Py_buffer b[14];
+    const Spec spec[14] = {
+        {"R", 8, 9 * F, 0},
+        {"c", 8, 3 * F, 0},
+        {"d", 8, 3 * M, 0},
+        {"p", 8, 3 * M, 0},
+        {"f", 8, K, 0},
+        {"t", 8, K, 0},
+        {"B", 8, 6 * K, 0},
+        {"u", 8, 3 * K, 0},
+        {"pose_free", 1, 6 * F, 0},
+        {"line_free", 1, 4 * M, 0},
+        {"b1", 8, 3 * M, 0},
+        {"b2", 8, 3 * M, 0},
+        {"J_pose", 8, 12 * K, 1},
+        {"J_line", 8, 8 * K, 1},
+    };
+    if (take_all(14, o, spec, b) < 0)
+        return NULL;
+    const int64_t *f = b[4].buf, *t = b[5].buf;
+    if (!in_range(K, f, F, t, M))
+        goto fail;
+    Py_BEGIN_ALLOW_THREADS
+    jacobians(K, b[0].buf, b[1].buf, b[2].buf, b[3].buf, f, t, b[6].buf, b[7].buf, b[8].buf,
+              b[9].buf, b[10].buf, b[11].buf, b[12].buf, b[13].buf);
+    Py_END_ALLOW_THREADS
+    release_all(14, b);
+    Py_RETURN_NONE;
+fail:
+    release_all(14, b);
+    return NULL;
+}
+
+/* LineProblem.normal_equations: the blocks of J^T W J and J^T W e, summed per frame and line
+ * in the order of the observations */
+static void blocks(Py_ssize_t K, const double *Jp, const double *Jl, const double *e,
+                   const double *w, const int64_t *f, const int64_t *t, double *Hpp,
+                   double *Hll, double *Hpl, double *gp, double *gl)
+{
+    for (Py_ssize_t k = 0; k < K; k++) {
+        const double *jp = Jp + 12 * k, *jl = Jl + 8 * k, *ek = e + 2 * k;
+        double wk = w[k];
+        double *hpp = Hpp + 36 * f[k], *hll = Hll + 16 * t[k], *hpl = Hpl + 24 * k;
+        double *g1 = gp + 6 * f[k], *g2 = gl + 4 * t[k];
+        for (int i = 0; i < 6; i++) {
+            double a0 = wk * jp[i], a1 = wk * jp[6 + i];
+            for (int j = 0; j < 6; j++)
+                hpp[6 * i + j] += a0 * jp[j] + a1 * jp[6 + j];
+            for (int j = 0; j < 4; j++)
+                hpl[4 * i + j] = a0 * jl[j] + a1 * jl[4 + j];
+            g1[i] += a0 * ek[0] + a1 * ek[1];
+        }
+        for (int i = 0; i < 4; i++) {
+            double a0 = wk * jl[i], a1 = wk * jl[4 + i];
+            for (int j = 0; j < 4; j++)
+                hll[4 * i + j] += a0 * jl[j] + a1 * jl[4 + j];
+            g2[i] += a0 * ek[0] + a1 * ek[1];
+        }
+    }
+}
+
+static PyObject *py_blocks(PyObject *Py_UNUSED(self), PyObject *args)
+{
+    PyObject *o[11];
+    Py_ssize_t F, M, K;
+    if (!PyArg_ParseTuple(args, "nnnOOOOOOOOOOO", &F, &M, &K, &o[0], &o[1], &o[2], &o[3],
+                          &o[4], &o[5], &o[6], &o[7], &o[8], &o[9], &o[10]))
+        return NULL;
+    Py_buffer b[11];
+    const Spec spec[11] = {
+        {"J_pose", 8, 12 * K, 0},
+        {"J_line", 8, 8 * K, 0},
+        {"e", 8, 2 * K, 0},
+        {"w", 8, K, 0},
+        {"f", 8, K, 0},
+        {"t", 8, K, 0},
+        {"Hpp", 8, 36 * F, 1},
+        {"Hll", 8, 16 * M, 1},
+        {"Hpl", 8, 24 * K, 1},
+        {"gp", 8, 6 * F, 1},
+        {"gl", 8, 4 * M, 1},
+    };
+    if (take_all(11, o, spec, b) < 0)
+        return NULL;
+    const int64_t *f = b[4].buf, *t = b[5].buf;
+    if (!in_range(K, f, F, t, M))
+        goto fail;
+    for (int i = 6; i < 11; i++)
+        memset(b[i].buf, 0, (size_t)b[i].len);
+    Py_BEGIN_ALLOW_THREADS
+    blocks(K, b[0].buf, b[1].buf, b[2].buf, b[3].buf, f, t, b[6].buf, b[7].buf, b[8].buf,
+           b[9].buf, b[10].buf);
+    Py_END_ALLOW_THREADS
+    release_all(11, b);
+    Py_RETURN_NONE;
+fail:
+    release_all(11, b);
+    return NULL;
+}
+
+
+/* ---- the poses eliminated (LineProblem.solve) ----------------------------------------------- */
+
+/* L^-1 (6, 6) of the Cholesky factor L of symmetric positive definite H (6, 6); 0 where H is
+ * not positive definite */
+static int cholesky_inverse6(const double *H, double *Li)
+{
+    double L[6][6];
+    memset(L, 0, sizeof(L));
+    for (int j = 0; j < 6; j++) {
+        double s = H[6 * j + j];
+        for (int k = 0; k < j; k++)
+            s -= L[j][k] * L[j][k];
+        if (!(s > 0.0))
+            return 0;
+        L[j][j] = sqrt(s);
+        for (int i = j + 1; i < 6; i++) {
+            double v = H[6 * i + j];
+            for (int k = 0; k < j; k++)
+                v -= L[i][k] * L[j][k];
+            L[i][j] = v / L[j][j];
+        }
+    }
+    /* forward substitution, column by column of the identity */
+    memset(Li, 0, 36 * sizeof(double));
+    for (int c = 0; c < 6; c++)
+        for (int i = c; i < 6; i++) {
+            double v = i == c ? 1.0 : 0.0;
+            for (int k = c; k < i; k++)
+                v -= L[i][k] * Li[6 * k + c];
+            Li[6 * i + c] = v / L[i][i];
+        }
+    return 1;
+}
+
+static PyObject *py_eliminate_poses(PyObject *Py_UNUSED(self), PyObject *args)
+{
+    PyObject *o[7];
+    Py_ssize_t F, K;
+    if (!PyArg_ParseTuple(args, "nnOOOOOOO", &F, &K, &o[0], &o[1], &o[2], &o[3], &o[4], &o[5],
+                          &o[6]))
+        return NULL;
+    Py_buffer b[7];
+    const Spec spec[7] = {
+        {"Hpp", 8, 36 * F, 0},
+        {"Hpl", 8, 24 * K, 0},
+        {"gp", 8, 6 * F, 0},
+        {"f", 8, K, 0},
+        {"Linv", 8, 36 * F, 1},
+        {"G", 8, 24 * K, 1},
+        {"gpt", 8, 6 * F, 1},
+    };
+    if (take_all(7, o, spec, b) < 0)
+        return NULL;
+    const int64_t *f = b[3].buf;
+    if (!in_range(K, f, F, f, F))
+        goto fail;
+    const double *Hpp = b[0].buf, *Hpl = b[1].buf, *gp = b[2].buf;
+    double *Li = b[4].buf, *G = b[5].buf, *gpt = b[6].buf;
+    int ok = 1;
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t i = 0; i < F && ok; i++) {
+        ok = cholesky_inverse6(Hpp + 36 * i, Li + 36 * i);
+        if (!ok)
+            break;
+        const double *l = Li + 36 * i, *g = gp + 6 * i;
+        for (int r = 0; r < 6; r++) {
+            double v = 0.0;
+            for (int k = 0; k <= r; k++)
+                v += l[6 * r + k] * g[k];
+            gpt[6 * i + r] = v;
+        }
+    }
+    if (ok)
+        for (Py_ssize_t k = 0; k < K; k++) {
+            const double *l = Li + 36 * f[k], *h = Hpl + 24 * k;
+            double *gk = G + 24 * k;
+            for (int r = 0; r < 6; r++)
+                for (int a = 0; a < 4; a++) {
+                    double v = 0.0;
+                    for (int j = 0; j <= r; j++)
+                        v += l[6 * r + j] * h[4 * j + a];
+                    gk[4 * r + a] = v;
+                }
+        }
+    Py_END_ALLOW_THREADS
+    release_all(7, b);
+    return PyBool_FromLong(ok);
+fail:
+    release_all(7, b);
+    return NULL;
+}
+
+/* dp = -Hpp^-1 (gp + sum_k Hpl_k dl_t[k]) through L^-1: the poses' step once the lines' is
+ * known */
+static PyObject *py_back_substitute(PyObject *Py_UNUSED(self), PyObject *args)
+{
+    PyObject *o[7];
+    Py_ssize_t F, M, K;
+    if (!PyArg_ParseTuple(args, "nnnOOOOOOO", &F, &M, &K, &o[0], &o[1], &o[2], &o[3], &o[4],
+                          &o[5], &o[6]))
+        return NULL;
+    Py_buffer b[7];
+    const Spec spec[7] = {
+        {"Linv", 8, 36 * F, 0},
+        {"Hpl", 8, 24 * K, 0},
+        {"gp", 8, 6 * F, 0},
+        {"dl", 8, 4 * M, 0},
+        {"f", 8, K, 0},
+        {"t", 8, K, 0},
+        {"dp", 8, 6 * F, 1},
+    };
+    if (take_all(7, o, spec, b) < 0)
+        return NULL;
+    const int64_t *f = b[4].buf, *t = b[5].buf;
+    if (!in_range(K, f, F, t, M))
+        goto fail;
+    const double *Li = b[0].buf, *Hpl = b[1].buf, *gp = b[2].buf, *dl = b[3].buf;
+    double *dp = b[6].buf;
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t i = 0; i < 6 * F; i++)
+        dp[i] = -gp[i];
+    for (Py_ssize_t k = 0; k < K; k++) {
+        const double *h = Hpl + 24 * k, *x = dl + 4 * t[k];
+        double *r = dp + 6 * f[k];
+        for (int i = 0; i < 6; i++)
+            r[i] -= h[4 * i] * x[0] + h[4 * i + 1] * x[1] + h[4 * i + 2] * x[2] +
+                    h[4 * i + 3] * x[3];
+    }
+    for (Py_ssize_t i = 0; i < F; i++) {
+        const double *l = Li + 36 * i;
+        double *r = dp + 6 * i, y[6];
+        for (int a = 0; a < 6; a++) {  /* y = L^-1 r */
+            double v = 0.0;
+            for (int j = 0; j <= a; j++)
+                v += l[6 * a + j] * r[j];
+            y[a] = v;
+        }
+        for (int a = 0; a < 6; a++) {  /* dp = L^-T y */
+            double v = 0.0;
+            for (int j = a; j < 6; j++)
+                v += l[6 * j + a] * y[j];
+            r[a] = v;
+        }
+    }
+    Py_END_ALLOW_THREADS
+    release_all(7, b);
+    Py_RETURN_NONE;
+fail:
+    release_all(7, b);
+    return NULL;
+}
+
+
+/* ---- the lines' reduced system (bundle._ReducedSystem) -------------------------------------- */
+
+static int cmp_i64(const void *a, const void *b)
+{
+    int64_t x = *(const int64_t *)a, y = *(const int64_t *)b;
+    return (x > y) - (x < y);
+}
+
+/* The lines seen in one frame with each line ``tj`` (itself included), sorted: the block rows
+ * of ``tj``'s block column in S. ``by_frame``/``fb``: the observations in frame order and
+ * each frame's first; ``by_line``/``lb``: the same by line. With ``rows`` NULL only their
+ * counts ``nb`` are written, else ``rows`` (at ``ptr[tj]``) too. */
+static int pattern(Py_ssize_t Ma, const int64_t *f, const int64_t *tc, const int64_t *by_frame,
+                   const int64_t *fb, const int64_t *by_line, const int64_t *lb, int64_t *nb,
+                   const int64_t *ptr, int64_t *rows)
+{
+    int64_t *mark = malloc(sizeof(int64_t) * (size_t)(Ma > 0 ? Ma : 1));
+    if (mark == NULL)
+        return -1;
+    for (Py_ssize_t i = 0; i < Ma; i++)
+        mark[i] = -1;
+    for (Py_ssize_t tj = 0; tj < Ma; tj++) {
+        int64_t n = 0;
+        for (int64_t a = lb[tj]; a < lb[tj + 1]; a++) {
+            int64_t fr = f[by_line[a]];
+            for (int64_t b = fb[fr]; b < fb[fr + 1]; b++) {
+                int64_t ti = tc[by_frame[b]];
+                if (mark[ti] != tj) {
+                    mark[ti] = tj;
+                    if (rows != NULL)
+                        rows[ptr[tj] + n] = ti;
+                    n++;
+                }
+            }
+        }
+        nb[tj] = n;
+        if (rows != NULL)
+            qsort(rows + ptr[tj], (size_t)n, sizeof(int64_t), cmp_i64);
+    }
+    free(mark);
+    return 0;
+}
+
+static PyObject *py_pattern(PyObject *Py_UNUSED(self), PyObject *args)
+{
+    PyObject *o[9];
+    Py_ssize_t F, Ma, K, total;
+    if (!PyArg_ParseTuple(args, "nnnnOOOOOOOOO", &F, &Ma, &K, &total, &o[0], &o[1], &o[2],
+                          &o[3], &o[4], &o[5], &o[6], &o[7], &o[8]))
+        return NULL;
+    Py_buffer b[9];
+    int with_rows = total >= 0;
+    const Spec spec[9] = {
+        {"f", 8, K, 0},
+        {"tc", 8, K, 0},
+        {"by_frame", 8, K, 0},
+        {"frame_start", 8, F + 1, 0},
+        {"by_line", 8, K, 0},
+        {"line_start", 8, Ma + 1, 0},
+        {"nb", 8, Ma, 1},
+        {"ptr", 8, Ma + 1, 0},
+        {"rows", 8, with_rows ? total : 0, 1},
+    };
+    if (take_all(9, o, spec, b) < 0)
+        return NULL;
+    if (!in_range(K, b[0].buf, F, b[1].buf, Ma))
+        goto fail;
+    int rc;
+    Py_BEGIN_ALLOW_THREADS
+    rc = pattern(Ma, b[0].buf, b[1].buf, b[2].buf, b[3].buf, b[4].buf, b[5].buf, b[6].buf,
+                 b[7].buf, with_rows ? b[8].buf : NULL);
+    Py_END_ALLOW_THREADS
+    release_all(9, b);
+    if (rc < 0)
+        return PyErr_NoMemory();
+    Py_RETURN_NONE;
+fail:
+    release_all(9, b);
+    return NULL;
+}
+
+/* S = diag(Hll) - G^T G and rhs = -gl + G^T gpt, summed per frame over the pairs of its
+ * observations: S dense (4 Ma)^2 row-major where ``ptr`` is NULL, else the data of the block
+ * CSC matrix whose block column tj holds the block rows rows[ptr[tj]..ptr[tj+1]) */
+static void reduce(Py_ssize_t Ma, Py_ssize_t F, const double *G, const int64_t *f,
+                   const int64_t *tc, const int64_t *by_frame, const int64_t *fb,
+                   const double *Hll, const double *gpt, const double *gl, const int64_t *ptr,
+                   const int64_t *rows, double *S, double *rhs)
+{
+    Py_ssize_t n4 = 4 * Ma;
+    for (Py_ssize_t fr = 0; fr < F; fr++)
+        for (int64_t a = fb[fr]; a < fb[fr + 1]; a++) {
+            int64_t ka = by_frame[a], ti = tc[ka];
+            const double *Ga = G + 24 * ka;
+            for (int64_t b = a; b < fb[fr + 1]; b++) {  /* each pair once, and its transpose */
+                int64_t kb = by_frame[b], tj = tc[kb];
+                const double *Gb = G + 24 * kb;
+                double blk[4][4];
+                for (int r = 0; r < 4; r++)
+                    for (int c = 0; c < 4; c++) {
+                        double v = 0.0;
+                        for (int q = 0; q < 6; q++)
+                            v += Ga[4 * q + r] * Gb[4 * q + c];
+                        blk[r][c] = v;
+                    }
+                for (int side = 0; side < (b == a ? 1 : 2); side++) {
+                    int64_t row = side ? tj : ti, col = side ? ti : tj;
+                    if (ptr == NULL) {
+                        double *at = S + 4 * row * n4 + 4 * col;
+                        for (int r = 0; r < 4; r++)
+                            for (int c = 0; c < 4; c++)
+                                at[r * n4 + c] -= side ? blk[c][r] : blk[r][c];
+                    } else {
+                        const int64_t *lo = rows + ptr[col], *hi = rows + ptr[col + 1];
+                        const int64_t *hit = bsearch(&row, lo, (size_t)(hi - lo),
+                                                     sizeof(int64_t), cmp_i64);
+                        int64_t nb = ptr[col + 1] - ptr[col], at = 16 * ptr[col] + 4 * (hit - lo);
+                        for (int c = 0; c < 4; c++)
+                            for (int r = 0; r < 4; r++)
+                                S[at + c * 4 * nb + r] -= side ? blk[c][r] : blk[r][c];
+                    }
+                }
+            }
+        }
+    for (Py_ssize_t t = 0; t < Ma; t++) {
+        const double *h = Hll + 16 * t;
+        if (ptr == NULL) {
+            double *at = S + 4 * t * n4 + 4 * t;
+            for (int r = 0; r < 4; r++)
+                for (int c = 0; c < 4; c++)
+                    at[r * n4 + c] += h[4 * r + c];
+        } else {
+            const int64_t *lo = rows + ptr[t], *hi = rows + ptr[t + 1];
+            const int64_t *hit = bsearch(&t, lo, (size_t)(hi - lo), sizeof(int64_t), cmp_i64);
+            int64_t nb = ptr[t + 1] - ptr[t], at = 16 * ptr[t] + 4 * (hit - lo);
+            for (int c = 0; c < 4; c++)
+                for (int r = 0; r < 4; r++)
+                    S[at + c * 4 * nb + r] += h[4 * r + c];
+        }
+    }
+    for (Py_ssize_t i = 0; i < n4; i++)
+        rhs[i] = -gl[i];
+    for (Py_ssize_t fr = 0; fr < F; fr++)
+        for (int64_t a = fb[fr]; a < fb[fr + 1]; a++) {
+            int64_t k = by_frame[a];
+            const double *Gk = G + 24 * k, *g = gpt + 6 * f[k];
+            double *r = rhs + 4 * tc[k];
+            for (int c = 0; c < 4; c++) {
+                double v = 0.0;
+                for (int q = 0; q < 6; q++)
+                    v += Gk[4 * q + c] * g[q];
+                r[c] += v;
+            }
+        }
+}
+
+static PyObject *py_reduce(PyObject *Py_UNUSED(self), PyObject *args)
+{
+    PyObject *o[12];
+    Py_ssize_t F, Ma, K, nnz;
+    if (!PyArg_ParseTuple(args, "nnnnOOOOOOOOOOOO", &F, &Ma, &K, &nnz, &o[0], &o[1], &o[2],
+                          &o[3], &o[4], &o[5], &o[6], &o[7], &o[8], &o[9], &o[10], &o[11]))
+        return NULL;
+    Py_buffer b[12];
+    int sparse = nnz >= 0;
+    const Spec spec[12] = {
+        {"G", 8, 24 * K, 0},
+        {"f", 8, K, 0},
+        {"tc", 8, K, 0},
+        {"by_frame", 8, K, 0},
+        {"frame_start", 8, F + 1, 0},
+        {"Hll", 8, 16 * Ma, 0},
+        {"gpt", 8, 6 * F, 0},
+        {"gl", 8, 4 * Ma, 0},
+        {"ptr", 8, sparse ? Ma + 1 : 0, 0},
+        {"rows", 8, sparse ? nnz / 16 : 0, 0},
+        {"S", 8, sparse ? nnz : 16 * Ma * Ma, 1},
+        {"rhs", 8, 4 * Ma, 1},
+    };
+    if (take_all(12, o, spec, b) < 0)
+        return NULL;
+    if (!in_range(K, b[1].buf, F, b[2].buf, Ma))
+        goto fail;
+    memset(b[10].buf, 0, (size_t)b[10].len);
+    Py_BEGIN_ALLOW_THREADS
+    reduce(Ma, F, b[0].buf, b[1].buf, b[2].buf, b[3].buf, b[4].buf, b[5].buf, b[6].buf,
+           b[7].buf, sparse ? b[8].buf : NULL, sparse ? b[9].buf : NULL, b[10].buf, b[11].buf);
+    Py_END_ALLOW_THREADS
+    release_all(12, b);
+    Py_RETURN_NONE;
+fail:
+    release_all(12, b);
+    return NULL;
+}
+
+static PyMethodDef methods[] = {
+    {"residuals", py_residuals, METH_VARARGS,
+     "residuals(F, M, K, R, c, d, p, f, t, B, e, u): e (K, 2) and u (K, 3) written"},
+    {"refit_lines", py_refit_lines, METH_VARARGS,
+     "refit_lines(F, M, K, R, c, d, p, f, t, B, free, loss, scale, iterations, e, u): d, p "
+     "moved in place, e and u written"},
+    {"jacobians", py_jacobians, METH_VARARGS,
+     "jacobians(F, M, K, R, c, d, p, f, t, B, u, pose_free, line_free, b1, b2, J_pose, "
+     "J_line): J_pose (K, 2, 6) and J_line (K, 2, 4) written"},
+    {"blocks", py_blocks, METH_VARARGS,
+     "blocks(F, M, K, J_pose, J_line, e, w, f, t, Hpp, Hll, Hpl, gp, gl): the normal "
+     "equations' blocks written"},
+    {"eliminate_poses", py_eliminate_poses, METH_VARARGS,
+     "eliminate_poses(F, K, Hpp, Hpl, gp, f, Linv, G, gpt): Linv, G = Linv_f Hpl and gpt = "
+     "Linv gp written; False where a pose block is not positive definite"},
+    {"back_substitute", py_back_substitute, METH_VARARGS,
+     "back_substitute(F, M, K, Linv, Hpl, gp, dl, f, t, dp): the poses' step written"},
+    {"pattern", py_pattern, METH_VARARGS,
+     "pattern(F, Ma, K, total, f, tc, by_frame, frame_start, by_line, line_start, nb, ptr, "
+     "rows): the block rows of each line's block column (total < 0: their counts only)"},
+    {"reduce", py_reduce, METH_VARARGS,
+     "reduce(F, Ma, K, nnz, G, f, tc, by_frame, frame_start, Hll, gpt, gl, ptr, rows, S, rhs): "
+     "the reduced system written (nnz < 0: S dense)"},
+    {NULL, NULL, 0, NULL},
+};
+
+static struct PyModuleDef module = {
+    PyModuleDef_HEAD_INIT, "_lines",
+    "The line bundle adjustment's per-observation loops in C (omni_sfm.estimate.kernels).", -1,
+    methods, NULL, NULL, NULL, NULL,
+};
+
+PyMODINIT_FUNC PyInit__lines(void) { return PyModule_Create(&module); }

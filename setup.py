@@ -1,0 +1,12 @@
+"""The compiled part of omni-sfm (everything else is in pyproject.toml).
+
+The line bundle adjustment's per-observation loops, omni_sfm/estimate/_lines.c
+(omni_sfm.estimate.kernels): built by the project's install (``make setup``, ``pip install -e .``)
+with any C compiler and Python's headers. ``-ffp-contract=off``: no fused multiply-add, so that
+processors with and without it round alike.
+"""
+
+from setuptools import Extension, setup
+
+setup(ext_modules=[Extension("omni_sfm.estimate._lines", ["omni_sfm/estimate/_lines.c"],
+                             extra_compile_args=["-O2", "-ffp-contract=off"])])
