@@ -9,11 +9,17 @@ setup: $(STAMP)
 
 $(STAMP): pyproject.toml setup.py omni_sfm/estimate/_lines.c
 	@# Open3D's wheel needs libusb-1.0 at import time (Debian package libusb-1.0-0);
-	@# tests/test_view.py opens the HTML viewer in a headless browser (Debian package chromium)
-	@if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0' || ! command -v chromium >/dev/null 2>&1; then \
-	  echo "installing Debian packages libusb-1.0-0 chromium"; \
+	@# tests/test_view.py opens the HTML viewer in a headless browser (Debian package chromium);
+	@# the line adjustment's loops (omni_sfm/estimate/_lines.c) are compiled by the install:
+	@# a C compiler (gcc) and Python's headers (python3-dev where Python is Debian's own)
+	@if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0' || ! command -v chromium >/dev/null 2>&1 \
+	    || ! command -v cc >/dev/null 2>&1 \
+	    || [ ! -f "$$($(PY) -c 'import sysconfig; print(sysconfig.get_paths()["include"])')/Python.h" ]; then \
+	  PKGS="libusb-1.0-0 chromium gcc"; \
+	  case "$$($(PY) -c 'import sys; print(sys.prefix)')" in /usr) PKGS="$$PKGS python3-dev";; esac; \
+	  echo "installing Debian packages $$PKGS"; \
 	  SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
-	  $$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq libusb-1.0-0 chromium; \
+	  $$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq $$PKGS; \
 	fi
 	$(PY) -m venv $(VENV)
 	$(VENV)/bin/python -m pip install -q --upgrade pip
