@@ -9,4 +9,4 @@ processors with and without it round alike.
 from setuptools import Extension, setup
 
 setup(ext_modules=[Extension("omni_sfm.estimate._lines", ["omni_sfm/estimate/_lines.c"],
-                             extra_compile_args=["-O2", "-ffp-contract=off"])])
+                             extra_compile_args=["-O3", "-ffp-contract=off"])])

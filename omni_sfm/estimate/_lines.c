@@ -851,15 +851,76 @@ fail:
     return NULL;
 }
 
+/* Where block (row, col) of the block CSC matrix of ``pattern`` starts in its data: block
+ * column col's column 4 col + c holds its block rows' 4 rows each, so the block's column c
+ * is at the returned offset + c * 4 * (its number of block rows) */
+static int64_t block_at(const int64_t *ptr, const int64_t *rows, int64_t row, int64_t col)
+{
+    const int64_t *lo = rows + ptr[col], *hi = rows + ptr[col + 1];
+    const int64_t *hit = bsearch(&row, lo, (size_t)(hi - lo), sizeof(int64_t), cmp_i64);
+    return 16 * ptr[col] + 4 * (hit - lo);
+}
+
+/* block_at of each pair of observations of a frame (b >= a, in the order reduce visits them),
+ * for the block (row a, column b) and its transpose: offs[2 pair], offs[2 pair + 1] */
+static void pair_offsets(Py_ssize_t F, const int64_t *tc, const int64_t *by_frame,
+                         const int64_t *fb, const int64_t *ptr, const int64_t *rows,
+                         int64_t *offs)
+{
+    Py_ssize_t pair = 0;
+    for (Py_ssize_t fr = 0; fr < F; fr++)
+        for (int64_t a = fb[fr]; a < fb[fr + 1]; a++)
+            for (int64_t b = a; b < fb[fr + 1]; b++) {
+                int64_t ti = tc[by_frame[a]], tj = tc[by_frame[b]];
+                offs[2 * pair] = block_at(ptr, rows, ti, tj);
+                offs[2 * pair + 1] = block_at(ptr, rows, tj, ti);
+                pair++;
+            }
+}
+
+static PyObject *py_pair_offsets(PyObject *Py_UNUSED(self), PyObject *args)
+{
+    PyObject *o[6];
+    Py_ssize_t F, Ma, K, nrows, npairs;
+    if (!PyArg_ParseTuple(args, "nnnnnOOOOOO", &F, &Ma, &K, &nrows, &npairs, &o[0], &o[1],
+                          &o[2], &o[3], &o[4], &o[5]))
+        return NULL;
+    Py_buffer b[6];
+    const Spec spec[6] = {
+        {"tc", 8, K, 0},
+        {"by_frame", 8, K, 0},
+        {"frame_start", 8, F + 1, 0},
+        {"ptr", 8, Ma + 1, 0},
+        {"rows", 8, nrows, 0},
+        {"offs", 8, 2 * npairs, 1},
+    };
+    if (take_all(6, o, spec, b) < 0)
+        return NULL;
+    const int64_t *fb = b[2].buf;
+    Py_ssize_t pairs = 0;
+    for (Py_ssize_t fr = 0; fr < F; fr++)
+        pairs += (fb[fr + 1] - fb[fr]) * (fb[fr + 1] - fb[fr] + 1) / 2;
+    if (pairs != npairs || fb[0] != 0 || fb[F] != K) {
+        PyErr_SetString(PyExc_ValueError, "pair_offsets: frame_start does not fit");
+        release_all(6, b);
+        return NULL;
+    }
+    Py_BEGIN_ALLOW_THREADS
+    pair_offsets(F, b[0].buf, b[1].buf, fb, b[3].buf, b[4].buf, b[5].buf);
+    Py_END_ALLOW_THREADS
+    release_all(6, b);
+    Py_RETURN_NONE;
+}
+
 /* S = diag(Hll) - G^T G and rhs = -gl + G^T gpt, summed per frame over the pairs of its
  * observations: S dense (4 Ma)^2 row-major where ``ptr`` is NULL, else the data of the block
  * CSC matrix whose block column tj holds the block rows rows[ptr[tj]..ptr[tj+1]) */
 static void reduce(Py_ssize_t Ma, Py_ssize_t F, const double *G, const int64_t *f,
                    const int64_t *tc, const int64_t *by_frame, const int64_t *fb,
                    const double *Hll, const double *gpt, const double *gl, const int64_t *ptr,
-                   const int64_t *rows, double *S, double *rhs)
+                   const int64_t *rows, const int64_t *offs, double *S, double *rhs)
 {
-    Py_ssize_t n4 = 4 * Ma;
+    Py_ssize_t n4 = 4 * Ma, pair = 0;
     for (Py_ssize_t fr = 0; fr < F; fr++)
         for (int64_t a = fb[fr]; a < fb[fr + 1]; a++) {
             int64_t ka = by_frame[a], ti = tc[ka];
@@ -867,14 +928,13 @@ static void reduce(Py_ssize_t Ma, Py_ssize_t F, const double *G, const int64_t *
             for (int64_t b = a; b < fb[fr + 1]; b++) {  /* each pair once, and its transpose */
                 int64_t kb = by_frame[b], tj = tc[kb];
                 const double *Gb = G + 24 * kb;
-                double blk[4][4];
-                for (int r = 0; r < 4; r++)
-                    for (int c = 0; c < 4; c++) {
-                        double v = 0.0;
-                        for (int q = 0; q < 6; q++)
-                            v += Ga[4 * q + r] * Gb[4 * q + c];
-                        blk[r][c] = v;
-                    }
+                /* blk = Ga^T Gb, each entry summed over q in order (outer products, so
+                 * that the compiler may compute the 16 entries side by side) */
+                double blk[4][4] = {{0.0}};
+                for (int q = 0; q < 6; q++)
+                    for (int r = 0; r < 4; r++)
+                        for (int c = 0; c < 4; c++)
+                            blk[r][c] += Ga[4 * q + r] * Gb[4 * q + c];
                 for (int side = 0; side < (b == a ? 1 : 2); side++) {
                     int64_t row = side ? tj : ti, col = side ? ti : tj;
                     if (ptr == NULL) {
@@ -883,15 +943,13 @@ static void reduce(Py_ssize_t Ma, Py_ssize_t F, const double *G, const int64_t *
                             for (int c = 0; c < 4; c++)
                                 at[r * n4 + c] -= side ? blk[c][r] : blk[r][c];
                     } else {
-                        const int64_t *lo = rows + ptr[col], *hi = rows + ptr[col + 1];
-                        const int64_t *hit = bsearch(&row, lo, (size_t)(hi - lo),
-                                                     sizeof(int64_t), cmp_i64);
-                        int64_t nb = ptr[col + 1] - ptr[col], at = 16 * ptr[col] + 4 * (hit - lo);
+                        int64_t nb = ptr[col + 1] - ptr[col], at = offs[2 * pair + side];
                         for (int c = 0; c < 4; c++)
                             for (int r = 0; r < 4; r++)
                                 S[at + c * 4 * nb + r] -= side ? blk[c][r] : blk[r][c];
                     }
                 }
+                pair++;
             }
         }
     for (Py_ssize_t t = 0; t < Ma; t++) {
@@ -902,9 +960,7 @@ static void reduce(Py_ssize_t Ma, Py_ssize_t F, const double *G, const int64_t *
                 for (int c = 0; c < 4; c++)
                     at[r * n4 + c] += h[4 * r + c];
         } else {
-            const int64_t *lo = rows + ptr[t], *hi = rows + ptr[t + 1];
-            const int64_t *hit = bsearch(&t, lo, (size_t)(hi - lo), sizeof(int64_t), cmp_i64);
-            int64_t nb = ptr[t + 1] - ptr[t], at = 16 * ptr[t] + 4 * (hit - lo);
+            int64_t nb = ptr[t + 1] - ptr[t], at = block_at(ptr, rows, t, t);
             for (int c = 0; c < 4; c++)
                 for (int r = 0; r < 4; r++)
                     S[at + c * 4 * nb + r] += h[4 * r + c];
@@ -928,14 +984,15 @@ static void reduce(Py_ssize_t Ma, Py_ssize_t F, const double *G, const int64_t *
 
 static PyObject *py_reduce(PyObject *Py_UNUSED(self), PyObject *args)
 {
-    PyObject *o[12];
-    Py_ssize_t F, Ma, K, nnz;
-    if (!PyArg_ParseTuple(args, "nnnnOOOOOOOOOOOO", &F, &Ma, &K, &nnz, &o[0], &o[1], &o[2],
-                          &o[3], &o[4], &o[5], &o[6], &o[7], &o[8], &o[9], &o[10], &o[11]))
+    PyObject *o[13];
+    Py_ssize_t F, Ma, K, nnz, npairs;
+    if (!PyArg_ParseTuple(args, "nnnnnOOOOOOOOOOOOO", &F, &Ma, &K, &nnz, &npairs, &o[0], &o[1],
+                          &o[2], &o[3], &o[4], &o[5], &o[6], &o[7], &o[8], &o[9], &o[10], &o[11],
+                          &o[12]))
         return NULL;
-    Py_buffer b[12];
+    Py_buffer b[13];
     int sparse = nnz >= 0;
-    const Spec spec[12] = {
+    const Spec spec[13] = {
         {"G", 8, 24 * K, 0},
         {"f", 8, K, 0},
         {"tc", 8, K, 0},
@@ -948,20 +1005,33 @@ static PyObject *py_reduce(PyObject *Py_UNUSED(self), PyObject *args)
         {"rows", 8, sparse ? nnz / 16 : 0, 0},
         {"S", 8, sparse ? nnz : 16 * Ma * Ma, 1},
         {"rhs", 8, 4 * Ma, 1},
+        {"offs", 8, sparse ? 2 * npairs : 0, 0},
     };
-    if (take_all(12, o, spec, b) < 0)
+    if (take_all(13, o, spec, b) < 0)
         return NULL;
+    if (sparse) {  /* the offsets must be those of these frames' pairs */
+        const int64_t *fb = b[4].buf;
+        Py_ssize_t pairs = 0;
+        for (Py_ssize_t fr = 0; fr < F; fr++)
+            pairs += (fb[fr + 1] - fb[fr]) * (fb[fr + 1] - fb[fr] + 1) / 2;
+        if (pairs != npairs) {
+            PyErr_SetString(PyExc_ValueError, "reduce: the pair offsets do not fit the frames");
+            release_all(13, b);
+            return NULL;
+        }
+    }
     if (!in_range(K, b[1].buf, F, b[2].buf, Ma))
         goto fail;
     memset(b[10].buf, 0, (size_t)b[10].len);
     Py_BEGIN_ALLOW_THREADS
     reduce(Ma, F, b[0].buf, b[1].buf, b[2].buf, b[3].buf, b[4].buf, b[5].buf, b[6].buf,
-           b[7].buf, sparse ? b[8].buf : NULL, sparse ? b[9].buf : NULL, b[10].buf, b[11].buf);
+           b[7].buf, sparse ? b[8].buf : NULL, sparse ? b[9].buf : NULL,
+           sparse ? b[12].buf : NULL, b[10].buf, b[11].buf);
     Py_END_ALLOW_THREADS
-    release_all(12, b);
+    release_all(13, b);
     Py_RETURN_NONE;
 fail:
-    release_all(12, b);
+    release_all(13, b);
     return NULL;
 }
 
@@ -985,9 +1055,12 @@ static PyMethodDef methods[] = {
     {"pattern", py_pattern, METH_VARARGS,
      "pattern(F, Ma, K, total, f, tc, by_frame, frame_start, by_line, line_start, nb, ptr, "
      "rows): the block rows of each line's block column (total < 0: their counts only)"},
+    {"pair_offsets", py_pair_offsets, METH_VARARGS,
+     "pair_offsets(F, Ma, K, nrows, npairs, tc, by_frame, frame_start, ptr, rows, offs): "
+     "where each pair of a frame's observations adds to the block-sparse S"},
     {"reduce", py_reduce, METH_VARARGS,
-     "reduce(F, Ma, K, nnz, G, f, tc, by_frame, frame_start, Hll, gpt, gl, ptr, rows, S, rhs): "
-     "the reduced system written (nnz < 0: S dense)"},
+     "reduce(F, Ma, K, nnz, npairs, G, f, tc, by_frame, frame_start, Hll, gpt, gl, ptr, rows, "
+     "S, rhs, offs): the reduced system written (nnz < 0: S dense)"},
     {NULL, NULL, 0, NULL},
 };
 

@@ -334,25 +334,6 @@ def _normal_derivative(u: FloatArray, B: FloatArray,
 _Blocks = tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]
 
 
-class _RowSums:
-    """``out[i] = sum of values[k] over index[k] == i``, ``(n, d)`` from ``(K, d)``, for one
-    ``index`` ``(K,)``: a bincount per column (much faster than ``np.add.at``), its flat
-    indices kept per width ``d`` (an adjustment sums by the same frames and lines at every
-    step; the indices took 40 % of the time)."""
-
-    def __init__(self, index: np.ndarray, n: int) -> None:
-        self.index, self.n = index, n
-        self._flat: dict[int, np.ndarray] = {}
-
-    def __call__(self, values: FloatArray) -> FloatArray:
-        d = values.shape[1]
-        flat = self._flat.get(d)
-        if flat is None:
-            flat = self._flat[d] = (self.index[:, None] * d + np.arange(d)).ravel()
-        return np.bincount(flat, weights=values.ravel(), minlength=self.n * d).astype(
-            np.float64, copy=False).reshape(self.n, d)
-
-
 def damped(H: FloatArray, lam: float | FloatArray, free: np.ndarray) -> FloatArray:
     """``H + lam diag(H)`` per block ``(N, n, n)`` (``lam`` one or ``(N,)``, one per block; a
     floor on tiny diagonals), held parameters' rows and columns (``free`` ``(N, n)`` False)
@@ -405,6 +386,7 @@ class _ReducedSystem:
         self.dense = small or (Ma <= 3000 and len(rows) > 0.3 * Ma * Ma)
         if not self.dense:
             self.pattern = ptr, rows
+            self.offsets = kernels.pair_offsets(self.index, self.pattern)
             nb = np.diff(ptr)
             # block column j's column 4 j + c: its block rows' 4 rows each
             self.indptr = np.zeros(4 * Ma + 1, np.int64)
@@ -426,7 +408,8 @@ class _ReducedSystem:
             S_full = -(Gm.T @ Gm)
             S_full.reshape(-1)[self.bd_flat] += Hll.ravel()
             return S_full, None, -gl.ravel() + Gm.T @ gpt.ravel()
-        S, rhs = kernels.reduce_lines(self.index, G, Hll, gpt, gl, self.pattern)
+        S, rhs = kernels.reduce_lines(self.index, G, Hll, gpt, gl, self.pattern,
+                                      self.offsets if self.pattern is not None else None)
         if self.pattern is None:
             return S, None, rhs
         return None, sp.csc_matrix((S, self.indices, self.indptr), shape=(4 * Ma, 4 * Ma)), rhs

@@ -134,6 +134,9 @@ class PairIndex:
         self.frame_start = _i64(np.searchsorted(self.f[self.by_frame], np.arange(F + 1)))
         self.by_line = _i64(np.argsort(self.tc, kind="stable"))
         self.line_start = _i64(np.searchsorted(self.tc[self.by_line], np.arange(Ma + 1)))
+        n = np.diff(self.frame_start)
+        self.num_pairs = int(np.sum(n * (n + 1) // 2))
+        """Pairs of observations that share a frame (each with itself included)."""
 
 
 def block_pattern(index: PairIndex) -> tuple[np.ndarray, np.ndarray]:
@@ -152,25 +155,40 @@ def block_pattern(index: PairIndex) -> tuple[np.ndarray, np.ndarray]:
     return ptr, rows
 
 
+def pair_offsets(index: PairIndex, pattern: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """Where each pair of a frame's observations adds its block, and its transpose, in the
+    data of the block-sparse matrix of ``pattern`` (:func:`block_pattern`): ``(2 P,)`` for
+    the ``P`` pairs, in the order :func:`reduce_lines` visits them, found once per problem
+    (a binary search each) instead of at every step."""
+    ptr, rows = pattern
+    offs = np.empty(2 * index.num_pairs, np.int64)
+    _lines.pair_offsets(index.F, index.Ma, len(index.f), len(rows), index.num_pairs, index.tc,
+                        index.by_frame, index.frame_start, ptr, rows, offs)
+    return offs
+
+
 def reduce_lines(index: PairIndex, G: FloatArray, Hll: FloatArray, gpt: FloatArray,
-                 gl: FloatArray, pattern: tuple[np.ndarray, np.ndarray] | None
-                 ) -> tuple[FloatArray, FloatArray]:
+                 gl: FloatArray, pattern: tuple[np.ndarray, np.ndarray] | None,
+                 offsets: np.ndarray | None = None) -> tuple[FloatArray, FloatArray]:
     """``S = diag(Hll) - G^T G`` and ``rhs = -gl + G^T gpt`` (``G`` ``(K, 6, 4)``, one block
     per observation; ``Hll`` ``(Ma, 4, 4)``, ``gpt`` ``(F, 6)``, ``gl`` ``(Ma, 4)``), each
     frame's part summed over the pairs of its observations. ``S`` dense ``(4 Ma, 4 Ma)``
     where ``pattern`` is None, else the data of the block-sparse matrix of
     :func:`block_pattern` (``16 len(rows)`` values: block column ``j``'s column ``4 j + c``
-    holds its block rows' 4 rows each)."""
+    holds its block rows' 4 rows each; ``offsets``: :func:`pair_offsets` of that pattern,
+    worked out here where not given)."""
     F, Ma, K = index.F, index.Ma, len(index.f)
     rhs = np.empty(4 * Ma)
     S: FloatArray
     if pattern is None:
         S, nnz = np.empty((4 * Ma, 4 * Ma)), -1
         ptr = rows = np.zeros(0, np.int64)
+        offs = np.zeros(0, np.int64)
     else:
         ptr, rows = pattern
         S = np.empty(16 * len(rows))
         nnz = S.size
-    _lines.reduce(F, Ma, K, nnz, _f64(G), index.f, index.tc, index.by_frame, index.frame_start,
-                  _f64(Hll), _f64(gpt), _f64(gl), ptr, rows, S, rhs)
+        offs = pair_offsets(index, pattern) if offsets is None else offsets
+    _lines.reduce(F, Ma, K, nnz, index.num_pairs, _f64(G), index.f, index.tc, index.by_frame,
+                  index.frame_start, _f64(Hll), _f64(gpt), _f64(gl), ptr, rows, S, rhs, offs)
     return S, rhs
