@@ -141,3 +141,44 @@ def test_bad_arrays_are_refused_not_read_out_of_bounds() -> None:
     bad[0] = prob.M
     with pytest.raises(IndexError, match="out of range"):
         kernels.refit_lines(R, c, d, p, prob.f, bad, prob.B, prob.line_free, "linear", 1.0, 2)
+
+
+def test_sparse_reduced_system_keeps_the_block_of_a_line_without_observations() -> None:
+    """A long walk's sparse system where one active line has no observation in the frames:
+    its diagonal block is its damped ``Hll`` alone (the structure holds every line's diagonal
+    block, which the compiled sums then find), and the rest is the Schur complement."""
+    from omni_sfm.estimate.bundle import _ReducedSystem
+
+    rng = np.random.default_rng(3)
+    F, M, seen = 1200, 300, 40
+    first = rng.integers(0, F - seen, M)
+    f = np.concatenate([np.arange(first[m], first[m] + seen) for m in range(M) if m != 7])
+    tc = np.concatenate([np.full(seen, m) for m in range(M) if m != 7])
+    G = rng.normal(size=(len(f), 6, 4))
+    A = rng.normal(size=(M, 4, 4))
+    Hll = A @ np.swapaxes(A, 1, 2) + 50.0 * np.eye(4)
+    gpt, gl = rng.normal(size=(F, 6)), rng.normal(size=(M, 4))
+    dense, sparse, rhs = _ReducedSystem(f, tc, F, M).assemble(Hll, G, gpt, gl)
+    assert dense is None and sparse is not None
+    Gd = np.zeros((F, 6, M, 4))
+    Gd[f, :, tc, :] = G
+    Gm = Gd.reshape(6 * F, 4 * M)
+    want = -Gm.T @ Gm
+    for m in range(M):
+        want[4 * m:4 * m + 4, 4 * m:4 * m + 4] += Hll[m]
+    got = sparse.toarray()
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-9 * np.abs(want).max())
+    np.testing.assert_array_equal(got[28:32, 28:32], Hll[7])
+    np.testing.assert_allclose(rhs, -gl.ravel() + Gm.T @ gpt.ravel(), rtol=0, atol=1e-9)
+
+
+def test_a_grouping_that_does_not_fit_is_refused() -> None:
+    f, tc = np.array([0, 0, 1, 2, 2]), np.array([0, 1, 1, 0, 2])
+    index = kernels.PairIndex(f, tc, 3, 3)
+    pattern = kernels.block_pattern(index)
+    assert pattern[1].tolist() == [0, 1, 2, 0, 1, 0, 2]  # per line: the lines seen with it
+    index.frame_start = index.frame_start.copy()
+    index.frame_start[-1] = 9  # past the observations
+    with pytest.raises(ValueError, match="grouping does not fit"):
+        kernels.reduce_lines(index, np.zeros((5, 6, 4)), np.zeros((3, 4, 4)), np.zeros((3, 6)),
+                             np.zeros((3, 4)), pattern)

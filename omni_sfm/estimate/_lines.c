@@ -770,6 +770,28 @@ fail:
 }
 
 
+/* ``order`` (K,) a permutation's entries in 0..K-1 grouped by ``start`` (n + 1,): group g is
+ * order[start[g]..start[g+1]), start rising from 0 to K. Returns the pairs of entries within
+ * a group (each with itself included), or -1 with ValueError set where they do not fit. */
+static Py_ssize_t grouped_pairs(const char *name, Py_ssize_t K, const int64_t *order,
+                                Py_ssize_t n, const int64_t *start)
+{
+    Py_ssize_t pairs = 0;
+    int ok = start[0] == 0 && start[n] == K;
+    for (Py_ssize_t g = 0; g < n && ok; g++) {
+        Py_ssize_t m = start[g + 1] - start[g];
+        ok = m >= 0;
+        pairs += m * (m + 1) / 2;
+    }
+    for (Py_ssize_t k = 0; k < K && ok; k++)
+        ok = order[k] >= 0 && order[k] < K;
+    if (!ok) {
+        PyErr_Format(PyExc_ValueError, "%s: the observations' grouping does not fit", name);
+        return -1;
+    }
+    return pairs;
+}
+
 /* ---- the lines' reduced system (bundle._ReducedSystem) -------------------------------------- */
 
 static int cmp_i64(const void *a, const void *b)
@@ -778,7 +800,7 @@ static int cmp_i64(const void *a, const void *b)
     return (x > y) - (x < y);
 }
 
-/* The lines seen in one frame with each line ``tj`` (itself included), sorted: the block rows
+/* The lines seen in one frame with each line ``tj`` (itself always included), sorted: the block rows
  * of ``tj``'s block column in S. ``by_frame``/``fb``: the observations in frame order and
  * each frame's first; ``by_line``/``lb``: the same by line. With ``rows`` NULL only their
  * counts ``nb`` are written, else ``rows`` (at ``ptr[tj]``) too. */
@@ -792,7 +814,11 @@ static int pattern(Py_ssize_t Ma, const int64_t *f, const int64_t *tc, const int
     for (Py_ssize_t i = 0; i < Ma; i++)
         mark[i] = -1;
     for (Py_ssize_t tj = 0; tj < Ma; tj++) {
-        int64_t n = 0;
+        /* the line itself first: its diagonal block is there even without an observation */
+        int64_t n = 1;
+        mark[tj] = tj;
+        if (rows != NULL)
+            rows[ptr[tj]] = tj;
         for (int64_t a = lb[tj]; a < lb[tj + 1]; a++) {
             int64_t fr = f[by_line[a]];
             for (int64_t b = fb[fr]; b < fb[fr + 1]; b++) {
@@ -835,7 +861,9 @@ static PyObject *py_pattern(PyObject *Py_UNUSED(self), PyObject *args)
     };
     if (take_all(9, o, spec, b) < 0)
         return NULL;
-    if (!in_range(K, b[0].buf, F, b[1].buf, Ma))
+    if (!in_range(K, b[0].buf, F, b[1].buf, Ma) ||
+        grouped_pairs("pattern", K, b[2].buf, F, b[3].buf) < 0 ||
+        grouped_pairs("pattern", K, b[4].buf, Ma, b[5].buf) < 0)
         goto fail;
     int rc;
     Py_BEGIN_ALLOW_THREADS
@@ -896,17 +924,15 @@ static PyObject *py_pair_offsets(PyObject *Py_UNUSED(self), PyObject *args)
     };
     if (take_all(6, o, spec, b) < 0)
         return NULL;
-    const int64_t *fb = b[2].buf;
-    Py_ssize_t pairs = 0;
-    for (Py_ssize_t fr = 0; fr < F; fr++)
-        pairs += (fb[fr + 1] - fb[fr]) * (fb[fr + 1] - fb[fr] + 1) / 2;
-    if (pairs != npairs || fb[0] != 0 || fb[F] != K) {
-        PyErr_SetString(PyExc_ValueError, "pair_offsets: frame_start does not fit");
+    Py_ssize_t pairs = grouped_pairs("pair_offsets", K, b[1].buf, F, b[2].buf);
+    if (pairs >= 0 && pairs != npairs)
+        PyErr_SetString(PyExc_ValueError, "pair_offsets: npairs does not fit the frames");
+    if (pairs != npairs) {
         release_all(6, b);
         return NULL;
     }
     Py_BEGIN_ALLOW_THREADS
-    pair_offsets(F, b[0].buf, b[1].buf, fb, b[3].buf, b[4].buf, b[5].buf);
+    pair_offsets(F, b[0].buf, b[1].buf, b[2].buf, b[3].buf, b[4].buf, b[5].buf);
     Py_END_ALLOW_THREADS
     release_all(6, b);
     Py_RETURN_NONE;
@@ -1009,19 +1035,13 @@ static PyObject *py_reduce(PyObject *Py_UNUSED(self), PyObject *args)
     };
     if (take_all(13, o, spec, b) < 0)
         return NULL;
-    if (sparse) {  /* the offsets must be those of these frames' pairs */
-        const int64_t *fb = b[4].buf;
-        Py_ssize_t pairs = 0;
-        for (Py_ssize_t fr = 0; fr < F; fr++)
-            pairs += (fb[fr + 1] - fb[fr]) * (fb[fr + 1] - fb[fr] + 1) / 2;
-        if (pairs != npairs) {
-            PyErr_SetString(PyExc_ValueError, "reduce: the pair offsets do not fit the frames");
-            release_all(13, b);
-            return NULL;
-        }
-    }
-    if (!in_range(K, b[1].buf, F, b[2].buf, Ma))
+    Py_ssize_t pairs = grouped_pairs("reduce", K, b[3].buf, F, b[4].buf);
+    if (pairs < 0 || !in_range(K, b[1].buf, F, b[2].buf, Ma))
         goto fail;
+    if (sparse && pairs != npairs) {  /* the offsets must be those of these frames' pairs */
+        PyErr_SetString(PyExc_ValueError, "reduce: the pair offsets do not fit the frames");
+        goto fail;
+    }
     memset(b[10].buf, 0, (size_t)b[10].len);
     Py_BEGIN_ALLOW_THREADS
     reduce(Ma, F, b[0].buf, b[1].buf, b[2].buf, b[3].buf, b[4].buf, b[5].buf, b[6].buf,

@@ -381,21 +381,21 @@ class _ReducedSystem:
             return
         self.index = kernels.PairIndex(f, tc, F, Ma)
         self.pattern: tuple[np.ndarray, np.ndarray] | None = None
+        self.offsets: np.ndarray | None = None
         ptr, rows = kernels.block_pattern(self.index)
         # dense where the lines are few or most pairs of them are seen in a frame together
         self.dense = small or (Ma <= 3000 and len(rows) > 0.3 * Ma * Ma)
         if not self.dense:
             self.pattern = ptr, rows
             self.offsets = kernels.pair_offsets(self.index, self.pattern)
-            nb = np.diff(ptr)
-            # block column j's column 4 j + c: its block rows' 4 rows each
+            # block column j's column 4 j + c holds its block rows' 4 rows each: the rows
+            # 4 rows[ptr[j]:ptr[j + 1]] + (0..3), once for each of its 4 columns
+            length = np.repeat(4 * np.diff(ptr), 4)  # entries of each column
             self.indptr = np.zeros(4 * Ma + 1, np.int64)
-            self.indptr[1:] = np.cumsum(np.repeat(4 * nb, 4))
-            col_rows = 4 * rows[:, None] + i4  # (nb_total, 4): a block row's rows
-            self.indices = np.concatenate(
-                [np.tile(col_rows[a:b].ravel(), 4) for a, b in zip(ptr[:-1], ptr[1:],
-                                                                    strict=True)]
-                + [np.zeros(0, np.int64)]).astype(np.int32)
+            self.indptr[1:] = np.cumsum(length)
+            source = np.arange(self.indptr[-1]) - np.repeat(
+                self.indptr[:-1] - np.repeat(4 * ptr[:-1], 4), length)
+            self.indices = (4 * rows[:, None] + i4).ravel()[source].astype(np.int32)
             self.indptr = self.indptr.astype(np.int32)
 
     def assemble(self, Hll: FloatArray, G: FloatArray, gpt: FloatArray, gl: FloatArray
@@ -408,8 +408,7 @@ class _ReducedSystem:
             S_full = -(Gm.T @ Gm)
             S_full.reshape(-1)[self.bd_flat] += Hll.ravel()
             return S_full, None, -gl.ravel() + Gm.T @ gpt.ravel()
-        S, rhs = kernels.reduce_lines(self.index, G, Hll, gpt, gl, self.pattern,
-                                      self.offsets if self.pattern is not None else None)
+        S, rhs = kernels.reduce_lines(self.index, G, Hll, gpt, gl, self.pattern, self.offsets)
         if self.pattern is None:
             return S, None, rhs
         return None, sp.csc_matrix((S, self.indices, self.indptr), shape=(4 * Ma, 4 * Ma)), rhs
