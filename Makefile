@@ -7,10 +7,11 @@ STAMP := $(VENV)/.installed
 
 setup: $(STAMP)
 
-$(STAMP): pyproject.toml setup.py omni_sfm/estimate/_lines.c
+$(STAMP): pyproject.toml setup.py omni_sfm/estimate/_lines.c omni_sfm/lines/_edges.c
 	@# Open3D's wheel needs libusb-1.0 at import time (Debian package libusb-1.0-0);
 	@# tests/test_view.py opens the HTML viewer in a headless browser (Debian package chromium);
-	@# the line adjustment's loops (omni_sfm/estimate/_lines.c) are compiled by the install:
+	@# the line adjustment's and the line extractor's loops (omni_sfm/estimate/_lines.c,
+	@# omni_sfm/lines/_edges.c) are compiled by the install:
 	@# a C compiler (gcc) and Python's headers (python3-dev where Python is Debian's own)
 	@if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0' || ! command -v chromium >/dev/null 2>&1 \
 	    || ! command -v cc >/dev/null 2>&1 \

@@ -7,7 +7,10 @@ a segment is a straight line if more than half of its points satisfy ``(r . n)^2
 (eq. 3). The plane's unit normal ``n`` is the line's NV in the camera frame (sign arbitrary).
 
 Everything is vectorised over pixels and segments: RANSAC scores all hypotheses of all segments
-at once and the least-squares refits use batched 3x3 scatter matrices.
+at once and the least-squares refits use batched 3x3 scatter matrices. The per-edge-point loops
+(the corner test's second-moment matrices, the orientation-linked components, the sub-pixel
+positions and the MSAC scores) are compiled (``_edges.c``, :mod:`omni_sfm.lines.edge_kernels`),
+with the arithmetic of the numpy code they replaced: the same lines, bit for bit.
 
 Thresholds that are angles on the sphere are set in *pixels* and converted with the camera's
 local angular pixel scale (the angle between the rays of neighbouring pixels), so the same
@@ -24,6 +27,7 @@ import numpy as np
 from omni_sfm.cameras.base import CameraModel
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.geometry import FloatArray, completion_towards, smallest_eigenvector
+from omni_sfm.lines import edge_kernels
 
 IntArray = np.ndarray
 
@@ -241,20 +245,7 @@ class _EdgePoints:
     def subpixel(self, sel: IntArray) -> FloatArray:
         """``(len(sel), 2)`` sub-pixel positions of the points ``sel``: the vertex of the
         parabola through the gradient magnitude across the edge."""
-        pix, g = _rows(self.pix, sel), self.grad[sel]
-        gx, gy = g.real, g.imag
-        xl, yl = pix[:, 0] - self.origin[0], pix[:, 1] - self.origin[1]
-        m0 = _magnitude(g)
-        gn = np.where(m0 > 0, m0, 1.0)
-        ux, uy = gx / gn, gy / gn
-        xs, ys = pix[:, 0], pix[:, 1]
-        mp = _bilinear_magnitude(self.dxy, xl + ux, yl + uy)
-        mm = _bilinear_magnitude(self.dxy, xl - ux, yl - uy)
-        den = mp - 2.0 * m0 + mm
-        with np.errstate(divide="ignore", invalid="ignore"):
-            off = np.where(den < 0, 0.5 * (mm - mp) / den, 0.0)
-        off = np.clip(off, -0.5, 0.5)
-        return np.stack([xs + off * ux, ys + off * uy], 1).astype(np.float64)
+        return edge_kernels.subpixel(self.dxy, self.pix, self.grad, sel, self.origin)
 
 
 class LineExtractor:
@@ -412,26 +403,17 @@ class LineExtractor:
             long_chain = np.bincount(comp, minlength=ncomp)[comp] >= o.min_points
             pix, flat = np.compress(long_chain, pix, axis=0), flat[long_chain]
         # second-moment matrix over a Gaussian window, evaluated only at the edge points (the
-        # search mask keeps them far enough from the image border for the window); dx and dy
-        # interleaved as one complex64 image so that one gather fetches both (np.take with
-        # int64 indices: several times faster than two fancy-indexing gathers)
+        # search mask keeps them far enough from the image border for the window), in C; dx
+        # and dy interleaved as one complex64 image
         dxy_img = cv2.merge([dx, dy]).view(np.complex64)[..., 0]
-        dxy = dxy_img.ravel()
-        wxy = np.take(dxy, flat[:, None] + self._win_flat)
-        wx, wy = wxy.real, wxy.imag
-        a = (wx * wx) @ self._win_w
-        b = (wy * wy) @ self._win_w
-        c = (wx * wy) @ self._win_w
-        half_tr = 0.5 * (a + b)
-        disc = np.sqrt(np.maximum(0.25 * (a - b) ** 2 + c * c, 0.0))
-        lmax, lmin = half_tr + disc, np.maximum(half_tr - disc, 0.0)
-        keep = lmax >= o.corner_ratio**2 * lmin
-        pix, flat = np.compress(keep, pix, axis=0), flat[keep]
-        g = np.take(dxy, flat)
-        theta = np.mod(np.arctan2(g.imag, g.real), np.pi).astype(np.float64)
-        return _EdgePoints(pix=pix + np.array([x0, y0], np.int32), theta=theta, grad=g,
-                           dxy=dxy_img, origin=(x0, y0),
-                           counts={"edge": n_edge, "corner": int((~keep).sum())})
+        n_tested = len(pix)
+        pix, g = edge_kernels.corner_test(dxy_img, pix, flat, self._win_flat, self._win_w,
+                                          o.corner_ratio**2, (x0, y0))
+        # numpy's float32 arctan2 (its own vectorised one, not the C library's: the orientations
+        # stay the same bits), the remainder by pi in C
+        theta = edge_kernels.mod_pi(np.arctan2(g.imag, g.real))
+        return _EdgePoints(pix=pix, theta=theta, grad=g, dxy=dxy_img, origin=(x0, y0),
+                           counts={"edge": n_edge, "corner": n_tested - len(pix)})
 
     def _segments(self, pix: IntArray, idx: IntArray,
                   theta: FloatArray) -> tuple[IntArray, IntArray, IntArray]:
@@ -550,15 +532,11 @@ class LineExtractor:
         degenerate = hn[..., 0] < 1e-9
         hyp = (hyp / np.where(hn > 0, hn, 1.0)).astype(np.float32)
         # d = r . hyp[seg] (N, H), summed over x, y, z in that order as einsum does (the same
-        # float32 numbers), one component at a time: no (N, H, 3) gather
-        r32 = rays.T.astype(np.float32)
+        # float32 numbers), the truncated quadratic (MSAC) cost and its sum per segment, in C
+        r32 = np.ascontiguousarray(rays.T, dtype=np.float32)
         hyp_k = np.ascontiguousarray(hyp.transpose(2, 0, 1))
-        d = r32[0][:, None] * hyp_k[0][seg]
-        for k in (1, 2):
-            d += r32[k][:, None] * hyp_k[k][seg]
-        t2 = (tol * tol).astype(np.float32)[:, None]
-        cost = np.minimum(d * d, t2) / t2  # truncated quadratic (MSAC)
-        seg_cost = np.add.reduceat(cost, start, axis=0)
+        t2 = (tol * tol).astype(np.float32)
+        _, seg_cost = edge_kernels.msac_costs(r32, hyp_k, seg, start, t2)
         seg_cost[degenerate] = np.inf
         best = np.argmin(seg_cost, axis=1)
         n = hyp[np.arange(nseg), best].astype(np.float64)
@@ -786,52 +764,9 @@ def _oriented_components(p: IntArray, shape: tuple[int, int], theta: FloatArray,
     """Connected components of points ``p`` ``(N, 2)`` (x, y, at least 1 px inside ``shape``)
     where 8-neighbours are linked only if their orientations (mod pi) differ by less than
     ``max_angle`` (rad). Returns the number of components and the ``(N,)`` labels."""
-    from scipy.sparse import csr_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    n = len(p)
-    w = int(shape[1])
-    img = np.full(int(shape[0]) * w, -1, np.int32)
-    flat = p[:, 1].astype(np.int64) * w + p[:, 0]
-    img[flat] = np.arange(n, dtype=np.int32)
-    # the neighbours right, below-left, below and below-right of every point at once (each
-    # 8-neighbour pair once); the graph's edge order does not matter to its components
-    nb = np.take(img, flat[:, None] + np.array([1, w - 1, w, w + 1], np.int64)).ravel()
-    m = np.flatnonzero(nb >= 0)
-    r, c = m >> 2, nb[m].astype(np.int64)
-    d = np.abs(theta[r] - theta[c])
-    d = np.minimum(d, np.pi - d)
-    ok = d < max_angle
-    r, c = r[ok], c[ok]
-    # the rows come sorted: the compressed rows directly, no conversion from coordinates
-    indptr = np.concatenate([[0], np.cumsum(np.bincount(r, minlength=n))])
-    g = csr_matrix((np.ones(len(r), np.int8), c, indptr), shape=(n, n))
-    ncomp, lab = connected_components(g, directed=False)
-    return int(ncomp), lab.astype(np.int64)
-
-
-def _magnitude(g: np.ndarray) -> np.ndarray:
-    """``|g|`` of complex64 gradients as float32 ``sqrt(dx^2 + dy^2)`` (numpy's correctly
-    rounded operations: cv2.magnitude's last bit depends on the arrays' memory alignment)."""
-    gx, gy = g.real, g.imag
-    return np.sqrt(gx * gx + gy * gy)
-
-
-def _bilinear_magnitude(dxy: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """The gradient magnitude of the ``(h, w)`` complex64 gradient image ``dxy`` bilinearly
-    interpolated at points ``(x, y)`` (clamped to the image), from the four pixels around
-    each point."""
-    h, w = dxy.shape
-    x = np.clip(x, 0, w - 1.001)
-    y = np.clip(y, 0, h - 1.001)
-    x0 = x.astype(np.int64)
-    y0 = y.astype(np.int64)
-    fx, fy = x - x0, y - y0
-    i = y0 * w + x0
-    f = _magnitude(np.take(dxy.ravel(), i[:, None] + np.array([0, 1, w, w + 1])))
-    top = f[:, 0] * (1 - fx) + f[:, 1] * fx
-    bot = f[:, 2] * (1 - fx) + f[:, 3] * fx
-    return np.asarray(top * (1 - fy) + bot * fy, dtype=np.float32)
+    # a union-find in C; labels in the order of each component's first point, as scipy's
+    # connected_components numbered them
+    return edge_kernels.oriented_components(p, shape, theta, max_angle)
 
 
 def extract_lines(image: np.ndarray, camera: CameraModel,
