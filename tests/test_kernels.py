@@ -158,8 +158,10 @@ def test_sparse_reduced_system_keeps_the_block_of_a_line_without_observations() 
     A = rng.normal(size=(M, 4, 4))
     Hll = A @ np.swapaxes(A, 1, 2) + 50.0 * np.eye(4)
     gpt, gl = rng.normal(size=(F, 6)), rng.normal(size=(M, 4))
-    dense, sparse, rhs = _ReducedSystem(f, tc, F, M).assemble(Hll, G, gpt, gl)
-    assert dense is None and sparse is not None
+    system = _ReducedSystem(f, tc, F, M)
+    dense, blocks, rhs = system.assemble(Hll, G, gpt, gl)
+    assert dense is None and blocks is not None
+    sparse = system.csc(blocks)
     Gd = np.zeros((F, 6, M, 4))
     Gd[f, :, tc, :] = G
     Gm = Gd.reshape(6 * F, 4 * M)
@@ -182,3 +184,43 @@ def test_a_grouping_that_does_not_fit_is_refused() -> None:
     with pytest.raises(ValueError, match="grouping does not fit"):
         kernels.reduce_lines(index, np.zeros((5, 6, 4)), np.zeros((3, 4, 4)), np.zeros((3, 6)),
                              np.zeros((3, 4)), pattern)
+
+
+@pytest.mark.parametrize(("F", "M", "seen"), [(1200, 300, 40), (300, 60, 300), (50, 5, 10)])
+def test_block_cholesky_solves_the_reduced_system(F: int, M: int, seen: int) -> None:
+    """The block Cholesky factorisation in the structure worked out once
+    (``kernels.BlockCholesky``) solves the sparse reduced system as a dense solve does, in
+    any order of the lines and at a second step of the same structure, and reports a
+    system that is not positive definite."""
+    rng = np.random.default_rng(F + M)
+    first = rng.integers(0, max(1, F - seen), M)
+    f = np.concatenate([np.arange(first[m], min(F, first[m] + seen)) for m in range(M)])
+    tc = np.concatenate([np.full(min(F, first[m] + seen) - first[m], m) for m in range(M)])
+    index = kernels.PairIndex(f, tc, F, M)
+    pattern = kernels.block_pattern(index)
+    ptr, rows = pattern
+    for step in range(2):
+        # S = diag(Hll) - G^T G positive definite: G_f^T G_f <= n diag(G_k^T G_k) for the n
+        # observations of a frame, so Hll = n_max sum_k G_k^T G_k + I will do
+        G = rng.normal(size=(len(f), 6, 4))
+        Hll = np.zeros((M, 4, 4))
+        np.add.at(Hll, tc, np.swapaxes(G, 1, 2) @ G)
+        Hll = np.bincount(f).max() * Hll + (1.0 + step) * np.eye(4)
+        gpt, gl = rng.normal(size=(F, 6)), rng.normal(size=(M, 4))
+        S, rhs = kernels.reduce_lines(index, G, Hll, gpt, gl, pattern)
+        dense = np.zeros((4 * M, 4 * M))  # block column j: its block rows' 4 rows, 4 columns
+        for j in range(M):
+            nb = ptr[j + 1] - ptr[j]
+            strip = S[16 * ptr[j]:16 * ptr[j + 1]].reshape(4, 4 * nb).T
+            for m, i in enumerate(rows[ptr[j]:ptr[j + 1]]):
+                dense[4 * i:4 * i + 4, 4 * j:4 * j + 4] = strip[4 * m:4 * m + 4]
+        np.testing.assert_array_equal(dense, dense.T)
+        want = np.linalg.solve(dense, rhs)
+        for order in (np.arange(M), rng.permutation(M)):
+            chol = kernels.BlockCholesky(pattern, order)
+            assert chol.factor(S)
+            np.testing.assert_allclose(chol.solve(rhs), want, rtol=0,
+                                       atol=1e-10 * np.abs(want).max())
+    assert not chol.factor(-S)
+    with pytest.raises(ValueError, match="permutation"):
+        kernels.BlockCholesky(pattern, np.zeros(M, np.int64))

@@ -21,6 +21,16 @@
 #include <stdlib.h>
 #include <string.h>
 
+/* The hottest loops are compiled twice on x86-64 Linux with GCC, for AVX2 and for any x86-64,
+ * the one to run chosen when the module loads: the compiler computes independent entries side
+ * by side in wider registers, and no sum changes its order (no fused multiply-add either,
+ * -ffp-contract=off), so both give the same bits. */
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
+#define WIDE_LOOPS __attribute__((target_clones("avx2", "default")))
+#else
+#define WIDE_LOOPS
+#endif
+
 enum { LOSS_LINEAR = 0, LOSS_HUBER = 1, LOSS_CAUCHY = 2 };
 
 /* ---- buffers ---------------------------------------------------------------------------- */
@@ -190,7 +200,7 @@ static void line_row(const double *R, const double *c, const double *d, const do
 
 /* ---- residuals ---------------------------------------------------------------------------- */
 
-static void all_residuals(Py_ssize_t K, const double *R, const double *c, const double *d,
+WIDE_LOOPS static void all_residuals(Py_ssize_t K, const double *R, const double *c, const double *d,
                           const double *p, const int64_t *f, const int64_t *t, const double *B,
                           double *e, double *u)
 {
@@ -290,7 +300,7 @@ typedef struct {
 /* LineProblem._refit_lines: ``iterations`` Gauss-Newton iterations of each line alone at the
  * poses; an iteration that does not lower a line's cost is undone and that line damped
  * tenfold more for the next. Returns 0 on success, -1 where memory ran out. */
-static int refit(const Refit *q)
+WIDE_LOOPS static int refit(const Refit *q)
 {
     Py_ssize_t M = q->M, K = q->K;
     double *work = malloc(sizeof(double) * (size_t)(M * (16 + 4 + 3 + 3 + 3 + 3 + 1 + 1 + 1 + 1)
@@ -474,7 +484,7 @@ fail:
 
 /* LineProblem.jacobian: per observation d e / d pose (2, 6) (rotation increment in the camera
  * frame, then the centre; bundle._pose_jacobian) and d e / d line (2, 4), held columns zero */
-static void jacobians(Py_ssize_t K, const double *Rs, const double *cs, const double *d,
+WIDE_LOOPS static void jacobians(Py_ssize_t K, const double *Rs, const double *cs, const double *d,
                       const double *p, const int64_t *f, const int64_t *t, const double *B,
                       const double *u, const uint8_t *pose_free, const uint8_t *line_free,
                       const double *b1, const double *b2, double *Jp, double *Jl)
@@ -551,7 +561,7 @@ fail:
 
 /* LineProblem.normal_equations: the blocks of J^T W J and J^T W e, summed per frame and line
  * in the order of the observations */
-static void blocks(Py_ssize_t K, const double *Jp, const double *Jl, const double *e,
+WIDE_LOOPS static void blocks(Py_ssize_t K, const double *Jp, const double *Jl, const double *e,
                    const double *w, const int64_t *f, const int64_t *t, double *Hpp,
                    double *Hll, double *Hpl, double *gp, double *gl)
 {
@@ -941,7 +951,7 @@ static PyObject *py_pair_offsets(PyObject *Py_UNUSED(self), PyObject *args)
 /* S = diag(Hll) - G^T G and rhs = -gl + G^T gpt, summed per frame over the pairs of its
  * observations: S dense (4 Ma)^2 row-major where ``ptr`` is NULL, else the data of the block
  * CSC matrix whose block column tj holds the block rows rows[ptr[tj]..ptr[tj+1]) */
-static void reduce(Py_ssize_t Ma, Py_ssize_t F, const double *G, const int64_t *f,
+WIDE_LOOPS static void reduce(Py_ssize_t Ma, Py_ssize_t F, const double *G, const int64_t *f,
                    const int64_t *tc, const int64_t *by_frame, const int64_t *fb,
                    const double *Hll, const double *gpt, const double *gl, const int64_t *ptr,
                    const int64_t *rows, const int64_t *offs, double *S, double *rhs)
@@ -1055,6 +1065,342 @@ fail:
     return NULL;
 }
 
+/* ---- the reduced system's sparse Cholesky factorisation (bundle._ReducedSystem) ------------ */
+/* S = L L^T with L block lower triangular (4x4 blocks), in a fill-reducing order ``perm``
+ * (block k of the factor is line perm[k]; iperm its inverse). The structure of L is worked
+ * out once per adjustment (chol_analyse: the elimination tree, then each row's pattern as the
+ * union of the tree paths from the row's entries of S), and each step factors the new values
+ * in it (chol_factor, "up-looking": row k of L from the rows above it) and solves
+ * (chol_solve). Column i of L keeps its diagonal block first, then its blocks in increasing
+ * row order: Lp/Li (block rows), 16 values a block, row-major. Row k's pattern (the columns
+ * i < k of its blocks, increasing) is Rp/Ri, Rpos[j] where that block sits in its column. */
+
+/* The counts (Li NULL: Lp and Rp written, cumulative) or the patterns (Li, Ri, Rpos written
+ * from Lp and Rp); parent (Ma) written. -1: out of memory */
+static int chol_analyse(Py_ssize_t Ma, const int64_t *ptr, const int64_t *rows,
+                        const int64_t *perm, const int64_t *iperm, int64_t *parent,
+                        int64_t *Lp, int64_t *Rp, int64_t *Li, int64_t *Ri, int64_t *Rpos)
+{
+    size_t n = (size_t)(Ma > 0 ? Ma : 1);
+    int64_t *ancestor = malloc(sizeof(int64_t) * n), *mark = malloc(sizeof(int64_t) * n),
+            *stack = malloc(sizeof(int64_t) * n), *next = malloc(sizeof(int64_t) * n);
+    if (!ancestor || !mark || !stack || !next) {
+        free(ancestor), free(mark), free(stack), free(next);
+        return -1;
+    }
+    for (Py_ssize_t k = 0; k < Ma; k++) {  /* the elimination tree, path compression */
+        parent[k] = ancestor[k] = -1;
+        int64_t pk = perm[k];
+        for (int64_t q = ptr[pk]; q < ptr[pk + 1]; q++) {
+            int64_t i = iperm[rows[q]], inext;
+            for (; i != -1 && i < k; i = inext) {
+                inext = ancestor[i];
+                ancestor[i] = k;
+                if (inext == -1)
+                    parent[i] = k;
+            }
+        }
+    }
+    for (Py_ssize_t k = 0; k < Ma; k++) {
+        mark[k] = -1;
+        next[k] = Li == NULL ? 1 : Lp[k] + 1;  /* counts (the diagonal), or the free slot */
+    }
+    if (Li == NULL)
+        Rp[0] = 0;
+    for (Py_ssize_t k = 0; k < Ma; k++) {
+        int64_t pk = perm[k], m = 0;
+        mark[k] = k;
+        for (int64_t q = ptr[pk]; q < ptr[pk + 1]; q++)
+            for (int64_t i = iperm[rows[q]]; i < k && mark[i] != k; i = parent[i]) {
+                mark[i] = k;
+                stack[m++] = i;
+            }
+        qsort(stack, (size_t)m, sizeof(int64_t), cmp_i64);
+        if (Li == NULL) {
+            for (int64_t j = 0; j < m; j++)
+                next[stack[j]]++;
+            Rp[k + 1] = Rp[k] + m;
+        } else {
+            Li[Lp[k]] = k;
+            for (int64_t j = 0; j < m; j++) {
+                int64_t i = stack[j], pos = next[i]++;
+                Li[pos] = k;
+                Ri[Rp[k] + j] = i;
+                Rpos[Rp[k] + j] = pos;
+            }
+        }
+    }
+    if (Li == NULL) {
+        Lp[0] = 0;
+        for (Py_ssize_t k = 0; k < Ma; k++)
+            Lp[k + 1] = Lp[k] + next[k];
+    }
+    free(ancestor), free(mark), free(stack), free(next);
+    return 0;
+}
+
+/* The 4x4 lower Cholesky factor of the symmetric D (its lower triangle read), row-major;
+ * 0 where D is not positive definite */
+static int chol4(const double *D, double *L)
+{
+    for (int r = 0; r < 4; r++)
+        for (int c = 0; c <= r; c++) {
+            double v = D[4 * r + c];
+            for (int s = 0; s < c; s++)
+                v -= L[4 * r + s] * L[4 * c + s];
+            if (r == c) {
+                if (!(v > 0.0))
+                    return 0;
+                L[4 * r + r] = sqrt(v);
+            } else
+                L[4 * r + c] = v / L[4 * c + c];
+        }
+    for (int r = 0; r < 4; r++)
+        for (int c = r + 1; c < 4; c++)
+            L[4 * r + c] = 0.0;
+    return 1;
+}
+
+/* The numbers of L for S's values (block CSC data, as reduce writes it). 0 where S is not
+ * positive definite; X: 16 Ma of work space */
+WIDE_LOOPS static int chol_factor(Py_ssize_t Ma, const int64_t *ptr, const int64_t *rows, const double *S,
+                       const int64_t *perm, const int64_t *iperm, const int64_t *Lp,
+                       const int64_t *Li, const int64_t *Rp, const int64_t *Ri,
+                       const int64_t *Rpos, double *Lx, double *X)
+{
+    for (Py_ssize_t k = 0; k < Ma; k++) {
+        int64_t pk = perm[k], nb = ptr[pk + 1] - ptr[pk];
+        const double *col = S + 16 * ptr[pk];
+        for (int64_t j = Rp[k]; j < Rp[k + 1]; j++)
+            memset(X + 16 * Ri[j], 0, 16 * sizeof(double));
+        memset(X + 16 * k, 0, 16 * sizeof(double));
+        for (int64_t m = 0; m < nb; m++) {  /* X_i = S block (i, k), i <= k */
+            int64_t i = iperm[rows[ptr[pk] + m]];
+            if (i > k)
+                continue;
+            for (int r = 0; r < 4; r++)
+                for (int c = 0; c < 4; c++)
+                    X[16 * i + 4 * r + c] = col[4 * m + c * 4 * nb + r];
+        }
+        double D[16];
+        memcpy(D, X + 16 * k, sizeof D);
+        for (int64_t j = Rp[k]; j < Rp[k + 1]; j++) {
+            int64_t i = Ri[j];
+            const double *Xi = X + 16 * i, *Lii = Lx + 16 * Lp[i];
+            double Y[16];  /* Y = L_ii^-1 X_i = L_ki^T */
+            for (int c = 0; c < 4; c++)
+                for (int r = 0; r < 4; r++) {
+                    double v = Xi[4 * r + c];
+                    for (int s = 0; s < r; s++)
+                        v -= Lii[4 * r + s] * Y[4 * s + c];
+                    Y[4 * r + c] = v / Lii[4 * r + r];
+                }
+            double *Lki = Lx + 16 * Rpos[j];
+            for (int r = 0; r < 4; r++)
+                for (int c = 0; c < 4; c++)
+                    Lki[4 * r + c] = Y[4 * c + r];
+            for (int64_t p = Lp[i] + 1; p < Rpos[j]; p++) {  /* X_r -= L_ri Y, r < k */
+                const double *Lri = Lx + 16 * p;
+                double *Xr = X + 16 * Li[p];
+                for (int r = 0; r < 4; r++)
+                    for (int c = 0; c < 4; c++) {
+                        double v = 0.0;
+                        for (int s = 0; s < 4; s++)
+                            v += Lri[4 * r + s] * Y[4 * s + c];
+                        Xr[4 * r + c] -= v;
+                    }
+            }
+            for (int r = 0; r < 4; r++)  /* D -= Y^T Y */
+                for (int c = 0; c < 4; c++) {
+                    double v = 0.0;
+                    for (int s = 0; s < 4; s++)
+                        v += Y[4 * s + r] * Y[4 * s + c];
+                    D[4 * r + c] -= v;
+                }
+        }
+        if (!chol4(D, Lx + 16 * Lp[k]))
+            return 0;
+    }
+    return 1;
+}
+
+/* x = S^-1 b through the factor (both 4 Ma, in the lines' own order); y: 4 Ma of work */
+static void chol_solve(Py_ssize_t Ma, const int64_t *perm, const int64_t *Lp, const int64_t *Li,
+                       const double *Lx, const double *b, double *x, double *y)
+{
+    for (Py_ssize_t k = 0; k < Ma; k++)
+        memcpy(y + 4 * k, b + 4 * perm[k], 4 * sizeof(double));
+    for (Py_ssize_t i = 0; i < Ma; i++) {  /* L z = y */
+        const double *Lii = Lx + 16 * Lp[i];
+        double *yi = y + 4 * i;
+        for (int r = 0; r < 4; r++) {
+            double v = yi[r];
+            for (int s = 0; s < r; s++)
+                v -= Lii[4 * r + s] * yi[s];
+            yi[r] = v / Lii[4 * r + r];
+        }
+        for (int64_t p = Lp[i] + 1; p < Lp[i + 1]; p++) {
+            const double *Lri = Lx + 16 * p;
+            double *yr = y + 4 * Li[p];
+            for (int r = 0; r < 4; r++) {
+                double v = 0.0;
+                for (int s = 0; s < 4; s++)
+                    v += Lri[4 * r + s] * yi[s];
+                yr[r] -= v;
+            }
+        }
+    }
+    for (Py_ssize_t i = Ma - 1; i >= 0; i--) {  /* L^T x = z */
+        const double *Lii = Lx + 16 * Lp[i];
+        double *yi = y + 4 * i;
+        for (int64_t p = Lp[i] + 1; p < Lp[i + 1]; p++) {
+            const double *Lri = Lx + 16 * p, *yr = y + 4 * Li[p];
+            for (int s = 0; s < 4; s++) {
+                double v = 0.0;
+                for (int r = 0; r < 4; r++)
+                    v += Lri[4 * r + s] * yr[r];
+                yi[s] -= v;
+            }
+        }
+        for (int r = 3; r >= 0; r--) {
+            double v = yi[r];
+            for (int s = r + 1; s < 4; s++)
+                v -= Lii[4 * s + r] * yi[s];
+            yi[r] = v / Lii[4 * r + r];
+        }
+    }
+    for (Py_ssize_t k = 0; k < Ma; k++)
+        memcpy(x + 4 * perm[k], y + 4 * k, 4 * sizeof(double));
+}
+
+/* perm a permutation of 0..Ma-1 and iperm its inverse (else ValueError set, 0) */
+static int is_permutation(Py_ssize_t Ma, const int64_t *perm, const int64_t *iperm)
+{
+    for (Py_ssize_t k = 0; k < Ma; k++)
+        if (perm[k] < 0 || perm[k] >= Ma || iperm[perm[k]] != k) {
+            PyErr_SetString(PyExc_ValueError, "chol: perm is not a permutation with inverse iperm");
+            return 0;
+        }
+    return 1;
+}
+
+/* rows[ptr[j]..ptr[j+1]) in 0..Ma-1, ptr non-decreasing from 0 to nrows */
+static int valid_pattern(Py_ssize_t Ma, Py_ssize_t nrows, const int64_t *ptr,
+                         const int64_t *rows)
+{
+    if (ptr[0] != 0 || ptr[Ma] != nrows)
+        goto bad;
+    for (Py_ssize_t j = 0; j < Ma; j++)
+        if (ptr[j + 1] < ptr[j])
+            goto bad;
+    for (Py_ssize_t q = 0; q < nrows; q++)
+        if (rows[q] < 0 || rows[q] >= Ma)
+            goto bad;
+    return 1;
+bad:
+    PyErr_SetString(PyExc_ValueError, "chol: ptr and rows are not a block pattern of Ma lines");
+    return 0;
+}
+
+static PyObject *py_chol_analyse(PyObject *Py_UNUSED(self), PyObject *args)
+{
+    PyObject *o[9];
+    Py_ssize_t Ma, nrows, nnzL;
+    if (!PyArg_ParseTuple(args, "nnnOOOOOOOOO", &Ma, &nrows, &nnzL, &o[0], &o[1], &o[2], &o[3],
+                          &o[4], &o[5], &o[6], &o[7], &o[8]))
+        return NULL;
+    Py_buffer b[9];
+    int fill = nnzL >= 0;
+    const Spec spec[9] = {
+        {"ptr", 8, Ma + 1, 0},
+        {"rows", 8, nrows, 0},
+        {"perm", 8, Ma, 0},
+        {"iperm", 8, Ma, 0},
+        {"parent", 8, Ma, 1},
+        {"Lp", 8, Ma + 1, !fill},
+        {"Rp", 8, Ma + 1, !fill},
+        {"Li", 8, fill ? nnzL : 0, 1},
+        {"Ri_Rpos", 8, fill ? 2 * (nnzL - Ma) : 0, 1},
+    };
+    if (take_all(9, o, spec, b) < 0)
+        return NULL;
+    if (!valid_pattern(Ma, nrows, b[0].buf, b[1].buf) ||
+        !is_permutation(Ma, b[2].buf, b[3].buf)) {
+        release_all(9, b);
+        return NULL;
+    }
+    int rc;
+    int64_t *RR = b[8].buf;
+    Py_BEGIN_ALLOW_THREADS
+    rc = chol_analyse(Ma, b[0].buf, b[1].buf, b[2].buf, b[3].buf, b[4].buf, b[5].buf, b[6].buf,
+                      fill ? b[7].buf : NULL, fill ? RR : NULL,
+                      fill ? RR + (nnzL - Ma) : NULL);
+    Py_END_ALLOW_THREADS
+    release_all(9, b);
+    if (rc < 0)
+        return PyErr_NoMemory();
+    Py_RETURN_NONE;
+}
+
+static PyObject *py_chol_factor(PyObject *Py_UNUSED(self), PyObject *args)
+{
+    PyObject *o[11];
+    Py_ssize_t Ma, nrows, nnzL;
+    if (!PyArg_ParseTuple(args, "nnnOOOOOOOOOOO", &Ma, &nrows, &nnzL, &o[0], &o[1], &o[2],
+                          &o[3], &o[4], &o[5], &o[6], &o[7], &o[8], &o[9], &o[10]))
+        return NULL;
+    Py_buffer b[11];
+    const Spec spec[11] = {
+        {"ptr", 8, Ma + 1, 0},
+        {"rows", 8, nrows, 0},
+        {"S", 8, 16 * nrows, 0},
+        {"perm", 8, Ma, 0},
+        {"iperm", 8, Ma, 0},
+        {"Lp", 8, Ma + 1, 0},
+        {"Li", 8, nnzL, 0},
+        {"Rp", 8, Ma + 1, 0},
+        {"Ri_Rpos", 8, 2 * (nnzL - Ma), 0},
+        {"Lx", 8, 16 * nnzL, 1},
+        {"X", 8, 16 * Ma, 1},
+    };
+    if (take_all(11, o, spec, b) < 0)
+        return NULL;
+    int ok;
+    const int64_t *RR = b[8].buf;
+    Py_BEGIN_ALLOW_THREADS
+    ok = chol_factor(Ma, b[0].buf, b[1].buf, b[2].buf, b[3].buf, b[4].buf, b[5].buf, b[6].buf,
+                     b[7].buf, RR, RR + (nnzL - Ma), b[9].buf, b[10].buf);
+    Py_END_ALLOW_THREADS
+    release_all(11, b);
+    return PyBool_FromLong(ok);
+}
+
+static PyObject *py_chol_solve(PyObject *Py_UNUSED(self), PyObject *args)
+{
+    PyObject *o[7];
+    Py_ssize_t Ma, nnzL;
+    if (!PyArg_ParseTuple(args, "nnOOOOOOO", &Ma, &nnzL, &o[0], &o[1], &o[2], &o[3], &o[4],
+                          &o[5], &o[6]))
+        return NULL;
+    Py_buffer b[7];
+    const Spec spec[7] = {
+        {"perm", 8, Ma, 0},
+        {"Lp", 8, Ma + 1, 0},
+        {"Li", 8, nnzL, 0},
+        {"Lx", 8, 16 * nnzL, 0},
+        {"b", 8, 4 * Ma, 0},
+        {"x", 8, 4 * Ma, 1},
+        {"y", 8, 4 * Ma, 1},
+    };
+    if (take_all(7, o, spec, b) < 0)
+        return NULL;
+    Py_BEGIN_ALLOW_THREADS
+    chol_solve(Ma, b[0].buf, b[1].buf, b[2].buf, b[3].buf, b[4].buf, b[5].buf, b[6].buf);
+    Py_END_ALLOW_THREADS
+    release_all(7, b);
+    Py_RETURN_NONE;
+}
+
 static PyMethodDef methods[] = {
     {"residuals", py_residuals, METH_VARARGS,
      "residuals(F, M, K, R, c, d, p, f, t, B, e, u): e (K, 2) and u (K, 3) written"},
@@ -1081,6 +1427,14 @@ static PyMethodDef methods[] = {
     {"reduce", py_reduce, METH_VARARGS,
      "reduce(F, Ma, K, nnz, npairs, G, f, tc, by_frame, frame_start, Hll, gpt, gl, ptr, rows, "
      "S, rhs, offs): the reduced system written (nnz < 0: S dense)"},
+    {"chol_analyse", py_chol_analyse, METH_VARARGS,
+     "chol_analyse(Ma, nrows, nnzL, ptr, rows, perm, iperm, parent, Lp, Rp, Li, Ri_Rpos): the "
+     "block Cholesky factor's structure (nnzL < 0: parent, Lp and Rp only)"},
+    {"chol_factor", py_chol_factor, METH_VARARGS,
+     "chol_factor(Ma, nrows, nnzL, ptr, rows, S, perm, iperm, Lp, Li, Rp, Ri_Rpos, Lx, X): the "
+     "factor's values written; False where S is not positive definite"},
+    {"chol_solve", py_chol_solve, METH_VARARGS,
+     "chol_solve(Ma, nnzL, perm, Lp, Li, Lx, b, x, y): x = S^-1 b written"},
     {NULL, NULL, 0, NULL},
 };
 

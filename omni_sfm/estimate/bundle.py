@@ -357,7 +357,8 @@ class _ReducedSystem:
     G^T G``, ``rhs = -gl + G^T gpt`` (``Hll``, ``gl``: the ``Ma`` active lines' blocks; ``G``:
     one ``6x4`` block per observation, of frame ``f`` and active line ``tc``; ``gpt``: ``(F,
     6)``). :meth:`assemble` returns ``(S, None, rhs)`` with ``S`` dense where the lines are few
-    or most pairs of them are seen together, else ``(None, S, rhs)`` with ``S`` sparse (CSC).
+    or most pairs of them are seen together, else ``(None, S, rhs)`` with ``S`` the data of
+    the block-sparse matrix (:meth:`csc` makes it a scipy matrix); :meth:`solve` solves it.
 
     Where at most 150 lines are seen in most frames (the paper's views), ``G`` is one dense
     matrix and ``G^T G`` one product (BLAS). Elsewhere each frame adds ``-G_a^T G_b`` for each
@@ -388,18 +389,16 @@ class _ReducedSystem:
         if not self.dense:
             self.pattern = ptr, rows
             self.offsets = kernels.pair_offsets(self.index, self.pattern)
-            # block column j's column 4 j + c holds its block rows' 4 rows each: the rows
-            # 4 rows[ptr[j]:ptr[j + 1]] + (0..3), once for each of its 4 columns
-            length = np.repeat(4 * np.diff(ptr), 4)  # entries of each column
-            self.indptr = np.zeros(4 * Ma + 1, np.int64)
-            self.indptr[1:] = np.cumsum(length)
-            source = np.arange(self.indptr[-1]) - np.repeat(
-                self.indptr[:-1] - np.repeat(4 * ptr[:-1], 4), length)
-            self.indices = (4 * rows[:, None] + i4).ravel()[source].astype(np.int32)
-            self.indptr = self.indptr.astype(np.int32)
+            # the factor's structure, once: a minimum-degree order of the lines (SuperLU's, on
+            # the pattern of the lines' blocks; its perm_c lists, for each line, its place)
+            P = sp.csc_matrix((np.ones(len(rows)), rows, ptr), shape=(Ma, Ma)) + \
+                float(Ma) * sp.identity(Ma, format="csc")
+            place = spla.splu(P, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                              options={"SymmetricMode": True}).perm_c
+            self.cholesky = kernels.BlockCholesky(self.pattern, np.argsort(place))
 
     def assemble(self, Hll: FloatArray, G: FloatArray, gpt: FloatArray, gl: FloatArray
-                 ) -> tuple[FloatArray | None, sp.csc_matrix | None, FloatArray]:
+                 ) -> tuple[FloatArray | None, FloatArray | None, FloatArray]:
         f, tc, F, Ma = self.f, self.tc, self.F, self.Ma
         if self.dense_g:
             Gd = np.zeros((F, 6, Ma, 4))
@@ -411,7 +410,35 @@ class _ReducedSystem:
         S, rhs = kernels.reduce_lines(self.index, G, Hll, gpt, gl, self.pattern, self.offsets)
         if self.pattern is None:
             return S, None, rhs
-        return None, sp.csc_matrix((S, self.indices, self.indptr), shape=(4 * Ma, 4 * Ma)), rhs
+        return None, S, rhs
+
+    def solve(self, S: FloatArray | None, S_blocks: FloatArray | None, rhs: FloatArray
+              ) -> FloatArray:
+        """``S^-1 rhs`` for :meth:`assemble`'s output: dense Cholesky (LAPACK), or the block
+        Cholesky factorisation in the structure worked out once (``kernels.BlockCholesky``).
+        Raises ``numpy.linalg.LinAlgError`` where ``S`` is not positive definite."""
+        if S is not None:
+            c_f = scipy.linalg.cho_factor(S, check_finite=False)
+            return np.asarray(scipy.linalg.cho_solve(c_f, rhs, check_finite=False))
+        assert S_blocks is not None
+        if not self.cholesky.factor(S_blocks):
+            raise np.linalg.LinAlgError("reduced system not positive definite")
+        return self.cholesky.solve(rhs)
+
+    def csc(self, S_blocks: FloatArray) -> sp.csc_matrix:
+        """The sparse :meth:`assemble`'s ``S`` as a scipy CSC matrix (for checks)."""
+        assert self.pattern is not None
+        ptr, rows = self.pattern
+        Ma, i4 = self.Ma, np.arange(4)
+        # block column j's column 4 j + c holds its block rows' 4 rows each: the rows
+        # 4 rows[ptr[j]:ptr[j + 1]] + (0..3), once for each of its 4 columns
+        length = np.repeat(4 * np.diff(ptr), 4)  # entries of each column
+        indptr = np.zeros(4 * Ma + 1, np.int64)
+        indptr[1:] = np.cumsum(length)
+        source = np.arange(indptr[-1]) - np.repeat(indptr[:-1] - np.repeat(4 * ptr[:-1], 4),
+                                                     length)
+        indices = (4 * rows[:, None] + i4).ravel()[source]
+        return sp.csc_matrix((S_blocks, indices, indptr), shape=(4 * Ma, 4 * Ma))
 
 
 class LineProblem:
@@ -514,16 +541,7 @@ class LineProblem:
             self._reduced = act, _ReducedSystem(f, np.searchsorted(act, t), F, len(act))
         act, reduced = self._reduced
         Ma = len(act)
-        S_dense, S, rhs = reduced.assemble(Hll[act], G, gpt, gl[act])
-        if S_dense is not None:
-            c_f = scipy.linalg.cho_factor(S_dense, check_finite=False)
-            x = scipy.linalg.cho_solve(c_f, rhs, check_finite=False)
-        else:
-            lu = spla.splu(S, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                           options={"SymmetricMode": True})
-            if np.any(lu.U.diagonal() <= 0):
-                raise np.linalg.LinAlgError("reduced system not positive definite")
-            x = lu.solve(rhs)
+        x = reduced.solve(*reduced.assemble(Hll[act], G, gpt, gl[act]))
         dl = np.zeros((M, 4))
         dl[act] = x.reshape(Ma, 4)
         # back substitution: Hpp dp = -gp - Hpl dl

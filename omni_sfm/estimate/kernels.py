@@ -192,3 +192,44 @@ def reduce_lines(index: PairIndex, G: FloatArray, Hll: FloatArray, gpt: FloatArr
     _lines.reduce(F, Ma, K, nnz, index.num_pairs, _f64(G), index.f, index.tc, index.by_frame,
                   index.frame_start, _f64(Hll), _f64(gpt), _f64(gl), ptr, rows, S, rhs, offs)
     return S, rhs
+
+
+class BlockCholesky:
+    """``S = L L^T`` of the reduced system's block-sparse ``S`` (:func:`block_pattern`'s
+    ``ptr, rows``, the data as :func:`reduce_lines` writes it), ``L`` block lower triangular
+    (4x4 blocks) in the fill-reducing order ``perm`` (``perm[k]``: the line of block ``k``).
+    The factor's structure is worked out here, once; :meth:`factor` fills in the numbers of
+    each step's ``S`` and :meth:`solve` solves with them."""
+
+    def __init__(self, pattern: tuple[np.ndarray, np.ndarray], perm: np.ndarray) -> None:
+        ptr, rows = _i64(pattern[0]), _i64(pattern[1])
+        Ma = len(ptr) - 1
+        self.ptr, self.rows, self.Ma = ptr, rows, Ma
+        self.perm = _i64(perm)
+        self.iperm = np.empty(Ma, np.int64)
+        self.iperm[self.perm] = np.arange(Ma)
+        parent = np.empty(Ma, np.int64)
+        self.Lp, self.Rp = np.empty(Ma + 1, np.int64), np.empty(Ma + 1, np.int64)
+        z = np.zeros(0, np.int64)
+        args = (ptr, rows, self.perm, self.iperm, parent)
+        _lines.chol_analyse(Ma, len(rows), -1, *args, self.Lp, self.Rp, z, z)
+        self.nnz = int(self.Lp[-1])
+        """Blocks of ``L`` (the diagonal included)."""
+        self.Li = np.empty(self.nnz, np.int64)
+        self.RR = np.empty(2 * (self.nnz - Ma), np.int64)
+        _lines.chol_analyse(Ma, len(rows), self.nnz, *args, self.Lp, self.Rp, self.Li, self.RR)
+        self.Lx = np.empty(16 * self.nnz)
+        self._work = np.empty(16 * max(Ma, 1))
+
+    def factor(self, S: np.ndarray) -> bool:
+        """The factor of ``S`` (the block-sparse data); False where ``S`` is not positive
+        definite."""
+        return bool(_lines.chol_factor(self.Ma, len(self.rows), self.nnz, self.ptr, self.rows,
+                                       _f64(S), self.perm, self.iperm, self.Lp, self.Li,
+                                       self.Rp, self.RR, self.Lx, self._work))
+
+    def solve(self, b: np.ndarray) -> FloatArray:
+        """``S^-1 b`` for ``b`` ``(4 Ma,)``, with the last :meth:`factor`'s numbers."""
+        x, y = np.empty(4 * self.Ma), np.empty(4 * self.Ma)
+        _lines.chol_solve(self.Ma, self.nnz, self.perm, self.Lp, self.Li, self.Lx, _f64(b), x, y)
+        return x
