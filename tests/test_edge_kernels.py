@@ -1,7 +1,8 @@
 """The line extractor's compiled loops (omni_sfm/lines/_edges.c) against the numpy code they
 replaced in omni_sfm/lines/extract.py (kept here as the reference): the same bits, except the
 corner test's window sums (summed in another order than numpy's BLAS), whose decisions must
-still agree."""
+still agree. The great-circle fits' kernels are checked on the calls the extractor makes on
+rendered frames and on synthetic pieces of great circles."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import numpy as np
 import pytest
 from linetest_utils import Room, hyperboloid_camera, render
 
+from omni_sfm.geometry import completion_towards
 from omni_sfm.lines import edge_kernels
 from omni_sfm.lines.extract import LineExtractor, _oriented_components
 
@@ -268,3 +270,311 @@ def test_msac_costs_match_numpy():
     assert c0.shape == (0, nh) and s0.shape == (0, nh)
     with pytest.raises(IndexError):
         edge_kernels.msac_costs(r32, hyp_k, seg + 1, start, t2)
+
+
+# ---- great-circle fits: the numpy code of extract.py before its kernels -----------------------
+
+
+def _scatter_numpy(rays, weight, seg, nseg):
+    weight = np.ones(len(rays)) if weight is None else weight
+    out = np.empty((nseg, 3, 3))
+    x, y, z = rays[:, 0] * weight, rays[:, 1] * weight, rays[:, 2] * weight
+    for (i, j), v in (((0, 0), x * rays[:, 0]), ((0, 1), x * rays[:, 1]),
+                      ((0, 2), x * rays[:, 2]), ((1, 1), y * rays[:, 1]),
+                      ((1, 2), y * rays[:, 2]), ((2, 2), z * rays[:, 2])):
+        out[:, i, j] = out[:, j, i] = np.bincount(seg, weights=v, minlength=nseg)
+    return out
+
+
+def _arc_parameter_numpy(r, n, group, ngroup):
+    mean = np.zeros((ngroup, 3))
+    for k in range(3):
+        mean[:, k] = np.bincount(group, weights=r[:, k], minlength=ngroup)
+    e1, e2 = completion_towards(n, mean)
+    return np.arctan2(np.einsum("nk,nk->n", r, np.take(e2, group, axis=0)),
+                      np.einsum("nk,nk->n", r, np.take(e1, group, axis=0)))
+
+
+def _gap_pieces_numpy(seg, t, s, nseg, max_gap, min_points):
+    order = np.lexsort((t, seg))
+    seg, t, s = seg[order], t[order], s[order]
+    cut = (np.diff(seg) != 0) | (np.diff(t) > max_gap * s[1:])
+    piece = np.concatenate([[0], np.cumsum(cut)]).astype(np.int64)
+    keep = np.bincount(piece)[piece] >= min_points
+    pos, seg, piece = order[keep], seg[keep], piece[keep]
+    _, piece = np.unique(piece, return_inverse=True)
+    piece_seg = np.zeros(piece.max() + 1 if len(piece) else 0, np.int64)
+    piece_seg[piece] = seg
+    return pos, piece, piece_seg
+
+
+def _trim_ends_numpy(lab, t, s, nl, trim, min_points):
+    lo, hi = np.full(nl, np.inf), np.full(nl, -np.inf)
+    with np.errstate(invalid="ignore"):
+        np.minimum.at(lo, lab, t)
+        np.maximum.at(hi, lab, t)
+    lim = trim * s
+    keep = (t - lo[lab] > lim) & (hi[lab] - t > lim)
+    pos, lab = np.flatnonzero(keep), lab[keep]
+    keep = (np.bincount(lab, minlength=nl) >= min_points)[lab]
+    _, lab = np.unique(lab[keep], return_inverse=True)
+    return pos[keep], lab
+
+
+def _package_numpy(r, normals, lab, t, s, noise):
+    nl = len(normals)
+    sizes = np.bincount(lab, minlength=nl)
+    offsets = np.concatenate([[0], np.cumsum(sizes)])
+    first, last = offsets[:-1], offsets[1:] - 1
+    ends = np.stack([r[first], r[last]], 1)
+    ends -= np.einsum("lek,lk->le", ends, normals)[..., None] * normals[:, None, :]
+    ends /= np.linalg.norm(ends, axis=2, keepdims=True)
+    px = np.abs(np.einsum("nk,nk->n", r, np.take(normals, lab, axis=0))) / s
+    resid = np.sqrt(np.bincount(lab, weights=px * px, minlength=nl) / sizes)
+    mean_scale = np.bincount(lab, weights=s, minlength=nl) / sizes
+    m, tdir = completion_towards(normals, ends[:, 0] + ends[:, 1])
+    w = 1.0 / (noise * s) ** 2
+    info = np.stack([np.bincount(lab, weights=w * np.einsum(
+        "nk,nk->n", r, np.take(v, lab, axis=0)) ** 2, minlength=nl) for v in (m, tdir)], axis=1)
+    sigma = 1.0 / np.sqrt(np.maximum(info, 1e-300))
+    return sizes, ends, resid, t[last] - t[first], mean_scale, sigma
+
+
+def _inliers_numpy(rays, n, seg, tol):
+    inl = np.abs(np.einsum("nk,nk->n", rays, np.take(n, seg, axis=0))) < tol
+    return inl, np.bincount(seg, weights=inl, minlength=len(n))
+
+
+def _hypotheses_numpy(rays, ia, ib):
+    hyp = np.cross(rays[ia], rays[ib])
+    hn = np.linalg.norm(hyp, axis=2, keepdims=True)
+    degenerate = hn[..., 0] < 1e-9
+    hyp = (hyp / np.where(hn > 0, hn, 1.0)).astype(np.float32)
+    return np.ascontiguousarray(hyp.transpose(2, 0, 1)), degenerate
+
+
+def _merge_numpy(rays, idx, lab, normals, cand, max_gap):
+    nl = len(normals)
+    in_order = idx[np.argsort(lab, kind="stable")]
+    size = np.bincount(lab, minlength=nl)
+    first = np.concatenate([[0], np.cumsum(size)[:-1]])
+    gaps = []
+    e1 = e2 = np.zeros((0, 3))
+    for side in (0, 1):
+        piece = cand[:, side]
+        n = size[piece]
+        starts = np.concatenate([[0], np.cumsum(n)[:-1]])
+        pair = np.repeat(np.arange(len(cand)), n)
+        r = np.take(rays, in_order[np.arange(int(n.sum())) - starts[pair]
+                                   + first[piece][pair]], axis=0)
+        if side == 0:
+            mean = np.add.reduceat(r, starts, axis=0) / n[:, None]
+            e1, e2 = completion_towards(normals[piece], mean)
+        t = np.arctan2(np.einsum("nk,nk->n", r, np.take(e2, pair, axis=0)),
+                       np.einsum("nk,nk->n", r, np.take(e1, pair, axis=0)))
+        gaps.append((np.minimum.reduceat(t, starts), np.maximum.reduceat(t, starts)))
+    (lo_i, hi_i), (lo_j, hi_j) = gaps
+    gap = np.maximum(lo_j - hi_i, lo_i - hi_j)
+    join = (gap >= 0) & (gap <= max_gap)
+    parent = np.arange(nl)
+
+    def find(i):
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return int(i)
+
+    for i, j in cand[join]:
+        parent[find(int(i))] = find(int(j))
+    roots = np.array([find(i) for i in range(nl)])
+    return np.unique(roots, return_inverse=True)[1]
+
+
+_FIT_KERNELS = {
+    "scatter": _scatter_numpy, "arc_parameter": _arc_parameter_numpy,
+    "order_by": lambda key, t, nkey: np.lexsort((t, key)),
+    "gap_pieces": _gap_pieces_numpy, "trim_ends": _trim_ends_numpy,
+    "package": _package_numpy, "inliers": _inliers_numpy, "hypotheses": _hypotheses_numpy,
+    "merge_labels": _merge_numpy,
+}
+
+
+def _same(a, b):
+    a, b = (a,) if not isinstance(a, tuple) else a, (b,) if not isinstance(b, tuple) else b
+    assert len(a) == len(b)
+    for x, y in zip(a, b, strict=True):
+        x, y = np.asarray(x), np.asarray(y)
+        assert x.shape == y.shape
+        assert np.ascontiguousarray(x).tobytes() == np.ascontiguousarray(y).tobytes()
+
+
+@pytest.fixture(scope="module")
+def fit_calls():
+    """Every call of the fitting kernels while the extractor runs on a rendered frame and its
+    noisy copy (the arguments as the extractor passed them, the kernel's results)."""
+    cam = hyperboloid_camera()
+    img = render(cam, Room(), np.eye(3), np.array([0.3, 0.2, 0.1]))
+    noisy = np.clip(img + np.random.default_rng(1).normal(0, 6, img.shape), 0, 255)
+    calls: list[tuple[str, tuple, object]] = []
+    saved = {name: getattr(edge_kernels, name) for name in _FIT_KERNELS}
+
+    def recorder(name, f):
+        def g(*args):
+            out = f(*args)
+            calls.append((name, args, out))
+            return out
+        return g
+
+    mp = pytest.MonkeyPatch()
+    for name, f in saved.items():
+        mp.setattr(edge_kernels, name, recorder(name, f))
+    try:
+        ex = LineExtractor(cam)
+        lines = [ex.extract(img), ex.extract(noisy.astype(np.uint8))]
+    finally:
+        mp.undo()
+    assert all(ln.num_lines > 5 for ln in lines)
+    return calls
+
+
+def test_fit_kernels_match_numpy_on_frames(fit_calls):
+    seen = set()
+    for name, args, out in fit_calls:
+        _same(out, _FIT_KERNELS[name](*args))
+        seen.add(name)
+    assert seen >= set(_FIT_KERNELS) - {"order_by", "merge_labels"}
+
+
+def _great_circle_pieces(rng, sizes, spread=0.3):
+    """Rays near a few great circles (pieces with the sizes given, some on one circle with
+    gaps between them), their piece labels (shuffled order) and normals."""
+    base = rng.normal(size=(3, 3))
+    base /= np.linalg.norm(base, axis=1, keepdims=True)
+    rays, lab, normals = [], [], []
+    for p, n in enumerate(sizes):
+        nv = base[p % 3]
+        e1 = np.cross(nv, [0.3, 0.5, 0.8])
+        e1 /= np.linalg.norm(e1)
+        e2 = np.cross(nv, e1)
+        a = (p // 3) * (spread + 0.05) + np.sort(rng.uniform(0, spread, n))
+        r = np.cos(a)[:, None] * e1 + np.sin(a)[:, None] * e2 + rng.normal(0, 1e-4, (n, 3))
+        rays.append(r / np.linalg.norm(r, axis=1, keepdims=True))
+        lab.append(np.full(n, p))
+        normals.append(nv + rng.normal(0, 1e-5, 3))
+    perm = rng.permutation(sum(sizes))
+    return (np.concatenate(rays)[perm], np.concatenate(lab)[perm],
+            np.array(normals) / np.linalg.norm(normals, axis=1, keepdims=True))
+
+
+def test_fit_kernels_match_numpy_on_synthetic_pieces():
+    rng = np.random.default_rng(7)
+    sizes = [3, 8, 9, 40, 128, 129, 300, 1, 60, 61, 250, 45]  # both sides of the sum blocks
+    rays, lab, normals = _great_circle_pieces(rng, sizes)
+    nl = len(sizes)
+    w = rng.integers(0, 2, len(rays)).astype(np.float64)
+    for weight in (None, w):
+        _same(edge_kernels.scatter(rays, weight, lab, nl), _scatter_numpy(rays, weight, lab, nl))
+    # eigh's normals (a non-contiguous view), as the extractor passes them
+    nrm = np.linalg.eigh(_scatter_numpy(rays, None, lab, nl))[1][..., 0]
+    t = edge_kernels.arc_parameter(rays, nrm, lab, nl)
+    _same(t, _arc_parameter_numpy(rays, nrm, lab, nl))
+    s = rng.uniform(1e-3, 3e-3, len(rays))
+    _same(edge_kernels.order_by(lab, t, nl), np.lexsort((t, lab)))
+    for max_gap, min_points in ((4.0, 40), (0.5, 5), (1e9, 1)):
+        _same(edge_kernels.gap_pieces(lab, t, s, nl, max_gap, min_points),
+              _gap_pieces_numpy(lab, t, s, nl, max_gap, min_points))
+    for trim, min_points in ((5.0, 40), (0.0, 1), (50.0, 3)):
+        _same(edge_kernels.trim_ends(lab, t, s, nl, trim, min_points),
+              _trim_ends_numpy(lab, t, s, nl, trim, min_points))
+    order = np.lexsort((t, lab))
+    args = (rays[order], nrm, lab[order], t[order], s[order], 0.5)
+    _same(edge_kernels.package(*args), _package_numpy(*args))
+    tol = rng.uniform(0, 3e-4, len(rays))
+    _same(edge_kernels.inliers(rays, normals, lab, tol), _inliers_numpy(rays, normals, lab, tol))
+    ia, ib = rng.integers(0, len(rays), (2, nl, 16))
+    ib[0, :3] = ia[0, :3]  # degenerate pairs
+    _same(edge_kernels.hypotheses(rays, ia, ib), _hypotheses_numpy(rays, ia, ib))
+
+
+def test_merge_labels_match_numpy():
+    rng = np.random.default_rng(3)
+    # pieces 0, 3, 6, 9 on one circle, 1, 4, 7, 10 on another, ... with gaps between them
+    sizes = [50, 41, 60, 130, 45, 9, 70, 200, 40, 55, 48, 44]
+    rays, lab, normals = _great_circle_pieces(rng, sizes, spread=0.2)
+    idx = rng.permutation(len(rays) + 20)[: len(rays)]  # points of a larger ray array
+    big = np.zeros((len(rays) + 20, 3))
+    big[idx] = rays
+    big[np.setdiff1d(np.arange(len(big)), idx)] = [1.0, 0.0, 0.0]
+    cosang = np.abs(normals @ normals.T)
+    cand = np.argwhere(np.triu(cosang > np.cos(np.radians(0.3)), 1))
+    assert len(cand) >= 6
+    for max_gap in (np.radians(20.0), np.radians(2.0), 0.0):
+        new = edge_kernels.merge_labels(big, idx, lab, normals, cand, max_gap)
+        _same(new, _merge_numpy(big, idx, lab, normals, cand, max_gap))
+    assert edge_kernels.merge_labels(big, idx, lab, normals, cand, np.radians(20.0)).max() < 6
+    # the reverse order of the pairs and pairs not on one circle
+    cand2 = np.concatenate([cand[::-1], [[0, 1], [2, 5]]])
+    _same(edge_kernels.merge_labels(big, idx, lab, normals, cand2, 1.0),
+          _merge_numpy(big, idx, lab, normals, cand2, 1.0))
+
+
+def test_fit_kernels_edge_cases_and_bounds():
+    rays = np.array([[1.0, 0, 0], [0, 1.0, 0], [0, 0, 1.0]])
+    seg = np.array([0, 1, 1])
+    z = np.zeros(0, np.int64)
+    assert edge_kernels.scatter(rays[:0], None, z, 2).shape == (2, 3, 3)
+    _same(edge_kernels.scatter(rays[:0], None, z, 2), np.zeros((2, 3, 3)))
+    assert edge_kernels.order_by(z, np.zeros(0), 0).shape == (0,)
+    t = np.array([np.nan, 0.5, -0.0, 0.0, np.nan, -1.0])
+    key = np.array([1, 1, 0, 0, 1, 1])
+    _same(edge_kernels.order_by(key, t, 2), np.lexsort((t, key)))  # NaN last, ties by index
+    pos, piece, piece_seg = edge_kernels.gap_pieces(z, np.zeros(0), np.zeros(0), 0, 4.0, 3)
+    assert len(pos) == len(piece) == len(piece_seg) == 0
+    t3 = np.array([0.0, np.nan, 0.3])
+    _same(edge_kernels.trim_ends(seg, t3, np.ones(3), 2, 0.01, 1),
+          _trim_ends_numpy(seg, t3, np.ones(3), 2, 0.01, 1))
+    for bad in (seg + 1, seg - 1):
+        with pytest.raises(IndexError):
+            edge_kernels.scatter(rays, None, bad, 2)
+        with pytest.raises(IndexError):
+            edge_kernels.arc_parameter(rays, rays[:2], bad, 2)
+        with pytest.raises(IndexError):
+            edge_kernels.order_by(bad, np.zeros(3), 2)
+        with pytest.raises(IndexError):
+            edge_kernels.gap_pieces(bad, np.zeros(3), np.ones(3), 2, 1.0, 1)
+        with pytest.raises(IndexError):
+            edge_kernels.trim_ends(bad, np.zeros(3), np.ones(3), 2, 1.0, 1)
+        with pytest.raises(IndexError):
+            edge_kernels.inliers(rays, rays[:2], bad, np.ones(3))
+    with pytest.raises(ValueError):  # labels not sorted or not dense
+        edge_kernels.package(rays, rays[:2], np.array([1, 0, 0]), np.zeros(3), np.ones(3), 0.5)
+    with pytest.raises(ValueError):
+        edge_kernels.package(rays, rays[:3], np.array([0, 0, 2]), np.zeros(3), np.ones(3), 0.5)
+    with pytest.raises(ValueError):
+        edge_kernels.scatter(rays, np.ones(2), seg, 2)
+    with pytest.raises(IndexError):
+        edge_kernels.hypotheses(rays, np.array([[0, 3]]), np.array([[1, 2]]))
+    with pytest.raises(IndexError):
+        edge_kernels.merge_labels(rays, np.array([0, 1, 2]), seg, rays[:2], np.array([[0, 2]]),
+                                  1.0)
+
+
+# ---- tracking: the nearest edge point ---------------------------------------------------------
+
+
+def test_snap_finds_the_kd_trees_neighbours():
+    from scipy.spatial import cKDTree
+
+    rng = np.random.default_rng(5)
+    pts = rng.uniform(0, 300, (3000, 2))
+    pts[100:110] = pts[0]  # equal points: the lowest index
+    q = np.concatenate([pts[rng.integers(0, len(pts), 500)] + rng.normal(0, 2, (500, 2)),
+                        [[-50.0, -50.0], [1e5, 3.0], [np.nan, 1.0]]])
+    got = edge_kernels.snap(pts, q, 3.0)
+    dist, ref = cKDTree(pts).query(np.nan_to_num(q, nan=-1e9), distance_upper_bound=3.0)
+    ref = np.where(np.isfinite(dist), ref, -1)
+    assert got is not None and (got >= 0).sum() > 300
+    np.testing.assert_array_equal(got, ref)
+    assert edge_kernels.snap(pts[:0], q, 3.0).tolist() == [-1] * len(q)
+    # points too sparse for a grid: None (the caller's tree)
+    assert edge_kernels.snap(np.array([[0.0, 0.0], [1e6, 1e6]]), q, 3.0) is None

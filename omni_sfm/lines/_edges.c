@@ -543,6 +543,1026 @@ static PyObject *py_msac(PyObject *Py_UNUSED(self), PyObject *args)
     Py_RETURN_NONE;
 }
 
+/* ---- great-circle fits: scatter matrices, arc parameters, orderings, cuts, final fits ------ */
+
+/* The 3-vector dot product np.einsum("nk,nk->n", a, b) computes on this numpy (its SIMD sum of
+ * products: the products in lanes, the lanes summed x + z, then y, added to the output's zero),
+ * which is not the sum in order */
+static double dot3(const double *a, const double *b)
+{
+    double p0 = a[0] * b[0], p1 = a[1] * b[1], p2 = a[2] * b[2];
+    return ((p0 + p2) + p1) + 0.0;
+}
+
+/* ... and the one it computes where an operand is not contiguous (the normals of
+ * smallest_eigenvector, a view of eigh's output): the products summed in order */
+static double dot3_seq(const double *a, const double *b)
+{
+    return ((a[0] * b[0] + a[1] * b[1]) + a[2] * b[2]) + 0.0;
+}
+
+/* geometry.completion_towards for one normal: e1 = normalize(h - (h . n) n) (the sums of np.sum
+ * and np.linalg.norm over 3 values: in order), e2 = n x e1 (geometry.cross3) */
+static void completion(const double *n, const double *h, double *e1, double *e2)
+{
+    double d = ((h[0] * n[0] + h[1] * n[1]) + h[2] * n[2]) + 0.0;
+    double v[3];
+    for (int k = 0; k < 3; k++)
+        v[k] = h[k] - d * n[k];
+    double nrm = sqrt((v[0] * v[0] + v[1] * v[1]) + v[2] * v[2]);
+    for (int k = 0; k < 3; k++)
+        e1[k] = nrm > 0.0 ? v[k] / nrm : NAN;
+    e2[0] = n[1] * e1[2] - n[2] * e1[1];
+    e2[1] = n[2] * e1[0] - n[0] * e1[2];
+    e2[2] = n[0] * e1[1] - n[1] * e1[0];
+}
+
+/* np.minimum / np.maximum of float64 (NaN propagates) */
+static double nan_min(double a, double b) { return a != a || b != b ? NAN : (b < a ? b : a); }
+static double nan_max(double a, double b) { return a != a || b != b ? NAN : (b > a ? b : a); }
+
+/* extract._scatter: out (S, 3, 3) = sum over the points of each segment of w r r^T, each entry
+ * summed in point order from zero as np.bincount(seg, weights=(r_i w) r_j) does (w NULL: 1).
+ * -1 where a segment index is out of range (*bad). */
+static int scatter(Py_ssize_t N, Py_ssize_t S, const double *r, const double *w,
+                   const int64_t *seg, double *out, Py_ssize_t *bad)
+{
+    for (Py_ssize_t i = 0; i < 9 * S; i++)
+        out[i] = 0.0;
+    for (Py_ssize_t i = 0; i < N; i++) {
+        int64_t s = seg[i];
+        if (s < 0 || s >= S) {
+            *bad = i;
+            return -1;
+        }
+        const double *q = r + 3 * i;
+        double wi = w ? w[i] : 1.0;
+        double x = q[0] * wi, y = q[1] * wi, z = q[2] * wi;
+        double *o = out + 9 * s;
+        o[0] = o[0] + x * q[0];
+        o[1] = o[1] + x * q[1];
+        o[2] = o[2] + x * q[2];
+        o[4] = o[4] + y * q[1];
+        o[5] = o[5] + y * q[2];
+        o[8] = o[8] + z * q[2];
+    }
+    for (Py_ssize_t s = 0; s < S; s++) {
+        double *o = out + 9 * s;
+        o[3] = o[1];
+        o[6] = o[2];
+        o[7] = o[5];
+    }
+    return 0;
+}
+
+static PyObject *py_scatter(PyObject *Py_UNUSED(self), PyObject *args)
+{
+    Py_ssize_t N, S;
+    PyObject *o[4];
+    if (!PyArg_ParseTuple(args, "nnOOOO", &N, &S, &o[0], &o[1], &o[2], &o[3]))
+        return NULL;
+    if (!nonnegative("N", N) || !nonnegative("S", S))
+        return NULL;
+    int weighted = o[1] != Py_None;
+    PyObject *oo[4] = {o[0], weighted ? o[1] : o[0], o[2], o[3]};
+    Py_buffer b[4];
+    const Spec spec[4] = {
+        {"rays", 8, 3 * N, 0},
+        {"weight", 8, weighted ? N : 3 * N, 0},
+        {"seg", 8, N, 0},
+        {"out", 8, 9 * S, 1},
+    };
+    if (take_all(4, oo, spec, b) < 0)
+        return NULL;
+    int rc;
+    Py_ssize_t bad = -1;
+    Py_BEGIN_ALLOW_THREADS
+    rc = scatter(N, S, b[0].buf, weighted ? b[1].buf : NULL, b[2].buf, b[3].buf, &bad);
+    Py_END_ALLOW_THREADS
+    release_all(4, b);
+    if (rc < 0) {
+        PyErr_Format(PyExc_IndexError, "scatter: seg[%zd] out of range", bad);
+        return NULL;
+    }
+    Py_RETURN_NONE;
+}
+
+/* extract._arc_parameter up to its arctan2: per group the mean of its rays (np.bincount's sums),
+ * the basis (e1, e2) of completion_towards(n, mean), and per point y = r . e2, x = r . e1
+ * (einsum's sums). -1 where a group index is out of range (*bad), -2 out of memory. */
+static int arc_xy(Py_ssize_t N, Py_ssize_t G, const double *r, const double *n,
+                  const int64_t *group, double *y, double *x, Py_ssize_t *bad)
+{
+    double *mean = calloc((size_t)(G > 0 ? G : 1) * 9, sizeof(double));
+    if (mean == NULL)
+        return -2;
+    double *e1 = mean + 3 * G, *e2 = mean + 6 * G;
+    for (Py_ssize_t i = 0; i < N; i++) {
+        int64_t g = group[i];
+        if (g < 0 || g >= G) {
+            free(mean);
+            *bad = i;
+            return -1;
+        }
+        for (int k = 0; k < 3; k++)
+            mean[3 * g + k] = mean[3 * g + k] + r[3 * i + k];
+    }
+    for (Py_ssize_t g = 0; g < G; g++)
+        completion(n + 3 * g, mean + 3 * g, e1 + 3 * g, e2 + 3 * g);
+    for (Py_ssize_t i = 0; i < N; i++) {
+        int64_t g = group[i];
+        y[i] = dot3(r + 3 * i, e2 + 3 * g);
+        x[i] = dot3(r + 3 * i, e1 + 3 * g);
+    }
+    free(mean);
+    return 0;
+}
+
+static PyObject *py_arc_xy(PyObject *Py_UNUSED(self), PyObject *args)
+{
+    Py_ssize_t N, G;
+    PyObject *o[5];
+    if (!PyArg_ParseTuple(args, "nnOOOOO", &N, &G, &o[0], &o[1], &o[2], &o[3], &o[4]))
+        return NULL;
+    if (!nonnegative("N", N) || !nonnegative("G", G))
+        return NULL;
+    Py_buffer b[5];
+    const Spec spec[5] = {
+        {"rays", 8, 3 * N, 0}, {"normals", 8, 3 * G, 0}, {"group", 8, N, 0},
+        {"y", 8, N, 1},        {"x", 8, N, 1},
+    };
+    if (take_all(5, o, spec, b) < 0)
+        return NULL;
+    int rc;
+    Py_ssize_t bad = -1;
+    Py_BEGIN_ALLOW_THREADS
+    rc = arc_xy(N, G, b[0].buf, b[1].buf, b[2].buf, b[3].buf, b[4].buf, &bad);
+    Py_END_ALLOW_THREADS
+    release_all(5, b);
+    if (rc == -2)
+        return PyErr_NoMemory();
+    if (rc < 0) {
+        PyErr_Format(PyExc_IndexError, "arc_xy: group[%zd] out of range", bad);
+        return NULL;
+    }
+    Py_RETURN_NONE;
+}
+
+/* t[a] before t[b] in numpy's sort order (NaN last) */
+static int t_less(const double *t, int64_t a, int64_t b)
+{
+    double x = t[a], y = t[b];
+    return x < y || (x == x && y != y);
+}
+
+/* stable merge sort of the indices a[0..n) by t (tmp: n items) */
+static void merge_sort(int64_t *a, int64_t *tmp, Py_ssize_t n, const double *t)
+{
+    if (n <= 16) {
+        for (Py_ssize_t i = 1; i < n; i++) {
+            int64_t v = a[i];
+            Py_ssize_t j = i;
+            while (j > 0 && t_less(t, v, a[j - 1])) {
+                a[j] = a[j - 1];
+                j--;
+            }
+            a[j] = v;
+        }
+        return;
+    }
+    Py_ssize_t h = n / 2;
+    merge_sort(a, tmp, h, t);
+    merge_sort(a + h, tmp, n - h, t);
+    if (!t_less(t, a[h], a[h - 1]))
+        return;
+    memcpy(tmp, a, (size_t)h * sizeof(int64_t));
+    Py_ssize_t i = 0, j = h, k = 0;
+    while (i < h && j < n)
+        a[k++] = t_less(t, a[j], tmp[i]) ? a[j++] : tmp[i++];
+    while (i < h)
+        a[k++] = tmp[i++];
+}
+
+/* extract._order_by: the order by key (0..K-1), then by t (NaN last), then by index: a
+ * counting sort by key, then a stable sort by t within each key. -1 where a key is out of
+ * range (*bad), -2 out of memory. */
+static int order_by(Py_ssize_t N, Py_ssize_t K, const int64_t *key, const double *t,
+                    int64_t *order, Py_ssize_t *bad)
+{
+    int64_t *start = calloc((size_t)K + 1, sizeof(int64_t));
+    int64_t *tmp = malloc((size_t)(N > 0 ? N : 1) * sizeof(int64_t));
+    if (start == NULL || tmp == NULL) {
+        free(start);
+        free(tmp);
+        return -2;
+    }
+    for (Py_ssize_t i = 0; i < N; i++) {
+        if (key[i] < 0 || key[i] >= K) {
+            free(start);
+            free(tmp);
+            *bad = i;
+            return -1;
+        }
+        start[key[i] + 1]++;
+    }
+    for (Py_ssize_t k = 0; k < K; k++)
+        start[k + 1] += start[k];
+    for (Py_ssize_t i = 0; i < N; i++)
+        tmp[start[key[i]]++] = i; /* start[k] becomes the end of key k */
+    memcpy(order, tmp, (size_t)N * sizeof(int64_t));
+    for (Py_ssize_t k = 0, a = 0; k < K; k++) {
+        merge_sort(order + a, tmp, start[k] - a, t);
+        a = start[k];
+    }
+    free(start);
+    free(tmp);
+    return 0;
+}
+
+static PyObject *py_order_by(PyObject *Py_UNUSED(self), PyObject *args)
+{
+    Py_ssize_t N, K;
+    PyObject *o[3];
+    if (!PyArg_ParseTuple(args, "nnOOO", &N, &K, &o[0], &o[1], &o[2]))
+        return NULL;
+    if (!nonnegative("N", N) || !nonnegative("K", K))
+        return NULL;
+    Py_buffer b[3];
+    const Spec spec[3] = {{"key", 8, N, 0}, {"t", 8, N, 0}, {"order", 8, N, 1}};
+    if (take_all(3, o, spec, b) < 0)
+        return NULL;
+    int rc;
+    Py_ssize_t bad = -1;
+    Py_BEGIN_ALLOW_THREADS
+    rc = order_by(N, K, b[0].buf, b[1].buf, b[2].buf, &bad);
+    Py_END_ALLOW_THREADS
+    release_all(3, b);
+    if (rc == -2)
+        return PyErr_NoMemory();
+    if (rc < 0) {
+        PyErr_Format(PyExc_IndexError, "order_by: key[%zd] out of range", bad);
+        return NULL;
+    }
+    Py_RETURN_NONE;
+}
+
+/* LineExtractor._split_gaps after the arc parameters: the points in the order by segment, then
+ * t; cut where the segment changes or t steps by more than max_gap * s (s of the later point);
+ * the pieces of at least min_points points kept: their points' positions in the input (pos),
+ * their piece (0..P-1, in order) and each piece's segment (piece_seg). Returns the number of
+ * kept points and *npieces; -1 where a segment is out of range (*bad), -2 out of memory. */
+static Py_ssize_t gap_pieces(Py_ssize_t N, Py_ssize_t K, const int64_t *seg, const double *t,
+                             const double *s, double max_gap, int64_t min_points, int64_t *pos,
+                             int64_t *piece, int64_t *piece_seg, Py_ssize_t *npieces,
+                             Py_ssize_t *bad)
+{
+    int64_t *order = malloc((size_t)(N > 0 ? N : 1) * sizeof(int64_t));
+    if (order == NULL)
+        return -2;
+    int rc = order_by(N, K, seg, t, order, bad);
+    if (rc < 0) {
+        free(order);
+        return rc;
+    }
+    Py_ssize_t n = 0, np = 0;
+    for (Py_ssize_t a = 0; a < N;) {
+        Py_ssize_t e = a + 1;
+        while (e < N && seg[order[e]] == seg[order[e - 1]] &&
+               !(t[order[e]] - t[order[e - 1]] > max_gap * s[order[e]]))
+            e++;
+        if (e - a >= min_points) {
+            for (Py_ssize_t k = a; k < e; k++) {
+                pos[n] = order[k];
+                piece[n++] = np;
+            }
+            piece_seg[np++] = seg[order[a]];
+        }
+        a = e;
+    }
+    free(order);
+    *npieces = np;
+    return n;
+}
+
+static PyObject *py_gap_pieces(PyObject *Py_UNUSED(self), PyObject *args)
+{
+    Py_ssize_t N, K;
+    double max_gap;
+    long long min_points;
+    PyObject *o[6];
+    if (!PyArg_ParseTuple(args, "nnOOOdLOOO", &N, &K, &o[0], &o[1], &o[2], &max_gap,
+                          &min_points, &o[3], &o[4], &o[5]))
+        return NULL;
+    if (!nonnegative("N", N) || !nonnegative("K", K))
+        return NULL;
+    Py_buffer b[6];
+    const Spec spec[6] = {
+        {"seg", 8, N, 0}, {"t", 8, N, 0},     {"s", 8, N, 0},
+        {"pos", 8, N, 1}, {"piece", 8, N, 1}, {"piece_seg", 8, N, 1},
+    };
+    if (take_all(6, o, spec, b) < 0)
+        return NULL;
+    Py_ssize_t n, np = 0, bad = -1;
+    Py_BEGIN_ALLOW_THREADS
+    n = gap_pieces(N, K, b[0].buf, b[1].buf, b[2].buf, max_gap, (int64_t)min_points, b[3].buf,
+                   b[4].buf, b[5].buf, &np, &bad);
+    Py_END_ALLOW_THREADS
+    release_all(6, b);
+    if (n == -2)
+        return PyErr_NoMemory();
+    if (n < 0) {
+        PyErr_Format(PyExc_IndexError, "gap_pieces: seg[%zd] out of range", bad);
+        return NULL;
+    }
+    return Py_BuildValue("nn", n, np);
+}
+
+/* LineExtractor._trim_ends after the arc parameters: a point is kept where it lies more than
+ * trim * s (its own s) from both ends (min and max of t over its line, lab 0..L-1) and its
+ * line keeps at least min_points points. Writes the kept points' positions (in input order)
+ * and their lines renumbered 0.. among the lines kept; returns how many, -1 where a label is
+ * out of range (*bad), -2 out of memory. */
+static Py_ssize_t trim_ends(Py_ssize_t N, Py_ssize_t L, const int64_t *lab, const double *t,
+                            const double *s, double trim, int64_t min_points, int64_t *pos,
+                            int64_t *new_lab, Py_ssize_t *bad)
+{
+    double *lo = malloc((size_t)(L > 0 ? L : 1) * 2 * sizeof(double));
+    int64_t *cnt = calloc((size_t)(L > 0 ? L : 1), sizeof(int64_t));
+    if (lo == NULL || cnt == NULL) {
+        free(lo);
+        free(cnt);
+        return -2;
+    }
+    double *hi = lo + L;
+    for (Py_ssize_t l = 0; l < L; l++) {
+        lo[l] = INFINITY;
+        hi[l] = -INFINITY;
+    }
+    for (Py_ssize_t i = 0; i < N; i++) {
+        int64_t l = lab[i];
+        if (l < 0 || l >= L) {
+            free(lo);
+            free(cnt);
+            *bad = i;
+            return -1;
+        }
+        lo[l] = nan_min(lo[l], t[i]);
+        hi[l] = nan_max(hi[l], t[i]);
+    }
+    for (Py_ssize_t i = 0; i < N; i++) {
+        double lim = trim * s[i];
+        if (t[i] - lo[lab[i]] > lim && hi[lab[i]] - t[i] > lim)
+            cnt[lab[i]]++;
+    }
+    /* cnt: the new label of a kept line, -1 for a dropped one */
+    int64_t nl = 0;
+    for (Py_ssize_t l = 0; l < L; l++)
+        cnt[l] = cnt[l] >= min_points ? nl++ : -1;
+    Py_ssize_t n = 0;
+    for (Py_ssize_t i = 0; i < N; i++) {
+        int64_t l = lab[i];
+        double lim = trim * s[i];
+        if (cnt[l] >= 0 && t[i] - lo[l] > lim && hi[l] - t[i] > lim) {
+            pos[n] = i;
+            new_lab[n++] = cnt[l];
+        }
+    }
+    free(lo);
+    free(cnt);
+    return n;
+}
+
+static PyObject *py_trim_ends(PyObject *Py_UNUSED(self), PyObject *args)
+{
+    Py_ssize_t N, L;
+    double trim;
+    long long min_points;
+    PyObject *o[5];
+    if (!PyArg_ParseTuple(args, "nnOOOdLOO", &N, &L, &o[0], &o[1], &o[2], &trim, &min_points,
+                          &o[3], &o[4]))
+        return NULL;
+    if (!nonnegative("N", N) || !nonnegative("L", L))
+        return NULL;
+    Py_buffer b[5];
+    const Spec spec[5] = {
+        {"lab", 8, N, 0}, {"t", 8, N, 0}, {"s", 8, N, 0}, {"pos", 8, N, 1}, {"new_lab", 8, N, 1},
+    };
+    if (take_all(5, o, spec, b) < 0)
+        return NULL;
+    Py_ssize_t n, bad = -1;
+    Py_BEGIN_ALLOW_THREADS
+    n = trim_ends(N, L, b[0].buf, b[1].buf, b[2].buf, trim, (int64_t)min_points, b[3].buf,
+                  b[4].buf, &bad);
+    Py_END_ALLOW_THREADS
+    release_all(5, b);
+    if (n == -2)
+        return PyErr_NoMemory();
+    if (n < 0) {
+        PyErr_Format(PyExc_IndexError, "trim_ends: lab[%zd] out of range", bad);
+        return NULL;
+    }
+    return PyLong_FromSsize_t(n);
+}
+
+/* LineExtractor._package's per-line figures, for points sorted by line (lab 0..L-1, each line
+ * present, t, rays r and pixel angles s in that order) and the lines' normals: point counts,
+ * end rays projected onto the circle and normalised, RMS residual (px), arc (t of the last
+ * point minus the first's), mean s, and the NV sigmas along the middle ray and across it
+ * (edge noise ``noise`` px). Every sum in point order from zero (np.bincount), the dot
+ * products einsum's. -1 where the labels are not sorted, dense and in range (*bad). */
+static int package(Py_ssize_t N, Py_ssize_t L, const double *r, const double *nrm,
+                   const int64_t *lab, const double *t, const double *s, double noise,
+                   int64_t *sizes, double *ends, double *resid, double *arc,
+                   double *mean_scale, double *sigma, Py_ssize_t *bad)
+{
+    Py_ssize_t a = 0;
+    for (Py_ssize_t l = 0; l < L; l++) {
+        if (a >= N || lab[a] != l) {
+            *bad = a;
+            return -1;
+        }
+        Py_ssize_t e = a + 1;
+        while (e < N && lab[e] == l)
+            e++;
+        if (e < N && lab[e] != l + 1) {
+            *bad = e;
+            return -1;
+        }
+        const double *n = nrm + 3 * l;
+        double *en = ends + 6 * l;
+        for (int q = 0; q < 2; q++) {
+            const double *p = r + 3 * (q ? e - 1 : a);
+            double *v = en + 3 * q;
+            double d = dot3_seq(p, n); /* (the normals were eigh's view) */
+            for (int k = 0; k < 3; k++)
+                v[k] = p[k] - d * n[k];
+            double len = sqrt((v[0] * v[0] + v[1] * v[1]) + v[2] * v[2]);
+            for (int k = 0; k < 3; k++)
+                v[k] = v[k] / len;
+        }
+        double px2 = 0.0, ssum = 0.0;
+        for (Py_ssize_t i = a; i < e; i++) {
+            double px = fabs(dot3(r + 3 * i, n)) / s[i];
+            px2 = px2 + px * px;
+            ssum = ssum + s[i];
+        }
+        double size = (double)(e - a);
+        sizes[l] = e - a;
+        resid[l] = sqrt(px2 / size);
+        arc[l] = t[e - 1] - t[a];
+        mean_scale[l] = ssum / size;
+        double hint[3], m[3], tdir[3];
+        for (int k = 0; k < 3; k++)
+            hint[k] = en[k] + en[3 + k];
+        completion(n, hint, m, tdir);
+        double info_m = 0.0, info_t = 0.0;
+        for (Py_ssize_t i = a; i < e; i++) {
+            double ns = noise * s[i];
+            double w = 1.0 / (ns * ns);
+            double dm = dot3(r + 3 * i, m), dt = dot3(r + 3 * i, tdir);
+            info_m = info_m + w * (dm * dm);
+            info_t = info_t + w * (dt * dt);
+        }
+        sigma[2 * l] = 1.0 / sqrt(nan_max(info_m, 1e-300));
+        sigma[2 * l + 1] = 1.0 / sqrt(nan_max(info_t, 1e-300));
+        a = e;
+    }
+    if (a != N) {
+        *bad = a;
+        return -1;
+    }
+    return 0;
+}
+
+static PyObject *py_package(PyObject *Py_UNUSED(self), PyObject *args)
+{
+    Py_ssize_t N, L;
+    double noise;
+    PyObject *o[11];
+    if (!PyArg_ParseTuple(args, "nnOOOOOdOOOOOO", &N, &L, &o[0], &o[1], &o[2], &o[3], &o[4],
+                          &noise, &o[5], &o[6], &o[7], &o[8], &o[9], &o[10]))
+        return NULL;
+    if (!nonnegative("N", N) || !nonnegative("L", L))
+        return NULL;
+    Py_buffer b[11];
+    const Spec spec[11] = {
+        {"rays", 8, 3 * N, 0}, {"normals", 8, 3 * L, 0}, {"lab", 8, N, 0},
+        {"t", 8, N, 0},        {"s", 8, N, 0},           {"sizes", 8, L, 1},
+        {"ends", 8, 6 * L, 1}, {"resid", 8, L, 1},       {"arc", 8, L, 1},
+        {"mean_scale", 8, L, 1}, {"sigma", 8, 2 * L, 1},
+    };
+    if (take_all(11, o, spec, b) < 0)
+        return NULL;
+    int rc;
+    Py_ssize_t bad = -1;
+    Py_BEGIN_ALLOW_THREADS
+    rc = package(N, L, b[0].buf, b[1].buf, b[2].buf, b[3].buf, b[4].buf, noise, b[5].buf,
+                 b[6].buf, b[7].buf, b[8].buf, b[9].buf, b[10].buf, &bad);
+    Py_END_ALLOW_THREADS
+    release_all(11, b);
+    if (rc < 0) {
+        PyErr_Format(PyExc_ValueError, "package: the labels must be sorted and take every "
+                     "value 0..%zd (at point %zd)", L - 1, bad);
+        return NULL;
+    }
+    Py_RETURN_NONE;
+}
+
+/* LineExtractor._ransac's inlier test: |r . n[seg]| < tol (einsum's dot product) per point,
+ * and the inliers' count per segment (float64, as np.bincount with the mask as weights). -1
+ * where a segment index is out of range (*bad). */
+static int inliers(Py_ssize_t N, Py_ssize_t S, const double *r, const double *n,
+                   const int64_t *seg, const double *tol, uint8_t *inl, double *count,
+                   Py_ssize_t *bad)
+{
+    for (Py_ssize_t s = 0; s < S; s++)
+        count[s] = 0.0;
+    for (Py_ssize_t i = 0; i < N; i++) {
+        int64_t s = seg[i];
+        if (s < 0 || s >= S) {
+            *bad = i;
+            return -1;
+        }
+        int in = fabs(dot3(r + 3 * i, n + 3 * s)) < tol[i];
+        inl[i] = (uint8_t)in;
+        count[s] = count[s] + (double)in;
+    }
+    return 0;
+}
+
+static PyObject *py_inliers(PyObject *Py_UNUSED(self), PyObject *args)
+{
+    Py_ssize_t N, S;
+    PyObject *o[6];
+    if (!PyArg_ParseTuple(args, "nnOOOOOO", &N, &S, &o[0], &o[1], &o[2], &o[3], &o[4], &o[5]))
+        return NULL;
+    if (!nonnegative("N", N) || !nonnegative("S", S))
+        return NULL;
+    Py_buffer b[6];
+    const Spec spec[6] = {
+        {"rays", 8, 3 * N, 0}, {"normals", 8, 3 * S, 0}, {"seg", 8, N, 0},
+        {"tol", 8, N, 0},      {"inl", 1, N, 1},         {"count", 8, S, 1},
+    };
+    if (take_all(6, o, spec, b) < 0)
+        return NULL;
+    int rc;
+    Py_ssize_t bad = -1;
+    Py_BEGIN_ALLOW_THREADS
+    rc = inliers(N, S, b[0].buf, b[1].buf, b[2].buf, b[3].buf, b[4].buf, b[5].buf, &bad);
+    Py_END_ALLOW_THREADS
+    release_all(6, b);
+    if (rc < 0) {
+        PyErr_Format(PyExc_IndexError, "inliers: seg[%zd] out of range", bad);
+        return NULL;
+    }
+    Py_RETURN_NONE;
+}
+
+/* numpy's float64 pairwise sum (pairwise_sum above, in double) */
+static double pairwise_sum_d(const double *a, Py_ssize_t n, Py_ssize_t s)
+{
+    if (n < 8) {
+        double res = -0.0;
+        for (Py_ssize_t i = 0; i < n; i++)
+            res = res + a[i * s];
+        return res;
+    }
+    if (n <= 128) {
+        double r[8];
+        for (int j = 0; j < 8; j++)
+            r[j] = a[j * s];
+        Py_ssize_t i;
+        for (i = 8; i < n - (n % 8); i += 8)
+            for (int j = 0; j < 8; j++)
+                r[j] = r[j] + a[(i + j) * s];
+        double res = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]));
+        for (; i < n; i++)
+            res = res + a[i * s];
+        return res;
+    }
+    Py_ssize_t n2 = n / 2;
+    n2 -= n2 % 8;
+    return pairwise_sum_d(a, n2, s) + pairwise_sum_d(a + n2 * s, n - n2, s);
+}
+
+/* LineExtractor._merge's arc coordinates: for each candidate pair (i, j) of pieces
+ * (cand (C, 2)), the rays of piece i, then (after all pairs) those of piece j, each piece's
+ * points in index order (idx of the points with label lab 0..L-1), in the basis of the circle
+ * of piece i (completion_towards(normal_i, mean ray of piece i: np.add.reduceat's sum, the
+ * first ray plus numpy's pairwise sum of the others, over the count)): y = r . e2, x = r . e1
+ * (einsum's sums), T = sum of both sides' counts. -1 where an index is out of range (*bad:
+ * points, then pairs), -2 out of memory. */
+static int merge_xy(Py_ssize_t R, const double *rays, Py_ssize_t M, const int64_t *idx,
+                    const int64_t *lab, Py_ssize_t L, const double *normals, Py_ssize_t C,
+                    const int64_t *cand, Py_ssize_t T, double *y, double *x, Py_ssize_t *bad)
+{
+    int64_t *first = calloc((size_t)L + 1, sizeof(int64_t));
+    int64_t *pts = malloc((size_t)(M > 0 ? M : 1) * sizeof(int64_t));
+    double *buf = malloc((size_t)(M > 0 ? M : 1) * 3 * sizeof(double));
+    if (first == NULL || pts == NULL || buf == NULL) {
+        free(first);
+        free(pts);
+        free(buf);
+        return -2;
+    }
+    int rc = 0;
+    for (Py_ssize_t i = 0; i < M; i++) {
+        if (lab[i] < 0 || lab[i] >= L || idx[i] < 0 || idx[i] >= R) {
+            *bad = i;
+            rc = -1;
+            goto done;
+        }
+        first[lab[i] + 1]++;
+    }
+    for (Py_ssize_t l = 0; l < L; l++)
+        first[l + 1] += first[l];
+    {
+        /* the points by piece, each piece's in index order (a stable counting sort) */
+        int64_t *fill = malloc((size_t)(L > 0 ? L : 1) * sizeof(int64_t));
+        if (fill == NULL) {
+            rc = -2;
+            goto done;
+        }
+        memcpy(fill, first, (size_t)L * sizeof(int64_t));
+        for (Py_ssize_t i = 0; i < M; i++)
+            pts[fill[lab[i]]++] = idx[i];
+        free(fill);
+    }
+    Py_ssize_t total = 0;
+    for (Py_ssize_t c = 0; c < C; c++)
+        for (int side = 0; side < 2; side++) {
+            int64_t p = cand[2 * c + side];
+            if (p < 0 || p >= L) {
+                *bad = M + c;
+                rc = -1;
+                goto done;
+            }
+            total += first[p + 1] - first[p];
+        }
+    if (total != T) {
+        *bad = -1;
+        rc = -1;
+        goto done;
+    }
+    Py_ssize_t o1 = 0, o2 = 0;
+    for (Py_ssize_t c = 0; c < C; c++) {
+        int64_t pi = cand[2 * c];
+        o2 += first[pi + 1] - first[pi];
+    }
+    for (Py_ssize_t c = 0; c < C; c++) {
+        int64_t pi = cand[2 * c], pj = cand[2 * c + 1];
+        Py_ssize_t ni = first[pi + 1] - first[pi], nj = first[pj + 1] - first[pj];
+        for (Py_ssize_t k = 0; k < ni; k++)
+            memcpy(buf + 3 * k, rays + 3 * pts[first[pi] + k], 3 * sizeof(double));
+        double mean[3], e1[3], e2[3];
+        for (int k = 0; k < 3; k++)
+            mean[k] = (buf[k] + pairwise_sum_d(buf + 3 + k, ni - 1, 3)) / (double)ni;
+        completion(normals + 3 * pi, mean, e1, e2);
+        for (Py_ssize_t k = 0; k < ni; k++, o1++) {
+            y[o1] = dot3(buf + 3 * k, e2);
+            x[o1] = dot3(buf + 3 * k, e1);
+        }
+        for (Py_ssize_t k = 0; k < nj; k++, o2++) {
+            const double *r = rays + 3 * pts[first[pj] + k];
+            y[o2] = dot3(r, e2);
+            x[o2] = dot3(r, e1);
+        }
+    }
+done:
+    free(first);
+    free(pts);
+    free(buf);
+    return rc;
+}
+
+static PyObject *py_merge_xy(PyObject *Py_UNUSED(self), PyObject *args)
+{
+    Py_ssize_t R, M, L, C, T;
+    PyObject *o[7];
+    if (!PyArg_ParseTuple(args, "nnnnnOOOOOOO", &R, &M, &L, &C, &T, &o[0], &o[1], &o[2], &o[3],
+                          &o[4], &o[5], &o[6]))
+        return NULL;
+    if (!nonnegative("R", R) || !nonnegative("M", M) || !nonnegative("L", L) ||
+        !nonnegative("C", C) || !nonnegative("T", T))
+        return NULL;
+    Py_buffer b[7];
+    const Spec spec[7] = {
+        {"rays", 8, 3 * R, 0}, {"idx", 8, M, 0}, {"lab", 8, M, 0}, {"normals", 8, 3 * L, 0},
+        {"cand", 8, 2 * C, 0}, {"y", 8, T, 1},   {"x", 8, T, 1},
+    };
+    if (take_all(7, o, spec, b) < 0)
+        return NULL;
+    int rc;
+    Py_ssize_t bad = -1;
+    Py_BEGIN_ALLOW_THREADS
+    rc = merge_xy(R, b[0].buf, M, b[1].buf, b[2].buf, L, b[3].buf, C, b[4].buf, T, b[5].buf,
+                  b[6].buf, &bad);
+    Py_END_ALLOW_THREADS
+    release_all(7, b);
+    if (rc == -2)
+        return PyErr_NoMemory();
+    if (rc < 0) {
+        if (bad < 0)
+            PyErr_SetString(PyExc_ValueError, "merge_xy: T is not the pairs' point count");
+        else if (bad < M)
+            PyErr_Format(PyExc_IndexError, "merge_xy: idx or lab [%zd] out of range", bad);
+        else
+            PyErr_Format(PyExc_IndexError, "merge_xy: cand[%zd] out of range", bad - M);
+        return NULL;
+    }
+    Py_RETURN_NONE;
+}
+
+static int64_t find_halving(int64_t *parent, int64_t i)
+{
+    while (parent[i] != i) {
+        parent[i] = parent[parent[i]];
+        i = parent[i];
+    }
+    return i;
+}
+
+/* LineExtractor._merge's joins: with t the arc parameters merge_xy's coordinates give (its
+ * layout), each pair's gap max(lo_j - hi_i, lo_i - hi_j) (np.minimum/maximum: NaN
+ * propagates); the pairs with 0 <= gap <= max_gap joined in order by parent[find(i)] =
+ * find(j) (path halving) and each piece's new label the rank of its root among the roots
+ * (np.unique's inverse). The piece sizes come from lab (M points, 0..L-1). -1 where an index
+ * is out of range or T wrong (*bad), -2 out of memory. */
+static int merge_join(Py_ssize_t M, const int64_t *lab, Py_ssize_t L, Py_ssize_t C,
+                      const int64_t *cand, Py_ssize_t T, const double *t, double max_gap,
+                      int64_t *new_lab, Py_ssize_t *bad)
+{
+    int64_t *size = calloc((size_t)(L > 0 ? L : 1) * 2, sizeof(int64_t));
+    if (size == NULL)
+        return -2;
+    int64_t *parent = size + L;
+    for (Py_ssize_t i = 0; i < M; i++) {
+        if (lab[i] < 0 || lab[i] >= L) {
+            free(size);
+            *bad = i;
+            return -1;
+        }
+        size[lab[i]]++;
+    }
+    Py_ssize_t total = 0;
+    for (Py_ssize_t c = 0; c < 2 * C; c++) {
+        if (cand[c] < 0 || cand[c] >= L) {
+            free(size);
+            *bad = M + c / 2;
+            return -1;
+        }
+        total += size[cand[c]];
+    }
+    if (total != T) {
+        free(size);
+        *bad = -1;
+        return -1;
+    }
+    for (Py_ssize_t l = 0; l < L; l++)
+        parent[l] = l;
+    Py_ssize_t o1 = 0, o2 = 0;
+    for (Py_ssize_t c = 0; c < C; c++)
+        o2 += size[cand[2 * c]];
+    for (Py_ssize_t c = 0; c < C; c++) {
+        int64_t pi = cand[2 * c], pj = cand[2 * c + 1];
+        double lo_i = t[o1], hi_i = t[o1], lo_j = t[o2], hi_j = t[o2];
+        for (int64_t k = 1; k < size[pi]; k++) {
+            lo_i = nan_min(lo_i, t[o1 + k]);
+            hi_i = nan_max(hi_i, t[o1 + k]);
+        }
+        for (int64_t k = 1; k < size[pj]; k++) {
+            lo_j = nan_min(lo_j, t[o2 + k]);
+            hi_j = nan_max(hi_j, t[o2 + k]);
+        }
+        o1 += size[pi];
+        o2 += size[pj];
+        double gap = nan_max(lo_j - hi_i, lo_i - hi_j);
+        if (gap >= 0.0 && gap <= max_gap)
+            parent[find_halving(parent, pi)] = find_halving(parent, pj);
+    }
+    /* rank of each root: count the roots below it */
+    for (Py_ssize_t l = 0; l < L; l++)
+        new_lab[l] = find_halving(parent, l);
+    int64_t *rank = size; /* reused: 1 where l is a root, then the prefix counts */
+    for (Py_ssize_t l = 0; l < L; l++)
+        rank[l] = 0;
+    for (Py_ssize_t l = 0; l < L; l++)
+        rank[new_lab[l]] = 1;
+    for (Py_ssize_t l = 0, k = 0; l < L; l++) {
+        int64_t is_root = rank[l];
+        rank[l] = k;
+        k += is_root;
+    }
+    for (Py_ssize_t l = 0; l < L; l++)
+        new_lab[l] = rank[new_lab[l]];
+    free(size);
+    return 0;
+}
+
+static PyObject *py_merge_join(PyObject *Py_UNUSED(self), PyObject *args)
+{
+    Py_ssize_t M, L, C, T;
+    double max_gap;
+    PyObject *o[4];
+    if (!PyArg_ParseTuple(args, "nnnnOOOdO", &M, &L, &C, &T, &o[0], &o[1], &o[2], &max_gap,
+                          &o[3]))
+        return NULL;
+    if (!nonnegative("M", M) || !nonnegative("L", L) || !nonnegative("C", C) ||
+        !nonnegative("T", T))
+        return NULL;
+    Py_buffer b[4];
+    const Spec spec[4] = {
+        {"lab", 8, M, 0}, {"cand", 8, 2 * C, 0}, {"t", 8, T, 0}, {"new_lab", 8, L, 1},
+    };
+    if (take_all(4, o, spec, b) < 0)
+        return NULL;
+    int rc;
+    Py_ssize_t bad = -1;
+    Py_BEGIN_ALLOW_THREADS
+    rc = merge_join(M, b[0].buf, L, C, b[1].buf, T, b[2].buf, max_gap, b[3].buf, &bad);
+    Py_END_ALLOW_THREADS
+    release_all(4, b);
+    if (rc == -2)
+        return PyErr_NoMemory();
+    if (rc < 0) {
+        if (bad < 0)
+            PyErr_SetString(PyExc_ValueError, "merge_join: T is not the pairs' point count");
+        else if (bad < M)
+            PyErr_Format(PyExc_IndexError, "merge_join: lab[%zd] out of range", bad);
+        else
+            PyErr_Format(PyExc_IndexError, "merge_join: cand[%zd] out of range", bad - M);
+        return NULL;
+    }
+    Py_RETURN_NONE;
+}
+
+/* LineExtractor._ransac's hypotheses: for the pairs of points (ia, ib) (S, H) the normal
+ * r_a x r_b (np.cross) over its norm (np.linalg.norm; a zero norm divides by 1) rounded to
+ * float32, written as (3, S, H) (x, y, z planes), and whether the norm is under 1e-9. -1 where
+ * an index is out of range (*bad). */
+static int hypotheses(Py_ssize_t N, Py_ssize_t S, Py_ssize_t H, const double *r,
+                      const int64_t *ia, const int64_t *ib, float *hyp, uint8_t *degenerate,
+                      Py_ssize_t *bad)
+{
+    Py_ssize_t SH = S * H;
+    for (Py_ssize_t k = 0; k < SH; k++) {
+        int64_t i = ia[k], j = ib[k];
+        if (i < 0 || i >= N || j < 0 || j >= N) {
+            *bad = k;
+            return -1;
+        }
+        const double *a = r + 3 * i, *b = r + 3 * j;
+        double c0 = a[1] * b[2] - a[2] * b[1];
+        double c1 = a[2] * b[0] - a[0] * b[2];
+        double c2 = a[0] * b[1] - a[1] * b[0];
+        double hn = sqrt((c0 * c0 + c1 * c1) + c2 * c2);
+        degenerate[k] = hn < 1e-9;
+        double d = hn > 0.0 ? hn : 1.0;
+        hyp[k] = (float)(c0 / d);
+        hyp[SH + k] = (float)(c1 / d);
+        hyp[2 * SH + k] = (float)(c2 / d);
+    }
+    return 0;
+}
+
+static PyObject *py_hypotheses(PyObject *Py_UNUSED(self), PyObject *args)
+{
+    Py_ssize_t N, S, H;
+    PyObject *o[5];
+    if (!PyArg_ParseTuple(args, "nnnOOOOO", &N, &S, &H, &o[0], &o[1], &o[2], &o[3], &o[4]))
+        return NULL;
+    if (!nonnegative("N", N) || !nonnegative("S", S) || !nonnegative("H", H))
+        return NULL;
+    Py_buffer b[5];
+    const Spec spec[5] = {
+        {"rays", 8, 3 * N, 0}, {"ia", 8, S * H, 0}, {"ib", 8, S * H, 0},
+        {"hyp", 4, 3 * S * H, 1}, {"degenerate", 1, S * H, 1},
+    };
+    if (take_all(5, o, spec, b) < 0)
+        return NULL;
+    int rc;
+    Py_ssize_t bad = -1;
+    Py_BEGIN_ALLOW_THREADS
+    rc = hypotheses(N, S, H, b[0].buf, b[1].buf, b[2].buf, b[3].buf, b[4].buf, &bad);
+    Py_END_ALLOW_THREADS
+    release_all(5, b);
+    if (rc < 0) {
+        PyErr_Format(PyExc_IndexError, "hypotheses: pair %zd out of range", bad);
+        return NULL;
+    }
+    Py_RETURN_NONE;
+}
+
+/* ---- tracking: the nearest edge point -------------------------------------------------------- */
+
+/* For each query (x, y) the nearest of the points P (M, 2) within ``radius`` (squared distance
+ * dx^2 + dy^2 < radius^2; of equal distances the lowest index), -1 where none is: what
+ * LineTracker's KD-tree query gave, from a grid of cells ``radius`` wide (the 3x3 cells around
+ * the query's hold every point within the radius). -2 out of memory. */
+static int snap(Py_ssize_t M, const double *P, Py_ssize_t K, const double *Q, double radius,
+                int64_t *nearest)
+{
+    if (M == 0 || !(radius > 0.0)) {
+        for (Py_ssize_t k = 0; k < K; k++)
+            nearest[k] = -1;
+        return 0;
+    }
+    double x0 = P[0], y0 = P[1], x1 = P[0], y1 = P[1];
+    for (Py_ssize_t i = 1; i < M; i++) {
+        double x = P[2 * i], y = P[2 * i + 1];
+        x0 = x < x0 ? x : x0;
+        x1 = x > x1 ? x : x1;
+        y0 = y < y0 ? y : y0;
+        y1 = y > y1 ? y : y1;
+    }
+    if (!(x1 - x0 < 1e6 * radius && y1 - y0 < 1e6 * radius) || !(x0 == x0 && y0 == y0))
+        return -3; /* not finite, or a grid far too large */
+    int64_t nx = (int64_t)((x1 - x0) / radius) + 1, ny = (int64_t)((y1 - y0) / radius) + 1;
+    if (nx * ny > 16 * (int64_t)M + 65536)
+        return -3; /* sparse points: the caller falls back to its tree */
+    int64_t *start = calloc((size_t)(nx * ny + 1), sizeof(int64_t));
+    int64_t *cell = malloc((size_t)M * sizeof(int64_t));
+    int64_t *pts = malloc((size_t)M * sizeof(int64_t));
+    if (start == NULL || cell == NULL || pts == NULL) {
+        free(start);
+        free(cell);
+        free(pts);
+        return -2;
+    }
+    for (Py_ssize_t i = 0; i < M; i++) {
+        int64_t cx = (int64_t)((P[2 * i] - x0) / radius), cy = (int64_t)((P[2 * i + 1] - y0) / radius);
+        cx = cx < nx ? cx : nx - 1;
+        cy = cy < ny ? cy : ny - 1;
+        cell[i] = cy * nx + cx;
+        start[cell[i] + 1]++;
+    }
+    for (int64_t c = 0; c < nx * ny; c++)
+        start[c + 1] += start[c];
+    for (Py_ssize_t i = 0; i < M; i++)
+        pts[start[cell[i]]++] = i; /* start[c] becomes the end of cell c */
+    for (int64_t c = nx * ny; c > 0; c--)
+        start[c] = start[c - 1];
+    start[0] = 0;
+    double r2 = radius * radius;
+    for (Py_ssize_t k = 0; k < K; k++) {
+        double qx = Q[2 * k], qy = Q[2 * k + 1];
+        nearest[k] = -1;
+        double fx = (qx - x0) / radius, fy = (qy - y0) / radius;
+        if (!(fx > -2.0 && fx < (double)nx + 1.0 && fy > -2.0 && fy < (double)ny + 1.0))
+            continue; /* (NaN too) no cell within reach */
+        int64_t cx = (int64_t)floor(fx), cy = (int64_t)floor(fy);
+        double best = r2;
+        int64_t bj = -1;
+        for (int64_t gy = cy - 1; gy <= cy + 1; gy++) {
+            if (gy < 0 || gy >= ny)
+                continue;
+            for (int64_t gx = cx - 1; gx <= cx + 1; gx++) {
+                if (gx < 0 || gx >= nx)
+                    continue;
+                int64_t c = gy * nx + gx;
+                for (int64_t q = start[c]; q < start[c + 1]; q++) {
+                    int64_t j = pts[q];
+                    double dx = P[2 * j] - qx, dy = P[2 * j + 1] - qy;
+                    double d2 = dx * dx + dy * dy;
+                    if (d2 < best || (d2 == best && bj >= 0 && j < bj)) {
+                        best = d2;
+                        bj = j;
+                    }
+                }
+            }
+        }
+        nearest[k] = bj;
+    }
+    free(start);
+    free(cell);
+    free(pts);
+    return 0;
+}
+
+static PyObject *py_snap(PyObject *Py_UNUSED(self), PyObject *args)
+{
+    Py_ssize_t M, K;
+    double radius;
+    PyObject *o[3];
+    if (!PyArg_ParseTuple(args, "nnOOdO", &M, &K, &o[0], &o[1], &radius, &o[2]))
+        return NULL;
+    if (!nonnegative("M", M) || !nonnegative("K", K))
+        return NULL;
+    Py_buffer b[3];
+    const Spec spec[3] = {{"points", 8, 2 * M, 0}, {"queries", 8, 2 * K, 0},
+                          {"nearest", 8, K, 1}};
+    if (take_all(3, o, spec, b) < 0)
+        return NULL;
+    int rc;
+    Py_BEGIN_ALLOW_THREADS
+    rc = snap(M, b[0].buf, K, b[1].buf, radius, b[2].buf);
+    Py_END_ALLOW_THREADS
+    release_all(3, b);
+    if (rc == -2)
+        return PyErr_NoMemory();
+    return PyBool_FromLong(rc == 0);
+}
+
 static PyMethodDef methods[] = {
     {"corner_test", py_corner_test, METH_VARARGS,
      "corner_test(size, N, K, dxy, pix, flat, win, w, ratio2, x0, y0, out_pix, out_g): the "
@@ -558,6 +1578,36 @@ static PyMethodDef methods[] = {
     {"msac", py_msac, METH_VARARGS,
      "msac(N, S, H, rays, hyp, seg, start, t2, cost, seg_cost): MSAC costs and their sums "
      "per segment written"},
+    {"scatter", py_scatter, METH_VARARGS,
+     "scatter(N, S, rays, weight_or_None, seg, out): per-segment sums of w r r^T written"},
+    {"arc_xy", py_arc_xy, METH_VARARGS,
+     "arc_xy(N, G, rays, normals, group, y, x): each ray's coordinates in its group's circle "
+     "basis written"},
+    {"order_by", py_order_by, METH_VARARGS,
+     "order_by(N, K, key, t, order): the order by key, then t, then index written"},
+    {"gap_pieces", py_gap_pieces, METH_VARARGS,
+     "gap_pieces(N, K, seg, t, s, max_gap, min_points, pos, piece, piece_seg): the points cut "
+     "into pieces at gaps; returns (points kept, pieces)"},
+    {"trim_ends", py_trim_ends, METH_VARARGS,
+     "trim_ends(N, L, lab, t, s, trim, min_points, pos, new_lab): the points away from the "
+     "lines' ends; returns how many"},
+    {"package", py_package, METH_VARARGS,
+     "package(N, L, rays, normals, lab, t, s, noise, sizes, ends, resid, arc, mean_scale, "
+     "sigma): the lines' final figures written"},
+    {"inliers", py_inliers, METH_VARARGS,
+     "inliers(N, S, rays, normals, seg, tol, inl, count): inlier mask and counts written"},
+    {"merge_xy", py_merge_xy, METH_VARARGS,
+     "merge_xy(R, M, L, C, T, rays, idx, lab, normals, cand, y, x): the candidate pairs' arc "
+     "coordinates written"},
+    {"merge_join", py_merge_join, METH_VARARGS,
+     "merge_join(M, L, C, T, lab, cand, t, max_gap, new_lab): the pieces' labels after the "
+     "joins written"},
+    {"hypotheses", py_hypotheses, METH_VARARGS,
+     "hypotheses(N, S, H, rays, ia, ib, hyp, degenerate): the pairs' unit normals (float32, "
+     "(3, S, H)) and degeneracy written"},
+    {"snap", py_snap, METH_VARARGS,
+     "snap(M, K, points, queries, radius, nearest): each query's nearest point within the "
+     "radius (-1: none) written; False where the points suit no grid (nothing written)"},
     {NULL, NULL, 0, NULL},
 };
 

@@ -135,3 +135,175 @@ def msac_costs(rays: np.ndarray, hyp: np.ndarray, seg: np.ndarray, start: np.nda
     seg_cost = np.empty((s, nh), np.float32)
     _edges.msac(n, s, nh, r, h, sg, st, t, cost, seg_cost)
     return cost, seg_cost
+
+
+def _f64(a: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(a, dtype=np.float64)
+
+
+def scatter(rays: np.ndarray, weight: np.ndarray | None, seg: np.ndarray,
+            nseg: int) -> FloatArray:
+    """``(S, 3, 3)`` sums of ``w r r^T`` over the rays ``(N, 3)`` of each segment ``seg``
+    ``(N,)`` (0..nseg-1, any order; ``weight`` ``(N,)`` or None for ones): ``extract._scatter``
+    before, each entry summed in point order as ``np.bincount`` with weights does."""
+    r, sg = _f64(rays).reshape(-1, 3), _i64(seg).reshape(-1)
+    w = None if weight is None else _f64(weight).reshape(-1)
+    if len(sg) != len(r) or (w is not None and len(w) != len(r)):
+        raise ValueError(f"scatter: {len(r)} rays, {len(sg)} segment indices"
+                         + ("" if w is None else f", {len(w)} weights"))
+    out = np.empty((int(nseg), 3, 3))
+    _edges.scatter(len(r), int(nseg), r, w, sg, out)
+    return out
+
+
+def arc_parameter(rays: np.ndarray, normals: np.ndarray, group: np.ndarray,
+                  ngroup: int) -> FloatArray:
+    """``extract._arc_parameter``: the angle of each ray ``(N, 3)`` along the great circle of
+    its group (normal ``normals[group]``), from the mean direction of the group's rays, in
+    ``(-pi, pi]``. The two coordinates are computed in C with the sums numpy made (the means
+    as ``np.bincount``, the bases as ``geometry.completion_towards``, the dot products as
+    ``np.einsum``), the angle by numpy's ``arctan2`` (its SIMD one on this build, not the C
+    library's)."""
+    r, n, g = _f64(rays).reshape(-1, 3), _f64(normals).reshape(-1, 3), _i64(group).reshape(-1)
+    if len(g) != len(r) or len(n) != ngroup:
+        raise ValueError(f"arc_parameter: {len(r)} rays, {len(g)} group indices, "
+                         f"{len(n)} normals for {ngroup} groups")
+    y, x = np.empty(len(r)), np.empty(len(r))
+    _edges.arc_xy(len(r), int(ngroup), r, n, g, y, x)
+    return np.arctan2(y, x)
+
+
+def order_by(key: np.ndarray, t: np.ndarray, nkey: int) -> np.ndarray:
+    """``np.lexsort((t, key))`` for ``key`` in 0..nkey-1 (a counting sort by key, then a
+    stable merge sort by ``t`` within each key; NaN last, as numpy sorts)."""
+    k, tt = _i64(key).reshape(-1), _f64(t).reshape(-1)
+    if len(tt) != len(k):
+        raise ValueError(f"order_by: {len(k)} keys but {len(tt)} values")
+    order = np.empty(len(k), np.int64)
+    _edges.order_by(len(k), int(nkey), k, tt, order)
+    return order
+
+
+def gap_pieces(seg: np.ndarray, t: np.ndarray, s: np.ndarray, nseg: int, max_gap: float,
+               min_points: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``LineExtractor._split_gaps`` after the arc parameters ``t``: the points ordered by
+    segment ``seg`` (0..nseg-1), then ``t``, cut where the segment changes or ``t`` steps by
+    more than ``max_gap * s`` (``s`` of the later point), pieces under ``min_points`` points
+    dropped. Returns the kept points' positions in the input, their piece (0..P-1) and each
+    piece's segment ``(P,)``."""
+    sg, tt, ss = _i64(seg).reshape(-1), _f64(t).reshape(-1), _f64(s).reshape(-1)
+    n = len(sg)
+    if len(tt) != n or len(ss) != n:
+        raise ValueError(f"gap_pieces: {n} points, {len(tt)} t, {len(ss)} s")
+    pos, piece, piece_seg = (np.empty(n, np.int64) for _ in range(3))
+    nk, npc = _edges.gap_pieces(n, int(nseg), sg, tt, ss, float(max_gap), int(min_points),
+                                pos, piece, piece_seg)
+    return pos[:nk], piece[:nk], piece_seg[:npc]
+
+
+def trim_ends(lab: np.ndarray, t: np.ndarray, s: np.ndarray, nlines: int, trim: float,
+              min_points: int) -> tuple[np.ndarray, np.ndarray]:
+    """``LineExtractor._trim_ends`` after the arc parameters ``t``: the points further than
+    ``trim * s`` from both ends of their line ``lab`` (0..nlines-1; ends: the least and
+    largest ``t``) of the lines that keep at least ``min_points`` points. Returns their
+    positions in the input (in its order) and their lines renumbered 0.. among those kept."""
+    lb, tt, ss = _i64(lab).reshape(-1), _f64(t).reshape(-1), _f64(s).reshape(-1)
+    n = len(lb)
+    if len(tt) != n or len(ss) != n:
+        raise ValueError(f"trim_ends: {n} points, {len(tt)} t, {len(ss)} s")
+    pos, new = np.empty(n, np.int64), np.empty(n, np.int64)
+    k = _edges.trim_ends(n, int(nlines), lb, tt, ss, float(trim), int(min_points), pos, new)
+    return pos[:k], new[:k]
+
+
+def package(rays: np.ndarray, normals: np.ndarray, lab: np.ndarray, t: np.ndarray,
+            s: np.ndarray, noise: float) -> tuple[np.ndarray, FloatArray, FloatArray,
+                                                  FloatArray, FloatArray, FloatArray]:
+    """``LineExtractor._package``'s per-line figures for the points sorted by line ``lab``
+    (0..L-1, each present) with rays ``(N, 3)``, arc parameters ``t`` and pixel angles ``s``
+    and the lines' ``(L, 3)`` normals: ``(sizes, ends (L, 2, 3), residual_px, arc (rad), mean
+    s, normal_sigma (L, 2))``, with the sums and dot products numpy made."""
+    r, nrm = _f64(rays).reshape(-1, 3), _f64(normals).reshape(-1, 3)
+    lb, tt, ss = _i64(lab).reshape(-1), _f64(t).reshape(-1), _f64(s).reshape(-1)
+    n, nl = len(r), len(nrm)
+    if len(lb) != n or len(tt) != n or len(ss) != n:
+        raise ValueError(f"package: {n} rays, {len(lb)} labels, {len(tt)} t, {len(ss)} s")
+    sizes = np.empty(nl, np.int64)
+    ends = np.empty((nl, 2, 3))
+    resid, arc, mean_s = np.empty(nl), np.empty(nl), np.empty(nl)
+    sigma = np.empty((nl, 2))
+    _edges.package(n, nl, r, nrm, lb, tt, ss, float(noise), sizes, ends, resid, arc, mean_s,
+                   sigma)
+    return sizes, ends, resid, arc, mean_s, sigma
+
+
+def inliers(rays: np.ndarray, normals: np.ndarray, seg: np.ndarray,
+            tol: np.ndarray) -> tuple[np.ndarray, FloatArray]:
+    """``|r . n[seg]| < tol`` (einsum's dot product) for the rays ``(N, 3)`` and the
+    segments' normals ``(S, 3)``, and the inliers' count per segment (float64, as
+    ``np.bincount(seg, weights=mask)``)."""
+    r, nrm = _f64(rays).reshape(-1, 3), _f64(normals).reshape(-1, 3)
+    sg, tl = _i64(seg).reshape(-1), _f64(tol).reshape(-1)
+    if len(sg) != len(r) or len(tl) != len(r):
+        raise ValueError(f"inliers: {len(r)} rays, {len(sg)} segment indices, {len(tl)} "
+                         f"tolerances")
+    inl = np.empty(len(r), bool)
+    count = np.empty(len(nrm))
+    _edges.inliers(len(r), len(nrm), r, nrm, sg, tl, inl, count)
+    return inl, count
+
+
+def merge_labels(rays: np.ndarray, idx: np.ndarray, lab: np.ndarray, normals: np.ndarray,
+                 cand: np.ndarray, max_gap: float) -> np.ndarray:
+    """``LineExtractor._merge`` after its candidate pairs ``cand`` ``(C, 2)`` of pieces (the
+    points ``idx`` into ``rays`` ``(R, 3)`` with pieces ``lab`` 0..L-1, ``normals`` ``(L, 3)``):
+    each pair's gap along the great circle of its first piece (from that piece's mean ray:
+    np.add.reduceat's sums), the pairs with ``0 <= gap <= max_gap`` (rad) joined by a
+    union-find in pair order. Returns ``(L,)`` each piece's new label (the rank of its root).
+    The coordinates in C, their angles by numpy's arctan2, the gaps and joins in C."""
+    r, nrm = _f64(rays).reshape(-1, 3), _f64(normals).reshape(-1, 3)
+    ix, lb, cd = _i64(idx).reshape(-1), _i64(lab).reshape(-1), _i64(cand).reshape(-1, 2)
+    if len(lb) != len(ix):
+        raise ValueError(f"merge_labels: {len(ix)} points but {len(lb)} labels")
+    nl = len(nrm)
+    if len(lb) and (lb.min() < 0 or lb.max() >= nl):
+        raise IndexError(f"merge_labels: labels outside 0..{nl - 1}")
+    if len(cd) and (cd.min() < 0 or cd.max() >= nl):
+        raise IndexError(f"merge_labels: candidate pieces outside 0..{nl - 1}")
+    size = np.bincount(lb, minlength=nl)
+    total = int(size[cd].sum())
+    y, x = np.empty(total), np.empty(total)
+    _edges.merge_xy(len(r), len(ix), nl, len(cd), total, r, ix, lb, nrm, cd, y, x)
+    t = np.arctan2(y, x)
+    new = np.empty(nl, np.int64)
+    _edges.merge_join(len(lb), nl, len(cd), total, lb, cd, t, float(max_gap), new)
+    return new
+
+
+def hypotheses(rays: np.ndarray, ia: np.ndarray, ib: np.ndarray) -> tuple[np.ndarray,
+                                                                          np.ndarray]:
+    """``LineExtractor._ransac``'s great-circle hypotheses through the pairs of rays ``(ia,
+    ib)`` ``(S, H)`` (indices into ``rays`` ``(N, 3)``): ``np.cross`` over its
+    ``np.linalg.norm`` (1 where that is 0), as float32 ``(3, S, H)`` (the layout of
+    :func:`msac_costs`), and ``(S, H)`` whether the norm is under 1e-9."""
+    r, a, b = _f64(rays).reshape(-1, 3), _i64(ia), _i64(ib)
+    if a.shape != b.shape or a.ndim != 2:
+        raise ValueError(f"hypotheses: ia and ib must be (S, H), got {a.shape} and {b.shape}")
+    s, h = a.shape
+    hyp = np.empty((3, s, h), np.float32)
+    degenerate = np.empty((s, h), bool)
+    _edges.hypotheses(len(r), s, h, r, a, b, hyp, degenerate)
+    return hyp, degenerate
+
+
+def snap(points: np.ndarray, queries: np.ndarray, radius: float) -> np.ndarray | None:
+    """For each query ``(K, 2)`` the index of the nearest of ``points`` ``(M, 2)`` within
+    ``radius`` (squared distance under ``radius**2``; of equal distances the lowest index), -1
+    where none is: a KD-tree query with ``distance_upper_bound`` (``LineTracker``'s snapping),
+    from a grid of cells ``radius`` wide. None where the points are too sparse for a grid
+    (spread over more than ``16 M + 65536`` cells) or not finite: use a tree then."""
+    p, q = _f64(points).reshape(-1, 2), _f64(queries).reshape(-1, 2)
+    nearest = np.empty(len(q), np.int64)
+    if not _edges.snap(len(p), len(q), p, q, float(radius), nearest):
+        return None
+    return nearest

@@ -26,7 +26,7 @@ import numpy as np
 
 from omni_sfm.cameras.base import CameraModel
 from omni_sfm.errors import OmniSfmError
-from omni_sfm.geometry import FloatArray, completion_towards, smallest_eigenvector
+from omni_sfm.geometry import FloatArray, smallest_eigenvector
 from omni_sfm.lines import edge_kernels
 
 IntArray = np.ndarray
@@ -215,15 +215,11 @@ def angular_pixel_scale(camera: CameraModel) -> np.ndarray:
     return s.astype(np.float32)
 
 
-def _scatter(rays: FloatArray, weight: np.ndarray, seg: IntArray, nseg: int) -> FloatArray:
-    """``(S, 3, 3)`` sums of ``w r r^T`` per segment (``seg`` need not be sorted)."""
-    out = np.empty((nseg, 3, 3))
-    x, y, z = rays[:, 0] * weight, rays[:, 1] * weight, rays[:, 2] * weight
-    for (i, j), v in (((0, 0), x * rays[:, 0]), ((0, 1), x * rays[:, 1]),
-                      ((0, 2), x * rays[:, 2]), ((1, 1), y * rays[:, 1]),
-                      ((1, 2), y * rays[:, 2]), ((2, 2), z * rays[:, 2])):
-        out[:, i, j] = out[:, j, i] = np.bincount(seg, weights=v, minlength=nseg)
-    return out
+def _scatter(rays: FloatArray, weight: np.ndarray | None, seg: IntArray,
+             nseg: int) -> FloatArray:
+    """``(S, 3, 3)`` sums of ``w r r^T`` per segment (``seg`` need not be sorted; ``weight``
+    None: ones), in C with np.bincount's sums."""
+    return edge_kernels.scatter(rays, weight, seg, nseg)
 
 
 @dataclass(frozen=True)
@@ -488,8 +484,7 @@ class LineExtractor:
             if len(idx) == 0:
                 break
             nseg = len(cnt)
-            normals, inl = self._ransac(_rows(rays, idx), tol[idx], seg, cnt, rng)
-            n_in = np.bincount(seg, weights=inl, minlength=nseg)
+            normals, inl, n_in = self._ransac(_rows(rays, idx), tol[idx], seg, cnt, rng)
             accept = (2 * n_in > cnt) & (n_in >= o.min_points)
             take = accept | ((n_in >= o.peel_min_points) if o.peel_min_points > 0 else accept)
             if rnd == 0:
@@ -515,11 +510,12 @@ class LineExtractor:
         return self._package(idx, lab, rays, uv, scale, counts, n_segments, n_rejected)
 
     def _ransac(self, rays: FloatArray, tol: FloatArray, seg: IntArray, cnt: IntArray,
-                rng: np.random.Generator) -> tuple[FloatArray, np.ndarray]:
+                rng: np.random.Generator) -> tuple[FloatArray, np.ndarray, FloatArray]:
         """Great circle per segment: MSAC over pair hypotheses, then LS refits on inliers.
 
         ``rays`` sorted by segment ``seg`` (0..S-1) with counts ``cnt``. Returns ``(S, 3)``
-        normals and the ``(N,)`` inlier mask of the final fit.
+        normals, the ``(N,)`` inlier mask of the final fit and ``(S,)`` the inliers' count
+        per segment (float).
         """
         o = self.options
         nseg = len(cnt)
@@ -527,26 +523,23 @@ class LineExtractor:
         nh = max(1, o.ransac_hypotheses)
         ia = start[:, None] + (rng.random((nseg, nh)) * cnt[:, None]).astype(np.int64)
         ib = start[:, None] + (rng.random((nseg, nh)) * cnt[:, None]).astype(np.int64)
-        hyp = np.cross(rays[ia], rays[ib])  # (S, H, 3)
-        hn = np.linalg.norm(hyp, axis=2, keepdims=True)
-        degenerate = hn[..., 0] < 1e-9
-        hyp = (hyp / np.where(hn > 0, hn, 1.0)).astype(np.float32)
+        # the unit normals r_a x r_b (float32, (3, S, H)) in C
+        hyp_k, degenerate = edge_kernels.hypotheses(rays, ia, ib)
         # d = r . hyp[seg] (N, H), summed over x, y, z in that order as einsum does (the same
         # float32 numbers), the truncated quadratic (MSAC) cost and its sum per segment, in C
         r32 = np.ascontiguousarray(rays.T, dtype=np.float32)
-        hyp_k = np.ascontiguousarray(hyp.transpose(2, 0, 1))
         t2 = (tol * tol).astype(np.float32)
         _, seg_cost = edge_kernels.msac_costs(r32, hyp_k, seg, start, t2)
         seg_cost[degenerate] = np.inf
         best = np.argmin(seg_cost, axis=1)
-        n = hyp[np.arange(nseg), best].astype(np.float64)
-        inl = np.abs(np.einsum("nk,nk->n", rays, _rows(n, seg))) < tol
+        n = np.ascontiguousarray(hyp_k[:, np.arange(nseg), best].T, dtype=np.float64)
+        # |r . n[seg]| < tol and the inliers' count per segment, in C
+        inl, n_in = edge_kernels.inliers(rays, n, seg, tol)
         for _ in range(max(1, o.refine_iterations)):
             n_new = smallest_eigenvector(_scatter(rays, inl.astype(np.float64), seg, nseg))
-            good = np.bincount(seg, weights=inl, minlength=nseg) >= 3
-            n = np.where(good[:, None], n_new, n)
-            inl = np.abs(np.einsum("nk,nk->n", rays, _rows(n, seg))) < tol
-        return n, inl
+            n = np.where((n_in >= 3)[:, None], n_new, n)
+            inl, n_in = edge_kernels.inliers(rays, n, seg, tol)
+        return n, inl, n_in
 
     def _split_gaps(self, idx: IntArray, seg: IntArray, normals: FloatArray, rays: FloatArray,
                     scale: FloatArray) -> tuple[IntArray, IntArray, FloatArray]:
@@ -559,18 +552,12 @@ class LineExtractor:
         o = self.options
         if len(idx) == 0:
             return idx, seg, np.zeros((0, 3))
-        t = _arc_parameter(_rows(rays, idx), normals, seg, normals.shape[0])
-        order = _order_by(seg, t)
-        idx, seg, t = idx[order], seg[order], t[order]
-        lim = o.max_gap_px * scale[idx[1:]]
-        cut = (np.diff(seg) != 0) | (np.diff(t) > lim)
-        piece = np.concatenate([[0], np.cumsum(cut)])
-        keep = np.bincount(piece)[piece] >= o.min_points
-        idx, seg, piece = idx[keep], seg[keep], piece[keep]
-        piece, piece_cnt = _dense_sorted(piece)
-        piece_seg = np.zeros(len(piece_cnt), np.int64)
-        piece_seg[piece] = seg
-        return idx, piece, normals[piece_seg]
+        nseg = normals.shape[0]
+        t = _arc_parameter(_rows(rays, idx), normals, seg, nseg)
+        # the order by segment and t, the cuts and the pieces' sizes in C
+        pos, piece, piece_seg = edge_kernels.gap_pieces(seg, t, scale[idx], nseg, o.max_gap_px,
+                                                        o.min_points)
+        return idx[pos], piece, _rows(normals, piece_seg)
 
     def _merge(self, idx: IntArray, lab: IntArray, normals: FloatArray,
                rays: FloatArray) -> IntArray:
@@ -586,41 +573,11 @@ class LineExtractor:
         cand = np.argwhere(np.triu(cosang > np.cos(np.radians(o.merge_angle_deg)), 1))
         if len(cand) == 0:
             return lab
-        # the gap of every candidate pair at once: the points of both pieces by their angle
-        # along the great circle of the first, from the first's mean direction
-        in_order = idx[_stable_order(lab)]
-        size = np.bincount(lab, minlength=nl)
-        first = np.concatenate([[0], np.cumsum(size)[:-1]])
-        gaps = []
-        e1 = e2 = np.zeros((0, 3))
-        for side in (0, 1):
-            piece = cand[:, side]
-            n = size[piece]
-            starts = np.concatenate([[0], np.cumsum(n)[:-1]])
-            pair = np.repeat(np.arange(len(cand)), n)
-            r = _rows(rays, in_order[np.arange(int(n.sum())) - starts[pair] + first[piece][pair]])
-            if side == 0:
-                mean = np.add.reduceat(r, starts, axis=0) / n[:, None]
-                e1, e2 = completion_towards(normals[piece], mean)
-            t = np.arctan2(np.einsum("nk,nk->n", r, _rows(e2, pair)),
-                           np.einsum("nk,nk->n", r, _rows(e1, pair)))
-            gaps.append((np.minimum.reduceat(t, starts), np.maximum.reduceat(t, starts)))
-        (lo_i, hi_i), (lo_j, hi_j) = gaps
-        gap = np.maximum(lo_j - hi_i, lo_i - hi_j)
-        join = (gap >= 0) & (gap <= np.radians(o.merge_gap_deg))
-        parent = np.arange(nl)
-
-        def find(i: int) -> int:
-            while parent[i] != i:
-                parent[i] = parent[parent[i]]
-                i = parent[i]
-            return int(i)
-
-        for i, j in cand[join]:
-            parent[find(int(i))] = find(int(j))
-        roots = np.array([find(i) for i in range(nl)])
-        _, new = np.unique(roots, return_inverse=True)
-        return new[lab]
+        # the gap of every candidate pair: the points of both pieces by their angle along the
+        # great circle of the first, from the first's mean direction; the joins (union-find in
+        # pair order), in C
+        return edge_kernels.merge_labels(rays, idx, lab, normals, cand,
+                                         np.radians(o.merge_gap_deg))[lab]
 
     def _trim_ends(self, idx: IntArray, lab: IntArray, rays: FloatArray,
                    scale: FloatArray) -> tuple[IntArray, IntArray]:
@@ -630,19 +587,12 @@ class LineExtractor:
         if nl == 0:
             return idx, lab
         r = _rows(rays, idx)
-        normals = smallest_eigenvector(_scatter(r, np.ones(len(idx)), lab, nl))
+        normals = smallest_eigenvector(_scatter(r, None, lab, nl))
         t = _arc_parameter(r, normals, lab, nl)
-        lo = np.full(nl, np.inf)
-        hi = np.full(nl, -np.inf)
-        np.minimum.at(lo, lab, t)
-        np.maximum.at(hi, lab, t)
-        lim = self.options.trim_ends_px * scale[idx]
-        keep = (t - lo[lab] > lim) & (hi[lab] - t > lim)
-        idx, lab = idx[keep], lab[keep]
-        big = np.bincount(lab, minlength=nl) >= self.options.min_points
-        keep = big[lab]
-        _, lab = _dense_labels(lab[keep])
-        return idx[keep], lab
+        # the ends (least and largest t), the points near them and the lines left short, in C
+        pos, lab = edge_kernels.trim_ends(lab, t, scale[idx], nl, self.options.trim_ends_px,
+                                          self.options.min_points)
+        return idx[pos], lab
 
     def _package(self, idx: IntArray, lab: IntArray, rays: FloatArray, uv: FloatArray,
                  scale: FloatArray, counts: dict[str, int], n_segments: int,
@@ -660,22 +610,19 @@ class LineExtractor:
                 num_rejected=n_rejected)
         # final normals: least squares on all points of each (merged) line
         r = _rows(rays, idx)
-        normals = smallest_eigenvector(_scatter(r, np.ones(len(idx)), lab, nl))
+        normals = smallest_eigenvector(_scatter(r, None, lab, nl))
         t = _arc_parameter(r, normals, lab, nl)
-        order = _order_by(lab, t)
+        order = edge_kernels.order_by(lab, t, nl)
         idx, lab, t, r = idx[order], lab[order], t[order], _rows(r, order)
-        sizes = np.bincount(lab, minlength=nl)
+        # per line, in C: the point count, the end rays projected onto the circle, the RMS
+        # residual, the arc, the mean pixel angle and the NV uncertainty (information of the
+        # fit along the middle ray and across it)
+        sizes, ends, resid, arc_rad, mean_scale, sigma = edge_kernels.package(
+            r, normals, lab, t, scale[idx], self.options.edge_noise_px)
         offsets = np.concatenate([[0], np.cumsum(sizes)])
         first, last = offsets[:-1], offsets[1:] - 1
-        ends = np.stack([r[first], r[last]], 1)
-        ends -= np.einsum("lek,lk->le", ends, normals)[..., None] * normals[:, None, :]
-        ends /= np.linalg.norm(ends, axis=2, keepdims=True)
-        px = np.abs(np.einsum("nk,nk->n", r, _rows(normals, lab))) / scale[idx]
-        resid = np.sqrt(np.bincount(lab, weights=px * px, minlength=nl) / sizes)
-        arc_rad = t[last] - t[first]
         # the arc in units of the local pixel size: far below the point count where pixels are
         # much narrower one way than the other (near the poles of an equirectangular image)
-        mean_scale = np.bincount(lab, weights=scale[idx], minlength=nl) / sizes
         short = arc_rad / mean_scale < self.options.min_arc_px
         if short.all():
             z = np.zeros(0, np.int64)
@@ -685,24 +632,17 @@ class LineExtractor:
             # new order, changes their numbers by round-off only)
             line = ~short
             keep = line[lab]
-            idx, lab, t = idx[keep], (np.cumsum(line) - 1)[lab[keep]], t[keep]
+            idx = idx[keep]
             r = np.compress(keep, r, axis=0)
             normals, ends, resid, arc_rad = normals[line], ends[line], resid[line], arc_rad[line]
-            sizes = sizes[line]
-            nl = len(sizes)
+            sizes, sigma = sizes[line], sigma[line]
             offsets = np.concatenate([[0], np.cumsum(sizes)])
             first, last = offsets[:-1], offsets[1:] - 1
         arc = np.degrees(arc_rad)
-        # NV uncertainty: information of the fit along the middle ray m and across it (t)
-        m, tdir = completion_towards(normals, ends[:, 0] + ends[:, 1])
-        w = 1.0 / (self.options.edge_noise_px * scale[idx].astype(np.float64)) ** 2
-        info = np.stack([np.bincount(lab, weights=w * np.einsum("nk,nk->n", r, _rows(v, lab)) ** 2,
-                                     minlength=nl) for v in (m, tdir)], axis=1)
-        sigma = 1.0 / np.sqrt(np.maximum(info, 1e-300))
         return ExtractedLines(
             normals=normals, offsets=offsets, points_uv=_rows(uv, idx), point_rays=r,
             endpoint_rays=ends, endpoint_uv=np.stack([uv[idx[first]], uv[idx[last]]], 1),
-            num_support=sizes.astype(np.int64), residual_px=resid, arc_deg=arc,
+            num_support=sizes, residual_px=resid, arc_deg=arc,
             normal_sigma=sigma,
             num_edge_points=counts["edge"], num_corner_points=counts["corner"],
             num_segments=n_segments, num_rejected=n_rejected)
@@ -730,14 +670,6 @@ def _dense_labels(lab: IntArray) -> tuple[IntArray, IntArray]:
     return np.flatnonzero(present), (np.cumsum(present) - 1)[lab]
 
 
-def _order_by(key: IntArray, t: FloatArray) -> IntArray:
-    """``np.lexsort((t, key))``: the order by ``key``, then by ``t``, then by index. Two stable
-    argsorts, the second on 16-bit keys where they fit (numpy's radix sort): half the time of
-    lexsort on 5,000 points."""
-    order = np.argsort(t, kind="stable")
-    return order[_stable_order(key[order])]
-
-
 def _dense_sorted(lab: IntArray) -> tuple[IntArray, IntArray]:
     """Labels ``0..K-1`` in place of the non-decreasing ``lab``, and each one's count (what
     ``np.unique(lab, return_inverse=True, return_counts=True)`` gives, without its sort)."""
@@ -749,14 +681,9 @@ def _dense_sorted(lab: IntArray) -> tuple[IntArray, IntArray]:
 
 def _arc_parameter(r: FloatArray, n: FloatArray, group: IntArray, ngroup: int) -> FloatArray:
     """Angle of each ray along its great circle (normal ``n[group]``, ``n`` ``(ngroup, 3)``),
-    measured from the mean direction of its group, in ``(-pi, pi]``."""
-    mean = np.zeros((ngroup, 3))
-    for k in range(3):
-        mean[:, k] = np.bincount(group, weights=r[:, k], minlength=ngroup)
-    # the basis per group, then per point (the same numbers as computing it per point)
-    e1, e2 = completion_towards(n, mean)
-    return np.arctan2(np.einsum("nk,nk->n", r, _rows(e2, group)),
-                      np.einsum("nk,nk->n", r, _rows(e1, group)))
+    measured from the mean direction of its group, in ``(-pi, pi]`` (the coordinates in C,
+    the angle by numpy's arctan2)."""
+    return edge_kernels.arc_parameter(r, n, group, ngroup)
 
 
 def _oriented_components(p: IntArray, shape: tuple[int, int], theta: FloatArray,
