@@ -133,6 +133,117 @@ def _corner_inputs(ex, gray):
     return dxy, pix, flat, (roi[1].start, roi[0].start)
 
 
+# ---- Canny's inputs, the edge points, the long chains ------------------------------------------
+
+
+def _gradients_numpy(dx, dy):
+    dx16 = np.empty(dx.shape, np.int16)
+    dy16 = np.empty(dy.shape, np.int16)
+    with np.errstate(invalid="ignore"):
+        np.multiply(dx, 8.0, out=dx16, casting="unsafe")
+        np.multiply(dy, 8.0, out=dy16, casting="unsafe")
+    return dx16, dy16, cv2.merge([dx, dy]).view(np.complex64)[..., 0]
+
+
+def _edge_points_numpy(edges, mask):
+    nz = cv2.findNonZero(cv2.bitwise_and(edges, mask))
+    pix = np.zeros((0, 2), np.int32) if nz is None else nz.reshape(-1, 2)
+    return pix, pix[:, 1].astype(np.int64) * edges.shape[1] + pix[:, 0]
+
+
+def _long_chains_numpy(edges_masked, flat, min_points):
+    ncomp, comp_img = cv2.connectedComponents(edges_masked, connectivity=8, ltype=cv2.CV_32S)
+    comp = np.take(comp_img.ravel(), flat)
+    return np.bincount(comp, minlength=ncomp)[comp] >= min_points
+
+
+def test_gradients_are_numpys_int16_cast_and_cv2_merge():
+    rng = np.random.default_rng(5)
+    dx = rng.normal(0, 300, (37, 53)).astype(np.float32)
+    dy = rng.normal(0, 300, (37, 53)).astype(np.float32)
+    # values past int16 and int32 after the scaling, halves, negative zeros, NaN, infinities
+    special = np.array([4095.9, -4095.9, 4096.0, 1e5, -1e5, 3e9, -3e9, 0.0625, -0.0625,
+                        0.124, -0.124, -0.0, np.inf, -np.inf, np.nan, 1020.0, -1020.0],
+                       np.float32)
+    dx.ravel()[: len(special)] = special
+    dy.ravel()[-len(special):] = special[::-1]
+    out = edge_kernels.gradients(dx[:0], dy[:0])
+    assert [x.shape for x in out] == [(0, 53)] * 3
+    for a, b in ((dx, dy), (dx[3:4, 5:12], dy[3:4, 5:12]), (dx[::2, 1::3], dy[::2, 1::3])):
+        ref = _gradients_numpy(a, b)
+        out = edge_kernels.gradients(a, b)
+        np.testing.assert_array_equal(out[0], ref[0])
+        np.testing.assert_array_equal(out[1], ref[1])
+        assert out[2].dtype == np.complex64 and out[2].shape == a.shape
+        np.testing.assert_array_equal(out[2].view(np.uint64), ref[2].view(np.uint64))
+    with pytest.raises(ValueError):
+        edge_kernels.gradients(dx, dy[:, 1:])
+
+
+def test_edge_points_are_findnonzero_of_the_masked_edges(frame):
+    ex, inputs = frame
+    rng = np.random.default_rng(6)
+    for dxy, pix, flat, origin in inputs:
+        dx16, dy16, _ = _gradients_numpy(dxy.real.copy(), dxy.imag.copy())
+        o = ex.options
+        edges = cv2.Canny(dx16, dy16, 8.0 * o.canny_low, 8.0 * o.canny_high, L2gradient=True)
+        # the mask read in place at the region's corner
+        p, f = edge_kernels.edge_points(edges, ex.search_mask, origin)
+        np.testing.assert_array_equal(p, pix)
+        np.testing.assert_array_equal(f, flat)
+        assert p.dtype == np.int32 and f.dtype == np.int64
+    # odd widths (the eight-pixel words' tails), masks of any bytes, a cap just large enough
+    p, f = edge_kernels.edge_points(np.zeros((0, 4), np.uint8), np.zeros((1, 4), np.uint8))
+    assert p.shape == (0, 2) and f.shape == (0,)
+    for h, w in ((13, 29), (5, 8), (1, 3), (9, 1)):
+        for density in (0.02, 0.5, 1.0):
+            e = np.where(rng.random((h, w)) < density, rng.integers(1, 256, (h, w)), 0)
+            m = rng.integers(0, 256, (h + 3, w + 5)).astype(np.uint8)
+            e = e.astype(np.uint8)
+            ref_p, ref_f = _edge_points_numpy(e, np.ascontiguousarray(m[2 : 2 + h, 4 : 4 + w]))
+            p, f = edge_kernels.edge_points(e, m, (4, 2), cap=len(ref_p))
+            np.testing.assert_array_equal(p, ref_p)
+            np.testing.assert_array_equal(f, ref_f)
+            if len(ref_p):
+                with pytest.raises(ValueError):
+                    edge_kernels.edge_points(e, m, (4, 2), cap=len(ref_p) - 1)
+    e = np.full((4, 6), 255, np.uint8)
+    with pytest.raises(ValueError):
+        edge_kernels.edge_points(e, np.full((4, 6), 255, np.uint8), (1, 0))  # leaves the mask
+
+
+def test_long_chains_are_connected_components_sizes(frame):
+    ex, inputs = frame
+    rng = np.random.default_rng(7)
+    cases = []
+    for dxy, pix, _, _ in inputs:  # the rendered frame's and the noisy frame's edge points
+        img = np.zeros(dxy.shape, np.uint8)
+        img[pix[:, 1], pix[:, 0]] = 255
+        cases.append((img, ex.options.min_points))
+    for h, w in ((40, 70), (7, 9), (1, 12), (12, 1), (3, 3)):
+        for density in (0.05, 0.3, 0.6, 1.0):  # random points: chains of every shape
+            cases.append(((rng.random((h, w)) < density).astype(np.uint8) * 255, 4))
+    for img, min_points in cases:
+        pix, flat = _edge_points_numpy(img, img)
+        for mp in (min_points, 1, 2, 30):
+            ref = _long_chains_numpy(img, flat, mp)
+            keep, p, f = edge_kernels.long_chains(pix, flat, img.shape, mp)
+            assert keep.dtype == bool
+            np.testing.assert_array_equal(keep, ref)
+            np.testing.assert_array_equal(p, pix[ref])
+            np.testing.assert_array_equal(f, flat[ref])
+    keep, p, f = edge_kernels.long_chains(np.zeros((0, 2), np.int32), np.zeros(0, np.int64),
+                                          (5, 5), 3)
+    assert keep.shape == (0,) and p.shape == (0, 2) and f.shape == (0,)
+    pix = np.array([[1, 1], [0, 2]], np.int32)
+    with pytest.raises(ValueError):  # not in row-major order
+        edge_kernels.long_chains(pix[::-1], np.array([10, 6]), (5, 5), 2)
+    with pytest.raises(ValueError):  # flat indices not y w + x
+        edge_kernels.long_chains(pix, np.array([6, 11]), (5, 5), 2)
+    with pytest.raises(ValueError):  # outside the image
+        edge_kernels.long_chains(pix, np.array([6, 10]), (2, 5), 2)
+
+
 # ---- corner test ----------------------------------------------------------------------------
 
 

@@ -1,4 +1,5 @@
-/* The line extractor's per-edge-point loops (omni_sfm.lines.extract), in C: the corner test
+/* The line extractor's per-edge-point loops (omni_sfm.lines.extract), in C: the glue around
+ * Canny (its int16 gradients, the masked edge pixels, the long-chain test), the corner test
  * of the edge points, the orientation's value modulo pi, the orientation-linked connected
  * components of the edge points, their sub-pixel positions and the MSAC scores of the great
  * circle hypotheses.
@@ -72,6 +73,286 @@ static int nonnegative(const char *what, Py_ssize_t n)
         return 0;
     }
     return 1;
+}
+
+/* ---- gradients for Canny, edge points, long chains ------------------------------------------ */
+
+/* numpy's float32 -> int16 cast as this build makes it (the x86 one): truncated toward zero to
+ * int32 (cvttss2si; NaN, infinities and values outside int32 give INT32_MIN), then its low 16
+ * bits. Exact for |x| < 32768; written out so that C's undefined conversions never happen. */
+static int16_t to_int16(float x)
+{
+    int32_t i = (x > -2147483648.0f && x < 2147483648.0f) ? (int32_t)x : INT32_MIN;
+    return (int16_t)(uint16_t)((uint32_t)i & 0xffffu);
+}
+
+/* The Sobel images dx, dy (float32, n pixels): Canny's 16-bit gradients ``(int16)(8 dx)`` as
+ * ``np.multiply(dx, 8.0, out=dx16, casting="unsafe")`` (the product by 8 is exact in float32)
+ * and the interleaved image (dx, dy) as ``cv2.merge([dx, dy])``, in one pass. */
+static void gradients(Py_ssize_t n, const float *dx, const float *dy, int16_t *dx16,
+                      int16_t *dy16, float *dxy)
+{
+    for (Py_ssize_t i = 0; i < n; i++) {
+        float gx = dx[i], gy = dy[i];
+        dx16[i] = to_int16(gx * 8.0f);
+        dy16[i] = to_int16(gy * 8.0f);
+        dxy[2 * i] = gx;
+        dxy[2 * i + 1] = gy;
+    }
+}
+
+static PyObject *py_gradients(PyObject *Py_UNUSED(self), PyObject *args)
+{
+    Py_ssize_t n;
+    PyObject *o[5];
+    if (!PyArg_ParseTuple(args, "nOOOOO", &n, &o[0], &o[1], &o[2], &o[3], &o[4]))
+        return NULL;
+    if (!nonnegative("n", n))
+        return NULL;
+    Py_buffer b[5];
+    const Spec spec[5] = {
+        {"dx", 4, n, 0}, {"dy", 4, n, 0}, {"dx16", 2, n, 1}, {"dy16", 2, n, 1},
+        {"dxy", 4, 2 * n, 1},
+    };
+    if (take_all(5, o, spec, b) < 0)
+        return NULL;
+    Py_BEGIN_ALLOW_THREADS
+    gradients(n, b[0].buf, b[1].buf, b[2].buf, b[3].buf, b[4].buf);
+    Py_END_ALLOW_THREADS
+    release_all(5, b);
+    Py_RETURN_NONE;
+}
+
+/* The pixels of the (h, w) uint8 image ``edges`` where ``edges & mask`` is not 0, row by row
+ * (cv2.findNonZero's order), ``mask`` the rows of ``ms`` bytes of a larger image that begin
+ * at the edge image's top-left pixel: (x, y) into ``pix`` and y w + x into ``flat``, at most
+ * ``cap`` of
+ * them. Eight pixels are tested at a time (most words of a Canny image are 0); within a word
+ * every pixel is written at the next free place, which advances only past the edge points
+ * (no branch to mispredict on the pixels of a textured image). Returns how many, -1 where
+ * there are more than ``cap``. */
+static Py_ssize_t edge_points(Py_ssize_t h, Py_ssize_t w, const uint8_t *edges,
+                              const uint8_t *mask, Py_ssize_t ms, Py_ssize_t cap, int32_t *pix,
+                              int64_t *flat)
+{
+    Py_ssize_t n = 0;
+    for (Py_ssize_t y = 0; y < h; y++) {
+        const uint8_t *e = edges + y * w, *m = mask + y * ms;
+        int64_t row = (int64_t)y * (int64_t)w;
+        Py_ssize_t x = 0;
+        for (; x + 8 <= w; x += 8) {
+            uint64_t a, b;
+            memcpy(&a, e + x, 8);
+            memcpy(&b, m + x, 8);
+            if ((a & b) == 0)
+                continue;
+            if (n + 8 > cap)
+                break; /* near the end of the output: one pixel at a time, below */
+            for (Py_ssize_t k = x; k < x + 8; k++) {
+                pix[2 * n] = (int32_t)k;
+                pix[2 * n + 1] = (int32_t)y;
+                flat[n] = row + k;
+                n += (e[k] & m[k]) != 0;
+            }
+        }
+        for (; x < w; x++) {
+            if ((e[x] & m[x]) == 0)
+                continue;
+            if (n >= cap)
+                return -1;
+            pix[2 * n] = (int32_t)x;
+            pix[2 * n + 1] = (int32_t)y;
+            flat[n] = row + x;
+            n++;
+        }
+    }
+    return n;
+}
+
+static PyObject *py_edge_points(PyObject *Py_UNUSED(self), PyObject *args)
+{
+    Py_ssize_t h, w, mh, mw, mx, my, cap;
+    PyObject *o[4];
+    if (!PyArg_ParseTuple(args, "nnOnnOnnnOO", &h, &w, &o[0], &mh, &mw, &o[1], &mx, &my, &cap,
+                          &o[2], &o[3]))
+        return NULL;
+    if (!nonnegative("h", h) || !nonnegative("w", w) || !nonnegative("mx", mx)
+        || !nonnegative("my", my) || !nonnegative("cap", cap))
+        return NULL;
+    if (mx + w > mw || my + h > mh) {
+        PyErr_Format(PyExc_ValueError, "edge_points: a %zdx%zd image at (%zd, %zd) leaves the "
+                     "%zdx%zd mask", w, h, mx, my, mw, mh);
+        return NULL;
+    }
+    Py_buffer b[4];
+    const Spec spec[4] = {
+        {"edges", 1, h * w, 0}, {"mask", 1, mh * mw, 0}, {"pix", 4, 2 * cap, 1},
+        {"flat", 8, cap, 1},
+    };
+    if (take_all(4, o, spec, b) < 0)
+        return NULL;
+    Py_ssize_t n;
+    Py_BEGIN_ALLOW_THREADS
+    n = edge_points(h, w, b[0].buf, (const uint8_t *)b[1].buf + my * mw + mx, mw, cap,
+                    b[2].buf, b[3].buf);
+    Py_END_ALLOW_THREADS
+    release_all(4, b);
+    if (n < 0) {
+        PyErr_Format(PyExc_ValueError, "edge_points: more than %zd edge points", cap);
+        return NULL;
+    }
+    return PyLong_FromSsize_t(n);
+}
+
+static int32_t find_root32(int32_t *parent, int32_t i)
+{
+    while (parent[i] != i) {
+        parent[i] = parent[parent[i]];
+        i = parent[i];
+    }
+    return i;
+}
+
+/* The points of 8-connected chains of at least ``min_points`` points among the N points
+ * ``pix`` (x, y) of an (h, w) image, row by row (edge_points' order; their flat indices
+ * ``flat``, y w + x, are copied along): cv2.connectedComponents on the image of the points and
+ * each point's component size, by a union-find over the points that looks up the neighbours
+ * above and to the left in two rows of point indices (the previous and the current one; only
+ * the entries set are cleared again). ``keep`` (0/1) is written, the kept points' pixels and
+ * flat indices are copied in order into ``out_pix``, ``out_flat``. Returns how many are kept,
+ * -1 where a point is outside the image, not after the one before or its flat index is not
+ * y w + x (*bad), -2 where memory ran out. */
+static Py_ssize_t long_chains(Py_ssize_t N, Py_ssize_t h, Py_ssize_t w, const int32_t *pix,
+                              const int64_t *flat, Py_ssize_t min_points, uint8_t *keep,
+                              int32_t *out_pix, int64_t *out_flat, Py_ssize_t *bad)
+{
+    for (Py_ssize_t i = 0; i < N; i++) {
+        int64_t x = pix[2 * i], y = pix[2 * i + 1];
+        if (x < 0 || x >= w || y < 0 || y >= h || flat[i] != y * (int64_t)w + x
+            || (i > 0 && flat[i] <= flat[i - 1])) {
+            *bad = i;
+            return -1;
+        }
+    }
+    if (N == 0)
+        return 0;
+    /* rows of w + 2 entries (a -1 either side: no test at the borders) */
+    int32_t *rows = malloc((size_t)(2 * (w + 2)) * sizeof(int32_t));
+    int32_t *parent = malloc((size_t)N * sizeof(int32_t));
+    int32_t *size = calloc((size_t)N, sizeof(int32_t));
+    if (rows == NULL || parent == NULL || size == NULL) {
+        free(rows);
+        free(parent);
+        free(size);
+        return -2;
+    }
+    for (Py_ssize_t k = 0; k < 2 * (w + 2); k++)
+        rows[k] = -1;
+    int32_t *prev = rows + 1, *cur = rows + (w + 2) + 1; /* prev[x], cur[x] for x in -1..w */
+    int32_t cur_y = -2;                                     /* the row in cur */
+    Py_ssize_t prev_start = 0, cur_start = 0;              /* the rows' first points */
+    for (Py_ssize_t i = 0; i < N; i++) {
+        int32_t x = pix[2 * i], y = pix[2 * i + 1];
+        if (y != cur_y) {
+            /* clear the previous row's entries; the current row becomes the previous one if
+             * it is right above, else it is cleared as well */
+            for (Py_ssize_t j = prev_start; j < cur_start; j++)
+                prev[pix[2 * j]] = -1;
+            int32_t *t = prev;
+            prev = cur;
+            cur = t;
+            prev_start = cur_start;
+            if (cur_y != y - 1) {
+                for (Py_ssize_t j = prev_start; j < i; j++)
+                    prev[pix[2 * j]] = -1;
+                prev_start = i;
+            }
+            cur_y = y;
+            cur_start = i;
+        }
+        /* the neighbours already seen: left, above-left, above, above-right. Those that
+         * touch each other are joined already: the one above touches the three others, the
+         * one to the left the one above-left; so at most two joins (as in Wu, Otoo and Suzuki's
+         * decision tree for raster scans) */
+        int32_t up = prev[x], a = -1, b = -1;
+        if (up >= 0) {
+            a = up;
+        } else {
+            a = cur[x - 1] >= 0 ? cur[x - 1] : prev[x - 1];
+            b = prev[x + 1];
+            if (a < 0) {
+                a = b;
+                b = -1;
+            }
+        }
+        int32_t r = a < 0 ? (int32_t)i : find_root32(parent, a); /* r < i where joined */
+        parent[i] = r;
+        if (b >= 0) {
+            int32_t s = find_root32(parent, b);
+            if (s < r) { /* the smaller root stays */
+                parent[r] = s;
+                parent[i] = s;
+            } else if (s > r) {
+                parent[s] = r;
+            }
+        }
+        cur[x] = parent[i]; /* i's root now (a shorter way to the root for its neighbours) */
+    }
+    free(rows);
+    /* a root is its component's lowest index: roots come before their points */
+    for (Py_ssize_t i = 0; i < N; i++) {
+        int32_t r = parent[i] == (int32_t)i ? (int32_t)i : parent[parent[i]];
+        parent[i] = r;
+        size[r]++;
+    }
+    Py_ssize_t n = 0;
+    for (Py_ssize_t i = 0; i < N; i++) {
+        uint8_t k = size[parent[i]] >= min_points;
+        keep[i] = k;
+        out_pix[2 * n] = pix[2 * i];
+        out_pix[2 * n + 1] = pix[2 * i + 1];
+        out_flat[n] = flat[i];
+        n += k;
+    }
+    free(parent);
+    free(size);
+    return n;
+}
+
+static PyObject *py_long_chains(PyObject *Py_UNUSED(self), PyObject *args)
+{
+    Py_ssize_t N, h, w, min_points;
+    PyObject *o[5];
+    if (!PyArg_ParseTuple(args, "nnnOOnOOO", &N, &h, &w, &o[0], &o[1], &min_points, &o[2],
+                          &o[3], &o[4]))
+        return NULL;
+    if (!nonnegative("N", N) || !nonnegative("h", h) || !nonnegative("w", w))
+        return NULL;
+    if (N > INT32_MAX) {
+        PyErr_Format(PyExc_ValueError, "long_chains: %zd points, at most 2^31 - 1", N);
+        return NULL;
+    }
+    Py_buffer b[5];
+    const Spec spec[5] = {
+        {"pix", 4, 2 * N, 0}, {"flat", 8, N, 0}, {"keep", 1, N, 1}, {"out_pix", 4, 2 * N, 1},
+        {"out_flat", 8, N, 1},
+    };
+    if (take_all(5, o, spec, b) < 0)
+        return NULL;
+    Py_ssize_t n, bad = -1;
+    Py_BEGIN_ALLOW_THREADS
+    n = long_chains(N, h, w, b[0].buf, b[1].buf, min_points, b[2].buf, b[3].buf, b[4].buf,
+                    &bad);
+    Py_END_ALLOW_THREADS
+    release_all(5, b);
+    if (n == -1) {
+        PyErr_Format(PyExc_ValueError, "long_chains: flat index %zd is outside the %zdx%zd "
+                     "image or not above the one before", bad, w, h);
+        return NULL;
+    }
+    if (n == -2)
+        return PyErr_NoMemory();
+    return PyLong_FromSsize_t(n);
 }
 
 /* ---- corner test ------------------------------------------------------------------------ */
@@ -1564,6 +1845,15 @@ static PyObject *py_snap(PyObject *Py_UNUSED(self), PyObject *args)
 }
 
 static PyMethodDef methods[] = {
+    {"gradients", py_gradients, METH_VARARGS,
+     "gradients(n, dx, dy, dx16, dy16, dxy): Canny's int16 gradients (int16)(8 d) and the "
+     "interleaved (dx, dy) image written"},
+    {"edge_points", py_edge_points, METH_VARARGS,
+     "edge_points(h, w, edges, mh, mw, mask, mx, my, cap, pix, flat): the pixels where edges & "
+     "mask (the mask from (mx, my) on) is not 0, row by row, written; returns how many"},
+    {"long_chains", py_long_chains, METH_VARARGS,
+     "long_chains(N, h, w, pix, flat, min_points, keep, out_pix, out_flat): the points of "
+     "8-connected chains of at least min_points points marked and copied; returns how many"},
     {"corner_test", py_corner_test, METH_VARARGS,
      "corner_test(size, N, K, dxy, pix, flat, win, w, ratio2, x0, y0, out_pix, out_g): the "
      "kept points' pixels and gradients written in order; returns how many"},

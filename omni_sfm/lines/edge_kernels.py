@@ -43,6 +43,61 @@ def _c64(a: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(a, dtype=np.complex64)
 
 
+def _u8(a: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(a, dtype=np.uint8)
+
+
+def gradients(dx: np.ndarray, dy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Of the float32 Sobel images ``dx``, ``dy`` (same shape): Canny's int16 gradients,
+    ``np.multiply(d, 8.0, out=d16, casting="unsafe")`` (numpy's cast on x86: truncated toward
+    zero to int32, NaN, infinities and values past int32 giving -2^31, then the low 16 bits),
+    and the complex64 image ``dx + i dy`` (``cv2.merge([dx, dy])`` viewed as complex64), in one
+    pass over the pixels."""
+    x, y = _f32(dx), _f32(dy)
+    if x.shape != y.shape:
+        raise ValueError(f"gradients: dx {x.shape} and dy {y.shape} differ")
+    dx16, dy16 = np.empty(x.shape, np.int16), np.empty(x.shape, np.int16)
+    dxy = np.empty(x.shape, np.complex64)
+    _edges.gradients(x.size, x, y, dx16, dy16, dxy.view(np.float32))
+    return dx16, dy16, dxy
+
+
+def edge_points(edges: np.ndarray, mask: np.ndarray, origin: tuple[int, int] = (0, 0),
+                cap: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The pixels of the ``(h, w)`` uint8 image ``edges`` where ``edges & mask`` is not 0, row
+    by row: ``cv2.findNonZero(cv2.bitwise_and(edges, m))`` as int32 ``(N, 2)`` (x, y), and
+    their flat indices ``y w + x`` (int64 ``(N,)``), where ``m`` is the part of the uint8
+    ``mask`` (as large or larger) whose top-left pixel is ``origin`` (x, y): ``mask[y0 : y0 +
+    h, x0 : x0 + w]``, read in place. ``cap``: at most that many points (the output arrays are
+    allocated that large), the image's size where None."""
+    e, m = _u8(edges), _u8(mask)
+    if e.ndim != 2 or m.ndim != 2:
+        raise ValueError(f"edge_points: 2-D images, got {e.shape} and {m.shape}")
+    h, w = e.shape
+    c = e.size if cap is None else min(int(cap), e.size)
+    pix, flat = np.empty((c, 2), np.int32), np.empty(c, np.int64)
+    n = _edges.edge_points(h, w, e, m.shape[0], m.shape[1], m, int(origin[0]), int(origin[1]),
+                           c, pix, flat)
+    return pix[:n], flat[:n]
+
+
+def long_chains(pix: np.ndarray, flat: np.ndarray, shape: tuple[int, int],
+                min_points: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The points of 8-connected chains of at least ``min_points`` points among the points
+    ``pix`` ``(N, 2)`` at the strictly increasing flat indices ``flat`` of an image of
+    ``shape`` (h, w) (:func:`edge_points`' order): ``cv2.connectedComponents`` on the image of
+    the points and each point's component size, by a union-find over the points. Returns the
+    ``(N,)`` bool mask and the kept pixels and flat indices."""
+    p, f = _i32(pix).reshape(-1, 2), _i64(flat).reshape(-1)
+    if len(f) != len(p):
+        raise ValueError(f"long_chains: {len(p)} pixels but {len(f)} indices")
+    keep = np.empty(len(f), bool)
+    out_pix, out_flat = np.empty((len(f), 2), np.int32), np.empty(len(f), np.int64)
+    n = _edges.long_chains(len(f), int(shape[0]), int(shape[1]), p, f, int(min_points),
+                           keep.view(np.uint8), out_pix, out_flat)
+    return keep, out_pix[:n], out_flat[:n]
+
+
 def corner_test(dxy: np.ndarray, pix: np.ndarray, flat: np.ndarray, win: np.ndarray,
                 weights: np.ndarray, ratio2: float, origin: tuple[int, int] = (0, 0)
                 ) -> tuple[np.ndarray, np.ndarray]:

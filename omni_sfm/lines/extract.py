@@ -376,32 +376,25 @@ class LineExtractor:
             img = cv2.GaussianBlur(img, (k, k), o.blur_sigma)
         dx = cv2.Sobel(img, cv2.CV_32F, 1, 0, ksize=3)
         dy = cv2.Sobel(img, cv2.CV_32F, 0, 1, ksize=3)
-        # Canny wants 16-bit gradients: scale by 8 (|Sobel| <= 1020) to keep 1/8 resolution
-        dx16 = np.empty(dx.shape, np.int16)
-        dy16 = np.empty(dy.shape, np.int16)
-        np.multiply(dx, 8.0, out=dx16, casting="unsafe")
-        np.multiply(dy, 8.0, out=dy16, casting="unsafe")
+        # Canny wants 16-bit gradients: scale by 8 (|Sobel| <= 1020) to keep 1/8 resolution;
+        # and dx, dy interleaved as one complex64 image for the corner test and the sub-pixel
+        # positions (in C, one pass)
+        dx16, dy16, dxy_img = edge_kernels.gradients(dx, dy)
         edges = cv2.Canny(dx16, dy16, 8.0 * scale * o.canny_low, 8.0 * scale * o.canny_high,
                           L2gradient=True)
-        edges = cv2.bitwise_and(edges, self.search_mask[self._roi])
-        nz = cv2.findNonZero(edges)
-        pix = np.zeros((0, 2), np.int32) if nz is None else nz.reshape(-1, 2)
+        # the edge pixels inside the search mask (row by row, as cv2.findNonZero) and their
+        # flat indices in the region, in C
+        pix, flat = edge_kernels.edge_points(edges, self.search_mask, (x0, y0))
         n_edge = len(pix)
-        w = gray.shape[1]
-        flat = pix[:, 1].astype(np.int64) * w + pix[:, 0]  # in the region
         if n_edge > LONG_CHAIN_TEST_FRACTION * self.valid_pixels:
             # a segment is part of one 8-connected chain of edge points: the points of chains
             # shorter than min_points can never be in a line (half the edge points of a
             # textured image), so the corner test and all that follows skip them; the lines
-            # are the same either way, only num_corner_points counts fewer points
-            ncomp, comp_img = cv2.connectedComponents(edges, connectivity=8, ltype=cv2.CV_32S)
-            comp = np.take(comp_img.ravel(), flat)
-            long_chain = np.bincount(comp, minlength=ncomp)[comp] >= o.min_points
-            pix, flat = np.compress(long_chain, pix, axis=0), flat[long_chain]
+            # are the same either way, only num_corner_points counts fewer points (the chains
+            # by a union-find over the points, in C)
+            _, pix, flat = edge_kernels.long_chains(pix, flat, edges.shape, o.min_points)
         # second-moment matrix over a Gaussian window, evaluated only at the edge points (the
-        # search mask keeps them far enough from the image border for the window), in C; dx
-        # and dy interleaved as one complex64 image
-        dxy_img = cv2.merge([dx, dy]).view(np.complex64)[..., 0]
+        # search mask keeps them far enough from the image border for the window), in C
         n_tested = len(pix)
         pix, g = edge_kernels.corner_test(dxy_img, pix, flat, self._win_flat, self._win_w,
                                           o.corner_ratio**2, (x0, y0))
