@@ -28,8 +28,10 @@ directions or more fix the rotation themselves: the first frame's rotation is th
 too, it would disagree with them by its own error, and every rotation measured from it would
 carry that error), only its centre is held.
 
-Solver: Levenberg-Marquardt with an analytic Jacobian assembled as a ``scipy.sparse`` matrix (10
-non-zeros per residual row), normal equations solved by sparse LU; robust loss by iteratively
+Solver: Levenberg-Marquardt with an analytic Jacobian (one 2x6 pose block and one 2x4 line block
+per observation), the normal equations solved by the Schur complement in the lines (dense
+Cholesky, or a block-sparse Cholesky whose structure is worked out once per adjustment:
+:class:`_ReducedSystem`); robust loss by iteratively
 reweighted least squares (Huber or Cauchy on the residual norm) with the scale set from the
 noise level, estimated robustly (median of residual norms) unless given. After convergence,
 tracks whose RMS residual is far above the noise are flagged as outliers, removed, and the
@@ -525,8 +527,8 @@ class LineProblem:
 
         The pose blocks are 6x6 and independent; eliminating them leaves a ``4M x 4M`` system
         in the lines whose update ``G^T G`` (``G = L_f^-1 H_fl``, one 6x4 block per
-        observation) is formed by :class:`_ReducedSystem`, then
-        solved by dense Cholesky or sparse LU.
+        observation) is formed and solved by :class:`_ReducedSystem` (dense Cholesky, or
+        the block Cholesky factorisation of ``kernels.BlockCholesky``).
         """
         Hpp, Hll, Hpl, gp, gl = blocks
         F, M, f, t = self.F, self.M, self.f, self.t
