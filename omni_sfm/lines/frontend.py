@@ -147,11 +147,13 @@ class FrontEndResult:
         between its end rays, projected into the line's plane), which tells on which side of the
         viewpoint the line lies and so settles the point reflection that normals leave open
         (docs/formats.md), and the uncertainty of its NV along and across that ray, with which
-        the bundle adjustment weighs a short segment's poorly fixed tilt less.
+        the bundle adjustment weighs a short segment's poorly fixed tilt less. The numbers are
+        those ``tracks.json`` holds (:meth:`LineTracks.as_written`), so that the estimator
+        alone on that file (``init --tracks``) finds the same poses to the bit.
         """
         tr = self.tracks
         return replace(tr, obs_ray=middle_rays(self.obs_endpoint_rays, tr.obs_normal),
-                       obs_sigma=self.obs_normal_sigma)
+                       obs_sigma=self.obs_normal_sigma).as_written()
 
     def track_lengths(self) -> IntArray:
         """``(M,)`` frames each track is seen in."""

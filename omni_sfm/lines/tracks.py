@@ -111,17 +111,39 @@ class LineTracks:
             obs_ray=None if self.obs_ray is None else self.obs_ray[obs],
             obs_sigma=None if self.obs_sigma is None else self.obs_sigma[obs])
 
+    def _as_stored(self) -> tuple[FloatArray, FloatArray | None, FloatArray | None]:
+        """The numbers ``tracks.json`` stores: normals and rays rounded to 15 decimals, the
+        sigmas in degrees to 9 (JSON then holds each of these doubles exactly)."""
+        rays = None if self.obs_ray is None else np.round(self.obs_ray, 15)
+        sig: FloatArray | None = None if self.obs_sigma is None else \
+            np.asarray(np.round(np.degrees(self.obs_sigma), 9), dtype=np.float64)
+        return np.round(self.obs_normal, 15), rays, sig
+
+    def as_written(self) -> LineTracks:
+        """These tracks exactly as :func:`read_tracks` gives them back from the
+        ``tracks.json`` that :func:`write_tracks` writes of them (the numbers rounded as the
+        file stores them, then normalised as reading does). The estimator's choices follow the
+        last bits of its input (docs/estimator.md, "Speed"): ``init`` on images estimates from
+        these, so that ``init --tracks tracks.json`` gives its poses to the bit. (Written again,
+        these numbers give the same file: each rounding is idempotent on its own result.)"""
+        normals, rays, sigmas_deg = self._as_stored()
+        return make_tracks(self.num_frames, self.track_ids, self.obs_track, self.obs_frame,
+                           normals, self.timestamps, obs_ray=rays,
+                           obs_sigma=None if sigmas_deg is None else np.radians(sigmas_deg),
+                           as_stored=True)
+
     def to_json_dict(self) -> dict[str, Any]:
+        normals, rays, sigmas_deg = self._as_stored()
         tracks = []
         for m in range(self.num_tracks):
             sel = self.obs_track == m
             entry = {"id": int(self.track_ids[m]),
                      "frames": self.obs_frame[sel].tolist(),
-                     "normals": np.round(self.obs_normal[sel], 15).tolist()}
-            if self.obs_ray is not None:
-                entry["rays"] = np.round(self.obs_ray[sel], 15).tolist()
-            if self.obs_sigma is not None:
-                entry["sigmas_deg"] = np.round(np.degrees(self.obs_sigma[sel]), 9).tolist()
+                     "normals": normals[sel].tolist()}
+            if rays is not None:
+                entry["rays"] = rays[sel].tolist()
+            if sigmas_deg is not None:
+                entry["sigmas_deg"] = sigmas_deg[sel].tolist()
             tracks.append(entry)
         return {"num_frames": self.num_frames, "timestamps": self.timestamps.tolist(),
                 "tracks": tracks}
@@ -130,8 +152,13 @@ class LineTracks:
 def make_tracks(num_frames: int, track_ids: IntArray, obs_track: IntArray, obs_frame: IntArray,
                 obs_normal: FloatArray, timestamps: FloatArray | None = None,
                 source: str = "tracks", obs_ray: FloatArray | None = None,
-                obs_sigma: FloatArray | None = None) -> LineTracks:
-    """Validate and sort observations into a :class:`LineTracks` (errors name ``source``)."""
+                obs_sigma: FloatArray | None = None, *, as_stored: bool = False) -> LineTracks:
+    """Validate and sort observations into a :class:`LineTracks` (errors name ``source``).
+
+    Normals and rays are normalised; with ``as_stored`` (the numbers of a ``tracks.json``),
+    those within 1e-12 of unit length are taken as they are, so that the file's numbers and
+    the tracks' are the same (normalising rounded unit vectors moves their last bits, and
+    rounded again they can land on other decimals: :meth:`LineTracks.as_written`)."""
     if isinstance(num_frames, bool) or not isinstance(num_frames, int | np.integer) \
             or num_frames < 1:
         raise OmniSfmError(f"{source}: 'num_frames' must be a positive integer, got {num_frames!r}")
@@ -171,10 +198,15 @@ def make_tracks(num_frames: int, track_ids: IntArray, obs_track: IntArray, obs_f
                                f"{sig.shape[0]} for {n.shape[0]} normals")
         if not np.isfinite(sig).all() or np.any(sig <= 0):
             raise OmniSfmError(f"{source}: sigmas must be finite and positive")
+    def unit(v: FloatArray, length: FloatArray) -> FloatArray:
+        if as_stored:
+            length = np.where(np.abs(length - 1.0) <= 1e-12, 1.0, length)
+        return np.asarray(v / length[:, None])
+
     order = np.lexsort((f, t))
-    t, f, n = t[order], f[order], n[order] / norms[order, None]
+    t, f, n = t[order], f[order], unit(n[order], norms[order])
     if rays is not None:
-        rays = rays[order] / np.linalg.norm(rays[order], axis=1, keepdims=True)
+        rays = unit(rays[order], np.linalg.norm(rays[order], axis=1))
     if sig is not None:
         sig = sig[order]
     dup = np.flatnonzero((np.diff(t) == 0) & (np.diff(f) == 0))
@@ -251,7 +283,8 @@ def read_tracks(path: Path | str) -> LineTracks:
                        np.concatenate(of), np.concatenate(on, axis=0).reshape(-1, 3),
                        data.get("timestamps"), source=str(path),
                        obs_ray=np.concatenate(orays, axis=0) if orays else None,
-                       obs_sigma=np.concatenate(osig, axis=0) if osig else None)
+                       obs_sigma=np.concatenate(osig, axis=0) if osig else None,
+                       as_stored=True)
 
 
 def write_tracks(path: Path | str, tracks: LineTracks) -> None:
