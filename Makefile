@@ -7,7 +7,8 @@ STAMP := $(VENV)/.installed
 
 setup: $(STAMP)
 
-$(STAMP): pyproject.toml setup.py omni_sfm/estimate/_lines.c omni_sfm/lines/_edges.c
+$(STAMP): pyproject.toml setup.py omni_sfm/_buffers.h omni_sfm/estimate/_lines.c \
+		omni_sfm/lines/_edges.c
 	@# Open3D's wheel needs libusb-1.0 at import time (Debian package libusb-1.0-0);
 	@# tests/test_view.py opens the HTML viewer in a headless browser (Debian package chromium);
 	@# the line adjustment's and the line extractor's loops (omni_sfm/estimate/_lines.c,

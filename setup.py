@@ -10,8 +10,9 @@ no fused multiply-add, so that processors with and without it round alike.
 from setuptools import Extension, setup
 
 ARGS = ["-O3", "-ffp-contract=off"]
+HEADERS = ["omni_sfm/_buffers.h"]  # the argument arrays' checks, shared by both
 
 setup(ext_modules=[Extension("omni_sfm.estimate._lines", ["omni_sfm/estimate/_lines.c"],
-                             extra_compile_args=ARGS),
+                             extra_compile_args=ARGS, depends=HEADERS),
                    Extension("omni_sfm.lines._edges", ["omni_sfm/lines/_edges.c"],
-                             extra_compile_args=ARGS)])
+                             extra_compile_args=ARGS, depends=HEADERS)])

@@ -35,45 +35,8 @@ enum { LOSS_LINEAR = 0, LOSS_HUBER = 1, LOSS_CAUCHY = 2 };
 
 /* ---- buffers ---------------------------------------------------------------------------- */
 
-static int take(PyObject *o, Py_buffer *v, Py_ssize_t itemsize, Py_ssize_t n, int writable,
-                const char *name)
-{
-    int flags = PyBUF_C_CONTIGUOUS | (writable ? PyBUF_WRITABLE : 0);
-    if (PyObject_GetBuffer(o, v, flags) < 0)
-        return -1;
-    if (v->itemsize != itemsize || v->len != n * itemsize) {
-        PyErr_Format(PyExc_ValueError, "%s: expected %zd items of %zd bytes, got %zd bytes",
-                     name, n, itemsize, v->len);
-        PyBuffer_Release(v);
-        return -1;
-    }
-    return 0;
-}
-
-static void release_all(int n, Py_buffer *b)
-{
-    for (int i = 0; i < n; i++)
-        PyBuffer_Release(&b[i]);
-}
-
-/* One argument array: its name, bytes an item, items, whether it is written */
-typedef struct {
-    const char *name;
-    Py_ssize_t itemsize, count;
-    int writable;
-} Spec;
-
-/* All ``n`` buffers of ``o`` as ``spec`` says, or none (the error set, -1) */
-static int take_all(int n, PyObject *const *o, const Spec *spec, Py_buffer *b)
-{
-    for (int i = 0; i < n; i++)
-        if (take(o[i], &b[i], spec[i].itemsize, spec[i].count, spec[i].writable,
-                 spec[i].name) < 0) {
-            release_all(i, b);
-            return -1;
-        }
-    return 0;
-}
+/* take, release_all, Spec, take_all */
+#include "../_buffers.h"
 
 /* every observation's frame in 0..F-1 and line in 0..M-1 (else IndexError set, 0) */
 static int in_range(Py_ssize_t K, const int64_t *f, Py_ssize_t F, const int64_t *t,

@@ -26,45 +26,8 @@
 
 /* ---- buffers ---------------------------------------------------------------------------- */
 
-static int take(PyObject *o, Py_buffer *v, Py_ssize_t itemsize, Py_ssize_t n, int writable,
-                const char *name)
-{
-    int flags = PyBUF_C_CONTIGUOUS | (writable ? PyBUF_WRITABLE : 0);
-    if (PyObject_GetBuffer(o, v, flags) < 0)
-        return -1;
-    if (v->itemsize != itemsize || v->len != n * itemsize) {
-        PyErr_Format(PyExc_ValueError, "%s: expected %zd items of %zd bytes, got %zd bytes",
-                     name, n, itemsize, v->len);
-        PyBuffer_Release(v);
-        return -1;
-    }
-    return 0;
-}
-
-static void release_all(int n, Py_buffer *b)
-{
-    for (int i = 0; i < n; i++)
-        PyBuffer_Release(&b[i]);
-}
-
-/* One argument array: its name, bytes an item, items, whether it is written */
-typedef struct {
-    const char *name;
-    Py_ssize_t itemsize, count;
-    int writable;
-} Spec;
-
-/* All ``n`` buffers of ``o`` as ``spec`` says, or none (the error set, -1) */
-static int take_all(int n, PyObject *const *o, const Spec *spec, Py_buffer *b)
-{
-    for (int i = 0; i < n; i++)
-        if (take(o[i], &b[i], spec[i].itemsize, spec[i].count, spec[i].writable,
-                 spec[i].name) < 0) {
-            release_all(i, b);
-            return -1;
-        }
-    return 0;
-}
+/* take, release_all, Spec, take_all */
+#include "../_buffers.h"
 
 static int nonnegative(const char *what, Py_ssize_t n)
 {
@@ -718,33 +681,37 @@ static PyObject *py_subpixel(PyObject *Py_UNUSED(self), PyObject *args)
 
 /* ---- MSAC scores -------------------------------------------------------------------------- */
 
-/* numpy's float32 pairwise sum of n values at stride ``s`` (its add reduction: eight partial
- * sums in blocks of up to 128 values, halves above) */
-static float pairwise_sum(const float *a, Py_ssize_t n, Py_ssize_t s)
-{
-    if (n < 8) {
-        float res = -0.0f;
-        for (Py_ssize_t i = 0; i < n; i++)
-            res = res + a[i * s];
-        return res;
+/* numpy's pairwise sum of n values at stride ``s`` (its add reduction: eight partial sums in
+ * blocks of up to 128 values, halves above), in float32 (pairwise_sum) and float64
+ * (pairwise_sum_d) */
+#define PAIRWISE_SUM(NAME, T)                                                                \
+    static T NAME(const T *a, Py_ssize_t n, Py_ssize_t s)                                   \
+    {                                                                                        \
+        if (n < 8) {                                                                         \
+            T res = (T)-0.0;                                                                 \
+            for (Py_ssize_t i = 0; i < n; i++)                                               \
+                res = res + a[i * s];                                                        \
+            return res;                                                                      \
+        }                                                                                    \
+        if (n <= 128) {                                                                      \
+            T r[8];                                                                          \
+            for (int j = 0; j < 8; j++)                                                      \
+                r[j] = a[j * s];                                                             \
+            Py_ssize_t i;                                                                    \
+            for (i = 8; i < n - (n % 8); i += 8)                                             \
+                for (int j = 0; j < 8; j++)                                                  \
+                    r[j] = r[j] + a[(i + j) * s];                                            \
+            T res = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]));       \
+            for (; i < n; i++)                                                               \
+                res = res + a[i * s];                                                        \
+            return res;                                                                      \
+        }                                                                                    \
+        Py_ssize_t n2 = n / 2;                                                               \
+        n2 -= n2 % 8;                                                                        \
+        return NAME(a, n2, s) + NAME(a + n2 * s, n - n2, s);                                 \
     }
-    if (n <= 128) {
-        float r[8];
-        for (int j = 0; j < 8; j++)
-            r[j] = a[j * s];
-        Py_ssize_t i;
-        for (i = 8; i < n - (n % 8); i += 8)
-            for (int j = 0; j < 8; j++)
-                r[j] = r[j] + a[(i + j) * s];
-        float res = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]));
-        for (; i < n; i++)
-            res = res + a[i * s];
-        return res;
-    }
-    Py_ssize_t n2 = n / 2;
-    n2 -= n2 % 8;
-    return pairwise_sum(a, n2, s) + pairwise_sum(a + n2 * s, n - n2, s);
-}
+PAIRWISE_SUM(pairwise_sum, float)
+PAIRWISE_SUM(pairwise_sum_d, double)
 
 /* LineExtractor._ransac's scores: d = r . hyp[seg] (x, y, z in that order), cost = min(d^2,
  * t2) / t2 per point and hypothesis (``cost`` (N, H), float32) and its sums per segment as
@@ -1397,33 +1364,6 @@ static PyObject *py_inliers(PyObject *Py_UNUSED(self), PyObject *args)
         return NULL;
     }
     Py_RETURN_NONE;
-}
-
-/* numpy's float64 pairwise sum (pairwise_sum above, in double) */
-static double pairwise_sum_d(const double *a, Py_ssize_t n, Py_ssize_t s)
-{
-    if (n < 8) {
-        double res = -0.0;
-        for (Py_ssize_t i = 0; i < n; i++)
-            res = res + a[i * s];
-        return res;
-    }
-    if (n <= 128) {
-        double r[8];
-        for (int j = 0; j < 8; j++)
-            r[j] = a[j * s];
-        Py_ssize_t i;
-        for (i = 8; i < n - (n % 8); i += 8)
-            for (int j = 0; j < 8; j++)
-                r[j] = r[j] + a[(i + j) * s];
-        double res = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]));
-        for (; i < n; i++)
-            res = res + a[i * s];
-        return res;
-    }
-    Py_ssize_t n2 = n / 2;
-    n2 -= n2 % 8;
-    return pairwise_sum_d(a, n2, s) + pairwise_sum_d(a + n2 * s, n - n2, s);
 }
 
 /* LineExtractor._merge's arc coordinates: for each candidate pair (i, j) of pieces
