@@ -6,11 +6,15 @@ a great-circle (plane through the viewpoint) fit per segment by RANSAC -> the pa
 a segment is a straight line if more than half of its points satisfy ``(r . n)^2 < l_th``
 (eq. 3). The plane's unit normal ``n`` is the line's NV in the camera frame (sign arbitrary).
 
-Everything is vectorised over pixels and segments: RANSAC scores all hypotheses of all segments
-at once and the least-squares refits use batched 3x3 scatter matrices. The per-edge-point loops
-(the corner test's second-moment matrices, the orientation-linked components, the sub-pixel
-positions and the MSAC scores) are compiled (``_edges.c``, :mod:`omni_sfm.lines.edge_kernels`),
-with the arithmetic of the numpy code they replaced: the same lines, bit for bit.
+Everything works on all pixels and segments at once: RANSAC scores all hypotheses of all
+segments together and the least-squares refits use batched 3x3 scatter matrices. The per-point
+loops are compiled (``_edges.c``, :mod:`omni_sfm.lines.edge_kernels`): the glue around Canny
+(int16 gradients, the masked edge pixels, the long-chain test), the corner test, the
+orientation-linked components, the sub-pixel positions, the RANSAC hypotheses, scores and
+inliers, the scatter matrices, the arc parameters, the order along each line, the gap cuts,
+merges and end trimming and the final per-line figures, each with the arithmetic of the numpy
+code it replaced (the same lines, bit for bit; ``tests/test_edge_kernels.py``). Canny, blur,
+Sobel, the eigen-decompositions and ``arctan2`` stay OpenCV's and numpy's.
 
 Thresholds that are angles on the sphere are set in *pixels* and converted with the camera's
 local angular pixel scale (the angle between the rays of neighbouring pixels), so the same

@@ -135,8 +135,12 @@ class LineTracks:
     def to_json_dict(self) -> dict[str, Any]:
         normals, rays, sigmas_deg = self._as_stored()
         tracks = []
+        # each track's observations in their order (one sort, not a mask per track: that was
+        # tracks x observations comparisons, seconds on a long video's tracks)
+        order = np.argsort(self.obs_track, kind="stable")
+        bounds = np.searchsorted(self.obs_track[order], np.arange(self.num_tracks + 1))
         for m in range(self.num_tracks):
-            sel = self.obs_track == m
+            sel = order[bounds[m]:bounds[m + 1]]
             entry = {"id": int(self.track_ids[m]),
                      "frames": self.obs_frame[sel].tolist(),
                      "normals": normals[sel].tolist()}
@@ -198,6 +202,7 @@ def make_tracks(num_frames: int, track_ids: IntArray, obs_track: IntArray, obs_f
                                f"{sig.shape[0]} for {n.shape[0]} normals")
         if not np.isfinite(sig).all() or np.any(sig <= 0):
             raise OmniSfmError(f"{source}: sigmas must be finite and positive")
+
     def unit(v: FloatArray, length: FloatArray) -> FloatArray:
         if as_stored:
             length = np.where(np.abs(length - 1.0) <= 1e-12, 1.0, length)
