@@ -21,13 +21,18 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-import cv2
-import numpy as np
+# as the omni-sfm command does: OpenBLAS's threads on the estimator's small matrices cost 5-10x
+# the time on a 2-core machine (and change the last bits); set before numpy is imported
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
 
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.evaluate import relative_rotation_errors_deg, trajectory_errors

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from linetest_utils import Room, hyperboloid_camera, render
 
-from omni_sfm.geometry import completion_towards
+from omni_sfm.geometry import completion_towards, unsigned_angle
 from omni_sfm.lines import edge_kernels
 from omni_sfm.lines.extract import LineExtractor, _oriented_components
 
@@ -178,6 +178,106 @@ def test_gradients_are_numpys_int16_cast_and_cv2_merge():
         np.testing.assert_array_equal(out[2].view(np.uint64), ref[2].view(np.uint64))
     with pytest.raises(ValueError):
         edge_kernels.gradients(dx, dy[:, 1:])
+
+
+def _sobel_gradients_numpy(img):
+    """cv2.Sobel's order of operations where its loops are 8 floats wide (see
+    ``_edges.c``: sobel_gradients), then :func:`_gradients_numpy`."""
+    h, w = img.shape
+    p = np.pad(img, 1, mode="reflect")  # OpenCV's reflect-101
+    two = np.float32(2)
+    t = p[:, 2:] - p[:, :-2]
+    dx = (t[:-2] + t[2:]) + two * t[1:-1]
+    s = (p[:, :-2] + p[:, 2:]) + two * p[:, 1:-1]
+    xs = w - w % 8
+    dx[:, xs:] = ((t[:-2] + two * t[1:-1]) + t[2:])[:, xs:]
+    s_tail = (p[:, :-2] + two * p[:, 1:-1]) + p[:, 2:]
+    tail = np.zeros(w, bool)
+    tail[xs:] = True
+    if (w - xs) % 2:  # the scalar loops' pairs leave the last column to the vector formula
+        tail[w - 1] = False
+    s[:, tail] = s_tail[:, tail]
+    dy = s[2:] - s[:-2]
+    return _gradients_numpy(dx, dy)
+
+
+def test_sobel_gradients_are_cv2_sobels_gradients(frame):
+    """The fused kernel: the reference's bits on every size; cv2.Sobel's up to round-off
+    anywhere and its bits where OpenCV runs its AVX2 loops (this machine's)."""
+    rng = np.random.default_rng(15)
+    avx2 = cv2.checkHardwareSupport(getattr(cv2, "CPU_AVX2", 11))  # cv::CPU_AVX2
+    sizes = [(h, w) for w in (2, 3, 7, 8, 9, 10, 15, 16, 17, 26, 587) for h in (2, 3, 8, 41)]
+    for h, w in sizes:
+        img = rng.normal(0, 300, (h, w)).astype(np.float32)
+        out = edge_kernels.sobel_gradients(img)
+        ref = _sobel_gradients_numpy(img)
+        for a, b in zip(out, ref, strict=True):
+            np.testing.assert_array_equal(a.view(np.uint8), b.view(np.uint8))
+        dx = cv2.Sobel(img, cv2.CV_32F, 1, 0, ksize=3)
+        dy = cv2.Sobel(img, cv2.CV_32F, 0, 1, ksize=3)
+        np.testing.assert_allclose(out[2].real, dx, rtol=1e-5, atol=1e-3)
+        np.testing.assert_allclose(out[2].imag, dy, rtol=1e-5, atol=1e-3)
+        if avx2:
+            np.testing.assert_array_equal(out[2].view(np.uint64),
+                                          edge_kernels.gradients(dx, dy)[2].view(np.uint64))
+    # a blurred frame's region, as the extractor calls it
+    ex, _ = frame
+    g = render(hyperboloid_camera(), Room(), np.eye(3), np.zeros(3))
+    img = cv2.GaussianBlur(g[ex._roi].astype(np.float32), (5, 5), 1.0)
+    out = edge_kernels.sobel_gradients(img)
+    for a, b in zip(out, _sobel_gradients_numpy(img), strict=True):
+        np.testing.assert_array_equal(a.view(np.uint8), b.view(np.uint8))
+    with pytest.raises(ValueError):
+        edge_kernels.sobel_gradients(np.zeros((1, 5), np.float32))
+
+
+def test_histogram_is_calchist_with_the_mask():
+    rng = np.random.default_rng(16)
+    for h, w in ((600, 800), (7, 9), (1, 1), (30, 17)):
+        g = rng.integers(0, 256, (h, w), dtype=np.uint8)
+        masks = [(rng.random((h, w)) > 0.3).astype(np.uint8) * 255,
+                 np.full((h, w), 255, np.uint8), rng.integers(0, 3, (h, w)).astype(np.uint8)]
+        for m in masks:
+            for roi in ((slice(0, h), slice(0, w)), (slice(h // 3, h), slice(w // 4, w - 1))):
+                ref = cv2.calcHist([g[roi]], [0], m[roi], [256], [0, 256]).ravel()
+                out = edge_kernels.histogram(g, m, roi)
+                assert out.dtype == ref.dtype
+                np.testing.assert_array_equal(out, ref)
+    with pytest.raises(ValueError):
+        edge_kernels.histogram(g, m, (slice(0, h + 1), slice(0, w)))
+
+
+def test_smallest_eigenvector3_is_eighs_to_round_off():
+    """Scatter matrices of rays on arcs from 0.06 to 180 deg with noise: the plane's normal as
+    np.linalg.eigh finds it, within round-off over the gap of the two smallest eigenvalues."""
+    rng = np.random.default_rng(17)
+    k = 400
+    n = rng.normal(size=(k, 3))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    e1 = np.cross(n, rng.normal(size=(k, 3)))
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    e2 = np.cross(n, e1)
+    arc = 10 ** rng.uniform(-3, np.log10(np.pi), k)
+    t = (rng.random((k, 60)) - 0.5) * arc[:, None]
+    r = np.cos(t)[..., None] * e1[:, None] + np.sin(t)[..., None] * e2[:, None]
+    r += rng.normal(0, 1e-4, r.shape) * rng.random((k, 1, 1))
+    S = np.einsum("kni,knj->kij", r, r)
+    out = edge_kernels.smallest_eigenvector3(S)
+    ref = np.linalg.eigh(S)[1][..., 0]
+    np.testing.assert_allclose(np.linalg.norm(out, axis=1), 1.0, atol=1e-14)
+    w = np.linalg.eigvalsh(S)
+    angle = unsigned_angle(out, ref)
+    assert np.all(angle <= 1e-14 * w[:, 2] / (w[:, 1] - w[:, 0]))
+    # diagonal, equal eigenvalues, zero, NaN and no matrix at all
+    S = np.array([np.diag([1.0, 2.0, 3.0]), np.diag([3.0, 1.0, 2.0]), 5 * np.eye(3),
+                  np.zeros((3, 3)), np.diag([1.0, np.nan, 1.0])])
+    out = edge_kernels.smallest_eigenvector3(S)
+    np.testing.assert_array_equal(np.abs(out[:2]), [[1, 0, 0], [0, 1, 0]])
+    np.testing.assert_allclose(np.linalg.norm(out[2:4], axis=1), 1.0)
+    assert np.isnan(out[4]).all()
+    assert edge_kernels.smallest_eigenvector3(np.zeros((0, 3, 3))).shape == (0, 3)
+    with pytest.raises(ValueError):
+        edge_kernels.smallest_eigenvector3(np.zeros((2, 3)))
 
 
 def test_edge_points_are_findnonzero_of_the_masked_edges(frame):
@@ -434,6 +534,11 @@ def _trim_ends_numpy(lab, t, s, nl, trim, min_points):
 
 def _package_numpy(r, normals, lab, t, s, noise):
     nl = len(normals)
+    # a strided view, as the normals were when this was the extractor's code (a column of
+    # np.linalg.eigh's output): it sets einsum's order of summation, which the kernel keeps
+    strided = np.empty((nl, 3, 2))
+    strided[..., 0] = normals
+    normals = strided[..., 0]
     sizes = np.bincount(lab, minlength=nl)
     offsets = np.concatenate([[0], np.cumsum(sizes)])
     first, last = offsets[:-1], offsets[1:] - 1

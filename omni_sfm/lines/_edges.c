@@ -1,8 +1,11 @@
-/* The line extractor's per-edge-point loops (omni_sfm.lines.extract), in C: the glue around
- * Canny (its int16 gradients, the masked edge pixels, the long-chain test), the corner test
- * of the edge points, the orientation's value modulo pi, the orientation-linked connected
- * components of the edge points, their sub-pixel positions and the MSAC scores of the great
- * circle hypotheses.
+/* The line extractor's per-pixel and per-edge-point loops (omni_sfm.lines.extract), in C: the
+ * grey-level histogram, Sobel and the glue around Canny (its int16 gradients, the masked edge
+ * pixels, the long-chain test), the corner test of the edge points, the orientation's value
+ * modulo pi, the orientation-linked connected components of the edge points, their sub-pixel
+ * positions, the great circles' fits (MSAC scores, scatter matrices, their smallest
+ * eigenvectors) and the lines' bookkeeping. The eigenvectors (Jacobi rotations) are the one
+ * kernel that does not repeat its predecessor's bits (np.linalg.eigh's LAPACK), only its
+ * accuracy.
  *
  * Why C: each of these was a dozen numpy calls on arrays of one row per edge point (tens of
  * thousands in a textured frame), and the calls' overhead and the temporary arrays were much
@@ -43,7 +46,7 @@ static int nonnegative(const char *what, Py_ssize_t n)
 /* numpy's float32 -> int16 cast as this build makes it (the x86 one): truncated toward zero to
  * int32 (cvttss2si; NaN, infinities and values outside int32 give INT32_MIN), then its low 16
  * bits. Exact for |x| < 32768; written out so that C's undefined conversions never happen. */
-static int16_t to_int16(float x)
+static inline int16_t to_int16(float x)
 {
     int32_t i = (x > -2147483648.0f && x < 2147483648.0f) ? (int32_t)x : INT32_MIN;
     return (int16_t)(uint16_t)((uint32_t)i & 0xffffu);
@@ -83,6 +86,152 @@ static PyObject *py_gradients(PyObject *Py_UNUSED(self), PyObject *args)
     gradients(n, b[0].buf, b[1].buf, b[2].buf, b[3].buf, b[4].buf);
     Py_END_ALLOW_THREADS
     release_all(5, b);
+    Py_RETURN_NONE;
+}
+
+/* Sobel's 3x3 derivatives of the float32 (h, w) image ``img`` (both at least 2), as
+ * cv2.Sobel(img, cv2.CV_32F, 1, 0) and (0, 1) with OpenCV's border (reflect-101) and order of
+ * operations, then what ``gradients`` writes, in one pass without the dx, dy images. OpenCV's
+ * loops 8 floats wide (AVX2) compute dx = (t[y-1] + t[y+1]) + 2 t[y] across rows of
+ * t = img[x+1] - img[x-1], and dy = s[y+1] - s[y-1] with s = (img[x-1] + img[x+1]) + 2 img[x];
+ * the columns past the last multiple of 8 go through its scalar loops, which add in the order
+ * (t[y-1] + 2 t[y]) + t[y+1] and (img[x-1] + 2 img[x]) + img[x+1] (but a last column left
+ * alone by its pairs). Reproduced here: the same bits as cv2.Sobel where its loops are 8 wide
+ * (tests/test_edge_kernels.py). */
+static inline Py_ssize_t reflect101(Py_ssize_t i, Py_ssize_t n)
+{
+    return i < 0 ? -i : (i >= n ? 2 * n - 2 - i : i);
+}
+
+static inline void sobel_pixel(const float *a, const float *b, const float *c, Py_ssize_t l,
+                               Py_ssize_t x, Py_ssize_t r, int scalar_x, int scalar_y,
+                               int16_t *ox, int16_t *oy, float *o)
+{
+    float t0 = a[r] - a[l], t1 = b[r] - b[l], t2 = c[r] - c[l];
+    float gx = scalar_x ? (t0 + 2.0f * t1) + t2 : (t0 + t2) + 2.0f * t1;
+    float sa = scalar_y ? (a[l] + 2.0f * a[x]) + a[r] : (a[l] + a[r]) + 2.0f * a[x];
+    float sc = scalar_y ? (c[l] + 2.0f * c[x]) + c[r] : (c[l] + c[r]) + 2.0f * c[x];
+    float gy = sc - sa;
+    ox[x] = to_int16(gx * 8.0f);
+    oy[x] = to_int16(gy * 8.0f);
+    o[2 * x] = gx;
+    o[2 * x + 1] = gy;
+}
+
+WIDE_LOOPS static void sobel_gradients(Py_ssize_t h, Py_ssize_t w, const float *img,
+                                       int16_t *dx16, int16_t *dy16, float *dxy)
+{
+    Py_ssize_t xs = w & ~(Py_ssize_t)7; /* where OpenCV's scalar loops start */
+    Py_ssize_t end = xs < w - 1 ? xs : w - 1; /* the vector columns inside */
+    for (Py_ssize_t y = 0; y < h; y++) {
+        const float *a = img + reflect101(y - 1, h) * w, *b = img + y * w,
+                    *c = img + reflect101(y + 1, h) * w;
+        int16_t *ox = dx16 + y * w, *oy = dy16 + y * w;
+        float *o = dxy + 2 * y * w;
+        int s0 = xs == 0;
+        sobel_pixel(a, b, c, 1, 0, 1, s0, s0, ox, oy, o);
+        for (Py_ssize_t x = 1; x < end; x++) {
+            float t0 = a[x + 1] - a[x - 1], t1 = b[x + 1] - b[x - 1], t2 = c[x + 1] - c[x - 1];
+            float gx = (t0 + t2) + 2.0f * t1;
+            float gy = ((c[x - 1] + c[x + 1]) + 2.0f * c[x]) - ((a[x - 1] + a[x + 1]) + 2.0f * a[x]);
+            ox[x] = to_int16(gx * 8.0f);
+            oy[x] = to_int16(gy * 8.0f);
+            o[2 * x] = gx;
+            o[2 * x + 1] = gy;
+        }
+        for (Py_ssize_t x = end > 1 ? end : 1; x < w - 1; x++)
+            sobel_pixel(a, b, c, x - 1, x, x + 1, 1, 1, ox, oy, o);
+        /* the last column: scalar where it is in the scalar loops' part and their pairs */
+        int sl = w - 1 >= xs && (w - xs) % 2 == 0;
+        sobel_pixel(a, b, c, w - 2, w - 1, w - 2, w - 1 >= xs, sl, ox, oy, o);
+    }
+}
+
+static PyObject *py_sobel_gradients(PyObject *Py_UNUSED(self), PyObject *args)
+{
+    Py_ssize_t h, w;
+    PyObject *o[4];
+    if (!PyArg_ParseTuple(args, "nnOOOO", &h, &w, &o[0], &o[1], &o[2], &o[3]))
+        return NULL;
+    if (h < 2 || w < 2) {
+        PyErr_Format(PyExc_ValueError, "sobel_gradients: a %zdx%zd image (at least 2x2)", w, h);
+        return NULL;
+    }
+    Py_buffer b[4];
+    const Spec spec[4] = {
+        {"img", 4, h * w, 0}, {"dx16", 2, h * w, 1}, {"dy16", 2, h * w, 1}, {"dxy", 4, 2 * h * w, 1},
+    };
+    if (take_all(4, o, spec, b) < 0)
+        return NULL;
+    Py_BEGIN_ALLOW_THREADS
+    sobel_gradients(h, w, b[0].buf, b[1].buf, b[2].buf, b[3].buf);
+    Py_END_ALLOW_THREADS
+    release_all(4, b);
+    Py_RETURN_NONE;
+}
+
+/* The 256-bin histogram of the pixels of an (h, w) uint8 image (rows ``gs`` bytes apart)
+ * where the uint8 mask (rows ``ms`` apart) is not 0, as float32 counts (exact below 2^24):
+ * cv2.calcHist([gray], [0], mask, [256], [0, 256]). Four partial histograms, so that runs of
+ * one grey level do not wait on their own increments. */
+static void histogram(Py_ssize_t h, Py_ssize_t w, const uint8_t *gray, Py_ssize_t gs,
+                      const uint8_t *mask, Py_ssize_t ms, float *out)
+{
+    uint32_t c[4][256];
+    memset(c, 0, sizeof(c));
+    for (Py_ssize_t y = 0; y < h; y++) {
+        const uint8_t *g = gray + y * gs, *m = mask + y * ms;
+        Py_ssize_t x = 0;
+        for (; x + 8 <= w; x += 8) {
+            uint64_t mm;
+            memcpy(&mm, m + x, 8);
+            if (mm == 0)
+                continue;
+            if (mm == UINT64_MAX) { /* inside the mask: no test */
+                c[0][g[x]]++;
+                c[1][g[x + 1]]++;
+                c[2][g[x + 2]]++;
+                c[3][g[x + 3]]++;
+                c[0][g[x + 4]]++;
+                c[1][g[x + 5]]++;
+                c[2][g[x + 6]]++;
+                c[3][g[x + 7]]++;
+                continue;
+            }
+            for (Py_ssize_t k = x; k < x + 8; k++)
+                c[k & 3][g[k]] += m[k] != 0;
+        }
+        for (; x < w; x++)
+            c[0][g[x]] += m[x] != 0;
+    }
+    for (int k = 0; k < 256; k++)
+        out[k] = (float)((uint64_t)c[0][k] + c[1][k] + c[2][k] + c[3][k]);
+}
+
+static PyObject *py_histogram(PyObject *Py_UNUSED(self), PyObject *args)
+{
+    Py_ssize_t h, w, gh, gw, mh, mw, x0, y0;
+    PyObject *o[3];
+    if (!PyArg_ParseTuple(args, "nnnnOnnOnnO", &h, &w, &gh, &gw, &o[0], &mh, &mw, &o[1], &x0,
+                          &y0, &o[2]))
+        return NULL;
+    if (!nonnegative("h", h) || !nonnegative("w", w) || !nonnegative("x0", x0)
+        || !nonnegative("y0", y0))
+        return NULL;
+    if (x0 + w > gw || y0 + h > gh || x0 + w > mw || y0 + h > mh) {
+        PyErr_Format(PyExc_ValueError, "histogram: a %zdx%zd region at (%zd, %zd) leaves the "
+                     "%zdx%zd image or the %zdx%zd mask", w, h, x0, y0, gw, gh, mw, mh);
+        return NULL;
+    }
+    Py_buffer b[3];
+    const Spec spec[3] = {{"gray", 1, gh * gw, 0}, {"mask", 1, mh * mw, 0}, {"out", 4, 256, 1}};
+    if (take_all(3, o, spec, b) < 0)
+        return NULL;
+    Py_BEGIN_ALLOW_THREADS
+    histogram(h, w, (const uint8_t *)b[0].buf + y0 * gw + x0, gw,
+              (const uint8_t *)b[1].buf + y0 * mw + x0, mw, b[2].buf);
+    Py_END_ALLOW_THREADS
+    release_all(3, b);
     Py_RETURN_NONE;
 }
 
@@ -861,6 +1010,96 @@ static int scatter(Py_ssize_t N, Py_ssize_t S, const double *r, const double *w,
         o[7] = o[5];
     }
     return 0;
+}
+
+/* The unit eigenvector of the smallest eigenvalue of each symmetric 3x3 matrix of ``S`` (K of
+ * them, row-major), by cyclic Jacobi rotations (Numerical Recipes' ``jacobi``): accurate to
+ * round-off relative to each eigenvalue, so a short line's plane, whose two smallest
+ * eigenvalues are close, is found as precisely as by LAPACK, at a fraction of the cost of
+ * np.linalg.eigh's per-call overhead on a few dozen matrices. NaN where an entry is not finite. */
+static void smallest_eigvec3(Py_ssize_t K, const double *S, double *out)
+{
+    static const int P[3] = {0, 0, 1}, Q[3] = {1, 2, 2};
+    for (Py_ssize_t k = 0; k < K; k++) {
+        const double *m = S + 9 * k;
+        double a[3][3], v[3][3] = {{1, 0, 0}, {0, 1, 0}, {0, 0, 1}};
+        int finite = 1;
+        for (int i = 0; i < 3; i++)
+            for (int j = 0; j < 3; j++) {
+                a[i][j] = 0.5 * (m[3 * i + j] + m[3 * j + i]);
+                finite &= isfinite(m[3 * i + j]) != 0;
+            }
+        double *o = out + 3 * k;
+        if (!finite) {
+            o[0] = o[1] = o[2] = NAN;
+            continue;
+        }
+        for (int sweep = 0; sweep < 50; sweep++) {
+            if (a[0][1] == 0.0 && a[0][2] == 0.0 && a[1][2] == 0.0)
+                break;
+            for (int e = 0; e < 3; e++) {
+                int p = P[e], q = Q[e], r = 3 - p - q;
+                double apq = a[p][q];
+                if (apq == 0.0)
+                    continue;
+                double g = 100.0 * fabs(apq);
+                if (sweep > 3 && fabs(a[p][p]) + g == fabs(a[p][p])
+                    && fabs(a[q][q]) + g == fabs(a[q][q])) {
+                    a[p][q] = a[q][p] = 0.0;
+                    continue;
+                }
+                double h = a[q][q] - a[p][p], t;
+                if (fabs(h) + g == fabs(h)) {
+                    t = apq / h;
+                } else {
+                    double theta = 0.5 * h / apq;
+                    t = 1.0 / (fabs(theta) + sqrt(1.0 + theta * theta));
+                    if (theta < 0.0)
+                        t = -t;
+                }
+                double c = 1.0 / sqrt(1.0 + t * t), sn = t * c, tau = sn / (1.0 + c);
+                a[p][p] -= t * apq;
+                a[q][q] += t * apq;
+                a[p][q] = a[q][p] = 0.0;
+                double arp = a[r][p], arq = a[r][q];
+                a[r][p] = a[p][r] = arp - sn * (arq + arp * tau);
+                a[r][q] = a[q][r] = arq + sn * (arp - arq * tau);
+                for (int i = 0; i < 3; i++) {
+                    double vp = v[i][p], vq = v[i][q];
+                    v[i][p] = vp - sn * (vq + vp * tau);
+                    v[i][q] = vq + sn * (vp - vq * tau);
+                }
+            }
+        }
+        int j = 0;
+        if (a[1][1] < a[j][j])
+            j = 1;
+        if (a[2][2] < a[j][j])
+            j = 2;
+        double n = sqrt(v[0][j] * v[0][j] + v[1][j] * v[1][j] + v[2][j] * v[2][j]);
+        o[0] = v[0][j] / n;
+        o[1] = v[1][j] / n;
+        o[2] = v[2][j] / n;
+    }
+}
+
+static PyObject *py_smallest_eigvec3(PyObject *Py_UNUSED(self), PyObject *args)
+{
+    Py_ssize_t K;
+    PyObject *o[2];
+    if (!PyArg_ParseTuple(args, "nOO", &K, &o[0], &o[1]))
+        return NULL;
+    if (!nonnegative("K", K))
+        return NULL;
+    Py_buffer b[2];
+    const Spec spec[2] = {{"S", 8, 9 * K, 0}, {"out", 8, 3 * K, 1}};
+    if (take_all(2, o, spec, b) < 0)
+        return NULL;
+    Py_BEGIN_ALLOW_THREADS
+    smallest_eigvec3(K, b[0].buf, b[1].buf);
+    Py_END_ALLOW_THREADS
+    release_all(2, b);
+    Py_RETURN_NONE;
 }
 
 static PyObject *py_scatter(PyObject *Py_UNUSED(self), PyObject *args)
@@ -1785,6 +2024,15 @@ static PyObject *py_snap(PyObject *Py_UNUSED(self), PyObject *args)
 }
 
 static PyMethodDef methods[] = {
+    {"smallest_eigvec3", py_smallest_eigvec3, METH_VARARGS,
+     "smallest_eigvec3(K, S, out): each symmetric 3x3 matrix's unit eigenvector of its smallest "
+     "eigenvalue written (Jacobi rotations)"},
+    {"sobel_gradients", py_sobel_gradients, METH_VARARGS,
+     "sobel_gradients(h, w, img, dx16, dy16, dxy): gradients() of the image's Sobel derivatives "
+     "written"},
+    {"histogram", py_histogram, METH_VARARGS,
+     "histogram(h, w, gh, gw, gray, mh, mw, mask, x0, y0, out): the float32 256-bin histogram "
+     "of the region's pixels where the mask is not 0 written"},
     {"gradients", py_gradients, METH_VARARGS,
      "gradients(n, dx, dy, dx16, dy16, dxy): Canny's int16 gradients (int16)(8 d) and the "
      "interleaved (dx, dy) image written"},

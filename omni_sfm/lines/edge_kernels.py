@@ -47,6 +47,33 @@ def _u8(a: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(a, dtype=np.uint8)
 
 
+def histogram(gray: np.ndarray, mask: np.ndarray, roi: tuple[slice, slice]) -> np.ndarray:
+    """``cv2.calcHist([gray[roi]], [0], mask[roi], [256], [0, 256]).ravel()``: the float32
+    counts of each grey level of the uint8 image ``gray`` where the uint8 ``mask`` (at least as
+    large) is not 0, in the region ``roi`` (two slices with start and stop), read in place."""
+    g, m = _u8(gray), _u8(mask)
+    if g.ndim != 2 or m.ndim != 2:
+        raise ValueError(f"histogram: 2-D images, got {g.shape} and {m.shape}")
+    ys, xs = roi
+    out = np.empty(256, np.float32)
+    _edges.histogram(ys.stop - ys.start, xs.stop - xs.start, g.shape[0], g.shape[1], g,
+                     m.shape[0], m.shape[1], m, xs.start, ys.start, out)
+    return out
+
+
+def sobel_gradients(img: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`gradients` of ``cv2.Sobel(img, cv2.CV_32F, 1, 0, ksize=3)`` and ``(0, 1)`` of the
+    float32 image ``img`` (at least 2x2), with OpenCV's border and order of operations (the
+    same bits), in one pass: no dx, dy images are made."""
+    a = _f32(img)
+    if a.ndim != 2:
+        raise ValueError(f"sobel_gradients: a 2-D image, got {a.shape}")
+    dx16, dy16 = np.empty(a.shape, np.int16), np.empty(a.shape, np.int16)
+    dxy = np.empty(a.shape, np.complex64)
+    _edges.sobel_gradients(a.shape[0], a.shape[1], a, dx16, dy16, dxy.view(np.float32))
+    return dx16, dy16, dxy
+
+
 def gradients(dx: np.ndarray, dy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Of the float32 Sobel images ``dx``, ``dy`` (same shape): Canny's int16 gradients,
     ``np.multiply(d, 8.0, out=d16, casting="unsafe")`` (numpy's cast on x86: truncated toward
@@ -208,6 +235,19 @@ def scatter(rays: np.ndarray, weight: np.ndarray | None, seg: np.ndarray,
                          + ("" if w is None else f", {len(w)} weights"))
     out = np.empty((int(nseg), 3, 3))
     _edges.scatter(len(r), int(nseg), r, w, sg, out)
+    return out
+
+
+def smallest_eigenvector3(S: np.ndarray) -> FloatArray:
+    """``geometry.smallest_eigenvector`` of symmetric ``S`` ``(K, 3, 3)``: ``(K, 3)`` unit
+    eigenvectors of the smallest eigenvalues (arbitrary sign), by Jacobi rotations in C (as
+    accurate as ``np.linalg.eigh``, whose per-call cost was most of the time on a frame's few
+    dozen lines); NaN rows where a matrix holds a NaN or an infinity."""
+    m = _f64(S)
+    if m.ndim != 3 or m.shape[1:] != (3, 3):
+        raise ValueError(f"smallest_eigenvector3: (K, 3, 3) matrices, got {m.shape}")
+    out = np.empty((m.shape[0], 3))
+    _edges.smallest_eigvec3(m.shape[0], m, out)
     return out
 
 

@@ -42,24 +42,29 @@ class TrackingOptions:
 
     sample_spacing_px: float = 8.0
     """Interval between the points sampled on a line (along its edge points)."""
-    max_samples_per_line: int = 16
-    """At most this many samples per line (the interval grows on long lines)."""
+    max_samples_per_line: int = 8
+    """At most this many samples per line (the interval grows on long lines). 8 finds the same
+    partners as 16 on the rendered sequences (docs/frontend.md, "Tracking's cost") at half the
+    KLT work."""
     klt_scale: float = 0.5
     """KLT runs on the images resized by this factor (0.5: a quarter of the pixels, 4x faster;
     the tracked points only need to land within ``snap_radius_px`` of their line)."""
-    klt_window: int = 11
+    klt_window: int = 9
     """KLT window size (square, px of the resized image)."""
     klt_levels: int = 3
     """KLT pyramid levels above the full image."""
-    klt_iterations: int = 10
-    """KLT iterations per pyramid level."""
+    klt_iterations: int = 3
+    """KLT iterations per pyramid level. A point on a straight edge never meets KLT's
+    convergence test (it slides along the edge), so it used every iteration allowed; across the
+    edge, which is all the snapping needs, it settles within two or three."""
     klt_min_eig: float = 1e-5
     """KLT's minimum-eigenvalue threshold (OpenCV ``minEigThreshold``); kept low because points
     on a straight edge are ill-conditioned along it, which the snapping tolerates."""
-    fb_max_px: float = 1.0
+    fb_max_px: float = 0.0
     """Forward-backward check: tracked forward and back, a point must return within this
     distance of where it started, measured across the edge (along it KLT is free to slide);
-    0 skips the backward pass (about half the tracking time)."""
+    0 (the default) skips the backward pass, which doubled KLT's work and, behind the snap
+    radius and the vote quorum, changed no partner on the rendered sequences."""
     flow_neighbours: int = 8
     """Samples KLT cannot track (the window holds a single ideal straight edge) move with the
     median flow of this many nearest tracked samples; 0 drops them."""
@@ -186,7 +191,8 @@ class LineTracker:
                 and self._prev_lines.num_lines:
             track = self._associate(self._prev_pyr, pyr, self._prev_lines, lines)
         n_matched = int((track >= 0).sum())
-        ended = int(len(np.setdiff1d(self._prev_track, track))) if self.record else 0
+        # (sets: np.setdiff1d's sorts cost more on a few dozen ids)
+        ended = len(set(self._prev_track.tolist()) - set(track.tolist())) if self.record else 0
         revived = 0
         if nl and self.options.max_gap_frames > 0 and len(self._history) > 1:
             revived = self._revive(pyr, lines, track)
