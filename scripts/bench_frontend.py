@@ -10,6 +10,7 @@ KLT calls of the tracking, in one more pass over the frames.
 
     .venv/bin/python scripts/bench_frontend.py --frames 200
     .venv/bin/python scripts/bench_frontend.py --camera equirectangular --frames 50
+    .venv/bin/python scripts/bench_frontend.py --camera equirectangular --size 1920x960
     .venv/bin/python scripts/bench_frontend.py --input path/to/rendered/sequence
     .venv/bin/python scripts/bench_frontend.py --frames 50 --threads 1 --stages
 """
@@ -142,6 +143,8 @@ def main() -> int:
     ap.add_argument("--scene", default="corridor", help="corridor or room")
     ap.add_argument("--textured", action="store_true")
     ap.add_argument("--frames", type=int, default=50)
+    ap.add_argument("--size", help="image size WxH of the render (default: the camera's "
+                    "preset, 800x600 hyperboloid, 1600x800 equirectangular)")
     ap.add_argument("--cache", type=Path, default=Path(".cache/bench_frontend"),
                     help="where rendered sequences are kept between runs")
     ap.add_argument("--no-fb", action="store_true", help="skip the backward KLT pass")
@@ -157,12 +160,20 @@ def main() -> int:
     if seq is None:
         from omni_sfm.synth.render import RenderOptions, render_sequence
 
-        tag = f"{args.scene}_{args.camera}_{args.frames}{'_tex' if args.textured else ''}"
+        width = height = None
+        if args.size:
+            try:
+                width, height = (int(v) for v in args.size.lower().split("x"))
+            except ValueError:
+                ap.error(f"--size: WxH, e.g. 1920x960, got {args.size!r}")
+        tag = (f"{args.scene}_{args.camera}_{args.frames}{'_tex' if args.textured else ''}"
+               f"{f'_{width}x{height}' if args.size else ''}")
         seq = args.cache / tag
         if not (seq / "lines3d.json").exists():
             print(f"rendering {tag} into {seq} ...", file=sys.stderr)
             render_sequence(seq, RenderOptions(scene=args.scene, camera=args.camera,
-                                               frames=args.frames, textured=args.textured),
+                                               frames=args.frames, textured=args.textured,
+                                               width=width, height=height),
                             overwrite=True)
     cam = load_camera(seq / "camera.yaml")
     gt = read_tum(seq / "groundtruth.tum")
