@@ -796,3 +796,45 @@ def test_snap_finds_the_kd_trees_neighbours():
     assert edge_kernels.snap(pts[:0], q, 3.0).tolist() == [-1] * len(q)
     # points too sparse for a grid: None (the caller's tree)
     assert edge_kernels.snap(np.array([[0.0, 0.0], [1e6, 1e6]]), q, 3.0) is None
+
+
+def _line_samples_numpy(offsets, points_uv, spacing, max_samples):
+    """LineTracker._samples as numpy computed it."""
+    n = np.diff(offsets)
+    step = np.maximum(spacing, n / max(1, max_samples))
+    k = np.maximum(1, np.floor(n / step)).astype(np.int64)
+    line = np.repeat(np.arange(len(n)), k)
+    within = np.arange(len(line)) - np.repeat(np.cumsum(k) - k, k)
+    pos = offsets[line] + ((within + 0.5) * n[line] / k[line]).astype(np.int64)
+    lo = np.maximum(pos - 2, offsets[line])
+    hi = np.minimum(pos + 2, offsets[line + 1] - 1)
+    tangent = points_uv[hi] - points_uv[lo]
+    tn = np.linalg.norm(tangent, axis=1, keepdims=True)
+    tangent = np.where(tn > 0, tangent / np.where(tn > 0, tn, 1.0), 0.0)
+    return points_uv[pos], tangent, line, k
+
+
+def test_line_samples_are_the_trackers_numpy_samples(frame):
+    ex, _ = frame
+    img = render(hyperboloid_camera(), Room(), np.eye(3), np.array([0.3, 0.2, 0.1]))
+    lines = ex.extract(img)
+    rng = np.random.default_rng(18)
+    sizes = rng.integers(1, 300, 40)
+    cases = [(lines.offsets, lines.points_uv),
+             (np.concatenate([[0], np.cumsum(sizes)]), rng.normal(0, 100, (sizes.sum(), 2)))]
+    pts = rng.normal(0, 1, (12, 2))
+    pts[5:9] = pts[5]  # a line whose points coincide: zero tangents
+    cases.append((np.array([0, 1, 2, 5, 9, 12]), pts))
+    for offsets, uv in cases:
+        for spacing, most in ((8.0, 8), (8.0, 16), (3.5, 1), (20.0, 0)):
+            out = edge_kernels.line_samples(offsets, uv, spacing, most)
+            ref = _line_samples_numpy(offsets, uv, spacing, most)
+            for a, b in zip(out, ref, strict=True):
+                assert a.dtype == b.dtype and a.shape == b.shape
+                assert a.tobytes() == b.tobytes()
+    out = edge_kernels.line_samples(np.zeros(1, np.int64), np.zeros((0, 2)), 8.0, 8)
+    assert [len(a) for a in out] == [0, 0, 0, 0]
+    with pytest.raises(ValueError):
+        edge_kernels.line_samples(np.array([0, 3, 3]), np.zeros((3, 2)), 8.0, 8)  # empty line
+    with pytest.raises(ValueError):
+        edge_kernels.line_samples(np.array([0, 5]), np.zeros((3, 2)), 8.0, 8)  # past the points

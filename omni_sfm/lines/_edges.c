@@ -1999,6 +1999,93 @@ static int snap(Py_ssize_t M, const double *P, Py_ssize_t K, const double *Q, do
     return 0;
 }
 
+/* The tracker's samples (LineTracker._samples): on each of the L lines (points
+ * offsets[l]..offsets[l+1] of ``uv``, (P, 2)), k = max(1, floor(n / step)) points at
+ * step = max(spacing, n / max_samples), the j-th at offsets[l] + (int64)((j + 0.5) n / k), and
+ * the unit tangent there from the points 2 before and 2 after (clipped to the line; 0 where
+ * they coincide), in numpy's float64 arithmetic. Pass 1 (``pos`` NULL) counts into ``k``;
+ * pass 2 writes. Returns the number of samples, -1 where a line is empty (*bad: which). */
+static Py_ssize_t line_samples(Py_ssize_t L, const int64_t *off, const double *uv,
+                               double spacing, double max_samples, int64_t *k, int64_t *pos,
+                               double *at, double *tan, int64_t *line, Py_ssize_t *bad)
+{
+    Py_ssize_t S = 0;
+    for (Py_ssize_t l = 0; l < L; l++) {
+        int64_t n = off[l + 1] - off[l];
+        if (n <= 0) {
+            *bad = l;
+            return -1;
+        }
+        if (pos == NULL) {
+            double step = (double)n / max_samples;
+            if (!(step >= spacing)) /* np.maximum: spacing unless the quotient is larger */
+                step = spacing;
+            double q = floor((double)n / step);
+            k[l] = q < 1.0 ? 1 : (int64_t)q;
+        }
+        for (int64_t j = 0; j < k[l]; j++, S++) {
+            if (pos == NULL)
+                continue;
+            int64_t p = off[l] + (int64_t)(((double)j + 0.5) * (double)n / (double)k[l]);
+            int64_t lo = p - 2 > off[l] ? p - 2 : off[l];
+            int64_t hi = p + 2 < off[l + 1] - 1 ? p + 2 : off[l + 1] - 1;
+            double tx = uv[2 * hi] - uv[2 * lo], ty = uv[2 * hi + 1] - uv[2 * lo + 1];
+            double tn = sqrt(tx * tx + ty * ty);
+            pos[S] = p;
+            line[S] = l;
+            at[2 * S] = uv[2 * p];
+            at[2 * S + 1] = uv[2 * p + 1];
+            tan[2 * S] = tn > 0.0 ? tx / tn : 0.0;
+            tan[2 * S + 1] = tn > 0.0 ? ty / tn : 0.0;
+        }
+    }
+    return S;
+}
+
+static PyObject *py_line_samples(PyObject *Py_UNUSED(self), PyObject *args)
+{
+    Py_ssize_t L, P, S;
+    double spacing, max_samples;
+    PyObject *o[7];
+    if (!PyArg_ParseTuple(args, "nnnOOddOOOOO", &L, &P, &S, &o[0], &o[1], &spacing, &max_samples,
+                          &o[2], &o[3], &o[4], &o[5], &o[6]))
+        return NULL;
+    if (!nonnegative("L", L) || !nonnegative("P", P) || !nonnegative("S", S))
+        return NULL;
+    int count = o[3] == Py_None;
+    Py_buffer b[7];
+    const Spec spec[7] = {
+        {"offsets", 8, L + 1, 0}, {"uv", 8, 2 * P, 0}, {"k", 8, L, 1}, {"pos", 8, S, 1},
+        {"at", 8, 2 * S, 1},      {"tangent", 8, 2 * S, 1}, {"line", 8, S, 1},
+    };
+    if (take_all(count ? 3 : 7, o, spec, b) < 0)
+        return NULL;
+    const int64_t *off = b[0].buf;
+    Py_ssize_t bad = -1, n = -2;
+    if (L > 0 && (off[0] < 0 || off[L] > P)) {
+        release_all(count ? 3 : 7, b);
+        PyErr_Format(PyExc_ValueError, "line_samples: offsets outside the %zd points", P);
+        return NULL;
+    }
+    for (Py_ssize_t l = 0; l < L && bad < 0; l++)
+        if (off[l + 1] < off[l])
+            bad = l;
+    if (bad < 0) {
+        Py_BEGIN_ALLOW_THREADS
+        n = line_samples(L, off, b[1].buf, spacing, max_samples, b[2].buf,
+                         count ? NULL : b[3].buf, count ? NULL : b[4].buf,
+                         count ? NULL : b[5].buf, count ? NULL : b[6].buf, &bad);
+        Py_END_ALLOW_THREADS
+    }
+    release_all(count ? 3 : 7, b);
+    if (n < 0 || (!count && n != S)) {
+        PyErr_Format(PyExc_ValueError, "line_samples: line %zd is empty or the offsets "
+                     "decrease", bad);
+        return NULL;
+    }
+    return PyLong_FromSsize_t(n);
+}
+
 static PyObject *py_snap(PyObject *Py_UNUSED(self), PyObject *args)
 {
     Py_ssize_t M, K;
@@ -2024,6 +2111,9 @@ static PyObject *py_snap(PyObject *Py_UNUSED(self), PyObject *args)
 }
 
 static PyMethodDef methods[] = {
+    {"line_samples", py_line_samples, METH_VARARGS,
+     "line_samples(L, P, S, offsets, uv, spacing, max_samples, k, pos, at, tangent, line): the "
+     "tracker's samples per line counted into k (pos None) or written; returns how many"},
     {"smallest_eigvec3", py_smallest_eigvec3, METH_VARARGS,
      "smallest_eigvec3(K, S, out): each symmetric 3x3 matrix's unit eigenvector of its smallest "
      "eigenvalue written (Jacobi rotations)"},

@@ -391,6 +391,25 @@ def hypotheses(rays: np.ndarray, ia: np.ndarray, ib: np.ndarray) -> tuple[np.nda
     return hyp, degenerate
 
 
+def line_samples(offsets: np.ndarray, points_uv: np.ndarray, spacing: float,
+                 max_samples: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``LineTracker._samples``: points at constant intervals on each line (the line owns
+    ``points_uv[offsets[l]:offsets[l + 1]]``, none empty): ``(S, 2)`` pixels, ``(S, 2)`` unit
+    tangents of the edge there (0 where the points 2 before and 2 after coincide), ``(S,)``
+    line index and ``(L,)`` samples per line, in the numpy code's float64 arithmetic (the same
+    bits; ``tests/test_edge_kernels.py``)."""
+    off, uv = _i64(offsets).reshape(-1), _f64(points_uv).reshape(-1, 2)
+    nl = max(0, len(off) - 1)
+    k = np.empty(nl, np.int64)
+    m = float(max(1, int(max_samples)))
+    n = _edges.line_samples(nl, len(uv), 0, off, uv, float(spacing), m, k, None, None, None,
+                            None)
+    pos, line = np.empty(n, np.int64), np.empty(n, np.int64)
+    at, tangent = np.empty((n, 2)), np.empty((n, 2))
+    _edges.line_samples(nl, len(uv), n, off, uv, float(spacing), m, k, pos, at, tangent, line)
+    return at, tangent, line, k
+
+
 def snap(points: np.ndarray, queries: np.ndarray, radius: float) -> np.ndarray | None:
     """For each query ``(K, 2)`` the index of the nearest of ``points`` ``(M, 2)`` within
     ``radius`` (squared distance under ``radius**2``; of equal distances the lowest index), -1

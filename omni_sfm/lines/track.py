@@ -286,20 +286,11 @@ class LineTracker:
     def _samples(self, lines: ExtractedLines) -> tuple[FloatArray, FloatArray, IntArray,
                                                         IntArray]:
         """Points at constant intervals on each line: ``(S, 2)`` pixels, ``(S, 2)`` unit
-        tangents of the edge there, ``(S,)`` line index, ``(L,)`` samples per line."""
+        tangents of the edge there, ``(S,)`` line index, ``(L,)`` samples per line (in C,
+        :func:`edge_kernels.line_samples`)."""
         o = self.options
-        n = np.diff(lines.offsets)
-        step = np.maximum(o.sample_spacing_px, n / max(1, o.max_samples_per_line))
-        k = np.maximum(1, np.floor(n / step)).astype(np.int64)
-        line = np.repeat(np.arange(len(n)), k)
-        within = np.arange(len(line)) - np.repeat(np.cumsum(k) - k, k)
-        pos = lines.offsets[line] + ((within + 0.5) * n[line] / k[line]).astype(np.int64)
-        lo = np.maximum(pos - 2, lines.offsets[line])
-        hi = np.minimum(pos + 2, lines.offsets[line + 1] - 1)
-        tangent = lines.points_uv[hi] - lines.points_uv[lo]
-        tn = np.linalg.norm(tangent, axis=1, keepdims=True)
-        tangent = np.where(tn > 0, tangent / np.where(tn > 0, tn, 1.0), 0.0)
-        return lines.points_uv[pos], tangent, line, k
+        return edge_kernels.line_samples(lines.offsets, lines.points_uv, o.sample_spacing_px,
+                                         o.max_samples_per_line)
 
     def _votes(self, img0: np.ndarray, img1: np.ndarray, prev: ExtractedLines,
                cur: ExtractedLines, prev_keep: np.ndarray | None = None,
