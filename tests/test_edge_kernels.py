@@ -838,3 +838,52 @@ def test_line_samples_are_the_trackers_numpy_samples(frame):
         edge_kernels.line_samples(np.array([0, 3, 3]), np.zeros((3, 2)), 8.0, 8)  # empty line
     with pytest.raises(ValueError):
         edge_kernels.line_samples(np.array([0, 5]), np.zeros((3, 2)), 8.0, 8)  # past the points
+
+
+def test_canny_is_cv2_canny_on_gradients(frame):
+    """The compiled Canny against cv2.Canny(dx, dy, low, high, L2gradient=True): the same
+    edge map on a rendered frame and its noisy copy at several thresholds, and on random
+    gradients of odd sizes (ties between neighbours included)."""
+    _, inputs = frame
+    rng = np.random.default_rng(19)
+    for dxy, _, _, _ in inputs:
+        dx16, dy16, _ = _gradients_numpy(dxy.real.copy(), dxy.imag.copy())
+        for low, high in ((160.0, 320.0), (40.0, 80.0), (400.0, 1200.0), (0.0, 8.0),
+                          (320.0, 160.0), (163.7, 330.2)):
+            ref = cv2.Canny(dx16, dy16, low, high, L2gradient=True)
+            np.testing.assert_array_equal(edge_kernels.canny(dx16, dy16, low, high), ref)
+    for t in range(60):
+        h, w = (int(v) for v in rng.integers(1, 30, 2))
+        dx = rng.integers(-3000, 3000, (h, w)).astype(np.int16)
+        dy = rng.integers(-3000, 3000, (h, w)).astype(np.int16)
+        if t % 3 == 0:
+            dx[:, ::2] = 0  # equal magnitudes side by side
+        if t % 4 == 0:
+            dy[::2] = dx[::2]  # diagonals
+        ref = cv2.Canny(dx, dy, 100.0, 250.0, L2gradient=True)
+        np.testing.assert_array_equal(edge_kernels.canny(dx, dy, 100.0, 250.0), ref)
+    with pytest.raises(ValueError):
+        edge_kernels.canny(dx, dy[:, 1:], 100.0, 250.0)
+
+
+def test_extraction_is_the_same_with_either_canny():
+    """Which Canny runs follows the previous frame's edge density: the lines are the same."""
+    cam = hyperboloid_camera()
+    img = render(cam, Room(), np.eye(3), np.array([0.3, 0.2, 0.1]))
+    noisy = np.clip(img + np.random.default_rng(2).normal(0, 20, img.shape), 0, 255)
+    for image in (img, noisy.astype(np.uint8)):
+        runs = []
+        for dense in (False, True):
+            ex = LineExtractor(cam)
+            ex._dense_edges = dense
+            runs.append(ex.extract(image))
+        a, b = runs
+        assert a.num_lines > 5
+        for name in ("normals", "offsets", "points_uv", "num_support", "normal_sigma"):
+            assert getattr(a, name).tobytes() == getattr(b, name).tobytes()
+    # the noisy frame's edges are dense, the clean one's are not: each picks its Canny next
+    ex = LineExtractor(cam)
+    ex.extract(noisy.astype(np.uint8))
+    assert ex._dense_edges
+    ex.extract(img)
+    assert not ex._dense_edges

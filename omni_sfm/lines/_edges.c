@@ -170,6 +170,129 @@ static PyObject *py_sobel_gradients(PyObject *Py_UNUSED(self), PyObject *args)
     Py_RETURN_NONE;
 }
 
+/* Canny's non-maximum suppression and hysteresis on given int16 gradients, L2 magnitude, as
+ * cv2.Canny(dx, dy, low, high, L2gradient=True): magnitude m = dx^2 + dy^2 (int), thresholds
+ * squared and floored; a pixel with m > low is a local maximum across its edge (the direction
+ * quantised by tan 22.5 deg in 15-bit fixed point; left/up neighbours compared with >, the
+ * others as OpenCV does); maxima above ``high`` seed the edges, which grow through the 8-connected
+ * maxima above ``low``. Outside the image the magnitude is 0. ``edges`` (h, w) gets 255 on edge
+ * pixels and 0 elsewhere. Returns -1 where memory ran out. */
+/* One row of Canny's non-maximum suppression (see canny), without branches so that the
+ * compiler can take several pixels at once: the map gets 2 (a maximum above high), 0 (a maximum
+ * above low) or 1. ``mp``, ``mc``, ``mn``: the magnitudes of the rows above, here and below,
+ * from one column left of the image. */
+WIDE_LOOPS static void canny_row(Py_ssize_t w, const int16_t *rx, const int16_t *ry,
+                                 const int *mp, const int *mc, const int *mn, int low, int high,
+                                 uint8_t *row)
+{
+    enum { SHIFT = 15 };
+    const int TG22 = (int)(0.4142135623730950488016887242097 * (1 << SHIFT) + 0.5);
+    for (Py_ssize_t x = 0; x < w; x++) {
+        int m = mc[x + 1], xs = rx[x], ys = ry[x];
+        int ax = xs < 0 ? -xs : xs, ay = (ys < 0 ? -ys : ys) << SHIFT;
+        int tg22x = ax * TG22, tg67x = tg22x + (ax << (SHIFT + 1));
+        int across = ay < tg22x, along = !across && ay > tg67x, diag = !across && !along;
+        int up = (xs ^ ys) >= 0; /* the diagonal through the upper left and lower right */
+        int a = across ? mc[x] : along ? mp[x + 1] : up ? mp[x] : mp[x + 2];
+        int b = across ? mc[x + 2] : along ? mn[x + 1] : up ? mn[x + 2] : mn[x];
+        int keep = (m > low) & (m > a) & ((m > b) | ((m == b) & !diag));
+        row[x] = (uint8_t)(keep ? (m > high ? 2 : 0) : 1);
+    }
+}
+
+static int canny(Py_ssize_t h, Py_ssize_t w, const int16_t *dx, const int16_t *dy, int low,
+                 int high, uint8_t *edges)
+{
+    Py_ssize_t W = w + 2;
+    int *mag = calloc((size_t)(3 * W), sizeof(int));
+    uint8_t *map = malloc((size_t)((h + 2) * W));
+    Py_ssize_t cap = 1024, top = 0;
+    uint8_t **stack = malloc((size_t)cap * sizeof(uint8_t *));
+    if (!mag || !map || !stack) {
+        free(mag), free(map), free(stack);
+        return -1;
+    }
+    memset(map, 1, (size_t)((h + 2) * W));
+    int *mp = mag, *mc = mag + W, *mn = mag + 2 * W; /* rows y-1, y, y+1, one column of 0 a side */
+    for (Py_ssize_t x = 0; x < w; x++)
+        mn[x + 1] = (int)dx[x] * dx[x] + (int)dy[x] * dy[x];
+    for (Py_ssize_t y = 0; y < h; y++) {
+        int *t = mp;
+        mp = mc, mc = mn, mn = t;
+        if (y + 1 < h) {
+            const int16_t *ax = dx + (y + 1) * w, *ay = dy + (y + 1) * w;
+            for (Py_ssize_t x = 0; x < w; x++)
+                mn[x + 1] = (int)ax[x] * ax[x] + (int)ay[x] * ay[x];
+        } else {
+            for (Py_ssize_t x = 0; x < W; x++)
+                mn[x] = 0;
+        }
+        canny_row(w, dx + y * w, dy + y * w, mp, mc, mn, low, high, map + (y + 1) * W + 1);
+        const uint8_t *row = map + (y + 1) * W + 1;
+        for (Py_ssize_t x = 0; x < w; x++) {
+            if (row[x] != 2)
+                continue;
+            if (top == cap) {
+                uint8_t **grown = realloc(stack, (size_t)(2 * cap) * sizeof(uint8_t *));
+                if (!grown) {
+                    free(mag), free(map), free(stack);
+                    return -1;
+                }
+                stack = grown, cap *= 2;
+            }
+            stack[top++] = (uint8_t *)row + x;
+        }
+    }
+    const Py_ssize_t nb[8] = {-W - 1, -W, -W + 1, -1, 1, W - 1, W, W + 1};
+    while (top > 0) {
+        uint8_t *m = stack[--top];
+        for (int k = 0; k < 8; k++)
+            if (m[nb[k]] == 0) {
+                m[nb[k]] = 2;
+                if (top == cap) {
+                    uint8_t **grown = realloc(stack, (size_t)(2 * cap) * sizeof(uint8_t *));
+                    if (!grown) {
+                        free(mag), free(map), free(stack);
+                        return -1;
+                    }
+                    stack = grown, cap *= 2;
+                }
+                stack[top++] = m + nb[k];
+            }
+    }
+    for (Py_ssize_t y = 0; y < h; y++) {
+        const uint8_t *row = map + (y + 1) * W + 1;
+        uint8_t *out = edges + y * w;
+        for (Py_ssize_t x = 0; x < w; x++)
+            out[x] = row[x] == 2 ? 255 : 0;
+    }
+    free(mag), free(map), free(stack);
+    return 0;
+}
+
+static PyObject *py_canny(PyObject *Py_UNUSED(self), PyObject *args)
+{
+    Py_ssize_t h, w;
+    int low, high;
+    PyObject *o[3];
+    if (!PyArg_ParseTuple(args, "nnOOiiO", &h, &w, &o[0], &o[1], &low, &high, &o[2]))
+        return NULL;
+    if (!nonnegative("h", h) || !nonnegative("w", w))
+        return NULL;
+    Py_buffer b[3];
+    const Spec spec[3] = {{"dx", 2, h * w, 0}, {"dy", 2, h * w, 0}, {"edges", 1, h * w, 1}};
+    if (take_all(3, o, spec, b) < 0)
+        return NULL;
+    int rc;
+    Py_BEGIN_ALLOW_THREADS
+    rc = canny(h, w, b[0].buf, b[1].buf, low, high, b[2].buf);
+    Py_END_ALLOW_THREADS
+    release_all(3, b);
+    if (rc < 0)
+        return PyErr_NoMemory();
+    Py_RETURN_NONE;
+}
+
 /* The 256-bin histogram of the pixels of an (h, w) uint8 image (rows ``gs`` bytes apart)
  * where the uint8 mask (rows ``ms`` apart) is not 0, as float32 counts (exact below 2^24):
  * cv2.calcHist([gray], [0], mask, [256], [0, 256]). Four partial histograms, so that runs of
@@ -2111,6 +2234,9 @@ static PyObject *py_snap(PyObject *Py_UNUSED(self), PyObject *args)
 }
 
 static PyMethodDef methods[] = {
+    {"canny", py_canny, METH_VARARGS,
+     "canny(h, w, dx16, dy16, low, high, edges): cv2.Canny on the gradients (L2), the edge map "
+     "written"},
     {"line_samples", py_line_samples, METH_VARARGS,
      "line_samples(L, P, S, offsets, uv, spacing, max_samples, k, pos, at, tangent, line): the "
      "tracker's samples per line counted into k (pos None) or written; returns how many"},

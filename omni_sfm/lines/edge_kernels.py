@@ -61,6 +61,22 @@ def histogram(gray: np.ndarray, mask: np.ndarray, roi: tuple[slice, slice]) -> n
     return out
 
 
+def canny(dx16: np.ndarray, dy16: np.ndarray, low: float, high: float) -> np.ndarray:
+    """``cv2.Canny(dx16, dy16, low, high, L2gradient=True)``: the uint8 edge map (255 on
+    edges) of the int16 gradients, the same pixels (``tests/test_edge_kernels.py``)."""
+    x, y = np.ascontiguousarray(dx16, np.int16), np.ascontiguousarray(dy16, np.int16)
+    if x.ndim != 2 or x.shape != y.shape:
+        raise ValueError(f"canny: two 2-D gradients of one shape, got {x.shape}, {y.shape}")
+    lo, hi = (min(32767.0, float(v)) for v in (low, high))
+    if lo > hi:
+        lo, hi = hi, lo
+    # OpenCV squares positive thresholds for the L2 magnitude and floors them
+    lo2, hi2 = (int(np.floor(v * v if v > 0 else v)) for v in (lo, hi))
+    out = np.empty(x.shape, np.uint8)
+    _edges.canny(x.shape[0], x.shape[1], x, y, lo2, hi2, out)
+    return out
+
+
 def sobel_gradients(img: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`gradients` of ``cv2.Sobel(img, cv2.CV_32F, 1, 0, ksize=3)`` and ``(0, 1)`` of the
     float32 image ``img`` (at least 2x2), with OpenCV's border and order of operations (the
