@@ -1,11 +1,11 @@
 /* The line extractor's per-pixel and per-edge-point loops (omni_sfm.lines.extract), in C: the
- * grey-level histogram, Sobel and the glue around Canny (its int16 gradients, the masked edge
- * pixels, the long-chain test), the corner test of the edge points, the orientation's value
- * modulo pi, the orientation-linked connected components of the edge points, their sub-pixel
- * positions, the great circles' fits (MSAC scores, scatter matrices, their smallest
- * eigenvectors) and the lines' bookkeeping. The eigenvectors (Jacobi rotations) are the one
- * kernel that does not repeat its predecessor's bits (np.linalg.eigh's LAPACK), only its
- * accuracy.
+ * grey-level histogram, Sobel, Canny (for frames with dense edges) and the glue around it (its
+ * int16 gradients, the masked edge pixels, the long-chain test), the corner test of the edge
+ * points, the orientation's value modulo pi, the orientation-linked connected components of
+ * the edge points, their sub-pixel positions, the great circles' fits (MSAC scores, scatter
+ * matrices, their smallest eigenvectors), the lines' bookkeeping, and the tracker's samples
+ * and snapping. The eigenvectors (Jacobi rotations) are the one kernel that does not repeat
+ * its predecessor's bits (np.linalg.eigh's LAPACK), only its accuracy.
  *
  * Why C: each of these was a dozen numpy calls on arrays of one row per edge point (tens of
  * thousands in a textured frame), and the calls' overhead and the temporary arrays were much

@@ -1,13 +1,16 @@
-"""The line extractor's per-edge-point loops, compiled (``_edges.c``).
+"""The line extractor's per-pixel and per-edge-point loops, compiled (``_edges.c``).
 
-:class:`~omni_sfm.lines.extract.LineExtractor` tests every Canny edge point for being
-corner-like, links the line-like ones into segments, finds their sub-pixel positions and scores
-great-circle hypotheses on them. Written in numpy each step was a dozen calls on arrays of one
-row per edge point (tens of thousands in a textured frame), and the calls' overhead and their
-temporary arrays were much of the extraction's time; here each is one loop over the points.
-The formulas are those numpy evaluated before (``tests/test_edge_kernels.py`` keeps those
-numpy versions), in the same precision and order of operations: the results are the same bits,
-but for the corner test's window sums (see :func:`corner_test`).
+:class:`~omni_sfm.lines.extract.LineExtractor` finds edges (histogram, Sobel, Canny), tests
+every Canny edge point for being corner-like, links the line-like ones into segments, finds
+their sub-pixel positions and scores great-circle hypotheses on them;
+:class:`~omni_sfm.lines.track.LineTracker` samples the lines and snaps tracked points to them.
+Written in numpy each step was a dozen calls on arrays of one row per edge point (tens of
+thousands in a textured frame), and the calls' overhead and their temporary arrays were much of
+the extraction's time; here each is one loop over the points or pixels. The formulas are those
+numpy or OpenCV evaluated before (``tests/test_edge_kernels.py`` keeps those versions), in the
+same precision and order of operations: the results are the same bits, but for the corner
+test's window sums (see :func:`corner_test`) and the planes' eigenvectors
+(:func:`smallest_eigenvector3`), which are as accurate as before.
 
 The extension is built by the project's install (``make setup``: ``pip install -e .``, any C
 compiler and Python's headers).
