@@ -9,7 +9,7 @@ made, and the wrong links: links whose second observation is more than 1 deg fro
 the 3D line the first one is nearest to (first within 0.5 deg of some true line, else the link is
 not judged). Wrong links are what a tracker must not add: one track holding two 3D lines.
 
-    .venv/bin/python scripts/compare_tracking.py --input /tmp/w/f600/<sequence> --frames 200 \\
+    .venv/bin/python scripts/compare_tracking.py --input WORK/<sequence> --frames 200 \\
         --variant "klt_window=11,klt_iterations=10,fb_max_px=1,max_samples_per_line=16"
 
 ``--input`` takes folders rendered by ``omni-sfm render`` or ``scripts/eval_footage.py``
