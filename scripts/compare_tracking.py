@@ -25,6 +25,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+from bench_frontend import true_nvs
 
 from omni_sfm.cameras import load_camera
 from omni_sfm.lines.extract import ExtractedLines, LineExtractor
@@ -52,13 +53,8 @@ def true_normals(seq: Path, frames: int) -> list[np.ndarray]:
     """Per frame, the unit NVs (camera frame) of the renderer's 3D lines."""
     gt = read_tum(seq / "groundtruth.tum")
     lines3d = read_lines3d(seq / "lines3d.json")
-    out = []
-    for k in range(frames):
-        a = (lines3d.starts - gt.positions[k]) @ gt.rotations[k]
-        b = (lines3d.ends - gt.positions[k]) @ gt.rotations[k]
-        n = np.cross(a, b)
-        out.append(n / np.linalg.norm(n, axis=1, keepdims=True))
-    return out
+    return [true_nvs(lines3d.starts, lines3d.ends, gt.rotations[k], gt.positions[k])
+            for k in range(frames)]
 
 
 def links(obs: TrackedObservations) -> set[tuple[int, int, int, int]]:

@@ -44,7 +44,7 @@ class TrackingOptions:
     """Interval between the points sampled on a line (along its edge points)."""
     max_samples_per_line: int = 8
     """At most this many samples per line (the interval grows on long lines). 8 finds the same
-    partners as 16 on the rendered sequences (docs/frontend.md, "Tracking's cost") at half the
+    partners as 16 on the rendered sequences (docs/frontend.md, "The tracker's cost") at half the
     KLT work."""
     klt_scale: float = 0.5
     """KLT runs on the images resized by this factor (0.5: a quarter of the pixels, 4x faster;
