@@ -206,8 +206,10 @@ static int canny(Py_ssize_t h, Py_ssize_t w, const int16_t *dx, const int16_t *d
     Py_ssize_t W = w + 2;
     int *mag = calloc((size_t)(3 * W), sizeof(int));
     uint8_t *map = malloc((size_t)((h + 2) * W));
-    Py_ssize_t cap = 1024, top = 0;
-    uint8_t **stack = malloc((size_t)cap * sizeof(uint8_t *));
+    /* each pixel is pushed at most once (marked 2 first), so the stack never outgrows the
+     * image; the pages of its unused part are never touched */
+    Py_ssize_t top = 0;
+    uint8_t **stack = malloc((size_t)(h * w > 0 ? h * w : 1) * sizeof(uint8_t *));
     if (!mag || !map || !stack) {
         free(mag), free(map), free(stack);
         return -1;
@@ -230,17 +232,8 @@ static int canny(Py_ssize_t h, Py_ssize_t w, const int16_t *dx, const int16_t *d
         canny_row(w, dx + y * w, dy + y * w, mp, mc, mn, low, high, map + (y + 1) * W + 1);
         const uint8_t *row = map + (y + 1) * W + 1;
         for (Py_ssize_t x = 0; x < w; x++) {
-            if (row[x] != 2)
-                continue;
-            if (top == cap) {
-                uint8_t **grown = realloc(stack, (size_t)(2 * cap) * sizeof(uint8_t *));
-                if (!grown) {
-                    free(mag), free(map), free(stack);
-                    return -1;
-                }
-                stack = grown, cap *= 2;
-            }
-            stack[top++] = (uint8_t *)row + x;
+            if (row[x] == 2)
+                stack[top++] = (uint8_t *)row + x;
         }
     }
     const Py_ssize_t nb[8] = {-W - 1, -W, -W + 1, -1, 1, W - 1, W, W + 1};
@@ -249,14 +242,6 @@ static int canny(Py_ssize_t h, Py_ssize_t w, const int16_t *dx, const int16_t *d
         for (int k = 0; k < 8; k++)
             if (m[nb[k]] == 0) {
                 m[nb[k]] = 2;
-                if (top == cap) {
-                    uint8_t **grown = realloc(stack, (size_t)(2 * cap) * sizeof(uint8_t *));
-                    if (!grown) {
-                        free(mag), free(map), free(stack);
-                        return -1;
-                    }
-                    stack = grown, cap *= 2;
-                }
                 stack[top++] = m + nb[k];
             }
     }
