@@ -88,6 +88,11 @@ def add_parser(subparsers: Any) -> None:
     p.add_argument("--overwrite", action="store_true", help="replace a non-empty OUTPUT")
     p.add_argument("--no-refine", action="store_true",
                    help="skip the bundle adjustment (the paper's method alone)")
+    p.add_argument("--estimator", choices=["windows", "global"], default="windows",
+                   help="windows: the paper's method on windows, chained and adjusted "
+                        "(default); global: rotations of all frames at once, positions of "
+                        "all frames at once, one bundle adjustment (docs/estimator.md, "
+                        "\"Global estimator\")")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=run)
 
@@ -156,7 +161,7 @@ def run(args: argparse.Namespace) -> int:
     if args.workers is not None and args.workers < 1:
         raise OmniSfmError(f"--workers must be at least 1, got {args.workers}")
     estimation = EstimationOptions(refine=not args.no_refine, progress=not args.quiet,
-                                   workers=args.workers)
+                                   workers=args.workers, estimator=args.estimator)
     if args.images is not None:
         from omni_sfm.initialize import InitOptions, init_from_images
         from omni_sfm.lines.frontend import FrontEndOptions

@@ -40,6 +40,7 @@ from omni_sfm.estimate.bundle import (
     weighted_residuals,
 )
 from omni_sfm.estimate.families import camera_anchors, line_families, snap_to_families
+from omni_sfm.estimate.global_estimator import GlobalOptions, solve_global
 from omni_sfm.estimate.incremental import (
     IncrementalOptions,
     obs_index,
@@ -191,6 +192,14 @@ class EstimationOptions:
     join_max_residual_factor: float = 1.5
     """... and the bundle adjustment of the joined piece ends with an RMS residual at most this
     times the larger of the two pieces' own."""
+    estimator: str = "windows"
+    """``"windows"``: the paper's method on windows, chained, adjusted and rescued by the
+    strategies below; ``"global"``: the global estimator (:mod:`omni_sfm.estimate.
+    global_estimator`: rotations of all frames at once, positions of all frames at once, one
+    bundle adjustment), which uses ``vanishing``, ``bundle`` and ``global_`` only."""
+    global_: GlobalOptions = field(default_factory=GlobalOptions)
+    """The global estimator's options (``estimator="global"``); its parallel-family detection
+    and bundle adjustment are ``vanishing`` and ``bundle`` above."""
     workers: int | None = None
     """Processes that run the starts of :func:`_better_start` at once (docs/estimator.md stage
     9): 1, one after the other in this process; 2 or more, the short bootstrap and the reversed
@@ -619,6 +628,10 @@ def estimate_poses(tracks: LineTracks,
     if M < 6:
         raise OmniSfmError(f"tracks have {M} lines; need at least 6 (3 parallel and 3 others)")
     start_workers(options)  # a bad number of workers fails here, whatever the sequence
+    if options.estimator == "global":
+        return _global_result(tracks, options, t_all)
+    if options.estimator != "windows":
+        raise OmniSfmError(f"unknown estimator {options.estimator!r}: 'windows' or 'global'")
     with tqdm(total=F, desc="poses", unit="frame", leave=False,
               disable=None if options.progress else True) as bar:
         return _estimate(tracks, options, RunLog(progress=bar if options.progress else None),
@@ -645,6 +658,61 @@ def _estimate(tracks: LineTracks, options: EstimationOptions, run: RunLog,
     if rot_only is not None:
         return _rotation_only_result(tracks, rot_only, options, run, why, t_all)
     return replace(result, report={**result.report, "attempts": run.entries})
+
+
+def _global_result(tracks: LineTracks, options: EstimationOptions,
+                   t_all: float) -> EstimationResult:
+    """The global estimator's solution (:func:`solve_global`) with the conventions (world,
+    scale, reflection) and the report of every estimate; a camera that only turned gets the
+    rotation-only fit, as with the windows."""
+    run = RunLog(progress=None)
+    gopts = replace(options.global_, vanishing=options.vanishing, bundle=options.bundle)
+    try:
+        sol = solve_global(tracks, gopts)
+    except OmniSfmError as exc:
+        rot_only = _try_rotation_only(tracks, options, run, f"the global estimator failed: "
+                                                            f"{exc}")
+        if rot_only is None:
+            raise
+        return _rotation_only_result(tracks, rot_only, options, run, str(exc), t_all)
+    frames = sol.frames
+    R_n, c_n, d_n, p_n = _normalise(sol.rotations, sol.positions, frames, sol.line_directions,
+                                    sol.line_points)
+    idx = np.flatnonzero(frames)
+    front, behind = side_votes(tracks, R_n, c_n, d_n, p_n, frames, sol.used_tracks)
+    reflection = "unresolved: the tracks carry no rays (" + REFLECTION_NOTE + ")"
+    if front + behind > 0:
+        if behind > front:
+            o = c_n[idx[0]].copy()
+            c_n, p_n = 2.0 * o - c_n, 2.0 * o - p_n
+            front, behind = behind, front
+        reflection = (f"resolved by the observations' rays: {front} see their line in front, "
+                      f"{behind} behind")
+    members = sol.members
+    pd = d_n[members & sol.used_tracks]
+    direction = np.full(3, np.nan)
+    if len(pd):
+        pd = pd * np.sign(pd @ pd[0])[:, None]
+        direction = pd.mean(0) / np.linalg.norm(pd.mean(0))
+    timings = dict(sol.timings_ms)
+    timings["total"] = (time.perf_counter() - t_all) * 1e3
+    traj = Trajectory(tracks.timestamps[idx].copy(), R_n[idx], c_n[idx])
+    report = _report(tracks, frames, members, direction, sol.outlier_tracks, sol.used_tracks,
+                     [], [], timings, sol.rms_initial_deg, sol.rms_final_deg, sol.sigma_deg)
+    report["estimator"] = "global"
+    report["reflection"] = reflection
+    report["steps"] = sol.steps
+    report["world_directions"] = [[float(x) for x in v @ sol.rotations[idx[0]]]
+                                  for v in sol.world_directions]
+    report["frames_not_estimated_reasons"] = {str(k): v for k, v in sol.not_posed.items()}
+    report["frames_uncertain"] = {str(k): v for k, v in sol.uncertain.items()}
+    return EstimationResult(
+        trajectory=traj, estimated=frames, initial_trajectory=traj,
+        track_ids=tracks.track_ids.copy(), parallel=members, parallel_direction=direction,
+        outliers=sol.outlier_tracks, used_tracks=sol.used_tracks, line_directions=d_n,
+        line_points=p_n, windows=[], timings_ms=timings,
+        residual_rms_initial_deg=sol.rms_initial_deg, residual_rms_final_deg=sol.rms_final_deg,
+        sigma_deg=sol.sigma_deg, scale_convention=SCALE_CONVENTION, report=report)
 
 
 def _capped_rms_deg(tracks: LineTracks, R: FloatArray, c: FloatArray, frames: np.ndarray,

@@ -1,0 +1,362 @@
+"""The global estimator: every frame's pose from one problem, solved once (docs/estimator.md,
+"Global estimator").
+
+Steps:
+
+1. **Rotations** of all frames at once (:mod:`~omni_sfm.estimate.global_rotations`): every
+   observation says that its line's direction lies in its plane; the largest parallel family
+   (the paper's VPVs) anchors two degrees of freedom of every frame that sees it; the lines'
+   directions are then clustered into world directions (:func:`~omni_sfm.estimate.families.
+   world_families`) and the problem solved again with each world direction shared by its lines,
+   so that rotation error does not accumulate along the video.
+2. **Positions** of all frames and lines at once, the rotations given: one sparse homogeneous
+   linear problem (:mod:`~omni_sfm.estimate.global_positions`).
+3. **One robust bundle adjustment** of all cameras and lines from that start
+   (:func:`~omni_sfm.estimate.bundle.bundle_adjust`, outlier tracks rejected).
+4. **Per-frame information**: frames whose rotation or position the data leave (nearly) free
+   are listed in the report with the reason (``frames_uncertain``).
+
+No step depends on the order in which frames are stored beyond round-off: the start rotations
+chain neighbouring frames, which the joint problem then replaces by its own minimum.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from omni_sfm.errors import OmniSfmError
+from omni_sfm.estimate.bundle import BundleOptions, bundle_adjust
+from omni_sfm.estimate.families import family_of_lines, world_families
+from omni_sfm.estimate.global_positions import GlobalPositionOptions, solve_positions
+from omni_sfm.estimate.global_rotations import (
+    GlobalRotationOptions,
+    GlobalRotations,
+    chained_start,
+    solve_rotations,
+)
+from omni_sfm.geometry import FloatArray, rotation_about_axis
+from omni_sfm.lines.tracks import LineTracks
+from omni_sfm.vanishing import ParallelFamily, VanishingOptions, detect_parallel_families
+
+
+@dataclass(frozen=True, kw_only=True)
+class GlobalOptions:
+    vanishing: VanishingOptions = field(default_factory=VanishingOptions)
+    """Parallel-family detection (the largest family anchors the start)."""
+    rotations: GlobalRotationOptions = field(default_factory=GlobalRotationOptions)
+    """Step 1, the joint rotation problem."""
+    positions: GlobalPositionOptions = field(default_factory=GlobalPositionOptions)
+    """Step 2, the linear position problem."""
+    bundle: BundleOptions = field(default_factory=BundleOptions)
+    """Step 3, the bundle adjustment."""
+    min_lines: int = 3
+    """A frame is posed when it sees at least this many lines (of tracks seen twice or more)."""
+    world_direction_deg: float = 2.0
+    """Lines whose directions (step 1, each line its own) agree within this share one world
+    direction in the second solve."""
+    snap_deg: float = 20.0
+    """A family first seen within this of a known world direction (or of the axis completing
+    two known perpendicular ones) is taken to have that direction."""
+    min_family_size: int = 5
+    """Families of fewer tracks share no direction in the first solve (a few lines seen
+    together in a few frames can look parallel without being so)."""
+    uncertain_information: float = 1e-3
+    """A frame is flagged as not fixed by the data where the smallest eigenvalue of its
+    position information (its observations, the lines held) is below this fraction of the
+    median frame's largest."""
+
+
+@dataclass(frozen=True)
+class GlobalSolution:
+    """Poses and lines of all posed frames, in the first posed frame's world (no scale
+    convention applied yet).
+
+    Attributes:
+        rotations, positions: ``(F, 3, 3)``, ``(F, 3)`` world_from_cam (NaN: not posed).
+        frames: ``(F,)`` bool, posed frames.
+        line_directions, line_points: ``(M, 3)`` (NaN: not used).
+        used_tracks, outlier_tracks: ``(M,)`` bool.
+        members: ``(M,)`` bool, the largest parallel family's tracks.
+        world_directions: ``(K, 3)`` the world directions found.
+        rms_initial_deg, rms_final_deg, sigma_deg: the adjustment's residuals.
+        uncertain: ``{frame: reason}`` frames the data do not fix.
+        not_posed: ``{frame: reason}``.
+        steps: what each step did (for the report).
+        timings_ms: wall time per step.
+    """
+
+    rotations: FloatArray
+    positions: FloatArray
+    frames: np.ndarray
+    line_directions: FloatArray
+    line_points: FloatArray
+    used_tracks: np.ndarray
+    outlier_tracks: np.ndarray
+    members: np.ndarray
+    world_directions: FloatArray
+    rms_initial_deg: float
+    rms_final_deg: float
+    sigma_deg: float
+    uncertain: dict[int, str]
+    not_posed: dict[int, str]
+    steps: list[dict[str, Any]]
+    timings_ms: dict[str, float]
+
+
+def _posable(tracks: LineTracks, min_lines: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(frames, lines)``: tracks seen in two frames or more, frames that see ``min_lines``
+    of them."""
+    counts = np.bincount(tracks.obs_track, minlength=tracks.num_tracks)
+    lines = counts >= 2
+    per_frame = np.bincount(tracks.obs_frame[lines[tracks.obs_track]],
+                            minlength=tracks.num_frames)
+    return per_frame >= min_lines, lines
+
+
+def _turn_onto(u: FloatArray, v: FloatArray) -> FloatArray:
+    """The smallest rotation taking unit ``u`` onto unit ``v`` (each ``(3,)``)."""
+    axis = np.cross(u, v)
+    s = float(np.linalg.norm(axis))
+    if s < 1e-15:
+        return np.eye(3)
+    return rotation_about_axis(axis / s, float(np.arctan2(s, u @ v)))
+
+
+def _heading(axis: FloatArray, a: FloatArray, v: FloatArray) -> FloatArray:
+    """The rotation about unit ``axis`` nearest the identity that makes the world normals
+    ``a`` ``(K, 3)`` perpendicular to their lines' known directions ``v`` ``(K, 3)`` (least
+    squares, a few Gauss-Newton steps from 0: eq. 13 of the paper for one frame; the other
+    minimum, half a turn away, is not reached from a start that is right to a quarter turn)."""
+    phi = 0.0
+    for _ in range(5):
+        Rz = rotation_about_axis(axis, phi)
+        b = a @ Rz.T
+        r = np.einsum("ij,ij->i", b, v)
+        J = np.einsum("ij,ij->i", np.cross(axis, b), v)
+        den = float(J @ J)
+        if den < 1e-12:
+            break
+        step = -float(J @ r) / den
+        phi += float(np.clip(step, -0.5, 0.5))
+        if abs(step) < 1e-12:
+            break
+    return rotation_about_axis(axis, phi)
+
+
+def _world_direction(u: FloatArray, world: FloatArray, snap_deg: float) -> tuple[FloatArray, int]:
+    """The world direction of a family first seen along ``u`` (world, unit) and its index
+    among ``world`` ``(K, 3)`` (NaN rows: not yet known): the known direction, or the third
+    axis completing two known perpendicular ones, within ``snap_deg`` of ``u`` (its sign
+    matched), else ``u`` itself as a new one (index -1). Man-made places repeat a few
+    directions; a family of new lines along a known direction is the same world direction."""
+    known = world[np.isfinite(world).all(axis=1)]
+    cands = [w for w in known]
+    for a in range(len(known)):
+        for b in range(a + 1, len(known)):
+            c = np.cross(known[a], known[b])
+            if np.linalg.norm(c) > 0.9:
+                cands.append(c / np.linalg.norm(c))
+    best, idx = u, -1
+    if cands:
+        C = np.asarray(cands)
+        g = C @ u
+        i = int(np.argmax(np.abs(g)))
+        if abs(g[i]) >= np.cos(np.radians(snap_deg)):
+            best = C[i] * np.sign(g[i])
+            idx = i if i < len(known) else -1
+    return best, idx
+
+
+def _assign_lines(S: FloatArray, count: np.ndarray, line_world: np.ndarray,
+                  world: FloatArray, tracks_now: np.ndarray, min_views: int,
+                  max_deg: float) -> None:
+    """Give the lines ``tracks_now`` not yet assigned (``line_world`` -1) the known world
+    direction that all their planes so far contain (RMS angle below ``max_deg`` over at least
+    ``min_views`` views, every other known direction at least three times as far); ``S``
+    ``(M, 3, 3)`` holds each line's scatter of world normals, ``count`` its views."""
+    cand = tracks_now[(line_world[tracks_now] < 0) & (count[tracks_now] >= min_views)]
+    ok = np.flatnonzero(np.isfinite(world[:, 0]))
+    if len(cand) == 0 or len(ok) == 0:
+        return
+    W = world[ok]
+    ms = np.einsum("ja,kab,jb->kj", W, S[cand], W) / count[cand][:, None]
+    ang = np.degrees(np.sqrt(np.maximum(ms, 0.0)))
+    best = np.argmin(ang, axis=1)
+    first = ang[np.arange(len(cand)), best]
+    ang[np.arange(len(cand)), best] = np.inf
+    second = ang.min(axis=1) if ang.shape[1] > 1 else np.full(len(cand), np.inf)
+    hit = (first < max_deg) & (second > 3 * first)
+    line_world[cand[hit]] = ok[best[hit]]
+
+
+def anchored_start(tracks: LineTracks, frames: np.ndarray, families: list[ParallelFamily],
+                   snap_deg: float = 20.0, min_views: int = 5, line_deg: float = 8.0
+                   ) -> tuple[FloatArray, np.ndarray]:
+    """Start rotations ``(F, 3, 3)``, frame after frame: the step from the previous frame
+    (:func:`chained_start`), then the smallest turn that puts the largest family's VPV on its
+    world direction (the paper's step V-a), then the turn about it that makes the frame's lines
+    of known world direction perpendicular to it. A family's world direction is taken where
+    its VPV is first seen (snapped to a known one within ``snap_deg``); a line joins a world
+    direction once all its planes so far contain it (:func:`_assign_lines`). The chain's
+    parallax and drift are left only where a frame sees no line of known direction but the
+    largest family's. Returns the rotations and, per family, the family whose world direction
+    it shares."""
+    R_chain = chained_start(tracks, frames)
+    if not families:
+        return R_chain, np.zeros(0, int)
+    M = tracks.num_tracks
+    vpv = [np.asarray(f.vpv) for f in families]
+    line_world = np.full(M, -1)
+    for j in range(len(families) - 1, -1, -1):
+        line_world[np.asarray(families[j].members, bool)] = j
+    order = np.argsort(tracks.obs_frame, kind="stable")
+    starts = np.searchsorted(tracks.obs_frame[order], np.arange(tracks.num_frames + 1))
+    world = np.full((len(families), 3), np.nan)
+    same = np.arange(len(families))  # the family whose world direction each one shares
+    S = np.zeros((M, 3, 3))
+    count = np.zeros(M, int)
+    R = R_chain.copy()
+    prev = None
+    for k in np.flatnonzero(frames):
+        Rk = R_chain[k] if prev is None else R[prev] @ (R_chain[prev].T @ R_chain[k])
+        obs = order[starts[k]:starts[k + 1]]
+        t = tracks.obs_track[obs]
+        if np.isfinite(vpv[0][k]).all():
+            if not np.isfinite(world[0]).all():
+                world[0] = Rk @ vpv[0][k]
+            Rk = _turn_onto(Rk @ vpv[0][k], world[0]) @ Rk
+            j = line_world[t]
+            known = (j > 0) & np.isfinite(world[np.maximum(j, 0), 0])
+            if known.any():
+                a = tracks.obs_normal[obs[known]] @ Rk.T
+                Rk = _heading(world[0], a, world[j[known]]) @ Rk
+        for j in range(len(families)):
+            if not np.isfinite(world[j]).all() and np.isfinite(vpv[j][k]).all():
+                known_rows = np.flatnonzero(np.isfinite(world[:, 0]))
+                world[j], i = _world_direction(Rk @ vpv[j][k], world, snap_deg)
+                if i >= 0:
+                    same[j] = same[known_rows[i]]
+        R[k] = Rk
+        m = tracks.obs_normal[obs] @ Rk.T
+        S[t] += m[:, :, None] * m[:, None, :]
+        count[t] += 1
+        _assign_lines(S, count, line_world, world, t, min_views, line_deg)
+        prev = k
+    return R, same
+
+
+def _groups(lines: np.ndarray, label: np.ndarray) -> np.ndarray:
+    """The direction variable of each track: one per label (``label`` ``(M,)``, -1: none),
+    one per unlabelled line, -1 for tracks not used."""
+    group = np.full(len(lines), -1)
+    lab = np.where(lines, label, -1)
+    nxt = 0
+    for k in np.unique(lab[lab >= 0]):
+        group[lab == k] = nxt
+        nxt += 1
+    rest = lines & (lab < 0)
+    group[rest] = nxt + np.arange(int(rest.sum()))
+    return group
+
+
+def _family_labels(tracks: LineTracks, families: list[ParallelFamily], same: np.ndarray,
+                   min_size: int) -> np.ndarray:
+    """``(M,)`` the world direction (one of ``same``'s values) of each member of a family of
+    at least ``min_size`` tracks, -1 for the rest."""
+    label = np.full(tracks.num_tracks, -1)
+    for j, f in enumerate(families):
+        if f.size >= min_size:
+            label[np.asarray(f.members, bool)] = same[j]
+    return label
+
+
+def _rotations(tracks: LineTracks, frames: np.ndarray, lines: np.ndarray,
+               families: list[ParallelFamily], options: GlobalOptions,
+               steps: list[dict[str, Any]]) -> tuple[GlobalRotations, FloatArray]:
+    """Step 1: the start, the solve with the families' world directions shared, the solve
+    with the lines' world directions (clusters of their directions) shared."""
+    R0, same = anchored_start(tracks, frames, families, options.snap_deg)
+    label = _family_labels(tracks, families, same, options.min_family_size)
+    first = solve_rotations(tracks, frames, R0, _groups(lines, label), options.rotations)
+    steps.append({"step": "rotations, the families' world directions shared",
+                  "families": [f.size for f in families],
+                  "iterations": first.iterations,
+                  "sigma_deg": float(np.degrees(first.sigma))})
+    used = np.flatnonzero(lines)
+    worlds = world_families(first.directions[used], max_angle_deg=options.world_direction_deg)
+    label = np.full(tracks.num_tracks, -1)
+    label[used] = family_of_lines(first.directions[used], worlds,
+                                  max_angle_deg=options.world_direction_deg)
+    second = solve_rotations(tracks, frames, first.rotations, _groups(lines, label),
+                             options.rotations)
+    steps.append({"step": "rotations, world directions shared",
+                  "world_directions": len(worlds), "iterations": second.iterations,
+                  "sigma_deg": float(np.degrees(second.sigma))})
+    return second, worlds
+
+
+def _uncertain(rot: GlobalRotations, pos_info: FloatArray, frames: np.ndarray,
+               options: GlobalOptions) -> dict[int, str]:
+    """Frames whose rotation or position the data leave (nearly) free, with the reason."""
+    out: dict[int, str] = {}
+    rinfo = rot.frame_information
+    ref = float(np.median(rinfo[frames & np.isfinite(rinfo)])) if frames.any() else 1.0
+    for k in np.flatnonzero(frames):
+        if np.isfinite(rinfo[k]) and rinfo[k] < options.uncertain_information * ref:
+            out[int(k)] = ("rotation not fixed: its lines have (nearly) one direction; the "
+                           "turn about it comes from the neighbouring frames")
+        elif pos_info[k] < options.uncertain_information:
+            out[int(k)] = ("position not fixed by its own lines (they leave a direction of "
+                           "motion free); it comes from the neighbouring frames")
+    return out
+
+
+def solve_global(tracks: LineTracks, options: GlobalOptions = GlobalOptions()
+                 ) -> GlobalSolution:
+    """Steps 1-4 of the module docstring.
+
+    Raises:
+        OmniSfmError: fewer than 3 frames that see ``options.min_lines`` lines, or a step that
+            finds the data do not determine it.
+    """
+    timings: dict[str, float] = {}
+    steps: list[dict[str, Any]] = []
+    t = time.perf_counter()
+    frames, lines = _posable(tracks, options.min_lines)
+    not_posed = {int(k): f"sees fewer than {options.min_lines} lines that are tracked"
+                 for k in np.flatnonzero(~frames)}
+    if frames.sum() < 3:
+        raise OmniSfmError(f"only {int(frames.sum())} frames see {options.min_lines} or more "
+                           f"tracked lines; need 3")
+    families = detect_parallel_families(tracks, options.vanishing)
+    timings["parallel_lines"] = (time.perf_counter() - t) * 1e3
+    t = time.perf_counter()
+    rot, worlds = _rotations(tracks, frames, lines, families, options, steps)
+    timings["rotations"] = (time.perf_counter() - t) * 1e3
+    t = time.perf_counter()
+    dir_ok = lines & np.isfinite(rot.directions).all(axis=1)
+    pos = solve_positions(tracks, rot.rotations, rot.directions, frames, dir_ok,
+                          options.positions)
+    steps.append({"step": "positions", "sigma_deg": float(np.degrees(pos.residual_sigma))})
+    timings["positions"] = (time.perf_counter() - t) * 1e3
+    t = time.perf_counter()
+    ba = bundle_adjust(tracks, rot.rotations, pos.positions, rot.directions, pos.points,
+                       frames=frames, options=options.bundle)
+    timings["bundle_adjustment"] = (time.perf_counter() - t) * 1e3
+    steps.append({"step": "bundle adjustment", "iterations": ba.iterations,
+                  "outlier_tracks": int(ba.outlier_tracks.sum()),
+                  "rms_final_deg": float(ba.rms_final_deg)})
+    members = np.asarray(families[0].members, bool) if families else \
+        np.zeros(tracks.num_tracks, bool)
+    return GlobalSolution(
+        rotations=ba.rotations, positions=ba.positions, frames=ba.frames,
+        line_directions=ba.line_directions, line_points=ba.line_points,
+        used_tracks=ba.used_tracks, outlier_tracks=ba.outlier_tracks, members=members,
+        world_directions=worlds, rms_initial_deg=ba.rms_initial_deg,
+        rms_final_deg=ba.rms_final_deg, sigma_deg=ba.sigma_deg,
+        uncertain=_uncertain(rot, pos.frame_information, ba.frames, options),
+        not_posed=not_posed, steps=steps, timings_ms=timings)

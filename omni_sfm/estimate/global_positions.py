@@ -1,0 +1,196 @@
+"""Positions of all frames and lines at once, the rotations given (docs/estimator.md, "Global
+estimator", step 2).
+
+With the rotations known, an observation of line ``i`` (a point ``p_i``, direction ``d_i``) in
+frame ``k`` (centre ``c_k``) says that the line lies in the plane through ``c_k`` with world
+normal ``m = R_k n``: ``m . (p_i - c_k) = 0``. That is linear in the centres and in the lines'
+offsets ``p_i = a_i e1_i + b_i e2_i`` (``e1, e2`` perpendicular to ``d_i``), and homogeneous: the
+whole solution is fixed up to its scale. The first posed frame's centre is the origin and the
+scale is set by ``sum |c_k|^2 = 1``, so the centres are the generalised eigenvector of the
+smallest eigenvalue of the normal equations (lines included), found by inverse iteration on one
+sparse factorisation. Each row is weighted by the inverse distance between camera and line (its
+residual is then the observation's angle) and by a Cauchy loss, re-weighted a few times.
+
+A weak second-difference prior on the centres (in frame order) makes every frame's position
+defined: a frame that its lines do not fix (a stop with the lines along the motion, a stretch
+with two lines) takes its position from its neighbours instead of a free direction, and its
+information (:attr:`GlobalPositions.frame_information`) says that the data did not fix it. The
+prior is the same read forwards or backwards.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from omni_sfm.errors import OmniSfmError
+from omni_sfm.geometry import FloatArray, orthonormal_completion
+from omni_sfm.lines.tracks import LineTracks
+
+
+@dataclass(frozen=True, kw_only=True)
+class GlobalPositionOptions:
+    smoothness: float = 1e-4
+    """Weight of the second-difference prior on the centres, relative to the median weight of a
+    frame's own observations (per frame)."""
+    reweight_rounds: int = 4
+    """Solves with the rows re-weighted by the current distances and residuals."""
+    loss_scale: float = 3.0
+    """Cauchy loss scale in units of the residuals' robust spread (angles)."""
+    inverse_iterations: int = 30
+    """Inverse iterations of each solve at most."""
+
+
+@dataclass(frozen=True)
+class GlobalPositions:
+    """Centres of all frames and a point of every line.
+
+    Attributes:
+        positions: ``(F, 3)`` camera centres (world; the first posed frame at the origin;
+            ``sum |c|^2 = 1``); NaN where not posed.
+        points: ``(M, 3)`` the point of each line closest to the origin; NaN for lines not used.
+        frame_information: ``(F,)`` smallest eigenvalue of each frame's 3x3 information block
+            from its observations alone (the lines' positions held), relative to the median
+            frame's largest: near 0 where the frame's lines leave its position free.
+        residual_sigma: robust spread of the final residuals (radians).
+    """
+
+    positions: FloatArray
+    points: FloatArray
+    frame_information: FloatArray
+    residual_sigma: float
+
+
+def _second_differences(frames: np.ndarray, pose_idx: np.ndarray) -> sp.csr_matrix:
+    """``D`` with ``(D c)_j = c_{j-1} - 2 c_j + c_{j+1}`` over consecutive posed frames (the
+    gauge frame's centre, fixed at 0, has no column)."""
+    posed = np.flatnonzero(frames)
+    rows, cols, vals = [], [], []
+    for j in range(1, len(posed) - 1):
+        for f, v in ((posed[j - 1], 1.0), (posed[j], -2.0), (posed[j + 1], 1.0)):
+            if pose_idx[f] >= 0:
+                for a in range(3):
+                    rows.append(3 * (j - 1) + a)
+                    cols.append(3 * pose_idx[f] + a)
+                    vals.append(v)
+    n = 3 * max(len(posed) - 2, 0)
+    return sp.csr_matrix((vals, (rows, cols)), shape=(n, 3 * (len(posed) - 1)))
+
+
+def solve_positions(tracks: LineTracks, rotations: FloatArray, directions: FloatArray,
+                    frames: np.ndarray, lines: np.ndarray,
+                    options: GlobalPositionOptions = GlobalPositionOptions()) -> GlobalPositions:
+    """The linear problem of the module docstring on the posed ``frames`` ``(F,)`` and the
+    ``lines`` ``(M,)`` with a direction."""
+    F, M = tracks.num_frames, tracks.num_tracks
+    obs = frames[tracks.obs_frame] & lines[tracks.obs_track]
+    f, t = tracks.obs_frame[obs], tracks.obs_track[obs]
+    m = np.einsum("kij,kj->ki", rotations[f], tracks.obs_normal[obs])
+    posed = np.flatnonzero(frames)
+    if len(posed) < 3:
+        raise OmniSfmError("fewer than 3 frames with a rotation; positions need 3")
+    pose_idx = np.full(F, -1)
+    pose_idx[posed[1:]] = np.arange(len(posed) - 1)
+    used = np.flatnonzero(lines)
+    line_idx = np.full(M, -1)
+    line_idx[used] = np.arange(len(used))
+    e1, e2 = orthonormal_completion(directions[used])
+    P, L = 3 * (len(posed) - 1), 2 * len(used)
+    # rows: m . (a e1 + b e2) - m . c = 0
+    pc = pose_idx[f]
+    li = line_idx[t]
+    vals = np.concatenate([-m, np.stack([np.einsum("ki,ki->k", m, e1[li]),
+                                         np.einsum("ki,ki->k", m, e2[li])], axis=1)], axis=1)
+    cols = np.concatenate([np.where(pc[:, None] >= 0, 3 * pc[:, None] + np.arange(3), -1),
+                           P + 2 * li[:, None] + np.arange(2)], axis=1)
+    keep = cols >= 0
+    rows = np.broadcast_to(np.arange(len(f))[:, None], cols.shape)
+    A = sp.csr_matrix((vals[keep], (rows[keep], cols[keep])), shape=(len(f), P + L))
+    D = _second_differences(frames, pose_idx)
+    w = np.ones(len(f))
+    x = _initial_vector(P, L, posed, pose_idx)
+    sigma = np.inf
+    for _ in range(max(1, options.reweight_rounds)):
+        x = _smallest(A, w, D, options, P, L, x)
+        c, q = x[:P].reshape(-1, 3), x[P:].reshape(-1, 2)
+        r_dist = A @ x
+        depth = _depths(c, q, e1, e2, directions[used], pc, li)
+        ang = r_dist / depth
+        sigma = max(float(1.4826 * np.median(np.abs(ang))), 1e-12)
+        w = 1.0 / depth**2 / (1.0 + (ang / (options.loss_scale * sigma)) ** 2)
+    c_all = np.full((F, 3), np.nan)
+    c_all[posed] = 0.0
+    c_all[posed[1:]] = x[:P].reshape(-1, 3)
+    q = x[P:].reshape(-1, 2)
+    pts = np.full((M, 3), np.nan)
+    pts[used] = q[:, :1] * e1 + q[:, 1:] * e2
+    info = _frame_information(m, w, f, F, frames)
+    return GlobalPositions(positions=c_all, points=pts, frame_information=info,
+                           residual_sigma=sigma)
+
+
+def _initial_vector(P: int, L: int, posed: np.ndarray, pose_idx: np.ndarray) -> FloatArray:
+    """A start for the inverse iteration with a component along any smooth motion."""
+    x = np.zeros(P + L)
+    s = np.linspace(0.0, 1.0, len(posed))[1:]
+    x[:P] = np.stack([s, s**2, np.sqrt(s)], axis=1).ravel()
+    return x
+
+
+def _depths(c: FloatArray, q: FloatArray, e1: FloatArray, e2: FloatArray, d: FloatArray,
+            pc: np.ndarray, li: np.ndarray) -> FloatArray:
+    """Distance between each observation's camera and its line (floored at a small fraction
+    of the median, so that a camera on a line does not take all the weight)."""
+    cc = np.where(pc[:, None] >= 0, c[np.maximum(pc, 0)], 0.0)
+    p = q[li, :1] * e1[li] + q[li, 1:] * e2[li]
+    off = p - cc
+    off -= np.einsum("ki,ki->k", off, d[li])[:, None] * d[li]
+    dist = np.linalg.norm(off, axis=1)
+    med = float(np.median(dist)) if len(dist) else 1.0
+    return np.maximum(dist, 0.05 * med)
+
+
+def _smallest(A: sp.csr_matrix, w: FloatArray, D: sp.csr_matrix, options: GlobalPositionOptions,
+              P: int, L: int, x0: FloatArray) -> FloatArray:
+    """The generalised eigenvector of the smallest eigenvalue of ``(A^T W A + lam D^T D) x =
+    mu N x`` with ``N`` the identity on the centres and 0 on the lines, normalised so that
+    ``|x_c| = 1``, by inverse iteration."""
+    H = (A.T @ sp.diags(w) @ A).tocsc()
+    diag = H.diagonal()
+    frame_scale = float(np.median(diag[:P])) if P else 1.0
+    lam = options.smoothness * frame_scale
+    K = H
+    if D.shape[0]:
+        DD = (D.T @ D).tocoo()
+        K = H + lam * sp.csc_matrix((DD.data, (DD.row, DD.col)), shape=H.shape)
+    eps = 1e-12 * max(float(np.max(diag)), 1e-300)
+    lu = spla.splu((K + sp.diags(np.full(P + L, eps))).tocsc())
+    x = x0 / np.linalg.norm(x0[:P])
+    for _ in range(options.inverse_iterations):
+        rhs = np.zeros(P + L)
+        rhs[:P] = x[:P]
+        y = lu.solve(rhs)
+        y /= np.linalg.norm(y[:P])
+        if y[:P] @ x[:P] < 0:
+            y = -y
+        done = np.linalg.norm(y[:P] - x[:P]) < 1e-13
+        x = y
+        if done:
+            break
+    return x
+
+
+def _frame_information(m: FloatArray, w: FloatArray, f: np.ndarray, F: int,
+                       frames: np.ndarray) -> FloatArray:
+    """Each posed frame's smallest eigenvalue of ``sum w m m^T`` over its observations, over
+    the median frame's largest eigenvalue."""
+    S = np.zeros((F, 3, 3))
+    np.add.at(S, f, w[:, None, None] * m[:, :, None] * m[:, None, :])
+    ev = np.linalg.eigvalsh(S)
+    ref = float(np.median(ev[frames, 2])) if frames.any() else 1.0
+    out = np.full(F, np.nan)
+    out[frames] = ev[frames, 0] / max(ref, 1e-300)
+    return out

@@ -1,0 +1,260 @@
+"""Rotations of all frames at once (docs/estimator.md, "Global estimator", step 1).
+
+A line's plane through a camera contains the line: its world normal ``m = R_k n`` is
+perpendicular to the line's direction ``d`` whatever the camera's position (eq. 11 of the
+paper, for every frame and line at once). So the rotations ``R_k`` (world_from_cam) and the
+lines' directions follow from one least-squares problem over all observations,
+
+    min  sum_obs  rho( ((R_k n_ik) . d_i / s_ik)^2 )
+
+independent of the translations. Lines of one parallel family share one direction (a world
+direction: the vertical, a corridor's axis), so a frame's rotation is tied to the same few world
+directions as every other frame's, and rotation error does not accumulate along the video. The
+gauge is the first frame's rotation. A frame whose lines all have one direction keeps one degree
+of freedom free (the turn about that direction): its information says so
+(:attr:`GlobalRotations.frame_information`).
+
+The start comes from consecutive frames: the normals a line shows in two neighbouring frames
+differ by the rotation between them and a small parallax, so a weighted Procrustes alignment of
+the shared normals gives each step; the joint problem then removes the parallax's bias and the
+drift of that chain. Every step is a deterministic function of the observations' values: the
+order in which frames or tracks are stored changes nothing but round-off.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from omni_sfm.errors import OmniSfmError
+from omni_sfm.estimate.rotation_only import procrustes
+from omni_sfm.geometry import (
+    FloatArray,
+    cross3,
+    orthonormal_completion,
+    rotvec_to_matrix,
+    smallest_eigenvector,
+)
+from omni_sfm.lines.tracks import LineTracks
+
+
+@dataclass(frozen=True, kw_only=True)
+class GlobalRotationOptions:
+    max_iterations: int = 50
+    """Gauss-Newton (Levenberg-Marquardt) iterations of the joint problem at most."""
+    tolerance: float = 1e-12
+    """Stop when the relative decrease of the cost falls below this."""
+    loss_scale: float = 3.0
+    """Cauchy loss scale, in units of the robust noise estimate of the residuals."""
+
+
+@dataclass(frozen=True)
+class GlobalRotations:
+    """The rotations of all frames and the directions of all lines.
+
+    Attributes:
+        rotations: ``(F, 3, 3)`` world_from_cam (world = the first posed frame's camera); NaN
+            for frames without a rotation.
+        directions: ``(M, 3)`` unit line directions in the world (one per group), NaN for
+            lines not used.
+        frames: ``(F,)`` bool, frames with a rotation.
+        frame_information: ``(F,)`` the smallest eigenvalue of each frame's 3x3 information
+            block (the lines' directions held): 0 where a rotation is free.
+        sigma: robust noise estimate of the residuals ``(R n) . d`` (radians).
+        iterations: iterations of the joint problem.
+    """
+
+    rotations: FloatArray
+    directions: FloatArray
+    frames: np.ndarray
+    frame_information: FloatArray
+    sigma: float
+    iterations: int
+
+
+def _sign_aligned(a: FloatArray, b: FloatArray) -> FloatArray:
+    """``a`` with each row's sign flipped to agree with ``b``'s row."""
+    s = np.sign(np.einsum("ij,ij->i", a, b))
+    s[s == 0] = 1.0
+    return a * s[:, None]
+
+
+def chained_start(tracks: LineTracks, frames: np.ndarray) -> FloatArray:
+    """Start rotations ``(F, 3, 3)``: each frame turned from the previous posed one by the
+    Procrustes rotation of the normals the two share (identity where they share fewer than 2
+    non-parallel ones)."""
+    F, M = tracks.num_frames, tracks.num_tracks
+    slot = np.full((M, F), -1)
+    slot[tracks.obs_track, tracks.obs_frame] = np.arange(tracks.num_observations)
+    R = np.tile(np.eye(3), (F, 1, 1))
+    idx = np.flatnonzero(frames)
+    for a, b in zip(idx[:-1], idx[1:], strict=True):
+        both = (slot[:, a] >= 0) & (slot[:, b] >= 0)
+        na = tracks.obs_normal[slot[both, a]]
+        nb = _sign_aligned(tracks.obs_normal[slot[both, b]], na)
+        step = np.eye(3)
+        if len(na) >= 2 and np.linalg.svd(na, compute_uv=False)[1] > 1e-3:
+            # rotation cam_a_from_cam_b: maps b's normals onto a's
+            step = procrustes(nb, na, np.ones(len(na)))
+        R[b] = R[a] @ step
+    return R
+
+
+def group_directions(tracks: LineTracks, R: FloatArray, frames: np.ndarray,
+                     group: np.ndarray) -> FloatArray:
+    """``(G, 3)`` each group's direction: the unit vector most nearly perpendicular to the
+    world normals of its tracks in the posed ``frames`` (smallest eigenvector of their
+    scatter)."""
+    ok = frames[tracks.obs_frame] & (group[tracks.obs_track] >= 0)
+    m = np.einsum("kij,kj->ki", R[tracks.obs_frame[ok]], tracks.obs_normal[ok])
+    S = np.zeros((int(group.max()) + 1, 3, 3))
+    np.add.at(S, group[tracks.obs_track[ok]], m[:, :, None] * m[:, None, :])
+    return smallest_eigenvector(S)
+
+
+def _robust_sigma(r: FloatArray) -> float:
+    return float(1.4826 * np.median(np.abs(r))) if len(r) else 0.0
+
+
+class _RotationProblem:
+    """The joint problem's residuals, Jacobian and normal equations (sparse). The unknowns are
+    the posed frames' rotations but the first's and one direction per group of lines
+    (``group`` ``(M,)``: the direction variable of each track, -1 for tracks left out)."""
+
+    def __init__(self, tracks: LineTracks, frames: np.ndarray, group: np.ndarray) -> None:
+        obs = frames[tracks.obs_frame] & (group[tracks.obs_track] >= 0)
+        self.n = tracks.obs_normal[obs]
+        self.f = tracks.obs_frame[obs]
+        self.t = group[tracks.obs_track[obs]]
+        self.F = tracks.num_frames
+        pose_idx = np.full(self.F, -1)
+        posed = np.flatnonzero(frames)
+        pose_idx[posed[1:]] = np.arange(len(posed) - 1)  # the first posed frame is the gauge
+        self.pose_idx = pose_idx
+        self.num_pose, self.num_line = len(posed) - 1, int(group.max()) + 1
+        self.line_idx = np.arange(self.num_line)
+
+    def residuals(self, R: FloatArray, d: FloatArray) -> FloatArray:
+        m = np.einsum("kij,kj->ki", R[self.f], self.n)
+        return np.asarray(np.einsum("ki,ki->k", m, d[self.t]))
+
+    def normal_equations(self, R: FloatArray, d: FloatArray, w: FloatArray
+                         ) -> tuple[sp.csc_matrix, FloatArray, FloatArray, FloatArray]:
+        m = np.einsum("kij,kj->ki", R[self.f], self.n)
+        dt = d[self.t]
+        r = np.einsum("ki,ki->k", m, dt)
+        # d/d(delta) of (R exp([delta]) n) . d = delta . (n x R^T d)
+        Jp = cross3(self.n, np.einsum("kji,kj->ki", R[self.f], dt))
+        e1, e2 = orthonormal_completion(d)
+        Jl = np.stack([np.einsum("ki,ki->k", m, e1[self.t]),
+                       np.einsum("ki,ki->k", m, e2[self.t])], axis=1)
+        P = self.num_pose * 3
+        pc = self.pose_idx[self.f]
+        lc = P + 2 * self.line_idx[self.t]
+        has_pose = pc >= 0
+        cols = np.concatenate([np.where(has_pose[:, None], 3 * pc[:, None] + np.arange(3), -1),
+                               lc[:, None] + np.arange(2)], axis=1)
+        J = np.concatenate([Jp, Jl], axis=1)
+        keep = cols >= 0
+        rows = np.broadcast_to(np.arange(len(r))[:, None], cols.shape)
+        N = P + 2 * self.num_line
+        Jm = sp.csr_matrix((J[keep], (rows[keep], cols[keep])), shape=(len(r), N))
+        Wm = sp.diags(w)
+        H = (Jm.T @ Wm @ Jm).tocsc()
+        g = Jm.T @ (w * r)
+        return H, np.asarray(g), r, np.asarray(H.diagonal())
+
+    def retract(self, R: FloatArray, d: FloatArray, step: FloatArray) -> tuple[FloatArray,
+                                                                              FloatArray]:
+        P = self.num_pose * 3
+        R2 = R.copy()
+        posed = np.flatnonzero(self.pose_idx >= 0)
+        dp = step[:P].reshape(-1, 3)
+        R2[posed] = R[posed] @ rotvec_to_matrix(dp[self.pose_idx[posed]])
+        d2 = d.copy()
+        used = np.flatnonzero(self.line_idx >= 0)
+        e1, e2 = orthonormal_completion(d[used])
+        dl = step[P:].reshape(-1, 2)[self.line_idx[used]]
+        nd = d[used] + dl[:, :1] * e1 + dl[:, 1:] * e2
+        d2[used] = nd / np.linalg.norm(nd, axis=1, keepdims=True)
+        return R2, d2
+
+
+def _cauchy_weights(r: FloatArray, scale: float) -> FloatArray:
+    return np.asarray(1.0 / (1.0 + (r / scale) ** 2))
+
+
+def _cost(r: FloatArray, scale: float) -> float:
+    return float(0.5 * scale**2 * np.sum(np.log1p((r / scale) ** 2)))
+
+
+def solve_rotations(tracks: LineTracks, frames: np.ndarray, R0: FloatArray,
+                    group: np.ndarray,
+                    options: GlobalRotationOptions = GlobalRotationOptions()) -> GlobalRotations:
+    """The joint rotation problem (module docstring) from the start ``R0`` ``(F, 3, 3)`` on
+    the frames ``frames`` ``(F,)`` bool, the tracks of one ``group`` ``(M,)`` sharing one
+    direction (-1: left out), by Levenberg-Marquardt with a Cauchy loss whose scale follows the
+    residuals' robust spread (iteratively reweighted)."""
+    if frames.sum() < 2 or group.max() < 1:
+        raise OmniSfmError("too few frames or lines for the rotations")
+    prob = _RotationProblem(tracks, frames, group)
+    R = R0.copy()
+    d = group_directions(tracks, R, frames, group)
+    r = prob.residuals(R, d)
+    sigma = max(_robust_sigma(r), 1e-9)
+    scale = options.loss_scale * sigma
+    cost = _cost(r, scale)
+    lam = 1e-4
+    it = 0
+    for it in range(1, options.max_iterations + 1):  # noqa: B007
+        w = _cauchy_weights(r, scale)
+        H, g, _, diag = prob.normal_equations(R, d, w)
+        improved = False
+        while lam < 1e12:
+            A = H + sp.diags(lam * np.maximum(diag, 1e-12))
+            step = -spla.splu(A.tocsc()).solve(g)
+            R2, d2 = prob.retract(R, d, step)
+            r2 = prob.residuals(R2, d2)
+            cost2 = _cost(r2, scale)
+            if cost2 < cost:
+                rel = (cost - cost2) / max(cost, 1e-300)
+                R, d, r, cost = R2, d2, r2, cost2
+                lam = max(lam / 10, 1e-12)
+                improved = True
+                break
+            lam *= 10
+        # the loss follows the residuals' spread: a new scale, a new cost to compare against
+        sigma_new = max(_robust_sigma(r), 1e-12)
+        if improved and abs(sigma_new - sigma) > 0.01 * sigma:
+            sigma, scale = sigma_new, options.loss_scale * sigma_new
+            cost = _cost(r, scale)
+            continue
+        if not improved or rel < options.tolerance:
+            break
+    H, _, _, _ = prob.normal_equations(R, d, _cauchy_weights(r, scale))
+    info = _frame_information(H, prob, tracks.num_frames)
+    Rout = np.where(frames[:, None, None], R, np.nan)
+    d_tracks = np.where((group >= 0)[:, None], d[np.maximum(group, 0)], np.nan)
+    return GlobalRotations(rotations=Rout, directions=d_tracks, frames=frames.copy(),
+                           frame_information=info, sigma=sigma, iterations=it)
+
+
+def _frame_information(H: sp.csc_matrix, prob: _RotationProblem, F: int) -> FloatArray:
+    """The smallest eigenvalue of each posed frame's 3x3 diagonal block of ``H`` (the gauge
+    frame: infinity)."""
+    info = np.full(F, np.inf)
+    P = prob.num_pose
+    if P == 0:
+        return info
+    Hd = H[: 3 * P, : 3 * P].tocsr()
+    blocks = np.zeros((P, 3, 3))
+    for a in range(3):
+        for b in range(3):
+            blocks[:, a, b] = np.asarray(Hd[np.arange(P) * 3 + a, np.arange(P) * 3 + b]).ravel()
+    ev = np.linalg.eigvalsh(blocks)[:, 0]
+    posed = np.flatnonzero(prob.pose_idx >= 0)
+    info[posed] = ev[prob.pose_idx[posed]]
+    return info
