@@ -249,6 +249,36 @@ def anchored_start(tracks: LineTracks, frames: np.ndarray, families: list[Parall
     return R, same
 
 
+def _closest_turn(axis: FloatArray, R: FloatArray, target: FloatArray) -> FloatArray:
+    """``Rot(axis, phi) @ R`` nearest ``target`` (Frobenius): the turn about ``axis`` alone."""
+    M = R @ target.T
+    tr = float(np.trace(M))
+    aMa = float(axis @ M @ axis)
+    s = float(np.trace(np.cross(axis, np.eye(3)) @ M))
+    # tr(Rot M) = cos(phi) (tr M - a.Ma) + sin(phi) tr([a]x M) + a.Ma
+    return rotation_about_axis(axis, float(np.arctan2(-s, tr - aMa))) @ R
+
+
+def free_turns_interpolated(rot: GlobalRotations, free: np.ndarray) -> FloatArray:
+    """The rotations with each ``free`` frame (``(F,)`` bool: its lines leave a turn free)
+    turned about its free axis to the rotation interpolated (slerp, in frame order) between
+    the nearest fixed frames before and after it; the turn the data fix is kept."""
+    from scipy.spatial.transform import Rotation, Slerp
+
+    R = rot.rotations.copy()
+    fixed = np.flatnonzero(rot.frames & ~free)
+    if len(fixed) == 0:
+        return R
+    slerp = Slerp(fixed.astype(float), Rotation.from_matrix(R[fixed])) if len(fixed) > 1 \
+        else None
+    for k in np.flatnonzero(free & rot.frames):
+        x = float(np.clip(k, fixed[0], fixed[-1]))
+        target = slerp([x]).as_matrix()[0] if slerp is not None else R[fixed[0]]
+        if np.isfinite(rot.free_axis[k]).all():
+            R[k] = _closest_turn(rot.free_axis[k], R[k], target)
+    return R
+
+
 def _groups(lines: np.ndarray, label: np.ndarray) -> np.ndarray:
     """The direction variable of each track: one per label (``label`` ``(M,)``, -1: none),
     one per unlabelled line, -1 for tracks not used."""
@@ -287,26 +317,39 @@ def _rotations(tracks: LineTracks, frames: np.ndarray, lines: np.ndarray,
                   "iterations": first.iterations,
                   "sigma_deg": float(np.degrees(first.sigma))})
     used = np.flatnonzero(lines)
-    worlds = world_families(first.directions[used], max_angle_deg=options.world_direction_deg)
-    label = np.full(tracks.num_tracks, -1)
-    label[used] = family_of_lines(first.directions[used], worlds,
-                                  max_angle_deg=options.world_direction_deg)
-    second = solve_rotations(tracks, frames, first.rotations, _groups(lines, label),
-                             options.rotations)
-    steps.append({"step": "rotations, world directions shared",
-                  "world_directions": len(worlds), "iterations": second.iterations,
-                  "sigma_deg": float(np.degrees(second.sigma))})
-    return second, worlds
+    rot, worlds = first, np.zeros((0, 3))
+    # the lines' directions clustered into world directions, first loosely (a line of a world
+    # direction that a drifted stretch sees turned by a few degrees joins it and pulls the
+    # stretch back), then tightly (a line that is not of that direction leaves it again)
+    for angle in (options.snap_deg, options.world_direction_deg):
+        worlds = world_families(rot.directions[used], max_angle_deg=angle)
+        label = np.full(tracks.num_tracks, -1)
+        label[used] = family_of_lines(rot.directions[used], worlds, max_angle_deg=angle)
+        rot = solve_rotations(tracks, frames, rot.rotations, _groups(lines, label),
+                              options.rotations)
+        steps.append({"step": f"rotations, world directions within {angle:g} deg shared",
+                      "world_directions": len(worlds), "iterations": rot.iterations,
+                      "sigma_deg": float(np.degrees(rot.sigma))})
+    return rot, worlds
+
+
+def _rotation_free(rot: GlobalRotations, frames: np.ndarray, options: GlobalOptions
+                   ) -> np.ndarray:
+    """``(F,)`` posed frames whose lines leave a turn free (their rotation information below
+    ``options.uncertain_information`` times the median frame's)."""
+    rinfo = rot.frame_information
+    ok = frames & np.isfinite(rinfo)
+    ref = float(np.median(rinfo[ok])) if ok.any() else 1.0
+    return ok & (rinfo < options.uncertain_information * ref)
 
 
 def _uncertain(rot: GlobalRotations, pos_info: FloatArray, frames: np.ndarray,
                options: GlobalOptions) -> dict[int, str]:
     """Frames whose rotation or position the data leave (nearly) free, with the reason."""
     out: dict[int, str] = {}
-    rinfo = rot.frame_information
-    ref = float(np.median(rinfo[frames & np.isfinite(rinfo)])) if frames.any() else 1.0
+    free = _rotation_free(rot, frames, options)
     for k in np.flatnonzero(frames):
-        if np.isfinite(rinfo[k]) and rinfo[k] < options.uncertain_information * ref:
+        if free[k]:
             out[int(k)] = ("rotation not fixed: its lines have (nearly) one direction; the "
                            "turn about it comes from the neighbouring frames")
         elif pos_info[k] < options.uncertain_information:
@@ -338,13 +381,13 @@ def solve_global(tracks: LineTracks, options: GlobalOptions = GlobalOptions()
     rot, worlds = _rotations(tracks, frames, lines, families, options, steps)
     timings["rotations"] = (time.perf_counter() - t) * 1e3
     t = time.perf_counter()
+    R = free_turns_interpolated(rot, _rotation_free(rot, frames, options))
     dir_ok = lines & np.isfinite(rot.directions).all(axis=1)
-    pos = solve_positions(tracks, rot.rotations, rot.directions, frames, dir_ok,
-                          options.positions)
+    pos = solve_positions(tracks, R, rot.directions, frames, dir_ok, options.positions)
     steps.append({"step": "positions", "sigma_deg": float(np.degrees(pos.residual_sigma))})
     timings["positions"] = (time.perf_counter() - t) * 1e3
     t = time.perf_counter()
-    ba = bundle_adjust(tracks, rot.rotations, pos.positions, rot.directions, pos.points,
+    ba = bundle_adjust(tracks, R, pos.positions, rot.directions, pos.points,
                        frames=frames, options=options.bundle)
     timings["bundle_adjustment"] = (time.perf_counter() - t) * 1e3
     steps.append({"step": "bundle adjustment", "iterations": ba.iterations,

@@ -63,6 +63,8 @@ class GlobalRotations:
         frames: ``(F,)`` bool, frames with a rotation.
         frame_information: ``(F,)`` the smallest eigenvalue of each frame's 3x3 information
             block (the lines' directions held): 0 where a rotation is free.
+        free_axis: ``(F, 3)`` the world axis of each frame's least determined turn (the
+            eigenvector of ``frame_information``).
         sigma: robust noise estimate of the residuals ``(R n) . d`` (radians).
         iterations: iterations of the joint problem.
     """
@@ -71,6 +73,7 @@ class GlobalRotations:
     directions: FloatArray
     frames: np.ndarray
     frame_information: FloatArray
+    free_axis: FloatArray
     sigma: float
     iterations: int
 
@@ -235,26 +238,31 @@ def solve_rotations(tracks: LineTracks, frames: np.ndarray, R0: FloatArray,
         if not improved or rel < options.tolerance:
             break
     H, _, _, _ = prob.normal_equations(R, d, _cauchy_weights(r, scale))
-    info = _frame_information(H, prob, tracks.num_frames)
+    info, axis = _frame_information(H, prob, tracks.num_frames)
     Rout = np.where(frames[:, None, None], R, np.nan)
     d_tracks = np.where((group >= 0)[:, None], d[np.maximum(group, 0)], np.nan)
+    free_axis = np.einsum("fij,fj->fi", Rout, axis)
     return GlobalRotations(rotations=Rout, directions=d_tracks, frames=frames.copy(),
-                           frame_information=info, sigma=sigma, iterations=it)
+                           frame_information=info, free_axis=free_axis, sigma=sigma,
+                           iterations=it)
 
 
-def _frame_information(H: sp.csc_matrix, prob: _RotationProblem, F: int) -> FloatArray:
+def _frame_information(H: sp.csc_matrix, prob: _RotationProblem, F: int
+                       ) -> tuple[FloatArray, FloatArray]:
     """The smallest eigenvalue of each posed frame's 3x3 diagonal block of ``H`` (the gauge
-    frame: infinity)."""
+    frame: infinity) and its eigenvector (camera frame; NaN for the gauge frame)."""
     info = np.full(F, np.inf)
     P = prob.num_pose
     if P == 0:
-        return info
+        return info, np.full((F, 3), np.nan)
     Hd = H[: 3 * P, : 3 * P].tocsr()
     blocks = np.zeros((P, 3, 3))
     for a in range(3):
         for b in range(3):
             blocks[:, a, b] = np.asarray(Hd[np.arange(P) * 3 + a, np.arange(P) * 3 + b]).ravel()
-    ev = np.linalg.eigvalsh(blocks)[:, 0]
+    ev, vec = np.linalg.eigh(blocks)
     posed = np.flatnonzero(prob.pose_idx >= 0)
-    info[posed] = ev[prob.pose_idx[posed]]
-    return info
+    info[posed] = ev[prob.pose_idx[posed], 0]
+    axis = np.full((F, 3), np.nan)
+    axis[posed] = vec[prob.pose_idx[posed], :, 0]
+    return info, axis
