@@ -29,8 +29,8 @@ from typing import Any
 import numpy as np
 
 from omni_sfm.errors import OmniSfmError
-from omni_sfm.estimate.bundle import BundleOptions, bundle_adjust
-from omni_sfm.estimate.families import family_of_lines, world_families
+from omni_sfm.estimate.bundle import BundleOptions, bundle_adjust, resect_pose
+from omni_sfm.estimate.families import world_families
 from omni_sfm.estimate.global_positions import GlobalPositionOptions, solve_positions
 from omni_sfm.estimate.global_rotations import (
     GlobalRotationOptions,
@@ -64,6 +64,10 @@ class GlobalOptions:
     min_family_size: int = 5
     """Families of fewer tracks share no direction in the first solve (a few lines seen
     together in a few frames can look parallel without being so)."""
+    min_spread_deg: float = 0.5
+    """Lines whose planes turn by less than this (RMS, degrees) between the frames that see
+    them have no known direction: they take no part in the positions (the adjustment
+    triangulates them from the poses)."""
     uncertain_information: float = 1e-3
     """A frame is flagged as not fixed by the data where the smallest eigenvalue of its
     position information (its observations, the lines held) is below this fraction of the
@@ -304,6 +308,62 @@ def _family_labels(tracks: LineTracks, families: list[ParallelFamily], same: np.
     return label
 
 
+def _labels(tracks: LineTracks, R: FloatArray, frames: np.ndarray, lines: np.ndarray,
+            worlds: FloatArray, max_deg: float) -> np.ndarray:
+    """``(M,)`` the world direction (index into ``worlds``) whose planes each line's planes
+    contain: RMS angle of its world normals from perpendicular to it below ``max_deg``, and
+    every other world direction at least three times (and 1 deg) as far; -1 where none or where
+    two fit (a line whose planes barely turn contains every direction of its plane)."""
+    label = np.full(tracks.num_tracks, -1)
+    if len(worlds) == 0:
+        return label
+    ok = frames[tracks.obs_frame] & lines[tracks.obs_track]
+    m = np.einsum("kij,kj->ki", R[tracks.obs_frame[ok]], tracks.obs_normal[ok])
+    t = tracks.obs_track[ok]
+    sq = np.zeros((tracks.num_tracks, len(worlds)))
+    np.add.at(sq, t, (m @ worlds.T) ** 2)
+    n = np.maximum(np.bincount(t, minlength=tracks.num_tracks), 1)
+    ang = np.degrees(np.arcsin(np.sqrt(np.clip(sq / n[:, None], 0.0, 1.0))))
+    best = np.argmin(ang, axis=1)
+    first = ang[np.arange(len(ang)), best]
+    ang[np.arange(len(ang)), best] = np.inf
+    second = ang.min(axis=1)
+    hit = lines & (first < max_deg) & (second > np.maximum(3 * first, 1.0))
+    label[hit] = best[hit]
+    return label
+
+
+def _family_direction(directions: FloatArray, family: ParallelFamily) -> FloatArray:
+    """The shared direction of a family's members after a solve (unit)."""
+    d = directions[np.asarray(family.members, bool)]
+    d = d[np.isfinite(d).all(axis=1)]
+    return np.asarray(d[0] if len(d) else np.full(3, np.nan))
+
+
+def _horizontal_directions(rot: GlobalRotations, families: list[ParallelFamily],
+                           options: GlobalOptions) -> FloatArray:
+    """``(K, 3)`` the directions of the families (of ``options.min_family_size`` or more)
+    perpendicular to the largest one's within ``snap_deg``, and the axis completing the first
+    of them with the largest's: the world directions across the largest family."""
+    if not families:
+        return np.zeros((0, 3))
+    v0 = _family_direction(rot.directions, families[0])
+    out: list[FloatArray] = []
+    for f in families[1:]:
+        if f.size < options.min_family_size:
+            continue
+        v = _family_direction(rot.directions, f)
+        if not np.isfinite(v).all() or abs(v @ v0) > np.sin(np.radians(options.snap_deg)):
+            continue
+        v = v - (v @ v0) * v0
+        v /= np.linalg.norm(v)
+        if all(abs(v @ w) < np.cos(np.radians(options.snap_deg)) for w in out):
+            out.append(v)
+    if len(out) == 1:
+        out.append(np.cross(v0, out[0]))
+    return np.asarray(out).reshape(-1, 3)
+
+
 def _rotations(tracks: LineTracks, frames: np.ndarray, lines: np.ndarray,
                families: list[ParallelFamily], options: GlobalOptions,
                steps: list[dict[str, Any]]) -> tuple[GlobalRotations, FloatArray]:
@@ -316,21 +376,71 @@ def _rotations(tracks: LineTracks, frames: np.ndarray, lines: np.ndarray,
                   "families": [f.size for f in families],
                   "iterations": first.iterations,
                   "sigma_deg": float(np.degrees(first.sigma))})
-    used = np.flatnonzero(lines)
-    rot, worlds = first, np.zeros((0, 3))
-    # the lines' directions clustered into world directions, first loosely (a line of a world
-    # direction that a drifted stretch sees turned by a few degrees joins it and pulls the
-    # stretch back), then tightly (a line that is not of that direction leaves it again)
-    for angle in (options.snap_deg, options.world_direction_deg):
-        worlds = world_families(rot.directions[used], max_angle_deg=angle)
-        label = np.full(tracks.num_tracks, -1)
-        label[used] = family_of_lines(rot.directions[used], worlds, max_angle_deg=angle)
+    rot = first
+    horizontal = _horizontal_directions(first, families, options)
+    if len(horizontal):
+        # a line across the largest family whose planes contain one of the other families'
+        # directions up to a few degrees is of that direction: a stretch whose start turned
+        # before that family was seen is pulled back by its lines
+        v0 = _family_direction(first.directions, families[0])
+        own = np.abs(np.nan_to_num(first.directions) @ v0) < np.sin(
+            np.radians(options.world_direction_deg))
+        label = _labels(tracks, first.rotations, frames, lines & own, horizontal,
+                        options.snap_deg)
+        label[lines & np.asarray(families[0].members, bool)] = len(horizontal)
         rot = solve_rotations(tracks, frames, rot.rotations, _groups(lines, label),
                               options.rotations)
-        steps.append({"step": f"rotations, world directions within {angle:g} deg shared",
-                      "world_directions": len(worlds), "iterations": rot.iterations,
+        steps.append({"step": "rotations, lines across the largest family snapped to the "
+                              "other families' directions",
+                      "directions": len(horizontal), "iterations": rot.iterations,
                       "sigma_deg": float(np.degrees(rot.sigma))})
+    used = np.flatnonzero(lines)
+    angle = options.world_direction_deg
+    worlds = world_families(rot.directions[used], max_angle_deg=angle)
+    label = _labels(tracks, rot.rotations, frames, lines, worlds, angle)
+    rot = solve_rotations(tracks, frames, rot.rotations, _groups(lines, label),
+                          options.rotations)
+    steps.append({"step": "rotations, world directions shared", "world_directions": len(worlds),
+                  "iterations": rot.iterations, "sigma_deg": float(np.degrees(rot.sigma))})
     return rot, worlds
+
+
+def _resected(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArray, p: FloatArray,
+              frames: np.ndarray, free: np.ndarray, sigma: float
+              ) -> tuple[FloatArray, FloatArray]:
+    """The poses with each ``free`` frame (its rotation's turn and so its position left out of
+    the linear steps) resected from the lines with a position that it sees
+    (:func:`~omni_sfm.estimate.bundle.resect_pose`), from its interpolated rotation and the
+    position interpolated between its neighbours."""
+    R, c = R.copy(), c.copy()
+    fixed = np.flatnonzero(frames & ~free)
+    todo = np.flatnonzero(frames & free)
+    if len(todo) == 0:
+        return R, c
+    for a in range(3):
+        c[todo, a] = np.interp(todo, fixed, c[fixed, a])
+    known = np.isfinite(p).all(axis=1)
+    for k in todo:
+        obs = np.flatnonzero((tracks.obs_frame == k) & known[tracks.obs_track])
+        if len(obs) < 3:
+            continue
+        t = tracks.obs_track[obs]
+        R[k], c[k], _ = resect_pose(tracks.obs_normal[obs], d[t], p[t], R[k], c[k],
+                                    scale=3.0 * max(sigma, 1e-6))
+    return R, c
+
+
+def plane_spread_deg(tracks: LineTracks, R: FloatArray, frames: np.ndarray) -> FloatArray:
+    """``(M,)`` how far each line's planes turn between the posed ``frames`` (the RMS angle of
+    its world normals about their mean plane normal, degrees; 0 for a line seen once): a line
+    whose planes barely turn lies in a known plane but has no known direction within it."""
+    ok = frames[tracks.obs_frame]
+    m = np.einsum("kij,kj->ki", R[tracks.obs_frame[ok]], tracks.obs_normal[ok])
+    S = np.zeros((tracks.num_tracks, 3, 3))
+    np.add.at(S, tracks.obs_track[ok], m[:, :, None] * m[:, None, :])
+    n = np.maximum(np.bincount(tracks.obs_track[ok], minlength=tracks.num_tracks), 1)
+    ev = np.linalg.eigvalsh(S / n[:, None, None])
+    return np.asarray(np.degrees(np.sqrt(np.maximum(ev[:, 1], 0.0))))
 
 
 def _rotation_free(rot: GlobalRotations, frames: np.ndarray, options: GlobalOptions
@@ -381,13 +491,18 @@ def solve_global(tracks: LineTracks, options: GlobalOptions = GlobalOptions()
     rot, worlds = _rotations(tracks, frames, lines, families, options, steps)
     timings["rotations"] = (time.perf_counter() - t) * 1e3
     t = time.perf_counter()
-    R = free_turns_interpolated(rot, _rotation_free(rot, frames, options))
-    dir_ok = lines & np.isfinite(rot.directions).all(axis=1)
-    pos = solve_positions(tracks, R, rot.directions, frames, dir_ok, options.positions)
+    free = _rotation_free(rot, frames, options)
+    R = free_turns_interpolated(rot, free)
+    dir_ok = lines & np.isfinite(rot.directions).all(axis=1) & \
+        (plane_spread_deg(tracks, R, frames) >= options.min_spread_deg)
+    pos = solve_positions(tracks, R, rot.directions, frames & ~free, dir_ok, options.positions)
+    R, c = _resected(tracks, R, pos.positions, rot.directions, pos.points, frames, free,
+                     pos.residual_sigma)
     steps.append({"step": "positions", "sigma_deg": float(np.degrees(pos.residual_sigma))})
     timings["positions"] = (time.perf_counter() - t) * 1e3
     t = time.perf_counter()
-    ba = bundle_adjust(tracks, R, pos.positions, rot.directions, pos.points,
+    d0 = np.where(dir_ok[:, None], rot.directions, np.nan)
+    ba = bundle_adjust(tracks, R, c, d0, pos.points,
                        frames=frames, options=options.bundle)
     timings["bundle_adjustment"] = (time.perf_counter() - t) * 1e3
     steps.append({"step": "bundle adjustment", "iterations": ba.iterations,
