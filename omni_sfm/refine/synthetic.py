@@ -1,6 +1,6 @@
 """A stand-in for the line-based init on rendered sequences: ground truth with realistic errors.
 
-Used by the tests and ``scripts/bench_refine.py`` until ``omni-sfm init --images`` writes init
+Used by the tests and ``scripts/bench/refine.py`` until ``omni-sfm init --images`` writes init
 directories itself; both go through :func:`omni_sfm.export.colmap.write_init_model`, so refinement
 sees the same layout either way.
 """

@@ -7,7 +7,7 @@ loss (scale 0.4 deg: half the incremental estimator's inlier threshold of 8 nois
 its first call) and with plain least squares
 (its second call); the median wall time per call is printed for each, with the core count.
 
-    OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/bench_resect.py [--problems 200] [--repeats 5]
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python -m scripts.bench.resect [--problems 200] [--repeats 5]
 """
 
 from __future__ import annotations

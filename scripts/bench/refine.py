@@ -1,13 +1,13 @@
 """Benchmark ``omni-sfm refine`` on the issue's full case: rendered textured room, hyperboloid
 camera, 800 x 600, 100 frames. Prints the per-stage times and the ATE before and after.
 
-    .venv/bin/python scripts/bench_refine.py --work /tmp/bench_refine
-    .venv/bin/python scripts/bench_refine.py --work /tmp/bench_refine --features klt sift
-    .venv/bin/python scripts/bench_refine.py --work /tmp/bench_corridor --scene corridor
-    .venv/bin/python scripts/bench_refine.py --work /tmp/bench_office --scene office --frames 1000
-    .venv/bin/python scripts/bench_refine.py --work /tmp/bench_refine --init LINE_INIT_DIR
-    .venv/bin/python scripts/bench_refine.py --work /tmp/bench_refine --frames 120 --versus-colmap
-    .venv/bin/python scripts/bench_refine.py --work /tmp/bench_eq --camera equirectangular \
+    .venv/bin/python -m scripts.bench.refine --work /tmp/bench_refine
+    .venv/bin/python -m scripts.bench.refine --work /tmp/bench_refine --features klt sift
+    .venv/bin/python -m scripts.bench.refine --work /tmp/bench_corridor --scene corridor
+    .venv/bin/python -m scripts.bench.refine --work /tmp/bench_office --scene office --frames 1000
+    .venv/bin/python -m scripts.bench.refine --work /tmp/bench_refine --init LINE_INIT_DIR
+    .venv/bin/python -m scripts.bench.refine --work /tmp/bench_refine --frames 120 --versus-colmap
+    .venv/bin/python -m scripts.bench.refine --work /tmp/bench_eq --camera equirectangular \
         --width 1920 --height 960 --lines-init --adjustment joint colmap
 
 Without ``--init`` the seed is the ground truth with realistic errors (0.3 deg rotation noise and
@@ -41,8 +41,6 @@ import time
 from pathlib import Path
 from typing import Any
 
-from benchlib import run_timed
-
 from omni_sfm.evaluate import trajectory_errors
 from omni_sfm.export.colmap import read_init_model
 from omni_sfm.poses import read_tum
@@ -52,6 +50,7 @@ from omni_sfm.refine.synthetic import write_perturbed_init
 from omni_sfm.synth.paths import Route
 from omni_sfm.synth.render import RenderOptions, render_sequence
 from omni_sfm.synth.scenes import SceneName
+from scripts.benchlib import run_timed
 
 
 def main() -> int:

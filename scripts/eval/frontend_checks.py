@@ -18,7 +18,7 @@ each sequence, prints one JSON line per run and a Markdown table per part.
   wrong ones (COLMAP ``PINHOLE`` / ``OPENCV_FISHEYE`` ``cameras.txt`` written here, hyperboloid
   and equirectangular swapped), without and with added noise (sigma 4 grey levels).
 
-    OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/eval_frontend_checks.py --work /tmp/efc \\
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python -m scripts.eval.frontend_checks --work /tmp/efc \\
         --only dark --fixed-thresholds --repeat 3
 """
 

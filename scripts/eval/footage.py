@@ -10,7 +10,7 @@ time. Also the camera-fixed body (operator / robot) unmasked against the same ru
 masked by hand, a turn in place, and a stop-and-go walk (drive, stop, turn 90 deg in place,
 drive on). Prints JSON lines and a Markdown table.
 
-    OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/eval_footage.py --work /tmp/footage \\
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python -m scripts.eval.footage --work /tmp/footage \\
         --frames 600 --markdown /tmp/footage/table.md
 
 ``--frames`` scales the sequences (600 is the issue's length; fewer frames make each step

@@ -17,7 +17,7 @@ cluster, with identical results (every random choice is seeded; pycolmap runs si
 Results go to ``--output`` (``runs/<task>/results.json`` + trajectories, ``sweep.json``,
 ``summary.md``); ``--docs`` rewrites the generated part of docs/comparison.md and its plots.
 
-    .venv/bin/python scripts/compare_init.py --output /tmp/sweep --docs
+    .venv/bin/python -m scripts.compare.init --output /tmp/sweep --docs
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 KINDS = ("sim", "corridor-hyperboloid", "corridor-hyperboloid-textured",
          "room-equirectangular-textured")
 RENDER: dict[str, dict[str, Any]] = {
@@ -161,11 +161,11 @@ def run_all(tasks: list[dict[str, Any]], scheduler: str | None, workers: int,
         # spawn, not fork: a forked child inherits OpenCV's and BLAS's thread pools half-locked
         # and deadlocks in its first cv2 call (seen in cv2.setNumThreads)
         ctx = multiprocessing.get_context("spawn")
-        # spawned children import this script by name to find run_task, with the parent's
-        # sys.path (multiprocessing copies it over)
-        here = str(Path(__file__).resolve().parent)
-        if here not in sys.path:
-            sys.path.insert(0, here)
+        # spawned children import this module by name to find run_task, with the parent's
+        # sys.path (multiprocessing copies it over): the repository root holds ``scripts``
+        root = str(ROOT)
+        if root not in sys.path:
+            sys.path.insert(0, root)
         with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
             pending = {pool.submit(run_task, t): i for i, t in enumerate(tasks)}
             for f in cf_completed(pending):
@@ -423,7 +423,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{len(done)} runs in {wall / 60:.1f} min; {a.output / 'summary.md'}")
     if a.docs:
         plot_sweep(done, ROOT / "docs" / "img" / "comparison_")
-        cmd = "scripts/compare_init.py " + " ".join(
+        cmd = "scripts/compare/init.py " + " ".join(
             x for x in (argv if argv is not None else sys.argv[1:]))
         where = 'Dask ' + a.scheduler if a.scheduler else f'{a.workers} local processes'
         update_docs(ROOT / "docs" / "comparison.md", docs_block(

@@ -3,7 +3,7 @@ track is triangulated with the ground-truth poses (least-squares ray intersectio
 angle between each observation's ray and the ray to that point is its residual, in pixels of
 the camera's angular resolution. Drift shows as residuals that grow with a track's age.
 
-    .venv/bin/python scripts/bench_corners.py --render W/render --frames 60 \\
+    .venv/bin/python -m scripts.bench.corners --render W/render --frames 60 \\
         '{}' '{"anchor_max_px": 0.5}' '{"anchor_max_px": 0.5, "window_px": 7}'
 
 Each argument is a JSON object of ``CornerTrackOptions`` fields (one tracking run each);

@@ -9,7 +9,7 @@ time, and the accuracy against the renderer's mesh after similarity alignment of
 (median distance of the dense points to the true surface relative to the mean scene depth,
 completeness)::
 
-    .venv/bin/python scripts/bench_dense.py --render /tmp/room100 --output /tmp/room100_dense
+    .venv/bin/python -m scripts.bench.dense --render /tmp/room100 --output /tmp/room100_dense
 """
 
 from __future__ import annotations

@@ -8,10 +8,10 @@ runs ``init --lines --tracks`` on each cut and prints: wall time, ms a frame, pe
 memory, frames posed, residual, the adjustments' time of the start kept (``report.json``'s
 ``timings_ms``, which times that start only, not the others tried beside it), and,
 with ``--groundtruth`` (the render's ``groundtruth.tum``), the rotation error and ATE of the
-main trajectory. The tracks of a rendered video come from ``scripts/bench_long_video.py``
+main trajectory. The tracks of a rendered video come from ``scripts/bench/long_video.py``
 (its ``--work``/``init_lines/tracks.json``) or from ``init --images`` on any video.
 
-    OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/bench_estimator.py --tracks T.json \\
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python -m scripts.bench.estimator --tracks T.json \\
         --groundtruth groundtruth.tum --frames 300 600 1000 --work /tmp/bench_estimator
 """
 
@@ -23,12 +23,11 @@ import os
 import sys
 from pathlib import Path
 
-from benchlib import run_sampled
-
 from omni_sfm.estimate.segments import frame_range
 from omni_sfm.evaluate import trajectory_errors
 from omni_sfm.lines.tracks import read_tracks, write_tracks
 from omni_sfm.poses import read_tum
+from scripts.benchlib import run_sampled
 
 
 def main() -> int:

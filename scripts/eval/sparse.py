@@ -16,7 +16,7 @@ Levenberg-Marquardt iterations without outlier rejection, and prints its RMS res
 errors: it separates a wrong basin (the cost stays above the oracle's) from slow convergence
 (the cost and the errors reach the oracle's with enough iterations).
 
-    OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/eval_sparse.py [--seeds 0 1 2] [--polish 1000]
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python -m scripts.eval.sparse [--seeds 0 1 2] [--polish 1000]
 """
 
 from __future__ import annotations

@@ -12,8 +12,8 @@ the process and its worker processes, summed, sampled every 0.2 s), frames posed
 error and ATE against the ground truth; then the ratios the speed issue asks about (``init``
 against COLMAP on the same frames; the longest ``init`` against the shortest).
 
-    OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/bench_init.py --work /tmp/bench_init
-    OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/bench_init.py --work /tmp/bench_init \\
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python -m scripts.bench.init --work /tmp/bench_init
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python -m scripts.bench.init --work /tmp/bench_init \\
         --frames 200 --no-colmap
 """
 
@@ -25,13 +25,12 @@ import sys
 import time
 from pathlib import Path
 
-from benchlib import run_timed
-
 from omni_sfm.evaluate import trajectory_errors
 from omni_sfm.poses import read_tum
 from omni_sfm.synth.paths import Route
 from omni_sfm.synth.render import RenderOptions, render_sequence
 from omni_sfm.synth.scenes import SceneName
+from scripts.benchlib import run_timed
 
 
 def _errors(out: Path, render: Path) -> str:

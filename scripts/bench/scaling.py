@@ -23,7 +23,7 @@ With ``--prefixes`` one walk of the longest length is simulated and each N runs 
 frames: the lengths then differ in nothing else (separate walks differ in how hard they are,
 which the time per frame shows too).
 
-    .venv/bin/python scripts/bench_scaling.py [--frames 1000 5000 20000] [--timeout 3600] \
+    .venv/bin/python -m scripts.bench.scaling [--frames 1000 5000 20000] [--timeout 3600] \
         [--line-density 3.5] [--prefixes [--pieces]] [--oracle]
 """
 

@@ -9,10 +9,10 @@ made, and the wrong links: links whose second observation is more than 1 deg fro
 the 3D line the first one is nearest to (first within 0.5 deg of some true line, else the link is
 not judged). Wrong links are what a tracker must not add: one track holding two 3D lines.
 
-    .venv/bin/python scripts/compare_tracking.py --input WORK/<sequence> --frames 200 \\
+    .venv/bin/python -m scripts.compare.tracking --input WORK/<sequence> --frames 200 \\
         --variant "klt_window=11,klt_iterations=10,fb_max_px=1,max_samples_per_line=16"
 
-``--input`` takes folders rendered by ``omni-sfm render`` or ``scripts/eval_footage.py``
+``--input`` takes folders rendered by ``omni-sfm render`` or ``scripts/eval/footage.py``
 (``images/``, ``camera.yaml``, ``groundtruth.tum``, ``lines3d.json``); several may be given.
 """
 
@@ -25,7 +25,6 @@ from typing import Any
 
 import cv2
 import numpy as np
-from bench_frontend import true_nvs
 
 from omni_sfm.cameras import load_camera
 from omni_sfm.lines.extract import ExtractedLines, LineExtractor
@@ -33,6 +32,7 @@ from omni_sfm.lines.track import LineTracker, TrackedObservations, TrackingOptio
 from omni_sfm.lines.video import read_frames
 from omni_sfm.lines3d import read_lines3d
 from omni_sfm.poses import read_tum
+from scripts.bench.frontend import true_nvs
 
 KNOWN_DEG = 0.5
 WRONG_DEG = 1.0

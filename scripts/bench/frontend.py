@@ -8,11 +8,11 @@ tracked observation against the renderer's true 3D lines (``lines3d.json`` with
 track statistics. ``--stages`` adds where the CPU time goes: each stage of the extraction and the
 KLT calls of the tracking, in one more pass over the frames.
 
-    .venv/bin/python scripts/bench_frontend.py --frames 200
-    .venv/bin/python scripts/bench_frontend.py --camera equirectangular --frames 50
-    .venv/bin/python scripts/bench_frontend.py --camera equirectangular --size 1920x960
-    .venv/bin/python scripts/bench_frontend.py --input path/to/rendered/sequence
-    .venv/bin/python scripts/bench_frontend.py --frames 50 --threads 1 --stages
+    .venv/bin/python -m scripts.bench.frontend --frames 200
+    .venv/bin/python -m scripts.bench.frontend --camera equirectangular --frames 50
+    .venv/bin/python -m scripts.bench.frontend --camera equirectangular --size 1920x960
+    .venv/bin/python -m scripts.bench.frontend --input path/to/rendered/sequence
+    .venv/bin/python -m scripts.bench.frontend --frames 50 --threads 1 --stages
 """
 
 from __future__ import annotations

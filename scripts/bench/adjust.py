@@ -10,7 +10,7 @@ by a seeded 0.1 deg and 5 mm; the adjustment's default options but ``--iteration
 the problem's size, the iterations, the final RMS residual, the md5 of the poses and lines
 found, the wall time of each run and their median, with the core count.
 
-    OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/bench_adjust.py --init lines_2000 \\
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python -m scripts.bench.adjust --init lines_2000 \\
         --frames 154 882 --repeats 3
 """
 

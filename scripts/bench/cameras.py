@@ -1,6 +1,6 @@
 """Speed of the camera models on a 1600 x 800 image (1.28 million pixels).
 
-Run ``OPENBLAS_NUM_THREADS=1 python -m omni_sfm.cameras.bench [--repeats N] [--models NAME ...]``;
+Run ``OPENBLAS_NUM_THREADS=1 python -m scripts.bench.cameras [--repeats N] [--models NAME ...]``;
 prints the median wall time and, in brackets, the median CPU time of this process
 (``time.process_time``) of ``rays_from_pixels`` on every pixel centre, ``pixels_from_rays`` on the
 valid rays, the first (computing) and a later (cached) ``pixel_grid_rays``, and the wall time of

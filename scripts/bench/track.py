@@ -16,11 +16,11 @@ peak of the traced allocations (tracemalloc) and of the process's resident size 
 and at the end. The front end's own state is the last ``max_gap_frames + 1`` frames
 (``LineTracker(record=False)``).
 
-    .venv/bin/python scripts/bench_track.py
-    .venv/bin/python scripts/bench_track.py --camera equirectangular
-    .venv/bin/python scripts/bench_track.py --input path/to/rendered/sequence
-    .venv/bin/python scripts/bench_track.py --memory --frames 10000
-    .venv/bin/python scripts/bench_track.py --memory-images 10000
+    .venv/bin/python -m scripts.bench.track
+    .venv/bin/python -m scripts.bench.track --camera equirectangular
+    .venv/bin/python -m scripts.bench.track --input path/to/rendered/sequence
+    .venv/bin/python -m scripts.bench.track --memory --frames 10000
+    .venv/bin/python -m scripts.bench.track --memory-images 10000
 
 ``--memory-images N``: the whole tracker, front end included, on N frames of images: the
 rendered corridor (``--input`` or the default render) played forth and back (frames 0..199,

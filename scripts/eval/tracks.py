@@ -8,7 +8,7 @@ frames of the main trajectory and their errors (maximum and mean rotation error 
 first frame, ATE as a per cent of the path after similarity alignment), then each segment
 (pieces in their own world, docs/estimator.md stage 8) the same way, and the wall time.
 
-    OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/eval_tracks.py \\
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python -m scripts.eval.tracks \\
         /tmp/f600/hyperboloid-800x600--clean-init:/tmp/f600/hyperboloid-800x600--clean ...
 
 ``--frames START STOP`` runs the estimator on those frames only (``STOP`` excluded), e.g. the
@@ -24,7 +24,7 @@ chaotic, and one run of it says little (docs/results.md, the stop-and-go walk).
 
 Each argument is ``INIT_DIR:RENDER_DIR`` (``RENDER_DIR`` holds ``groundtruth.tum``); a bare
 ``INIT_DIR`` ending in ``-init`` pairs with the folder of the same name without it, as
-``scripts/eval_footage.py`` lays them out.
+``scripts/eval/footage.py`` lays them out.
 """
 
 from __future__ import annotations

@@ -5,7 +5,7 @@ images exactly as the command line does, and compares with the ground truth: fra
 maximum and mean rotation error relative to the first frame, ATE after similarity alignment
 over the path length, wall time of the front end and the estimator. Writes a Markdown table.
 
-    OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/eval_init.py --work /tmp/eval_init \\
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python -m scripts.eval.init --work /tmp/eval_init \\
         --markdown docs/results_init.md
 """
 

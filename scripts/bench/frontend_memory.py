@@ -9,10 +9,10 @@ workers (summed, sampled every 0.5 s): the peak and the value at each tenth of t
 speed issue asks for memory that does not grow with the video's length, tracks and
 observations aside (these grow by a few hundred bytes an observation).
 
-    OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/bench_frontend_memory.py \\
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python -m scripts.bench.frontend_memory \\
         --video LONG/video.mp4 --camera LONG/camera.yaml --frames 300 1000 3000
 
-(``LONG``: e.g. the 3,000-frame 1920x960 render of ``scripts/bench_long_video.py``.)
+(``LONG``: e.g. the 3,000-frame 1920x960 render of ``scripts/bench/long_video.py``.)
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ import os
 import sys
 import time
 
-from benchlib import at_tenths, run_sampled
+from scripts.benchlib import at_tenths, run_sampled
 
 
 def _child(video: str, camera: str, n: int) -> None:
@@ -53,8 +53,10 @@ def main() -> int:
           f"{os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}; {args.video}")
     print(f"{'frames':>7} {'wall s':>7} {'tracks':>7} {'obs':>8} {'peak MB':>8}  MB at each tenth")
     for n in args.frames:
-        wall, samples, rc, said = run_sampled([sys.executable, __file__, "--video", args.video,
-                                               "--camera", args.camera, "--child", str(n)])
+        wall, samples, rc, said = run_sampled([sys.executable, "-m",
+                                               "scripts.bench.frontend_memory", "--video",
+                                               args.video, "--camera", args.camera,
+                                               "--child", str(n)])
         out = said.splitlines()[-1].split() if said else []
         if rc != 0 or len(out) != 3 or not samples:
             print(f"{n:>7} failed (exit {rc}): {said[-500:]}")

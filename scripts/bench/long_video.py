@@ -13,7 +13,7 @@ and its peak, the front end's and the estimation's wall time from ``report.json`
 posed (main trajectory, segments) and the rotation error and ATE of the main trajectory
 against the ground truth.
 
-    OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/bench_long_video.py --work /tmp/long_video
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python -m scripts.bench.long_video --work /tmp/long_video
 
 Rendering costs about 1.3 s a 1920x960 frame on one core (``--supersample 1``), so the
 default 3,000 frames take about an hour; the render is kept for later runs.
@@ -28,14 +28,13 @@ import sys
 import time
 from pathlib import Path
 
-from benchlib import at_tenths, run_sampled
-
 from omni_sfm.evaluate import trajectory_errors
 from omni_sfm.poses import read_tum
 from omni_sfm.synth.effects import VideoCodec
 from omni_sfm.synth.paths import Route
 from omni_sfm.synth.render import RenderOptions, render_sequence
 from omni_sfm.synth.scenes import SceneName
+from scripts.benchlib import at_tenths, run_sampled
 
 
 def main() -> int:

@@ -8,8 +8,8 @@ alternated within each round, and the median time a posed frame of each (this ma
 run-to-run spread is 10-15 %). Freed memory is kept for reuse as the ``omni-sfm``
 command keeps it (:func:`omni_sfm.libs.keep_freed_memory`).
 
-    OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/bench_joint.py --work W_300
-    OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/bench_joint.py --work W_100 W_300 W_1000 \\
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python -m scripts.bench.joint --work W_300
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python -m scripts.bench.joint --work W_100 W_300 W_1000 \\
         --no-step --repeat 5
 """
 
