@@ -3,10 +3,10 @@
 Renders (or reuses, under ``--work``) each sequence, runs the line-based initialization on its
 images exactly as the command line does, and compares with the ground truth: frames estimated,
 maximum and mean rotation error relative to the first frame, ATE after similarity alignment
-over the path length, wall time of the front end and the estimator. Writes a Markdown table.
+over the path length, wall time of the front end and the estimator. Prints a Markdown table
+and writes the record ``docs/benchmarks/eval_init.json`` (docs/results.md renders it).
 
-    OPENBLAS_NUM_THREADS=1 .venv/bin/python -m scripts.eval.init --work /tmp/eval_init \\
-        --markdown docs/results_init.md
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python -m scripts.eval.init --work /tmp/eval_init
 """
 
 from __future__ import annotations
@@ -23,6 +23,7 @@ from omni_sfm.lines.frontend import FrontEndOptions
 from omni_sfm.poses import read_tum
 from omni_sfm.synth.render import RenderOptions, render_sequence
 from omni_sfm.synth.scenes import SceneName
+from scripts.benchlib import add_log_arguments, write_log
 
 SEQUENCES = {
     "corridor-hyperboloid-800x600-200f": RenderOptions(scene=SceneName.CORRIDOR,
@@ -39,7 +40,7 @@ def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--work", type=Path, required=True, help="folder for renders and results")
     p.add_argument("--only", nargs="*", choices=sorted(SEQUENCES), help="run only these")
-    p.add_argument("--markdown", type=Path, help="write the table here")
+    add_log_arguments(p)
     args = p.parse_args()
     rows = []
     for name, opts in SEQUENCES.items():
@@ -65,17 +66,17 @@ def main() -> int:
                "front_end_ms_per_frame": res.frontend.summary()["timings_ms_per_frame_median"]}
         rows.append(row)
         print(json.dumps(row), flush=True)
-    lines = ["| sequence | frames estimated | max rot. err. (deg) | mean rot. err. (deg) | "
-             "ATE (% of path) | tracks / parallel / rejected | init wall time (s) |",
-             "|---|---|---|---|---|---|---|"]
-    for r in rows:
-        lines.append(f"| {r['sequence']} | {r['estimated']}/{r['frames']} | "
-                     f"{r['rot_max_deg']:.3f} | {r['rot_mean_deg']:.3f} | {r['ate_pct']:.3f} | "
-                     f"{r['tracks']} / {r['parallel']} / {r['rejected']} | {r['wall_s']:.1f} |")
-    table = "\n".join(lines) + "\n"
-    print(table)
-    if args.markdown:
-        args.markdown.write_text(table)
+    table = [[r["sequence"], f"{r['estimated']}/{r['frames']}", r["rot_max_deg"],
+              r["rot_mean_deg"], r["ate_pct"],
+              f"{r['tracks']} / {r['parallel']} / {r['rejected']}", r["wall_s"]] for r in rows]
+    print("\n".join(" | ".join(str(c) for c in row) for row in table))
+    write_log(args, "eval_init", "init --lines on rendered sequences", [
+        "sequence", "frames estimated", {"label": "max rot. err. (deg)", "format": ".3f"},
+        {"label": "mean rot. err. (deg)", "format": ".3f"},
+        {"label": "ATE (% of path)", "format": ".3f"}, "tracks / parallel / rejected",
+        {"label": "init wall time (s)", "format": ".1f"}], table,
+        headline="every frame; max rotation error {rows[0][2]} deg, ATE {rows[0][4]} % "
+                 "(corridor, 800x600, 200 frames, {rows[0][6]} s)")
     return 0
 
 
