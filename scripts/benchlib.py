@@ -143,31 +143,46 @@ def machine() -> str:
 
 
 def write_log(args: argparse.Namespace, name: str, title: str, columns: Sequence[str | dict],
-              rows: Sequence[Sequence[Any]], headline: str = "", notes: str = "") -> Path | None:
+              rows: Sequence[Sequence[Any]], headline: str = "", notes: str = "",
+              merge: bool = False) -> Path | None:
     """Write the record ``<args.log_dir>/<name>.json`` of this run (unless ``args.no_log``).
 
     ``columns``: column labels, or ``{"label": ..., "format": ...}`` where numbers are shown
     with a format spec (``".3f"``); ``rows``: one list of cells per row (numbers or text);
     ``headline``: the one-line summary the README's results table shows, a ``str.format``
     template over ``rows`` as rendered (``"{rows[0][2]} deg"``); ``notes``: a sentence shown
-    under the table. Returns the path written, or None."""
+    under the table. ``merge``: for a script that measures one row a run (one sequence): the
+    record's other rows are kept, a row with the same first cell replaced, and each row keeps
+    the command that measured it (``row_commands``). Returns the path written, or None."""
     if getattr(args, "no_log", False):
         return None
-    record = {
+    path = Path(args.log_dir) / f"{name}.json"
+    command = typed_command()
+    new_rows = [[_plain(v) for v in row] for row in rows]
+    row_commands = [command] * len(new_rows) if merge else None
+    if merge and path.is_file():
+        old = json.loads(path.read_text(encoding="utf-8"))
+        cmds = old.get("row_commands") or [old["command"]] * len(old["rows"])
+        mine = {row[0] for row in new_rows}
+        kept = [(r, c) for r, c in zip(old["rows"], cmds, strict=True) if r[0] not in mine]
+        new_rows = [r for r, _ in kept] + new_rows
+        row_commands = [c for _, c in kept] + [command] * len(rows)
+    record: dict[str, Any] = {
         "name": name,
         "title": title,
-        "command": typed_command(),
+        "command": command,
         "commit": git_commit(),
         "machine": machine(),
         "date": datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
         "source": "measured",
         "columns": [c if isinstance(c, dict) else {"label": c} for c in columns],
-        "rows": [[_plain(v) for v in row] for row in rows],
+        "rows": new_rows,
         "headline": headline,
         "notes": notes,
     }
+    if row_commands is not None:
+        record["row_commands"] = row_commands
     args.log_dir.mkdir(parents=True, exist_ok=True)
-    path = Path(args.log_dir) / f"{name}.json"
     tmp = path.with_suffix(".json.tmp")
     tmp.write_text(record_json(record), encoding="utf-8")
     tmp.replace(path)
@@ -181,7 +196,7 @@ def record_json(record: dict[str, Any]) -> str:
         return json.dumps(v, ensure_ascii=False)
     lines = []
     for k, v in record.items():
-        if k in ("columns", "rows") and v:
+        if k in ("columns", "rows", "row_commands") and v:
             inner = ",\n".join(f"  {dump(x)}" for x in v)
             lines.append(f" {dump(k)}: [\n{inner}\n ]")
         else:

@@ -112,7 +112,9 @@ def render_table(rec: dict[str, Any], page: Path) -> str:
     if rec.get("notes"):
         out += [rec["notes"], ""]
     log = _link(page, LOG_DIR / f"{rec['name']}.json")
-    out.append(f"Measured by `{rec['command']}` (commit {rec['commit']}; {rec['machine']}; "
+    commands = list(dict.fromkeys(rec.get("row_commands") or [rec["command"]]))
+    out.append("Measured by " + ", ".join(f"`{c}`" for c in commands)
+               + f" (commit {rec['commit']}; {rec['machine']}; "
                f"record [{rec['name']}.json]({log})).")
     return "\n".join(out) + "\n"
 

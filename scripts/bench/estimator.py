@@ -27,7 +27,7 @@ from omni_sfm.estimate.segments import frame_range
 from omni_sfm.evaluate import trajectory_errors
 from omni_sfm.lines.tracks import read_tracks, write_tracks
 from omni_sfm.poses import read_tum
-from scripts.benchlib import run_sampled
+from scripts.benchlib import add_log_arguments, run_sampled, write_log
 
 
 def main() -> int:
@@ -37,6 +37,7 @@ def main() -> int:
                    help="run on the first N frames, each N in a fresh process")
     p.add_argument("--groundtruth", type=Path, default=None, help="TUM ground truth")
     p.add_argument("--work", type=Path, required=True, help="working folder")
+    add_log_arguments(p)
     args = p.parse_args()
     tracks = read_tracks(args.tracks)
     gt = read_tum(args.groundtruth) if args.groundtruth is not None else None
@@ -48,6 +49,7 @@ def main() -> int:
           "| posed | residual (deg) | kept start's adjustments (s) | rot. err. mean / max (deg) "
           "| ATE (%) |")
     print("|---|---|---|---|---|---|---|---|---|---|---|")
+    rows: list[list[object]] = []
     for n in args.frames:
         if n > tracks.num_frames:
             print(f"skipped {n}: the tracks have {tracks.num_frames} frames")
@@ -67,13 +69,24 @@ def main() -> int:
         posed = f"{report['num_frames_estimated']}/{n}"
         rms = report["residuals"]["rms_final_deg"]
         refine_s = report["timings_ms"].get("refinement", float("nan")) / 1e3
-        errors = "- | -"
+        rot: str | None = None
+        ate: float | None = None
         if gt is not None:
             e = trajectory_errors(read_tum(out / "trajectory.tum"), gt)
-            errors = f"{e.rot_mean_deg:.3f} / {e.rot_max_deg:.3f} | {100 * e.ate_rel:.3f}"
+            rot, ate = f"{e.rot_mean_deg:.3f} / {e.rot_max_deg:.3f}", 100 * e.ate_rel
+        rows.append([n, cut.num_tracks, cut.num_observations, wall, 1000 * wall / n, peak, posed,
+                     rms, refine_s, rot, ate])
         print(f"| {n} | {cut.num_tracks} | {cut.num_observations} | {wall:.1f} | "
               f"{1000 * wall / n:.1f} | {peak:.0f} | {posed} | {rms:.4f} | {refine_s:.1f} | "
-              f"{errors} |", flush=True)
+              f"{rot or '-'} | {'-' if ate is None else f'{ate:.3f}'} |", flush=True)
+    write_log(args, "bench_estimator", "The estimator alone on a video's tracks", [
+        "frames", "tracks", "observations", {"label": "wall (s)", "format": ".1f"},
+        {"label": "ms per frame", "format": ".1f"}, {"label": "peak memory (MB)", "format": ".0f"},
+        "posed", {"label": "residual (deg)", "format": ".4f"},
+        {"label": "kept start's adjustments (s)", "format": ".1f"},
+        "rot. err. mean / max (deg)", {"label": "ATE (%)", "format": ".3f"}], rows,
+        headline=", ".join(f"{{rows[{k}][0]}} frames {{rows[{k}][3]}} s"
+                           for k in range(len(rows))))
     return 0
 
 

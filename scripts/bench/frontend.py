@@ -38,6 +38,7 @@ from omni_sfm.lines.track import LineTracker, TrackingOptions
 from omni_sfm.lines.video import read_frames
 from omni_sfm.lines3d import read_lines3d
 from omni_sfm.poses import read_tum
+from scripts.benchlib import add_log_arguments, write_log
 
 PAPER_MS = 5.0
 FALSE_DEG = 0.5
@@ -154,6 +155,7 @@ def main() -> int:
                          "CPU figures; 0: the front end's default, one per core)")
     ap.add_argument("--stages", action="store_true",
                     help="also print the CPU time of each stage (one more pass over the frames)")
+    add_log_arguments(ap)
     args = ap.parse_args()
 
     seq = args.input
@@ -216,8 +218,9 @@ def main() -> int:
         truth = true_nvs(lines3d.starts, lines3d.ends, gt.rotations[k], gt.positions[k])
         all_err.append(nv_errors_deg(extractor.extract(img).normals, truth))
         obs_err.append(nv_errors_deg(tr.obs_normal[tr.obs_frame == f], truth))
-    print(describe("extracted lines", np.concatenate(all_err)))
-    print(describe("tracked observations", np.concatenate(obs_err)))
+    lines_err, obs = np.concatenate(all_err), np.concatenate(obs_err)
+    print(describe("extracted lines", lines_err))
+    print(describe("tracked observations", obs))
     lengths = res.track_lengths()
     print(f"tracks: {tr.num_tracks}, observations {tr.num_observations}, length median "
           f"{np.median(lengths):.0f} frames (max {lengths.max()}), lines per frame median "
@@ -225,6 +228,22 @@ def main() -> int:
           f"{np.median(res.lines_continued[1:]):.0f}")
     if args.stages:
         print_stages(src, cam, opts)
+    texture = "textured " if args.textured else ""
+    write_log(args, "bench_frontend", "The line front end: CPU time and accuracy", [
+        "sequence", {"label": "extraction (CPU ms a frame)", "format": ".2f"},
+        {"label": "tracking", "format": ".2f"}, {"label": "extraction + tracking", "format": ".2f"},
+        "lines", {"label": "NV error median (deg)", "format": ".3f"},
+        {"label": "false (%)", "format": ".1f"}, "tracked observations",
+        {"label": "tracked: NV error median (deg)", "format": ".3f"},
+        {"label": "tracked: false (%)", "format": ".1f"}],
+        [[f"{texture}{args.scene}, {cam.model} {cam.width}x{cam.height}, {nf} frames", ec, tc,
+          ec + tc, len(lines_err), np.median(lines_err), 100 * np.mean(lines_err > FALSE_DEG),
+          len(obs), np.median(obs), 100 * np.mean(obs > FALSE_DEG)]],
+        headline="{rows[0][3]} ms CPU a frame (corridor, 800x600; paper: 5 ms, C++); "
+                 "NV error median {rows[0][8]} deg, {rows[0][9]} % of lines false",
+        notes="Median CPU ms a frame of the thread that did the work (OpenCV single-threaded "
+              "with `--threads 1`); a line is false when its NV is more than 0.5 deg from "
+              "every true NV.", merge=True)
     return 0
 
 

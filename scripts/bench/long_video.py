@@ -34,7 +34,7 @@ from omni_sfm.synth.effects import VideoCodec
 from omni_sfm.synth.paths import Route
 from omni_sfm.synth.render import RenderOptions, render_sequence
 from omni_sfm.synth.scenes import SceneName
-from scripts.benchlib import at_tenths, run_sampled
+from scripts.benchlib import add_log_arguments, at_tenths, run_sampled, write_log
 
 
 def main() -> int:
@@ -49,6 +49,7 @@ def main() -> int:
     p.add_argument("--render", type=Path, default=None,
                    help="use this rendered folder (video.mp4, camera.yaml, groundtruth.tum) "
                         "instead of rendering into WORK")
+    add_log_arguments(p)
     args = p.parse_args()
     render = args.render or args.work / f"render_{args.frames}_{args.width}x{args.height}"
     if not (render / "groundtruth.tum").is_file():
@@ -85,6 +86,17 @@ def main() -> int:
           f"{len(report.get('segments', []))} segments; rotation mean / max "
           f"{e.rot_mean_deg:.3f} / {e.rot_max_deg:.3f} deg, ATE {100 * e.ate_rel:.3f} %")
     print(said.splitlines()[-1] if said else "")
+    row = [f"{args.width}x{args.height} H.264, {args.frames:,} frames", wall,
+           ws.get("front_end"), ws.get("estimation"), peak, f"{len(est):,}/{len(gt):,}",
+           f"{e.rot_mean_deg:.3f} / {e.rot_max_deg:.3f}", 100 * e.ate_rel]
+    write_log(args, "bench_long_video", "A long 360 video through the whole init", [
+        "video", {"label": "wall (s)", "format": ".0f"},
+        {"label": "front end (s)", "format": ".0f"}, {"label": "estimation (s)", "format": ".0f"},
+        {"label": "peak memory (MB)", "format": ".0f"},
+        "main trajectory", "rotation mean / max (deg)", {"label": "ATE (%)", "format": ".3f"}],
+        [row], headline="{rows[0][5]} frames in one trajectory in {rows[0][1]} s, "
+        "{rows[0][6]} deg, {rows[0][7]} % ATE, peak {rows[0][4]} MB",
+        notes="Resident MB at each tenth of the run: " + at_tenths(samples, wall) + ".")
     return 0
 
 

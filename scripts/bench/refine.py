@@ -43,14 +43,14 @@ from typing import Any
 
 from omni_sfm.evaluate import trajectory_errors
 from omni_sfm.export.colmap import read_init_model
-from omni_sfm.poses import read_tum
+from omni_sfm.poses import Trajectory, read_tum
 from omni_sfm.refine import RefineOptions, refine
 from omni_sfm.refine.database import FEATURE_SOURCES
 from omni_sfm.refine.synthetic import write_perturbed_init
 from omni_sfm.synth.paths import Route
 from omni_sfm.synth.render import RenderOptions, render_sequence
 from omni_sfm.synth.scenes import SceneName
-from scripts.benchlib import run_timed
+from scripts.benchlib import add_log_arguments, run_timed, write_log
 
 
 def main() -> int:
@@ -93,6 +93,7 @@ def main() -> int:
                         "COLMAP's incremental SfM on the same frames (times and errors)")
     p.add_argument("--lines-init", action="store_true",
                    help="seed with `init --lines` run here (timed), without COLMAP's SfM")
+    add_log_arguments(p)
     args = p.parse_args()
     # freed memory kept for reuse in this process, as the omni-sfm command keeps it
     from omni_sfm.libs import keep_freed_memory
@@ -117,33 +118,11 @@ def main() -> int:
         render_sequence(render, opts, progress=sys.stderr.isatty())
         print(f"render: {time.perf_counter() - t0:.1f} s")
     gt = read_tum(render / "groundtruth.tum")
-    init_wall = colmap_wall = None
-    exe = [sys.executable, "-m", "omni_sfm", "init"]
-    common = ["--images", str(render / "images"), "--camera", str(render / "camera.yaml"),
-              "--overwrite", "--quiet"]
-    if args.versus_colmap or args.lines_init:
-        print(f"# {os.cpu_count()} CPUs; `init` and COLMAP each in a fresh process", flush=True)
-    if args.versus_colmap:
-        out = args.work / "colmap_sfm"
-        colmap_wall, peak, code, said = run_timed([*exe, "--initializer", "colmap", *common,
-                                                   "--output", str(out)])
-        if code != 0:
-            print(f"COLMAP incremental SfM: exit {code}: {said}")
-            colmap_wall = None
-        else:
-            e = trajectory_errors(read_tum(out / "trajectory.tum"), gt)
-            print(f"COLMAP incremental SfM: {colmap_wall:.1f} s, peak {peak:.0f} MB; "
-                  f"{len(read_tum(out / 'trajectory.tum'))}/{len(gt)} frames, ATE "
-                  f"{100 * e.ate_rel:.4f} %, rotation mean / max {e.rot_mean_deg:.3f} / "
-                  f"{e.rot_max_deg:.3f} deg", flush=True)
-    if args.versus_colmap or args.lines_init:
-        args.init = args.work / "init_lines"
-        init_wall, peak, code, said = run_timed([*exe, "--lines", *common,
-                                                 "--output", str(args.init)])
-        if code != 0:
-            print(f"init --lines: exit {code}: {said}")
-            return 1
-        print(f"init --lines: {init_wall:.1f} s, peak {peak:.0f} MB", flush=True)
+    rows: list[list[object]] = []  # the record: run, frames, rotation mean / max, ATE, wall
+    walls = _own_inits(args, render, gt, rows)
+    if walls is None:
+        return 1
+    init_wall, colmap_wall = walls
     if args.init is None:
         init_dir = args.work / "init_perturbed"
         write_perturbed_init(render, init_dir, seed=args.seed, overwrite=True)
@@ -157,6 +136,8 @@ def main() -> int:
     print(f"case: {scene}, {args.camera} {args.width}x{args.height}, {len(gt)} frames, "
           f"path {gt.path_length():.2f} m; seed: {kind}")
     before = trajectory_errors(init, gt)
+    rows.append(["`init --lines`" if init_wall is not None else "input (seed)",
+                 *_figures(init_dir / "trajectory.tum", gt), init_wall])
     print(f"input: ATE / path length {100 * before.ate_rel:.4f} %, rotation error mean / max "
           f"{before.rot_mean_deg:.3f} / {before.rot_max_deg:.3f} deg")
     runs = [(f, m) for f in args.features for m in (args.matching if f == "sift" else [""])]
@@ -173,6 +154,11 @@ def main() -> int:
                                        klt_verify=args.klt_verify, adjustment=adjustment),
                          database=database, overwrite=True, progress=sys.stderr.isatty())
             total = time.perf_counter() - t0
+            label = features + (f", {matching} matching" if matching else "")
+            rows.append([f"`init` + `refine` ({label}, {adjustment} adjustment)",
+                         *_figures(res.trajectory, gt),
+                         total if init_wall is None else f"{init_wall + total:.1f} "
+                         f"({init_wall:.1f} + {total:.1f})"])
             _print_run(features + (f" ({matching} matching)" if matching else ""), adjustment,
                        res.report, total, trajectory_errors(res.trajectory, gt), len(init))
             if init_wall is not None and colmap_wall is not None and \
@@ -181,7 +167,59 @@ def main() -> int:
                 print(f"init + refine: {both:.1f} s ({init_wall:.1f} + {total:.1f}); COLMAP's "
                       f"incremental SfM {colmap_wall:.1f} s: {colmap_wall / both:.2f}x "
                       "(the issue asks for at least 5x)", flush=True)
+    write_log(args, "bench_refine", "init + refine against COLMAP's incremental SfM", [
+        "run", "frames", "rotation error mean / max (deg)",
+        {"label": "ATE (% of path)", "format": ".4f"}, {"label": "wall time (s)", "format": ".1f"}],
+        rows, headline="{rows[-1][0]}: {rows[-1][2]} deg, {rows[-1][3]} % ATE "
+        "(from {rows[-2][2]} deg, {rows[-2][3]} %)",
+        notes=f"{scene}, {args.camera} {args.width}x{args.height}, {len(gt)} frames; seed: "
+              f"{kind}.")
     return 0
+
+
+def _own_inits(args: argparse.Namespace, render: Path, gt: Trajectory,
+               rows: list[list[object]]) -> tuple[float | None, float | None] | None:
+    """With ``--versus-colmap`` / ``--lines-init``: COLMAP's SfM and ``init --lines`` on the
+    render, each in a fresh process (their rows appended to ``rows``; ``args.init`` set to the
+    line-based one); ``(init wall, COLMAP wall)``, None when ``init`` failed."""
+    init_wall = colmap_wall = None
+    exe = [sys.executable, "-m", "omni_sfm", "init"]
+    common = ["--images", str(render / "images"), "--camera", str(render / "camera.yaml"),
+              "--overwrite", "--quiet"]
+    if args.versus_colmap or args.lines_init:
+        print(f"# {os.cpu_count()} CPUs; `init` and COLMAP each in a fresh process", flush=True)
+    if args.versus_colmap:
+        out = args.work / "colmap_sfm"
+        colmap_wall, peak, code, said = run_timed([*exe, "--initializer", "colmap", *common,
+                                                   "--output", str(out)])
+        if code != 0:
+            print(f"COLMAP incremental SfM: exit {code}: {said}")
+            colmap_wall = None
+        else:
+            e = trajectory_errors(read_tum(out / "trajectory.tum"), gt)
+            rows.append(["COLMAP's incremental SfM", *_figures(out / "trajectory.tum", gt),
+                         colmap_wall])
+            print(f"COLMAP incremental SfM: {colmap_wall:.1f} s, peak {peak:.0f} MB; "
+                  f"{len(read_tum(out / 'trajectory.tum'))}/{len(gt)} frames, ATE "
+                  f"{100 * e.ate_rel:.4f} %, rotation mean / max {e.rot_mean_deg:.3f} / "
+                  f"{e.rot_max_deg:.3f} deg", flush=True)
+    if args.versus_colmap or args.lines_init:
+        args.init = args.work / "init_lines"
+        init_wall, peak, code, said = run_timed([*exe, "--lines", *common,
+                                                 "--output", str(args.init)])
+        if code != 0:
+            print(f"init --lines: exit {code}: {said}")
+            return None
+        print(f"init --lines: {init_wall:.1f} s, peak {peak:.0f} MB", flush=True)
+    return init_wall, colmap_wall
+
+
+def _figures(trajectory: Path | Trajectory, gt: Trajectory) -> list[object]:
+    """``[frames posed / all, "rotation mean / max", ATE %]`` of a trajectory."""
+    est = read_tum(trajectory) if isinstance(trajectory, Path) else trajectory
+    e = trajectory_errors(est, gt)
+    return [f"{len(est)} / {len(gt)}", f"{e.rot_mean_deg:.3f} / {e.rot_max_deg:.3f}",
+            100 * e.ate_rel]
 
 
 def _print_run(features: str, adjustment: str, r: dict[str, Any], total: float, after: Any,

@@ -15,7 +15,9 @@ Each task (kind, seed, noise) is independent: by default they run on a local pro
 (``concurrent.futures``, ``--workers``); with ``--scheduler ADDRESS`` on a Dask distributed
 cluster, with identical results (every random choice is seeded; pycolmap runs single-threaded).
 Results go to ``--output`` (``runs/<task>/results.json`` + trajectories, ``sweep.json``,
-``summary.md``); ``--docs`` rewrites the generated part of docs/comparison.md and its plots.
+``summary.md``) and to the records ``docs/benchmarks/compare_init.json`` and
+``compare_init_runs.json`` (docs/comparison.md renders them); ``--docs`` draws the plots into
+docs/img.
 
     .venv/bin/python -m scripts.compare.init --output /tmp/sweep --docs
 """
@@ -34,6 +36,8 @@ from typing import Any
 
 import numpy as np
 
+from scripts.benchlib import add_log_arguments, write_log
+
 ROOT = Path(__file__).resolve().parents[2]
 KINDS = ("sim", "corridor-hyperboloid", "corridor-hyperboloid-textured",
          "room-equirectangular-textured")
@@ -48,7 +52,6 @@ RENDER: dict[str, dict[str, Any]] = {
 IMAGE_ONLY = ("lines-refine",)
 """Initializers that need frames: added to the rendered sequences' runs unless --initializers."""
 SIZES = {"hyperboloid": (640, 480), "equirectangular": (960, 480)}
-BEGIN, END = "<!-- sweep:begin -->", "<!-- sweep:end -->"
 
 
 def task_id(task: dict[str, Any]) -> str:
@@ -208,8 +211,16 @@ def _f(x: float, digits: int = 3, pct: bool = False) -> str:
     return f"{100 * x:.{digits}f} %" if pct else f"{x:.{digits}f}"
 
 
-def summary_tables(done: list[dict[str, Any]]) -> str:
-    """Markdown: per kind and initializer, success and median errors; then every run."""
+SUMMARY_COLUMNS = ["sequences", "initializer", "ok runs", "registered (mean)",
+                   "rot max, deg (median)", "rot mean, deg (median)", "ATE / path (median)",
+                   "time, s (median)"]
+RUN_COLUMNS = ["run", "initializer", "status", "registered", "rot max (deg)", "ATE / path",
+               "reason"]
+
+
+def summary_rows(done: list[dict[str, Any]]) -> tuple[list[list[str]], list[list[str]]]:
+    """Per kind and initializer, success and median errors; then every run (failures with their
+    reasons): the rows of :data:`SUMMARY_COLUMNS` and :data:`RUN_COLUMNS`."""
     names: list[str] = []
     for r in done:
         names += [n for n in r["results"]["initializers"] if n not in names]
@@ -218,9 +229,7 @@ def summary_tables(done: list[dict[str, Any]]) -> str:
         t = r["task"]
         key = t["kind"] if t.get("noise_deg") is None else f"sim, noise {t['noise_deg']:g} deg"
         groups.setdefault(key, []).append(r)
-    lines = ["| sequences | initializer | ok runs | registered (mean) | rot max, deg (median) "
-             "| rot mean, deg (median) | ATE / path (median) | time, s (median) |",
-             "|---|---|---|---|---|---|---|---|"]
+    summary = []
     for key, runs in groups.items():
         for n in names:
             es = [r["results"]["initializers"][n] for r in runs
@@ -228,27 +237,48 @@ def summary_tables(done: list[dict[str, Any]]) -> str:
             if not es:
                 continue  # not run on this kind (lines-refine needs images)
             ok = [e for e in es if e["status"] == "ok"]
-            lines.append(
-                f"| {key} ({len(runs)} seeds) | {n} | {len(ok)}/{len(es)} | "
-                f"{_f(float(np.mean([e['registered'] for e in es])), 0, True)}"
-                f" | {_f(_med([e['rot_max_deg'] for e in ok]))} | "
-                f"{_f(_med([e['rot_mean_deg'] for e in ok]))} | "
-                f"{_f(_med([e['ate_rel'] for e in ok]), 2, True)} | "
-                f"{_f(_med([e['time_s'] for e in es]), 1)} |")
-    lines += ["", "Every run (failures with their reasons):", "",
-              "| run | initializer | status | registered | rot max (deg) | ATE / path | reason |",
-              "|---|---|---|---|---|---|---|"]
+            summary.append([
+                f"{key} ({len(runs)} seeds)", n, f"{len(ok)}/{len(es)}",
+                _f(float(np.mean([e["registered"] for e in es])), 0, True),
+                _f(_med([e["rot_max_deg"] for e in ok])),
+                _f(_med([e["rot_mean_deg"] for e in ok])),
+                _f(_med([e["ate_rel"] for e in ok]), 2, True),
+                _f(_med([e["time_s"] for e in es]), 1)])
+    every = []
     for r in done:
         for n, e in r["results"]["initializers"].items():
             reason = (e.get("reason") or "").replace("|", "/")
             if len(reason) > 140:
                 reason = reason[:137] + "..."
-            lines.append(f"| {task_id(r['task'])} | {n} | {e['status']} | "
-                         f"{_f(e['registered'], 0, True)} | "
-                         f"{_f(e['rot_max_deg'] if e['rot_max_deg'] is not None else np.nan)} | "
-                         f"{_f(e['ate_rel'] if e['ate_rel'] is not None else np.nan, 2, True)}"
-                         f" | {reason} |")
-    return "\n".join(lines)
+            every.append([task_id(r["task"]), n, e["status"], _f(e["registered"], 0, True),
+                          _f(e["rot_max_deg"] if e["rot_max_deg"] is not None else np.nan),
+                          _f(e["ate_rel"] if e["ate_rel"] is not None else np.nan, 2, True),
+                          reason])
+    return summary, every
+
+
+def markdown(columns: list[str], rows: list[list[str]]) -> str:
+    """A Markdown table."""
+    return "\n".join(["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns),
+                      *("| " + " | ".join(r) + " |" for r in rows)])
+
+
+def log_sweep(args: argparse.Namespace, done: list[dict[str, Any]], said: str) -> None:
+    """The sweep's two records: ``compare_init`` (per kind and initializer) and
+    ``compare_init_runs`` (every run)."""
+    summary, every = summary_rows(done)
+    corridor = [r for r in summary if r[0].startswith("corridor-hyperboloid (")]
+    lines = next((r for r in corridor if r[1] == "lines"), None)
+    head = ""
+    if lines is not None:
+        others = "; ".join(f"{r[1]} {r[2]} ok, {r[4]} deg, {r[6]}" for r in corridor
+                           if r[1] not in ("lines", "lines-refine"))
+        head = (f"texture-poor corridor: lines {lines[3]} of the frames at {lines[4]} deg / "
+                f"{lines[6]} ATE (median); {others}").replace("{", "{{").replace("}", "}}")
+    write_log(args, "compare_init", "Line-based against point-based initializers",
+              SUMMARY_COLUMNS, summary, headline=head, notes=said)
+    write_log(args, "compare_init_runs", "Every run of the comparison sweep", RUN_COLUMNS,
+              every, headline=f"{len(every)} runs")
 
 
 def plot_sweep(done: list[dict[str, Any]], prefix: Path | str) -> list[Path]:
@@ -338,22 +368,6 @@ def plot_sweep(done: list[dict[str, Any]], prefix: Path | str) -> list[Path]:
     return paths
 
 
-def docs_block(done: list[dict[str, Any]], produced_by: str) -> str:
-    """The generated part of docs/comparison.md: provenance, plots, tables."""
-    return (f"Produced by {produced_by}.\n\n"
-            "![error against noise](img/comparison_noise.png)\n\n"
-            f"![error against texture](img/comparison_texture.png)\n\n{summary_tables(done)}")
-
-
-def update_docs(doc: Path, block: str) -> None:
-    text = doc.read_text(encoding="utf-8")
-    if BEGIN not in text or END not in text:
-        raise SystemExit(f"{doc}: markers {BEGIN} / {END} not found")
-    head, rest = text.split(BEGIN, 1)
-    _, tail = rest.split(END, 1)
-    doc.write_text(f"{head}{BEGIN}\n{block}\n{END}{tail}", encoding="utf-8")
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--output", type=Path, required=True, help="folder for runs and summary")
@@ -375,7 +389,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--replot", action="store_true",
                     help="only redraw the plots from OUTPUT/sweep.json (into docs/img with --docs)")
     ap.add_argument("--docs", action="store_true",
-                    help="rewrite the generated part of docs/comparison.md and its plots")
+                    help="draw the plots into docs/img (the records go to --log-dir)")
+    add_log_arguments(ap)
     a = ap.parse_args(argv)
 
     import importlib
@@ -391,11 +406,6 @@ def main(argv: list[str] | None = None) -> int:
     if a.replot:
         done = json.loads((a.output / "sweep.json").read_text(encoding="utf-8"))
         plot_sweep(done, ROOT / "docs" / "img" / "comparison_" if a.docs else f"{a.output}/")
-        if a.docs:
-            wall = sum(r["wall_s"] for r in done) / 60
-            update_docs(ROOT / "docs" / "comparison.md", docs_block(
-                done, f"redrawn from {a.output}/sweep.json ({len(done)} runs, {wall:.0f} min "
-                      "of task wall time)"))
         return 0
     kinds = [k.strip() for k in a.kinds.split(",") if k.strip()]
     bad = [k for k in kinds if k != "sim" and k not in RENDER]
@@ -418,19 +428,13 @@ def main(argv: list[str] | None = None) -> int:
     done = run_all(tasks, a.scheduler, a.workers, report)
     wall = time.perf_counter() - t0
     write_runs(a.output, done)
-    tables = summary_tables(done)
-    (a.output / "summary.md").write_text(tables + "\n", encoding="utf-8")
+    summary, every = summary_rows(done)
+    (a.output / "summary.md").write_text(markdown(SUMMARY_COLUMNS, summary) + "\n\n"
+                                         + markdown(RUN_COLUMNS, every) + "\n", encoding="utf-8")
     print(f"{len(done)} runs in {wall / 60:.1f} min; {a.output / 'summary.md'}")
-    if a.docs:
-        plot_sweep(done, ROOT / "docs" / "img" / "comparison_")
-        cmd = "scripts/compare/init.py " + " ".join(
-            x for x in (argv if argv is not None else sys.argv[1:]))
-        where = 'Dask ' + a.scheduler if a.scheduler else f'{a.workers} local processes'
-        update_docs(ROOT / "docs" / "comparison.md", docs_block(
-            done, f"`.venv/bin/python {cmd}` ({len(done)} runs, {wall / 60:.0f} min wall on "
-                  f"{where})"))
-    else:
-        plot_sweep(done, f"{a.output}/")
+    plot_sweep(done, ROOT / "docs" / "img" / "comparison_" if a.docs else f"{a.output}/")
+    where = "Dask " + a.scheduler if a.scheduler else f"{a.workers} local processes"
+    log_sweep(a, done, f"{len(done)} runs, {wall / 60:.0f} min wall on {where}.")
     return 0
 
 

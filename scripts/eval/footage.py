@@ -8,10 +8,11 @@ check included), and compares with the ground truth: frames estimated, maximum a
 error relative to the first frame, ATE after similarity alignment over the path length, wall
 time. Also the camera-fixed body (operator / robot) unmasked against the same run with the body
 masked by hand, a turn in place, and a stop-and-go walk (drive, stop, turn 90 deg in place,
-drive on). Prints JSON lines and a Markdown table.
+drive on). Prints JSON lines and writes the record ``docs/benchmarks/eval_footage.json``
+(docs/results.md renders it).
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python -m scripts.eval.footage --work /tmp/footage \\
-        --frames 600 --markdown /tmp/footage/table.md
+        --frames 600
 
 ``--frames`` scales the sequences (600 is the issue's length; fewer frames make each step
 longer, so blur and tracking get harder, not easier).
@@ -44,6 +45,7 @@ from omni_sfm.synth.paths import Route
 from omni_sfm.synth.render import RenderOptions, prepare, render_sequence
 from omni_sfm.synth.scenes import SceneName
 from omni_sfm.transforms import associate
+from scripts.benchlib import add_log_arguments, write_log
 
 CAMERAS: dict[str, tuple[str, int, int]] = {
     "hyperboloid-800x600": ("hyperboloid", 800, 600),
@@ -139,20 +141,26 @@ def run_case(case: Case, work: Path) -> dict[str, Any]:
     return row
 
 
-def table(rows: list[dict[str, Any]]) -> str:
-    lines = ["| camera | footage | frames estimated | max rot. err. (deg) | mean rot. err. (deg) "
-             "| ATE (% of path) | init wall time (s) |", "|---|---|---|---|---|---|---|"]
+COLUMNS = ["camera", "footage", "frames estimated", {"label": "max rot. err. (deg)",
+                                                     "format": ".3f"},
+           {"label": "mean rot. err. (deg)", "format": ".3f"},
+           {"label": "ATE (% of path)", "format": ".3f"},
+           {"label": "init wall time (s)", "format": ".0f"}]
+
+
+def table(rows: list[dict[str, Any]]) -> list[list[object]]:
+    """The record's rows: one per case."""
+    out: list[list[object]] = []
     for r in rows:
         cam, name = r["case"].split(" | ", 1)
         if "error" in r:
-            lines.append(f"| {cam} | {name} | 0/? (error: {r['error'][:120]}) | | | | "
-                         f"{r['wall_s']:.0f} |")
+            out.append([cam, name, f"0/? (error: {r['error'][:120]})", None, None, None,
+                        r["wall_s"]])
             continue
-        ate = "rotation only" if r["ate_pct"] is None else f"{r['ate_pct']:.3f}"
-        lines.append(f"| {cam} | {name} | {r['estimated']}/{r['frames']} | "
-                     f"{r['rot_max_deg']:.3f} | {r['rot_mean_deg']:.3f} | {ate} | "
-                     f"{r['wall_s']:.0f} |")
-    return "\n".join(lines) + "\n"
+        ate = "rotation only" if r["ate_pct"] is None else r["ate_pct"]
+        out.append([cam, name, f"{r['estimated']}/{r['frames']}", r["rot_max_deg"],
+                    r["rot_mean_deg"], ate, r["wall_s"]])
+    return out
 
 
 def main() -> int:
@@ -160,17 +168,22 @@ def main() -> int:
     p.add_argument("--work", type=Path, required=True, help="folder for renders and results")
     p.add_argument("--frames", type=int, default=600, help="frames of the walk (default 600)")
     p.add_argument("--only", nargs="*", help="run only cases whose name contains one of these")
-    p.add_argument("--markdown", type=Path, help="write the table here")
+    add_log_arguments(p)
     args = p.parse_args()
     rows = []
     for case in cases(args.frames, args.only):
         row = run_case(case, args.work)
         rows.append(row)
         print(json.dumps(row), flush=True)
-    text = table(rows)
-    print(text)
-    if args.markdown:
-        args.markdown.write_text(text)
+    cells = table(rows)
+    print("\n".join(" | ".join(str(c) for c in row) for row in cells))
+    # the headline: the walk with every effect at once, through each camera
+    every = [k for k, r in enumerate(cells) if str(r[1]).startswith("all:")]
+    headline = "; ".join(f"{{rows[{k}][0]}}: {{rows[{k}][2]}} frames, {{rows[{k}][3]}} deg, "
+                         f"{{rows[{k}][5]}} % ATE" for k in every)
+    write_log(args, "eval_footage", "The office walk, effect by effect", COLUMNS, cells,
+              headline=f"{args.frames}-frame 23 m office walk with a 90 deg turn, every effect "
+                       f"of real footage at once: {headline}")
     return 0
 
 
