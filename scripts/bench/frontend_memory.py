@@ -22,7 +22,7 @@ import os
 import sys
 import time
 
-from scripts.benchlib import at_tenths, run_sampled
+from scripts.benchlib import add_log_arguments, at_tenths, run_sampled, write_log
 
 
 def _child(video: str, camera: str, n: int) -> None:
@@ -45,6 +45,7 @@ def main() -> int:
     ap.add_argument("--camera", required=True)
     ap.add_argument("--frames", type=int, nargs="+", default=[300, 1000, 3000])
     ap.add_argument("--child", type=int, help=argparse.SUPPRESS)
+    add_log_arguments(ap)
     args = ap.parse_args()
     if args.child is not None:
         _child(args.video, args.camera, args.child)
@@ -52,6 +53,7 @@ def main() -> int:
     print(f"# front end memory; {os.cpu_count()} CPUs, OPENBLAS_NUM_THREADS="
           f"{os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}; {args.video}")
     print(f"{'frames':>7} {'wall s':>7} {'tracks':>7} {'obs':>8} {'peak MB':>8}  MB at each tenth")
+    rows: list[list[object]] = []
     for n in args.frames:
         wall, samples, rc, said = run_sampled([sys.executable, "-m",
                                                "scripts.bench.frontend_memory", "--video",
@@ -64,6 +66,13 @@ def main() -> int:
         peak = max(m for _, m in samples)
         print(f"{n:>7} {float(out[0]):>7.1f} {out[1]:>7} {out[2]:>8} {peak:>8.0f}  "
               f"{at_tenths(samples, wall)}", flush=True)
+        rows.append([n, int(out[1]), int(out[2]), float(out[0]), peak])
+    write_log(args, "bench_frontend_memory", "The front end's memory against the video's length",
+              ["frames", "tracks", "observations", {"label": "wall (s)", "format": ".1f"},
+               {"label": "peak MB", "format": ",.0f"}], rows,
+              headline="peak {rows[0][4]} MB at {rows[0][0]} frames, {rows[-1][4]} MB at "
+                       "{rows[-1][0]}",
+              notes="The resident memory of the process and its workers together.")
     return 0
 
 
