@@ -45,11 +45,14 @@ def sources() -> list[Path]:
 
 
 def history_lines(path: Path) -> list[str]:
-    """``"path:line: text"`` for every line of ``path`` with a mark of history."""
+    """``"path:line: text"`` for every line of ``path`` with a mark of history; each line is
+    searched together with the start of the next, so that a date broken over two lines counts."""
     out = []
-    for k, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
-        if HISTORY.search(line):
-            out.append(f"{path.relative_to(ROOT)}:{k}: {line.strip()}")
+    lines = path.read_text(encoding="utf-8").splitlines()
+    for k, line in enumerate(lines):
+        following = lines[k + 1].strip().split(" ")[:3] if k + 1 < len(lines) else []
+        if HISTORY.search(" ".join([line.strip(), *following])):
+            out.append(f"{path.relative_to(ROOT)}:{k + 1}: {line.strip()}")
     return out
 
 

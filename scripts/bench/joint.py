@@ -1,5 +1,5 @@
 """Benchmark the joint adjustment of lines and points alone, on work folders of
-``bench_refine.py`` (each its ``init_lines``, ``database_sift.db`` and
+``scripts/bench/refine.py`` (each its ``init_lines``, ``database_sift.db`` and
 ``render/groundtruth.tum``): COLMAP's triangulation on the init's poses (as ``refine`` does
 it), then one Levenberg-Marquardt step with the cameras' system formed and factored against
 conjugate gradients (time, agreement), then the whole adjustment (time, iterations, errors
@@ -93,7 +93,7 @@ def _prepare(W: Path, step: bool) -> dict[str, Any]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--work", type=Path, nargs="+", required=True,
-                    help="bench_refine.py work folders")
+                    help="scripts/bench/refine.py work folders")
     ap.add_argument("--iterative-above", type=int, nargs="+", default=[50],
                     help="whole adjustments to run, one per value of "
                          "JointOptions.iterative_above (default: 50, the default)")

@@ -58,10 +58,10 @@ def main() -> int:
     p.add_argument("--work", type=Path, required=True, help="working folder (render reused)")
     p.add_argument("--scene", choices=["room", "corridor", "office"], default="room",
                    help="room (textured), corridor (texture-poor) or office: the textured "
-                        "L-shaped office walk of bench_init.py at --metres-per-frame, so that "
-                        "longer runs walk farther at the same speed")
+                        "L-shaped office walk of scripts/bench/init.py at --metres-per-frame, "
+                        "so that longer runs walk farther at the same speed")
     p.add_argument("--metres-per-frame", type=float, default=0.0115,
-                   help="office: the camera's speed (default: bench_init's)")
+                   help="office: the camera's speed (default: scripts/bench/init.py's)")
     p.add_argument("--frames", type=int, default=100)
     p.add_argument("--camera", choices=["hyperboloid", "equirectangular"],
                    default="hyperboloid", help="the rendered camera (equirectangular: give "
