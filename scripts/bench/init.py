@@ -97,27 +97,28 @@ def main() -> int:
                              peak, *err])
                 print(f"COLMAP incremental mapper, {n} frames: {wall:.1f} s wall, peak "
                       f"{peak:.0f} MB; {_said(err)}", flush=True)
-    said = []
+    ratios: list[str] = []
     if colmap is not None:
         n, wall = colmap
-        said.append(f"`init --lines` is {wall / lines[n]:.1f}x faster than COLMAP's mapper on "
-                    f"{n:,} frames")
+        ratios.append(f"`init --lines` is {wall / lines[n]:.1f}x faster than COLMAP's mapper "
+                      f"on {n:,} frames")
     if len(lines) > 1:
         lo, hi = min(lines), max(lines)
-        said.append(f"{hi:,} frames take {lines[hi] / lines[lo]:.1f}x the time of {lo:,} "
-                    f"({hi / lo:.0f}x the frames)")
-    for s in said:
+        ratios.append(f"{hi:,} frames take {lines[hi] / lines[lo]:.1f}x the time of {lo:,} "
+                      f"({hi / lo:.0f}x the frames)")
+    for s in ratios:
         print(s)
     headline = "`init --lines` {rows[0][1]} s, {rows[0][5]} deg / {rows[0][6]} % ATE"
     if colmap is not None:  # rows: init, COLMAP, ...
         headline = (f"{colmap[1] / lines[colmap[0]]:.0f}x faster than COLMAP's mapper: "
-                    "{rows[0][1]} s against {rows[1][1]} s on a textured 200-frame office walk "
+                    "{rows[0][1]} s against {rows[1][1]} s on a textured "
+                    f"{colmap[0]:,}-frame office walk "
                     "at {rows[0][5]} deg / {rows[0][6]} % ATE")
     write_log(args, "bench_init", "The whole init against COLMAP's incremental mapper", [
         "run", {"label": "wall (s)", "format": ",.1f"}, {"label": "ms a frame", "format": ",.1f"},
         {"label": "peak memory (MB)", "format": ".0f"}, "frames",
         {"label": "rotation max (deg)", "format": ".3f"}, {"label": "ATE (%)", "format": ".3f"}],
-        rows, headline=headline, notes="; ".join(said) + ("." if said else ""))
+        rows, headline=headline, notes="; ".join(ratios) + ("." if ratios else ""))
     return 0
 
 

@@ -141,11 +141,10 @@ def run_case(case: Case, work: Path) -> dict[str, Any]:
     return row
 
 
-COLUMNS = ["camera", "footage", "frames estimated", {"label": "max rot. err. (deg)",
-                                                     "format": ".3f"},
-           {"label": "mean rot. err. (deg)", "format": ".3f"},
-           {"label": "ATE (% of path)", "format": ".3f"},
-           {"label": "init wall time (s)", "format": ".0f"}]
+COLUMNS: list[str | dict] = [
+    "camera", "footage", "frames estimated", {"label": "max rot. err. (deg)", "format": ".3f"},
+    {"label": "mean rot. err. (deg)", "format": ".3f"},
+    {"label": "ATE (% of path)", "format": ".3f"}, {"label": "init wall time (s)", "format": ".0f"}]
 
 
 def table(rows: list[dict[str, Any]]) -> list[list[object]]:
