@@ -28,6 +28,7 @@ from omni_sfm.cameras import (
     OpenCVFisheyeCamera,
     UnifiedCamera,
 )
+from scripts.benchlib import add_log_arguments, write_log
 
 W, H = 1600, 800
 
@@ -73,7 +74,9 @@ def main(argv: list[str] | None = None) -> None:
     cams = bench_cameras()
     ap.add_argument("--models", nargs="+", choices=sorted(cams), default=list(cams),
                     help="time only these (default: all)")
+    add_log_arguments(ap)
     args = ap.parse_args(argv)
+    rows: list[list[object]] = []
     v, u = np.mgrid[0:H, 0:W]
     uv = np.stack([u.ravel(), v.ravel()], axis=1).astype(np.float64)
     print(f"{W} x {H} = {len(uv)} pixels; median of {args.repeats} runs: wall ms [CPU ms]")
@@ -92,6 +95,15 @@ def main(argv: list[str] | None = None) -> None:
         mask = timed(cam.valid_mask, args.repeats)
         print(f"{name:16s} {r2p[0]:8.1f} [{r2p[1]:6.1f}] {p2r[0]:8.1f} [{p2r[1]:6.1f}] "
               f"{first[0]:7.1f} [{first[1]:6.1f}] {cached[0]:12.4f} {mask[0]:11.2f}")
+        rows.append([name, r2p[0], r2p[1], p2r[0], p2r[1], first[0], cached[0], mask[0]])
+    ms = {"format": ".1f"}
+    write_log(args, "bench_cameras", f"Camera models on {W} x {H} pixels", [
+        "model", {"label": "rays_from_pixels wall ms", **ms}, {"label": "CPU ms", **ms},
+        {"label": "pixels_from_rays wall ms", **ms}, {"label": "CPU ms", **ms},
+        {"label": "grid, first call (ms)", **ms}, {"label": "grid, cached (ms)", "format": ".4f"},
+        {"label": "valid_mask (ms)", "format": ".2f"}], rows,
+        headline=", ".join(f"{{rows[{k}][0]}} {{rows[{k}][1]}} ms" for k in range(len(rows))),
+        notes=f"Median of {args.repeats} runs.")
 
 
 if __name__ == "__main__":

@@ -20,6 +20,7 @@ import numpy as np
 
 from omni_sfm.estimate.bundle import resect_pose
 from omni_sfm.geometry import line_plane_normals, normalize, rotvec_to_matrix
+from scripts.benchlib import add_log_arguments, write_log
 
 Problem = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
@@ -49,8 +50,10 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--problems", type=int, default=200)
     ap.add_argument("--repeats", type=int, default=5)
+    add_log_arguments(ap)
     args = ap.parse_args()
     probs = problems(args.problems)
+    rows: list[list[object]] = []
     for name, scale in (("huber", float(np.radians(0.4))), ("least squares", np.inf)):
         times = []
         for n, d, p, R0, c0 in probs:
@@ -61,6 +64,11 @@ def main() -> None:
                 times.append(time.perf_counter() - t0)
         print(f"resect_pose ({name}): median {np.median(times) * 1e6:.1f} us per call "
               f"({len(probs)} problems x {args.repeats}; cores: {os.cpu_count()})")
+        rows.append([name, np.median(times) * 1e6])
+    write_log(args, "bench_resect", "Resection of one pose from known lines", [
+        "loss", {"label": "median us a call", "format": ".0f"}], rows,
+        headline="{rows[0][1]} us a call (Huber), {rows[1][1]} us (least squares)",
+        notes=f"{len(probs)} seeded problems of 20 lines, {args.repeats} calls each.")
 
 
 if __name__ == "__main__":

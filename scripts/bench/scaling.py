@@ -51,6 +51,7 @@ from omni_sfm.lines.tracks import LineTracks, write_tracks
 from omni_sfm.poses import Trajectory, read_tum, write_tum
 from omni_sfm.synth.simulate import Simulation, SimulationOptions, simulate, write_simulation
 from omni_sfm.transforms import associate
+from scripts.benchlib import add_log_arguments, write_log
 
 # Runs COMMAND with its output in LOG, kills its process group after TIMEOUT seconds, and
 # writes the exit code, wall time and the peak RSS of its one child (bytes) to RESULT.
@@ -238,6 +239,10 @@ def main() -> int:
                          "directions")
     ap.add_argument("--keep", type=Path, default=None,
                     help="keep the simulations, outputs and logs in this folder")
+    ap.add_argument("--log-name", default="bench_scaling",
+                    help="the record's name (docs/results.md shows bench_scaling and, for "
+                         "--line-density 7 --oracle, bench_scaling_drift)")
+    add_log_arguments(ap)
     args = ap.parse_args()
     if any(n < 3 for n in args.frames):
         ap.error("every --frames value must be 3 or more")
@@ -259,12 +264,14 @@ def main() -> int:
         work.mkdir(parents=True, exist_ok=True)
         whole = simulate(_options(max(args.frames), args)) if args.prefixes else None
         rows = {}
+        table: list[list[object]] = []
         for n in args.frames:
             try:
                 rows[n] = row = _run_one(n, args, work, whole)
             except (OmniSfmError, OSError, MemoryError) as exc:
                 row = {"frames": str(n), "note": f"{type(exc).__name__}: {exc}"}
             _print_row(row)
+            table.append([row.get(name, "-") for name, _ in COLUMNS] + [row.get("note", "")])
         if args.pieces:
             n, longest = min(args.frames), max(args.frames)
             per = []
@@ -274,6 +281,7 @@ def main() -> int:
                 except (OmniSfmError, OSError, MemoryError) as exc:
                     row = {"frames": f"+{start}", "note": f"{type(exc).__name__}: {exc}"}
                 _print_row(row)
+                table.append([row.get(name, "-") for name, _ in COLUMNS] + [row.get("note", "")])
                 if "ms/frame" in row and "note" not in row:
                     per.append(float(row["ms/frame"]))
             first = rows.get(n, {})
@@ -284,6 +292,19 @@ def main() -> int:
                 print(f"# pieces of {n} frames: median {np.median(per):.2f} ms per frame over "
                       f"{len(per)} pieces (range {min(per):.2f}-{max(per):.2f}); the whole "
                       f"{longest}-frame walk in one run: {whole_ms} ms per frame", flush=True)
+    shown = [k for k, (name, _) in enumerate(COLUMNS)
+             if any(r[k] != "-" for r in table)]  # the oracle's columns only with --oracle
+    last = len(table) - 1 if not args.pieces else len(args.frames) - 1
+    ms = shown.index(5) if 5 in shown else 0  # "ms/frame"
+    write_log(args, args.log_name, "Simulated corridor walks of growing length",
+              [COLUMNS[k][0] for k in shown] + ["note"],
+              [[r[k] for k in shown] + [r[-1]] for r in table],
+              headline=f"{{rows[{last}][0]}} simulated frames at {{rows[{last}][{ms}]}} ms a "
+                       f"frame ({{rows[0][{ms}]}} at {{rows[0][0]}})",
+              notes=f"Manhattan walks, 0.05 m a frame, lines seen in about {args.visible_frames} "
+                    f"frames, {args.line_density:g} lines a metre, {args.noise_deg} deg noise; "
+                    "rot@500, rot@last, rot mean: rotation error (deg) relative to the first "
+                    "frame; orc: the maximum-likelihood floor's on the same frames.")
     return 0
 
 
