@@ -204,6 +204,16 @@ def record_json(record: dict[str, Any]) -> str:
     return "{\n" + ",\n".join(lines) + "\n}\n"
 
 
+def markdown_table(text: str) -> tuple[list[str], list[list[str]]]:
+    """``(columns, rows)`` of the first Markdown table in ``text`` (for a script that prints
+    its results as one)."""
+    lines = [ln.strip() for ln in text.splitlines() if ln.strip().startswith("|")]
+    cells = [[c.strip() for c in ln.strip("|").split("|")] for ln in lines]
+    if len(cells) < 2:
+        return [], []
+    return cells[0], cells[2:]
+
+
 def _plain(v: Any) -> Any:
     """A JSON value for a table cell: numpy scalars as Python numbers, floats to 6 significant
     digits."""

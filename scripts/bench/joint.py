@@ -24,6 +24,8 @@ from typing import Any
 
 import numpy as np
 
+from scripts.benchlib import add_log_arguments, write_log
+
 
 def _prepare(W: Path, step: bool) -> dict[str, Any]:
     """Triangulate ``W``'s database on its init's poses; the joint adjustment's inputs (and,
@@ -101,6 +103,7 @@ def main() -> None:
     ap.add_argument("--no-step", action="store_true", help="only the whole adjustments")
     ap.add_argument("--repeat", type=int, default=1,
                     help="rounds of the whole adjustments (the folders alternated)")
+    add_log_arguments(ap)
     args = ap.parse_args()
 
     from omni_sfm.evaluate import trajectory_errors
@@ -113,6 +116,7 @@ def main() -> None:
     if args.no_whole:
         return
     per_frame: dict[tuple[Path, int], list[float]] = {}
+    rows: dict[tuple[Path, int], list[object]] = {}
     for r in range(args.repeat):
         for W, a in inputs.items():
             for above in args.iterative_above:
@@ -125,6 +129,9 @@ def main() -> None:
                 e = trajectory_errors(Trajectory(a["timestamps"], out.rotations[k],
                                                  out.positions[k]), a["gt"])
                 per_frame.setdefault((W, above), []).append(1000 * took / len(k))
+                rows[W, above] = [str(W), above, len(k), out.iterations,
+                                  f"{e.rot_mean_deg:.4f} / {e.rot_max_deg:.4f}",
+                                  100 * e.ate_rel]
                 print(f"{W}, round {r + 1}: whole adjustment, iterative above {above} frames: "
                       f"{took:.1f} s ({1000 * took / len(k):.0f} ms a frame), {out.iterations} "
                       f"iterations; rotation mean / max {e.rot_mean_deg:.4f} / "
@@ -133,6 +140,13 @@ def main() -> None:
         for (W, above), v in per_frame.items():
             print(f"{W}, iterative above {above}: median {np.median(v):.1f} ms a posed frame "
                   f"over {len(v)} rounds ({min(v):.1f}-{max(v):.1f})")
+    write_log(args, "bench_joint", "The joint adjustment alone", [
+        "work folder", "iterative above", "posed frames", "iterations",
+        "rotation mean / max (deg)", {"label": "ATE (%)", "format": ".4f"},
+        {"label": "ms a posed frame (median)", "format": ".1f"}],
+        [[*row, float(np.median(per_frame[key]))] for key, row in rows.items()],
+        headline="{rows[0][6]} ms a posed frame ({rows[0][2]} frames)",
+        notes=f"{args.repeat} round(s), the folders alternated.")
 
 
 if __name__ == "__main__":

@@ -264,7 +264,7 @@ def main() -> int:
         work.mkdir(parents=True, exist_ok=True)
         whole = simulate(_options(max(args.frames), args)) if args.prefixes else None
         rows = {}
-        table: list[list[object]] = []
+        table: list[list[str]] = []
         for n in args.frames:
             try:
                 rows[n] = row = _run_one(n, args, work, whole)

@@ -33,6 +33,7 @@ from omni_sfm.lines.video import read_frames
 from omni_sfm.lines3d import read_lines3d
 from omni_sfm.poses import read_tum
 from scripts.bench.frontend import true_nvs
+from scripts.benchlib import add_log_arguments, write_log
 
 KNOWN_DEG = 0.5
 WRONG_DEG = 1.0
@@ -96,7 +97,9 @@ def main() -> int:
     ap.add_argument("--frames", type=int, default=200, help="first frames of each (default 200)")
     ap.add_argument("--variant", action="append", default=[],
                     help='TrackingOptions to compare with the defaults, "key=value,..."')
+    add_log_arguments(ap)
     args = ap.parse_args()
+    rows: list[list[object]] = []
     cv2.setNumThreads(1)
     variants = [parse_variant(v) for v in args.variant]
     for seq in args.input:
@@ -120,6 +123,13 @@ def main() -> int:
                   f"{len(found & ref_links)}, new {len(found - ref_links)}, missing "
                   f"{len(ref_links - found)}), wrong {wrong} of {judged} judged, tracks "
                   f"{obs.num_tracks}, observations {len(obs.track)}")
+            rows.append([seq.name, name, ms, len(found), len(found & ref_links), wrong, judged,
+                         obs.num_tracks])
+    write_log(args, "compare_tracking", "Tracking options side by side", [
+        "sequence", "options", {"label": "tracking ms a frame", "format": ".2f"}, "links",
+        "with the defaults'", "wrong", "judged", "tracks"], rows,
+        headline="{rows[0][1]}: {rows[0][2]} ms a frame, {rows[0][3]} links, {rows[0][5]} wrong",
+        notes=f"The first {args.frames} frames of each sequence.")
     return 0
 
 

@@ -47,6 +47,7 @@ from omni_sfm.poses import read_tum
 from omni_sfm.synth.effects import Body, Effects
 from omni_sfm.synth.render import RenderOptions, hyperboloid_camera, prepare, render_sequence
 from omni_sfm.synth.scenes import SceneName
+from scripts.benchlib import add_log_arguments, markdown_table, write_log
 
 DEMO = RenderOptions(camera="hyperboloid", frames=100, seed=0)  # as omni_sfm.demo.run_demo
 DARK_FACTORS = {1.0: "original", 0.25: "a quarter", 0.1: "a tenth", 0.02: "2 %", 0.01: "1 %"}
@@ -423,6 +424,7 @@ def main() -> int:
     p.add_argument("--repeat", type=int, default=1,
                    help="dark: run each init this many times (the ill-conditioned runs differ "
                         "from run to run)")
+    add_log_arguments(p)
     args = p.parse_args()
     if args.repeat < 1:
         p.error(f"--repeat must be >= 1, got {args.repeat}")
@@ -432,9 +434,15 @@ def main() -> int:
         "mask": lambda: run_mask(args.work),
         "camera": lambda: run_camera(args.work),
     }
+    titles = {"dark": "Dark and low-contrast frames", "mask": "The automatic mask",
+              "camera": "The camera check"}
     for name, part in parts.items():
         if args.only in (None, name):
-            print(f"\n{part()}\n", flush=True)
+            text = part()
+            print(f"\n{text}\n", flush=True)
+            columns, rows = markdown_table(text)
+            write_log(args, f"eval_frontend_checks_{name}", titles[name], columns, rows,
+                      headline=f"{len(rows)} runs")
     return 0
 
 

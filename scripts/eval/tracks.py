@@ -45,6 +45,7 @@ from omni_sfm.geometry import normalize
 from omni_sfm.lines.tracks import read_tracks
 from omni_sfm.poses import Trajectory, read_tum
 from omni_sfm.transforms import associate
+from scripts.benchlib import add_log_arguments, write_log
 
 
 def _pair(arg: str) -> tuple[Path, Path]:
@@ -93,7 +94,9 @@ def main() -> int:
     ap.add_argument("--bootstrap", type=int, default=EstimationOptions().bootstrap_frames,
                     help="EstimationOptions.bootstrap_frames (default: the estimator's; at "
                          "most short_bootstrap_frames: the second start alone)")
+    add_log_arguments(ap)
     args = ap.parse_args()
+    rows: list[list[object]] = []
     options = EstimationOptions(bootstrap_frames=args.bootstrap)
     if args.no_second_start:
         options = replace(options, short_bootstrap_frames=None)
@@ -111,12 +114,16 @@ def main() -> int:
             wall = time.perf_counter() - t0
         except OmniSfmError as exc:
             print(f"{init_dir.name}: error: {exc}")
+            rows.append([init_dir.name, f"error: {exc}", "", "", None])
             continue
         moving = "motion" not in res.report
         in_segs = sum(int(s.frames.sum()) for s in res.segments)
         print(f"{init_dir.name}: {int(res.estimated.sum())}/{tracks.num_frames} in the main "
               f"trajectory, {in_segs} in {len(res.segments)} segments, {wall:.1f} s")
         print(f"  main: {_errors(res.trajectory, gt, moving)}")
+        rows.append([init_dir.name, f"{int(res.estimated.sum())}/{tracks.num_frames}",
+                     f"{in_segs} in {len(res.segments)}", _errors(res.trajectory, gt, moving),
+                     wall])
         if args.blocks > 0:
             print(f"  per {args.blocks} frames: {_blocks(res.trajectory, gt, args.blocks)}")
         for a in res.report.get("attempts", []):
@@ -136,6 +143,13 @@ def main() -> int:
                 continue
             print(f"  perturbed {seed}: {int(r.estimated.sum())} frames; main: "
                   f"{_errors(r.trajectory, gt, 'motion' not in r.report)}")
+            rows.append([f"{init_dir.name}, normals perturbed ({seed})",
+                         f"{int(r.estimated.sum())}/{tracks.num_frames}", "",
+                         _errors(r.trajectory, gt, "motion" not in r.report), None])
+    write_log(args, "eval_tracks", "The estimator alone on saved tracks", [
+        "run", "main trajectory", "in segments", "main: errors",
+        {"label": "wall (s)", "format": ".1f"}], rows,
+        headline="{rows[0][0]}: {rows[0][3]}")
     return 0
 
 
