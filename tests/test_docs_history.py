@@ -1,9 +1,10 @@
 """The docs and docstrings say what the software does now; its history is git's.
 
-Greps README.md, docs/*.md and the library's sources (docstrings and comments) for the marks of a
-lab notebook: dates, former figures ("(was 1.06 deg)", "was 0.01"), "until <date or commit>",
-"earlier builds", "before the fix", was/now tables. Past tense as grammar ("the frame was
-skipped", "iterate until the cost settles") is not history and is allowed. The measurement
+Greps README.md, docs/*.md and the sources of omni_sfm/, plugins/ and scripts/ (docstrings and
+comments) for the marks of a lab notebook: dates, former figures ("(was 1.06 deg)", "was
+0.01"), "until <date or commit>", "earlier builds", "before the fix", was/now tables. Past
+tense as grammar ("the frame was skipped", "iterate until the cost settles") is not history
+and is allowed. The measurement
 records under docs/benchmarks/ carry their dates on purpose and are not searched.
 
 omni_sfm/estimate/ is left out for now: the global-estimator rewrite replaces it and cleans its
@@ -36,11 +37,13 @@ HISTORY = re.compile("|".join([
 
 
 def sources() -> list[Path]:
-    """README.md, docs/*.md and the library's Python and C sources, less :data:`EXCLUDED`."""
+    """README.md, docs/*.md and the Python and C sources of the library, its plugins and the
+    scripts, less :data:`EXCLUDED`."""
     files = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
-    for ext in ("*.py", "*.c"):
-        files += [p for p in sorted((ROOT / "omni_sfm").rglob(ext))
-                  if not any(p.is_relative_to(e) for e in EXCLUDED)]
+    for folder in ("omni_sfm", "plugins", "scripts"):
+        for ext in ("*.py", "*.c"):
+            files += [p for p in sorted((ROOT / folder).rglob(ext))
+                      if not any(p.is_relative_to(e) for e in EXCLUDED)]
     return files
 
 
