@@ -55,7 +55,7 @@ def keep_freed_memory() -> bool:
     800x600 frame's line extraction, and the joint adjustment of the 1,000-frame office walk
     (arrays of 50-160 MB each iteration) 70.1 ms a frame (median of 5 runs) with 64 MB /
     256 MB limits against 43.1 (median of 3) with these, the same results and peak memory, and
-    now no more a frame than at 300 frames (docs/colmap.md). Returns whether the settings were
+    no more a frame than at 300 frames (docs/colmap.md). Returns whether the settings were
     applied."""
     import ctypes
     import ctypes.util

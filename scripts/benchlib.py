@@ -1,11 +1,28 @@
-"""What the benchmark scripts share: running a command as a user would (a fresh process), with
-its wall time and peak memory. Scripts only; the library never imports it."""
+"""What the benchmark and evaluation scripts share: running a command as a user would (a fresh
+process), with its wall time and peak memory, and the record of a measurement.
+
+A script's figures go to ``docs/benchmarks/<name>.json`` through :func:`write_log` (the command
+as typed, the commit, the machine, the time, a table and a one-line headline);
+``python -m scripts.render_results`` renders the docs' results tables from those records.
+Scripts only; the library never imports it."""
 
 from __future__ import annotations
 
+import argparse
+import datetime
+import json
 import os
+import platform
+import shlex
 import subprocess
+import sys
 import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parents[1]
+LOG_DIR = ROOT / "docs" / "benchmarks"
 
 
 def tree_rss_mb(pid: int) -> float:
@@ -65,3 +82,143 @@ def at_tenths(samples: list[tuple[float, float]], wall: float) -> str:
         at = [m for t, m in samples if t <= wall * k / 10]
         out.append(f"{at[-1]:.0f}" if at else "-")
     return " ".join(out)
+
+
+# ------------------------------------------------------------------ the measurement log
+
+
+def add_log_arguments(ap: argparse.ArgumentParser) -> None:
+    """``--log-dir`` and ``--no-log``: where :func:`write_log` puts the script's record."""
+    ap.add_argument("--log-dir", type=Path, default=LOG_DIR,
+                    help="folder of the JSON record of this run (default: docs/benchmarks/; "
+                         "python -m scripts.render_results renders the docs' tables from it)")
+    ap.add_argument("--no-log", action="store_true", help="write no record")
+
+
+def typed_command() -> str:
+    """The command line that started this process, as a user types it from the repository root:
+    ``OPENBLAS_NUM_THREADS`` when set, then ``.venv/bin/python -m <module> <arguments>``."""
+    main = sys.modules.get("__main__")
+    spec = getattr(main, "__spec__", None)
+    module = spec.name if spec is not None else None
+    argv = list(sys.argv[1:])
+    for flag in ("--log-dir", "--no-log"):  # where the record goes changes no figure
+        if flag in argv:
+            k = argv.index(flag)
+            del argv[k:k + (2 if flag == "--log-dir" else 1)]
+    if module is not None:
+        cmd = [".venv/bin/python", "-m", module, *argv]
+    else:
+        cmd = [".venv/bin/python", sys.argv[0], *argv]
+    threads = os.environ.get("OPENBLAS_NUM_THREADS")
+    prefix = f"OPENBLAS_NUM_THREADS={threads} " if threads else ""
+    return prefix + shlex.join(cmd)
+
+
+def git_commit() -> str:
+    """The short commit of the working tree, ``-dirty`` when tracked files differ from it;
+    ``unknown`` outside a git checkout."""
+    def git(*a: str) -> str:
+        return subprocess.run(["git", *a], cwd=ROOT, capture_output=True, text=True,
+                              check=True).stdout.strip()
+    try:
+        head = git("rev-parse", "--short", "HEAD")
+        dirty = git("status", "--porcelain", "--untracked-files=no")
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+    return head + ("-dirty" if dirty else "")
+
+
+def machine() -> str:
+    """The processor model, CPU count, OS and Python of this machine, in one line."""
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as f:
+            names = [ln.split(":", 1)[1].strip() for ln in f if ln.startswith("model name")]
+        cpu = names[0] if names else cpu
+    except OSError:
+        pass
+    return (f"{cpu}, {os.cpu_count()} CPUs, {platform.system()} {platform.machine()}, "
+            f"Python {platform.python_version()}")
+
+
+def write_log(args: argparse.Namespace, name: str, title: str, columns: Sequence[str | dict],
+              rows: Sequence[Sequence[Any]], headline: str = "", notes: str = "",
+              merge: bool = False) -> Path | None:
+    """Write the record ``<args.log_dir>/<name>.json`` of this run (unless ``args.no_log``).
+
+    ``columns``: column labels, or ``{"label": ..., "format": ...}`` where numbers are shown
+    with a format spec (``".3f"``); ``rows``: one list of cells per row (numbers or text);
+    ``headline``: the one-line summary the README's results table shows, a ``str.format``
+    template over ``rows`` as rendered (``"{rows[0][2]} deg"``); ``notes``: a sentence shown
+    under the table. ``merge``: for a script that measures one row a run (one sequence): the
+    record's other rows are kept, a row with the same first cell replaced, and each row keeps
+    the command that measured it (``row_commands``). Returns the path written, or None."""
+    if getattr(args, "no_log", False):
+        return None
+    path = Path(args.log_dir) / f"{name}.json"
+    command = typed_command()
+    new_rows = [[_plain(v) for v in row] for row in rows]
+    row_commands = [command] * len(new_rows) if merge else None
+    if merge and path.is_file():
+        old = json.loads(path.read_text(encoding="utf-8"))
+        cmds = old.get("row_commands") or [old["command"]] * len(old["rows"])
+        mine = {row[0] for row in new_rows}
+        kept = [(r, c) for r, c in zip(old["rows"], cmds, strict=True) if r[0] not in mine]
+        new_rows = [r for r, _ in kept] + new_rows
+        row_commands = [c for _, c in kept] + [command] * len(rows)
+    record: dict[str, Any] = {
+        "name": name,
+        "title": title,
+        "command": command,
+        "commit": git_commit(),
+        "machine": machine(),
+        "date": datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
+        "source": "measured",
+        "columns": [c if isinstance(c, dict) else {"label": c} for c in columns],
+        "rows": new_rows,
+        "headline": headline,
+        "notes": notes,
+    }
+    if row_commands is not None:
+        record["row_commands"] = row_commands
+    args.log_dir.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(record_json(record), encoding="utf-8")
+    tmp.replace(path)
+    print(f"# record: {path}", file=sys.stderr)
+    return path
+
+
+def record_json(record: dict[str, Any]) -> str:
+    """The text of a record: one key a line, one table row a line (diffs stay readable)."""
+    def dump(v: Any) -> str:
+        return json.dumps(v, ensure_ascii=False)
+    lines = []
+    for k, v in record.items():
+        if k in ("columns", "rows", "row_commands") and v:
+            inner = ",\n".join(f"  {dump(x)}" for x in v)
+            lines.append(f" {dump(k)}: [\n{inner}\n ]")
+        else:
+            lines.append(f" {dump(k)}: {dump(v)}")
+    return "{\n" + ",\n".join(lines) + "\n}\n"
+
+
+def markdown_table(text: str) -> tuple[list[str], list[list[str]]]:
+    """``(columns, rows)`` of the first Markdown table in ``text`` (for a script that prints
+    its results as one)."""
+    lines = [ln.strip() for ln in text.splitlines() if ln.strip().startswith("|")]
+    cells = [[c.strip() for c in ln.strip("|").split("|")] for ln in lines]
+    if len(cells) < 2:
+        return [], []
+    return cells[0], cells[2:]
+
+
+def _plain(v: Any) -> Any:
+    """A JSON value for a table cell: numpy scalars as Python numbers, floats to 6 significant
+    digits."""
+    if hasattr(v, "item") and callable(v.item):
+        v = v.item()
+    if isinstance(v, float):
+        return float(f"{v:.6g}")
+    return v

@@ -5,7 +5,7 @@ results on a Dask cluster as on the local process pool."""
 
 from __future__ import annotations
 
-import importlib.util
+import importlib
 import json
 import sys
 from pathlib import Path
@@ -159,13 +159,10 @@ def test_bad_input_exit_2(tiny, tmp_path: Path, capsys: pytest.CaptureFixture[st
 
 
 def _sweep_module():
-    spec = importlib.util.spec_from_file_location("compare_init", ROOT / "scripts" /
-                                                  "compare_init.py")
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod  # so that run_task pickles by reference
-    spec.loader.exec_module(mod)
-    return mod
+    # scripts/ is a package at the repository root (run as ``python -m scripts.compare.init``)
+    if str(ROOT) not in sys.path:
+        sys.path.insert(0, str(ROOT))
+    return importlib.import_module("scripts.compare.init")
 
 
 def test_sweep_dask_equals_process_pool() -> None:

@@ -1,7 +1,7 @@
 """``omni-sfm init --lines --images`` end to end on rendered sequences with exact ground truth.
 
 Sized for CI; the full-size figures (800x600 and 1600x800, 200 frames) are produced by
-``scripts/eval_init.py`` and quoted in docs/results.md.
+``scripts/eval/init.py`` and quoted in docs/results.md.
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@ sequences, statuses on simulated lines (lost, rotation-only, relocalised), bound
 command's outputs, a video read as a stream, Ctrl-C and bad input.
 
 Sized for CI (40 rendered frames; the 200-frame figures and the latency come from
-``scripts/bench_track.py``, quoted in docs/track.md). No wall-clock limits.
+``scripts/bench/track.py``, quoted in docs/track.md). No wall-clock limits.
 """
 
 from __future__ import annotations

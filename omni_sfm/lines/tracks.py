@@ -135,8 +135,8 @@ class LineTracks:
     def to_json_dict(self) -> dict[str, Any]:
         normals, rays, sigmas_deg = self._as_stored()
         tracks = []
-        # each track's observations in their order (one sort, not a mask per track: that was
-        # tracks x observations comparisons, seconds on a long video's tracks)
+        # each track's observations in their order (one sort, not a mask per track, which would
+        # be tracks x observations comparisons, seconds on a long video's tracks)
         order = np.argsort(self.obs_track, kind="stable")
         bounds = np.searchsorted(self.obs_track[order], np.arange(self.num_tracks + 1))
         for m in range(self.num_tracks):

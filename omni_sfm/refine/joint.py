@@ -183,7 +183,7 @@ class JointOptions:
     is larger than the largest of a hundred, and its soft modes converge more slowly in
     radians. On the 1,000-frame office walk (SIFT) the final round's 3 iterations after its
     4th step (0.17 deviations), with 3 more steps rejected, changed no error by more than
-    3e-5 deg; it now stops there (docs/colmap.md). 0: off."""
+    3e-5 deg; the rule stops it there (docs/colmap.md). 0: off."""
     robust_step_tolerance: float = 0.5
     """:attr:`step_tolerance` of the robust rounds. 0: off."""
     near_camera_ratio: float = 0.05

@@ -1,8 +1,8 @@
 """A stand-in for the line-based init on rendered sequences: ground truth with realistic errors.
 
-Used by the tests and ``scripts/bench_refine.py`` until ``omni-sfm init --images`` writes init
-directories itself; both go through :func:`omni_sfm.export.colmap.write_init_model`, so refinement
-sees the same layout either way.
+Used by the tests and ``scripts/bench/refine.py`` (its default seed) where a perturbation of known
+size is wanted instead of a real init; both this and ``omni-sfm init`` go through
+:func:`omni_sfm.export.colmap.write_init_model`, so refinement sees the same layout either way.
 """
 
 from __future__ import annotations

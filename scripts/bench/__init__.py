@@ -1,0 +1,1 @@
+"""Benchmarks: time and memory of the stages and of whole commands."""

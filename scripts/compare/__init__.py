@@ -1,0 +1,1 @@
+"""Comparisons: line-based against point-based initializers, tracking variants."""

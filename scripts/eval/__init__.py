@@ -1,0 +1,1 @@
+"""Evaluations: accuracy against ground truth on rendered and simulated sequences."""

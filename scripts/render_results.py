@@ -1,0 +1,178 @@
+"""Render the docs' results tables from the measurement log, ``docs/benchmarks/*.json``.
+
+Each record (written by a script through :func:`scripts.benchlib.write_log`) is shown where a
+page has the marker pair ``<!-- results:NAME -->`` ... ``<!-- /results:NAME -->``: its table,
+then the command that measured it, the commit and the machine. ``<!-- results:summary -->`` is
+the README's table of headlines, one row per entry of :data:`SUMMARY`. Everything between the
+markers is rewritten; the rest of the page is left alone.
+
+    .venv/bin/python -m scripts.render_results          # rewrite the blocks in README.md, docs/
+    .venv/bin/python -m scripts.render_results --check  # exit 1 where a block differs
+
+tests/test_docs_benchmarks.py runs the check.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parents[1]
+LOG_DIR = ROOT / "docs" / "benchmarks"
+REQUIRED = ("name", "title", "command", "commit", "machine", "source", "columns", "rows",
+            "headline")
+BLOCK = re.compile(r"(<!-- results:(?P<name>[A-Za-z0-9_-]+) -->\n)(?P<body>.*?)"
+                   r"(<!-- /results:(?P=name) -->)", re.S)
+
+
+@dataclass(frozen=True)
+class SummaryRow:
+    """One row of the README's results table: what, which record's headline, which page."""
+
+    what: str
+    record: str
+    page: str
+
+
+SUMMARY = (
+    SummaryRow("Paper reproduction (simulated, Fig. 12 set-up)", "repro_paper",
+               "docs/paper_reproduction.md"),
+    SummaryRow("Estimator speed (200 views, 10 + 5 lines)", "bench_backend",
+               "docs/estimator.md"),
+    SummaryRow("Front end (lines extracted and tracked)", "bench_frontend", "docs/frontend.md"),
+    SummaryRow("`init` on rendered sequences", "eval_init", "docs/results.md"),
+    SummaryRow("`init` on footage-like video (office walk)", "eval_footage", "docs/results.md"),
+    SummaryRow("`init` against COLMAP's mapper", "bench_init", "docs/results.md"),
+    SummaryRow("Long video (3,000 frames, 1920x960 H.264)", "bench_long_video",
+               "docs/results.md"),
+    SummaryRow("Short tracks against the oracle", "eval_sparse", "docs/results.md"),
+    SummaryRow("`refine` (lines and points adjusted together)", "bench_refine",
+               "docs/colmap.md"),
+    SummaryRow("`dense` map", "bench_dense", "docs/dense.md"),
+    SummaryRow("`track` (online poses)", "bench_track", "docs/track.md"),
+    SummaryRow("Lines against points (`compare`)", "compare_init", "docs/comparison.md"),
+)
+
+
+def load_records(log_dir: Path = LOG_DIR) -> dict[str, dict[str, Any]]:
+    """Every record of ``log_dir`` by name; a record without a required key, with rows of the
+    wrong width or named unlike its file is an error."""
+    records: dict[str, dict[str, Any]] = {}
+    for path in sorted(log_dir.glob("*.json")):
+        rec = json.loads(path.read_text(encoding="utf-8"))
+        missing = [k for k in REQUIRED if k not in rec]
+        if missing:
+            raise ValueError(f"{path}: no {', '.join(missing)}")
+        if rec["name"] != path.stem:
+            raise ValueError(f"{path}: named {rec['name']!r}")
+        width = len(rec["columns"])
+        for row in rec["rows"]:
+            if len(row) != width:
+                raise ValueError(f"{path}: a row of {len(row)} cells for {width} columns: {row}")
+        records[rec["name"]] = rec
+    return records
+
+
+def cell(value: Any, column: dict[str, Any]) -> str:
+    """A table cell: numbers in the column's format (when it has one), text as it is."""
+    if value is None:
+        return "-"
+    if isinstance(value, int | float) and not isinstance(value, bool) and column.get("format"):
+        return format(value, column["format"])
+    return str(value)
+
+
+def rendered_rows(rec: dict[str, Any]) -> list[list[str]]:
+    """The record's rows as the table shows them."""
+    return [[cell(v, c) for v, c in zip(row, rec["columns"], strict=True)]
+            for row in rec["rows"]]
+
+
+def headline(rec: dict[str, Any]) -> str:
+    """The record's one-line summary, its template filled with the rendered rows."""
+    return str(rec["headline"]).format(rows=rendered_rows(rec))
+
+
+def _link(page: Path, target: Path) -> str:
+    return Path(os.path.relpath(target, page.parent)).as_posix()
+
+
+def render_table(rec: dict[str, Any], page: Path) -> str:
+    """The Markdown of one record on ``page``: table, notes, provenance."""
+    labels = [c["label"] for c in rec["columns"]]
+    out = ["| " + " | ".join(labels) + " |", "|" + "---|" * len(labels)]
+    out += ["| " + " | ".join(r) + " |" for r in rendered_rows(rec)]
+    out.append("")
+    if rec.get("notes"):
+        out += [rec["notes"], ""]
+    log = _link(page, LOG_DIR / f"{rec['name']}.json")
+    commands = list(dict.fromkeys(rec.get("row_commands") or [rec["command"]]))
+    out.append("Measured by " + ", ".join(f"`{c}`" for c in commands)
+               + f" (commit {rec['commit']}; {rec['machine']}; "
+               f"record [{rec['name']}.json]({log})).")
+    return "\n".join(out) + "\n"
+
+
+def render_summary(records: dict[str, dict[str, Any]], page: Path) -> str:
+    """The README's results table: one headline a row, with the page that details it."""
+    out = ["| what | measured | details |", "|---|---|---|"]
+    for row in SUMMARY:
+        if row.record not in records:
+            raise KeyError(f"summary: no record {row.record!r} in {LOG_DIR}")
+        out.append(f"| {row.what} | {headline(records[row.record])} | "
+                   f"[{Path(row.page).name}]({_link(page, ROOT / row.page)}) |")
+    return "\n".join(out) + "\n"
+
+
+def render_text(text: str, page: Path, records: dict[str, dict[str, Any]]) -> str:
+    """``text`` (the page ``page``) with every results block rendered from ``records``."""
+    def block(m: re.Match[str]) -> str:
+        name = m.group("name")
+        if name == "summary":
+            body = render_summary(records, page)
+        elif name in records:
+            body = render_table(records[name], page)
+        else:
+            raise KeyError(f"{page}: block results:{name} has no record {name}.json")
+        return m.group(1) + body + m.group(4)
+    return BLOCK.sub(block, text)
+
+
+def block_names(text: str) -> list[str]:
+    """The names of the results blocks in ``text``, in order."""
+    return [m.group("name") for m in BLOCK.finditer(text)]
+
+
+def pages() -> list[Path]:
+    """The pages that may hold results blocks: README.md and docs/*.md."""
+    return [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--check", action="store_true",
+                    help="change nothing; exit 1 when a block differs from its record")
+    args = ap.parse_args()
+    records = load_records()
+    stale = []
+    for page in pages():
+        text = page.read_text(encoding="utf-8")
+        new = render_text(text, page, records)
+        if new != text:
+            stale.append(page.relative_to(ROOT))
+            if not args.check:
+                page.write_text(new, encoding="utf-8")
+    verb = "differ from their records" if args.check else "rewritten"
+    for p in stale:
+        print(f"{p}: results blocks {verb}")
+    return 1 if args.check and stale else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
