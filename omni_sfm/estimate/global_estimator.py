@@ -23,7 +23,7 @@ chain neighbouring frames, which the joint problem then replaces by its own mini
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -61,6 +61,9 @@ class GlobalOptions:
     snap_deg: float = 20.0
     """A family first seen within this of a known world direction (or of the axis completing
     two known perpendicular ones) is taken to have that direction."""
+    start_window: int = 60
+    """Frames of the windows that refine the start rotations (:func:`windowed_start`); 0: no
+    windows."""
     min_family_size: int = 5
     """Families of fewer tracks share no direction in the first solve (a few lines seen
     together in a few frames can look parallel without being so)."""
@@ -283,6 +286,38 @@ def free_turns_interpolated(rot: GlobalRotations, free: np.ndarray) -> FloatArra
     return R
 
 
+def windowed_start(tracks: LineTracks, frames: np.ndarray, R0: FloatArray, group: np.ndarray,
+                   window: int, options: GlobalRotationOptions) -> FloatArray:
+    """The start rotations ``R0`` refined by the joint rotation problem on windows of
+    ``window`` posed frames that overlap by half, each from the previous one's solution (its
+    first frame held, the new frames chained on from ``R0``): within a window the lines'
+    directions fix the turns that a chain of neighbouring frames lets drift."""
+    idx = np.flatnonzero(frames)
+    R = R0.copy()
+    if len(idx) <= window:
+        return R
+    half = window // 2
+    done = 0  # frames idx[:done] have their final start rotation
+    start = 0
+    while done < len(idx):
+        sel = idx[start:start + window]
+        new = sel[max(done - start, 1):]
+        last = idx[done - 1] if done > 0 else sel[0]
+        R[new] = R[last] @ (R0[last].T @ R0[new])
+        mask = np.zeros(len(frames), bool)
+        mask[sel] = True
+        try:
+            res = solve_rotations(tracks, mask, R, group, options)
+            keep = sel[max(done - start, 1):] if start + window >= len(idx) else \
+                sel[max(done - start, 1):half + 1]
+            R[keep] = res.rotations[keep]
+        except OmniSfmError:
+            pass
+        done = len(idx) if start + window >= len(idx) else start + half + 1
+        start += half
+    return R
+
+
 def _groups(lines: np.ndarray, label: np.ndarray) -> np.ndarray:
     """The direction variable of each track: one per label (``label`` ``(M,)``, -1: none),
     one per unlabelled line, -1 for tracks not used."""
@@ -371,7 +406,11 @@ def _rotations(tracks: LineTracks, frames: np.ndarray, lines: np.ndarray,
     with the lines' world directions (clusters of their directions) shared."""
     R0, same = anchored_start(tracks, frames, families, options.snap_deg)
     label = _family_labels(tracks, families, same, options.min_family_size)
-    first = solve_rotations(tracks, frames, R0, _groups(lines, label), options.rotations)
+    group = _groups(lines, label)
+    if options.start_window:
+        R0 = windowed_start(tracks, frames, R0, group, options.start_window,
+                            replace(options.rotations, max_iterations=20))
+    first = solve_rotations(tracks, frames, R0, group, options.rotations)
     steps.append({"step": "rotations, the families' world directions shared",
                   "families": [f.size for f in families],
                   "iterations": first.iterations,
@@ -419,7 +458,7 @@ def _resected(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArray, p
         return R, c
     for a in range(3):
         c[todo, a] = np.interp(todo, fixed, c[fixed, a])
-    known = np.isfinite(p).all(axis=1)
+    known = np.asarray(np.isfinite(p).all(axis=1))
     for k in todo:
         obs = np.flatnonzero((tracks.obs_frame == k) & known[tracks.obs_track])
         if len(obs) < 3:

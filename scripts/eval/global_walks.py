@@ -8,7 +8,8 @@ about 60 frames) with 0.1 deg noise, runs ``estimate_poses`` with ``estimator="w
 ``"global"``, and prints frames posed, mean / max rotation error, ATE (% of the path), time, and
 for the global estimator the largest difference between its forward and reversed-order poses.
 
-    OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/eval_global.py --world manhattan --seeds 20 21
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python -m scripts.eval.global_walks --world manhattan \
+        --seeds 20 21 22
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from __future__ import annotations
 import argparse
 import time
 from dataclasses import replace
+from typing import Any
 
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.estimate.pipeline import (
@@ -29,6 +31,7 @@ from omni_sfm.evaluate import trajectory_errors
 from omni_sfm.lines.tracks import LineTracks
 from omni_sfm.poses import Trajectory
 from omni_sfm.synth.simulate import SimulationOptions, simulate
+from scripts.benchlib import add_log_arguments, write_log
 
 
 def _sim(world: str, seed: int, views: int) -> SimulationOptions:
@@ -39,11 +42,10 @@ def _sim(world: str, seed: int, views: int) -> SimulationOptions:
                              visible_frames=60, seed=seed)
 
 
-def _line(name: str, res: EstimationResult, gt: Trajectory, dt: float) -> str:
+def _row(name: str, res: EstimationResult, gt: Trajectory, dt: float) -> list[Any]:
     e = trajectory_errors(match_reflection(res.trajectory, gt), gt)
-    return (f"  {name:8s} posed {int(res.estimated.sum())}/{len(res.estimated)}, rotation "
-            f"{e.rot_mean_deg:.3f} / {e.rot_max_deg:.3f} deg, ATE {100 * e.ate_rel:.4f} %, "
-            f"{dt:.1f} s")
+    return [name, f"{int(res.estimated.sum())}/{len(res.estimated)}", e.rot_mean_deg,
+            e.rot_max_deg, 100 * e.ate_rel, dt]
 
 
 def _run(tracks: LineTracks, estimator: str) -> tuple[EstimationResult, float]:
@@ -58,25 +60,36 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, nargs="+", default=[20, 21, 22])
     ap.add_argument("--views", type=int, default=600)
     ap.add_argument("--no-windows", action="store_true", help="the global estimator only")
+    add_log_arguments(ap)
     args = ap.parse_args()
+    rows: list[list[Any]] = []
     for seed in args.seeds:
         sim = simulate(_sim(args.world, seed, args.views))
         tr, gt = sim.tracks, sim.groundtruth
-        print(f"{args.world} seed {seed}: {tr.num_tracks} lines, {tr.num_frames} frames")
         for name in (["global"] if args.no_windows else ["windows", "global"]):
             try:
                 res, dt = _run(tr, name)
             except OmniSfmError as exc:
-                print(f"  {name:8s} error: {exc}")
+                print(f"{args.world} seed {seed} {name}: error: {exc}")
                 continue
-            print(_line(name, res, gt, dt))
+            row = [f"{args.world} {seed}", *_row(name, res, gt, dt), ""]
             if name == "global":
                 rev = replace(reversed_frames(tr), timestamps=tr.timestamps[::-1].copy())
                 back, _ = _run(rev, name)
                 d = trajectory_errors(match_reflection(back.trajectory, res.trajectory),
                                       res.trajectory)
-                print(f"  reversed order: rotation differs by {d.rot_max_deg:.5f} deg at most, "
-                      f"positions by {100 * d.ate_rel:.5f} % of the path (RMS)")
+                row[-1] = f"{d.rot_max_deg:.5f} deg, {100 * d.ate_rel:.5f} %"
+            print(" | ".join(f"{v:.4g}" if isinstance(v, float) else str(v) for v in row),
+                  flush=True)
+            rows.append(row)
+    write_log(args, f"eval_global_{args.world}", f"Global and windows estimators, {args.world} "
+              f"walks of {args.views} frames", [
+                  "walk, seed", "estimator", "posed", {"label": "rotation mean (deg)",
+                                                      "format": ".3f"},
+                  {"label": "rotation max (deg)", "format": ".3f"},
+                  {"label": "ATE (%)", "format": ".4f"}, {"label": "time (s)", "format": ".1f"},
+                  "reversed order differs by (rotation max, positions RMS)"], rows,
+              headline="")
 
 
 if __name__ == "__main__":
