@@ -71,6 +71,10 @@ class GlobalOptions:
     """Lines whose planes turn by less than this (RMS, degrees) between the frames that see
     them have no known direction: they take no part in the positions (the adjustment
     triangulates them from the poses)."""
+    outlier_sigmas: float = 3.0
+    """Tracks whose rotation residuals (their normals against their direction, RMS) exceed
+    this many times the residuals' robust spread are left out of the positions (a wrong
+    correspondence; the adjustment judges them again)."""
     uncertain_information: float = 1e-3
     """A frame is flagged as not fixed by the data where the smallest eigenvalue of its
     position information (its observations, the lines held) is below this fraction of the
@@ -469,6 +473,18 @@ def _resected(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArray, p
     return R, c
 
 
+def _direction_rms(tracks: LineTracks, R: FloatArray, d: FloatArray, frames: np.ndarray
+                   ) -> FloatArray:
+    """``(M,)`` RMS of each track's residuals ``(R n) . d`` over the posed frames (radians; NaN
+    without a direction)."""
+    ok = frames[tracks.obs_frame]
+    m = np.einsum("kij,kj->ki", R[tracks.obs_frame[ok]], tracks.obs_normal[ok])
+    r2 = np.einsum("ki,ki->k", m, d[tracks.obs_track[ok]]) ** 2
+    n = np.bincount(tracks.obs_track[ok], minlength=tracks.num_tracks)
+    sq = np.bincount(tracks.obs_track[ok], r2, minlength=tracks.num_tracks)
+    return np.asarray(np.sqrt(sq / np.maximum(n, 1)))
+
+
 def plane_spread_deg(tracks: LineTracks, R: FloatArray, frames: np.ndarray) -> FloatArray:
     """``(M,)`` how far each line's planes turn between the posed ``frames`` (the RMS angle of
     its world normals about their mean plane normal, degrees; 0 for a line seen once): a line
@@ -533,7 +549,9 @@ def solve_global(tracks: LineTracks, options: GlobalOptions = GlobalOptions()
     free = _rotation_free(rot, frames, options)
     R = free_turns_interpolated(rot, free)
     dir_ok = lines & np.isfinite(rot.directions).all(axis=1) & \
-        (plane_spread_deg(tracks, R, frames) >= options.min_spread_deg)
+        (plane_spread_deg(tracks, R, frames) >= options.min_spread_deg) & \
+        (_direction_rms(tracks, R, rot.directions, frames) <=
+         options.outlier_sigmas * rot.sigma)
     pos = solve_positions(tracks, R, rot.directions, frames & ~free, dir_ok, options.positions)
     R, c = _resected(tracks, R, pos.positions, rot.directions, pos.points, frames, free,
                      pos.residual_sigma)
