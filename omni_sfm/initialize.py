@@ -34,15 +34,15 @@ from omni_sfm.errors import OmniSfmError
 from omni_sfm.estimate.pipeline import EstimationOptions, EstimationResult, estimate_poses
 from omni_sfm.fileio import atomic_output_dir, atomic_write_text, dumps_json, stored_path
 from omni_sfm.folders import LINES_FILE, USER_MASK_FILE, InitFolder
-from omni_sfm.geometry import ray_line_closest
-from omni_sfm.lines.frontend import FrontEndOptions, FrontEndResult, track_lines
-from omni_sfm.lines.video import (
+from omni_sfm.frames import (
     FrameSource,
     read_frames,
     read_mask,
     video_frame_name,
     write_mask,
 )
+from omni_sfm.geometry import ray_line_closest
+from omni_sfm.lines.frontend import FrontEndOptions, FrontEndResult, track_lines
 from omni_sfm.lines3d import LineSegments3D, write_lines3d
 from omni_sfm.poses import Trajectory
 from omni_sfm.transforms import paper_normalised_positions

@@ -22,9 +22,9 @@ import numpy as np
 from omni_sfm import registry
 from omni_sfm.cameras.base import CameraModel
 from omni_sfm.errors import OmniSfmError
+from omni_sfm.frames import FrameStore
 from omni_sfm.geometry import FloatArray
 from omni_sfm.lines.tracks import LineTracks
-from omni_sfm.lines.video import FrameStore
 from omni_sfm.poses import Trajectory
 
 STATUSES = ("ok", "failed")

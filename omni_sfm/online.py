@@ -57,12 +57,12 @@ from omni_sfm.estimate.families import family_of_lines, family_of_planes, line_f
 from omni_sfm.estimate.incremental import Growth, IncrementalOptions, rotation_from_directions
 from omni_sfm.estimate.pipeline import SEGMENT_FILE, EstimationOptions, estimate_poses
 from omni_sfm.folders import TRAJECTORY_FILE
+from omni_sfm.frames import to_gray
 from omni_sfm.geometry import FloatArray, quat_xyzw_from_matrix
 from omni_sfm.lines.extract import ExtractionOptions, LineExtractor
 from omni_sfm.lines.frontend import middle_rays
 from omni_sfm.lines.track import LineTracker, TrackingOptions
 from omni_sfm.lines.tracks import LineTracks
-from omni_sfm.lines.video import to_gray
 from omni_sfm.poses import TUM_HEADER, Trajectory
 
 

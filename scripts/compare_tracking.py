@@ -28,9 +28,9 @@ import numpy as np
 from bench_frontend import true_nvs
 
 from omni_sfm.cameras import load_camera
+from omni_sfm.frames import read_frames
 from omni_sfm.lines.extract import ExtractedLines, LineExtractor
 from omni_sfm.lines.track import LineTracker, TrackedObservations, TrackingOptions
-from omni_sfm.lines.video import read_frames
 from omni_sfm.lines3d import read_lines3d
 from omni_sfm.poses import read_tum
 

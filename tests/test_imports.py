@@ -20,7 +20,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "omni_sfm"
 STAGES = ["cameras", "lines", "vanishing", "estimate", "export", "refine", "dense", "view"]
 """Pipeline stages in their order: a stage may import only itself and earlier stages."""
 HELPERS = ["geometry", "transforms", "fileio", "folders", "libs", "poses", "errors", "registry",
-           "initialize", "online", "corners"]
+           "frames", "initialize", "online", "corners"]
 """Shared helpers below the stages (top-level modules of ``omni_sfm``)."""
 UPPER = ["synth", "evaluate"]
 """Ground-truth side: only ``UPPER`` itself and the programs in ``CONSUMERS`` may import it."""

@@ -20,7 +20,7 @@ from helpers import assert_one_line_error
 from omni_sfm.cameras import load_camera
 from omni_sfm.cli import main
 from omni_sfm.evaluate import trajectory_errors
-from omni_sfm.lines.video import Frame
+from omni_sfm.frames import Frame
 from omni_sfm.online import (
     OnlineEstimator,
     OnlineOptions,
@@ -269,7 +269,7 @@ def test_video_read_as_a_stream_gives_the_folder_poses(corridor, corridor_poses,
 
 def test_ctrl_c_ends_cleanly_with_the_poses_so_far(corridor, corridor_poses, tmp_path,
                                                    monkeypatch, capsys):
-    import omni_sfm.lines.video as video
+    import omni_sfm.frames as frames_mod
 
     n = START + 1
     files = sorted((corridor / "images").glob("*.png"))
@@ -279,7 +279,7 @@ def test_ctrl_c_ends_cleanly_with_the_poses_so_far(corridor, corridor_poses, tmp
             yield Frame(k, float(k), cv2.imread(str(f), cv2.IMREAD_UNCHANGED))
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(video, "read_frames", frames)
+    monkeypatch.setattr(frames_mod, "read_frames", frames)
     out = tmp_path / "out"
     assert main(["track", "--images", str(corridor / "images"), "--camera",
                  str(corridor / "camera.yaml"), "-o", str(out)]) == 130

@@ -1,7 +1,7 @@
 """``omni-sfm track``: online poses, frame by frame, no look-ahead (docs/track.md).
 
 Reads frames from an image folder, a video file, a camera device (an integer, ``0``) or a
-stream URL (anything with ``://``), all through :mod:`omni_sfm.lines.video`, and feeds them to
+stream URL (anything with ``://``), all through :mod:`omni_sfm.frames`, and feeds them to
 :class:`omni_sfm.online.Tracker`; each pose is appended to ``OUTPUT/trajectory.tum`` as soon
 as it is known (:class:`omni_sfm.online.TrackOutput`). Ctrl-C ends it with everything so far
 written (exit code 130).
@@ -56,7 +56,7 @@ def run(args: argparse.Namespace) -> int:
     from omni_sfm.cameras import load_camera
     from omni_sfm.errors import OmniSfmError
     from omni_sfm.fileio import check_output_dir
-    from omni_sfm.lines.video import is_stream, read_frames, read_mask, read_stream
+    from omni_sfm.frames import is_stream, read_frames, read_mask, read_stream
     from omni_sfm.online import Status, Tracker, TrackOutput
 
     if args.frames is not None and args.frames < 1:

@@ -64,9 +64,9 @@ from omni_sfm.folders import (
     carry_forward,
     images_for,
 )
+from omni_sfm.frames import FrameStore
 from omni_sfm.geometry import FloatArray, normalize
 from omni_sfm.libs import open3d_module
-from omni_sfm.lines.video import FrameStore
 from omni_sfm.lines3d import LineSegments3D, write_lines3d
 from omni_sfm.poses import Trajectory, write_tum
 

@@ -80,9 +80,9 @@ from omni_sfm.folders import (
     carry_forward,
     images_for,
 )
+from omni_sfm.frames import FrameStore, read_mask
 from omni_sfm.geometry import FloatArray, rotation_angle
 from omni_sfm.libs import library_logging
-from omni_sfm.lines.video import FrameStore, read_mask
 from omni_sfm.lines3d import write_lines3d
 from omni_sfm.poses import Trajectory, write_tum
 from omni_sfm.refine.database import (

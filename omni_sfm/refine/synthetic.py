@@ -15,8 +15,8 @@ from omni_sfm.cameras import load_camera
 from omni_sfm.export.colmap import write_init_model
 from omni_sfm.fileio import atomic_output_dir
 from omni_sfm.folders import TRAJECTORY_FILE, RenderFolder
+from omni_sfm.frames import FrameStore
 from omni_sfm.geometry import rotvec_to_matrix
-from omni_sfm.lines.video import FrameStore
 from omni_sfm.poses import Trajectory, read_tum, write_tum
 
 
