@@ -57,7 +57,7 @@ def test_each_initializer_on_simulation(name: str) -> None:
     assert res.trajectory is not None and len(res.trajectory) == seq.num_frames
     traj = res.trajectory
     if res.reflection_ambiguous:
-        from omni_sfm.estimate.pipeline import match_reflection
+        from omni_sfm.evaluate import match_reflection
 
         traj = match_reflection(traj, gt)
     e = trajectory_errors(traj, gt)

@@ -120,7 +120,7 @@ def run_comparison(sequence: SequenceInput, gt: Trajectory, names: Sequence[str]
 def _reflection_nearer(traj: Trajectory, gt: Trajectory) -> tuple[Trajectory, str | None]:
     """For normals-only results: the reflection branch nearer the ground truth, and a note
     when it is the reflected one."""
-    from omni_sfm.estimate.pipeline import match_reflection
+    from omni_sfm.evaluate import match_reflection
 
     try:
         chosen = match_reflection(traj, gt)
