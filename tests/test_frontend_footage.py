@@ -21,8 +21,8 @@ from omni_sfm.cli import main
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.evaluate import trajectory_errors
 from omni_sfm.frames import FrameStore, read_frames
-from omni_sfm.initialize import InitOptions, init_from_images
 from omni_sfm.lines.frontend import FrontEndOptions
+from omni_sfm.pipelines.init import InitOptions, init_from_images
 from omni_sfm.poses import read_tum
 from omni_sfm.synth.render import RenderOptions
 

@@ -3,9 +3,10 @@
 Every module under ``omni_sfm/`` is parsed with :mod:`ast` (nothing is imported) and every
 ``import`` / ``from`` statement is collected, those inside functions included (lazy imports are
 imports too). The pipeline runs one way, cameras -> lines -> vanishing -> estimate -> export ->
-refine -> dense -> view; the shared helpers sit below all stages; simulation and rendering
-(``synth``) and the comparison with ground truth (``evaluate``) sit above them, with the
-programs that use both (``compare``, ``demo``, ``cli``).
+refine -> dense -> view; the shared helpers sit below all stages; the entry points that wire
+the stages together (``pipelines``, and the initializer plugins' contract) sit above them;
+simulation and rendering (``synth``) and the comparison with ground truth (``evaluate``) sit
+above those, with the programs that use both (``compare``, ``pipelines.demo``, ``cli``).
 """
 
 from __future__ import annotations
@@ -20,11 +21,15 @@ PACKAGE = Path(__file__).resolve().parents[1] / "omni_sfm"
 STAGES = ["cameras", "lines", "vanishing", "estimate", "export", "refine", "dense", "view"]
 """Pipeline stages in their order: a stage may import only itself and earlier stages."""
 HELPERS = ["geometry", "transforms", "fileio", "folders", "libs", "poses", "errors", "registry",
-           "frames", "initialize", "online", "corners"]
+           "frames", "solver", "corners"]
 """Shared helpers below the stages (top-level modules of ``omni_sfm``)."""
+ENTRY_POINTS = ["pipelines", "plugin_contract"]
+"""Above the stages: the programs that wire them together, and what a plugin gets and returns."""
 UPPER = ["synth", "evaluate"]
 """Ground-truth side: only ``UPPER`` itself and the programs in ``CONSUMERS`` may import it."""
-CONSUMERS = ["synth", "evaluate", "compare", "demo", "cli"]
+CONSUMERS = ["synth", "evaluate", "compare", "pipelines.demo", "cli"]
+"""Parts of ``omni_sfm`` (a dotted name: that module and those under it) that may import
+``UPPER``."""
 
 
 def _module_name(path: Path) -> str:
@@ -74,12 +79,17 @@ def _part(name: str) -> str | None:
     return parts[1] if len(parts) > 1 else None
 
 
+def _within(name: str, parts: list[str]) -> bool:
+    """Whether module ``name`` is one of ``parts`` of ``omni_sfm`` or under one of them."""
+    return any(name == f"omni_sfm.{p}" or name.startswith(f"omni_sfm.{p}.") for p in parts)
+
+
 def test_walk_finds_the_package():
     assert "omni_sfm.estimate.pipeline" in IMPORTS
     assert "omni_sfm.transforms" in IMPORTS["omni_sfm.estimate.windows"]
     # function-level (lazy) imports are seen
-    assert "omni_sfm.synth.render" in IMPORTS["omni_sfm.demo"]
-    for part in STAGES + HELPERS + UPPER:
+    assert "omni_sfm.synth.render" in IMPORTS["omni_sfm.pipelines.demo"]
+    for part in STAGES + HELPERS + ENTRY_POINTS + UPPER:
         assert any(_part(m) == part for m in IMPORTS), part
 
 
@@ -89,17 +99,26 @@ def test_relative_import_resolution():
     assert _module_name(PACKAGE / "lines" / "__init__.py") == "omni_sfm.lines"
 
 
-@pytest.mark.parametrize("part", STAGES + HELPERS)
+@pytest.mark.parametrize("part", STAGES + HELPERS + ENTRY_POINTS)
 def test_no_stage_or_helper_imports_synth_or_evaluate(part):
     bad = sorted(f"{mod} imports {target}" for mod, targets in IMPORTS.items()
-                 if _part(mod) == part for target in targets if _part(target) in UPPER)
+                 if _part(mod) == part and not _within(mod, CONSUMERS)
+                 for target in targets if _part(target) in UPPER)
     assert not bad, "\n".join(bad)
 
 
 def test_only_consumers_import_synth_or_evaluate():
     bad = sorted(f"{mod} imports {target}" for mod, targets in IMPORTS.items()
-                 if _part(mod) not in CONSUMERS
+                 if not _within(mod, CONSUMERS)
                  for target in targets if _part(target) in UPPER)
+    assert not bad, "\n".join(bad)
+
+
+@pytest.mark.parametrize("part", STAGES + HELPERS)
+def test_no_stage_or_helper_imports_an_entry_point(part):
+    bad = sorted(f"{mod} imports {target}" for mod, targets in IMPORTS.items()
+                 if _part(mod) == part for target in targets
+                 if _part(target) in ENTRY_POINTS + ["compare", "cli"])
     assert not bad, "\n".join(bad)
 
 

@@ -9,7 +9,7 @@ import pytest
 from omni_sfm.compare import run_initializer
 from omni_sfm.evaluate import trajectory_errors
 from omni_sfm.geometry import normalize, rotvec_to_matrix
-from omni_sfm.initializer import PointObservations, SequenceInput
+from omni_sfm.plugin_contract import PointObservations, SequenceInput
 from omni_sfm.poses import read_tum
 from omni_sfm.registry import INITIALIZERS, available, load
 

@@ -15,10 +15,10 @@ from omni_sfm.cli import main
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.estimate.pipeline import estimate_poses
 from omni_sfm.frames import FrameSource, read_frames
-from omni_sfm.initialize import DEBUG_FRAMES, SAMPLE_FRAMES, _debug_numbers
 from omni_sfm.lines.extract import LineExtractor
 from omni_sfm.lines.frontend import FrontEndOptions, track_lines, worker_count
 from omni_sfm.lines.workers import ExtractionWorkers
+from omni_sfm.pipelines.init import DEBUG_FRAMES, SAMPLE_FRAMES, _debug_numbers
 from omni_sfm.synth.render import RenderOptions, VideoCodec
 
 

@@ -1,4 +1,4 @@
-"""Online poses (``omni_sfm.online``, ``omni-sfm track``): causal accuracy on rendered
+"""Online poses (``omni_sfm.estimate.online``, ``omni-sfm track``): causal accuracy on rendered
 sequences, statuses on simulated lines (lost, rotation-only, relocalised), bounded state, the
 command's outputs, a video read as a stream, Ctrl-C and bad input.
 
@@ -19,16 +19,16 @@ from helpers import assert_one_line_error
 
 from omni_sfm.cameras import load_camera
 from omni_sfm.cli import main
-from omni_sfm.evaluate import trajectory_errors
-from omni_sfm.frames import Frame
-from omni_sfm.online import (
+from omni_sfm.estimate.online import (
     OnlineEstimator,
     OnlineOptions,
     Status,
     TrackedPose,
-    Tracker,
     poses_trajectory,
 )
+from omni_sfm.evaluate import trajectory_errors
+from omni_sfm.frames import Frame
+from omni_sfm.pipelines.track import Tracker
 from omni_sfm.poses import read_tum
 from omni_sfm.synth.render import RenderOptions
 from omni_sfm.synth.simulate import SimulationOptions, simulate_manhattan

@@ -2,9 +2,9 @@
 
 Reads frames from an image folder, a video file, a camera device (an integer, ``0``) or a
 stream URL (anything with ``://``), all through :mod:`omni_sfm.frames`, and feeds them to
-:class:`omni_sfm.online.Tracker`; each pose is appended to ``OUTPUT/trajectory.tum`` as soon
-as it is known (:class:`omni_sfm.online.TrackOutput`). Ctrl-C ends it with everything so far
-written (exit code 130).
+:class:`omni_sfm.pipelines.track.Tracker`; each pose is appended to ``OUTPUT/trajectory.tum``
+as soon as it is known (:class:`omni_sfm.pipelines.track_output.TrackOutput`). Ctrl-C ends it
+with everything so far written (exit code 130).
 """
 
 from __future__ import annotations
@@ -55,9 +55,11 @@ def run(args: argparse.Namespace) -> int:
 
     from omni_sfm.cameras import load_camera
     from omni_sfm.errors import OmniSfmError
+    from omni_sfm.estimate.online import Status
     from omni_sfm.fileio import check_output_dir
     from omni_sfm.frames import is_stream, read_frames, read_mask, read_stream
-    from omni_sfm.online import Status, Tracker, TrackOutput
+    from omni_sfm.pipelines.track import Tracker
+    from omni_sfm.pipelines.track_output import TrackOutput
 
     if args.frames is not None and args.frames < 1:
         raise OmniSfmError(f"--frames must be at least 1, got {args.frames}")
@@ -110,7 +112,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _offline(args: argparse.Namespace, images: Path, frames: int, camera: Any) -> None:
     """``init --lines`` on the first ``frames`` frames of ``images`` into OUTPUT/offline."""
-    from omni_sfm.initialize import InitOptions, init_from_images
+    from omni_sfm.pipelines.init import InitOptions, init_from_images
 
     where = args.output / "offline"
     res = init_from_images(images, camera, where, InitOptions(end=frames, progress=False),

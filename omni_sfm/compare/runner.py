@@ -17,7 +17,7 @@ from omni_sfm.errors import OmniSfmError
 from omni_sfm.evaluate import associate
 from omni_sfm.fileio import atomic_output_dir, atomic_write_text, dumps_json
 from omni_sfm.folders import CompareFolder
-from omni_sfm.initializer import (
+from omni_sfm.plugin_contract import (
     InitializerResult,
     SequenceInput,
     run_initializer,

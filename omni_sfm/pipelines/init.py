@@ -436,7 +436,7 @@ def init_with_initializer(images: Path | str, camera: Path | str | CameraModel,
     """
     from omni_sfm.export.colmap import write_init_model
     from omni_sfm.fileio import check_output_dir
-    from omni_sfm.initializer import run_initializer, sequence_from_frames
+    from omni_sfm.plugin_contract import run_initializer, sequence_from_frames
 
     output = Path(output)
     check_output_dir(output, overwrite=overwrite, inputs=(Path(images),))

@@ -196,7 +196,7 @@ def run_initializer(name: str, sequence: SequenceInput,
                     options: Mapping[str, Any] | None = None) -> tuple[InitializerResult, float]:
     """Run one initializer; any exception becomes a failed result with its one-line reason,
     and so does a plugin that cannot be loaded or returns what breaks the contract
-    (:func:`omni_sfm.initializer.check_result`).
+    (:func:`omni_sfm.plugin_contract.check_result`).
 
     Returns the result and the wall time in seconds.
 
