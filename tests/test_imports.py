@@ -7,6 +7,8 @@ refine -> dense -> view; the shared helpers sit below all stages; the entry poin
 the stages together (``pipelines``, and the initializer plugins' contract) sit above them;
 simulation and rendering (``synth``) and the comparison with ground truth (``evaluate``) sit
 above those, with the programs that use both (``compare``, ``pipelines.demo``, ``cli``).
+No part imports another part's private module or name, and the shared machinery (frame
+reading, the least-squares solver) is defined in its own module and imported from there.
 """
 
 from __future__ import annotations
@@ -128,4 +130,55 @@ def test_stage_imports_no_later_stage(stage):
     bad = sorted(f"{mod} imports {target}" for mod, targets in IMPORTS.items()
                  if _part(mod) == stage for target in targets
                  if _part(target) in rank and rank[_part(target)] > rank[stage])
+    assert not bad, "\n".join(bad)
+
+
+def _private(name: str) -> bool:
+    """Whether a dotted name has a private part (``_x``; ``__init__`` and the like are not)."""
+    return any(p.startswith("_") and not p.startswith("__") for p in name.split(".")[1:])
+
+
+def test_no_part_imports_another_parts_private_module_or_name():
+    bad = sorted(f"{mod} imports {target}" for mod, targets in IMPORTS.items()
+                 for target in targets if _private(target) and _part(target) != _part(mod))
+    assert not bad, "\n".join(bad)
+
+
+def test_the_private_check_sees_private_modules_and_names():
+    assert _private("omni_sfm.vanishing._groups")
+    assert _private("omni_sfm.estimate.bundle._ReducedSystem")
+    assert not _private("omni_sfm.lines.__init__") and not _private("omni_sfm.estimate.bundle")
+
+
+def _defined(path: Path) -> set[str]:
+    """Top-level function and class names defined in ``path``."""
+    tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+    return {node.name for node in tree.body
+            if isinstance(node, ast.FunctionDef | ast.ClassDef)}
+
+
+HOMES = {
+    "omni_sfm.frames": {"read_frames", "read_stream", "read_mask", "FrameSource", "FrameStore",
+                        "Frame", "to_gray", "open_video"},
+    "omni_sfm.solver": {"levenberg_marquardt", "LMProblem", "LandmarkDamping", "StepDistance",
+                        "RobustLoss", "loss_weights", "robust_sigma", "damped", "gauge"},
+}
+"""Shared machinery below the stages: each name is defined in its home module only, and
+imported from there."""
+
+
+@pytest.mark.parametrize("home", sorted(HOMES))
+def test_shared_machinery_is_defined_and_imported_in_its_own_module(home):
+    names = HOMES[home]
+    path = PACKAGE.parent / (home.replace(".", "/") + ".py")
+    assert names <= _defined(path), sorted(names - _defined(path))
+    elsewhere = sorted(f"{p.relative_to(PACKAGE.parent)} defines {n}"
+                       for p in PACKAGE.rglob("*.py") if p != path
+                       for n in _defined(p) & names)
+    assert not elsewhere, "\n".join(elsewhere)
+    # imported from the home module itself, never through another module that imports it
+    bad = sorted(f"{mod} imports {target}" for mod, targets in IMPORTS.items() if mod != home
+                 for target in targets if target.rpartition(".")[2] in names
+                 and target.rpartition(".")[0] not in (home, "")
+                 and target.rpartition(".")[0] in IMPORTS)
     assert not bad, "\n".join(bad)

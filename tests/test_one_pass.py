@@ -23,12 +23,6 @@ from omni_sfm.synth.render import RenderOptions, VideoCodec
 
 
 @pytest.fixture(scope="module")
-def corridor(rendered) -> Path:
-    """The texture-poor corridor, 800 x 600 hyperboloid, 40 frames (read-only)."""
-    return rendered(RenderOptions(camera="hyperboloid", frames=40, seed=1)).output
-
-
-@pytest.fixture(scope="module")
 def video(rendered) -> Path:
     """The same kind of corridor as an H.264 video, 20 frames (read-only)."""
     return rendered(RenderOptions(camera="hyperboloid", frames=20, seed=2, video=True,

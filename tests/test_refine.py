@@ -55,11 +55,6 @@ def _keypoints_in_database(db: Path) -> int:
 
 
 @pytest.fixture(scope="module")
-def room(rendered) -> Path:
-    return _render(rendered, scene="room", frames=20, textured=True)
-
-
-@pytest.fixture(scope="module")
 def room_refined(room, tmp_path_factory):
     return refine_perturbed(room, tmp_path_factory.mktemp("refine"), MISSING,
                             RefineOptions(overlap=5, features="sift"))

@@ -35,7 +35,6 @@ from omni_sfm.synth.simulate import SimulationOptions, simulate_manhattan
 
 START = OnlineOptions().start_frames
 """Frames before the first pose: the start's buffer."""
-CORRIDOR = RenderOptions(camera="hyperboloid", frames=40, seed=1)
 """The corridor of tests/test_init_images.py (shared render): 800 x 600, 1.5 m in 40 frames."""
 
 
@@ -47,19 +46,14 @@ def _track(seq: Path, frames: int | None = None) -> list[TrackedPose]:
 
 
 @pytest.fixture(scope="module")
-def corridor(rendered) -> Path:
-    return rendered(CORRIDOR).output
-
-
-@pytest.fixture(scope="module")
 def corridor_poses(corridor) -> list[TrackedPose]:
     return _track(corridor)
 
 
 @pytest.mark.parametrize("which", ["hyperboloid", "equirectangular"])
-def test_causal_accuracy_on_rendered_corridors(which, corridor_poses, rendered):
+def test_causal_accuracy_on_rendered_corridors(which, corridor, corridor_poses, rendered):
     if which == "hyperboloid":
-        seq, poses = rendered(CORRIDOR).output, corridor_poses
+        seq, poses = corridor, corridor_poses
     else:
         seq = rendered(RenderOptions(camera="equirectangular", frames=40, width=800, height=400,
                                      seed=2)).output
