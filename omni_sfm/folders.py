@@ -27,6 +27,7 @@ from omni_sfm.fileio import read_json, resolve_stored
 
 if TYPE_CHECKING:
     from omni_sfm.cameras import CameraModel
+    from omni_sfm.lines.tracks import LineTracks
     from omni_sfm.lines3d import LineSegments3D
     from omni_sfm.poses import Trajectory
 
@@ -125,6 +126,43 @@ class InitFolder(StageFolder):
     COLMAP_IMAGES: ClassVar[str] = "images_colmap"
     COLMAP_MASK: ClassVar[str] = "camera_mask.png"
     MANIFEST: ClassVar[str] = "colmap.json"
+
+    def load(self) -> InitArtifacts:
+        """The folder's artifacts, typed: the camera and the poses (a one-line error if either
+        is missing or malformed), the 3D lines, the recorded frames and the user's mask where
+        the folder has them; the line tracks on demand (:meth:`InitArtifacts.read_tracks`).
+        Every reader of an init folder goes through here."""
+        camera = self.read_camera()
+        trajectory = self.read_trajectory()
+        mask = self / self.MASK
+        return InitArtifacts(self, camera, trajectory, self.read_lines3d(),
+                             recorded_images(self.path), mask if mask.is_file() else None)
+
+
+@dataclass(frozen=True)
+class InitArtifacts:
+    """An init folder read back (:meth:`InitFolder.load`)."""
+
+    folder: InitFolder
+    camera: CameraModel
+    """``camera.yaml``: the camera the poses refer to."""
+    trajectory: Trajectory
+    """``trajectory.tum``: world_from_cam of every posed frame."""
+    lines3d: LineSegments3D | None
+    """``lines3d.json``: the estimated 3D line segments, or None when the folder has none."""
+    images: Path | None
+    """The image folder or video the folder was made from (``report.json`` ``input.images``),
+    or None when it records none."""
+    user_mask: Path | None
+    """``mask.png``: the user's mask, or None when none was given."""
+
+    def read_tracks(self) -> LineTracks | None:
+        """``tracks.json``: the line tracks with a ray per observation, or None when the
+        folder has none (read on demand: a long video's tracks are large)."""
+        from omni_sfm.lines.tracks import read_tracks
+
+        path = self.folder / self.folder.TRACKS
+        return read_tracks(path) if path.is_file() else None
 
 
 @dataclass(frozen=True)

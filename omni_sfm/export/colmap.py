@@ -19,7 +19,7 @@ import numpy as np
 from omni_sfm.cameras.base import CameraModel, ColmapExport
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.fileio import BackgroundWrites
-from omni_sfm.folders import CAMERA_FILE, TRAJECTORY_FILE, InitFolder
+from omni_sfm.folders import CAMERA_FILE, TRAJECTORY_FILE, InitArtifacts, InitFolder
 from omni_sfm.geometry import FloatArray
 from omni_sfm.poses import Trajectory
 
@@ -132,18 +132,30 @@ class InitModel:
     """An init directory read back (see :func:`write_init_model`).
 
     Attributes:
-        camera: the omni-sfm camera the poses refer to (``camera.yaml``).
-        trajectory: ``(N,)`` poses world_from_cam of our ray frame (``trajectory.tum``).
+        artifacts: the folder's artifacts (:meth:`omni_sfm.folders.InitFolder.load`): the
+            camera, the poses, the 3D lines, the recorded frames and mask.
         image_names: ``(N,)`` image name of each pose, in trajectory order.
         reconstruction: the ``pycolmap.Reconstruction`` of ``sparse/``.
-        directory: the init directory.
     """
 
-    camera: CameraModel
-    trajectory: Trajectory
+    artifacts: InitArtifacts
     image_names: tuple[str, ...]
     reconstruction: Any
-    directory: Path
+
+    @property
+    def camera(self) -> CameraModel:
+        """The omni-sfm camera the poses refer to (``camera.yaml``)."""
+        return self.artifacts.camera
+
+    @property
+    def trajectory(self) -> Trajectory:
+        """``(N,)`` poses world_from_cam of our ray frame (``trajectory.tum``)."""
+        return self.artifacts.trajectory
+
+    @property
+    def directory(self) -> Path:
+        """The init directory."""
+        return Path(self.artifacts.folder.path)
 
 
 class ColmapImages:
@@ -276,9 +288,7 @@ def read_init_model(directory: Path) -> InitModel:
     the camera has no exact COLMAP model."""
     import pycolmap
 
-    from omni_sfm.cameras import load_camera
     from omni_sfm.fileio import read_json
-    from omni_sfm.poses import read_tum
 
     directory = Path(directory)
     if not directory.is_dir():
@@ -287,12 +297,12 @@ def read_init_model(directory: Path) -> InitModel:
     if not (sparse / "cameras.bin").is_file() and not (sparse / "cameras.txt").is_file():
         raise OmniSfmError(f"{sparse}: no COLMAP model (cameras.bin / cameras.txt) in the init "
                            "directory")
-    camera = load_camera(directory / CAMERA_FILE)
+    art = InitFolder(directory).load()
+    camera, traj = art.camera, art.trajectory
     try:
         export = camera.colmap_export()
     except OmniSfmError as exc:
         raise OmniSfmError(f"{directory / CAMERA_FILE}: {exc}") from None
-    traj = read_tum(directory / TRAJECTORY_FILE)
     try:
         rec = pycolmap.Reconstruction(str(sparse))
     except Exception as exc:  # pycolmap raises plain RuntimeError/ValueError on bad files
@@ -320,7 +330,7 @@ def read_init_model(directory: Path) -> InitModel:
     if not np.allclose(centres, traj.positions, atol=1e-6 * max(1.0, traj.path_length())):
         raise OmniSfmError(f"{sparse}: projection centres differ from the camera centres in "
                            f"{directory / TRAJECTORY_FILE}")
-    return InitModel(camera, traj, names, rec, directory)
+    return InitModel(art, names, rec)
 
 
 def seed_for_database(camera: CameraModel, traj: Trajectory, image_names: Sequence[str],

@@ -75,7 +75,6 @@ from omni_sfm.folders import (
     CAMERA_FILE,
     LINES_FILE,
     REPORT_FILE,
-    USER_MASK_FILE,
     RefineFolder,
     carry_forward,
     images_for,
@@ -453,8 +452,9 @@ class _Run:
         camera, db = init.camera, self.db_path
         export = camera.colmap_export()
         names = list(self.all_names) if self.register else list(init.image_names)
-        user_mask = read_mask(self.init_dir / USER_MASK_FILE, (camera.width, camera.height)) \
-            if (self.init_dir / USER_MASK_FILE).is_file() else None
+        mask_path = init.artifacts.user_mask
+        user_mask = None if mask_path is None else \
+            read_mask(mask_path, (camera.width, camera.height))
         work = tmp / ".work"
         work.mkdir()
         with self.stages.stage("images"):
@@ -541,7 +541,7 @@ class _Run:
     def _joint(self, rec: Any, image_ids: list[int]) -> dict[str, Any] | None:
         """The joint adjustment of lines and points on ``rec`` (its report), or None where the
         init folder has no line evidence or the adjustment fails (the reason reported)."""
-        lines = read_line_evidence(self.init_dir, self.init.trajectory)
+        lines = read_line_evidence(self.init.artifacts)
         if isinstance(lines, str):
             self.report["joint_adjustment"] = {"skipped": lines}
             return None
