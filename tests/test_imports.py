@@ -182,3 +182,30 @@ def test_shared_machinery_is_defined_and_imported_in_its_own_module(home):
                  and target.rpartition(".")[0] not in (home, "")
                  and target.rpartition(".")[0] in IMPORTS)
     assert not bad, "\n".join(bad)
+
+
+def _folder_file_names() -> set[str]:
+    """The file names (with an extension) the folder classes of ``omni_sfm.folders`` own."""
+    import omni_sfm.folders as folders
+
+    return {v for cls in vars(folders).values() if isinstance(cls, type)
+            and cls.__module__ == folders.__name__
+            for k, v in vars(cls).items() if k.isupper() and isinstance(v, str) and "." in v}
+
+
+def test_folder_file_names_are_spelled_in_folders_only():
+    names = _folder_file_names()
+    assert {"trajectory.tum", "report.json", "tracks.json", "colmap.json", "lines.json"} <= names
+    bad = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        if path.name == "folders.py" and path.parent == PACKAGE:
+            continue
+        tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+        docs = {id(node.body[0].value) for node in ast.walk(tree)
+                if isinstance(node, ast.Module | ast.ClassDef | ast.FunctionDef
+                              | ast.AsyncFunctionDef)
+                and node.body and isinstance(node.body[0], ast.Expr)}
+        bad += [f"{path.relative_to(PACKAGE.parent)}:{node.lineno} spells {node.value!r}"
+                for node in ast.walk(tree) if isinstance(node, ast.Constant)
+                and node.value in names and id(node) not in docs]
+    assert not bad, "\n".join(bad)

@@ -100,7 +100,7 @@ def run(args: argparse.Namespace) -> int:
     lat = np.asarray(latency)
     text = (f"track: {len(lat)} frames{' (interrupted)' if interrupted else ''}: "
             + ", ".join(f"{n} {s}" for s, n in counts.items() if n)
-            + f"; {out.poses} poses -> {args.output / 'trajectory.tum'}"
+            + f"; {out.poses} poses -> {out.path(0)}"
             + (" and trajectory_segment_*.tum" if counts[Status.RELOCALISED] else "")
             + f"; latency median {np.median(lat):.1f} ms, 95th percentile "
               f"{np.percentile(lat, 95):.1f} ms")
@@ -112,11 +112,12 @@ def run(args: argparse.Namespace) -> int:
 
 def _offline(args: argparse.Namespace, images: Path, frames: int, camera: Any) -> None:
     """``init --lines`` on the first ``frames`` frames of ``images`` into OUTPUT/offline."""
+    from omni_sfm.folders import InitFolder
     from omni_sfm.pipelines.init import InitOptions, init_from_images
 
     where = args.output / "offline"
     res = init_from_images(images, camera, where, InitOptions(end=frames, progress=False),
                            mask=args.mask, overwrite=True,
                            warn=lambda w: print(f"offline: warning: {w}", file=sys.stderr))
-    print(f"offline: {len(res.image_names)} of {frames} frames -> {where / 'trajectory.tum'}",
+    print(f"offline: {len(res.image_names)} of {frames} frames -> {where / InitFolder.TRAJECTORY}",
           file=sys.stderr if args.stream else sys.stdout, flush=True)

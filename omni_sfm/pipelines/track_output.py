@@ -9,7 +9,7 @@ from typing import IO
 
 from omni_sfm.estimate.online import TrackedPose, poses_trajectory
 from omni_sfm.estimate.pipeline import SEGMENT_FILE
-from omni_sfm.folders import TRAJECTORY_FILE
+from omni_sfm.folders import StageFolder
 from omni_sfm.poses import TUM_HEADER
 
 FRAMES_FILE = "frames.jsonl"
@@ -38,7 +38,8 @@ class TrackOutput:
 
     def path(self, world: int) -> Path:
         """The trajectory file of ``world``."""
-        return self.directory / (TRAJECTORY_FILE if world == 0 else SEGMENT_FILE.format(world))
+        name = StageFolder.TRAJECTORY if world == 0 else SEGMENT_FILE.format(world)
+        return self.directory / name
 
     def _trajectory(self, world: int) -> IO[str]:
         if world not in self._files:
