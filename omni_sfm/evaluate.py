@@ -14,6 +14,9 @@ Definitions (used by tests, docs and ``omni-sfm compare`` alike):
   translational part, by the ratio of the summed true to the summed estimated motions over ``d``
   frames. ``rpe``: RMSE of ``|trans(E_i)|`` divided by the mean true motion over ``d`` frames;
   ``rpe_rot_deg``: mean angle of ``rot(E_i)``.
+- reflection: from NVs alone the estimate is determined only up to a similarity and the point
+  reflection of the camera centres through the first camera (:func:`reflect_positions`); the
+  comparison is made on the branch nearer the ground truth (:func:`match_reflection`).
 - step error after alignment (``step_error_after_alignment``; called RPE before): mean norm of
   the difference between aligned and true steps of consecutive frames after the similarity
   alignment, divided by the mean true step. Mixes global drift into a per-step figure.
@@ -31,9 +34,9 @@ from omni_sfm.poses import Trajectory
 from omni_sfm.transforms import Similarity, associate, paper_translation_errors, umeyama
 
 __all__ = [
-    "RelativePoseErrors", "Similarity", "TrajectoryErrors", "associate",
-    "paper_translation_errors", "relative_pose_errors", "relative_rotation_errors_deg",
-    "trajectory_errors", "umeyama",
+    "RelativePoseErrors", "Similarity", "TrajectoryErrors", "associate", "match_reflection",
+    "paper_translation_errors", "reflect_positions", "relative_pose_errors",
+    "relative_rotation_errors_deg", "trajectory_errors", "umeyama",
 ]
 
 
@@ -191,3 +194,37 @@ def trajectory_errors(est: Trajectory, gt: Trajectory) -> TrajectoryErrors:
     return TrajectoryErrors(len(e), relative_rotation_errors_deg(e, g), ate,
                             relative_pose_errors(e, g, delta=1), step_err,
                             paper_translation_errors(e, g), sim)
+
+
+def reflect_positions(traj: Trajectory) -> Trajectory:
+    """The point reflection of the camera centres through the first camera (rotations kept).
+
+    Line normals have no sign, so reflecting every camera centre and every line through the
+    first camera leaves all observations unchanged: from NVs alone, the estimate is determined
+    only up to this reflection (and a similarity). Compare with ground truth on the branch that
+    matches it (:func:`match_reflection`).
+    """
+    return Trajectory(traj.timestamps.copy(), traj.rotations.copy(),
+                      2.0 * traj.positions[:1] - traj.positions)
+
+
+def match_reflection(est: Trajectory, gt: Trajectory) -> Trajectory:
+    """``est`` or its reflection (:func:`reflect_positions`), whichever is nearer ``gt``.
+
+    Nearer: smaller mean translation error as the paper defines it
+    (:func:`omni_sfm.transforms.paper_translation_errors`) on the frames the two share (at least
+    3, as :func:`trajectory_errors`). For evaluation only: the data cannot tell the two apart.
+
+    Raises:
+        OmniSfmError: fewer than 3 frames in common with ``gt``.
+    """
+    def mean_error(tr: Trajectory) -> float:
+        e, g = associate(tr, gt)
+        if len(e) < 3:
+            raise OmniSfmError(f"only {len(e)} frames in common with the ground truth; need 3")
+        return float(paper_translation_errors(e, g).mean())
+
+    ref = reflect_positions(est)
+    e0 = mean_error(est)
+    e1 = mean_error(ref)
+    return ref if e1 < e0 else est

@@ -9,10 +9,11 @@ folder can be moved (:func:`omni_sfm.fileio.stored_path`): relative to the folde
 it, absolute otherwise. A stage reads its input folder with :func:`recorded_images` and copies
 the carried files with :func:`carry_forward`.
 
-Each folder kind has one class that knows its file names (:class:`InitFolder`,
-:class:`RefineFolder`, :class:`DenseFolder`, :class:`CompareFolder`); the stages write and
-read through them, so every file of a folder is named in one place. docs/formats.md describes
-the files.
+Each folder kind has one class that knows its file names (:class:`StageFolder` the files every
+stage folder has; :class:`InitFolder`, :class:`RefineFolder`, :class:`DenseFolder`,
+:class:`CompareFolder`, :class:`RenderFolder`); the stages write and read through them, so
+every file of a folder is named in one place. An init folder is read back by
+:meth:`InitFolder.load`. docs/formats.md describes the files.
 """
 
 from __future__ import annotations
@@ -27,69 +28,20 @@ from omni_sfm.fileio import read_json, resolve_stored
 
 if TYPE_CHECKING:
     from omni_sfm.cameras import CameraModel
+    from omni_sfm.lines.tracks import LineTracks
     from omni_sfm.lines3d import LineSegments3D
     from omni_sfm.poses import Trajectory
-
-TRAJECTORY_FILE = "trajectory.tum"
-CAMERA_FILE = "camera.yaml"
-LINES_FILE = "lines3d.json"
-USER_MASK_FILE = "mask.png"
-REPORT_FILE = "report.json"
-
-CARRIED_FILES = (CAMERA_FILE, USER_MASK_FILE, LINES_FILE)
-"""Files a stage copies from its input folder when it does not write its own."""
-
-
-def recorded_images(folder: Path | str) -> Path | None:
-    """The image folder or video that ``folder`` (an init, refine or dense output) was made
-    from, as recorded in its ``report.json``, or None when it records none."""
-    folder = Path(folder)
-    report = folder / REPORT_FILE
-    if not report.is_file():
-        return None
-    doc = read_json(report, "report")
-    inp = doc.get("input") if isinstance(doc, dict) else None
-    images = inp.get("images") if isinstance(inp, dict) else None
-    return resolve_stored(images, folder) if isinstance(images, str) and images else None
-
-
-def images_for(folder: Path | str, images: Path | str | None) -> Path:
-    """``images`` if given, else the frames ``folder`` records (one-line error if neither)."""
-    if images is not None:
-        return Path(images)
-    found = recorded_images(folder)
-    if found is None:
-        raise OmniSfmError(f"{folder}: the folder does not record its frames (give --images "
-                           "PATH, the image folder or video it was made from)")
-    if not found.exists():
-        raise OmniSfmError(f"{found}: the frames recorded in {Path(folder) / REPORT_FILE} are "
-                           "gone (give --images PATH)")
-    return found
-
-
-def carry_forward(src: Path | str, dst: Path | str, names: tuple[str, ...] = CARRIED_FILES
-                  ) -> list[str]:
-    """Copy those of ``names`` that ``src`` has and ``dst`` does not into ``dst``; returns the
-    names copied."""
-    src, dst = Path(src), Path(dst)
-    copied = []
-    for name in names:
-        if (src / name).is_file() and not (dst / name).exists():
-            shutil.copyfile(src / name, dst / name)
-            copied.append(name)
-    return copied
-
 
 @dataclass(frozen=True)
 class StageFolder:
     """What every stage folder holds: poses, camera, report, and what is carried forward."""
 
     path: Path
-    TRAJECTORY: ClassVar[str] = TRAJECTORY_FILE
-    CAMERA: ClassVar[str] = CAMERA_FILE
-    LINES3D: ClassVar[str] = LINES_FILE
-    MASK: ClassVar[str] = USER_MASK_FILE
-    REPORT: ClassVar[str] = REPORT_FILE
+    TRAJECTORY: ClassVar[str] = "trajectory.tum"
+    CAMERA: ClassVar[str] = "camera.yaml"
+    LINES3D: ClassVar[str] = "lines3d.json"
+    MASK: ClassVar[str] = "mask.png"
+    REPORT: ClassVar[str] = "report.json"
 
     def __truediv__(self, name: str) -> Path:
         return Path(self.path) / name
@@ -113,6 +65,55 @@ class StageFolder:
         return read_lines3d(self / self.LINES3D) if (self / self.LINES3D).is_file() else None
 
 
+TRAJECTORY_FILE = StageFolder.TRAJECTORY
+REPORT_FILE = StageFolder.REPORT
+"""The estimator's names for :class:`StageFolder`'s ``TRAJECTORY`` and ``REPORT``."""
+
+CARRIED_FILES = (StageFolder.CAMERA, StageFolder.MASK, StageFolder.LINES3D)
+"""Files a stage copies from its input folder when it does not write its own."""
+
+
+def recorded_images(folder: Path | str) -> Path | None:
+    """The image folder or video that ``folder`` (an init, refine or dense output) was made
+    from, as recorded in its ``report.json``, or None when it records none."""
+    folder = Path(folder)
+    report = folder / StageFolder.REPORT
+    if not report.is_file():
+        return None
+    doc = read_json(report, "report")
+    inp = doc.get("input") if isinstance(doc, dict) else None
+    images = inp.get("images") if isinstance(inp, dict) else None
+    return resolve_stored(images, folder) if isinstance(images, str) and images else None
+
+
+def images_for(folder: Path | str, images: Path | str | None) -> Path:
+    """``images`` if given, else the frames ``folder`` records (one-line error if neither)."""
+    if images is not None:
+        return Path(images)
+    found = recorded_images(folder)
+    if found is None:
+        raise OmniSfmError(f"{folder}: the folder does not record its frames (give --images "
+                           "PATH, the image folder or video it was made from)")
+    if not found.exists():
+        raise OmniSfmError(f"{found}: the frames recorded in "
+                           f"{Path(folder) / StageFolder.REPORT} are gone (give --images PATH)")
+    return found
+
+
+def carry_forward(src: Path | str, dst: Path | str, names: tuple[str, ...] = CARRIED_FILES
+                  ) -> list[str]:
+    """Copy those of ``names`` that ``src`` has and ``dst`` does not into ``dst``; returns the
+    names copied."""
+    src, dst = Path(src), Path(dst)
+    copied = []
+    for name in names:
+        if (src / name).is_file() and not (dst / name).exists():
+            shutil.copyfile(src / name, dst / name)
+            copied.append(name)
+    return copied
+
+
+
 @dataclass(frozen=True)
 class InitFolder(StageFolder):
     """``omni-sfm init`` output (docs/formats.md, docs/colmap.md)."""
@@ -125,6 +126,43 @@ class InitFolder(StageFolder):
     COLMAP_IMAGES: ClassVar[str] = "images_colmap"
     COLMAP_MASK: ClassVar[str] = "camera_mask.png"
     MANIFEST: ClassVar[str] = "colmap.json"
+
+    def load(self) -> InitArtifacts:
+        """The folder's artifacts, typed: the camera and the poses (a one-line error if either
+        is missing or malformed), the 3D lines, the recorded frames and the user's mask where
+        the folder has them; the line tracks on demand (:meth:`InitArtifacts.read_tracks`).
+        Every reader of an init folder goes through here."""
+        camera = self.read_camera()
+        trajectory = self.read_trajectory()
+        mask = self / self.MASK
+        return InitArtifacts(self, camera, trajectory, self.read_lines3d(),
+                             recorded_images(self.path), mask if mask.is_file() else None)
+
+
+@dataclass(frozen=True)
+class InitArtifacts:
+    """An init folder read back (:meth:`InitFolder.load`)."""
+
+    folder: InitFolder
+    camera: CameraModel
+    """``camera.yaml``: the camera the poses refer to."""
+    trajectory: Trajectory
+    """``trajectory.tum``: world_from_cam of every posed frame."""
+    lines3d: LineSegments3D | None
+    """``lines3d.json``: the estimated 3D line segments, or None when the folder has none."""
+    images: Path | None
+    """The image folder or video the folder was made from (``report.json`` ``input.images``),
+    or None when it records none."""
+    user_mask: Path | None
+    """``mask.png``: the user's mask, or None when none was given."""
+
+    def read_tracks(self) -> LineTracks | None:
+        """``tracks.json``: the line tracks with a ray per observation, or None when the
+        folder has none (read on demand: a long video's tracks are large)."""
+        from omni_sfm.lines.tracks import read_tracks
+
+        path = self.folder / self.folder.TRACKS
+        return read_tracks(path) if path.is_file() else None
 
 
 @dataclass(frozen=True)
@@ -173,11 +211,24 @@ class RenderFolder:
     path: Path
     IMAGES: ClassVar[str] = "images"
     VIDEO: ClassVar[str] = "video.mp4"
-    CAMERA: ClassVar[str] = CAMERA_FILE
+    CAMERA: ClassVar[str] = StageFolder.CAMERA
     GROUNDTRUTH: ClassVar[str] = "groundtruth.tum"
     SCENE: ClassVar[str] = "scene.ply"
-    LINES3D: ClassVar[str] = LINES_FILE
+    LINES3D: ClassVar[str] = StageFolder.LINES3D
     META: ClassVar[str] = "render.json"
+
+    def __truediv__(self, name: str) -> Path:
+        return Path(self.path) / name
+
+
+@dataclass(frozen=True)
+class SimulationFolder:
+    """``omni-sfm simulate`` output: simulated line tracks with ground truth (docs/formats.md)."""
+
+    path: Path
+    TRACKS: ClassVar[str] = InitFolder.TRACKS
+    GROUNDTRUTH: ClassVar[str] = RenderFolder.GROUNDTRUTH
+    LINES: ClassVar[str] = "lines.json"
 
     def __truediv__(self, name: str) -> Path:
         return Path(self.path) / name

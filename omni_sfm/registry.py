@@ -4,7 +4,7 @@ Groups (the contract of each: docs/plugins.md):
 
 - ``omni_sfm.initializers``: pose initializers compared by ``omni-sfm compare``: a callable
   ``(sequence: SequenceInput, options: Mapping[str, Any]) -> InitializerResult``
-  (:mod:`omni_sfm.initializer`).
+  (:mod:`omni_sfm.plugin_contract`).
 - ``omni_sfm.adapters``: adapters for users' own pycolmap / Open3D scripts (callables).
 
 A distribution registers one in its ``pyproject.toml``::
@@ -14,7 +14,7 @@ A distribution registers one in its ``pyproject.toml``::
 
 The core never imports a plugin by name: it asks this registry, which checks what an entry
 point loads (a plugin that cannot be imported or is not a callable raises
-:class:`PluginError`; :func:`omni_sfm.initializer.check_result` checks what an initializer
+:class:`PluginError`; :func:`omni_sfm.plugin_contract.check_result` checks what an initializer
 returns).
 """
 

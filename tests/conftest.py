@@ -64,3 +64,25 @@ def rendered(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Callable[[Any
     yield get
     for out, before in snapshots.items():
         assert _snapshot(out) == before, f"a test changed the shared render {out}"
+
+
+@pytest.fixture(scope="session")
+def corridor(rendered: Callable[[Any], Any]) -> Path:
+    """The texture-poor corridor of the paper's set-up: hyperboloid 800 x 600, 40 frames,
+    seed 1 (the session's read-only render)."""
+    from omni_sfm.synth.render import RenderOptions
+
+    out: Path = rendered(RenderOptions(camera="hyperboloid", frames=40, seed=1)).output
+    return out
+
+
+@pytest.fixture(scope="session")
+def room(rendered: Callable[[Any], Any]) -> Path:
+    """The textured room: hyperboloid 400 x 300, small preset without supersampling, 20
+    frames, seed 3 (the session's read-only render)."""
+    from omni_sfm.synth.render import RenderOptions
+
+    out: Path = rendered(RenderOptions(camera="hyperboloid", width=400, height=300,
+                                       supersample=1, preset="small", seed=3, scene="room",
+                                       frames=20, textured=True)).output
+    return out

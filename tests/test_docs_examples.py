@@ -56,7 +56,7 @@ def run_block(path: Path, line: int, code: str) -> dict:
 
 @pytest.fixture(scope="session")
 def doc_data(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    from omni_sfm.initialize import InitOptions, init_from_images
+    from omni_sfm.pipelines.init import InitOptions, init_from_images
     from omni_sfm.synth.render import RenderOptions, render_sequence
 
     root = tmp_path_factory.mktemp("docs_data")

@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 from linetest_utils import Room, hyperboloid_camera, nv_errors_deg, render, true_normals
 
+import omni_sfm.frames as frames_mod
 from omni_sfm.errors import OmniSfmError
+from omni_sfm.frames import read_frames, read_mask
 from omni_sfm.geometry import rotation_about_axis
-from omni_sfm.lines import video as video_mod
 from omni_sfm.lines.debug import write_debug_view
 from omni_sfm.lines.frontend import FrontEndOptions, track_lines
-from omni_sfm.lines.video import read_frames, read_mask
 
 NFRAMES = 6
 QUIET = FrontEndOptions(progress=False)
@@ -197,7 +197,7 @@ class _FlakyCapture:
 
 def test_video_frames_that_fail_to_decode_are_skipped(sequence, monkeypatch):
     cam, _, _, imgs = sequence
-    monkeypatch.setattr(video_mod.cv2, "VideoCapture",
+    monkeypatch.setattr(frames_mod.cv2, "VideoCapture",
                         lambda path: _FlakyCapture(imgs, bad={3}))
     src = read_frames(Path(__file__), size=(cam.width, cam.height))  # any existing file
     frames = list(src)

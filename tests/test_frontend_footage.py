@@ -20,22 +20,14 @@ from helpers import assert_one_line_error
 from omni_sfm.cli import main
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.evaluate import trajectory_errors
-from omni_sfm.initialize import InitOptions, init_from_images
+from omni_sfm.frames import FrameStore, read_frames
 from omni_sfm.lines.frontend import FrontEndOptions
-from omni_sfm.lines.video import FrameStore, read_frames
+from omni_sfm.pipelines.init import InitOptions, init_from_images
 from omni_sfm.poses import read_tum
-from omni_sfm.synth.render import RenderOptions
 
 NFRAMES = 20
 """Frames of the damaged-frame tests (the brightness test takes all 40)."""
 FAST = ["--no-colmap", "--debug-view", "none", "--quiet"]
-
-
-@pytest.fixture(scope="module")
-def corridor(rendered) -> Path:
-    """The texture-poor corridor, 800x600 hyperboloid, 40 frames (shared with
-    tests/test_init_images.py; read-only)."""
-    return rendered(RenderOptions(camera="hyperboloid", frames=40, seed=1)).output
 
 
 @pytest.fixture(scope="module")

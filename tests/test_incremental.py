@@ -18,10 +18,9 @@ from omni_sfm.estimate.incremental import centre_given_rotation, rotation_from_d
 from omni_sfm.estimate.pipeline import (
     EstimationOptions,
     estimate_poses,
-    match_reflection,
     write_init_outputs,
 )
-from omni_sfm.evaluate import trajectory_errors
+from omni_sfm.evaluate import match_reflection, trajectory_errors
 from omni_sfm.geometry import line_plane_normals, normalize, rotvec_to_matrix
 from omni_sfm.lines.tracks import LineTracks, make_tracks, write_tracks
 from omni_sfm.poses import Trajectory, read_tum

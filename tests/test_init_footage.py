@@ -11,7 +11,7 @@ from helpers import assert_one_line_error
 
 from omni_sfm.cli import main
 from omni_sfm.evaluate import relative_rotation_errors_deg
-from omni_sfm.lines.video import read_mask
+from omni_sfm.frames import read_mask
 from omni_sfm.poses import read_tum
 from omni_sfm.synth.effects import Body, Effects
 from omni_sfm.synth.paths import Route

@@ -22,12 +22,6 @@ from omni_sfm.poses import read_tum
 from omni_sfm.synth.render import RenderOptions
 
 
-@pytest.fixture(scope="module")
-def corridor(rendered) -> Path:
-    """The texture-poor corridor, 800 x 600 hyperboloid, 40 frames (read-only)."""
-    return rendered(RenderOptions(camera="hyperboloid", frames=40, seed=1)).output
-
-
 def _init(seq: Path, out: Path, *extra: str) -> int:
     return main(["init", "--lines", "--images", str(seq / "images"), "--camera",
                  str(seq / "camera.yaml"), "--output", str(out), "--quiet", *extra])

@@ -9,15 +9,13 @@ import pytest
 from omni_sfm.estimate import kernels
 from omni_sfm.estimate.bundle import (
     LineProblem,
-    RobustLoss,
     _normal_derivative,
     _pose_jacobian,
     _tangent_basis,
-    damped,
-    loss_weights,
     triangulate_lines,
 )
 from omni_sfm.geometry import cross3, normalize, predicted_normals, rotvec_to_matrix
+from omni_sfm.solver import RobustLoss, damped, loss_weights
 from omni_sfm.synth.simulate import SimulationOptions, simulate
 
 

@@ -14,18 +14,12 @@ from omni_sfm.cameras import load_camera
 from omni_sfm.cli import main
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.estimate.pipeline import estimate_poses
-from omni_sfm.initialize import DEBUG_FRAMES, SAMPLE_FRAMES, _debug_numbers
+from omni_sfm.frames import FrameSource, read_frames
 from omni_sfm.lines.extract import LineExtractor
 from omni_sfm.lines.frontend import FrontEndOptions, track_lines, worker_count
-from omni_sfm.lines.video import FrameSource, read_frames
 from omni_sfm.lines.workers import ExtractionWorkers
+from omni_sfm.pipelines.init import DEBUG_FRAMES, SAMPLE_FRAMES, _debug_numbers
 from omni_sfm.synth.render import RenderOptions, VideoCodec
-
-
-@pytest.fixture(scope="module")
-def corridor(rendered) -> Path:
-    """The texture-poor corridor, 800 x 600 hyperboloid, 40 frames (read-only)."""
-    return rendered(RenderOptions(camera="hyperboloid", frames=40, seed=1)).output
 
 
 @pytest.fixture(scope="module")
@@ -110,10 +104,10 @@ def test_debug_frames_of_a_long_run_are_a_spread_sample():
 
 def test_init_writes_colmap_images_and_debug_view_from_one_pass(video, tmp_path, monkeypatch):
     # count the frames decoded: one pass, plus the sample of the checks
-    from omni_sfm.lines import video as video_mod
+    import omni_sfm.frames as frames_mod
 
     decoded = []
-    real = video_mod.open_video
+    real = frames_mod.open_video
 
     class Counting:
         def __init__(self, cap):
@@ -130,7 +124,7 @@ def test_init_writes_colmap_images_and_debug_view_from_one_pass(video, tmp_path,
         def __getattr__(self, name):
             return getattr(self.cap, name)
 
-    monkeypatch.setattr(video_mod, "open_video", lambda path: Counting(real(path)))
+    monkeypatch.setattr(frames_mod, "open_video", lambda path: Counting(real(path)))
     out = tmp_path / "init"
     assert main(["init", "--lines", "--images", str(video / "video.mp4"), "--camera",
                  str(video / "camera.yaml"), "--output", str(out), "--quiet"]) == 0

@@ -17,11 +17,10 @@ from omni_sfm.estimate.bundle import oracle
 from omni_sfm.estimate.pipeline import (
     EstimationOptions,
     estimate_poses,
-    match_reflection,
     write_init_outputs,
 )
 from omni_sfm.estimate.segments import frame_range
-from omni_sfm.evaluate import trajectory_errors
+from omni_sfm.evaluate import match_reflection, trajectory_errors
 from omni_sfm.lines.tracks import make_tracks
 from omni_sfm.poses import Trajectory
 from omni_sfm.synth.simulate import SimulationOptions, simulate

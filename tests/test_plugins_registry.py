@@ -19,7 +19,7 @@ import pytest
 import omni_sfm.registry as registry_mod
 from omni_sfm.compare import compare, run_initializer
 from omni_sfm.errors import OmniSfmError
-from omni_sfm.initializer import InitializerResult, SequenceInput, check_result, failed
+from omni_sfm.plugin_contract import InitializerResult, SequenceInput, check_result, failed
 from omni_sfm.poses import Trajectory
 from omni_sfm.registry import INITIALIZERS, PluginError, available, load
 

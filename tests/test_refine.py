@@ -21,12 +21,12 @@ from omni_sfm.cameras import load_camera
 from omni_sfm.cli import main
 from omni_sfm.evaluate import trajectory_errors
 from omni_sfm.export.colmap import (
-    IMAGES_DIR,
     projection_centres,
     read_init_model,
     write_init_model,
 )
 from omni_sfm.fileio import read_json
+from omni_sfm.folders import InitFolder
 from omni_sfm.poses import Trajectory, read_tum
 from omni_sfm.refine import RefineOptions, refine
 from omni_sfm.refine.synthetic import perturb, write_perturbed_init
@@ -55,11 +55,6 @@ def _keypoints_in_database(db: Path) -> int:
 
 
 @pytest.fixture(scope="module")
-def room(rendered) -> Path:
-    return _render(rendered, scene="room", frames=20, textured=True)
-
-
-@pytest.fixture(scope="module")
 def room_refined(room, tmp_path_factory):
     return refine_perturbed(room, tmp_path_factory.mktemp("refine"), MISSING,
                             RefineOptions(overlap=5, features="sift"))
@@ -85,7 +80,7 @@ def test_init_model_layout_round_trip(room, tmp_path):
         np.testing.assert_allclose(centres[n], gt.positions[k], atol=1e-9)
     assert (tmp_path / "sparse" / "images.txt").is_file()
     # COLMAP sees the hyperboloid's images mirrored left-right, RGB written as BGR files
-    seen = cv2.imread(str(tmp_path / IMAGES_DIR / names[1]))
+    seen = cv2.imread(str(tmp_path / InitFolder.COLMAP_IMAGES / names[1]))
     np.testing.assert_array_equal(seen, imgs[1][:, ::-1, ::-1])
     mask = cv2.imread(str(tmp_path / "camera_mask.png"), cv2.IMREAD_GRAYSCALE)
     valid = cam.valid_mask()[:, ::-1]

@@ -22,7 +22,6 @@ from omni_sfm.poses import read_tum
 from omni_sfm.refine import RefineOptions, refine
 from omni_sfm.refine.database import sequential_pairs
 from omni_sfm.refine.synthetic import write_perturbed_init
-from omni_sfm.synth.render import RenderOptions
 
 MISSING = (6, 13)
 
@@ -35,13 +34,6 @@ def _table_rows(db: Path, table: str) -> list[tuple[int, int]]:
         return con.execute(f"SELECT {key}, rows FROM {table}").fetchall()
     finally:
         con.close()
-
-
-@pytest.fixture(scope="module")
-def room(rendered) -> Path:
-    return rendered(RenderOptions(camera="hyperboloid", width=400, height=300, supersample=1,
-                                  preset="small", seed=3, scene="room", frames=20,
-                                  textured=True)).output
 
 
 @pytest.fixture(scope="module")

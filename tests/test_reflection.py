@@ -7,8 +7,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from omni_sfm.estimate.pipeline import EstimationOptions, estimate_poses, reflect_positions
-from omni_sfm.evaluate import trajectory_errors
+from omni_sfm.estimate.pipeline import EstimationOptions, estimate_poses
+from omni_sfm.evaluate import reflect_positions, trajectory_errors
 from omni_sfm.geometry import normalize
 from omni_sfm.synth.simulate import Simulation, SimulationOptions, simulate
 

@@ -22,8 +22,8 @@ from scipy.spatial.transform import Rotation
 from omni_sfm.cameras import load_camera
 from omni_sfm.cli import main as cli_main
 from omni_sfm.errors import OmniSfmError
+from omni_sfm.frames import FrameStore
 from omni_sfm.geometry import angle_between, rotation_about_axis, rotation_angle
-from omni_sfm.lines.video import FrameStore
 from omni_sfm.lines3d import read_lines3d
 from omni_sfm.poses import read_tum
 from omni_sfm.synth.paths import Mount, PathOptions, camera_path

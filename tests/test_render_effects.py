@@ -24,8 +24,8 @@ from helpers import assert_one_line_error
 
 from omni_sfm.cli import main as cli_main
 from omni_sfm.errors import OmniSfmError
+from omni_sfm.frames import FrameStore
 from omni_sfm.geometry import rotation_about_axis
-from omni_sfm.lines.video import FrameStore
 from omni_sfm.lines3d import read_lines3d
 from omni_sfm.poses import read_tum
 from omni_sfm.synth.effects import (

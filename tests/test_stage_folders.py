@@ -130,3 +130,52 @@ def test_init_with_an_unknown_or_misused_initializer_is_exit_2(
                      "--output", str(tmp_path / "b")]) == 2
     assert "--no-refine applies to the line-based method" in assert_one_line_error(capsys)
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+
+
+def test_init_folder_load_reads_every_artifact_typed(tmp_path: Path) -> None:
+    """``InitFolder.load``: the camera, poses, 3D lines, recorded frames and user's mask as
+    written, the tracks on demand; a folder without the optional files gives None for them,
+    and one without its poses a one-line error."""
+    from omni_sfm.cameras import write_camera_yaml
+    from omni_sfm.folders import InitFolder
+    from omni_sfm.frames import write_mask
+    from omni_sfm.lines.tracks import write_tracks
+    from omni_sfm.lines3d import LineSegments3D, write_lines3d
+    from omni_sfm.poses import write_tum
+    from omni_sfm.synth.render import hyperboloid_camera
+    from omni_sfm.synth.simulate import SimulationOptions, simulate
+
+    sim = simulate(SimulationOptions(num_views=6, num_parallel=3, num_other=3, seed=2))
+    cam = hyperboloid_camera(160, 120)
+    bare, full = tmp_path / "bare", tmp_path / "full"
+    for d in (bare, full):
+        d.mkdir()
+        write_camera_yaml(d / "camera.yaml", cam)
+        write_tum(d / "trajectory.tum", sim.groundtruth)
+    lines = LineSegments3D(sim.line_points, sim.line_points + sim.line_directions,
+                           np.zeros(len(sim.line_points), int), sim.line_directions[:1],
+                           ("estimated",) * len(sim.line_points),
+                           track_ids=np.arange(len(sim.line_points)))
+    write_lines3d(full / "lines3d.json", lines)
+    write_tracks(full / "tracks.json", sim.tracks)
+    mask = np.ones((cam.height, cam.width), bool)
+    write_mask(full / "mask.png", mask)
+    (tmp_path / "frames").mkdir()
+    (full / "report.json").write_text(json.dumps({"input": {"images": str(tmp_path / "frames")}}))
+
+    art = InitFolder(full).load()
+    assert art.camera == cam and art.folder == InitFolder(full)
+    np.testing.assert_allclose(art.trajectory.positions, sim.groundtruth.positions, atol=1e-9)
+    assert art.lines3d is not None
+    np.testing.assert_allclose(art.lines3d.starts, lines.starts, atol=1e-9)
+    assert art.images == tmp_path / "frames" and art.user_mask == full / "mask.png"
+    tracks = art.read_tracks()
+    assert tracks is not None
+    np.testing.assert_array_equal(tracks.obs_frame, sim.tracks.obs_frame)
+
+    empty = InitFolder(bare).load()
+    assert empty.lines3d is None and empty.images is None and empty.user_mask is None
+    assert empty.read_tracks() is None
+    (bare / "trajectory.tum").unlink()
+    with pytest.raises(OmniSfmError, match="trajectory.tum"):
+        InitFolder(bare).load()

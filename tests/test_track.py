@@ -1,4 +1,4 @@
-"""Online poses (``omni_sfm.online``, ``omni-sfm track``): causal accuracy on rendered
+"""Online poses (``omni_sfm.estimate.online``, ``omni-sfm track``): causal accuracy on rendered
 sequences, statuses on simulated lines (lost, rotation-only, relocalised), bounded state, the
 command's outputs, a video read as a stream, Ctrl-C and bad input.
 
@@ -19,23 +19,22 @@ from helpers import assert_one_line_error
 
 from omni_sfm.cameras import load_camera
 from omni_sfm.cli import main
-from omni_sfm.evaluate import trajectory_errors
-from omni_sfm.lines.video import Frame
-from omni_sfm.online import (
+from omni_sfm.estimate.online import (
     OnlineEstimator,
     OnlineOptions,
     Status,
     TrackedPose,
-    Tracker,
     poses_trajectory,
 )
+from omni_sfm.evaluate import trajectory_errors
+from omni_sfm.frames import Frame
+from omni_sfm.pipelines.track import Tracker
 from omni_sfm.poses import read_tum
 from omni_sfm.synth.render import RenderOptions
 from omni_sfm.synth.simulate import SimulationOptions, simulate_manhattan
 
 START = OnlineOptions().start_frames
 """Frames before the first pose: the start's buffer."""
-CORRIDOR = RenderOptions(camera="hyperboloid", frames=40, seed=1)
 """The corridor of tests/test_init_images.py (shared render): 800 x 600, 1.5 m in 40 frames."""
 
 
@@ -47,19 +46,14 @@ def _track(seq: Path, frames: int | None = None) -> list[TrackedPose]:
 
 
 @pytest.fixture(scope="module")
-def corridor(rendered) -> Path:
-    return rendered(CORRIDOR).output
-
-
-@pytest.fixture(scope="module")
 def corridor_poses(corridor) -> list[TrackedPose]:
     return _track(corridor)
 
 
 @pytest.mark.parametrize("which", ["hyperboloid", "equirectangular"])
-def test_causal_accuracy_on_rendered_corridors(which, corridor_poses, rendered):
+def test_causal_accuracy_on_rendered_corridors(which, corridor, corridor_poses, rendered):
     if which == "hyperboloid":
-        seq, poses = rendered(CORRIDOR).output, corridor_poses
+        seq, poses = corridor, corridor_poses
     else:
         seq = rendered(RenderOptions(camera="equirectangular", frames=40, width=800, height=400,
                                      seed=2)).output
@@ -269,7 +263,7 @@ def test_video_read_as_a_stream_gives_the_folder_poses(corridor, corridor_poses,
 
 def test_ctrl_c_ends_cleanly_with_the_poses_so_far(corridor, corridor_poses, tmp_path,
                                                    monkeypatch, capsys):
-    import omni_sfm.lines.video as video
+    import omni_sfm.frames as frames_mod
 
     n = START + 1
     files = sorted((corridor / "images").glob("*.png"))
@@ -279,7 +273,7 @@ def test_ctrl_c_ends_cleanly_with_the_poses_so_far(corridor, corridor_poses, tmp
             yield Frame(k, float(k), cv2.imread(str(f), cv2.IMREAD_UNCHANGED))
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(video, "read_frames", frames)
+    monkeypatch.setattr(frames_mod, "read_frames", frames)
     out = tmp_path / "out"
     assert main(["track", "--images", str(corridor / "images"), "--camera",
                  str(corridor / "camera.yaml"), "-o", str(out)]) == 130

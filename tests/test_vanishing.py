@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from omni_sfm.errors import OmniSfmError
+from omni_sfm.geometry import smallest_eigenvector_3x3
 from omni_sfm.lines.tracks import LineTracks, make_tracks
 from omni_sfm.synth.simulate import Simulation, SimulationOptions, simulate
 from omni_sfm.vanishing import (
@@ -14,7 +15,7 @@ from omni_sfm.vanishing import (
     detect_parallel_families,
     detect_parallel_family,
 )
-from omni_sfm.vanishing._groups import SortedMultiset, smallest_eigvec3
+from omni_sfm.vanishing._groups import SortedMultiset
 from omni_sfm.vanishing._triples import triple_eigs
 
 
@@ -160,7 +161,7 @@ def test_closed_form_eigen_helpers_match_numpy() -> None:
     ref = np.linalg.eigvalsh(S)
     np.testing.assert_allclose(lam_min, ref[:, 0], atol=1e-12)
     np.testing.assert_allclose(lam_mid, ref[:, 1], atol=1e-12)
-    vec = smallest_eigvec3(S)
+    vec = smallest_eigenvector_3x3(S)
     ref_vec = np.linalg.eigh(S)[1][:, :, 0]
     np.testing.assert_allclose(np.abs(np.sum(vec * ref_vec, 1)), 1.0, atol=1e-9)
 

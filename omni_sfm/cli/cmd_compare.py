@@ -40,6 +40,7 @@ def run(args: argparse.Namespace) -> int:
     from omni_sfm.cameras import load_camera
     from omni_sfm.compare import compare, parse_initializer_names, sequence_from_frames
     from omni_sfm.fileio import check_output_dir
+    from omni_sfm.folders import CompareFolder
     from omni_sfm.poses import read_tum
 
     names = parse_initializer_names(args.initializers)
@@ -58,5 +59,5 @@ def run(args: argparse.Namespace) -> int:
                   f"{e['time_s']:.1f} s")
         else:
             print(f"{name}: failed: {e.get('reason', '')}")
-    print(f"wrote {res.output / 'results.json'} and report.md")
+    print(f"wrote {res.output / CompareFolder.RESULTS} and {CompareFolder.REPORT_MD}")
     return 0

@@ -23,7 +23,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from omni_sfm.demo import run_demo
+    from omni_sfm.pipelines.demo import run_demo
 
     t0 = time.perf_counter()
     res = run_demo(args.output, camera=args.camera, frames=args.frames, seed=args.seed)

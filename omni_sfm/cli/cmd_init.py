@@ -2,7 +2,7 @@
 
 Two input modes, mutually exclusive: ``--tracks FILE`` (tracked line normals, ``tracks.json``)
 runs the estimator alone; ``--images PATH --camera FILE`` (an image folder or a video) runs the
-line front end first (:func:`omni_sfm.initialize.init_from_images`). Both share
+line front end first (:func:`omni_sfm.pipelines.init.init_from_images`). Both share
 :func:`omni_sfm.estimate.pipeline.estimate_poses` and
 :func:`omni_sfm.estimate.pipeline.write_init_outputs`.
 """
@@ -163,8 +163,8 @@ def run(args: argparse.Namespace) -> int:
     estimation = EstimationOptions(refine=not args.no_refine, progress=not args.quiet,
                                    workers=args.workers, estimator=args.estimator)
     if args.images is not None:
-        from omni_sfm.initialize import InitOptions, init_from_images
         from omni_sfm.lines.frontend import FrontEndOptions
+        from omni_sfm.pipelines.init import InitOptions, init_from_images
 
         if args.camera is None:
             raise OmniSfmError("--images needs --camera CAMERA_FILE (docs/cameras.md)")
@@ -227,7 +227,7 @@ def _extraction(args: argparse.Namespace) -> ExtractionOptions:
 def _run_plugin(args: argparse.Namespace) -> int:
     """``init --initializer NAME``: a plugin's poses as an init folder."""
     from omni_sfm.errors import OmniSfmError
-    from omni_sfm.initialize import init_with_initializer
+    from omni_sfm.pipelines.init import init_with_initializer
 
     if args.images is None or args.camera is None:
         raise OmniSfmError("--initializer needs --images PATH and --camera FILE")

@@ -1,10 +1,10 @@
 """``omni-sfm track``: online poses, frame by frame, no look-ahead (docs/track.md).
 
 Reads frames from an image folder, a video file, a camera device (an integer, ``0``) or a
-stream URL (anything with ``://``), all through :mod:`omni_sfm.lines.video`, and feeds them to
-:class:`omni_sfm.online.Tracker`; each pose is appended to ``OUTPUT/trajectory.tum`` as soon
-as it is known (:class:`omni_sfm.online.TrackOutput`). Ctrl-C ends it with everything so far
-written (exit code 130).
+stream URL (anything with ``://``), all through :mod:`omni_sfm.frames`, and feeds them to
+:class:`omni_sfm.pipelines.track.Tracker`; each pose is appended to ``OUTPUT/trajectory.tum``
+as soon as it is known (:class:`omni_sfm.pipelines.track_output.TrackOutput`). Ctrl-C ends it
+with everything so far written (exit code 130).
 """
 
 from __future__ import annotations
@@ -55,9 +55,11 @@ def run(args: argparse.Namespace) -> int:
 
     from omni_sfm.cameras import load_camera
     from omni_sfm.errors import OmniSfmError
+    from omni_sfm.estimate.online import Status
     from omni_sfm.fileio import check_output_dir
-    from omni_sfm.lines.video import is_stream, read_frames, read_mask, read_stream
-    from omni_sfm.online import Status, Tracker, TrackOutput
+    from omni_sfm.frames import is_stream, read_frames, read_mask, read_stream
+    from omni_sfm.pipelines.track import Tracker
+    from omni_sfm.pipelines.track_output import TrackOutput
 
     if args.frames is not None and args.frames < 1:
         raise OmniSfmError(f"--frames must be at least 1, got {args.frames}")
@@ -98,7 +100,7 @@ def run(args: argparse.Namespace) -> int:
     lat = np.asarray(latency)
     text = (f"track: {len(lat)} frames{' (interrupted)' if interrupted else ''}: "
             + ", ".join(f"{n} {s}" for s, n in counts.items() if n)
-            + f"; {out.poses} poses -> {args.output / 'trajectory.tum'}"
+            + f"; {out.poses} poses -> {out.path(0)}"
             + (" and trajectory_segment_*.tum" if counts[Status.RELOCALISED] else "")
             + f"; latency median {np.median(lat):.1f} ms, 95th percentile "
               f"{np.percentile(lat, 95):.1f} ms")
@@ -110,11 +112,12 @@ def run(args: argparse.Namespace) -> int:
 
 def _offline(args: argparse.Namespace, images: Path, frames: int, camera: Any) -> None:
     """``init --lines`` on the first ``frames`` frames of ``images`` into OUTPUT/offline."""
-    from omni_sfm.initialize import InitOptions, init_from_images
+    from omni_sfm.folders import InitFolder
+    from omni_sfm.pipelines.init import InitOptions, init_from_images
 
     where = args.output / "offline"
     res = init_from_images(images, camera, where, InitOptions(end=frames, progress=False),
                            mask=args.mask, overwrite=True,
                            warn=lambda w: print(f"offline: warning: {w}", file=sys.stderr))
-    print(f"offline: {len(res.image_names)} of {frames} frames -> {where / 'trajectory.tum'}",
+    print(f"offline: {len(res.image_names)} of {frames} frames -> {where / InitFolder.TRAJECTORY}",
           file=sys.stderr if args.stream else sys.stdout, flush=True)

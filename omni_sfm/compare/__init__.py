@@ -2,7 +2,7 @@
 
 An *initializer* is a plugin registered in the entry-point group ``omni_sfm.initializers``
 (:mod:`omni_sfm.registry`): a callable ``(sequence: SequenceInput, options: dict) ->
-InitializerResult`` (the contract: :mod:`omni_sfm.initializer`, docs/plugins.md). The core
+InitializerResult`` (the contract: :mod:`omni_sfm.plugin_contract`, docs/plugins.md). The core
 never imports one by name. omni-sfm ships four (package ``omni_sfm_plugins.initializers``):
 ``lines``, ``five-point``, ``colmap`` and ``upright-3pt`` (docs/comparison.md).
 
@@ -42,7 +42,7 @@ from omni_sfm.compare.runner import (
     parse_initializer_names,
     run_comparison,
 )
-from omni_sfm.initializer import (  # the contract, importable from here too
+from omni_sfm.plugin_contract import (  # the contract, importable from here too
     Initializer,
     InitializerResult,
     PointObservations,

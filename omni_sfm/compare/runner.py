@@ -17,7 +17,7 @@ from omni_sfm.errors import OmniSfmError
 from omni_sfm.evaluate import associate
 from omni_sfm.fileio import atomic_output_dir, atomic_write_text, dumps_json
 from omni_sfm.folders import CompareFolder
-from omni_sfm.initializer import (
+from omni_sfm.plugin_contract import (
     InitializerResult,
     SequenceInput,
     run_initializer,
@@ -120,7 +120,7 @@ def run_comparison(sequence: SequenceInput, gt: Trajectory, names: Sequence[str]
 def _reflection_nearer(traj: Trajectory, gt: Trajectory) -> tuple[Trajectory, str | None]:
     """For normals-only results: the reflection branch nearer the ground truth, and a note
     when it is the reflected one."""
-    from omni_sfm.estimate.pipeline import match_reflection
+    from omni_sfm.evaluate import match_reflection
 
     try:
         chosen = match_reflection(traj, gt)

@@ -53,20 +53,15 @@ from omni_sfm.fileio import (
     stored_path,
 )
 from omni_sfm.folders import (
-    CAMERA_FILE,
-    LINES_FILE,
-    REPORT_FILE,
-    TRAJECTORY_FILE,
-    USER_MASK_FILE,
     DenseFolder,
     InitFolder,
     StageFolder,
     carry_forward,
     images_for,
 )
+from omni_sfm.frames import FrameStore
 from omni_sfm.geometry import FloatArray, normalize
 from omni_sfm.libs import open3d_module
-from omni_sfm.lines.video import FrameStore
 from omni_sfm.lines3d import LineSegments3D, write_lines3d
 from omni_sfm.poses import Trajectory, write_tum
 
@@ -211,7 +206,7 @@ def read_dense_input(poses_dir: Path, images: Path | None = None,
     poses_dir = Path(poses_dir)
     if not poses_dir.is_dir():
         raise OmniSfmError(f"{poses_dir}: poses folder not found")
-    tum = poses_dir / TRAJECTORY_FILE
+    tum = poses_dir / StageFolder.TRAJECTORY
     if not tum.is_file():
         raise OmniSfmError(f"{tum}: no trajectory (need the output folder of init or refine)")
     owner = StageFolder(poses_dir)
@@ -668,13 +663,13 @@ def write_dense(output: Path, inp: DenseInput, res: DenseResult, *, overwrite: b
             raise OmniSfmError(f"{output}: Open3D could not write dense.ply")
         if not o3d.io.write_triangle_mesh(str(tmp / DenseFolder.MESH), res.mesh):
             raise OmniSfmError(f"{output}: Open3D could not write mesh.ply")
-        write_tum(tmp / TRAJECTORY_FILE, res.trajectory)
-        write_camera_yaml(tmp / CAMERA_FILE, inp.camera)
+        write_tum(tmp / StageFolder.TRAJECTORY, res.trajectory)
+        write_camera_yaml(tmp / DenseFolder.CAMERA, inp.camera)
         if inp.lines is not None:
-            write_lines3d(tmp / LINES_FILE, inp.lines.scaled(res.scale))
+            write_lines3d(tmp / DenseFolder.LINES3D, inp.lines.scaled(res.scale))
         if poses_dir is not None:
-            carry_forward(poses_dir, tmp, (USER_MASK_FILE,))
-        atomic_write_text(tmp / REPORT_FILE, dumps_json(report))
+            carry_forward(poses_dir, tmp, (DenseFolder.MASK,))
+        atomic_write_text(tmp / DenseFolder.REPORT, dumps_json(report))
 
 
 def run_dense(poses_dir: Path, images: Path | None, output: Path,

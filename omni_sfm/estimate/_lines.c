@@ -68,7 +68,7 @@ static double residual(const double *B, const double u[3], double n[3], double e
     return nu;
 }
 
-/* robust cost rho(s) and IRLS weight of a squared norm s (bundle.loss_weights) */
+/* robust cost rho(s) and IRLS weight of a squared norm s (omni_sfm.solver.loss_weights) */
 static void loss(double s, int kind, double scale, double *rho, double *w)
 {
     double f2 = scale * scale;

@@ -26,7 +26,7 @@ except ImportError as exc:  # pragma: no cover - a source tree without the insta
         "install omni-sfm with `make setup` or `pip install -e .` (needs a C compiler)") from exc
 
 LOSS_CODES = {"linear": 0, "huber": 1, "cauchy": 2}
-"""The robust losses by name (``bundle.RobustLoss`` values) as the kernel numbers them."""
+"""The robust losses by name (``solver.RobustLoss`` values) as the kernel numbers them."""
 
 
 def _f64(a: np.ndarray) -> np.ndarray:

@@ -19,7 +19,7 @@ import numpy as np
 from omni_sfm.cameras.base import CameraModel, ColmapExport
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.fileio import BackgroundWrites
-from omni_sfm.folders import CAMERA_FILE, TRAJECTORY_FILE, InitFolder
+from omni_sfm.folders import InitArtifacts, InitFolder
 from omni_sfm.geometry import FloatArray
 from omni_sfm.poses import Trajectory
 
@@ -98,11 +98,6 @@ def projection_centres(reconstruction: Any) -> dict[str, FloatArray]:
 
 # --- the init model layout (written by ``omni-sfm init``, read by ``omni-sfm refine``) ---------
 
-# the names are InitFolder's (omni_sfm.folders), the one place the folder's files are named
-SPARSE_DIR = InitFolder.SPARSE
-IMAGES_DIR = InitFolder.COLMAP_IMAGES
-MANIFEST_FILE = InitFolder.MANIFEST
-MASK_FILE = InitFolder.COLMAP_MASK
 MASK_EROSION_PX = 3
 
 
@@ -132,18 +127,30 @@ class InitModel:
     """An init directory read back (see :func:`write_init_model`).
 
     Attributes:
-        camera: the omni-sfm camera the poses refer to (``camera.yaml``).
-        trajectory: ``(N,)`` poses world_from_cam of our ray frame (``trajectory.tum``).
+        artifacts: the folder's artifacts (:meth:`omni_sfm.folders.InitFolder.load`): the
+            camera, the poses, the 3D lines, the recorded frames and mask.
         image_names: ``(N,)`` image name of each pose, in trajectory order.
         reconstruction: the ``pycolmap.Reconstruction`` of ``sparse/``.
-        directory: the init directory.
     """
 
-    camera: CameraModel
-    trajectory: Trajectory
+    artifacts: InitArtifacts
     image_names: tuple[str, ...]
     reconstruction: Any
-    directory: Path
+
+    @property
+    def camera(self) -> CameraModel:
+        """The omni-sfm camera the poses refer to (``camera.yaml``)."""
+        return self.artifacts.camera
+
+    @property
+    def trajectory(self) -> Trajectory:
+        """``(N,)`` poses world_from_cam of our ray frame (``trajectory.tum``)."""
+        return self.artifacts.trajectory
+
+    @property
+    def directory(self) -> Path:
+        """The init directory."""
+        return Path(self.artifacts.folder.path)
 
 
 class ColmapImages:
@@ -159,7 +166,7 @@ class ColmapImages:
 
     def __init__(self, directory: Path, camera: CameraModel,
                  name_of: Callable[[int], str], *, background: bool = False) -> None:
-        self.directory = Path(directory) / IMAGES_DIR
+        self.directory = Path(directory) / InitFolder.COLMAP_IMAGES
         self.export = camera.colmap_export()
         self.name_of = name_of
         self.written: list[str] = []
@@ -244,11 +251,11 @@ def write_init_model(directory: Path, camera: CameraModel, traj: Trajectory,
         if not n or Path(n).is_absolute() or ".." in Path(n).parts:
             raise OmniSfmError(f"image name {n!r} must be a relative path inside the folder")
     seed = build_reconstruction(camera, traj, names)
-    write_reconstruction(seed, directory / SPARSE_DIR, text=text)
-    write_camera_yaml(directory / CAMERA_FILE, camera)
-    write_colmap_mask(directory / MASK_FILE, camera)
-    if not (directory / TRAJECTORY_FILE).exists():
-        write_tum(directory / TRAJECTORY_FILE, traj)
+    write_reconstruction(seed, directory / InitFolder.SPARSE, text=text)
+    write_camera_yaml(directory / InitFolder.CAMERA, camera)
+    write_colmap_mask(directory / InitFolder.COLMAP_MASK, camera)
+    if not (directory / InitFolder.TRAJECTORY).exists():
+        write_tum(directory / InitFolder.TRAJECTORY, traj)
     manifest = {
         "image_names": names,
         "timestamps": traj.timestamps,
@@ -257,7 +264,7 @@ def write_init_model(directory: Path, camera: CameraModel, traj: Trajectory,
         "flip_u": seed.export.flip_u,
         "note": "image id k+1 in sparse/ is row k of trajectory.tum; COLMAP sees images_colmap/",
     }
-    atomic_write_text(directory / MANIFEST_FILE, dumps_json(manifest))
+    atomic_write_text(directory / InitFolder.MANIFEST, dumps_json(manifest))
     if images is not None:
         writer = ColmapImages(directory, camera, str)
         count = 0
@@ -276,23 +283,21 @@ def read_init_model(directory: Path) -> InitModel:
     the camera has no exact COLMAP model."""
     import pycolmap
 
-    from omni_sfm.cameras import load_camera
     from omni_sfm.fileio import read_json
-    from omni_sfm.poses import read_tum
 
     directory = Path(directory)
     if not directory.is_dir():
         raise OmniSfmError(f"{directory}: init directory not found")
-    sparse = directory / SPARSE_DIR
+    sparse = directory / InitFolder.SPARSE
     if not (sparse / "cameras.bin").is_file() and not (sparse / "cameras.txt").is_file():
         raise OmniSfmError(f"{sparse}: no COLMAP model (cameras.bin / cameras.txt) in the init "
                            "directory")
-    camera = load_camera(directory / CAMERA_FILE)
+    art = InitFolder(directory).load()
+    camera, traj = art.camera, art.trajectory
     try:
         export = camera.colmap_export()
     except OmniSfmError as exc:
-        raise OmniSfmError(f"{directory / CAMERA_FILE}: {exc}") from None
-    traj = read_tum(directory / TRAJECTORY_FILE)
+        raise OmniSfmError(f"{directory / InitFolder.CAMERA}: {exc}") from None
     try:
         rec = pycolmap.Reconstruction(str(sparse))
     except Exception as exc:  # pycolmap raises plain RuntimeError/ValueError on bad files
@@ -304,14 +309,14 @@ def read_init_model(directory: Path) -> InitModel:
             export.width, export.height):
         raise OmniSfmError(
             f"{sparse}: camera {cam.model_name} {cam.width}x{cam.height} differs from "
-            f"{directory / CAMERA_FILE} ({export.camera.model_name} "
+            f"{directory / InitFolder.CAMERA} ({export.camera.model_name} "
             f"{export.width}x{export.height})")
     ids = sorted(rec.images)
     if ids != list(range(1, len(traj) + 1)):
         raise OmniSfmError(f"{sparse}: image ids must be 1..{len(traj)} (one per pose of "
-                           f"{directory / TRAJECTORY_FILE}), got {len(ids)} images")
+                           f"{directory / InitFolder.TRAJECTORY}), got {len(ids)} images")
     names = tuple(rec.images[i].name for i in ids)
-    manifest_path = directory / MANIFEST_FILE
+    manifest_path = directory / InitFolder.MANIFEST
     if manifest_path.is_file():
         manifest = read_json(manifest_path, "COLMAP manifest")
         if list(manifest.get("image_names", [])) != list(names):
@@ -319,8 +324,8 @@ def read_init_model(directory: Path) -> InitModel:
     centres = np.asarray([rec.images[i].projection_center() for i in ids])
     if not np.allclose(centres, traj.positions, atol=1e-6 * max(1.0, traj.path_length())):
         raise OmniSfmError(f"{sparse}: projection centres differ from the camera centres in "
-                           f"{directory / TRAJECTORY_FILE}")
-    return InitModel(camera, traj, names, rec, directory)
+                           f"{directory / InitFolder.TRAJECTORY}")
+    return InitModel(art, names, rec)
 
 
 def seed_for_database(camera: CameraModel, traj: Trajectory, image_names: Sequence[str],

@@ -15,8 +15,6 @@ _LAZY = {
     "FrontEndOptions": "omni_sfm.lines.frontend",
     "FrontEndResult": "omni_sfm.lines.frontend",
     "track_lines": "omni_sfm.lines.frontend",
-    "read_frames": "omni_sfm.lines.video",
-    "read_mask": "omni_sfm.lines.video",
     "write_debug_view": "omni_sfm.lines.debug",
 }
 

@@ -30,6 +30,7 @@ import numpy as np
 
 from omni_sfm.cameras.base import CameraModel
 from omni_sfm.errors import OmniSfmError
+from omni_sfm.frames import to_gray
 from omni_sfm.geometry import completion_towards, smallest_eigenvector
 from omni_sfm.lines.extract import (
     ExtractedLines,
@@ -37,7 +38,6 @@ from omni_sfm.lines.extract import (
     LineExtractor,
     angular_pixel_scale,
 )
-from omni_sfm.lines.video import to_gray
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -20,9 +20,9 @@ from tqdm import tqdm
 from omni_sfm.cameras.base import CameraModel
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.fileio import BackgroundWrites
+from omni_sfm.frames import to_gray
 from omni_sfm.geometry import FloatArray
 from omni_sfm.lines.frontend import FrontEndResult
-from omni_sfm.lines.video import to_gray
 
 # BGR, matplotlib's tab10 order: blue, orange, green, red, purple, brown, pink, olive, cyan
 PALETTE = np.array([[180, 119, 31], [14, 127, 255], [44, 160, 44], [40, 39, 214],

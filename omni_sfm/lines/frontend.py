@@ -3,7 +3,7 @@
 ``track_lines(frames, camera, options, mask)`` extracts the lines of every frame
 (:mod:`omni_sfm.lines.extract`), tracks them from frame to frame (:mod:`omni_sfm.lines.track`)
 and returns a :class:`FrontEndResult` whose ``tracks`` (:class:`LineTracks`) the parallel-line
-detection and the estimator consume. Frames come from :func:`omni_sfm.lines.video.read_frames`
+detection and the estimator consume. Frames come from :func:`omni_sfm.frames.read_frames`
 or any iterable of ``(index, timestamp, image)``.
 """
 
@@ -21,11 +21,11 @@ from tqdm import tqdm
 
 from omni_sfm.cameras.base import CameraModel
 from omni_sfm.errors import OmniSfmError
+from omni_sfm.frames import to_gray
 from omni_sfm.geometry import FloatArray, normalize
 from omni_sfm.lines.extract import ExtractedLines, ExtractionOptions, LineExtractor
 from omni_sfm.lines.track import LineTracker, TrackingOptions
 from omni_sfm.lines.tracks import LineTracks, make_tracks
-from omni_sfm.lines.video import to_gray
 from omni_sfm.lines.workers import ExtractionWorkers, extract_timed
 
 IntArray = np.ndarray
@@ -93,7 +93,7 @@ class FrontEndResult:
             ``track_cpu``: CPU time of the calling thread (equal to the work done when OpenCV
             runs single-threaded, ``cv2.setNumThreads(1)``, whatever the machine's load).
         frames_skipped: source indices of frames skipped: not decoded, damaged or of another
-            size (:class:`~omni_sfm.lines.video.FrameSource`).
+            size (:class:`~omni_sfm.frames.FrameSource`).
         frames_skipped_reasons: why, one line for each of ``frames_skipped``.
         median_grey: ``(F,)`` median grey level of each frame inside the mask (0-255).
         contrast: ``(F,)`` spread of each frame's grey levels (mostly the 5th to 95th
@@ -319,7 +319,7 @@ def track_lines(frames: Iterable[tuple[int, float, np.ndarray]], camera: CameraM
 
     Args:
         frames: ``(index, timestamp, image)`` in order, e.g. a
-            :class:`~omni_sfm.lines.video.FrameSource`; its ``skipped`` list and
+            :class:`~omni_sfm.frames.FrameSource`; its ``skipped`` list and
             ``skip_reasons`` (if any) are reported in ``frames_skipped`` and
             ``frames_skipped_reasons``.
         camera: the calibrated camera; images must be ``camera.width x camera.height``.

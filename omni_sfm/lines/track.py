@@ -145,10 +145,10 @@ class _LineRecord:
 class LineTracker:
     """Feed frames in order with :meth:`add_frame`; :meth:`finish` returns the tracks.
 
-    ``record=False`` (online use, :mod:`omni_sfm.online`): only what the next frames' tracking
-    needs is kept (the last ``max_gap_frames + 1`` frames), so memory does not grow with the
-    number of frames; pieces of one line are not joined into one track afterwards (the ids
-    :meth:`add_frame` returns are final) and :meth:`finish` is not available.
+    ``record=False`` (online use, :mod:`omni_sfm.pipelines.track`): only what the next frames'
+    tracking needs is kept (the last ``max_gap_frames + 1`` frames), so memory does not grow
+    with the number of frames; pieces of one line are not joined into one track afterwards (the
+    ids :meth:`add_frame` returns are final) and :meth:`finish` is not available.
     """
 
     def __init__(self, options: TrackingOptions | None = None, *, record: bool = True) -> None:

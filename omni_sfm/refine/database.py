@@ -26,8 +26,8 @@ import numpy as np
 from omni_sfm.cameras.base import CameraModel, ColmapExport
 from omni_sfm.corners import CornerTrackOptions, CornerTracks, track_corners
 from omni_sfm.errors import OmniSfmError
+from omni_sfm.frames import FrameStore
 from omni_sfm.geometry import angle_between
-from omni_sfm.lines.video import FrameStore
 from omni_sfm.poses import Trajectory
 from omni_sfm.refine.guided import FrameKeypoints, GuidedMatchOptions, match_pair
 

@@ -23,8 +23,8 @@ squares on the inliers.
 
 Parameters: 6 per camera (``R <- R exp([w]x)``, ``c <- c + dc``), 4 per line (as the line
 adjustment), 3 per point. Gauge: the first camera's pose and one coordinate of the centre
-farthest from it are held (:func:`omni_sfm.estimate.bundle.gauge`), so the input's world and
-scale are kept. Solver: :func:`omni_sfm.estimate.bundle.levenberg_marquardt`; each step
+farthest from it are held (:func:`omni_sfm.solver.gauge`), so the input's world and
+scale are kept. Solver: :func:`omni_sfm.solver.levenberg_marquardt`; each step
 eliminates the lines and points (4x4 and 3x3 blocks) and solves the reduced ``6F x 6F``
 camera system: formed and factored up to ``iterative_above`` frames (dense Cholesky up to
 4,000 unknowns, sparse LU above), by conjugate gradients with a two-level preconditioner
@@ -43,17 +43,10 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from omni_sfm.errors import OmniSfmError
-from omni_sfm.estimate.bundle import (
-    LineProblem,
-    RobustLoss,
-    damped,
-    gauge,
-    levenberg_marquardt,
-    observation_distance_ratio,
-    robust_sigma,
-)
+from omni_sfm.estimate.bundle import LineProblem, observation_distance_ratio
 from omni_sfm.geometry import FloatArray, cross3, normalize, orthonormal_completion
 from omni_sfm.lines.tracks import LineTracks
+from omni_sfm.solver import RobustLoss, damped, gauge, levenberg_marquardt, robust_sigma
 
 _DENSE_MAX = 4000
 _CHUNK = 32768
@@ -175,7 +168,7 @@ class JointOptions:
     (rotation 0.0735 against 0.0739 deg mean after 8). 0: off."""
     step_tolerance: float = 0.2
     """A solve also ends when a step (damped by at most 1e-7) moves the cameras by at most this
-    many of their standard deviations (:class:`omni_sfm.estimate.bundle.StepDistance`:
+    many of their standard deviations (:class:`omni_sfm.solver.StepDistance`:
     ``sqrt(dp^T S dp)`` with ``S`` the cameras' information, every landmark eliminated; no
     camera, nor any combination of cameras, moved by more than that share of its
     uncertainty). The rule of :attr:`pose_tolerance` in the data's own units: a long walk's
@@ -418,7 +411,7 @@ class _JointProblem:
 
     def step_distance(self) -> float:
         """The last step (:meth:`solve`) of the cameras in their standard deviations
-        (:class:`omni_sfm.estimate.bundle.StepDistance`; the damped system it solved, so
+        (:class:`omni_sfm.solver.StepDistance`; the damped system it solved, so
         that with the little damping the stop asks for, the undamped one)."""
         return self.last_distance
 

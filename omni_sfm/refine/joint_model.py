@@ -10,7 +10,6 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -18,9 +17,9 @@ import numpy as np
 from omni_sfm.cameras.base import CameraModel, ColmapExport
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.export.colmap import set_colmap_poses, trajectory_from_reconstruction
-from omni_sfm.folders import InitFolder
+from omni_sfm.folders import InitArtifacts
 from omni_sfm.geometry import FloatArray, rotation_angle
-from omni_sfm.lines.tracks import LineTracks, read_tracks
+from omni_sfm.lines.tracks import LineTracks
 from omni_sfm.lines3d import LineSegments3D
 from omni_sfm.poses import Trajectory
 from omni_sfm.refine.joint import JointOptions, JointResult, PointObservations, joint_adjust
@@ -40,16 +39,17 @@ class LineEvidence:
     """The init's ``lines3d.json``."""
 
 
-def read_line_evidence(init_dir: Path, traj: Trajectory) -> LineEvidence | str:
-    """The line evidence an init folder holds for the poses ``traj`` (its trajectory), or why
-    there is none (the folder lacks ``tracks.json`` or ``lines3d.json``, or they do not fit)."""
-    folder = InitFolder(Path(init_dir))
+def read_line_evidence(init: InitArtifacts) -> LineEvidence | str:
+    """The line evidence an init folder holds for its poses, or why there is none (the folder
+    lacks ``tracks.json`` or ``lines3d.json``, or they do not fit)."""
+    folder, traj = init.folder, init.trajectory
     if not (folder / folder.TRACKS).is_file():
         return f"the init folder has no {folder.TRACKS}"
-    lines = folder.read_lines3d()
+    lines = init.lines3d
     if lines is None or lines.track_ids is None or len(lines) == 0:
         return f"the init folder has no estimated 3D lines ({folder.LINES3D})"
-    tracks = read_tracks(folder / folder.TRACKS)
+    tracks = init.read_tracks()
+    assert tracks is not None
     ts = tracks.timestamps
     k = np.searchsorted(ts, traj.timestamps)
     k = np.clip(k, 0, len(ts) - 1)

@@ -53,10 +53,6 @@ from omni_sfm.cameras import write_camera_yaml
 from omni_sfm.corners import CornerTrackOptions
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.export.colmap import (
-    IMAGES_DIR,
-    MASK_FILE,
-    SPARSE_DIR,
-    TRAJECTORY_FILE,
     InitModel,
     read_init_model,
     seed_for_database,
@@ -72,17 +68,14 @@ from omni_sfm.fileio import (
     stored_path,
 )
 from omni_sfm.folders import (
-    CAMERA_FILE,
-    LINES_FILE,
-    REPORT_FILE,
-    USER_MASK_FILE,
+    InitFolder,
     RefineFolder,
     carry_forward,
     images_for,
 )
+from omni_sfm.frames import FrameStore, read_mask
 from omni_sfm.geometry import FloatArray, rotation_angle
 from omni_sfm.libs import library_logging
-from omni_sfm.lines.video import FrameStore, read_mask
 from omni_sfm.lines3d import write_lines3d
 from omni_sfm.poses import Trajectory, write_tum
 from omni_sfm.refine.database import (
@@ -104,8 +97,6 @@ from omni_sfm.refine.joint_model import (
 )
 from omni_sfm.refine.triangulation import triangulate_seeded
 from omni_sfm.transforms import Similarity, similarity_from_poses
-
-DATABASE_FILE = RefineFolder.DATABASE
 
 
 def klt_tracking(max_corners: int) -> CornerTrackOptions:
@@ -387,7 +378,7 @@ def refine(init_dir: Path, images: Path | None, output: Path,
     init = read_init_model(init_dir)
     frames = FrameStore(images_dir)
     all_names = list(frames.names)
-    check_image_names(images_dir, all_names, init.image_names, init_dir / SPARSE_DIR)
+    check_image_names(images_dir, all_names, init.image_names, init_dir / InitFolder.SPARSE)
     posed = set(init.image_names)
     unposed = [n for n in all_names if n not in posed]
     stages = _Stages(["images", "features", "matching", "triangulation", "mapper",
@@ -396,7 +387,7 @@ def refine(init_dir: Path, images: Path | None, output: Path,
     report: dict[str, Any] = {
         "input": {"init": stored_path(init_dir, output),
                   "images": stored_path(images_dir, output),
-                  "database": stored_path(database, output) if database else DATABASE_FILE},
+                  "database": stored_path(database, output) if database else RefineFolder.DATABASE},
         "camera": {"model": init.camera.model, "colmap_model": export.camera.model_name,
                    "image_mirrored_for_colmap": export.flip_u},
         "frames": {"input_poses": len(init.trajectory), "images_in_folder": len(all_names),
@@ -407,14 +398,14 @@ def refine(init_dir: Path, images: Path | None, output: Path,
         with library_logging(verbose), atomic_output_dir(output, overwrite=overwrite,
                                inputs=(init_dir, images_dir, database)) as tmp:
             run = _Run(o, init, init_dir, frames, all_names, unposed, tmp,
-                       Path(database) if database else tmp / DATABASE_FILE, stages, report,
+                       Path(database) if database else tmp / RefineFolder.DATABASE, stages, report,
                        progress)
             rec, seed, image_ids = run.colmap_model()
             obs0, trusted = run.bundle_adjustment(rec, image_ids)
             with stages.stage("acceptance and output"):
                 traj, refined = run.accept_and_write(rec, seed, image_ids, obs0, trusted)
             report["timings_s"] = dict(stages.times)
-            atomic_write_text(tmp / REPORT_FILE, dumps_json(report))
+            atomic_write_text(tmp / RefineFolder.REPORT, dumps_json(report))
     finally:
         stages.close()
     return RefineResult(output, traj, init.trajectory, refined, report)
@@ -453,25 +444,26 @@ class _Run:
         camera, db = init.camera, self.db_path
         export = camera.colmap_export()
         names = list(self.all_names) if self.register else list(init.image_names)
-        user_mask = read_mask(self.init_dir / USER_MASK_FILE, (camera.width, camera.height)) \
-            if (self.init_dir / USER_MASK_FILE).is_file() else None
+        mask_path = init.artifacts.user_mask
+        user_mask = None if mask_path is None else \
+            read_mask(mask_path, (camera.width, camera.height))
         work = tmp / ".work"
         work.mkdir()
+        images, colmap_mask = tmp / RefineFolder.COLMAP_IMAGES, tmp / RefineFolder.COLMAP_MASK
         with self.stages.stage("images"):
-            write_colmap_images(self.frames, tmp / IMAGES_DIR, names, export,
-                                progress=self.progress)
+            write_colmap_images(self.frames, images, names, export, progress=self.progress)
             self.frames.close()
-            write_colmap_mask(tmp / MASK_FILE, camera, o.mask_erosion_px, user_mask)
+            write_colmap_mask(colmap_mask, camera, o.mask_erosion_px, user_mask)
         klt = o.features == "klt"
         if klt:  # tracks run through the frames in the folder's order
             wanted = set(names)
             names = [n for n in self.all_names if n in wanted]
         with self.stages.stage("features"):
             if klt:
-                feats = track_features(db, tmp / IMAGES_DIR, tmp / MASK_FILE, names, export,
+                feats = track_features(db, images, colmap_mask, names, export,
                                        klt_tracking(o.max_corners))
             else:
-                feats = extract_features(db, tmp / IMAGES_DIR, tmp / MASK_FILE, names, export,
+                feats = extract_features(db, images, colmap_mask, names, export,
                                          max_features=o.max_features,
                                          num_threads=o.num_threads)
         report["features"] = {"source": o.features,
@@ -498,14 +490,14 @@ class _Run:
                      for n in init.image_names]
         with self.stages.stage("triangulation"):
             rec, self.reposed = triangulate_seeded(
-                seed.reconstruction, db, tmp / IMAGES_DIR, camera, export,
+                seed.reconstruction, db, images, camera, export,
                 max_error_px=o.max_reprojection_error_px,
                 min_angle_deg=o.min_triangulation_angle_deg)
         report["triangulation"] = model_statistics(rec)
         report["triangulation"]["frames_posed_again"] = list(self.reposed)
         with self.stages.stage("mapper"):
             rec, report["mapper"] = _register_missing(rec, self.register, self.unposed,
-                                                      db, tmp / IMAGES_DIR, o)
+                                                      db, images, o)
         shutil.rmtree(work, ignore_errors=True)
         return rec, seed, image_ids
 
@@ -541,7 +533,7 @@ class _Run:
     def _joint(self, rec: Any, image_ids: list[int]) -> dict[str, Any] | None:
         """The joint adjustment of lines and points on ``rec`` (its report), or None where the
         init folder has no line evidence or the adjustment fails (the reason reported)."""
-        lines = read_line_evidence(self.init_dir, self.init.trajectory)
+        lines = read_line_evidence(self.init.artifacts)
         if isinstance(lines, str):
             self.report["joint_adjustment"] = {"skipped": lines}
             return None
@@ -614,15 +606,15 @@ class _Run:
         final = _final_model(rec, seed.export, acc.alignment, image_ids, init, traj, added)
         report["model"] = model_statistics(final)
         report["summary"] = final.summary()
-        (tmp / SPARSE_DIR).mkdir()
-        final.write_binary(str(tmp / SPARSE_DIR))
+        (tmp / RefineFolder.SPARSE).mkdir()
+        final.write_binary(str(tmp / RefineFolder.SPARSE))
         if o.text:
-            final.write_text(str(tmp / SPARSE_DIR))
-        write_tum(tmp / TRAJECTORY_FILE, traj)
-        write_camera_yaml(tmp / CAMERA_FILE, init.camera)
+            final.write_text(str(tmp / RefineFolder.SPARSE))
+        write_tum(tmp / RefineFolder.TRAJECTORY, traj)
+        write_camera_yaml(tmp / RefineFolder.CAMERA, init.camera)
         if self.lines is not None and acc.alignment is not None:
             # the adjusted lines, in the output's world (carry_forward then skips the init's)
-            write_lines3d(tmp / LINES_FILE, adjusted_segments(*self.lines, acc.alignment))
+            write_lines3d(tmp / RefineFolder.LINES3D, adjusted_segments(*self.lines, acc.alignment))
             report["lines3d"] = "adjusted with the points (joint adjustment)"
         report["carried_from_input"] = carry_forward(self.init_dir, tmp)
         report["trajectory_frames"] = len(image_ids) + len(added)

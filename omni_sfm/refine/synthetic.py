@@ -14,9 +14,9 @@ import numpy as np
 from omni_sfm.cameras import load_camera
 from omni_sfm.export.colmap import write_init_model
 from omni_sfm.fileio import atomic_output_dir
-from omni_sfm.folders import TRAJECTORY_FILE, RenderFolder
+from omni_sfm.folders import InitFolder, RenderFolder
+from omni_sfm.frames import FrameStore
 from omni_sfm.geometry import rotvec_to_matrix
-from omni_sfm.lines.video import FrameStore
 from omni_sfm.poses import Trajectory, read_tum, write_tum
 
 
@@ -50,6 +50,6 @@ def write_perturbed_init(render_dir: Path, init_dir: Path, *, rotation_deg: floa
         traj = traj.subset(np.asarray(frames))
         names = [names[k] for k in np.asarray(frames)]
     with atomic_output_dir(Path(init_dir), overwrite=overwrite) as tmp:
-        write_tum(tmp / TRAJECTORY_FILE, traj)
+        write_tum(tmp / InitFolder.TRAJECTORY, traj)
         write_init_model(tmp, camera, traj, names)
     return traj

@@ -38,9 +38,9 @@ from omni_sfm.cameras import (
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.fileio import atomic_output_dir, atomic_write_text, dumps_json
 from omni_sfm.folders import RenderFolder
+from omni_sfm.frames import video_frame_name
 from omni_sfm.geometry import FloatArray
 from omni_sfm.libs import open3d_module
-from omni_sfm.lines.video import video_frame_name
 from omni_sfm.lines3d import write_lines3d
 from omni_sfm.poses import Trajectory, write_tum
 from omni_sfm.synth.effects import (

@@ -24,6 +24,7 @@ import numpy as np
 
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.fileio import atomic_write_text, dumps_json
+from omni_sfm.folders import SimulationFolder
 from omni_sfm.geometry import (
     FloatArray,
     line_plane_normals,
@@ -638,8 +639,9 @@ def write_simulation(directory: Path, sim: Simulation, opts: SimulationOptions) 
     """
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
-    write_tracks(directory / "tracks.json", sim.tracks)
-    write_tum(directory / "groundtruth.tum", sim.groundtruth)
+    folder = SimulationFolder(directory)
+    write_tracks(folder / folder.TRACKS, sim.tracks)
+    write_tum(folder / folder.GROUNDTRUTH, sim.groundtruth)
     lines = {
         "world": "first camera (world_from_cam of frame 0 is the identity)",
         "options": {k: (list(v) if isinstance(v, tuple) else v)
@@ -651,5 +653,5 @@ def write_simulation(directory: Path, sim: Simulation, opts: SimulationOptions) 
                                                   sim.line_directions, sim.parallel,
                                                   sim.outlier, strict=True)],
     }
-    atomic_write_text(directory / "lines.json", dumps_json(lines))
-    return [directory / n for n in ("tracks.json", "groundtruth.tum", "lines.json")]
+    atomic_write_text(folder / folder.LINES, dumps_json(lines))
+    return [folder / n for n in (folder.TRACKS, folder.GROUNDTRUTH, folder.LINES)]

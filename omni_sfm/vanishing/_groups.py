@@ -13,41 +13,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from omni_sfm.geometry import FloatArray
+from omni_sfm.geometry import FloatArray, smallest_eigenvector_3x3
 from omni_sfm.vanishing._observations import IntArray, ObsIndex
 
 if TYPE_CHECKING:
     from omni_sfm.vanishing import VanishingOptions
 
 _PAIRS = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))
-
-
-def smallest_eigvec3(S: FloatArray) -> FloatArray:
-    """Unit eigenvectors ``(K, 3)`` of the smallest eigenvalue of symmetric PSD ``S (K, 3, 3)``.
-
-    Closed form (much faster than a batched ``eigh`` for many small matrices): the eigenvalue
-    by the trigonometric formula, the vector as the largest cross product of two rows of
-    ``S - lambda I``.
-    """
-    a, b, c = S[:, 0, 0], S[:, 1, 1], S[:, 2, 2]
-    d, e, f = S[:, 0, 1], S[:, 0, 2], S[:, 1, 2]
-    tr = (a + b + c) / 3.0
-    a0, b0, c0 = a - tr, b - tr, c - tr
-    p = np.sqrt(np.maximum((a0 * a0 + b0 * b0 + c0 * c0 + 2.0 * (d * d + e * e + f * f)) / 6.0,
-                           1e-200))
-    det = a0 * (b0 * c0 - f * f) - d * (d * c0 - f * e) + e * (d * f - b0 * e)
-    th = np.arccos(np.clip(det / (2.0 * p ** 3), -1.0, 1.0)) / 3.0
-    lam = tr + 2.0 * p * np.cos(th + 2.0 * np.pi / 3.0)
-    a1, b1, c1 = a - lam, b - lam, c - lam
-    # rows r0 = (a1, d, e), r1 = (d, b1, f), r2 = (e, f, c1) and their cross products
-    x01 = np.stack([d * f - e * b1, e * d - a1 * f, a1 * b1 - d * d], 1)
-    x02 = np.stack([d * c1 - e * f, e * e - a1 * c1, a1 * f - d * e], 1)
-    x12 = np.stack([b1 * c1 - f * f, f * e - d * c1, d * f - b1 * e], 1)
-    cand = np.stack([x01, x02, x12], 1)
-    norms = np.einsum("kij,kij->ki", cand, cand)
-    best = np.argmax(norms, axis=1)
-    k = np.arange(S.shape[0])
-    return cand[k, best] / np.sqrt(np.maximum(norms[k, best], 1e-300))[:, None]
 
 
 def _quad_inv(T: FloatArray, n: FloatArray) -> FloatArray:
@@ -67,7 +39,7 @@ def _loo_residuals(S: FloatArray, n: FloatArray, own: np.ndarray) -> FloatArray:
     scatter ``S (K, 3, 3)`` of its frame's members, less ``n`` itself where ``own`` (leave one
     out): ``(n . v)^2 / (1 + n^T S^+ n)``, see :class:`GroupState`."""
     Sm = S - own[:, None, None] * (n[:, :, None] * n[:, None, :])
-    vecs = smallest_eigvec3(Sm)
+    vecs = smallest_eigenvector_3x3(Sm)
     r2 = np.einsum("ki,ki->k", n, vecs) ** 2
     trace = np.trace(Sm, axis1=1, axis2=2)
     T = Sm + trace[:, None, None] * (vecs[:, :, None] * vecs[:, None, :])
@@ -265,7 +237,7 @@ class GroupState:
         v = np.full((self.idx.num_frames, 3), np.nan)
         ok = self.count >= 2
         if np.any(ok):
-            v[ok] = smallest_eigvec3(self.S[ok])
+            v[ok] = smallest_eigenvector_3x3(self.S[ok])
         return v
 
 
@@ -389,7 +361,8 @@ def _vpvs_disagree(idx: ObsIndex, ga: np.ndarray, gb: np.ndarray, count_a: IntAr
         (np.linalg.eigvalsh(Sb)[:, 1] >= opts.min_spread)
     if not np.any(firm):
         return False
-    cos = np.einsum("ki,ki->k", smallest_eigvec3(Sa[firm]), smallest_eigvec3(Sb[firm]))
+    cos = np.einsum("ki,ki->k", smallest_eigenvector_3x3(Sa[firm]),
+                    smallest_eigenvector_3x3(Sb[firm]))
     return bool(np.median(1.0 - cos ** 2) > MAX_VPV_SIN2)
 
 

@@ -23,11 +23,11 @@ from typing import Any
 
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.export.colmap import (
-    MASK_FILE,
     read_init_model,
     seed_for_database,
     write_colmap_mask,
 )
+from omni_sfm.folders import InitFolder
 
 
 def reader_options(init_dir: Path | str) -> Any:
@@ -41,7 +41,7 @@ def reader_options(init_dir: Path | str) -> Any:
     opts = pycolmap.ImageReaderOptions()
     opts.camera_model = cam.model_name
     opts.camera_params = ",".join(repr(float(x)) for x in cam.params)
-    mask = Path(init_dir) / MASK_FILE
+    mask = Path(init_dir) / InitFolder.COLMAP_MASK
     if not mask.is_file():
         write_colmap_mask(mask, init.camera)
     opts.camera_mask_path = str(mask)

@@ -18,8 +18,8 @@ import sys
 
 import numpy as np
 
-from omni_sfm.estimate.pipeline import estimate_poses, match_reflection
-from omni_sfm.evaluate import trajectory_errors
+from omni_sfm.estimate.pipeline import estimate_poses
+from omni_sfm.evaluate import match_reflection, trajectory_errors
 from omni_sfm.synth.simulate import SimulationOptions, simulate
 from scripts.benchlib import add_log_arguments, write_log
 

@@ -30,12 +30,12 @@ from typing import Any
 import numpy as np
 
 from omni_sfm.cameras import load_camera
+from omni_sfm.frames import read_frames
 from omni_sfm.libs import keep_freed_memory
 from omni_sfm.lines import extract as extract_module
 from omni_sfm.lines.extract import LineExtractor
 from omni_sfm.lines.frontend import FrontEndOptions, track_lines
 from omni_sfm.lines.track import LineTracker, TrackingOptions
-from omni_sfm.lines.video import read_frames
 from omni_sfm.lines3d import read_lines3d
 from omni_sfm.poses import read_tum
 from scripts.benchlib import add_log_arguments, write_log

@@ -27,9 +27,9 @@ from scripts.benchlib import add_log_arguments, at_tenths, run_sampled, write_lo
 
 def _child(video: str, camera: str, n: int) -> None:
     from omni_sfm.cameras.io import load_camera
+    from omni_sfm.frames import read_frames
     from omni_sfm.libs import keep_freed_memory
     from omni_sfm.lines.frontend import FrontEndOptions, track_lines
-    from omni_sfm.lines.video import read_frames
 
     keep_freed_memory()
     t0 = time.perf_counter()

@@ -30,7 +30,7 @@ from scripts.benchlib import add_log_arguments, write_log
 def _prepare(W: Path, step: bool) -> dict[str, Any]:
     """Triangulate ``W``'s database on its init's poses; the joint adjustment's inputs (and,
     with ``step``, print one step formed and factored against conjugate gradients)."""
-    from omni_sfm.estimate.bundle import LineProblem, gauge
+    from omni_sfm.estimate.bundle import LineProblem
     from omni_sfm.evaluate import trajectory_errors
     from omni_sfm.export.colmap import read_init_model, seed_for_database
     from omni_sfm.libs import library_logging
@@ -38,9 +38,10 @@ def _prepare(W: Path, step: bool) -> dict[str, Any]:
     from omni_sfm.refine.joint import JointOptions, PointObservations, _JointProblem
     from omni_sfm.refine.joint_model import model_points, read_line_evidence
     from omni_sfm.refine.triangulation import triangulate_seeded
+    from omni_sfm.solver import gauge
 
     init = read_init_model(W / "init_lines")
-    lines = read_line_evidence(W / "init_lines", init.trajectory)
+    lines = read_line_evidence(init.artifacts)
     if isinstance(lines, str):
         raise SystemExit(f"bench_joint: {lines}")
     gt = read_tum(W / "render" / "groundtruth.tum")

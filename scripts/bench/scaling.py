@@ -44,9 +44,8 @@ import numpy as np
 
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.estimate.bundle import BundleOptions, bundle_adjust
-from omni_sfm.estimate.pipeline import match_reflection
 from omni_sfm.estimate.segments import frame_range
-from omni_sfm.evaluate import trajectory_errors
+from omni_sfm.evaluate import match_reflection, trajectory_errors
 from omni_sfm.lines.tracks import LineTracks, write_tracks
 from omni_sfm.poses import Trajectory, read_tum, write_tum
 from omni_sfm.synth.simulate import Simulation, SimulationOptions, simulate, write_simulation

@@ -1,7 +1,7 @@
-"""Benchmark of the online tracker (``omni-sfm track``, :mod:`omni_sfm.online`).
+"""Benchmark of the online tracker (``omni-sfm track``, :mod:`omni_sfm.pipelines.track`).
 
 Images (the default): renders (or reuses) a corridor with omni_sfm.synth.render, feeds its
-frames one at a time to :class:`omni_sfm.online.Tracker` and prints the per-frame latency
+frames one at a time to :class:`omni_sfm.pipelines.track.Tracker` and prints the per-frame latency
 (median, 95th percentile, max; wall clock of ``add_frame``, lines and pose, the frame already
 decoded) with the core count and the load average, and the accuracy of the poses as they were
 returned (each from the frames up to it) against the ground truth: the largest rotation error
@@ -9,8 +9,8 @@ and the ATE as a share of the path, over every posed frame and over the frames p
 one (after the start).
 
 ``--memory``: the tracker's state over a long run. Rendering 10,000 frames takes hours here, so
-the run feeds :class:`omni_sfm.online.OnlineEstimator` (the tracker below the front end: the
-same start, registration, adjustment and window) the line observations of a simulated walk
+the run feeds :class:`omni_sfm.estimate.online.OnlineEstimator` (the tracker below the front
+end: the same start, registration, adjustment and window) the line observations of a simulated walk
 through office corridors (``simulate_manhattan``: 50 mm per frame, no rays), and prints the
 peak of the traced allocations (tracemalloc) and of the process's resident size at 1,000 frames
 and at the end. The front end's own state is the last ``max_gap_frames + 1`` frames
@@ -44,9 +44,10 @@ import cv2
 import numpy as np
 
 from omni_sfm.cameras import load_camera
+from omni_sfm.estimate.online import OnlineEstimator, Status, poses_trajectory
 from omni_sfm.evaluate import trajectory_errors
 from omni_sfm.libs import keep_freed_memory
-from omni_sfm.online import OnlineEstimator, Status, Tracker, poses_trajectory
+from omni_sfm.pipelines.track import Tracker
 from omni_sfm.poses import read_tum
 from scripts.benchlib import add_log_arguments, write_log
 

@@ -82,7 +82,7 @@ def simulated_sequence(task: dict[str, Any]) -> tuple[Any, Any, dict[str, Any]]:
     """The paper's simulation with point rays beside the lines (same noise in angle)."""
     from omni_sfm.cameras import EquirectangularCamera
     from omni_sfm.geometry import normalize
-    from omni_sfm.initializer import PointObservations, SequenceInput
+    from omni_sfm.plugin_contract import PointObservations, SequenceInput
     from omni_sfm.synth.simulate import SimulationOptions, simulate
 
     opts = SimulationOptions(num_views=20, num_parallel=20, num_other=20,

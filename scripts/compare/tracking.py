@@ -27,9 +27,9 @@ import cv2
 import numpy as np
 
 from omni_sfm.cameras import load_camera
+from omni_sfm.frames import read_frames
 from omni_sfm.lines.extract import ExtractedLines, LineExtractor
 from omni_sfm.lines.track import LineTracker, TrackedObservations, TrackingOptions
-from omni_sfm.lines.video import read_frames
 from omni_sfm.lines3d import read_lines3d
 from omni_sfm.poses import read_tum
 from scripts.bench.frontend import true_nvs

@@ -37,8 +37,8 @@ import numpy as np  # noqa: E402
 
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.evaluate import relative_rotation_errors_deg, trajectory_errors
-from omni_sfm.initialize import InitOptions, init_from_images
 from omni_sfm.lines.frontend import FrontEndOptions
+from omni_sfm.pipelines.init import InitOptions, init_from_images
 from omni_sfm.poses import read_tum
 from omni_sfm.synth.effects import Body, Effects
 from omni_sfm.synth.paths import Route

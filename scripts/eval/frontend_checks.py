@@ -38,18 +38,18 @@ from omni_sfm.cameras import CameraModel, load_camera
 from omni_sfm.cameras.equirectangular import EquirectangularCamera
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.evaluate import trajectory_errors
-from omni_sfm.initialize import InitOptions, init_from_images
 from omni_sfm.lines.automask import static_mask
 from omni_sfm.lines.camfit import check_camera_fit
 from omni_sfm.lines.extract import ExtractionOptions, LineExtractor
 from omni_sfm.lines.frontend import FrontEndOptions
+from omni_sfm.pipelines.init import InitOptions, init_from_images
 from omni_sfm.poses import read_tum
 from omni_sfm.synth.effects import Body, Effects
 from omni_sfm.synth.render import RenderOptions, hyperboloid_camera, prepare, render_sequence
 from omni_sfm.synth.scenes import SceneName
 from scripts.benchlib import add_log_arguments, markdown_table, write_log
 
-DEMO = RenderOptions(camera="hyperboloid", frames=100, seed=0)  # as omni_sfm.demo.run_demo
+DEMO = RenderOptions(camera="hyperboloid", frames=100, seed=0)  # as pipelines.demo.run_demo
 DARK_FACTORS = {1.0: "original", 0.25: "a quarter", 0.1: "a tenth", 0.02: "2 %", 0.01: "1 %"}
 
 SMALL = {

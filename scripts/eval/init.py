@@ -18,8 +18,8 @@ import time
 from pathlib import Path
 
 from omni_sfm.evaluate import trajectory_errors
-from omni_sfm.initialize import InitOptions, init_from_images
 from omni_sfm.lines.frontend import FrontEndOptions
+from omni_sfm.pipelines.init import InitOptions, init_from_images
 from omni_sfm.poses import read_tum
 from omni_sfm.synth.render import RenderOptions, render_sequence
 from omni_sfm.synth.scenes import SceneName

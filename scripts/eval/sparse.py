@@ -29,8 +29,8 @@ import numpy as np
 
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.estimate.bundle import BundleOptions, bundle_adjust, oracle
-from omni_sfm.estimate.pipeline import EstimationOptions, estimate_poses, match_reflection
-from omni_sfm.evaluate import trajectory_errors
+from omni_sfm.estimate.pipeline import EstimationOptions, estimate_poses
+from omni_sfm.evaluate import match_reflection, trajectory_errors
 from omni_sfm.poses import Trajectory
 from omni_sfm.synth.simulate import Simulation, SimulationOptions, simulate
 from scripts.benchlib import add_log_arguments, write_log

@@ -38,9 +38,9 @@ from pathlib import Path
 import numpy as np
 
 from omni_sfm.errors import OmniSfmError
-from omni_sfm.estimate.pipeline import EstimationOptions, estimate_poses, match_reflection
+from omni_sfm.estimate.pipeline import EstimationOptions, estimate_poses
 from omni_sfm.estimate.segments import frame_range
-from omni_sfm.evaluate import relative_rotation_errors_deg, trajectory_errors
+from omni_sfm.evaluate import match_reflection, relative_rotation_errors_deg, trajectory_errors
 from omni_sfm.geometry import normalize
 from omni_sfm.lines.tracks import read_tracks
 from omni_sfm.poses import Trajectory, read_tum

@@ -28,8 +28,8 @@ from tqdm import tqdm
 
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.estimate.bundle import oracle
-from omni_sfm.estimate.pipeline import estimate_poses, match_reflection
-from omni_sfm.evaluate import trajectory_errors
+from omni_sfm.estimate.pipeline import estimate_poses
+from omni_sfm.evaluate import match_reflection, trajectory_errors
 from omni_sfm.poses import Trajectory
 from omni_sfm.synth.simulate import SimulationOptions, simulate
 from scripts.benchlib import add_log_arguments, write_log

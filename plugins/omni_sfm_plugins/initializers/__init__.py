@@ -1,7 +1,8 @@
 """omni-sfm's initializer plugins (entry-point group ``omni_sfm.initializers``).
 
-Each is a callable ``(sequence: omni_sfm.initializer.SequenceInput, options: dict) ->
-omni_sfm.initializer.InitializerResult`` (contract: docs/plugins.md; results: docs/comparison.md):
+Each is a callable ``(sequence: omni_sfm.plugin_contract.SequenceInput, options: dict) ->
+omni_sfm.plugin_contract.InitializerResult`` (contract: docs/plugins.md; results:
+docs/comparison.md):
 
 - ``lines``: omni-sfm's line front end and estimator (:mod:`.lines`);
 - ``lines-refine``: ``lines`` then ``omni-sfm refine`` (COLMAP on the line-based poses;

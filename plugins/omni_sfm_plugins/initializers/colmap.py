@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from omni_sfm.initializer import InitializerResult, PointObservations, SequenceInput, failed
+from omni_sfm.plugin_contract import InitializerResult, PointObservations, SequenceInput, failed
 from omni_sfm.poses import Trajectory
 
 

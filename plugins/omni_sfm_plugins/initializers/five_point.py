@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from omni_sfm.geometry import FloatArray
-from omni_sfm.initializer import InitializerResult, SequenceInput
+from omni_sfm.plugin_contract import InitializerResult, SequenceInput
 
 from .points import (
     ChainOptions,

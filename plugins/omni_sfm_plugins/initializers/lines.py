@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from omni_sfm.initializer import InitializerResult, SequenceInput, failed
+from omni_sfm.plugin_contract import InitializerResult, SequenceInput, failed
 
 
 def lines(sequence: SequenceInput, options: Mapping[str, Any]) -> InitializerResult:

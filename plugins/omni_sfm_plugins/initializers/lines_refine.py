@@ -1,6 +1,6 @@
 """``lines-refine``: the README's chain ``omni-sfm init --lines`` then ``omni-sfm refine``.
 
-The frames go through :func:`omni_sfm.initialize.init_from_images` exactly as ``init`` runs
+The frames go through :func:`omni_sfm.pipelines.init.init_from_images` exactly as ``init`` runs
 (the ``lines`` initializer's result) and the init folder through :func:`omni_sfm.refine.refine`
 (COLMAP features, triangulation on the line-based poses, the mapper for the frames lines
 missed, bundle adjustment, never worse than its input: docs/colmap.md). Needs images; the work
@@ -17,13 +17,13 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from omni_sfm.initializer import InitializerResult, SequenceInput, failed
+from omni_sfm.plugin_contract import InitializerResult, SequenceInput, failed
 
 
 def lines_refine(sequence: SequenceInput, options: Mapping[str, Any]) -> InitializerResult:
     """The ``lines-refine`` initializer (module docstring)."""
     from omni_sfm.errors import OmniSfmError
-    from omni_sfm.initialize import InitOptions, init_from_images
+    from omni_sfm.pipelines.init import InitOptions, init_from_images
     from omni_sfm.refine import RefineOptions, refine
 
     if sequence.images is None:

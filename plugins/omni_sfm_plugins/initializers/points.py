@@ -21,7 +21,7 @@ import numpy as np
 from omni_sfm.cameras.base import CameraModel
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.geometry import FloatArray, skew
-from omni_sfm.initializer import PointObservations, SequenceInput
+from omni_sfm.plugin_contract import PointObservations, SequenceInput
 from omni_sfm.poses import Trajectory
 
 RelPose = tuple[FloatArray, FloatArray, np.ndarray]

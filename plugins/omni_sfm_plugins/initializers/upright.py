@@ -26,7 +26,7 @@ import numpy as np
 
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.geometry import FloatArray, skew
-from omni_sfm.initializer import InitializerResult, SequenceInput, failed
+from omni_sfm.plugin_contract import InitializerResult, SequenceInput, failed
 
 from .five_point import chain_options, ransac_threshold
 from .points import RelPose, chain_relative_poses, pair_depths, point_tracks, upright_basis

@@ -33,16 +33,16 @@ from omni_sfm.cameras import CameraModel, load_camera
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.estimate.pipeline import EstimationOptions, EstimationResult, estimate_poses
 from omni_sfm.fileio import atomic_output_dir, atomic_write_text, dumps_json, stored_path
-from omni_sfm.folders import LINES_FILE, USER_MASK_FILE, InitFolder
-from omni_sfm.geometry import ray_line_closest
-from omni_sfm.lines.frontend import FrontEndOptions, FrontEndResult, track_lines
-from omni_sfm.lines.video import (
+from omni_sfm.folders import InitFolder
+from omni_sfm.frames import (
     FrameSource,
     read_frames,
     read_mask,
     video_frame_name,
     write_mask,
 )
+from omni_sfm.geometry import ray_line_closest
+from omni_sfm.lines.frontend import FrontEndOptions, FrontEndResult, track_lines
 from omni_sfm.lines3d import LineSegments3D, write_lines3d
 from omni_sfm.poses import Trajectory
 from omni_sfm.transforms import paper_normalised_positions
@@ -358,9 +358,9 @@ def init_from_images(images: Path | str, camera: Path | str | CameraModel, outpu
         }
         write_init_outputs(tmp, result, extra=extra)
         write_tracks(tmp / InitFolder.TRACKS, tracks)
-        write_lines3d(tmp / LINES_FILE, estimated_segments(fe, result))
+        write_lines3d(tmp / InitFolder.LINES3D, estimated_segments(fe, result))
         if line_mask is not None:  # the user's mask and the automatic one: what refine uses
-            write_mask(tmp / USER_MASK_FILE, line_mask)
+            write_mask(tmp / InitFolder.MASK, line_mask)
         plot_trajectory(tmp / InitFolder.TRAJECTORY_PLOT, result.trajectory)
         # colour 0: the parallel family, 1: other lines, grey (-1): rejected as outliers
         groups = np.where(result.outliers, -1, np.where(result.parallel, 0, 1))
@@ -436,7 +436,7 @@ def init_with_initializer(images: Path | str, camera: Path | str | CameraModel,
     """
     from omni_sfm.export.colmap import write_init_model
     from omni_sfm.fileio import check_output_dir
-    from omni_sfm.initializer import run_initializer, sequence_from_frames
+    from omni_sfm.plugin_contract import run_initializer, sequence_from_frames
 
     output = Path(output)
     check_output_dir(output, overwrite=overwrite, inputs=(Path(images),))

@@ -1,20 +1,19 @@
-"""Online poses, frame by frame, with no look-ahead: ``omni-sfm track`` (docs/track.md).
+"""Online poses from line observations, frame by frame, with no look-ahead: the estimator
+under ``omni-sfm track`` (docs/track.md; frames in: :class:`omni_sfm.pipelines.track.Tracker`).
 
-:class:`Tracker` takes frames one at a time (:meth:`Tracker.add_frame`) and returns each
-frame's :class:`TrackedPose` as soon as the frames so far give it; the pose returned for frame
-``k`` depends on frames ``0..k`` only. It wires the stages' own pieces, nothing new:
+:class:`OnlineEstimator` takes one frame's line observations at a time (track ids, normals,
+rays: :meth:`OnlineEstimator.add`) and returns the frame's :class:`TrackedPose` as soon as the
+frames so far give it; the pose returned for frame ``k`` depends on frames ``0..k`` only. It
+wires the estimator's own pieces, nothing new:
 
-1. **Lines.** :class:`~omni_sfm.lines.extract.LineExtractor` on the frame, then
-   :class:`~omni_sfm.lines.track.LineTracker` (``record=False``: it keeps only the last few
-   frames) continues the tracks of the frames before.
-2. **Start.** The first frames are buffered (status ``initialising``, no pose) until the
+1. **Start.** The first frames are buffered (status ``initialising``, no pose) until the
    offline estimator (:func:`~omni_sfm.estimate.pipeline.estimate_poses`: the paper's windows,
    the line bundle adjustment) solves the buffered frames and poses the newest of them: the
    first try after ``start_frames`` frames, again every ``start_retry`` frames, the oldest
    frames dropped beyond ``max_start_frames``. The frame where the start succeeds gets its pose
    (status ``tracking``) and, in :attr:`TrackedPose.start_poses`, the poses of the buffered
    frames that the start solved (computed from the frames up to this one).
-3. **Tracking.** Each later frame is registered from the 3D lines already triangulated that it
+2. **Tracking.** Each later frame is registered from the 3D lines already triangulated that it
    sees (:meth:`omni_sfm.estimate.incremental.Growth.register`: absolute pose, acceptance by
    inliers), its new lines are triangulated once they have parallax
    (:meth:`~omni_sfm.estimate.incremental.Growth.triangulate`), and every ``local_every``
@@ -23,47 +22,40 @@ frame's :class:`TrackedPose` as soon as the frames so far give it; the pose retu
    (:meth:`~omni_sfm.estimate.incremental.Growth.adjust`). The state is a sliding window of
    the last ``window`` frames (observations and poses) and the lines they see; everything
    older is dropped, so memory and time per frame do not grow with the sequence.
-4. **Lost.** A frame that cannot be registered (too few known lines: a blank wall, a dark
+3. **Lost.** A frame that cannot be registered (too few known lines: a blank wall, a dark
    corridor) is ``lost`` with the reason; if it still sees lines of at least two of the
    parallel families (vanishing directions) its rotation is kept (``rotation-only``: rotation,
-   no position). After ``max_misses`` frames in a row without a pose the tracker starts again
-   (step 2) on the frames that follow; the frame where that start succeeds is ``relocalised``
-   and its poses are in a new world and scale (:attr:`TrackedPose.world` counts the starts):
-   nothing joins them to the earlier ones.
+   no position). After ``max_misses`` frames in a row without a pose the estimator starts
+   again (step 1) on the frames that follow; the frame where that start succeeds is
+   ``relocalised`` and its poses are in a new world and scale (:attr:`TrackedPose.world`
+   counts the starts): nothing joins them to the earlier ones.
 
-:class:`OnlineEstimator` is steps 2-4 on line observations (track ids and normals per frame),
-for callers with their own front end and for simulated lines.
+It serves callers with their own front end and simulated lines as well as the tracker;
+:func:`poses_trajectory` gathers the poses it returned into a trajectory.
 """
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from collections import deque
 from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
 from enum import StrEnum
-from pathlib import Path
-from types import TracebackType
-from typing import IO, Any
+from typing import Any
 
 import numpy as np
 
-from omni_sfm.cameras.base import CameraModel
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.estimate.bundle import BundleOptions
 from omni_sfm.estimate.families import family_of_lines, family_of_planes, line_families
 from omni_sfm.estimate.incremental import Growth, IncrementalOptions, rotation_from_directions
-from omni_sfm.estimate.pipeline import SEGMENT_FILE, EstimationOptions, estimate_poses
-from omni_sfm.folders import TRAJECTORY_FILE
+from omni_sfm.estimate.pipeline import EstimationOptions, estimate_poses
 from omni_sfm.geometry import FloatArray, quat_xyzw_from_matrix
-from omni_sfm.lines.extract import ExtractionOptions, LineExtractor
-from omni_sfm.lines.frontend import middle_rays
-from omni_sfm.lines.track import LineTracker, TrackingOptions
+from omni_sfm.lines.extract import ExtractionOptions
+from omni_sfm.lines.track import TrackingOptions
 from omni_sfm.lines.tracks import LineTracks
-from omni_sfm.lines.video import to_gray
-from omni_sfm.poses import TUM_HEADER, Trajectory
+from omni_sfm.poses import Trajectory
 
 
 class Status(StrEnum):
@@ -89,12 +81,12 @@ def _default_start() -> EstimationOptions:
 
 @dataclass(frozen=True, kw_only=True)
 class OnlineOptions:
-    """Options of :class:`Tracker` and :class:`OnlineEstimator`."""
+    """Options of :class:`~omni_sfm.pipelines.track.Tracker` and :class:`OnlineEstimator`."""
 
     extraction: ExtractionOptions = field(default_factory=ExtractionOptions)
-    """Line extraction (:class:`Tracker` only)."""
+    """Line extraction (:class:`~omni_sfm.pipelines.track.Tracker` only)."""
     tracking: TrackingOptions = field(default_factory=TrackingOptions)
-    """Frame-to-frame line tracking (:class:`Tracker` only)."""
+    """Frame-to-frame line tracking (:class:`~omni_sfm.pipelines.track.Tracker` only)."""
     start: EstimationOptions = field(default_factory=_default_start)
     """The offline estimator run on the buffered frames to start."""
     start_frames: int = 15
@@ -147,7 +139,7 @@ class TrackedPose:
         position: ``(3,)`` camera centre in the world, or None (also ``rotation-only``).
         lines: lines observed in the frame.
         lines_known: of those, lines already triangulated (the registration's material).
-        latency_ms: wall-clock time spent on this frame (:class:`Tracker`: lines and pose).
+        latency_ms: wall-clock time spent on this frame (the tracker's: lines and pose).
         reason: why there is no (full) pose, one line; None when there is one.
         world: which start the pose is in (0: the first; each restart after a loss, +1): poses
             of different worlds have different origins and scales.
@@ -234,7 +226,7 @@ def _window_tracks(frames: list[_Frame], min_views: int = 1
 
 
 class OnlineEstimator:
-    """Steps 2-4 of the module docstring on line observations: feed each frame's tracked lines
+    """Steps 1-3 of the module docstring on line observations: feed each frame's tracked lines
     with :meth:`add`, in order."""
 
     def __init__(self, options: OnlineOptions | None = None) -> None:
@@ -494,42 +486,6 @@ class OnlineEstimator:
                 self._family[t] = f
 
 
-class Tracker:
-    """Frames in, poses out: the line front end and :class:`OnlineEstimator` (module
-    docstring). ``camera``: the calibrated camera (frames are ``camera.width x
-    camera.height``); ``mask``: ``(H, W)``, nonzero where pixels may be used."""
-
-    def __init__(self, camera: CameraModel, options: OnlineOptions | None = None,
-                 mask: np.ndarray | None = None) -> None:
-        self.options = options or OnlineOptions()
-        self.camera = camera
-        self.extractor = LineExtractor(camera, self.options.extraction, mask)
-        self.lines = LineTracker(self.options.tracking, record=False)
-        self.estimator = OnlineEstimator(self.options)
-
-    def add_frame(self, image: np.ndarray, timestamp: float | None = None) -> TrackedPose:
-        """The pose of the next frame (grey, BGR or BGRA image), from it and the frames before
-        only. ``latency_ms``: this call's wall-clock time."""
-        t0 = time.perf_counter()
-        gray = to_gray(image)
-        if (gray.shape[1], gray.shape[0]) != (self.camera.width, self.camera.height):
-            raise OmniSfmError(f"frame is {gray.shape[1]}x{gray.shape[0]} px but the camera is "
-                               f"{self.camera.width}x{self.camera.height} px")
-        lines = self.extractor.extract(gray)
-        ids = self.lines.add_frame(gray, lines)
-        # pieces of one line in one frame (one track): the best supported observation
-        order = np.lexsort((-np.asarray(lines.num_support), ids))
-        first = np.ones(len(order), bool)
-        first[1:] = ids[order][1:] != ids[order][:-1]
-        keep = order[first]
-        normals = np.asarray(lines.normals, np.float64).reshape(-1, 3)[keep]
-        rays = middle_rays(np.asarray(lines.endpoint_rays).reshape(-1, 2, 3)[keep], normals)
-        sig = np.asarray(lines.normal_sigma, np.float64).reshape(-1, 2)[keep]
-        pose = self.estimator.add(ids[keep], normals, rays, sig, timestamp)
-        return replace(pose, lines=int(lines.num_lines),
-                       latency_ms=1000.0 * (time.perf_counter() - t0))
-
-
 def poses_trajectory(poses: Iterable[TrackedPose], world: int | None = None, *,
                      with_start: bool = True) -> Trajectory:
     """The full poses among ``poses`` (and, ``with_start``, their ``start_poses``) as a
@@ -545,62 +501,3 @@ def poses_trajectory(poses: Iterable[TrackedPose], world: int | None = None, *,
     R = np.array([got[k].rotation for k in ks], np.float64).reshape(-1, 3, 3)
     c = np.array([got[k].position for k in ks], np.float64).reshape(-1, 3)
     return Trajectory(np.array([got[k].timestamp for k in ks], np.float64), R, c)
-
-
-FRAMES_FILE = "frames.jsonl"
-"""Per-frame results of ``omni-sfm track``: one :meth:`TrackedPose.to_json` line per frame."""
-
-
-class TrackOutput:
-    """The output folder of ``omni-sfm track``, written as the poses come (a context manager).
-
-    :meth:`write` appends a frame's pose (and the start's poses it brings) to
-    ``trajectory.tum`` (the first start's world) or ``trajectory_segment_<k>.tum`` (the world
-    of the ``k``-th restart), and its :meth:`TrackedPose.to_json` line to ``frames.jsonl``;
-    each file is flushed after every frame, so a reader (or a crash) sees every frame so far.
-    Earlier runs' files of these names are replaced.
-    """
-
-    def __init__(self, directory: Path | str) -> None:
-        self.directory = Path(directory)
-        self.directory.mkdir(parents=True, exist_ok=True)
-        for old in self.directory.glob(SEGMENT_FILE.format("*")):
-            old.unlink()
-        self._files: dict[int, IO[str]] = {}
-        self._frames = open(self.directory / FRAMES_FILE, "w", encoding="utf-8")  # noqa: SIM115
-        self._trajectory(0)  # trajectory.tum exists (header only) until the first pose
-        self.poses = 0
-
-    def path(self, world: int) -> Path:
-        """The trajectory file of ``world``."""
-        return self.directory / (TRAJECTORY_FILE if world == 0 else SEGMENT_FILE.format(world))
-
-    def _trajectory(self, world: int) -> IO[str]:
-        if world not in self._files:
-            f = open(self.path(world), "w", encoding="utf-8")  # noqa: SIM115
-            f.write(TUM_HEADER)
-            f.flush()
-            self._files[world] = f
-        return self._files[world]
-
-    def write(self, pose: TrackedPose) -> None:
-        """Append ``pose`` (see the class docstring) and flush."""
-        traj = poses_trajectory([pose])
-        if len(traj):
-            f = self._trajectory(pose.world)
-            f.write(traj.tum_rows())
-            f.flush()
-            self.poses += len(traj)
-        self._frames.write(json.dumps(pose.to_json()) + "\n")
-        self._frames.flush()
-
-    def close(self) -> None:
-        for f in (*self._files.values(), self._frames):
-            f.close()
-
-    def __enter__(self) -> TrackOutput:
-        return self
-
-    def __exit__(self, kind: type[BaseException] | None, exc: BaseException | None,
-                 tb: TracebackType | None) -> None:
-        self.close()

@@ -9,7 +9,7 @@ from pathlib import Path
 from omni_sfm.evaluate import TrajectoryErrors, trajectory_errors
 from omni_sfm.fileio import atomic_write_text
 from omni_sfm.folders import RenderFolder
-from omni_sfm.initialize import InitOptions, init_from_images, plot_trajectory
+from omni_sfm.pipelines.init import InitOptions, init_from_images, plot_trajectory
 from omni_sfm.poses import read_tum
 
 

@@ -22,9 +22,9 @@ import numpy as np
 from omni_sfm import registry
 from omni_sfm.cameras.base import CameraModel
 from omni_sfm.errors import OmniSfmError
+from omni_sfm.frames import FrameStore
 from omni_sfm.geometry import FloatArray
 from omni_sfm.lines.tracks import LineTracks
-from omni_sfm.lines.video import FrameStore
 from omni_sfm.poses import Trajectory
 
 STATUSES = ("ok", "failed")
@@ -196,7 +196,7 @@ def run_initializer(name: str, sequence: SequenceInput,
                     options: Mapping[str, Any] | None = None) -> tuple[InitializerResult, float]:
     """Run one initializer; any exception becomes a failed result with its one-line reason,
     and so does a plugin that cannot be loaded or returns what breaks the contract
-    (:func:`omni_sfm.initializer.check_result`).
+    (:func:`omni_sfm.plugin_contract.check_result`).
 
     Returns the result and the wall time in seconds.
 
