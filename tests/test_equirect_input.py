@@ -174,6 +174,11 @@ def test_init_as_typed_on_360_video_without_camera_file(wide, tmp_path, capsys):
     assert "equirectangular 640x320" in err_text and "V2" in err_text
     c = read_tum(tmp_path / "c" / "trajectory.tum")
     np.testing.assert_array_equal(a.rotations, c.rotations)
+    # track takes the same values: here the metadata, on the first 3 frames
+    assert main(["track", "--images", str(meta), "--frames", "3",
+                 "-o", str(tmp_path / "t")]) == 0
+    out = capsys.readouterr()
+    assert out.err.startswith("omni-sfm: note: ") and "track: 3 frames" in out.out
     # V1 XMP: the camera shown as init would read it
     v1 = _inject(wide / "video.mp4", tmp_path / "v1.mp4", v1_xmp=XMP.format(extra=""))
     assert main(["camera", "show", "--images", str(v1)]) == 0
