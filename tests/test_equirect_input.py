@@ -104,6 +104,25 @@ def _sv3d(projection: bytes = b"equi", bounds: tuple[int, ...] = (0, 0, 0, 0),
     return sv3d + (b"" if stereo is None else _box(b"st3d", bytes(4) + bytes([stereo])))
 
 
+def test_squeezed_equirectangular_spans_360_by_180():
+    """A 1920x1080 frame (16:9) maps 360 deg across and 180 deg down, as pycolmap's
+    EQUIRECTANGULAR camera of the same size does: unequal angular pitches."""
+    cam = EquirectangularCamera(width=1920, height=1080)
+    # COLMAP pixel (uc, vc) = (u + 0.5, v + 0.5): uc = W/4 is lon -90 deg, vc = H/4 lat -45
+    corners = np.array([[1920 / 4 - 0.5, 1080 / 2 - 0.5], [1920 / 2 - 0.5, 1080 / 4 - 0.5],
+                        [3 * 1920 / 4 - 0.5, 3 * 1080 / 4 - 0.5]])
+    s = np.sqrt(0.5)
+    np.testing.assert_allclose(cam.rays_from_pixels(corners),
+                               [[-1, 0, 0], [0, -s, s], [s, s, 0]], atol=1e-12)
+    uv = np.random.default_rng(0).uniform([0, 0], [1919, 1079], size=(200, 2))
+    np.testing.assert_allclose(cam.pixels_from_rays(cam.rays_from_pixels(uv)), uv, atol=1e-9)
+    exp = cam.colmap_export()
+    np.testing.assert_allclose(
+        exp.pixels_from_colmap(exp.camera.img_from_cam(cam.rays_from_pixels(uv))), uv,
+        atol=1e-6)
+    assert "0.1875 deg across, 0.1667 deg down (squeezed" in cam.summary()
+
+
 @pytest.fixture(scope="module")
 def wide(rendered) -> Path:
     return rendered(WIDE).output
@@ -165,6 +184,11 @@ def test_init_as_typed_on_360_video_without_camera_file(wide, tmp_path, capsys):
     assert len(b) == WIDE.frames and err.rot_max_deg < 0.5
     rep = json.loads((tmp_path / "b" / "report.json").read_text())
     assert rep["input"]["camera"] == "equirectangular"
+    # dense takes it too (the frames the init folder records)
+    from omni_sfm.dense.pipeline import read_dense_input
+
+    assert read_dense_input(tmp_path / "b", None, Path("equirectangular")).camera == \
+        EquirectangularCamera(width=640, height=320)
     # the same video with V2 metadata, given as typed: one note on stderr, the same poses
     meta = _inject(wide / "video.mp4", tmp_path / "walk360.mp4", v2=_sv3d())
     assert main(["init", "--lines", "--images", str(meta), "--quiet", "--debug-view", "none",
