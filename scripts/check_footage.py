@@ -142,7 +142,8 @@ def colmap_folder(folder: Path, wall: float | None = None) -> dict[str, Any]:
     """What a ``colmap`` init folder holds (its time: ``wall``, else its report's)."""
     report = json.loads((folder / "report.json").read_text())
     return {"status": "ok", "trajectory": str(folder / "trajectory.tum"),
-            "time_s": wall if wall is not None else report["wall_time_s"]["initializer"],
+            "time_s": wall if wall is not None else
+            (report.get("wall_time_s") or {}).get("initializer"),
             "reason": report.get("reason", ""), "info": report.get("info", {})}
 
 
@@ -219,8 +220,9 @@ def table(res: dict[str, Any]) -> str:
         if r.get("status") == "skipped":
             rows.append((label, "skipped", "", ""))
             continue
+        time_s = "?" if r.get("time_s") is None else f"{r['time_s']:.1f} s"
         if r["status"] != "ok":
-            rows.append((label, "failed", "", f"{r['time_s']:.1f} s"))
+            rows.append((label, "failed", "", time_s))
             continue
         posed = f"{r['posed']} of {n}"
         if r.get("segments_frames"):
@@ -228,7 +230,7 @@ def table(res: dict[str, Any]) -> str:
         unc = "-" if label == "COLMAP" else (
             "n/a (no flags in report.json)" if li.get("uncertain_key") is None
             else str(li.get("uncertain_count")))
-        rows.append((label, posed, unc, f"{r['time_s']:.1f} s"))
+        rows.append((label, posed, unc, time_s))
     w = [max(len(r[i]) for r in rows) for i in range(4)]
     lines = ["  ".join(c.ljust(w[i]) for i, c in enumerate(r)).rstrip() for r in rows]
     for label, r in (("init --lines", li), ("COLMAP", co)):
