@@ -452,6 +452,24 @@ def read_stream(spec: str, size: tuple[int, int] | None = None) -> FrameSource:
                        fps=fps if fps > 0 and np.isfinite(fps) else None)
 
 
+def first_frame_size(spec: Path | str) -> tuple[int, int]:
+    """``(width, height)`` of the first readable frame of an image folder, a video file, a
+    camera device index or a stream URL (decodes that one frame). One-line
+    :class:`OmniSfmError` if none can be read."""
+    text = str(spec)
+    source = read_stream(text) if is_stream(text) else read_frames(Path(spec))
+    frames = iter(source)
+    try:
+        first = next(frames, None)
+    finally:
+        close = getattr(frames, "close", None)
+        if close is not None:
+            close()  # releases the video
+    if first is None:
+        raise OmniSfmError(f"{text}: no frame could be read")
+    return first.image.shape[1], first.image.shape[0]
+
+
 def read_mask(path: Path | str, size: tuple[int, int]) -> np.ndarray:
     """A mask image (nonzero = use the pixel) as ``(H, W)`` bool; its size must be ``size``
     ``(width, height)``."""

@@ -27,6 +27,12 @@ class EquirectangularCamera(CameraModel):
     OpenCV's, centre of the top-left pixel at 0): ``lon = 2 pi uc / W - pi``,
     ``lat = pi vc / H - pi / 2``, ray ``= (cos lat sin lon, sin lat, cos lat cos lon)``.
     So +Z is the image centre, +Y is down (the bottom row), +X is at ``u = 3W/4``.
+
+    The width always spans 360 deg and the height 180 deg, whatever the frame's aspect: a 2:1
+    frame has equal angular pixel pitches (``360 / W = 180 / H`` deg), a frame squeezed to
+    16:9 (1920x1080, as some exporters write 360 video) has ``0.1875`` deg per pixel across
+    and ``0.1667`` down. The camera is fully given by the frame size (``--camera
+    equirectangular``, docs/cameras.md).
     """
 
     model = "equirectangular"
@@ -62,6 +68,14 @@ class EquirectangularCamera(CameraModel):
         )
         uv[~((n > 0) & np.isfinite(n))] = np.nan
         return uv
+
+    def summary(self) -> str:
+        pitch = (f"pixel pitch: {360.0 / self.width:.4g} deg across, "
+                 f"{180.0 / self.height:.4g} deg down")
+        if self.width != 2 * self.height:
+            pitch += " (squeezed: not 2:1)"
+        head, _, rest = super().summary().partition("\n")
+        return f"{head}\n{rest.splitlines()[0]}\n{pitch}\n" + "\n".join(rest.splitlines()[1:])
 
     def valid_mask(self) -> np.ndarray:
         return np.ones((self.height, self.width), dtype=bool)

@@ -24,7 +24,9 @@ def add_parser(sub: Any) -> None:
     p.add_argument("--images", type=Path, required=True,
                    help="image folder (sorted by name; timestamp = index) or video file "
                         "(timestamps in seconds), as for init")
-    p.add_argument("--camera", type=Path, required=True, help="camera file (docs/cameras.md)")
+    p.add_argument("--camera", type=Path, default=None,
+                   help="camera file (docs/cameras.md) or 'equirectangular' (built from the "
+                        "frame size); without it, an MP4's spherical-video metadata, as for init")
     p.add_argument("--groundtruth", type=Path, required=True,
                    help="ground-truth trajectory, TUM (timestamps = frame indices)")
     p.add_argument("--output", "-o", type=Path, required=True, help="output folder")
@@ -37,14 +39,16 @@ def add_parser(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from omni_sfm.cameras import load_camera
     from omni_sfm.compare import compare, parse_initializer_names, sequence_from_frames
     from omni_sfm.fileio import check_output_dir
     from omni_sfm.folders import CompareFolder
+    from omni_sfm.lines.source_camera import camera_for_frames
     from omni_sfm.poses import read_tum
 
     names = parse_initializer_names(args.initializers)
-    camera = load_camera(args.camera)
+    camera = camera_for_frames(
+        args.camera, args.images,
+        note=lambda text: print(f"omni-sfm: note: {text}", file=sys.stderr, flush=True))
     gt = read_tum(args.groundtruth)
     inputs = (args.images, args.groundtruth)
     check_output_dir(args.output, overwrite=args.overwrite, inputs=inputs)

@@ -37,7 +37,8 @@ def add_parser(sub: Any) -> None:
                    help="image folder or video of the frames (default: the one INPUT records)")
     p.add_argument("--output", "-o", type=Path, required=True, help="output folder")
     p.add_argument("--camera", type=Path, default=None,
-                   help="camera file (default: INPUT/camera.yaml)")
+                   help="camera file, or 'equirectangular' (built from the frame size) "
+                        "(default: INPUT/camera.yaml)")
     p.add_argument("--keyframe-step", type=int, default=None,
                    help="frames between keyframes (default: half the stereo baseline's offset)")
     scale = p.add_mutually_exclusive_group()

@@ -1,7 +1,7 @@
 """``omni-sfm init``: initial camera poses of a sequence (docs/estimator.md, docs/formats.md).
 
 Two input modes, mutually exclusive: ``--tracks FILE`` (tracked line normals, ``tracks.json``)
-runs the estimator alone; ``--images PATH --camera FILE`` (an image folder or a video) runs the
+runs the estimator alone; ``--images PATH [--camera FILE]`` (an image folder or a video) runs the
 line front end first (:func:`omni_sfm.pipelines.init.init_from_images`). Both share
 :func:`omni_sfm.estimate.pipeline.estimate_poses` and
 :func:`omni_sfm.estimate.pipeline.write_init_outputs`.
@@ -44,8 +44,10 @@ def add_parser(subparsers: Any) -> None:
     source.add_argument("--images", type=Path,
                         help="folder of images (sorted by name) or a video file")
     p.add_argument("--camera", type=Path,
-                   help="camera file (any format omni-sfm reads; docs/cameras.md); "
-                        "required with --images")
+                   help="camera file (any format omni-sfm reads; docs/cameras.md), or "
+                        "'equirectangular' for 360 video (built from the frame size, 2:1 or "
+                        "squeezed); without it, an MP4 with spherical-video metadata and a 2:1 "
+                        "frame is read as equirectangular")
     p.add_argument("--mask", type=Path, help="mask image: nonzero where pixels may be used")
     p.add_argument("--no-auto-mask", action="store_true",
                    help="do not mask what stays put in the image while the scene moves (the "
@@ -166,8 +168,6 @@ def run(args: argparse.Namespace) -> int:
         from omni_sfm.lines.frontend import FrontEndOptions
         from omni_sfm.pipelines.init import InitOptions, init_from_images
 
-        if args.camera is None:
-            raise OmniSfmError("--images needs --camera CAMERA_FILE (docs/cameras.md)")
         frontend = FrontEndOptions(extraction=_extraction(args), progress=not args.quiet,
                                    workers=args.workers)
         res = init_from_images(
@@ -179,7 +179,8 @@ def run(args: argparse.Namespace) -> int:
                         colmap_text=args.text, progress=not args.quiet,
                         auto_mask=not args.no_auto_mask, strict=args.strict),
             mask=args.mask, overwrite=args.overwrite,
-            warn=lambda text: print(f"omni-sfm: warning: {text}", file=sys.stderr, flush=True))
+            warn=lambda text: print(f"omni-sfm: warning: {text}", file=sys.stderr, flush=True),
+            note=_note)
         print(summary(res.estimation.report, args.output, list(res.image_names),
                       list(res.not_estimated), list(res.unreadable),
                       list(res.unreadable_reasons)))
@@ -210,6 +211,11 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _note(text: str) -> None:
+    """A one-line note on stderr (how the camera was chosen)."""
+    print(f"omni-sfm: note: {text}", file=sys.stderr, flush=True)
+
+
 def _extraction(args: argparse.Namespace) -> ExtractionOptions:
     """The line extraction options of ``--edge-low``/``--edge-high`` (checked here, so a bad
     value is one line, not a traceback)."""
@@ -229,8 +235,8 @@ def _run_plugin(args: argparse.Namespace) -> int:
     from omni_sfm.errors import OmniSfmError
     from omni_sfm.pipelines.init import init_with_initializer
 
-    if args.images is None or args.camera is None:
-        raise OmniSfmError("--initializer needs --images PATH and --camera FILE")
+    if args.images is None:
+        raise OmniSfmError("--initializer needs --images PATH (and --camera FILE)")
     line_only = {"--mask": args.mask is not None, "--no-refine": args.no_refine,
                  "--start/--end/--step": (args.start, args.end, args.step) != (0, None, 1),
                  "--edge-low/--edge-high": (args.edge_low, args.edge_high) != (None, None),
@@ -241,7 +247,7 @@ def _run_plugin(args: argparse.Namespace) -> int:
     if given:
         raise OmniSfmError(f"{given[0]} applies to the line-based method, not --initializer")
     res = init_with_initializer(args.images, args.camera, args.output, args.initializer,
-                                overwrite=args.overwrite)
+                                overwrite=args.overwrite, note=_note)
     total = len(res.image_names) + len(res.not_estimated)
     print(f"init: {len(res.image_names)} of {total} frames estimated by {args.initializer} "
           f"-> {args.output}")

@@ -30,8 +30,11 @@ def add_parser(subparsers: Any) -> None:
     p.add_argument("--images", required=True, metavar="PATH",
                    help="image folder, video file, camera device index (0) or stream URL "
                         "(rtsp://..., file:///...)")
-    p.add_argument("--camera", type=Path, required=True,
-                   help="camera file (any format omni-sfm reads; docs/cameras.md)")
+    p.add_argument("--camera", type=Path, default=None,
+                   help="camera file (any format omni-sfm reads; docs/cameras.md), or "
+                        "'equirectangular' (built from the frame size); without it, an MP4 "
+                        "with spherical-video metadata and a 2:1 frame is read as "
+                        "equirectangular")
     p.add_argument("--output", "-o", type=Path, required=True, help="output folder")
     p.add_argument("--mask", type=Path, help="mask image: nonzero where pixels may be used")
     p.add_argument("--stream", action="store_true",
@@ -53,11 +56,11 @@ def run(args: argparse.Namespace) -> int:
     import cv2
     import numpy as np
 
-    from omni_sfm.cameras import load_camera
     from omni_sfm.errors import OmniSfmError
     from omni_sfm.estimate.online import Status
     from omni_sfm.fileio import check_output_dir
     from omni_sfm.frames import is_stream, read_frames, read_mask, read_stream
+    from omni_sfm.lines.source_camera import camera_for_frames
     from omni_sfm.pipelines.track import Tracker
     from omni_sfm.pipelines.track_output import TrackOutput
 
@@ -65,9 +68,9 @@ def run(args: argparse.Namespace) -> int:
         raise OmniSfmError(f"--frames must be at least 1, got {args.frames}")
     spec = str(args.images)
     stream = is_stream(spec)
-    if not args.camera.is_file():
-        raise OmniSfmError(f"{args.camera}: camera file not found")
-    camera = load_camera(args.camera)
+    camera = camera_for_frames(
+        args.camera, spec,
+        note=lambda text: print(f"omni-sfm: note: {text}", file=sys.stderr, flush=True))
     size = (camera.width, camera.height)
     mask = read_mask(args.mask, size) if args.mask is not None else None
     check_output_dir(args.output, overwrite=args.overwrite,

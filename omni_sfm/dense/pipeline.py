@@ -62,6 +62,7 @@ from omni_sfm.folders import (
 from omni_sfm.frames import FrameStore
 from omni_sfm.geometry import FloatArray, normalize
 from omni_sfm.libs import open3d_module
+from omni_sfm.lines.source_camera import camera_for_frames
 from omni_sfm.lines3d import LineSegments3D, write_lines3d
 from omni_sfm.poses import Trajectory, write_tum
 
@@ -213,11 +214,15 @@ def read_dense_input(poses_dir: Path, images: Path | None = None,
     traj = owner.read_trajectory()
     if len(traj) < 3:
         raise OmniSfmError(f"{tum}: {len(traj)} poses, dense mapping needs at least 3")
-    cam_file = Path(camera_file) if camera_file is not None else owner / owner.CAMERA
-    if not cam_file.is_file():
-        raise OmniSfmError(f"{cam_file}: camera file not found (give --camera FILE)")
-    camera = load_camera(cam_file)
-    frames = FrameStore(images_for(poses_dir, images))
+    source = images_for(poses_dir, images)
+    if camera_file is not None:  # a file, or equirectangular from the frame size
+        camera = camera_for_frames(camera_file, source)
+    else:
+        cam_file = owner / owner.CAMERA
+        if not cam_file.is_file():
+            raise OmniSfmError(f"{cam_file}: camera file not found (give --camera FILE)")
+        camera = load_camera(cam_file)
+    frames = FrameStore(source)
     names = list(frames.names)
     manifest = poses_dir / InitFolder.MANIFEST
     chosen: list[str] | None = None

@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from omni_sfm.cameras import CameraModel, load_camera
+from omni_sfm.cameras import CameraModel
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.estimate.pipeline import EstimationOptions, EstimationResult, estimate_poses
 from omni_sfm.fileio import atomic_output_dir, atomic_write_text, dumps_json, stored_path
@@ -43,6 +43,7 @@ from omni_sfm.frames import (
 )
 from omni_sfm.geometry import ray_line_closest
 from omni_sfm.lines.frontend import FrontEndOptions, FrontEndResult, track_lines
+from omni_sfm.lines.source_camera import camera_for_frames
 from omni_sfm.lines3d import LineSegments3D, write_lines3d
 from omni_sfm.poses import Trajectory
 from omni_sfm.transforms import paper_normalised_positions
@@ -253,12 +254,16 @@ def _check_frames(images: Path | str, cam: CameraModel, o: InitOptions,
     return _Checks(mask, report, tuple(warnings), said)
 
 
-def init_from_images(images: Path | str, camera: Path | str | CameraModel, output: Path | str,
-                     options: InitOptions | None = None, *, mask: Path | str | None = None,
-                     overwrite: bool = False,
-                     warn: Callable[[str], None] | None = None) -> InitResult:
+def init_from_images(images: Path | str, camera: Path | str | CameraModel | None,
+                     output: Path | str, options: InitOptions | None = None, *,
+                     mask: Path | str | None = None, overwrite: bool = False,
+                     warn: Callable[[str], None] | None = None,
+                     note: Callable[[str], None] | None = None) -> InitResult:
     """Estimate the camera motion of an image folder or video from its straight lines.
 
+    ``camera``: a camera file, a model, ``"equirectangular"`` (built from the frame size) or
+    None (an MP4's spherical-video metadata), as :func:`~omni_sfm.lines.source_camera.
+    camera_for_frames` reads it; ``note`` gets its line when the metadata chose the camera.
     ``warn`` is called at once with each one-line warning (they are also in the result and
     ``report.json``).
 
@@ -280,7 +285,7 @@ def init_from_images(images: Path | str, camera: Path | str | CameraModel, outpu
                            f"{o.debug_view!r}")
     output = Path(output)
     check_output_dir(output, overwrite=overwrite, inputs=(Path(images),))
-    cam = camera if isinstance(camera, CameraModel) else load_camera(camera)
+    cam = camera_for_frames(camera, images, note=note)
     size = (cam.width, cam.height)
     user_mask = read_mask(mask, size) if mask is not None else None
     source = read_frames(images, o.start, o.end, o.step, size=size)
@@ -343,8 +348,7 @@ def init_from_images(images: Path | str, camera: Path | str | CameraModel, outpu
             entry["name"] = name
         extra: dict[str, Any] = {
             "input": {"images": stored_path(images, output),
-                      "camera": stored_path(camera, output) if not isinstance(
-                          camera, CameraModel) else camera.model,
+                      "camera": _camera_entry(camera, cam, output),
                       "mask": None if mask is None else stored_path(mask, output),
                       "start": o.start, "end": o.end, "step": o.step,
                       "timestamps": "seconds" if source.is_video else "frame index"},
@@ -421,10 +425,20 @@ def normalised_trajectory(traj: Trajectory) -> Trajectory:
     return Trajectory(traj.timestamps.copy(), rot, paper_normalised_positions(traj))
 
 
-def init_with_initializer(images: Path | str, camera: Path | str | CameraModel,
+def _camera_entry(given: Path | str | CameraModel | None, camera: CameraModel,
+                  output: Path | str) -> str:
+    """How ``report.json`` records the camera: the file's stored path, else the model's name
+    (a model, ``equirectangular`` from the frame size, or the video's metadata)."""
+    if isinstance(given, str | Path) and Path(given).is_file():
+        return stored_path(given, output)
+    return camera.model
+
+
+def init_with_initializer(images: Path | str, camera: Path | str | CameraModel | None,
                           output: Path | str, name: str, *,
                           options: dict[str, Any] | None = None,
-                          overwrite: bool = False) -> PluginInitResult:
+                          overwrite: bool = False,
+                          note: Callable[[str], None] | None = None) -> PluginInitResult:
     """``omni-sfm init --initializer NAME``: the poses of a registered initializer (a plugin,
     e.g. ``five-point``) on the frames, written as an init folder that ``refine`` and
     ``dense`` take like the line-based one: ``trajectory.tum`` (normalised as ``init``'s),
@@ -440,7 +454,7 @@ def init_with_initializer(images: Path | str, camera: Path | str | CameraModel,
 
     output = Path(output)
     check_output_dir(output, overwrite=overwrite, inputs=(Path(images),))
-    cam = camera if isinstance(camera, CameraModel) else load_camera(camera)
+    cam = camera_for_frames(camera, images, note=note)
     seq = sequence_from_frames(Path(images), cam)
     assert seq.images is not None  # sequence_from_frames reads frames
     res, seconds = run_initializer(name, seq, options)
@@ -454,8 +468,7 @@ def init_with_initializer(images: Path | str, camera: Path | str | CameraModel,
     missing = sorted(set(range(seq.num_frames)) - set(posed))
     report = {
         "input": {"images": stored_path(images, output),
-                  "camera": stored_path(camera, output) if not isinstance(
-                      camera, CameraModel) else camera.model,
+                  "camera": _camera_entry(camera, cam, output),
                   "timestamps": "seconds" if seq.images.is_video else "frame index"},
         "initializer": name, "status": res.status, "reason": res.reason, "info": res.info,
         "num_frames": seq.num_frames, "num_frames_estimated": len(traj),
