@@ -78,11 +78,14 @@ def remap_tables(camera: CameraModel, geometry: ViewGeometry, world_from_views: 
 
 
 def sample_views(image: np.ndarray, tables: FloatArray, valid: np.ndarray,
-                 erode_px: int = 2) -> tuple[np.ndarray, np.ndarray]:
+                 erode_px: int = 2, *, wrap: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Views of ``image`` ``(H0, W0[, 3])`` uint8 through ``tables`` ``(V, H, W, 2)``: the
     ``(V, H, W[, 3])`` images (bilinear) and ``(V, H, W)`` bool validity (the camera's
-    ``valid`` mask eroded by ``erode_px``, so the rim's black border gives no matches)."""
+    ``valid`` mask eroded by ``erode_px``, so the rim's black border gives no matches).
+    ``wrap``: the image wraps around left-right (a 360 panorama, whose every ray is valid)."""
     import cv2
+
+    border = cv2.BORDER_WRAP if wrap else cv2.BORDER_CONSTANT
 
     mask: np.ndarray = valid.astype(np.uint8)
     if erode_px > 0:
@@ -90,7 +93,7 @@ def sample_views(image: np.ndarray, tables: FloatArray, valid: np.ndarray,
     imgs, oks = [], []
     for t in tables:
         imgs.append(cv2.remap(image, t[..., 0], t[..., 1], cv2.INTER_LINEAR,
-                              borderMode=cv2.BORDER_CONSTANT, borderValue=0))
+                              borderMode=border, borderValue=0))
         oks.append(cv2.remap(mask, t[..., 0], t[..., 1], cv2.INTER_NEAREST,
-                             borderMode=cv2.BORDER_CONSTANT, borderValue=0) > 0)
+                             borderMode=border, borderValue=0) > 0)
     return np.stack(imgs), np.stack(oks)
