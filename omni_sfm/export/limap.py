@@ -6,9 +6,10 @@ endpoints, the counts of supporting 2D lines and images, ``image_id_list``, ``li
 ``line2d_list``, then ``END``) and the same tracks in one file, ``alltracks.txt``
 (``limap.util.io.save_txt_linetracks``). Image ids are those of the COLMAP model written beside
 them (``sparse/``, :mod:`omni_sfm.export.colmap`), the 2D segments are the projections of the
-3D segment's endpoints in COLMAP's pixel convention of each image whose valid region both
-endpoints project into (no occlusion test; a line of an omnidirectional image is a curve, of
-which the two ends are given), and the line id is the track's number.
+3D segment's endpoints by the exported COLMAP camera (COLMAP's pixel convention) in each image
+whose valid region both endpoints project into and where COLMAP's model projects them too (no
+occlusion test; a line of an omnidirectional image is a curve, of which the two ends are
+given), and the line id is the track's number.
 
 LIMAP has no file of parallel families; ``line_families.json`` (omni-sfm's) lists each family's
 direction and its tracks, in the same world.
@@ -34,16 +35,23 @@ FAMILIES_FILE = "line_families.json"
 
 def _project(camera: CameraModel, traj: Trajectory, x: np.ndarray
              ) -> tuple[np.ndarray, np.ndarray]:
-    """Pixels ``(N, L, 2)`` of world points ``x (L, 3)`` in every pose and ``(N, L)`` bool: in
-    the camera's valid region."""
+    """COLMAP pixels ``(N, L, 2)`` of world points ``x (L, 3)`` in every pose, as the exported
+    COLMAP camera projects them, and ``(N, L)`` bool: in the camera's valid region (and
+    projected by COLMAP's model too)."""
+    export = camera.colmap_export()
     rays = np.einsum("nji,nlj->nli", traj.rotations, x[None] - traj.positions[:, None])
-    uv = camera.pixels_from_rays(rays.reshape(-1, 3))
+    flat = rays.reshape(-1, 3)
+    uv = camera.pixels_from_rays(flat)
     ok = camera.in_image(uv)
     valid = camera.valid_mask()
     iu = np.clip(np.rint(np.nan_to_num(uv[:, 0])).astype(int), 0, camera.width - 1)
     iv = np.clip(np.rint(np.nan_to_num(uv[:, 1])).astype(int), 0, camera.height - 1)
     ok &= valid[iv, iu]
-    return uv.reshape(*rays.shape[:2], 2), ok.reshape(rays.shape[:2])
+    uv_colmap = np.full((len(flat), 2), np.nan)
+    if ok.any():
+        uv_colmap[ok] = np.asarray(export.camera.img_from_cam(export.rays_to_colmap(flat[ok])))
+    ok &= np.isfinite(uv_colmap).all(axis=1)
+    return uv_colmap.reshape(*rays.shape[:2], 2), ok.reshape(rays.shape[:2])
 
 
 def line_tracks(camera: CameraModel, traj: Trajectory, lines: LineSegments3D,
@@ -51,17 +59,15 @@ def line_tracks(camera: CameraModel, traj: Trajectory, lines: LineSegments3D,
     """Per segment: ``line`` ``(2, 3)``, ``image_ids`` (the COLMAP image id of each pose,
     ``image_ids[k]``, 0: none; default ``k + 1``) and ``line2d`` ``(M, 4)``: COLMAP pixels of
     the two ends in each supporting image."""
-    export = camera.colmap_export()
     ids = np.arange(1, len(traj) + 1) if image_ids is None else np.asarray(image_ids, int)
     uv_s, ok_s = _project(camera, traj, lines.starts)
     uv_e, ok_e = _project(camera, traj, lines.ends)
     out = []
     for i in range(len(lines)):
         rows = np.flatnonzero(ok_s[:, i] & ok_e[:, i] & (ids > 0))
-        s = export.pixels_to_colmap(uv_s[rows, i]) if len(rows) else np.zeros((0, 2))
-        e = export.pixels_to_colmap(uv_e[rows, i]) if len(rows) else np.zeros((0, 2))
         out.append({"line": np.stack([lines.starts[i], lines.ends[i]]),
-                    "image_ids": ids[rows].tolist(), "line2d": np.hstack([s, e])})
+                    "image_ids": ids[rows].tolist(),
+                    "line2d": np.hstack([uv_s[rows, i], uv_e[rows, i]])})
     return out
 
 
