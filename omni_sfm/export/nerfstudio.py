@@ -16,7 +16,8 @@ rays: ``fl_x = w / 2``, ``fl_y = h``, ``cx = w / 2``, ``cy = h / 2``; the image 
 along the camera's ``-z``, the top row up, as omni-sfm's equirectangular camera in OpenCV axes),
 ``OPENCV_FISHEYE`` with ``k1..k4`` for Kannala-Brandt fisheye frames, and for every other model
 perspective views rendered from the frames (:mod:`omni_sfm.export.perspective`), camera model
-``OPENCV`` with zero distortion, with a mask per view where the camera does not cover it all.
+``OPENCV`` with zero distortion, with a mask for every view image (nerfstudio takes masks for all
+images or none) where the camera does not cover every view whole.
 """
 
 from __future__ import annotations

@@ -38,6 +38,7 @@ SPARSE_DIR = "sparse"
 IMAGES_DIR = "images"
 MASKS_DIR = "masks"
 REPORT_FILE = "report.json"
+PLY_FILE = "sparse_pc.ply"
 
 
 @dataclass(frozen=True)
@@ -312,6 +313,8 @@ def _export_nerfstudio(src: _Source, out: Path, opts: ExportOptions, progress: b
         g = layout.geometry
         intr = view_intrinsics(g.width, g.height, g.focal, g.cx, g.cy)
         valid = src.camera.valid_mask()
+        # nerfstudio takes a mask for every image or for none
+        masked = not bool(layout.valid.all())
         for k, name in enumerate(_progress(names, "export", progress)):
             views, ok = layout.render(src.read(store, name), valid)
             R = traj.rotations[k][None] @ layout.cam_from_views
@@ -320,7 +323,7 @@ def _export_nerfstudio(src: _Source, out: Path, opts: ExportOptions, progress: b
                 rel = f"{IMAGES_DIR}/{view}/{png_name(name)}"
                 _write_png(out / rel, views[v])
                 mask = None
-                if not ok[v].all():
+                if masked:
                     mask = f"{MASKS_DIR}/{view}/{png_name(name)}"
                     _write_png(out / mask, np.where(ok[v], 255, 0).astype(np.uint8))
                 entries.append(frame_entry(rel, c2w[v], mask_path=mask,
@@ -329,9 +332,39 @@ def _export_nerfstudio(src: _Source, out: Path, opts: ExportOptions, progress: b
         info["views"] = layout.to_json()
     doc = transforms_document(intr, entries, src.up.matrix() if src.up.vertical is not None
                               else None)
+    points = _sparse_points(src)
+    if points is not None:
+        from omni_sfm.libs import open3d_module
+
+        o3d = open3d_module()
+        pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(src.up.points(points[0])))
+        pcd.colors = o3d.utility.Vector3dVector(points[1])
+        if not o3d.io.write_point_cloud(str(out / PLY_FILE), pcd):
+            raise OmniSfmError(f"{out / PLY_FILE}: Open3D could not write the points")
+        doc["ply_file_path"] = PLY_FILE
+        info["points"] = f"{PLY_FILE}: {len(points[0])} points of the folder's COLMAP model"
     atomic_write_text(out / TRANSFORMS_FILE, dumps_json(doc))
     info["num_images"] = len(entries)
     return info
+
+
+def _sparse_points(src: _Source) -> tuple[np.ndarray, np.ndarray] | None:
+    """``(N, 3)`` points and ``(N, 3)`` RGB in [0, 1] of the folder's COLMAP model (refine's
+    triangulated points), or None when it has none."""
+    sparse = src.owner / SPARSE_DIR
+    if not (sparse / "points3D.bin").is_file():
+        return None
+    import pycolmap
+
+    try:
+        rec = pycolmap.Reconstruction(str(sparse))
+    except Exception as exc:  # pycolmap raises plain RuntimeError/ValueError on bad files
+        raise OmniSfmError(f"{sparse}: cannot read the COLMAP model: {exc}") from None
+    if rec.num_points3D() == 0:
+        return None
+    pts = list(rec.points3D.values())
+    return (np.asarray([p.xyz for p in pts], float),
+            np.asarray([p.color for p in pts], float) / 255.0)
 
 
 def _export_colmap_rig(src: _Source, out: Path, opts: ExportOptions, progress: bool

@@ -100,8 +100,8 @@ class UpFrame:
         if self.vertical is not None:
             from dataclasses import replace
 
-            out = replace(out, up=np.array([0.0, 0.0, 1.0]),
-                          frame="export world: +z up, origin at the first camera, pose units")
+            out = replace(out, up=np.array([0.0, 0.0, 1.0]), frame="export world: +z up, "
+                          "origin at the first camera, the folder's units")
         return out
 
     def points(self, x: FloatArray) -> FloatArray:
