@@ -23,14 +23,18 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, ClassVar
 
+import numpy as np
+
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.fileio import read_json, resolve_stored
 
 if TYPE_CHECKING:
     from omni_sfm.cameras import CameraModel
+    from omni_sfm.frames import FrameStore
     from omni_sfm.lines.tracks import LineTracks
     from omni_sfm.lines3d import LineSegments3D
     from omni_sfm.poses import Trajectory
+
 
 @dataclass(frozen=True)
 class StageFolder:
@@ -112,6 +116,59 @@ def carry_forward(src: Path | str, dst: Path | str, names: tuple[str, ...] = CAR
             copied.append(name)
     return copied
 
+
+def _by_video_time(frames: FrameStore, ts: np.ndarray) -> list[str] | None:
+    """The video frames whose times (seconds, as ``init`` stamps video frames) are nearest to
+    the pose timestamps ``ts``, if each lies within a quarter of a frame interval; else None."""
+    t = frames.timestamps
+    if len(t) < 2:
+        return None
+    k = np.clip(np.searchsorted(t, ts), 1, len(t) - 1)
+    k -= (ts - t[k - 1]) < (t[k] - ts)
+    if not np.all(np.abs(t[k] - ts) < 0.25 * float(np.diff(t).min())):
+        return None
+    return [frames.names[int(i)] for i in k]
+
+
+def pose_frame_names(folder: Path | str, traj: Trajectory, frames: FrameStore) -> list[str]:
+    """The name in ``frames`` of the frame of every pose of ``traj`` (``folder``'s poses), in
+    trajectory order; a one-line OmniSfmError when they cannot be matched or some are missing.
+
+    Frames are found by the folder's ``colmap.json`` image names when present, else (video) by
+    the timestamps in seconds ``init`` gives video frames, else by names equal to the integer
+    timestamps (``000012.png`` for timestamp 12), else in order when the source holds exactly
+    one frame per pose."""
+    names = list(frames.names)
+    manifest = Path(folder) / InitFolder.MANIFEST
+    chosen: list[str] | None = None
+    if manifest.is_file():
+        m = read_json(manifest, "colmap manifest")
+        listed = m.get("image_names") if isinstance(m, dict) else None
+        if isinstance(listed, list) and len(listed) == len(traj):
+            chosen = [str(n) for n in listed]
+    if chosen is None:
+        by_stem: dict[int, str] = {}
+        for n in names:
+            stem = Path(n).stem
+            if stem.isdigit():
+                by_stem.setdefault(int(stem), n)
+        ts = traj.timestamps
+        chosen = _by_video_time(frames, ts) if frames.is_video else None
+        if chosen is None and np.all(ts == np.round(ts)) and all(int(t) in by_stem for t in ts):
+            chosen = [by_stem[int(t)] for t in ts]
+        if chosen is None and len(names) == len(traj):
+            chosen = names
+        if chosen is None:
+            raise OmniSfmError(
+                f"{frames.path}: cannot match {len(names)} frames to the {len(traj)} poses of "
+                f"{Path(folder) / TRAJECTORY_FILE} (need frame names equal to the timestamps, "
+                "colmap.json names, or one frame per pose)")
+    have = set(names)
+    missing = [n for n in chosen if n not in have]
+    if missing:
+        raise OmniSfmError(f"{frames.path}: {len(missing)} of {len(chosen)} frames are missing "
+                           f"(first: {missing[0]!r})")
+    return chosen
 
 
 @dataclass(frozen=True)

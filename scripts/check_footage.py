@@ -128,7 +128,7 @@ def run_init(images: Path, camera: str | None, out: Path, extra: list[str]) -> d
 def run_colmap(images: Path, camera: Any, out: Path, options: dict[str, Any]) -> dict[str, Any]:
     """COLMAP's SfM on the frames (the ``colmap`` initializer, as ``init --initializer``)."""
     from omni_sfm.errors import OmniSfmError
-    from omni_sfm.initialize import init_with_initializer
+    from omni_sfm.pipelines.init import init_with_initializer
 
     t0 = time.perf_counter()
     try:
@@ -290,8 +290,8 @@ def main(argv: list[str] | None = None) -> int:
 
     from omni_sfm.errors import OmniSfmError
     from omni_sfm.fileio import dumps_json
-    from omni_sfm.lines.source_camera import camera_for_frames
     from omni_sfm.frames import FrameStore
+    from omni_sfm.lines.source_camera import camera_for_frames
     from omni_sfm.poses import read_tum
 
     out: Path = args.output

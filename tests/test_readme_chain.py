@@ -5,7 +5,8 @@ in a fresh folder with relative paths (``cd`` included), exactly as written, wit
 ``compare`` runs only the ``lines`` initializer (the point-based ones are tested in
 tests/test_compare.py), and for the video the example is rendered with ``--video`` and
 ``images/`` becomes ``video.mp4`` wherever the README says so. The final view must have the
-trajectory, the 3D lines and the map, and ``compare``'s ``lines`` trajectory must be ``init``'s.
+trajectory, the 3D lines and the map, ``compare``'s ``lines`` trajectory must be ``init``'s, and
+the two exports must hold the refined poses (nerfstudio's ``transforms.json``, COLMAP's rig).
 """
 
 from __future__ import annotations
@@ -19,8 +20,11 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pycolmap
 import pytest
 
+from omni_sfm.export.nerfstudio import opencv_poses, read_transforms
+from omni_sfm.export.pipeline import export_trajectory_of
 from omni_sfm.poses import read_tum
 from omni_sfm.view.scene import load_view_scene
 
@@ -37,7 +41,7 @@ def readme_chain() -> list[list[str]]:
     cmds = [shlex.split(line, comments=True) for line in block.group(1).splitlines()]
     cmds = [c for c in cmds if c]
     assert [c[1] for c in cmds if c[0] == "omni-sfm"] == [
-        "render", "camera", "init", "refine", "dense", "view", "compare"], cmds
+        "render", "camera", "init", "refine", "export", "export", "dense", "view", "compare"], cmds
     return cmds
 
 
@@ -59,7 +63,7 @@ def run_chain(tmp: Path, video: bool) -> Path:
                            stdin=subprocess.DEVNULL, timeout=600)
         assert r.returncode == 0, f"{' '.join(cmd)} exited {r.returncode}: {r.stderr[-2000:]}"
         assert "Traceback" not in r.stderr, r.stderr
-        if cmd[1] in ("init", "refine", "dense", "view", "compare"):
+        if cmd[1] in ("init", "refine", "export", "dense", "view", "compare"):
             assert r.stdout.strip(), f"{cmd[1]} printed no summary on stdout"
     return cwd
 
@@ -91,3 +95,19 @@ def test_readme_chain_end_to_end(tmp_path: Path, video: bool) -> None:
     np.testing.assert_allclose(lines.rotations, init.rotations, atol=1e-9)
     if video:
         assert not np.array_equal(init.timestamps, np.round(init.timestamps))  # seconds
+    # the splat-ready exports: the refined poses in nerfstudio's and COLMAP's rig conventions
+    refined_traj = read_tum(ex / "refined" / "trajectory.tum")
+    doc, frames = read_transforms(ex / "splat" / "transforms.json")
+    report = json.loads((ex / "splat" / "report.json").read_text())
+    assert report["world"]["turned"] and doc["camera_model"] == "OPENCV"
+    views = len(report["views"]["views"])
+    assert len(frames) == views * n
+    want = export_trajectory_of(report, refined_traj)
+    got = opencv_poses(np.asarray([m for _, m in frames]))
+    np.testing.assert_allclose(got.positions[::views], want.positions, atol=1e-9)
+    rig = pycolmap.Reconstruction(str(ex / "rig" / "sparse"))
+    assert rig.num_rigs() == 1 and rig.num_frames() == n and rig.num_images() == n * views
+    for frame in rig.frames.values():
+        T = np.asarray(frame.rig_from_world.matrix())
+        np.testing.assert_allclose(T[:, :3].T @ -T[:, 3], want.positions[frame.frame_id - 1],
+                                   atol=1e-9)

@@ -54,10 +54,10 @@ from omni_sfm.fileio import (
 )
 from omni_sfm.folders import (
     DenseFolder,
-    InitFolder,
     StageFolder,
     carry_forward,
     images_for,
+    pose_frame_names,
 )
 from omni_sfm.frames import FrameStore
 from omni_sfm.geometry import FloatArray, normalize
@@ -180,19 +180,6 @@ class DenseResult:
     report: dict[str, Any]
 
 
-def _by_video_time(frames: FrameStore, ts: FloatArray) -> list[str] | None:
-    """The video frames whose times (seconds, as ``init`` stamps video frames) are nearest to
-    the pose timestamps ``ts``, if each lies within a quarter of a frame interval; else None."""
-    t = frames.timestamps
-    if len(t) < 2:
-        return None
-    k = np.clip(np.searchsorted(t, ts), 1, len(t) - 1)
-    k -= (ts - t[k - 1]) < (t[k] - ts)
-    if not np.all(np.abs(t[k] - ts) < 0.25 * float(np.diff(t).min())):
-        return None
-    return [frames.names[int(i)] for i in k]
-
-
 def read_dense_input(poses_dir: Path, images: Path | None = None,
                      camera_file: Path | None = None) -> DenseInput:
     """Poses folder + frames -> :class:`DenseInput`; every defect is a one-line OmniSfmError.
@@ -202,8 +189,6 @@ def read_dense_input(poses_dir: Path, images: Path | None = None,
     ``colmap.json`` image names when present, else (video) by the timestamps in seconds ``init``
     gives video frames, else by names equal to the integer timestamps (``000012.png`` for
     timestamp 12), else in order when the source holds exactly one frame per pose."""
-    from omni_sfm.fileio import read_json
-
     poses_dir = Path(poses_dir)
     if not poses_dir.is_dir():
         raise OmniSfmError(f"{poses_dir}: poses folder not found")
@@ -223,36 +208,7 @@ def read_dense_input(poses_dir: Path, images: Path | None = None,
             raise OmniSfmError(f"{cam_file}: camera file not found (give --camera FILE)")
         camera = load_camera(cam_file)
     frames = FrameStore(source)
-    names = list(frames.names)
-    manifest = poses_dir / InitFolder.MANIFEST
-    chosen: list[str] | None = None
-    if manifest.is_file():
-        m = read_json(manifest, "colmap manifest")
-        listed = m.get("image_names") if isinstance(m, dict) else None
-        if isinstance(listed, list) and len(listed) == len(traj):
-            chosen = [str(n) for n in listed]
-    if chosen is None:
-        by_stem: dict[int, str] = {}
-        for n in names:
-            stem = Path(n).stem
-            if stem.isdigit():
-                by_stem.setdefault(int(stem), n)
-        ts = traj.timestamps
-        chosen = _by_video_time(frames, ts) if frames.is_video else None
-        if chosen is None and np.all(ts == np.round(ts)) and all(int(t) in by_stem for t in ts):
-            chosen = [by_stem[int(t)] for t in ts]
-        if chosen is None and len(names) == len(traj):
-            chosen = names
-        if chosen is None:
-            raise OmniSfmError(
-                f"{frames.path}: cannot match {len(names)} frames to the {len(traj)} poses of "
-                f"{tum} (need frame names equal to the timestamps, colmap.json names, or one "
-                "frame per pose)")
-    have = set(names)
-    missing = [n for n in chosen if n not in have]
-    if missing:
-        raise OmniSfmError(f"{frames.path}: {len(missing)} of {len(chosen)} frames are missing "
-                           f"(first: {missing[0]!r})")
+    chosen = pose_frame_names(poses_dir, traj, frames)
     lines = owner.read_lines3d()
     return DenseInput(traj, camera, frames, tuple(chosen), lines)
 

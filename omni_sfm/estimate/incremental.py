@@ -210,8 +210,8 @@ class Growth:
                  families: tuple[FloatArray, np.ndarray] | None = None) -> None:
         """``families``: the parallel families' world directions ``(K, 3)`` and each line's
         family ``(M,)`` (-1: none; the known lines of a family already have its direction), as
-        an earlier growth found them (:mod:`omni_sfm.estimate.online` carries them from one window to
-        the next); None: found here from the known lines (``options.families``)."""
+        an earlier growth found them (:mod:`omni_sfm.estimate.online` carries them from one
+        window to the next); None: found here from the known lines (``options.families``)."""
         self.tracks, self.o = tracks, options
         F, M = tracks.num_frames, tracks.num_tracks
         self.R, self.c = np.array(R, np.float64), np.array(c, np.float64)

@@ -14,8 +14,8 @@ from pathlib import Path
 
 from omni_sfm.cameras import CameraModel, EquirectangularCamera, load_camera
 from omni_sfm.errors import OmniSfmError
-from omni_sfm.lines.spherical import spherical_metadata
 from omni_sfm.frames import first_frame_size, is_stream
+from omni_sfm.lines.spherical import spherical_metadata
 
 EQUIRECTANGULAR = "equirectangular"
 """The ``--camera`` value that needs no file: an equirectangular camera of the frames' size."""

@@ -1,0 +1,437 @@
+"""``omni-sfm export``: an init, refine or dense folder in the format another tool reads
+(docs/formats.md, "Exports").
+
+Formats (:data:`FORMATS`): ``tum`` and ``kitti`` trajectories, ``colmap`` (the folder's COLMAP
+model, or one built from its poses, with the frames as COLMAP must see them), ``nerfstudio``
+(``transforms.json``), ``limap`` (the 3D lines as LIMAP line tracks beside the COLMAP model)
+and ``colmap-rig`` (a COLMAP 4.2 rig of perspective views rendered from the frames). Each
+writes its output folder complete or not at all, with its own ``report.json`` that records the
+world it is in (:mod:`omni_sfm.export.up`).
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from omni_sfm.cameras import write_camera_yaml
+from omni_sfm.errors import OmniSfmError
+from omni_sfm.export.up import MOUNT_UP_AXIS, UpFrame, find_up, parse_axis
+from omni_sfm.fileio import atomic_output_dir, atomic_write_text, dumps_json, read_json
+from omni_sfm.folders import StageFolder, images_for, pose_frame_names
+from omni_sfm.geometry import normalize
+from omni_sfm.poses import Trajectory
+
+FORMATS: dict[str, bool] = {
+    "tum": False, "kitti": False, "colmap": False,
+    "nerfstudio": True, "limap": True, "colmap-rig": True,
+}
+"""Every format, and whether it turns the world gravity-up by default (``--up``)."""
+
+SPARSE_DIR = "sparse"
+IMAGES_DIR = "images"
+MASKS_DIR = "masks"
+REPORT_FILE = "report.json"
+PLY_FILE = "sparse_pc.ply"
+
+
+@dataclass(frozen=True)
+class ExportOptions:
+    """What to export.
+
+    Attributes:
+        fmt: one of :data:`FORMATS`.
+        up: turn the world gravity-up (None: the format's default).
+        up_axis: the camera axis that points up (``"-y"``...), None: the model's own.
+        views: the perspective views' layout, ``overlapping`` or ``cubemap``
+            (:mod:`omni_sfm.export.perspective`).
+    """
+
+    fmt: str
+    up: bool | None = None
+    up_axis: str | None = None
+    views: str = "overlapping"
+
+    @property
+    def turn_up(self) -> bool:
+        return FORMATS[self.fmt] if self.up is None else self.up
+
+
+class _Source:
+    """The folder's poses, camera, lines and frames."""
+
+    def __init__(self, folder: Path, images: Path | None, opts: ExportOptions) -> None:
+        self.path = Path(folder)
+        if not self.path.is_dir():
+            raise OmniSfmError(f"{self.path}: input folder not found")
+        owner = StageFolder(self.path)
+        if not (owner / owner.TRAJECTORY).is_file():
+            raise OmniSfmError(f"{owner / owner.TRAJECTORY}: no trajectory (need an init, refine "
+                               "or dense folder)")
+        self.owner = owner
+        self.traj = owner.read_trajectory()
+        if not (owner / owner.CAMERA).is_file():
+            raise OmniSfmError(f"{owner / owner.CAMERA}: camera file not found")
+        self.camera = owner.read_camera()
+        self.lines = owner.read_lines3d()
+        rep = owner / owner.REPORT
+        self.report = read_json(rep, "report") if rep.is_file() else None
+        self.images_arg = images
+        if opts.turn_up:
+            axis = parse_axis(opts.up_axis) if opts.up_axis else None
+            self.up = find_up(self.traj, self.camera, self.lines, self.report, axis,
+                              _line_tracks(self.path))
+        else:
+            self.up = UpFrame.identity()
+        self.traj_out = self.up.trajectory(self.traj)
+        self.lines_out = self.up.lines(self.lines) if self.lines is not None else None
+        self._frames: Any = None
+        self._names: list[str] | None = None
+
+    def frames(self, required: bool) -> tuple[Any, list[str]] | None:
+        """``(FrameStore, name of every pose's frame)``, or None when not ``required`` and the
+        folder records no frames."""
+        if self._frames is None:
+            from omni_sfm.frames import FrameStore
+
+            try:
+                src = images_for(self.path, self.images_arg)
+            except OmniSfmError:
+                if required:
+                    raise
+                return None
+            self._frames = FrameStore(src)
+            self._names = pose_frame_names(self.path, self.traj, self._frames)
+        assert self._names is not None
+        return self._frames, self._names
+
+    def read(self, store: Any, name: str) -> np.ndarray:
+        """Frame ``name``, BGR, checked against the camera's size."""
+        img = store.read(name)
+        if img.shape[:2] != (self.camera.height, self.camera.width):
+            raise OmniSfmError(f"{store.where(name)}: image is {img.shape[1]}x{img.shape[0]} px, "
+                               f"the camera is {self.camera.width}x{self.camera.height}")
+        return np.asarray(img)
+
+    def default_names(self) -> list[str]:
+        """Image names without frames: ``colmap.json``'s, else the timestamps as
+        ``NNNNNN.png``."""
+        man = self.owner / "colmap.json"
+        if man.is_file():
+            doc = read_json(man, "COLMAP manifest")
+            names = doc.get("image_names") if isinstance(doc, dict) else None
+            if isinstance(names, list) and len(names) == len(self.traj):
+                return [str(n) for n in names]
+        return [f"{int(round(t)):06d}.png" for t in self.traj.timestamps]
+
+    def up_in_cam(self) -> np.ndarray:
+        """The vertical in the camera frame (mean over the frames), for laying out views."""
+        if self.up.vertical is not None:
+            return normalize(np.einsum("nji,j->ni", self.traj.rotations,
+                                       self.up.vertical).mean(axis=0))
+        axis = MOUNT_UP_AXIS.get(self.camera.model, (0.0, -1.0, 0.0))
+        return np.asarray(axis, float)
+
+
+def _line_tracks(folder: Path, hops: int = 3) -> Any:
+    """The ``tracks.json`` the folder's poses were estimated from: the folder's own, else that
+    of the folder its ``report.json`` names as input (``input.init`` of refine, ``input.poses``
+    of dense), up to ``hops`` folders back; None when there is none."""
+    from omni_sfm.fileio import resolve_stored
+    from omni_sfm.folders import InitFolder
+    from omni_sfm.lines.tracks import read_tracks
+
+    for _ in range(hops):
+        if (folder / InitFolder.TRACKS).is_file():
+            try:
+                return read_tracks(folder / InitFolder.TRACKS)
+            except OmniSfmError:
+                return None
+        rep = folder / REPORT_FILE
+        doc = read_json(rep, "report") if rep.is_file() else None
+        inp = doc.get("input") if isinstance(doc, dict) else None
+        prev = (inp.get("init") or inp.get("poses")) if isinstance(inp, dict) else None
+        if not isinstance(prev, str) or not prev:
+            return None
+        folder = resolve_stored(prev, folder)
+    return None
+
+
+def _progress(items: list[Any], desc: str, progress: bool) -> Iterator[Any]:
+    if not progress:
+        yield from items
+        return
+    from tqdm import tqdm
+
+    yield from tqdm(items, desc=desc, unit="frame", file=sys.stderr)
+
+
+def _write_png(path: Path, image: np.ndarray) -> None:
+    import cv2
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if not cv2.imwrite(str(path), image, [cv2.IMWRITE_PNG_COMPRESSION, 1]):
+        raise OmniSfmError(f"{path}: OpenCV cannot write this image")
+
+
+def png_name(name: str) -> str:
+    """A frame's image name with the extension ``.png``."""
+    from pathlib import PurePosixPath
+
+    return PurePosixPath(name).with_suffix(".png").as_posix()
+
+
+# --- the formats ----------------------------------------------------------------------------
+
+def _export_trajectory(src: _Source, out: Path, opts: ExportOptions, progress: bool
+                       ) -> dict[str, Any]:
+    from omni_sfm.export.trajectories import write_trajectory_export
+
+    return {"files": write_trajectory_export(out, src.traj_out, opts.fmt),
+            "camera_frame": "the camera model's ray frame (docs/cameras.md)"}
+
+
+def _colmap_model(src: _Source, out: Path) -> tuple[Any, list[str], dict[str, Any]]:
+    """The folder's COLMAP model (``sparse/``, with its points) moved to the export's world, or
+    one built from the poses; written to ``out/sparse``."""
+    import pycolmap
+
+    from omni_sfm.export.colmap import build_reconstruction
+
+    export = src.camera.colmap_export()
+    sparse = src.owner / SPARSE_DIR
+    info: dict[str, Any] = {}
+    rec = None
+    if (sparse / "cameras.bin").is_file() or (sparse / "cameras.txt").is_file():
+        try:
+            rec = pycolmap.Reconstruction(str(sparse))
+        except Exception as exc:  # pycolmap raises plain RuntimeError/ValueError on bad files
+            raise OmniSfmError(f"{sparse}: cannot read the COLMAP model: {exc}") from None
+        R, t = src.up.up_from_world, -src.up.up_from_world @ src.up.origin
+        rec.transform(pycolmap.Sim3d(1.0, pycolmap.Rotation3d(R), t[:, None]))
+        info["model"] = f"the folder's {SPARSE_DIR}/ ({rec.num_points3D()} points), turned"
+    frames = src.frames(required=False)
+    if rec is None:
+        names = frames[1] if frames is not None else src.default_names()
+        rec = build_reconstruction(src.camera, src.traj_out, names).reconstruction
+        info["model"] = "built from the poses (no points)"
+    by_name = {im.name: im for im in rec.images.values() if im.has_pose}
+    names = [n for n in (frames[1] if frames is not None else src.default_names())
+             if n in by_name]
+    if frames is not None:
+        centres = np.asarray([by_name[n].projection_center() for n in names])
+        rows = {n: k for k, n in enumerate(frames[1])}
+        want = src.traj_out.positions[[rows[n] for n in names]]
+        tol = 1e-6 * max(1.0, float(np.abs(want).max()))
+        if len(names) and not np.allclose(centres, want, atol=tol):
+            raise OmniSfmError(f"{sparse}: the model's camera centres differ from "
+                               f"{src.owner / src.owner.TRAJECTORY}")
+    (out / SPARSE_DIR).mkdir(parents=True, exist_ok=True)
+    rec.write_binary(str(out / SPARSE_DIR))
+    write_camera_yaml(out / "camera.yaml", src.camera)
+    info.update({"camera_model": export.camera.model_name, "flip_u": export.flip_u,
+                 "colmap_cam_from_cam": export.colmap_cam_from_cam.tolist(),
+                 "num_images": rec.num_images(), "num_points3D": rec.num_points3D()})
+    return rec, sorted(by_name), info
+
+
+def _export_colmap(src: _Source, out: Path, opts: ExportOptions, progress: bool
+                   ) -> dict[str, Any]:
+    from omni_sfm.export.colmap import write_colmap_mask
+
+    export = src.camera.colmap_export()
+    rec, names, info = _colmap_model(src, out)
+    frames = src.frames(required=False)
+    if frames is None:
+        info["images"] = "none: the folder records no frames (give --images)"
+        return info
+    store, _ = frames
+    for name in _progress(names, "export", progress):
+        _write_png(out / IMAGES_DIR / name, export.image_to_colmap(src.read(store, name)))
+    write_colmap_mask(out / "camera_mask.png", src.camera)
+    info["images"] = f"{IMAGES_DIR}/ ({len(names)} frames as COLMAP sees them)"
+    return info
+
+
+def _export_limap(src: _Source, out: Path, opts: ExportOptions, progress: bool
+                  ) -> dict[str, Any]:
+    from omni_sfm.export.limap import write_limap_tracks
+
+    if src.lines_out is None or not len(src.lines_out):
+        raise OmniSfmError(f"{src.owner / src.owner.LINES3D}: no 3D lines to export for LIMAP")
+    rec, _, info = _colmap_model(src, out)
+    # the LIMAP tracks' image ids are the model's: pose row k is image k + 1 when the model was
+    # built from the poses or is the init's; a refine model is matched by name
+    info["limap"] = write_limap_tracks(out, src.camera, src.traj_out, src.lines_out,
+                                       image_ids=_image_ids(rec, src))
+    return info
+
+
+def _image_ids(rec: Any, src: _Source) -> list[int]:
+    """The model's image id of every pose, by name (pose order); 0 where it has none."""
+    frames = src.frames(required=False)
+    names = frames[1] if frames is not None else src.default_names()
+    by_name = {im.name: im.image_id for im in rec.images.values()}
+    return [int(by_name.get(n, 0)) for n in names]
+
+
+def _export_nerfstudio(src: _Source, out: Path, opts: ExportOptions, progress: bool
+                       ) -> dict[str, Any]:
+    from omni_sfm.export.nerfstudio import (
+        TRANSFORMS_FILE,
+        camera_intrinsics,
+        frame_entry,
+        transform_matrices,
+        transforms_document,
+        view_intrinsics,
+    )
+
+    fr = src.frames(required=True)
+    assert fr is not None
+    store, names = fr
+    traj = src.traj_out
+    intr = camera_intrinsics(src.camera)
+    entries = []
+    info: dict[str, Any] = {}
+    if intr is not None:
+        c2w = transform_matrices(traj.rotations, traj.positions)
+        for k, name in enumerate(_progress(names, "export", progress)):
+            rel = f"{IMAGES_DIR}/{png_name(name)}"
+            _write_png(out / rel, src.read(store, name))
+            entries.append(frame_entry(rel, c2w[k], timestamp=float(traj.timestamps[k])))
+        info["images"] = f"the frames themselves ({intr['camera_model']})"
+    else:
+        from omni_sfm.export.perspective import view_layout
+
+        layout = view_layout(src.camera, src.up_in_cam(), opts.views)
+        g = layout.geometry
+        intr = view_intrinsics(g.width, g.height, g.focal, g.cx, g.cy)
+        valid = src.camera.valid_mask()
+        # nerfstudio takes a mask for every image or for none
+        masked = not bool(layout.valid.all())
+        for k, name in enumerate(_progress(names, "export", progress)):
+            views, ok = layout.render(src.read(store, name), valid)
+            R = traj.rotations[k][None] @ layout.cam_from_views
+            c2w = transform_matrices(R, np.repeat(traj.positions[k][None], len(R), axis=0))
+            for v, view in enumerate(layout.names):
+                rel = f"{IMAGES_DIR}/{view}/{png_name(name)}"
+                _write_png(out / rel, views[v])
+                mask = None
+                if masked:
+                    mask = f"{MASKS_DIR}/{view}/{png_name(name)}"
+                    _write_png(out / mask, np.where(ok[v], 255, 0).astype(np.uint8))
+                entries.append(frame_entry(rel, c2w[v], mask_path=mask,
+                                           timestamp=float(traj.timestamps[k]), view=view))
+        info["images"] = f"perspective views ({opts.views}: {len(layout.names)} per frame)"
+        info["views"] = layout.to_json()
+    doc = transforms_document(intr, entries, src.up.matrix() if src.up.vertical is not None
+                              else None)
+    points = _sparse_points(src)
+    if points is not None:
+        from omni_sfm.libs import open3d_module
+
+        o3d = open3d_module()
+        pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(src.up.points(points[0])))
+        pcd.colors = o3d.utility.Vector3dVector(points[1])
+        if not o3d.io.write_point_cloud(str(out / PLY_FILE), pcd):
+            raise OmniSfmError(f"{out / PLY_FILE}: Open3D could not write the points")
+        doc["ply_file_path"] = PLY_FILE
+        info["points"] = f"{PLY_FILE}: {len(points[0])} points of the folder's COLMAP model"
+    atomic_write_text(out / TRANSFORMS_FILE, dumps_json(doc))
+    info["num_images"] = len(entries)
+    return info
+
+
+def _sparse_points(src: _Source) -> tuple[np.ndarray, np.ndarray] | None:
+    """``(N, 3)`` points and ``(N, 3)`` RGB in [0, 1] of the folder's COLMAP model (refine's
+    triangulated points), or None when it has none."""
+    sparse = src.owner / SPARSE_DIR
+    if not (sparse / "points3D.bin").is_file():
+        return None
+    import pycolmap
+
+    try:
+        rec = pycolmap.Reconstruction(str(sparse))
+    except Exception as exc:  # pycolmap raises plain RuntimeError/ValueError on bad files
+        raise OmniSfmError(f"{sparse}: cannot read the COLMAP model: {exc}") from None
+    if rec.num_points3D() == 0:
+        return None
+    pts = list(rec.points3D.values())
+    return (np.asarray([p.xyz for p in pts], float),
+            np.asarray([p.color for p in pts], float) / 255.0)
+
+
+def _export_colmap_rig(src: _Source, out: Path, opts: ExportOptions, progress: bool
+                       ) -> dict[str, Any]:
+    from omni_sfm.export.colmap_rig import build_rig_reconstruction, view_image_name
+    from omni_sfm.export.perspective import view_layout
+
+    fr = src.frames(required=True)
+    assert fr is not None
+    store, names = fr
+    layout = view_layout(src.camera, src.up_in_cam(), opts.views)
+    rec = build_rig_reconstruction(layout, src.traj_out, names)
+    (out / SPARSE_DIR).mkdir(parents=True, exist_ok=True)
+    rec.write_binary(str(out / SPARSE_DIR))
+    valid = src.camera.valid_mask()
+    for name in _progress(names, "export", progress):
+        views, ok = layout.render(src.read(store, name), valid)
+        for v, view in enumerate(layout.names):
+            rel = view_image_name(view, name)
+            _write_png(out / IMAGES_DIR / rel, views[v])
+            if not layout.valid[v].all():
+                # COLMAP's mask of image I is MASK_PATH/I.png (0: no features)
+                _write_png(out / MASKS_DIR / f"{rel}.png",
+                           np.where(ok[v], 255, 0).astype(np.uint8))
+    return {"num_images": rec.num_images(), "num_frames": rec.num_frames(),
+            "views": layout.to_json(), "images": f"{IMAGES_DIR}/VIEW/NAME.png",
+            "masks": f"{MASKS_DIR}/VIEW/NAME.png.png where a view is not all covered"}
+
+
+WRITERS = {"tum": _export_trajectory, "kitti": _export_trajectory, "colmap": _export_colmap,
+           "nerfstudio": _export_nerfstudio, "limap": _export_limap,
+           "colmap-rig": _export_colmap_rig}
+
+
+def run_export(input_dir: Path, output_dir: Path, options: ExportOptions, *,
+               images: Path | None = None, overwrite: bool = False,
+               progress: bool = False) -> dict[str, Any]:
+    """Export the folder ``input_dir`` as ``options.fmt`` into ``output_dir`` (complete or not
+    at all); returns the export's ``report.json`` document."""
+    from omni_sfm import __version__
+    from omni_sfm.fileio import stored_path
+
+    if options.fmt not in FORMATS:
+        raise OmniSfmError(f"--format must be one of {', '.join(FORMATS)}; got {options.fmt!r}")
+    t0 = time.perf_counter()
+    src = _Source(Path(input_dir), images, options)
+    frames_path = src.images_arg
+    with atomic_output_dir(Path(output_dir), overwrite=overwrite,
+                           inputs=(Path(input_dir), frames_path)) as tmp:
+        info = WRITERS[options.fmt](src, tmp, options, progress)
+        report = {
+            "omni_sfm_version": __version__,
+            "format": options.fmt,
+            "input": stored_path(input_dir, output_dir),
+            "num_poses": len(src.traj),
+            "world": src.up.to_json(),
+            "camera_model": src.camera.model,
+            **info,
+            "seconds": round(time.perf_counter() - t0, 3),
+        }
+        atomic_write_text(tmp / REPORT_FILE, dumps_json(report))
+    return report
+
+
+def export_trajectory_of(report: dict[str, Any], traj: Trajectory) -> Trajectory:
+    """``traj`` (the input folder's world) in the world an export's ``report`` records."""
+    m = np.asarray(report["world"]["export_from_world"], float)
+    R, t = m[:3, :3], m[:3, 3]
+    return Trajectory(traj.timestamps.copy(), R[None] @ traj.rotations, traj.positions @ R.T + t)
+
