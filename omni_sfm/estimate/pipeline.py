@@ -68,7 +68,7 @@ from omni_sfm.forked import Deferred, SharedCounters
 from omni_sfm.geometry import FloatArray, ray_line_closest, rotation_angle
 from omni_sfm.lines.tracks import LineTracks
 from omni_sfm.poses import Trajectory, write_tum
-from omni_sfm.transforms import associate, paper_translation_errors, similarity_from_poses
+from omni_sfm.transforms import similarity_from_poses
 from omni_sfm.vanishing import (
     ParallelFamily,
     VanishingOptions,
@@ -2042,35 +2042,3 @@ def write_init_outputs(directory: Path, result: EstimationResult,
         report.update(extra)
     atomic_write_text(directory / REPORT_FILE, dumps_json(report))
     return [*written, directory / REPORT_FILE]
-
-
-def reflect_positions(traj: Trajectory) -> Trajectory:
-    """The point reflection of the camera centres through the first camera (rotations kept).
-
-    Line normals have no sign, so reflecting every camera centre and every line through the
-    first camera leaves all observations unchanged: from NVs alone, the estimate is determined
-    only up to this reflection (and a similarity). Compare with ground truth on the branch that
-    matches it (:func:`match_reflection`).
-    """
-    return Trajectory(traj.timestamps.copy(), traj.rotations.copy(),
-                      2.0 * traj.positions[:1] - traj.positions)
-
-
-def match_reflection(est: Trajectory, gt: Trajectory) -> Trajectory:
-    """``est`` or its reflection (:func:`reflect_positions`), whichever is nearer ``gt``.
-
-    Nearer: smaller mean translation error as the paper defines it
-    (:func:`omni_sfm.transforms.paper_translation_errors`) on the frames the two share (at least
-    3, as :func:`omni_sfm.evaluate.trajectory_errors`). For evaluation only: the data cannot tell
-    the two apart.
-    """
-    def mean_error(tr: Trajectory) -> float:
-        e, g = associate(tr, gt)
-        if len(e) < 3:
-            raise OmniSfmError(f"only {len(e)} frames in common with the ground truth; need 3")
-        return float(paper_translation_errors(e, g).mean())
-
-    ref = reflect_positions(est)
-    e0 = mean_error(est)
-    e1 = mean_error(ref)
-    return ref if e1 < e0 else est

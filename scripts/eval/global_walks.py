@@ -24,10 +24,9 @@ from omni_sfm.estimate.pipeline import (
     EstimationOptions,
     EstimationResult,
     estimate_poses,
-    match_reflection,
     reversed_frames,
 )
-from omni_sfm.evaluate import trajectory_errors
+from omni_sfm.evaluate import match_reflection, trajectory_errors
 from omni_sfm.lines.tracks import LineTracks
 from omni_sfm.poses import Trajectory
 from omni_sfm.synth.simulate import SimulationOptions, simulate
