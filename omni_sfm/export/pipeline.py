@@ -24,7 +24,7 @@ from omni_sfm.cameras import write_camera_yaml
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.export.up import MOUNT_UP_AXIS, UpFrame, find_up, parse_axis
 from omni_sfm.fileio import atomic_output_dir, atomic_write_text, dumps_json, read_json
-from omni_sfm.folders import StageFolder, images_for, pose_frame_names
+from omni_sfm.folders import InitFolder, StageFolder, images_for, pose_frame_names
 from omni_sfm.geometry import normalize
 from omni_sfm.poses import Trajectory
 
@@ -37,7 +37,7 @@ FORMATS: dict[str, bool] = {
 SPARSE_DIR = "sparse"
 IMAGES_DIR = "images"
 MASKS_DIR = "masks"
-REPORT_FILE = "report.json"
+REPORT_FILE = StageFolder.REPORT
 PLY_FILE = "sparse_pc.ply"
 
 
@@ -122,7 +122,7 @@ class _Source:
     def default_names(self) -> list[str]:
         """Image names without frames: ``colmap.json``'s, else the timestamps as
         ``NNNNNN.png``."""
-        man = self.owner / "colmap.json"
+        man = self.owner / InitFolder.MANIFEST
         if man.is_file():
             doc = read_json(man, "COLMAP manifest")
             names = doc.get("image_names") if isinstance(doc, dict) else None
@@ -234,7 +234,7 @@ def _colmap_model(src: _Source, out: Path) -> tuple[Any, list[str], dict[str, An
                                f"{src.owner / src.owner.TRAJECTORY}")
     (out / SPARSE_DIR).mkdir(parents=True, exist_ok=True)
     rec.write_binary(str(out / SPARSE_DIR))
-    write_camera_yaml(out / "camera.yaml", src.camera)
+    write_camera_yaml(out / StageFolder.CAMERA, src.camera)
     info.update({"camera_model": export.camera.model_name, "flip_u": export.flip_u,
                  "colmap_cam_from_cam": export.colmap_cam_from_cam.tolist(),
                  "num_images": rec.num_images(), "num_points3D": rec.num_points3D()})
@@ -254,7 +254,7 @@ def _export_colmap(src: _Source, out: Path, opts: ExportOptions, progress: bool
     store, _ = frames
     for name in _progress(names, "export", progress):
         _write_png(out / IMAGES_DIR / name, export.image_to_colmap(src.read(store, name)))
-    write_colmap_mask(out / "camera_mask.png", src.camera)
+    write_colmap_mask(out / InitFolder.COLMAP_MASK, src.camera)
     info["images"] = f"{IMAGES_DIR}/ ({len(names)} frames as COLMAP sees them)"
     return info
 
