@@ -216,11 +216,21 @@ def main() -> int:
         columns.append("missed frames: rotation max (deg) / position max (% of path)")
     columns += [{"label": "wall time (s)", "format": ".1f"}, "mapper stage (s)"]
     write_log(args, args.record, "init + refine against COLMAP's incremental SfM", columns,
-        rows, headline="{rows[-1][0]}: {rows[-1][2]} deg, {rows[-1][3]} % ATE "
-        "(from {rows[-2][2]} deg, {rows[-2][3]} %)",
+        rows, headline=_headline(len(rows), len(columns), len(args.mapper) > 1),
         notes=f"{scene}, {args.camera} {args.width}x{args.height}, {len(gt)} frames; seed: "
               f"{kind}.")
     return 0
+
+
+def _headline(n: int, m: int, mappers: bool) -> str:
+    """The record's one-line summary (``str.format`` takes no negative index): the last run
+    against the one before, or with two mappers the last two runs' mapper stages."""
+    a, b = n - 2, n - 1
+    if mappers:
+        return (f"mapper stage (s): incremental {{rows[{a}][{m - 1}]}}, global "
+                f"{{rows[{b}][{m - 1}]}}; ATE {{rows[{a}][3]}} and {{rows[{b}][3]}} %")
+    return (f"{{rows[{b}][0]}}: {{rows[{b}][2]}} deg, {{rows[{b}][3]}} % ATE (from "
+            f"{{rows[{a}][2]}} deg, {{rows[{a}][3]}} %)")
 
 
 def _own_inits(args: argparse.Namespace, render: Path, gt: Trajectory,
