@@ -68,3 +68,18 @@ def test_an_init_folder_without_some_frames(room, tmp_path):
     np.testing.assert_allclose(back.trajectory.positions, np.delete(traj.positions, [3, 7], 0))
     with pytest.raises(ValueError, match="no pose"):
         write_init_without(tmp_path / "less", tmp_path / "less2", ["000003.png"])
+
+
+
+def test_an_unknown_mapper_is_refused(tmp_path, capsys):
+    from omni_sfm.cli import main
+    from omni_sfm.errors import OmniSfmError
+    from omni_sfm.refine import refine
+
+    with pytest.raises(OmniSfmError, match="unknown mapper 'sideways'"):
+        refine(tmp_path / "init", None, tmp_path / "out", RefineOptions(mapper="sideways"))
+    with pytest.raises(SystemExit) as e:
+        main(["refine", "--input", str(tmp_path), "--output", str(tmp_path / "out"),
+              "--mapper", "sideways"])
+    assert e.value.code == 2
+    assert "--mapper: invalid choice: 'sideways'" in capsys.readouterr().err
