@@ -22,7 +22,9 @@ joint adjustment are omni-sfm's own; docs/colmap.md):
 5. mapper (only when the folder holds frames the line stage did not pose): COLMAP's
    registration of the next image, with triangulation and local adjustment around it, from
    the triangulated model, the seeded frames held fixed (no global refinement: the
-   adjustment that follows is global);
+   adjustment that follows is global); or, with ``mapper="global"``, COLMAP's rotation
+   averaging and global positioning seeded by the line-based poses
+   (:mod:`omni_sfm.refine.global_register`);
 6. adjustment: by default the joint adjustment of cameras, the init's 3D lines and the points
    (:mod:`omni_sfm.refine.joint`; the cameras' system by conjugate gradients on long
    sequences); with
