@@ -56,6 +56,11 @@ def add_parser(sub: Any) -> None:
                    help="KLT corners tracked at most (default: %(default)s)")
     p.add_argument("--no-mapper", action="store_true",
                    help="do not try to register frames the init did not pose")
+    p.add_argument("--mapper", choices=["incremental", "global"], default=d.mapper,
+                   help="how the frames the init missed are registered: COLMAP's incremental "
+                        "mapper from the triangulated model, or COLMAP's rotation averaging "
+                        "and global positioning seeded by the line-based poses "
+                        "(default: %(default)s)")
     p.add_argument("--adjustment", choices=["joint", "colmap"], default=d.adjustment,
                    help="joint: cameras, the init's 3D lines and the points adjusted together "
                         "(COLMAP's adjustment where the init has no line tracks); colmap: "
@@ -77,7 +82,8 @@ def run(args: argparse.Namespace) -> int:
     opts = RefineOptions(features=args.features, overlap=args.overlap,
                          max_features=args.max_features, max_corners=args.max_corners,
                          guided_matching=not args.no_guided_matching,
-                         register_missing=not args.no_mapper, num_threads=args.threads,
+                         register_missing=not args.no_mapper, mapper=args.mapper,
+                         num_threads=args.threads,
                          text=args.text, adjustment=args.adjustment)
     res = refine(args.input, args.images, args.output, opts, database=args.database,
                  overwrite=args.overwrite, progress=sys.stderr.isatty(), verbose=args.verbose)

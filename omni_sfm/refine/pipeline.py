@@ -22,7 +22,9 @@ joint adjustment are omni-sfm's own; docs/colmap.md):
 5. mapper (only when the folder holds frames the line stage did not pose): COLMAP's
    registration of the next image, with triangulation and local adjustment around it, from
    the triangulated model, the seeded frames held fixed (no global refinement: the
-   adjustment that follows is global);
+   adjustment that follows is global); or, with ``mapper="global"``, COLMAP's rotation
+   averaging and global positioning seeded by the line-based poses
+   (:mod:`omni_sfm.refine.global_register`);
 6. adjustment: by default the joint adjustment of cameras, the init's 3D lines and the points
    (:mod:`omni_sfm.refine.joint`; the cameras' system by conjugate gradients on long
    sequences); with
@@ -88,6 +90,7 @@ from omni_sfm.refine.database import (
     track_features,
     write_colmap_images,
 )
+from omni_sfm.refine.global_register import register_global
 from omni_sfm.refine.joint import JointResult
 from omni_sfm.refine.joint_model import (
     LineEvidence,
@@ -97,6 +100,9 @@ from omni_sfm.refine.joint_model import (
 )
 from omni_sfm.refine.triangulation import triangulate_seeded
 from omni_sfm.transforms import Similarity, similarity_from_poses
+
+MAPPERS = ("incremental", "global")
+"""How refine registers the frames the init did not pose (``RefineOptions.mapper``)."""
 
 
 def klt_tracking(max_corners: int) -> CornerTrackOptions:
@@ -143,6 +149,11 @@ class RefineOptions:
     """Threads for pycolmap's extraction, matching and bundle adjustment (-1: all cores)."""
     register_missing: bool = True
     """Run COLMAP's mapper to register frames of the image folder that the init did not pose."""
+    mapper: str = "incremental"
+    """How those frames are registered: ``incremental`` (COLMAP's incremental mapper's
+    next-image loop from the triangulated model) or ``global`` (COLMAP's rotation averaging
+    and global positioning seeded by the line-based poses,
+    :mod:`omni_sfm.refine.global_register`); docs/colmap.md compares them."""
     ba_rounds: int = 2
     """Bundle adjustment rounds (each followed by filtering points with large errors)."""
     ba_max_iterations: int = 100
@@ -368,6 +379,8 @@ def refine(init_dir: Path, images: Path | None, output: Path,
     Raises OmniSfmError (one line) for a bad init directory or image folder.
     """
     o = options or RefineOptions()
+    if o.mapper not in MAPPERS:
+        raise OmniSfmError(f"unknown mapper {o.mapper!r} (known: {', '.join(MAPPERS)})")
     if o.features not in FEATURE_SOURCES:
         raise OmniSfmError(f"unknown feature source {o.features!r} (known: "
                            f"{', '.join(FEATURE_SOURCES)})")
@@ -496,8 +509,17 @@ class _Run:
         report["triangulation"] = model_statistics(rec)
         report["triangulation"]["frames_posed_again"] = list(self.reposed)
         with self.stages.stage("mapper"):
-            rec, report["mapper"] = _register_missing(rec, self.register, self.unposed,
-                                                      db, images, o)
+            if self.register and o.mapper == "global":
+                got = register_global(rec, db, self.unposed, camera, export,
+                                      max_error_px=o.max_reprojection_error_px,
+                                      min_angle_deg=o.min_triangulation_angle_deg)
+                for name in got.registered:
+                    rec.extract_colors_for_image(rec.find_image_with_name(name).image_id,
+                                                 str(images))
+                report["mapper"] = got.report()
+            else:
+                rec, report["mapper"] = _register_missing(rec, self.register, self.unposed,
+                                                          db, images, o)
         shutil.rmtree(work, ignore_errors=True)
         return rec, seed, image_ids
 

@@ -1,4 +1,5 @@
-"""A stand-in for the line-based init on rendered sequences: ground truth with realistic errors.
+"""A stand-in for the line-based init on rendered sequences: ground truth with realistic errors;
+and an init directory with frames taken out (frames for the mapper stage to register).
 
 Used by the tests and ``scripts/bench/refine.py`` (its default seed) where a perturbation of known
 size is wanted instead of a real init; both this and ``omni-sfm init`` go through
@@ -7,6 +8,8 @@ size is wanted instead of a real init; both this and ``omni-sfm init`` go throug
 
 from __future__ import annotations
 
+import shutil
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -53,3 +56,26 @@ def write_perturbed_init(render_dir: Path, init_dir: Path, *, rotation_deg: floa
         write_tum(tmp / InitFolder.TRAJECTORY, traj)
         write_init_model(tmp, camera, traj, names)
     return traj
+
+
+def write_init_without(init_dir: Path, out_dir: Path, drop: Sequence[str], *,
+                       overwrite: bool = False) -> Path:
+    """A copy of the init directory ``init_dir`` whose frames ``drop`` (image names) have no
+    pose: frames the init "missed", for the mapper stage of refine to register. Everything else
+    (the line tracks, 3D lines, report) is copied as it is; the trajectory and the COLMAP model
+    are written again without them. Returns ``out_dir``."""
+    from omni_sfm.export.colmap import read_init_model
+
+    init = read_init_model(Path(init_dir))
+    gone = set(drop)
+    unknown = gone - set(init.image_names)
+    if unknown:
+        raise ValueError(f"{init_dir}: no pose for {sorted(unknown)[:3]}")
+    keep = np.asarray([k for k, n in enumerate(init.image_names) if n not in gone], np.intp)
+    traj = init.trajectory.subset(keep)
+    with atomic_output_dir(Path(out_dir), overwrite=overwrite) as tmp:
+        shutil.copytree(init_dir, tmp, dirs_exist_ok=True, ignore=shutil.ignore_patterns(
+            InitFolder.SPARSE, InitFolder.TRAJECTORY, InitFolder.MANIFEST))
+        write_tum(tmp / InitFolder.TRAJECTORY, traj)
+        write_init_model(tmp, init.camera, traj, [init.image_names[k] for k in keep])
+    return Path(out_dir)

@@ -9,6 +9,9 @@ camera, 800 x 600, 100 frames. Prints the per-stage times and the ATE before and
     .venv/bin/python -m scripts.bench.refine --work /tmp/bench_refine --frames 120 --versus-colmap
     .venv/bin/python -m scripts.bench.refine --work /tmp/bench_eq --camera equirectangular \
         --width 1920 --height 960 --lines-init --adjustment joint colmap
+    .venv/bin/python -m scripts.bench.refine --work /tmp/bench_mappers --frames 30 --width 640 \
+        --height 480 --versus-colmap --colmap-global --missing 8 9 10 11 20 \
+        --mapper incremental global --record bench_refine_mappers
 
 Without ``--init`` the seed is the ground truth with realistic errors (0.3 deg rotation noise and
 0.5 % of the path position noise, fixed seed), written as an init directory by
@@ -28,7 +31,16 @@ perturbed ground truth, and ``omni-sfm init --initializer colmap`` (COLMAP's fea
 matching and incremental mapper with the exact camera, a fresh process, timed) runs on the same
 frames; each refinement's line is followed by its ``init`` + ``refine`` time against COLMAP's
 (only for a refinement that extracted and matched its features itself: the second adjustment on
-one feature source reuses the first one's database).
+one feature source reuses the first one's database). ``--colmap-global`` adds COLMAP's global
+mapper (``pycolmap.global_mapping``, from scratch) on the database COLMAP's incremental SfM
+built (both through the ``colmap`` initializer in fresh processes; the global mapper's time is
+its own plus the database's).
+
+``--missing K ...`` takes the poses of frames ``K`` out of the seed
+(:func:`omni_sfm.refine.synthetic.write_init_without`): the frames the init missed, which the
+mapper stage registers; ``--mapper incremental global`` runs refine with each way of registering
+them, each with a fresh database, and the record gets the mapper stage's time and the errors of
+those frames (after the similarity alignment of the whole trajectory) in every row.
 """
 
 from __future__ import annotations
@@ -41,12 +53,16 @@ import time
 from pathlib import Path
 from typing import Any
 
-from omni_sfm.evaluate import trajectory_errors
+import numpy as np
+
+from omni_sfm.evaluate import associate, trajectory_errors
 from omni_sfm.export.colmap import read_init_model
+from omni_sfm.frames import FrameStore
 from omni_sfm.poses import Trajectory, read_tum
 from omni_sfm.refine import RefineOptions, refine
 from omni_sfm.refine.database import FEATURE_SOURCES
-from omni_sfm.refine.synthetic import write_perturbed_init
+from omni_sfm.refine.pipeline import MAPPERS
+from omni_sfm.refine.synthetic import write_init_without, write_perturbed_init
 from omni_sfm.synth.paths import Route
 from omni_sfm.synth.render import RenderOptions, render_sequence
 from omni_sfm.synth.scenes import SceneName
@@ -93,6 +109,17 @@ def main() -> int:
                         "COLMAP's incremental SfM on the same frames (times and errors)")
     p.add_argument("--lines-init", action="store_true",
                    help="seed with `init --lines` run here (timed), without COLMAP's SfM")
+    p.add_argument("--colmap-global", action="store_true",
+                   help="with --versus-colmap: also COLMAP's global mapper on the database of "
+                        "COLMAP's incremental SfM")
+    p.add_argument("--missing", nargs="+", type=int, default=[],
+                   help="frame indices whose poses are taken out of the seed (for the mapper)")
+    p.add_argument("--mapper", nargs="+", choices=list(MAPPERS),
+                   default=[RefineOptions().mapper],
+                   help="how refine registers the missing frames; several: each its own run "
+                        "and fresh database")
+    p.add_argument("--record", default="bench_refine",
+                   help="name of the record under docs/benchmarks/ (default: %(default)s)")
     add_log_arguments(p)
     args = p.parse_args()
     # freed memory kept for reuse in this process, as the omni-sfm command keeps it
@@ -130,6 +157,11 @@ def main() -> int:
     else:
         init_dir = args.init
         kind = f"init directory {init_dir}"
+    missed = [list(FrameStore(render / "images").names)[k] for k in args.missing]
+    if missed:  # the frames the init missed, for the mapper
+        init_dir = write_init_without(init_dir, args.work / "init_missing", missed,
+                                      overwrite=True)
+        kind += f", without the poses of frames {', '.join(map(str, args.missing))}"
     init = read_init_model(init_dir).trajectory
     scene = {"room": "textured room", "corridor": "texture-poor corridor",
              "office": "textured office walk"}[args.scene]
@@ -137,13 +169,17 @@ def main() -> int:
           f"path {gt.path_length():.2f} m; seed: {kind}")
     before = trajectory_errors(init, gt)
     rows.append(["`init --lines`" if init_wall is not None else "input (seed)",
-                 *_figures(init_dir / "trajectory.tum", gt), init_wall])
+                 *_figures(init_dir / "trajectory.tum", gt, args.missing), init_wall, "-"])
     print(f"input: ATE / path length {100 * before.ate_rel:.4f} %, rotation error mean / max "
           f"{before.rot_mean_deg:.3f} / {before.rot_max_deg:.3f} deg")
-    runs = [(f, m) for f in args.features for m in (args.matching if f == "sift" else [""])]
-    for features, matching in runs:
-        tag = features + ("_colmap" if matching == "colmap" else "")
+    runs = [(f, m, mp) for f in args.features for m in (args.matching if f == "sift" else [""])
+            for mp in args.mapper]
+    for features, matching, mapper in runs:
+        tag = features + ("_colmap" if matching == "colmap" else "") + (
+            f"_{mapper}" if len(args.mapper) > 1 else "")
         database = args.work / f"database_{tag}.db"
+        if len(args.mapper) > 1:
+            database.unlink(missing_ok=True)  # each mapper's run from its own fresh database
         for adjustment in args.adjustment:
             t0 = time.perf_counter()
             res = refine(init_dir, render / "images",
@@ -151,30 +187,50 @@ def main() -> int:
                          RefineOptions(overlap=args.overlap, features=features,
                                        max_features=args.max_features,
                                        guided_matching=matching != "colmap",
-                                       klt_verify=args.klt_verify, adjustment=adjustment),
+                                       klt_verify=args.klt_verify, adjustment=adjustment,
+                                       mapper=mapper),
                          database=database, overwrite=True, progress=sys.stderr.isatty())
             total = time.perf_counter() - t0
-            label = features + (f", {matching} matching" if matching else "")
+            label = features + (f", {matching} matching" if matching else "") + (
+                f", {mapper} mapper" if missed else "")
+            registered = res.report["mapper"].get("registered")
+            mapper_cell: object = "-" if not missed else \
+                f"{res.report['timings_s']['mapper']:.1f} ({len(registered or [])} / " \
+                f"{len(missed)} registered)"
             rows.append([f"`init` + `refine` ({label}, {adjustment} adjustment)",
-                         *_figures(res.trajectory, gt),
+                         *_figures(res.trajectory, gt, args.missing),
                          total if init_wall is None else f"{init_wall + total:.1f} "
-                         f"({init_wall:.1f} + {total:.1f})"])
+                         f"({init_wall:.1f} + {total:.1f})", mapper_cell])
             _print_run(features + (f" ({matching} matching)" if matching else ""), adjustment,
                        res.report, total, trajectory_errors(res.trajectory, gt), len(init))
             if init_wall is not None and colmap_wall is not None and \
                     res.report["features"]["reused_images"] == 0:
                 both = init_wall + total
                 print(f"init + refine: {both:.1f} s ({init_wall:.1f} + {total:.1f}); COLMAP's "
-                      f"incremental SfM {colmap_wall:.1f} s: {colmap_wall / both:.2f}x "
-                      "(the issue asks for at least 5x)", flush=True)
-    write_log(args, "bench_refine", "init + refine against COLMAP's incremental SfM", [
+                      f"incremental SfM {colmap_wall:.1f} s: {colmap_wall / both:.2f}x",
+                      flush=True)
+    columns: list[str | dict[str, str]] = [
         "run", "frames", "rotation error mean / max (deg)",
-        {"label": "ATE (% of path)", "format": ".4f"}, {"label": "wall time (s)", "format": ".1f"}],
-        rows, headline="{rows[-1][0]}: {rows[-1][2]} deg, {rows[-1][3]} % ATE "
-        "(from {rows[-2][2]} deg, {rows[-2][3]} %)",
+        {"label": "ATE (% of path)", "format": ".4f"}]
+    if args.missing:
+        columns.append("missed frames: rotation max (deg) / position max (% of path)")
+    columns += [{"label": "wall time (s)", "format": ".1f"}, "mapper stage (s)"]
+    write_log(args, args.record, "init + refine against COLMAP's incremental SfM", columns,
+        rows, headline=_headline(len(rows), len(columns), len(args.mapper) > 1),
         notes=f"{scene}, {args.camera} {args.width}x{args.height}, {len(gt)} frames; seed: "
               f"{kind}.")
     return 0
+
+
+def _headline(n: int, m: int, mappers: bool) -> str:
+    """The record's one-line summary (``str.format`` takes no negative index): the last run
+    against the one before, or with two mappers the last two runs' mapper stages."""
+    a, b = n - 2, n - 1
+    if mappers:
+        return (f"mapper stage (s): incremental {{rows[{a}][{m - 1}]}}, global "
+                f"{{rows[{b}][{m - 1}]}}; ATE {{rows[{a}][3]}} and {{rows[{b}][3]}} %")
+    return (f"{{rows[{b}][0]}}: {{rows[{b}][2]}} deg, {{rows[{b}][3]}} % ATE (from "
+            f"{{rows[{a}][2]}} deg, {{rows[{a}][3]}} %)")
 
 
 def _own_inits(args: argparse.Namespace, render: Path, gt: Trajectory,
@@ -189,20 +245,39 @@ def _own_inits(args: argparse.Namespace, render: Path, gt: Trajectory,
     if args.versus_colmap or args.lines_init:
         print(f"# {os.cpu_count()} CPUs; `init` and COLMAP each in a fresh process", flush=True)
     if args.versus_colmap:
-        out = args.work / "colmap_sfm"
-        colmap_wall, peak, code, said = run_timed([*exe, "--initializer", "colmap", *common,
-                                                   "--output", str(out)])
-        if code != 0:
-            print(f"COLMAP incremental SfM: exit {code}: {said}")
-            colmap_wall = None
-        else:
-            e = trajectory_errors(read_tum(out / "trajectory.tum"), gt)
-            rows.append(["COLMAP's incremental SfM", *_figures(out / "trajectory.tum", gt),
-                         colmap_wall])
-            print(f"COLMAP incremental SfM: {colmap_wall:.1f} s, peak {peak:.0f} MB; "
-                  f"{len(read_tum(out / 'trajectory.tum'))}/{len(gt)} frames, ATE "
-                  f"{100 * e.ate_rel:.4f} %, rotation mean / max {e.rot_mean_deg:.3f} / "
-                  f"{e.rot_max_deg:.3f} deg", flush=True)
+        database = args.work / "colmap_sfm.db"
+        database.unlink(missing_ok=True)
+        db_s = 0.0
+        for mapper in ["incremental", "global"] if args.colmap_global else ["incremental"]:
+            out = args.work / f"colmap_sfm_{mapper}"
+            if args.colmap_global:  # the colmap initializer with its options, in a fresh process
+                code_text = (
+                    "from omni_sfm.pipelines.init import init_with_initializer as f; "
+                    f"f({str(render / 'images')!r}, {str(render / 'camera.yaml')!r}, "
+                    f"{str(out)!r}, 'colmap', overwrite=True, "
+                    f"options={{'mapper': {mapper!r}, 'database': {str(database)!r}}})")
+                cmd = [sys.executable, "-c", code_text]
+            else:
+                cmd = [*exe, "--initializer", "colmap", *common, "--output", str(out)]
+            wall, peak, code, said = run_timed(cmd)
+            what = f"COLMAP's {mapper} SfM"
+            if code != 0:
+                print(f"{what}: exit {code}: {said}")
+                continue
+            info = json.loads((out / "report.json").read_text()).get("info", {})
+            traj = read_tum(out / "trajectory.tum")
+            e = trajectory_errors(traj, gt)
+            if mapper == "incremental":
+                colmap_wall, db_s = wall, float(info.get("database_s", 0.0))
+                cell: object = wall
+            else:  # on the incremental run's database: its time counts too
+                cell = f"{db_s + wall:.1f} ({db_s:.1f} database + {wall:.1f})"
+            rows.append([what + (" (same database)" if mapper == "global" else ""),
+                         *_figures(traj, gt, args.missing), cell,
+                         f"{info['mapper_s']:.1f}" if "mapper_s" in info else "-"])
+            print(f"{what}: {wall:.1f} s, peak {peak:.0f} MB; {len(traj)}/{len(gt)} frames, "
+                  f"ATE {100 * e.ate_rel:.4f} %, rotation mean / max {e.rot_mean_deg:.3f} / "
+                  f"{e.rot_max_deg:.3f} deg; {info}", flush=True)
     if args.versus_colmap or args.lines_init:
         args.init = args.work / "init_lines"
         init_wall, peak, code, said = run_timed([*exe, "--lines", *common,
@@ -214,12 +289,27 @@ def _own_inits(args: argparse.Namespace, render: Path, gt: Trajectory,
     return init_wall, colmap_wall
 
 
-def _figures(trajectory: Path | Trajectory, gt: Trajectory) -> list[object]:
-    """``[frames posed / all, "rotation mean / max", ATE %]`` of a trajectory."""
+def _figures(trajectory: Path | Trajectory, gt: Trajectory,
+             missing: list[int] | None = None) -> list[object]:
+    """``[frames posed / all, "rotation mean / max", ATE %]`` of a trajectory; with
+    ``missing`` (frame indices) also the largest rotation and position error of those frames
+    after the alignment of the whole trajectory ("-" when it lacks one of them)."""
     est = read_tum(trajectory) if isinstance(trajectory, Path) else trajectory
     e = trajectory_errors(est, gt)
-    return [f"{len(est)} / {len(gt)}", f"{e.rot_mean_deg:.3f} / {e.rot_max_deg:.3f}",
-            100 * e.ate_rel]
+    out: list[object] = [f"{len(est)} / {len(gt)}",
+                         f"{e.rot_mean_deg:.3f} / {e.rot_max_deg:.3f}", 100 * e.ate_rel]
+    if missing:
+        est_c, gt_c = associate(est, gt)
+        at = [int(k) for t in gt.timestamps[missing]
+              for k in np.flatnonzero(np.isclose(gt_c.timestamps, t, rtol=0, atol=1e-6))]
+        if len(at) < len(missing):
+            out.append("-")
+        else:
+            pos = np.linalg.norm(e.alignment.apply(est_c).positions[at] - gt_c.positions[at],
+                                 axis=1)
+            out.append(f"{e.rot_deg[at].max():.3f} / "
+                       f"{100 * pos.max() / gt.path_length():.4f}")
+    return out
 
 
 def _print_run(features: str, adjustment: str, r: dict[str, Any], total: float, after: Any,

@@ -1,4 +1,5 @@
-"""``colmap``: pycolmap's incremental mapping on the same frames with the exact camera model.
+"""``colmap``: pycolmap's incremental (or global) mapping on the same frames with the exact
+camera model.
 
 The camera goes to COLMAP through :meth:`omni_sfm.cameras.base.CameraModel.colmap_export`
 (images mirrored left-right where the export says ``flip_u``, e.g. the hyperboloid), COLMAP's
@@ -10,12 +11,19 @@ cam_from_world_colmap``. A simulated sequence gives its point observations as ke
 of the sequence's camera) and its tracks as matches.
 
 Options: ``max_features`` (4000), ``overlap`` (sequential matching, 10), ``init_min_tri_angle``
-(degrees, COLMAP's default 16), ``seed`` (0), ``threads`` (1).
+(degrees, COLMAP's default 16), ``seed`` (0), ``threads`` (1); ``mapper``: ``incremental``
+(default) or ``global`` (``pycolmap.global_mapping``: COLMAP 4.2's global SfM, GLOMAP's rotation
+averaging, global positioning and bundle adjustment, from scratch; it decomposes each pair's
+stored geometry into the relative pose itself), both with the intrinsics held fixed;
+``database``: a COLMAP database path to keep (features and matches it holds are reused, so two
+mappers can run on the same database). ``info`` reports the seconds of the database
+(``database_s``) and of the mapper (``mapper_s``).
 """
 
 from __future__ import annotations
 
 import tempfile
+import time
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -38,6 +46,39 @@ def _verification(options: Mapping[str, Any]) -> Any:
     tvg.ransac.random_seed = int(options.get("seed", 0))
     tvg.ransac.num_threads = 1
     return tvg
+
+
+def _incremental_options(options: Mapping[str, Any]) -> Any:
+    """COLMAP's incremental mapper, intrinsics held, seeded."""
+    import pycolmap
+
+    opts = pycolmap.IncrementalPipelineOptions()
+    opts.ba_refine_focal_length = False
+    opts.ba_refine_principal_point = False
+    opts.ba_refine_extra_params = False
+    opts.random_seed = int(options.get("seed", 0))
+    opts.num_threads = int(options.get("threads", 1))
+    if "init_min_tri_angle" in options:
+        opts.mapper.init_min_tri_angle = float(options["init_min_tri_angle"])
+    return opts
+
+
+def _global_options(options: Mapping[str, Any]) -> Any:
+    """COLMAP's global mapper (GLOMAP), intrinsics held, seeded, on the CPU."""
+    import pycolmap
+
+    opts = pycolmap.GlobalPipelineOptions()
+    opts.random_seed = int(options.get("seed", 0))
+    opts.num_threads = int(options.get("threads", 1))
+    m = opts.mapper
+    m.random_seed = opts.random_seed
+    m.num_threads = opts.num_threads
+    m.bundle_adjustment.refine_focal_length = False
+    m.bundle_adjustment.refine_principal_point = False
+    m.bundle_adjustment.refine_extra_params = False
+    m.bundle_adjustment.ceres.use_gpu = False
+    m.global_positioning.use_gpu = False
+    return opts
 
 
 def _write_rig_frames(db: Any, cam_id: int, names: list[str]) -> list[int]:
@@ -123,7 +164,9 @@ def colmap(sequence: SequenceInput, options: Mapping[str, Any]) -> InitializerRe
     try:
         with tempfile.TemporaryDirectory(prefix="omni_sfm_colmap_") as tmp:
             work = Path(tmp)
-            db_path = work / "database.db"
+            db_path = Path(options["database"]) if options.get("database") else \
+                work / "database.db"
+            t0 = time.perf_counter()
             if sequence.images is not None:
                 _database_from_images(db_path, work, sequence, export, options)
                 source = "COLMAP SIFT"
@@ -132,27 +175,31 @@ def colmap(sequence: SequenceInput, options: Mapping[str, Any]) -> InitializerRe
                 source = "given"
             else:
                 return failed("the sequence has neither images nor point observations")
-            opts = pycolmap.IncrementalPipelineOptions()
-            opts.ba_refine_focal_length = False
-            opts.ba_refine_principal_point = False
-            opts.ba_refine_extra_params = False
-            opts.random_seed = int(options.get("seed", 0))
-            opts.num_threads = int(options.get("threads", 1))
-            if "init_min_tri_angle" in options:
-                opts.mapper.init_min_tri_angle = float(options["init_min_tri_angle"])
+            database_s = time.perf_counter() - t0
+            mapper = str(options.get("mapper", "incremental"))
             out = work / "sparse"
             out.mkdir()
+            t0 = time.perf_counter()
             try:
-                models = pycolmap.incremental_mapping(str(db_path), str(work), str(out), opts)
+                if mapper == "global":
+                    models = pycolmap.global_mapping(str(db_path), str(work), str(out),
+                                                     _global_options(options))
+                elif mapper == "incremental":
+                    models = pycolmap.incremental_mapping(str(db_path), str(work), str(out),
+                                                          _incremental_options(options))
+                else:
+                    return failed(f"unknown mapper {mapper!r} (incremental, global)")
             except Exception as exc:  # the mapper raises when it gives up
                 return failed(f"COLMAP's mapper failed: {str(exc).splitlines()[0][:200]}")
+            mapper_s = time.perf_counter() - t0
             with pycolmap.Database.open(str(db_path)) as db:
                 verified = int(db.num_verified_image_pairs())
     finally:
         pycolmap.logging.minloglevel = prev_level
     best = max(models.values(), key=lambda r: r.num_reg_images(), default=None)
     info: dict[str, Any] = {"features": source, "verified_pairs": verified,
-                            "models": len(models)}
+                            "models": len(models), "mapper": mapper,
+                            "database_s": round(database_s, 3), "mapper_s": round(mapper_s, 3)}
     if best is None or best.num_reg_images() == 0:
         return failed(f"COLMAP's mapper built no model ({verified} verified image pairs)",
                       **info)
