@@ -160,9 +160,10 @@ def main() -> int:
                          total if init_wall is None else f"{init_wall + total:.1f} "
                          f"({init_wall:.1f} + {total:.1f})"])
             _print_run(features + (f" ({matching} matching)" if matching else ""), adjustment,
-                       res.report, total, trajectory_errors(res.trajectory, gt), len(init))
+                       res.report.to_json(), total, trajectory_errors(res.trajectory, gt),
+                       len(init))
             if init_wall is not None and colmap_wall is not None and \
-                    res.report["features"]["reused_images"] == 0:
+                    res.report.features["reused_images"] == 0:
                 both = init_wall + total
                 print(f"init + refine: {both:.1f} s ({init_wall:.1f} + {total:.1f}); COLMAP's "
                       f"incremental SfM {colmap_wall:.1f} s: {colmap_wall / both:.2f}x "
