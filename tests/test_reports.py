@@ -5,6 +5,7 @@ typed; a report lacking a required key is a one-line error."""
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -106,8 +107,9 @@ def _plugin_init() -> PluginInitReport:
         wall_time_s={"initializer": 2.0}, scale_convention="first-to-last distance = 1")
 
 
-REPORTS = {"refine": _refine, "dense": _dense, "export": _export, "compare": _compare,
-           "plugin init": _plugin_init}
+REPORTS: dict[str, Callable[[], JsonReport]] = {
+    "refine": _refine, "dense": _dense, "export": _export, "compare": _compare,
+    "plugin init": _plugin_init}
 
 
 @pytest.mark.parametrize("kind", sorted(REPORTS))
