@@ -7,6 +7,7 @@ The "line-based init" here is the rendered ground truth with realistic errors (0
 
 from __future__ import annotations
 
+import json
 import shutil
 import sqlite3
 from pathlib import Path
@@ -25,8 +26,8 @@ from omni_sfm.export.colmap import (
     read_init_model,
     write_init_model,
 )
-from omni_sfm.fileio import read_json
-from omni_sfm.folders import InitFolder
+from omni_sfm.fileio import dumps_json, read_json
+from omni_sfm.folders import InitFolder, RefineFolder
 from omni_sfm.poses import Trajectory, read_tum
 from omni_sfm.refine import RefineOptions, refine
 from omni_sfm.refine.synthetic import perturb, write_perturbed_init
@@ -91,6 +92,10 @@ def test_init_model_layout_round_trip(room, tmp_path):
 def test_refine_improves_a_perturbed_seed_on_a_textured_room(room_refined):
     work, gt, init, res = room_refined
     r = res.report
+    # the folder's loader reads back the report refine returned, and the refined poses
+    art = RefineFolder(work / "out").load()
+    assert art.report.to_json() == json.loads(dumps_json(r.to_json()))
+    np.testing.assert_allclose(art.trajectory.positions, res.trajectory.positions, atol=1e-9)
     before = trajectory_errors(init, gt)
     after_all = trajectory_errors(res.trajectory, gt)
     after = trajectory_errors(_on(res.trajectory, init.timestamps), gt)
