@@ -90,6 +90,40 @@ class StageFolder:
         mask = self / self.MASK
         return mask if mask.is_file() else None
 
+    def load_stage(self, camera: bool = True) -> StageArtifacts:
+        """Any stage folder (init, refine or dense) read for what they all hold: the poses (a
+        one-line error if missing or malformed), and where the folder has them the camera
+        (unless ``camera`` is False: the caller has its own), the 3D lines, the recorded
+        frames, the user's mask and the report. The readers that take any stage folder
+        (dense, view, export) go through here; a folder of one kind is read by its
+        ``load``."""
+        trajectory = self.read_trajectory()
+        has_camera = camera and (self / self.CAMERA).is_file()
+        report = self.read_stage_report()
+        return StageArtifacts(self, trajectory, self.read_camera() if has_camera else None,
+                              self.read_lines3d(),
+                              None if report is None else report.images(self.path),
+                              self.user_mask(), report)
+
+
+@dataclass(frozen=True)
+class StageArtifacts:
+    """Any stage folder read back (:meth:`StageFolder.load_stage`)."""
+
+    folder: StageFolder
+    trajectory: Trajectory
+    """``trajectory.tum``: world_from_cam of every posed frame."""
+    camera: CameraModel | None
+    """``camera.yaml``, or None when the folder has none (or it was not asked for)."""
+    lines3d: LineSegments3D | None
+    """``lines3d.json``, or None when the folder has none."""
+    images: Path | None
+    """The image folder or video recorded in ``report.json`` (``input.images``), or None."""
+    user_mask: Path | None
+    """``mask.png``, or None."""
+    report: StageReport | None
+    """``report.json`` read for what every stage's records, or None when absent."""
+
 
 TRAJECTORY_FILE = StageFolder.TRAJECTORY
 REPORT_FILE = StageFolder.REPORT

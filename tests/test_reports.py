@@ -236,6 +236,23 @@ def test_folder_loaders_return_typed_artifacts(tmp_path: Path) -> None:
     assert res.initializers["lines"].ate_rel == 0.01
 
 
+def test_any_stage_folder_loads_for_what_they_all_hold(tmp_path: Path) -> None:
+    folder = tmp_path / "poses"
+    traj = _stage_files(folder)
+    art = StageFolder(folder).load_stage()
+    assert art.camera is not None and art.camera.model == "equirectangular"
+    assert art.report is None and art.images is None and art.lines3d is None
+    assert len(art.trajectory) == len(traj)
+    (folder / StageFolder.CAMERA).write_text("not: [a camera")
+    assert StageFolder(folder).load_stage(camera=False).camera is None  # the caller's own
+    _dense().write(folder / StageFolder.REPORT)
+    art = DenseFolder(folder).load_stage(camera=False)
+    assert art.report is not None and art.images == folder / "frames"
+    (folder / StageFolder.TRAJECTORY).unlink()
+    with pytest.raises(OmniSfmError, match="trajectory.tum"):
+        StageFolder(folder).load_stage()
+
+
 @pytest.mark.parametrize("loader", [RefineFolder, DenseFolder])
 def test_a_loader_without_its_report_is_a_one_line_error(loader: Any, tmp_path: Path) -> None:
     _stage_files(tmp_path / "f")

@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from omni_sfm.cameras import CameraModel, load_camera, write_camera_yaml
+from omni_sfm.cameras import CameraModel, write_camera_yaml
 from omni_sfm.dense.fusion import TsdfFusion
 from omni_sfm.dense.relpose import (
     Features,
@@ -194,22 +194,21 @@ def read_dense_input(poses_dir: Path, images: Path | None = None,
     tum = poses_dir / StageFolder.TRAJECTORY
     if not tum.is_file():
         raise OmniSfmError(f"{tum}: no trajectory (need the output folder of init or refine)")
-    owner = StageFolder(poses_dir)
-    traj = owner.read_trajectory()
+    art = StageFolder(poses_dir).load_stage(camera=camera_file is None)
+    traj = art.trajectory
     if len(traj) < 3:
         raise OmniSfmError(f"{tum}: {len(traj)} poses, dense mapping needs at least 3")
     source = images_for(poses_dir, images)
     if camera_file is not None:  # a file, or equirectangular from the frame size
         camera = camera_for_frames(camera_file, source)
+    elif art.camera is None:
+        raise OmniSfmError(f"{art.folder / art.folder.CAMERA}: camera file not found (give "
+                           "--camera FILE)")
     else:
-        cam_file = owner / owner.CAMERA
-        if not cam_file.is_file():
-            raise OmniSfmError(f"{cam_file}: camera file not found (give --camera FILE)")
-        camera = load_camera(cam_file)
+        camera = art.camera
     frames = FrameStore(source)
     chosen = pose_frame_names(poses_dir, traj, frames)
-    lines = owner.read_lines3d()
-    return DenseInput(traj, camera, frames, tuple(chosen), lines)
+    return DenseInput(traj, camera, frames, tuple(chosen), art.lines3d)
 
 
 class _Frames:

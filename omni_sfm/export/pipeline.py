@@ -82,12 +82,11 @@ class _Source:
             raise OmniSfmError(f"{owner / owner.TRAJECTORY}: no trajectory (need an init, refine "
                                "or dense folder)")
         self.owner = owner
-        self.traj = owner.read_trajectory()
-        if not (owner / owner.CAMERA).is_file():
+        art = owner.load_stage()
+        if art.camera is None:
             raise OmniSfmError(f"{owner / owner.CAMERA}: camera file not found")
-        self.camera = owner.read_camera()
-        self.lines = owner.read_lines3d()
-        self.report = owner.read_stage_report()
+        self.traj, self.camera, self.lines, self.report = (art.trajectory, art.camera,
+                                                           art.lines3d, art.report)
         self.images_arg = images
         if opts.turn_up:
             axis = parse_axis(opts.up_axis) if opts.up_axis else None
