@@ -37,6 +37,8 @@ from omni_sfm.reports import (
     InitReport,
     RefineReport,
     StageReport,
+    TrackFrame,
+    read_track_frames,
 )
 
 if TYPE_CHECKING:
@@ -388,6 +390,24 @@ class DenseArtifacts:
     """``dense.ply`` (``open3d.io.read_point_cloud``), or None when absent."""
     mesh: Path | None
     """``mesh.ply`` (``open3d.io.read_triangle_mesh``), or None when absent."""
+
+
+@dataclass(frozen=True)
+class TrackFolder:
+    """``omni-sfm track`` output, written as the poses come (docs/track.md): the first start's
+    poses in ``trajectory.tum``, each restart's in its own segment file, a line per frame in
+    ``frames.jsonl``."""
+
+    path: Path
+    TRAJECTORY: ClassVar[str] = StageFolder.TRAJECTORY
+    FRAMES: ClassVar[str] = "frames.jsonl"
+
+    def __truediv__(self, name: str) -> Path:
+        return Path(self.path) / name
+
+    def read_frames(self) -> list[TrackFrame]:
+        """``frames.jsonl``, a typed record per frame (one-line error if malformed)."""
+        return read_track_frames(self / self.FRAMES)
 
 
 @dataclass(frozen=True)

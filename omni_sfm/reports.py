@@ -6,7 +6,9 @@
 - :class:`ExportReport`: an export's ``report.json``;
 - :class:`CompareResults` (of :class:`CompareEntry`): a comparison's ``results.json``;
 - :class:`StageReport`: any stage folder's ``report.json``, read for what each may record
-  (where its frames and its input folder are, the parallel family).
+  (where its frames and its input folder are, the parallel family);
+- :class:`TrackFrame`: a line of ``omni-sfm track``'s ``frames.jsonl`` (read here:
+  :func:`read_track_frames`; ``TrackedPose.to_json`` writes it).
 
 The folders' loaders (:mod:`omni_sfm.folders`) read them; nothing else parses these files.
 
@@ -22,7 +24,7 @@ Numpy arrays in a report are written as lists; a report read back holds what JSO
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import MISSING, dataclass, field, fields
+from dataclasses import MISSING, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -371,3 +373,68 @@ class CompareResults(JsonReport):
         return cls({name: CompareEntry.from_json(e, f"{where}: {name}")
                     for name, e in doc["initializers"].items()},
                    dict(doc.get("sequence") or {}))
+
+
+@dataclass(frozen=True)
+class TrackPose(JsonReport):
+    """A pose in a line of ``frames.jsonl`` (docs/track.md): world_from_cam as the camera
+    centre and the rotation's quaternion (x, y, z, w), None where the frame has none."""
+
+    frame: int
+    timestamp: float
+    position: list[float] | None
+    quaternion_xyzw: list[float] | None
+
+
+@dataclass(frozen=True)
+class TrackFrame(JsonReport):
+    """One line of ``omni-sfm track``'s ``frames.jsonl`` (the same as ``--stream`` prints;
+    written by ``TrackedPose.to_json`` of :mod:`omni_sfm.estimate.online`, docs/track.md)."""
+
+    frame: int
+    timestamp: float
+    position: list[float] | None
+    quaternion_xyzw: list[float] | None
+    status: str
+    """``initialising``, ``tracking``, ``rotation-only``, ``lost`` or ``relocalised``."""
+    world: int
+    """Which start the pose is in (0: the first; +1 with each restart after a loss)."""
+    lines: int
+    lines_known: int
+    latency_ms: float
+    reason: str | None
+    start_poses: list[TrackPose]
+    """Where a start succeeded, the poses of the buffered frames it solved."""
+
+    def to_json(self) -> dict[str, Any]:
+        doc = super().to_json()
+        doc["start_poses"] = [p.to_json() for p in self.start_poses]
+        return doc
+
+    @classmethod
+    def from_json(cls, doc: Any, where: str = "track frame") -> TrackFrame:
+        frame = super().from_json(doc, where)
+        poses = [TrackPose.from_json(p, where) for p in frame.start_poses or []]
+        return replace(frame, start_poses=poses)
+
+    @property
+    def has_pose(self) -> bool:
+        """A full pose (rotation and position)."""
+        return self.position is not None and self.quaternion_xyzw is not None
+
+
+def read_track_frames(path: Path | str) -> list[TrackFrame]:
+    """Every line of a ``frames.jsonl`` (one-line OmniSfmError naming the line if one is not a
+    frame)."""
+    import json
+
+    out = []
+    for k, text in enumerate(Path(path).read_text(encoding="utf-8").splitlines(), 1):
+        if not text.strip():
+            continue
+        try:
+            doc = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise OmniSfmError(f"{path}:{k}: not JSON ({exc.msg})") from None
+        out.append(TrackFrame.from_json(doc, f"{path}:{k}"))
+    return out

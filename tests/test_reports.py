@@ -24,6 +24,7 @@ from omni_sfm.folders import (
     InitFolder,
     RefineFolder,
     StageFolder,
+    TrackFolder,
     recorded_images,
 )
 from omni_sfm.poses import Trajectory, write_tum
@@ -37,6 +38,8 @@ from omni_sfm.reports import (
     PluginInitReport,
     RefineReport,
     StageReport,
+    TrackFrame,
+    TrackPose,
 )
 
 
@@ -260,7 +263,26 @@ def test_a_loader_without_its_report_is_a_one_line_error(loader: Any, tmp_path: 
         loader(tmp_path / "f").load()
 
 
+def test_track_frames_read_back_as_written(tmp_path: Path) -> None:
+    from omni_sfm.estimate.online import Status, TrackedPose
+
+    start = TrackedPose(0, 0.0, Status.INITIALISING, np.eye(3), np.zeros(3), 5, 0, 1.0)
+    poses = [TrackedPose(1, 0.1, Status.TRACKING, np.eye(3), np.array([1.0, 0, 0]), 9, 7,
+                         2.5, world=0, start_poses=(start,)),
+             TrackedPose(2, 0.2, Status.LOST, None, None, 2, 0, 0.5, reason="too few lines")]
+    docs = [p.to_json() for p in poses]
+    folder = TrackFolder(tmp_path)
+    (tmp_path / TrackFolder.FRAMES).write_text("".join(json.dumps(d) + "\n" for d in docs))
+    frames = folder.read_frames()
+    assert [f.to_json() for f in frames] == docs
+    assert frames[0].has_pose and not frames[1].has_pose and frames[1].reason == "too few lines"
+    assert frames[0].start_poses[0].frame == 0 and frames[0].status == "tracking"
+    (tmp_path / TrackFolder.FRAMES).write_text(json.dumps(docs[0]) + "\n{\n")
+    with pytest.raises(OmniSfmError, match=r"frames.jsonl:2: not JSON"):
+        folder.read_frames()
+
+
 def test_every_report_class_is_a_json_report() -> None:
     for cls in (InitReport, StageReport, RefineReport, DenseReport, ExportReport,
-                CompareEntry, CompareResults, PluginInitReport):
+                CompareEntry, CompareResults, PluginInitReport, TrackFrame, TrackPose):
         assert issubclass(cls, JsonReport)
