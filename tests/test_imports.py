@@ -241,3 +241,28 @@ def test_each_json_artifact_has_one_reader():
             if name == "read_json" or (owner == "json" and name in ("load", "loads")):
                 bad.append(f"{rel}:{node.lineno} parses JSON")
     assert not bad, "\n".join(bad)
+
+
+REPORT_WRITERS = {
+    "omni_sfm/reports.py": "JsonReport.write: every report but init's line-based one",
+    "omni_sfm/estimate/pipeline.py": "init's report.json, built by the estimator",
+}
+
+
+def test_reports_are_written_by_their_classes():
+    """``report.json`` and ``results.json`` are written through their report class
+    (:meth:`omni_sfm.reports.JsonReport.write`), not as text of a dict."""
+    bad = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        rel = path.relative_to(PACKAGE.parent).as_posix()
+        if rel in REPORT_WRITERS:
+            continue
+        tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Call) and getattr(node.func, "id", None) == \
+                    "atomic_write_text" and node.args:
+                target = ast.unparse(node.args[0])
+                if any(name in target for name in ("REPORT", "RESULTS")) and \
+                        "REPORT_MD" not in target:
+                    bad.append(f"{rel}:{node.lineno} writes {target}")
+    assert not bad, "\n".join(bad)
