@@ -12,8 +12,11 @@ the carried files with :func:`carry_forward`.
 Each folder kind has one class that knows its file names (:class:`StageFolder` the files every
 stage folder has; :class:`InitFolder`, :class:`RefineFolder`, :class:`DenseFolder`,
 :class:`CompareFolder`, :class:`RenderFolder`); the stages write and read through them, so
-every file of a folder is named in one place. An init folder is read back by
-:meth:`InitFolder.load`. docs/formats.md describes the files.
+every file of a folder is named in one place. A folder is read back by its loader
+(:meth:`InitFolder.load`, :meth:`RefineFolder.load`, :meth:`DenseFolder.load`), its
+``report.json`` by ``read_report`` as the typed report of :mod:`omni_sfm.reports` (any stage
+folder's, for where its frames are: :meth:`StageFolder.read_stage_report`). docs/formats.md
+describes the files.
 """
 
 from __future__ import annotations
@@ -26,7 +29,17 @@ from typing import TYPE_CHECKING, ClassVar
 import numpy as np
 
 from omni_sfm.errors import OmniSfmError
-from omni_sfm.fileio import read_json, resolve_stored
+from omni_sfm.fileio import read_json
+from omni_sfm.reports import (
+    CompareResults,
+    DenseReport,
+    ExportReport,
+    InitReport,
+    RefineReport,
+    StageReport,
+    TrackFrame,
+    read_track_frames,
+)
 
 if TYPE_CHECKING:
     from omni_sfm.cameras import CameraModel
@@ -68,6 +81,51 @@ class StageFolder:
 
         return read_lines3d(self / self.LINES3D) if (self / self.LINES3D).is_file() else None
 
+    def read_stage_report(self) -> StageReport | None:
+        """``report.json`` read for what any stage's records (where the frames and the input
+        folder are, the parallel family), or None when the folder has none."""
+        path = self / self.REPORT
+        return StageReport.read(path) if path.is_file() else None
+
+    def user_mask(self) -> Path | None:
+        """``mask.png``: the user's mask, or None when none was given."""
+        mask = self / self.MASK
+        return mask if mask.is_file() else None
+
+    def load_stage(self, camera: bool = True) -> StageArtifacts:
+        """Any stage folder (init, refine or dense) read for what they all hold: the poses (a
+        one-line error if missing or malformed), and where the folder has them the camera
+        (unless ``camera`` is False: the caller has its own), the 3D lines, the recorded
+        frames, the user's mask and the report. The readers that take any stage folder
+        (dense, view, export) go through here; a folder of one kind is read by its
+        ``load``."""
+        trajectory = self.read_trajectory()
+        has_camera = camera and (self / self.CAMERA).is_file()
+        report = self.read_stage_report()
+        return StageArtifacts(self, trajectory, self.read_camera() if has_camera else None,
+                              self.read_lines3d(),
+                              None if report is None else report.images(self.path),
+                              self.user_mask(), report)
+
+
+@dataclass(frozen=True)
+class StageArtifacts:
+    """Any stage folder read back (:meth:`StageFolder.load_stage`)."""
+
+    folder: StageFolder
+    trajectory: Trajectory
+    """``trajectory.tum``: world_from_cam of every posed frame."""
+    camera: CameraModel | None
+    """``camera.yaml``, or None when the folder has none (or it was not asked for)."""
+    lines3d: LineSegments3D | None
+    """``lines3d.json``, or None when the folder has none."""
+    images: Path | None
+    """The image folder or video recorded in ``report.json`` (``input.images``), or None."""
+    user_mask: Path | None
+    """``mask.png``, or None."""
+    report: StageReport | None
+    """``report.json`` read for what every stage's records, or None when absent."""
+
 
 TRAJECTORY_FILE = StageFolder.TRAJECTORY
 REPORT_FILE = StageFolder.REPORT
@@ -80,14 +138,8 @@ CARRIED_FILES = (StageFolder.CAMERA, StageFolder.MASK, StageFolder.LINES3D)
 def recorded_images(folder: Path | str) -> Path | None:
     """The image folder or video that ``folder`` (an init, refine or dense output) was made
     from, as recorded in its ``report.json``, or None when it records none."""
-    folder = Path(folder)
-    report = folder / StageFolder.REPORT
-    if not report.is_file():
-        return None
-    doc = read_json(report, "report")
-    inp = doc.get("input") if isinstance(doc, dict) else None
-    images = inp.get("images") if isinstance(inp, dict) else None
-    return resolve_stored(images, folder) if isinstance(images, str) and images else None
+    report = StageFolder(Path(folder)).read_stage_report()
+    return None if report is None else report.images(folder)
 
 
 def images_for(folder: Path | str, images: Path | str | None) -> Path:
@@ -130,6 +182,23 @@ def _by_video_time(frames: FrameStore, ts: np.ndarray) -> list[str] | None:
     return [frames.names[int(i)] for i in k]
 
 
+def read_manifest_names(folder: Path | str) -> list[str] | None:
+    """``image_names`` of ``folder``'s ``colmap.json`` (the COLMAP model's manifest: the image
+    of every pose, in trajectory order), or None when the folder has none."""
+    manifest = Path(folder) / InitFolder.MANIFEST
+    if not manifest.is_file():
+        return None
+    m = read_json(manifest, "colmap manifest")
+    listed = m.get("image_names") if isinstance(m, dict) else None
+    return [str(n) for n in listed] if isinstance(listed, list) else []
+
+
+def manifest_names(folder: Path | str, num_poses: int) -> list[str] | None:
+    """:func:`read_manifest_names` when it names ``num_poses`` images, else None."""
+    listed = read_manifest_names(folder)
+    return listed if listed is not None and len(listed) == num_poses else None
+
+
 def pose_frame_names(folder: Path | str, traj: Trajectory, frames: FrameStore) -> list[str]:
     """The name in ``frames`` of the frame of every pose of ``traj`` (``folder``'s poses), in
     trajectory order; a one-line OmniSfmError when they cannot be matched or some are missing.
@@ -139,13 +208,7 @@ def pose_frame_names(folder: Path | str, traj: Trajectory, frames: FrameStore) -
     timestamps (``000012.png`` for timestamp 12), else in order when the source holds exactly
     one frame per pose."""
     names = list(frames.names)
-    manifest = Path(folder) / InitFolder.MANIFEST
-    chosen: list[str] | None = None
-    if manifest.is_file():
-        m = read_json(manifest, "colmap manifest")
-        listed = m.get("image_names") if isinstance(m, dict) else None
-        if isinstance(listed, list) and len(listed) == len(traj):
-            chosen = [str(n) for n in listed]
+    chosen = manifest_names(folder, len(traj))
     if chosen is None:
         by_stem: dict[int, str] = {}
         for n in names:
@@ -191,9 +254,12 @@ class InitFolder(StageFolder):
         Every reader of an init folder goes through here."""
         camera = self.read_camera()
         trajectory = self.read_trajectory()
-        mask = self / self.MASK
         return InitArtifacts(self, camera, trajectory, self.read_lines3d(),
-                             recorded_images(self.path), mask if mask.is_file() else None)
+                             recorded_images(self.path), self.user_mask())
+
+    def read_report(self) -> InitReport:
+        """``report.json``, typed (a one-line error if missing or malformed)."""
+        return InitReport.read(self / self.REPORT)
 
 
 @dataclass(frozen=True)
@@ -221,6 +287,11 @@ class InitArtifacts:
         path = self.folder / self.folder.TRACKS
         return read_tracks(path) if path.is_file() else None
 
+    def read_report(self) -> InitReport | None:
+        """``report.json``, typed, or None when the folder has none."""
+        path = self.folder / self.folder.REPORT
+        return InitReport.read(path) if path.is_file() else None
+
 
 @dataclass(frozen=True)
 class RefineFolder(StageFolder):
@@ -231,6 +302,45 @@ class RefineFolder(StageFolder):
     COLMAP_IMAGES: ClassVar[str] = InitFolder.COLMAP_IMAGES
     COLMAP_MASK: ClassVar[str] = InitFolder.COLMAP_MASK
 
+    def read_report(self) -> RefineReport:
+        """``report.json``, typed (a one-line error if missing or malformed)."""
+        return RefineReport.read(self / self.REPORT)
+
+    def load(self) -> RefineArtifacts:
+        """The folder's artifacts, typed: the camera, the poses and the report (a one-line
+        error if any is missing or malformed), the 3D lines, the recorded frames and the
+        user's mask where the folder has them. Every reader of a refine folder as such goes
+        through here."""
+        camera = self.read_camera()
+        trajectory = self.read_trajectory()
+        report = self.read_report()
+        return RefineArtifacts(self, camera, trajectory, self.read_lines3d(),
+                               report.images(self.path), self.user_mask(), report)
+
+
+@dataclass(frozen=True)
+class RefineArtifacts:
+    """A refine folder read back (:meth:`RefineFolder.load`)."""
+
+    folder: RefineFolder
+    camera: CameraModel
+    """``camera.yaml`` (carried from the init folder)."""
+    trajectory: Trajectory
+    """``trajectory.tum``: the refined poses, in the init's world and scale."""
+    lines3d: LineSegments3D | None
+    """``lines3d.json``: adjusted with the points, or carried from the init; None if absent."""
+    images: Path | None
+    """The frames the folder was made from (``report.json`` ``input.images``)."""
+    user_mask: Path | None
+    """``mask.png`` (carried from the init), or None."""
+    report: RefineReport
+    """``report.json``."""
+
+    @property
+    def sparse(self) -> Path:
+        """``sparse/``: the COLMAP model."""
+        return self.folder / self.folder.SPARSE
+
 
 @dataclass(frozen=True)
 class DenseFolder(StageFolder):
@@ -239,6 +349,94 @@ class DenseFolder(StageFolder):
     POINTS: ClassVar[str] = "dense.ply"
     MESH: ClassVar[str] = "mesh.ply"
     VIEW_PNG: ClassVar[str] = "view.png"
+
+    def read_report(self) -> DenseReport:
+        """``report.json``, typed (a one-line error if missing or malformed)."""
+        return DenseReport.read(self / self.REPORT)
+
+    def load(self) -> DenseArtifacts:
+        """The folder's artifacts, typed: the camera, the poses (output units) and the report
+        (a one-line error if any is missing or malformed), the 3D lines, the recorded frames,
+        the user's mask and the point cloud and mesh files where the folder has them. Every
+        reader of a dense folder as such goes through here."""
+        camera = self.read_camera()
+        trajectory = self.read_trajectory()
+        report = self.read_report()
+        points, mesh = self / self.POINTS, self / self.MESH
+        return DenseArtifacts(self, camera, trajectory, self.read_lines3d(),
+                              report.images(self.path), self.user_mask(), report,
+                              points if points.is_file() else None,
+                              mesh if mesh.is_file() else None)
+
+
+@dataclass(frozen=True)
+class DenseArtifacts:
+    """A dense folder read back (:meth:`DenseFolder.load`)."""
+
+    folder: DenseFolder
+    camera: CameraModel
+    """``camera.yaml``."""
+    trajectory: Trajectory
+    """``trajectory.tum``: the poses in the output unit (``report.scale``)."""
+    lines3d: LineSegments3D | None
+    """``lines3d.json`` in the output unit, or None when the input had none."""
+    images: Path | None
+    """The frames the map was made from (``report.json`` ``input.images``)."""
+    user_mask: Path | None
+    """``mask.png`` (carried), or None."""
+    report: DenseReport
+    """``report.json``."""
+    points: Path | None
+    """``dense.ply`` (``open3d.io.read_point_cloud``), or None when absent."""
+    mesh: Path | None
+    """``mesh.ply`` (``open3d.io.read_triangle_mesh``), or None when absent."""
+
+
+@dataclass(frozen=True)
+class TrackFolder:
+    """``omni-sfm track`` output, written as the poses come (docs/track.md): the first start's
+    poses in ``trajectory.tum``, each restart's in its own segment file, a line per frame in
+    ``frames.jsonl``."""
+
+    path: Path
+    TRAJECTORY: ClassVar[str] = StageFolder.TRAJECTORY
+    FRAMES: ClassVar[str] = "frames.jsonl"
+
+    def __truediv__(self, name: str) -> Path:
+        return Path(self.path) / name
+
+    def read_frames(self) -> list[TrackFrame]:
+        """``frames.jsonl``, a typed record per frame (one-line error if malformed)."""
+        return read_track_frames(self / self.FRAMES)
+
+
+@dataclass(frozen=True)
+class ExportFolder:
+    """``omni-sfm export`` output (docs/formats.md, "Exports"); which files a format writes:
+    :mod:`omni_sfm.export.pipeline`."""
+
+    path: Path
+    REPORT: ClassVar[str] = StageFolder.REPORT
+    TRAJECTORY: ClassVar[str] = StageFolder.TRAJECTORY
+    CAMERA: ClassVar[str] = StageFolder.CAMERA
+    SPARSE: ClassVar[str] = InitFolder.SPARSE
+    COLMAP_MASK: ClassVar[str] = InitFolder.COLMAP_MASK
+    IMAGES: ClassVar[str] = "images"
+    MASKS: ClassVar[str] = "masks"
+    POINTS: ClassVar[str] = "sparse_pc.ply"
+    KITTI_POSES: ClassVar[str] = "poses.txt"
+    KITTI_TIMES: ClassVar[str] = "times.txt"
+    TRANSFORMS: ClassVar[str] = "transforms.json"
+    LIMAP_TRACKS: ClassVar[str] = "finaltracks"
+    LIMAP_ALLTRACKS: ClassVar[str] = "alltracks.txt"
+    LIMAP_FAMILIES: ClassVar[str] = "line_families.json"
+
+    def __truediv__(self, name: str) -> Path:
+        return Path(self.path) / name
+
+    def read_report(self) -> ExportReport:
+        """``report.json``, typed (a one-line error if missing or malformed)."""
+        return ExportReport.read(self / self.REPORT)
 
 
 @dataclass(frozen=True)
@@ -254,6 +452,10 @@ class CompareFolder:
 
     def __truediv__(self, name: str) -> Path:
         return Path(self.path) / name
+
+    def read_results(self) -> CompareResults:
+        """``results.json``, typed (a one-line error if missing or malformed)."""
+        return CompareResults.read(self / self.RESULTS)
 
     @classmethod
     def trajectory(cls, initializer: str) -> str:

@@ -33,7 +33,6 @@ right; where they disagree, look at the frames named (and at init's debug view).
 from __future__ import annotations
 
 import argparse
-import json
 import subprocess
 import sys
 import time
@@ -113,9 +112,12 @@ def run_init(images: Path, camera: str | None, out: Path, extra: list[str]) -> d
         errs = [ln for ln in res["stderr"] if ln.startswith("omni-sfm: error")]
         res.update(status="failed", reason=(errs or res["stderr"] or ["?"])[-1])
         return res
-    report = json.loads((out / "report.json").read_text())
+    from omni_sfm.folders import InitFolder
+
+    typed = InitFolder(out).read_report()
+    report = typed.to_json()
     key, names, reasons = uncertain_frames(report)
-    segs = report.get("segments") or []
+    segs = typed.segment_list
     res.update(status="ok", trajectory=str(out / "trajectory.tum"),
                segments_frames=int(sum(int(s["num_frames_estimated"]) for s in segs)),
                uncertain_key=key, uncertain=names, uncertain_reasons=reasons,
@@ -140,11 +142,15 @@ def run_colmap(images: Path, camera: Any, out: Path, options: dict[str, Any]) ->
 
 def colmap_folder(folder: Path, wall: float | None = None) -> dict[str, Any]:
     """What a ``colmap`` init folder holds (its time: ``wall``, else its report's)."""
-    report = json.loads((folder / "report.json").read_text())
+    from omni_sfm.folders import StageFolder
+
+    # a colmap init folder, or a reference made by hand: a report with what it has
+    report = StageFolder(folder).read_stage_report()
+    doc = {} if report is None else report.other
     return {"status": "ok", "trajectory": str(folder / "trajectory.tum"),
             "time_s": wall if wall is not None else
-            (report.get("wall_time_s") or {}).get("initializer"),
-            "reason": report.get("reason", ""), "info": report.get("info", {})}
+            (doc.get("wall_time_s") or {}).get("initializer"),
+            "reason": doc.get("reason", ""), "info": doc.get("info", {})}
 
 
 def agreement(lines: Any, colmap: Any, names: dict[float, str],

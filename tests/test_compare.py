@@ -63,7 +63,7 @@ def test_compare_simulation_results_recomputed(tmp_path: Path) -> None:
     res = check_results_match_trajectories(out, tmp_path / "gt.tum", seq.num_frames)
     assert set(res["initializers"]) == {"lines", "five-point"}
     assert all(e["status"] == "ok" for e in res["initializers"].values())
-    assert r.results == res
+    assert r.results.to_json() == res
     report = (out / "report.md").read_text()
     for name in res["initializers"]:
         assert f"| {name} | ok |" in report

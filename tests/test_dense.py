@@ -26,6 +26,7 @@ from omni_sfm.dense.views import ViewGeometry, stereo_rig
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.evaluate import umeyama
 from omni_sfm.fileio import stored_path
+from omni_sfm.folders import DenseFolder
 from omni_sfm.geometry import angle_between, rotation_angle, rotvec_to_matrix
 from omni_sfm.libs import open3d_module
 from omni_sfm.poses import Trajectory, read_tum, write_tum
@@ -95,6 +96,12 @@ def test_rig_views_are_rectified() -> None:
 def test_dense_room_accuracy_scale_and_files(room: Path, dense_out: Path) -> None:
     o3d = open3d_module()
     report = json.loads((dense_out / "report.json").read_text())
+    # the folder's loader reads the report as written, keys in the documented order
+    loaded = DenseFolder(dense_out).load()
+    assert loaded.report.to_json() == report and list(report)[:3] == ["input", "scale",
+                                                                      "median_depth"]
+    assert loaded.points == dense_out / "dense.ply" and loaded.mesh == dense_out / "mesh.ply"
+    assert loaded.images is not None and loaded.images.resolve() == (room / "images").resolve()
     # --known-distance undoes the arbitrary pose scale
     assert report["scale"]["source"] == "known_distance"
     assert report["scale"]["factor"] == pytest.approx(1 / SCALE, rel=1e-9)

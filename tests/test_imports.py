@@ -22,8 +22,8 @@ PACKAGE = Path(__file__).resolve().parents[1] / "omni_sfm"
 
 STAGES = ["cameras", "lines", "vanishing", "estimate", "export", "refine", "dense", "view"]
 """Pipeline stages in their order: a stage may import only itself and earlier stages."""
-HELPERS = ["geometry", "transforms", "fileio", "folders", "libs", "poses", "errors", "registry",
-           "frames", "solver", "corners"]
+HELPERS = ["geometry", "transforms", "fileio", "folders", "reports", "libs", "poses", "errors",
+           "registry", "frames", "solver", "corners"]
 """Shared helpers below the stages (top-level modules of ``omni_sfm``)."""
 ENTRY_POINTS = ["pipelines", "plugin_contract"]
 """Above the stages: the programs that wire them together, and what a plugin gets and returns."""
@@ -208,4 +208,61 @@ def test_folder_file_names_are_spelled_in_folders_only():
         bad += [f"{path.relative_to(PACKAGE.parent)}:{node.lineno} spells {node.value!r}"
                 for node in ast.walk(tree) if isinstance(node, ast.Constant)
                 and node.value in names and id(node) not in docs]
+    assert not bad, "\n".join(bad)
+
+
+JSON_READERS = {
+    "omni_sfm/fileio.py": "read_json itself",
+    "omni_sfm/reports.py": "every stage's report.json and compare's results.json",
+    "omni_sfm/folders.py": "colmap.json (the COLMAP model's manifest)",
+    "omni_sfm/lines3d.py": "lines3d.json",
+    "omni_sfm/lines/tracks.py": "tracks.json",
+    "omni_sfm/export/nerfstudio.py": "transforms.json (an export read back, for checks)",
+}
+"""The one module that parses each JSON artifact."""
+
+
+def test_each_json_artifact_has_one_reader():
+    """JSON is parsed (``read_json``, ``json.load``/``json.loads``) only by the reader of its
+    artifact: a report is read through omni_sfm.reports, never as a dict of its own."""
+    bad = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        rel = path.relative_to(PACKAGE.parent).as_posix()
+        if rel in JSON_READERS:
+            continue
+        tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+        for node in ast.walk(tree):
+            if not isinstance(node, ast.Call):
+                continue
+            f = node.func
+            name = f.attr if isinstance(f, ast.Attribute) else getattr(f, "id", "")
+            owner = f.value.id if isinstance(f, ast.Attribute) and isinstance(
+                f.value, ast.Name) else None
+            if name == "read_json" or (owner == "json" and name in ("load", "loads")):
+                bad.append(f"{rel}:{node.lineno} parses JSON")
+    assert not bad, "\n".join(bad)
+
+
+REPORT_WRITERS = {
+    "omni_sfm/reports.py": "JsonReport.write: every report but init's line-based one",
+    "omni_sfm/estimate/pipeline.py": "init's report.json, built by the estimator",
+}
+
+
+def test_reports_are_written_by_their_classes():
+    """``report.json`` and ``results.json`` are written through their report class
+    (:meth:`omni_sfm.reports.JsonReport.write`), not as text of a dict."""
+    bad = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        rel = path.relative_to(PACKAGE.parent).as_posix()
+        if rel in REPORT_WRITERS:
+            continue
+        tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Call) and getattr(node.func, "id", None) == \
+                    "atomic_write_text" and node.args:
+                target = ast.unparse(node.args[0])
+                if any(name in target for name in ("REPORT", "RESULTS")) and \
+                        "REPORT_MD" not in target:
+                    bad.append(f"{rel}:{node.lineno} writes {target}")
     assert not bad, "\n".join(bad)

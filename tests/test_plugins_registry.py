@@ -145,7 +145,7 @@ def test_compare_records_broken_plugins_in_results(fake_plugins: dict[str, Entry
                                                    tmp_path: Path) -> None:
     seq, gt = sim
     res = compare(seq, gt, tmp_path / "out", list(FAKES), plots=False)
-    entries = res.results["initializers"]
+    entries = res.results.to_json()["initializers"]
     assert list(entries) == list(FAKES)
     for name, (_, expected) in FAKES.items():
         e = entries[name]
@@ -237,7 +237,7 @@ def check_example_installed(site: Path, seq: SequenceInput, gt: Trajectory,
     assert (res.status, res.reason) == ("failed", "unknown option(s) sped (known: speed)")
 
     out = compare(seq, gt, tmp_path / "cmp", ["straight-line"], plots=False)
-    e = out.results["initializers"]["straight-line"]
+    e = out.results.to_json()["initializers"]["straight-line"]
     assert e["status"] == "ok" and e["frames_compared"] == seq.num_frames
     assert e["reason"].startswith("baseline:")
 

@@ -7,6 +7,7 @@ The "line-based init" here is the rendered ground truth with realistic errors (0
 
 from __future__ import annotations
 
+import json
 import shutil
 import sqlite3
 from pathlib import Path
@@ -25,8 +26,8 @@ from omni_sfm.export.colmap import (
     read_init_model,
     write_init_model,
 )
-from omni_sfm.fileio import read_json
-from omni_sfm.folders import InitFolder
+from omni_sfm.fileio import dumps_json, read_json
+from omni_sfm.folders import InitFolder, RefineFolder
 from omni_sfm.poses import Trajectory, read_tum
 from omni_sfm.refine import RefineOptions, refine
 from omni_sfm.refine.synthetic import perturb, write_perturbed_init
@@ -91,24 +92,28 @@ def test_init_model_layout_round_trip(room, tmp_path):
 def test_refine_improves_a_perturbed_seed_on_a_textured_room(room_refined):
     work, gt, init, res = room_refined
     r = res.report
+    # the folder's loader reads back the report refine returned, and the refined poses
+    art = RefineFolder(work / "out").load()
+    assert art.report.to_json() == json.loads(dumps_json(r.to_json()))
+    np.testing.assert_allclose(art.trajectory.positions, res.trajectory.positions, atol=1e-9)
     before = trajectory_errors(init, gt)
     after_all = trajectory_errors(res.trajectory, gt)
     after = trajectory_errors(_on(res.trajectory, init.timestamps), gt)
     assert after.ate_rel < before.ate_rel
     assert after.ate_rel < 0.0025, after.ate_rel
     assert after.rot_mean_deg < 0.5 * before.rot_mean_deg
-    assert r["refined_frames"] >= 0.8 * len(init)
+    assert r.refined_frames >= 0.8 * len(init)
     # the mapper registered the frames the seed lacked, and they are good too
-    assert sorted(r["mapper"]["registered"]) == [f"{k:06d}.png" for k in MISSING]
+    assert sorted(r.mapper["registered"]) == [f"{k:06d}.png" for k in MISSING]
     assert after_all.num_common == len(gt) and after_all.ate_rel < 0.0025
-    ba = r["bundle_adjustment"]["rounds"]
+    ba = r.bundle_adjustment["rounds"]
     assert ba[-1]["mean_reprojection_error_after_px"] < ba[0]["mean_reprojection_error_before_px"]
-    assert r["model"]["mean_reprojection_error_px"] < 1.0
-    assert set(r["timings_s"]) >= {"features", "matching", "triangulation", "bundle adjustment"}
+    assert r.model["mean_reprojection_error_px"] < 1.0
+    assert set(r.timings_s) >= {"features", "matching", "triangulation", "bundle adjustment"}
     # pairs of seeded frames were matched along their poses, the mapper's frames by COLMAP
-    g = r["matching_guided"]
+    g = r.matching_guided
     assert g["written"] >= 0.8 * g["pairs"] > 0 and g["matches"] > 100 * g["written"]
-    assert r["matching"]["verified_pairs"] > g["written"]
+    assert r.matching["verified_pairs"] > g["written"]
 
 
 def test_a_missed_frame_the_mapper_cannot_register_is_listed(room, tmp_path):
@@ -126,8 +131,8 @@ def test_a_missed_frame_the_mapper_cannot_register_is_listed(room, tmp_path):
     _, gt, _, res = refine_perturbed(render, tmp_path, MISSING,
                                      RefineOptions(overlap=5, features="klt"))
     r = res.report  # type: ignore[attr-defined]
-    assert r["mapper"]["registered"] == ["000006.png"]
-    assert r["mapper"]["not_registered"] == ["000013.png"]
+    assert r.mapper["registered"] == ["000006.png"]
+    assert r.mapper["not_registered"] == ["000013.png"]
     assert len(res.trajectory) == len(gt) - 1  # type: ignore[attr-defined]
 
 
@@ -196,10 +201,10 @@ def test_a_large_correction_is_taken_only_where_the_images_back_it(room, room_re
     res = refine(tmp_path / "init", room / "images", tmp_path / "out",
                  RefineOptions(overlap=5), database=db, progress=False)
     assert res.refined[bad]
-    assert list(res.report["pose_changes"]["large_changes_backed_by_images"]) == [names[bad]]
+    assert list(res.report.pose_changes["large_changes_backed_by_images"]) == [names[bad]]
     # its observations disagree with the points the other frames triangulate: it is posed
     # again from them before the adjustment (without that it would have none)
-    assert res.report["triangulation"]["frames_posed_again"] == [names[bad]]
+    assert res.report.triangulation["frames_posed_again"] == [names[bad]]
 
     def rot_err(traj: Trajectory) -> float:  # frame `bad` relative to frame 0, vs ground truth
         rel = np.swapaxes(traj.rotations[0], 0, 1) @ traj.rotations[bad]
@@ -225,9 +230,9 @@ def test_refine_keeps_the_input_on_a_texture_poor_corridor(rendered, tmp_path):
     assert trajectory_errors(res.trajectory, gt).ate_rel == pytest.approx(
         trajectory_errors(init, gt).ate_rel, rel=1e-9)
     r = res.report
-    assert r["kept_input_for_all"] == ("too few points or well-observed frames for a "
-                                       "trustworthy adjustment"), r["kept_input_for_all"]
-    assert r["refined_frames"] == 0 and r["kept_frames"] == {}
+    assert r.kept_input_for_all == ("too few points or well-observed frames for a "
+                                       "trustworthy adjustment"), r.kept_input_for_all
+    assert r.refined_frames == 0 and r.kept_frames == {}
 
 
 def test_refine_improves_an_equirectangular_seed(rendered, tmp_path):
@@ -240,7 +245,7 @@ def test_refine_improves_an_equirectangular_seed(rendered, tmp_path):
                  progress=False)
     gt = read_tum(out / "groundtruth.tum")
     before, after = trajectory_errors(init, gt), trajectory_errors(res.trajectory, gt)
-    assert res.report["refined_frames"] == len(gt)
+    assert res.report.refined_frames == len(gt)
     assert after.ate_rel < 0.5 * before.ate_rel
     assert after.rot_mean_deg < 0.5 * before.rot_mean_deg
 

@@ -27,6 +27,7 @@ from omni_sfm.estimate.online import (
     poses_trajectory,
 )
 from omni_sfm.evaluate import trajectory_errors
+from omni_sfm.folders import TrackFolder
 from omni_sfm.frames import Frame
 from omni_sfm.pipelines.track import Tracker
 from omni_sfm.poses import read_tum
@@ -259,6 +260,7 @@ def test_video_read_as_a_stream_gives_the_folder_poses(corridor, corridor_poses,
     np.testing.assert_allclose(traj.positions, ref.positions, atol=1e-12)
     np.testing.assert_allclose(traj.rotations, ref.rotations, atol=1e-12)
     assert [json.loads(s) for s in (out / "frames.jsonl").read_text().splitlines()] == lines
+    assert [f.to_json() for f in TrackFolder(out).read_frames()] == lines  # the typed reader
 
 
 def test_ctrl_c_ends_cleanly_with_the_poses_so_far(corridor, corridor_poses, tmp_path,

@@ -56,12 +56,12 @@ def run(args: argparse.Namespace) -> int:
     options = {n: {"verbose": True} for n in names} if args.verbose else None
     res = compare(seq, gt, args.output, names, options=options, overwrite=args.overwrite,
                   plots=not args.no_plots, progress=sys.stderr.isatty(), inputs=inputs)
-    for name, e in res.results["initializers"].items():
-        if e["status"] == "ok":
-            print(f"{name}: ok, {100 * e['registered']:.0f} % of frames, rotation max "
-                  f"{e['rot_max_deg']:.3f} deg, ATE {100 * e['ate_rel']:.2f} % of the path, "
-                  f"{e['time_s']:.1f} s")
+    for name, e in res.results.initializers.items():
+        if e.status == "ok":
+            print(f"{name}: ok, {100 * e.registered:.0f} % of frames, rotation max "
+                  f"{e.rot_max_deg:.3f} deg, ATE {100 * (e.ate_rel or 0.0):.2f} % of the path, "
+                  f"{e.time_s:.1f} s")
         else:
-            print(f"{name}: failed: {e.get('reason', '')}")
+            print(f"{name}: failed: {e.reason or ''}")
     print(f"wrote {res.output / CompareFolder.RESULTS} and {CompareFolder.REPORT_MD}")
     return 0

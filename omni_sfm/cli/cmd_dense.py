@@ -71,13 +71,13 @@ def run(args: argparse.Namespace) -> int:
         res = run_dense(args.input, args.images, args.output, opts, camera_file=args.camera,
                         overwrite=args.overwrite, progress=sys.stderr.isatty())
     r = res.report
-    sec = r["seconds"]
-    print(f"dense: {r['num_points']} points, {r['num_triangles']} triangles from "
-          f"{r['num_keyframes']} keyframes into {args.output} ({r['scale']['unit']}; median "
-          f"depth {r['median_depth']:.3g}, voxel {r['voxel_size']:.3g}); depth on "
-          f"{100 * r['depth_share']['median']:.0f}% of a keyframe's view pixels (median); "
+    sec = r.seconds
+    print(f"dense: {r.num_points} points, {r.num_triangles} triangles from "
+          f"{r.num_keyframes} keyframes into {args.output} ({r.scale['unit']}; median "
+          f"depth {r.median_depth:.3g}, voxel {r.voxel_size:.3g}); depth on "
+          f"{100 * r.depth_share['median']:.0f}% of a keyframe's view pixels (median); "
           f"{sec['depth_per_keyframe']:.2f} s depth + {sec['fusion_per_keyframe']:.2f} s fusion "
           "per keyframe")
-    for w in r["warnings"]:
+    for w in r.warnings:
         print(f"warning: {w}", file=sys.stderr)
     return 0

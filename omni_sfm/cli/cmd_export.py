@@ -53,8 +53,8 @@ def run(args: argparse.Namespace) -> int:
     opts = ExportOptions(fmt=args.fmt, up=args.up, up_axis=args.up_axis, views=args.views)
     rep = run_export(args.input, args.output, opts, images=args.images,
                      overwrite=args.overwrite, progress=sys.stderr.isatty())
-    world = "gravity-up (+z)" if rep["world"]["turned"] else "the first camera's frame"
-    extra = f", {rep['num_images']} images" if "num_images" in rep else ""
-    print(f"export: {rep['num_poses']} poses as {args.fmt} into {args.output} ({world}"
-          f"{extra}) in {rep['seconds']:.1f} s")
+    world = "gravity-up (+z)" if rep.turned else "the first camera's frame"
+    extra = f", {rep.num_images} images" if rep.num_images is not None else ""
+    print(f"export: {rep.num_poses} poses as {args.fmt} into {args.output} ({world}"
+          f"{extra}) in {rep.seconds:.1f} s")
     return 0

@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from omni_sfm.lines.extract import ExtractionOptions
+    from omni_sfm.reports import InitReport
 
 
 def add_parser(subparsers: Any) -> None:
@@ -119,21 +120,28 @@ def _skipped(names: list[str], reasons: list[str], most: int = 3) -> str:
     return f"skipped: {n} damaged frame{'' if n == 1 else 's'} ({'; '.join(parts)}{more})"
 
 
-def summary(rep: dict[str, Any], output: Path, estimated: list[str], not_estimated: list[str],
-            unreadable: list[str], reasons: list[str] | None = None) -> str:
+def summary(rep: InitReport | dict[str, Any], output: Path, estimated: list[str],
+            not_estimated: list[str], unreadable: list[str],
+            reasons: list[str] | None = None) -> str:
     """The result lines ``init`` prints on stdout: frames estimated out of all given, the world
     frame, the frames without a pose and why to look in report.json, and the frames skipped
-    (``unreadable``) with their ``reasons`` where known."""
-    total = rep["num_frames"] + len(unreadable)
+    (``unreadable``) with their ``reasons`` where known. ``rep``: the report (or its JSON
+    document, as the estimator returns it)."""
+    from omni_sfm.reports import InitReport
+
+    if not isinstance(rep, InitReport):
+        rep = InitReport.from_json(rep)
+    total = rep.num_frames + len(unreadable)
+    rms = float("nan") if rep.rms_final_deg is None else rep.rms_final_deg
     lines = [f"init: {len(estimated)} of {total} frames estimated, "
-             f"{len(rep['parallel_family']['track_ids'])} parallel lines, "
-             f"{len(rep['rejected_tracks'])} outlier tracks, residual "
-             f"{rep['residuals']['rms_final_deg']:.3g} deg RMS -> {output}",
+             f"{len(rep.family_track_ids)} parallel lines, "
+             f"{len(rep.rejected_tracks or [])} outlier tracks, residual "
+             f"{rms:.3g} deg RMS -> {output}",
              f"world: the camera of frame {estimated[0]} (first estimated), "
              + ("rotation only: the camera turned without moving, positions are 0 and the "
-                "scale is undetermined" if "motion" in rep else
+                "scale is undetermined" if rep.rotation_only else
                 "first-to-last camera distance = 1")]
-    segs = rep.get("segments") or []
+    segs = rep.segment_list
     n_seg = sum(int(sg["num_frames_estimated"]) for sg in segs)
     if segs:
         files = [sg["file"] for sg in segs]
@@ -255,5 +263,5 @@ def _run_plugin(args: argparse.Namespace) -> int:
           "camera distance = 1")
     if res.not_estimated:
         print(f"not estimated: {len(res.not_estimated)} frames ({_names(list(res.not_estimated))};"
-              f" {res.report['reason'] or 'see report.json'})")
+              f" {res.report.reason or 'see report.json'})")
     return 0

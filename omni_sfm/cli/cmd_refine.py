@@ -89,24 +89,21 @@ def run(args: argparse.Namespace) -> int:
                  overwrite=args.overwrite, progress=sys.stderr.isatty(), verbose=args.verbose)
     r = res.report
     n = len(res.input_trajectory)
-    ba = r.get("bundle_adjustment", {})
-    rounds = ba.get("rounds") or []
+    rounds = r.adjustment_rounds
     err = (f", mean reprojection error {rounds[0]['mean_reprojection_error_before_px']:.3f} -> "
            f"{rounds[-1]['mean_reprojection_error_after_px']:.3f} px" if rounds else "")
-    if "joint" in ba:
-        j = ba["joint"]
-        err = (f", adjusted with {j['line_observations']} line and {j['point_observations']} "
-               f"point observations")
-    print(f"refine: refined {r['refined_frames']} of {n} input poses "
-          f"({r['model']['points']} points, {r['model']['observations']} observations{err}) "
+    if r.joint is not None:
+        err = (f", adjusted with {r.joint['line_observations']} line and "
+               f"{r.joint['point_observations']} point observations")
+    print(f"refine: refined {r.refined_frames} of {n} input poses "
+          f"({r.model['points']} points, {r.model['observations']} observations{err}) "
           f"into {res.output}")
-    added = r.get("mapper", {}).get("added_to_trajectory")
-    if added:
-        print(f"COLMAP's mapper registered {len(added)} frames the init did not pose")
-    if r.get("kept_input_for_all"):
-        print(f"kept every input pose: {r['kept_input_for_all']}")
-    elif r.get("kept_frames"):
-        print(f"kept the input pose of {len(r['kept_frames'])} frames (see report.json)")
-    times = ", ".join(f"{k} {v:.1f} s" for k, v in r["timings_s"].items())
+    if r.mapper_added:
+        print(f"COLMAP's mapper registered {len(r.mapper_added)} frames the init did not pose")
+    if r.kept_input_for_all:
+        print(f"kept every input pose: {r.kept_input_for_all}")
+    elif r.kept_frames:
+        print(f"kept the input pose of {len(r.kept_frames)} frames (see report.json)")
+    times = ", ".join(f"{k} {v:.1f} s" for k, v in r.timings_s.items())
     print(f"time: {times}")
     return 0

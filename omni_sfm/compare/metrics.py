@@ -9,7 +9,6 @@ from typing import Any
 import numpy as np
 
 from omni_sfm.evaluate import associate, trajectory_errors
-from omni_sfm.fileio import read_json
 from omni_sfm.folders import CompareFolder
 from omni_sfm.geometry import FloatArray
 from omni_sfm.poses import Trajectory, read_tum
@@ -62,11 +61,11 @@ def evaluate_trajectory(est: Trajectory, gt: Trajectory, num_frames: int) -> Eva
 
 def recompute_results(output: Path, gt: Trajectory, num_frames: int) -> dict[str, dict[str, Any]]:
     """The figures of ``output/results.json`` recomputed from its TUM files (for checks)."""
-    res = read_json(CompareFolder(Path(output)) / CompareFolder.RESULTS)
+    res = CompareFolder(Path(output)).read_results()
     out: dict[str, dict[str, Any]] = {}
-    for name, e in res["initializers"].items():
-        if e.get("trajectory") is None or e["rot_max_deg"] is None:
+    for name, e in res.initializers.items():
+        if e.trajectory is None or e.rot_max_deg is None:
             continue
-        ev = evaluate_trajectory(read_tum(Path(output) / e["trajectory"]), gt, num_frames)
+        ev = evaluate_trajectory(read_tum(Path(output) / e.trajectory), gt, num_frames)
         out[name] = {"registered": ev.registered, **ev.metrics}
     return out

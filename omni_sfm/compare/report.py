@@ -7,6 +7,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from omni_sfm.folders import CompareFolder
+from omni_sfm.reports import CompareEntry, CompareResults
 
 
 def _fmt(x: Any, digits: int = 3, pct: bool = False) -> str:
@@ -15,24 +16,24 @@ def _fmt(x: Any, digits: int = 3, pct: bool = False) -> str:
     return f"{100 * x:.{digits}f} %" if pct else f"{x:.{digits}f}"
 
 
-def table_rows(entries: Mapping[str, Mapping[str, Any]]) -> list[str]:
+def table_rows(entries: Mapping[str, CompareEntry]) -> list[str]:
     """Markdown table (header included) of the ``initializers`` entries of results.json."""
     rows = ["| initializer | status | registered | rot max (deg) | rot mean (deg) | ATE / path "
             "| RPE / step | RPE rot (deg) | time (s) |",
             "|---|---|---|---|---|---|---|---|---|"]
     for name, e in entries.items():
-        rows.append(f"| {name} | {e['status']} | {_fmt(e.get('registered'), 0, pct=True)} | "
-                    f"{_fmt(e.get('rot_max_deg'))} | {_fmt(e.get('rot_mean_deg'))} | "
-                    f"{_fmt(e.get('ate_rel'), 2, pct=True)} | {_fmt(e.get('rpe'))} | "
-                    f"{_fmt(e.get('rpe_rot_deg'))} | "
-                    f"{_fmt(e.get('time_s'), 1)} |")
+        rows.append(f"| {name} | {e.status} | {_fmt(e.registered, 0, pct=True)} | "
+                    f"{_fmt(e.rot_max_deg)} | {_fmt(e.rot_mean_deg)} | "
+                    f"{_fmt(e.ate_rel, 2, pct=True)} | {_fmt(e.rpe)} | "
+                    f"{_fmt(e.rpe_rot_deg)} | "
+                    f"{_fmt(e.time_s, 1)} |")
     return rows
 
 
-def report_markdown(results: Mapping[str, Any]) -> str:
+def report_markdown(results: CompareResults) -> str:
     """``report.md``: the table, the reasons of failures and notes."""
-    seq = results.get("sequence", {})
-    entries = results["initializers"]
+    seq = results.sequence
+    entries = results.initializers
     lines = [f"# Initializers on {seq.get('name', 'the sequence')}", "",
              f"{seq.get('frames', '?')} frames, camera `{seq.get('camera', '?')}`. Rotation error "
              "relative to the first frame; ATE = RMSE of camera centres after similarity "
@@ -41,7 +42,7 @@ def report_markdown(results: Mapping[str, Any]) -> str:
              "over the mean true step, mean angle of its rotation (omni_sfm.evaluate). Errors "
              "are over the registered frames.", ""]
     lines += table_rows(entries)
-    notes = [f"- `{n}`: {e['reason']}" for n, e in entries.items() if e.get("reason")]
+    notes = [f"- `{n}`: {e.reason}" for n, e in entries.items() if e.reason]
     if notes:
         lines += ["", "Notes and reasons:", "", *notes]
     lines += ["", f"![trajectories]({CompareFolder.TRAJECTORIES_PLOT})", "",

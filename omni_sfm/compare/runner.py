@@ -15,7 +15,7 @@ from omni_sfm.compare.plots import plot_errors, plot_trajectories
 from omni_sfm.compare.report import report_markdown
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.evaluate import associate
-from omni_sfm.fileio import atomic_output_dir, atomic_write_text, dumps_json
+from omni_sfm.fileio import atomic_output_dir, atomic_write_text
 from omni_sfm.folders import CompareFolder
 from omni_sfm.plugin_contract import (
     InitializerResult,
@@ -24,6 +24,7 @@ from omni_sfm.plugin_contract import (
 )
 from omni_sfm.poses import Trajectory, write_tum
 from omni_sfm.registry import INITIALIZERS
+from omni_sfm.reports import CompareEntry, CompareResults
 
 DEFAULT_INITIALIZERS = ("lines", "five-point", "colmap", "upright-3pt")
 """The initializers :func:`compare` runs when none are named (those installed)."""
@@ -75,19 +76,19 @@ class ComparisonResult:
 
     Attributes:
         output: the output folder.
-        results: the content of ``results.json``.
+        results: ``results.json``.
         evaluations: the evaluation of each initializer that produced a trajectory.
     """
 
     output: Path
-    results: dict[str, Any]
+    results: CompareResults
     evaluations: dict[str, Evaluation]
 
 
 def run_comparison(sequence: SequenceInput, gt: Trajectory, names: Sequence[str],
                    options: Mapping[str, Mapping[str, Any]] | None = None,
                    progress: bool = False
-                   ) -> tuple[dict[str, Any], dict[str, Trajectory], dict[str, Evaluation]]:
+                   ) -> tuple[CompareResults, dict[str, Trajectory], dict[str, Evaluation]]:
     """Run and evaluate ``names`` on ``sequence`` (nothing written).
 
     Returns ``results`` (the ``results.json`` content, trajectory paths
@@ -97,23 +98,19 @@ def run_comparison(sequence: SequenceInput, gt: Trajectory, names: Sequence[str]
     from tqdm import tqdm
 
     options = options or {}
-    entries: dict[str, Any] = {}
+    entries: dict[str, CompareEntry] = {}
     trajs: dict[str, Trajectory] = {}
     evals: dict[str, Evaluation] = {}
     for name in tqdm(names, desc="compare", unit="initializer", disable=None if progress else True):
         res, dt = run_initializer(name, sequence, options.get(name, {}))
         entry, traj, ev = _evaluated_entry(name, res, sequence, gt)
-        entry["time_s"] = dt
-        if res.info:
-            entry["info"] = res.info
         if traj is not None:
             trajs[name] = traj
         if ev is not None:
             evals[name] = ev
-        entries[name] = entry
-    results = {"initializers": entries, "sequence": {"name": sequence.name,
-                                                      "frames": sequence.num_frames,
-                                                      "camera": sequence.camera.model}}
+        entries[name] = CompareEntry(**entry, time_s=dt, info=res.info or None)
+    results = CompareResults(entries, {"name": sequence.name, "frames": sequence.num_frames,
+                                       "camera": sequence.camera.model})
     return results, trajs, evals
 
 
@@ -135,7 +132,8 @@ def _reflection_nearer(traj: Trajectory, gt: Trajectory) -> tuple[Trajectory, st
 def _evaluated_entry(name: str, res: InitializerResult, sequence: SequenceInput,
                      gt: Trajectory
                      ) -> tuple[dict[str, Any], Trajectory | None, Evaluation | None]:
-    """One initializer's ``results.json`` entry (without time and info), the trajectory to
+    """One initializer's ``results.json`` entry (the fields of :class:`CompareEntry` but time
+    and info), the trajectory to
     write (None when it registered nothing) and its evaluation (None when it has none)."""
     entry: dict[str, Any] = {"status": res.status}
     traj = res.trajectory if res.trajectory is not None and len(res.trajectory) else None
@@ -191,8 +189,8 @@ def compare(sequence: SequenceInput, gt: Trajectory, output: Path,
         folder = CompareFolder(tmp)
         (folder / folder.TRAJECTORIES).mkdir()
         for name, traj in trajs.items():
-            write_tum(folder / results["initializers"][name]["trajectory"], traj)
-        atomic_write_text(folder / folder.RESULTS, dumps_json(results))
+            write_tum(folder / folder.trajectory(name), traj)
+        results.write(folder / folder.RESULTS)
         atomic_write_text(folder / folder.REPORT_MD, report_markdown(results))
         if plots:
             plot_trajectories(folder / folder.TRAJECTORIES_PLOT, evals, gt)

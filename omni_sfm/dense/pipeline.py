@@ -20,13 +20,13 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from omni_sfm.cameras import CameraModel, load_camera, write_camera_yaml
+from omni_sfm.cameras import CameraModel, write_camera_yaml
 from omni_sfm.dense.fusion import TsdfFusion
 from omni_sfm.dense.relpose import (
     Features,
@@ -47,9 +47,7 @@ from omni_sfm.dense.views import (
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.fileio import (
     atomic_output_dir,
-    atomic_write_text,
     check_output_dir,
-    dumps_json,
     stored_path,
 )
 from omni_sfm.folders import (
@@ -65,6 +63,7 @@ from omni_sfm.libs import open3d_module
 from omni_sfm.lines.source_camera import camera_for_frames
 from omni_sfm.lines3d import LineSegments3D, write_lines3d
 from omni_sfm.poses import Trajectory, write_tum
+from omni_sfm.reports import DenseReport
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -166,7 +165,7 @@ class DenseResult:
         median_depth: the scene's median depth, output units.
         voxel_size: TSDF voxel, output units.
         keyframes: per keyframe statistics.
-        report: the ``report.json`` document.
+        report: ``report.json`` (without ``input``, which :func:`write_dense` adds).
     """
 
     points: FloatArray
@@ -177,7 +176,7 @@ class DenseResult:
     median_depth: float
     voxel_size: float
     keyframes: tuple[KeyframeStats, ...]
-    report: dict[str, Any]
+    report: DenseReport
 
 
 def read_dense_input(poses_dir: Path, images: Path | None = None,
@@ -195,22 +194,21 @@ def read_dense_input(poses_dir: Path, images: Path | None = None,
     tum = poses_dir / StageFolder.TRAJECTORY
     if not tum.is_file():
         raise OmniSfmError(f"{tum}: no trajectory (need the output folder of init or refine)")
-    owner = StageFolder(poses_dir)
-    traj = owner.read_trajectory()
+    art = StageFolder(poses_dir).load_stage(camera=camera_file is None)
+    traj = art.trajectory
     if len(traj) < 3:
         raise OmniSfmError(f"{tum}: {len(traj)} poses, dense mapping needs at least 3")
     source = images_for(poses_dir, images)
     if camera_file is not None:  # a file, or equirectangular from the frame size
         camera = camera_for_frames(camera_file, source)
+    elif art.camera is None:
+        raise OmniSfmError(f"{art.folder / art.folder.CAMERA}: camera file not found (give "
+                           "--camera FILE)")
     else:
-        cam_file = owner / owner.CAMERA
-        if not cam_file.is_file():
-            raise OmniSfmError(f"{cam_file}: camera file not found (give --camera FILE)")
-        camera = load_camera(cam_file)
+        camera = art.camera
     frames = FrameStore(source)
     chosen = pose_frame_names(poses_dir, traj, frames)
-    lines = owner.read_lines3d()
-    return DenseInput(traj, camera, frames, tuple(chosen), lines)
+    return DenseInput(traj, camera, frames, tuple(chosen), art.lines3d)
 
 
 class _Frames:
@@ -544,59 +542,59 @@ def dense_map(inp: DenseInput, opts: DenseOptions | None = None, *,
 def _dense_report(inp: DenseInput, stats: list[KeyframeStats], calib: BaselineCalibration,
                   geometry: ViewGeometry, matcher: _Matcher, opts: DenseOptions, scale: float,
                   scale_info: dict[str, Any], voxel: float, step: int, points: FloatArray,
-                  mesh: Any, warnings: list[str], seconds: dict[str, float]) -> dict[str, Any]:
-    """The ``report.json`` document of a dense map (docs/dense.md)."""
+                  mesh: Any, warnings: list[str], seconds: dict[str, float]) -> DenseReport:
+    """The ``report.json`` of a dense map (docs/dense.md), without ``input``."""
     traj = inp.trajectory
     shares = np.array([s.depth_share for s in stats])
     pposes = [p for s in stats for p in s.pair_poses]
     changes = [p.rotation_change_deg for p in pposes if p.corrected]
-    return {
-        "scale": scale_info,
-        "median_depth": calib.median_depth * scale,
-        "stereo_baseline": calib.baseline * scale,
-        "voxel_size": voxel * scale,
-        "calibration": {"frame": calib.frame, "frame_offset": calib.frame_offset,
-                        "trials": [{"offset": o, "baseline": b * scale, "median_disparity_px": d,
-                                    "depth_share": s} for o, b, d, s in calib.trials]},
-        "views": {"focal_px": geometry.focal, "width": geometry.width,
-                  "height": geometry.height, "per_pair": 4,
-                  "num_disparities": matcher.num_disparities},
-        "keyframe_step": step,
-        "pair_pose": {"enabled": opts.pair_pose.enabled, "pairs": len(pposes),
-                      "corrected": len(changes),
-                      "median_rotation_change_deg": float(np.median(changes)) if changes
-                      else None},
-        "num_keyframes": len(stats),
-        "num_points": int(points.shape[0]),
-        "num_triangles": int(len(mesh.triangles)),
-        "depth_share": {"median": float(np.median(shares)), "min": float(shares.min()),
-                        "max": float(shares.max())},
-        "seconds": {"calibration": seconds["calibration"],
-                    "depth_per_keyframe": float(np.median([s.seconds_depth for s in stats])),
-                    "fusion_per_keyframe": float(np.median([s.seconds_fusion for s in stats])),
-                    "depth_total": float(sum(s.seconds_depth for s in stats)),
-                    "fusion_total": float(sum(s.seconds_fusion for s in stats)),
-                    "extraction": seconds["extraction"]},
-        "frames": [{"frame": s.frame, "timestamp": float(traj.timestamps[s.frame]),
-                    "image": inp.image_names[s.frame], "sources": list(s.sources),
-                    "baselines": [b * scale for b in s.baselines],
-                    "depth_share": s.depth_share, "view_share": s.view_share,
-                    "view_pixels": s.view_pixels, "depth_pixels": s.depth_pixels,
-                    "seconds_depth": s.seconds_depth,
-                    "seconds_fusion": s.seconds_fusion,
-                    "pair_pose": [{"corrected": p.corrected, "inliers": p.inliers,
-                                   "rotation_change_deg": p.rotation_change_deg,
-                                   "direction_change_deg": p.direction_change_deg}
-                                  for p in s.pair_poses]} for s in stats],
-        "warnings": warnings,
-        "backend": {"stereo": "cv2.StereoSGBM (CPU)", "fusion": "open3d VoxelBlockGrid (CPU)",
-                    "pycolmap_cuda": _pycolmap_has_cuda(),
-                    "note": "pycolmap's patch_match_stereo needs CUDA; not used"},
-        "note": "depth_share: share of the keyframe's valid pixels (camera mask) whose ray got "
-                "a depth that passed SGBM, the texture test and the 3-view check; view_share: "
-                "the same over the virtual views' pixels. Directions within (180 - "
-                "fov_along) / 2 deg of the motion are not covered by the views",
-    }
+    return DenseReport(
+        scale=scale_info,
+        median_depth=calib.median_depth * scale,
+        stereo_baseline=calib.baseline * scale,
+        voxel_size=voxel * scale,
+        calibration={"frame": calib.frame, "frame_offset": calib.frame_offset,
+                     "trials": [{"offset": o, "baseline": b * scale, "median_disparity_px": d,
+                                 "depth_share": s} for o, b, d, s in calib.trials]},
+        views={"focal_px": geometry.focal, "width": geometry.width,
+               "height": geometry.height, "per_pair": 4,
+               "num_disparities": matcher.num_disparities},
+        keyframe_step=step,
+        pair_pose={"enabled": opts.pair_pose.enabled, "pairs": len(pposes),
+                   "corrected": len(changes),
+                   "median_rotation_change_deg": float(np.median(changes)) if changes
+                   else None},
+        num_keyframes=len(stats),
+        num_points=int(points.shape[0]),
+        num_triangles=int(len(mesh.triangles)),
+        depth_share={"median": float(np.median(shares)), "min": float(shares.min()),
+                     "max": float(shares.max())},
+        seconds={"calibration": seconds["calibration"],
+                 "depth_per_keyframe": float(np.median([s.seconds_depth for s in stats])),
+                 "fusion_per_keyframe": float(np.median([s.seconds_fusion for s in stats])),
+                 "depth_total": float(sum(s.seconds_depth for s in stats)),
+                 "fusion_total": float(sum(s.seconds_fusion for s in stats)),
+                 "extraction": seconds["extraction"]},
+        frames=[{"frame": s.frame, "timestamp": float(traj.timestamps[s.frame]),
+                 "image": inp.image_names[s.frame], "sources": list(s.sources),
+                 "baselines": [b * scale for b in s.baselines],
+                 "depth_share": s.depth_share, "view_share": s.view_share,
+                 "view_pixels": s.view_pixels, "depth_pixels": s.depth_pixels,
+                 "seconds_depth": s.seconds_depth,
+                 "seconds_fusion": s.seconds_fusion,
+                 "pair_pose": [{"corrected": p.corrected, "inliers": p.inliers,
+                                "rotation_change_deg": p.rotation_change_deg,
+                                "direction_change_deg": p.direction_change_deg}
+                               for p in s.pair_poses]} for s in stats],
+        warnings=warnings,
+        backend={"stereo": "cv2.StereoSGBM (CPU)", "fusion": "open3d VoxelBlockGrid (CPU)",
+                 "pycolmap_cuda": _pycolmap_has_cuda(),
+                 "note": "pycolmap's patch_match_stereo needs CUDA; not used"},
+        note="depth_share: share of the keyframe's valid pixels (camera mask) whose ray got "
+             "a depth that passed SGBM, the texture test and the 3-view check; view_share: "
+             "the same over the virtual views' pixels. Directions within (180 - "
+             "fov_along) / 2 deg of the motion are not covered by the views",
+    )
 
 
 def _pycolmap_has_cuda() -> bool:
@@ -615,8 +613,9 @@ def write_dense(output: Path, inp: DenseInput, res: DenseResult, *, overwrite: b
     o3d = open3d_module()
     output = Path(output)
     inputs = (poses_dir, inp.frames.path)
-    report = {"input": {"poses": None if poses_dir is None else stored_path(poses_dir, output),
-                        "images": stored_path(inp.frames.path, output)}, **res.report}
+    report = replace(res.report, input={
+        "poses": None if poses_dir is None else stored_path(poses_dir, output),
+        "images": stored_path(inp.frames.path, output)})
     with atomic_output_dir(output, overwrite=overwrite, inputs=inputs) as tmp:
         pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(res.points))
         pcd.colors = o3d.utility.Vector3dVector(res.colors)
@@ -630,7 +629,7 @@ def write_dense(output: Path, inp: DenseInput, res: DenseResult, *, overwrite: b
             write_lines3d(tmp / DenseFolder.LINES3D, inp.lines.scaled(res.scale))
         if poses_dir is not None:
             carry_forward(poses_dir, tmp, (DenseFolder.MASK,))
-        atomic_write_text(tmp / DenseFolder.REPORT, dumps_json(report))
+        report.write(tmp / DenseFolder.REPORT)
 
 
 def run_dense(poses_dir: Path, images: Path | None, output: Path,

@@ -19,7 +19,7 @@ import numpy as np
 from omni_sfm.cameras.base import CameraModel, ColmapExport
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.fileio import BackgroundWrites
-from omni_sfm.folders import InitArtifacts, InitFolder
+from omni_sfm.folders import InitArtifacts, InitFolder, read_manifest_names
 from omni_sfm.geometry import FloatArray
 from omni_sfm.poses import Trajectory
 
@@ -283,8 +283,6 @@ def read_init_model(directory: Path) -> InitModel:
     the camera has no exact COLMAP model."""
     import pycolmap
 
-    from omni_sfm.fileio import read_json
-
     directory = Path(directory)
     if not directory.is_dir():
         raise OmniSfmError(f"{directory}: init directory not found")
@@ -316,11 +314,10 @@ def read_init_model(directory: Path) -> InitModel:
         raise OmniSfmError(f"{sparse}: image ids must be 1..{len(traj)} (one per pose of "
                            f"{directory / InitFolder.TRAJECTORY}), got {len(ids)} images")
     names = tuple(rec.images[i].name for i in ids)
-    manifest_path = directory / InitFolder.MANIFEST
-    if manifest_path.is_file():
-        manifest = read_json(manifest_path, "COLMAP manifest")
-        if list(manifest.get("image_names", [])) != list(names):
-            raise OmniSfmError(f"{manifest_path}: image_names differ from the model's images")
+    listed = read_manifest_names(directory)
+    if listed is not None and listed != list(names):
+        raise OmniSfmError(f"{directory / InitFolder.MANIFEST}: image_names differ from the "
+                           "model's images")
     centres = np.asarray([rec.images[i].projection_center() for i in ids])
     if not np.allclose(centres, traj.positions, atol=1e-6 * max(1.0, traj.path_length())):
         raise OmniSfmError(f"{sparse}: projection centres differ from the camera centres in "

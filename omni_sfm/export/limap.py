@@ -25,12 +25,13 @@ import numpy as np
 
 from omni_sfm.cameras import CameraModel
 from omni_sfm.fileio import atomic_write_text, dumps_json
+from omni_sfm.folders import ExportFolder
 from omni_sfm.lines3d import LineSegments3D
 from omni_sfm.poses import Trajectory
 
-TRACKS_DIR = "finaltracks"
-ALLTRACKS_FILE = "alltracks.txt"
-FAMILIES_FILE = "line_families.json"
+TRACKS_DIR = ExportFolder.LIMAP_TRACKS
+ALLTRACKS_FILE = ExportFolder.LIMAP_ALLTRACKS
+FAMILIES_FILE = ExportFolder.LIMAP_FAMILIES
 
 
 def _project(camera: CameraModel, traj: Trajectory, x: np.ndarray

@@ -28,10 +28,11 @@ from typing import Any
 import numpy as np
 
 from omni_sfm.cameras import CameraModel
+from omni_sfm.folders import ExportFolder
 from omni_sfm.geometry import FloatArray
 from omni_sfm.poses import Trajectory
 
-TRANSFORMS_FILE = "transforms.json"
+TRANSFORMS_FILE = ExportFolder.TRANSFORMS
 OPENGL_FROM_OPENCV = np.diag([1.0, -1.0, -1.0])
 
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -23,10 +23,18 @@ import numpy as np
 from omni_sfm.cameras import write_camera_yaml
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.export.up import MOUNT_UP_AXIS, UpFrame, find_up, parse_axis
-from omni_sfm.fileio import atomic_output_dir, atomic_write_text, dumps_json, read_json
-from omni_sfm.folders import InitFolder, StageFolder, images_for, pose_frame_names
+from omni_sfm.fileio import atomic_output_dir, atomic_write_text, dumps_json
+from omni_sfm.folders import (
+    ExportFolder,
+    InitFolder,
+    StageFolder,
+    images_for,
+    manifest_names,
+    pose_frame_names,
+)
 from omni_sfm.geometry import normalize
 from omni_sfm.poses import Trajectory
+from omni_sfm.reports import ExportReport
 
 FORMATS: dict[str, bool] = {
     "tum": False, "kitti": False, "colmap": False,
@@ -34,11 +42,10 @@ FORMATS: dict[str, bool] = {
 }
 """Every format, and whether it turns the world gravity-up by default (``--up``)."""
 
-SPARSE_DIR = "sparse"
-IMAGES_DIR = "images"
-MASKS_DIR = "masks"
-REPORT_FILE = StageFolder.REPORT
-PLY_FILE = "sparse_pc.ply"
+SPARSE_DIR = ExportFolder.SPARSE
+IMAGES_DIR = ExportFolder.IMAGES
+MASKS_DIR = ExportFolder.MASKS
+PLY_FILE = ExportFolder.POINTS
 
 
 @dataclass(frozen=True)
@@ -75,13 +82,11 @@ class _Source:
             raise OmniSfmError(f"{owner / owner.TRAJECTORY}: no trajectory (need an init, refine "
                                "or dense folder)")
         self.owner = owner
-        self.traj = owner.read_trajectory()
-        if not (owner / owner.CAMERA).is_file():
+        art = owner.load_stage()
+        if art.camera is None:
             raise OmniSfmError(f"{owner / owner.CAMERA}: camera file not found")
-        self.camera = owner.read_camera()
-        self.lines = owner.read_lines3d()
-        rep = owner / owner.REPORT
-        self.report = read_json(rep, "report") if rep.is_file() else None
+        self.traj, self.camera, self.lines, self.report = (art.trajectory, art.camera,
+                                                           art.lines3d, art.report)
         self.images_arg = images
         if opts.turn_up:
             axis = parse_axis(opts.up_axis) if opts.up_axis else None
@@ -122,12 +127,9 @@ class _Source:
     def default_names(self) -> list[str]:
         """Image names without frames: ``colmap.json``'s, else the timestamps as
         ``NNNNNN.png``."""
-        man = self.owner / InitFolder.MANIFEST
-        if man.is_file():
-            doc = read_json(man, "COLMAP manifest")
-            names = doc.get("image_names") if isinstance(doc, dict) else None
-            if isinstance(names, list) and len(names) == len(self.traj):
-                return [str(n) for n in names]
+        names = manifest_names(self.path, len(self.traj))
+        if names is not None:
+            return names
         return [f"{int(round(t)):06d}.png" for t in self.traj.timestamps]
 
     def up_in_cam(self) -> np.ndarray:
@@ -143,8 +145,6 @@ def _line_tracks(folder: Path, hops: int = 3) -> Any:
     """The ``tracks.json`` the folder's poses were estimated from: the folder's own, else that
     of the folder its ``report.json`` names as input (``input.init`` of refine, ``input.poses``
     of dense), up to ``hops`` folders back; None when there is none."""
-    from omni_sfm.fileio import resolve_stored
-    from omni_sfm.folders import InitFolder
     from omni_sfm.lines.tracks import read_tracks
 
     for _ in range(hops):
@@ -153,13 +153,11 @@ def _line_tracks(folder: Path, hops: int = 3) -> Any:
                 return read_tracks(folder / InitFolder.TRACKS)
             except OmniSfmError:
                 return None
-        rep = folder / REPORT_FILE
-        doc = read_json(rep, "report") if rep.is_file() else None
-        inp = doc.get("input") if isinstance(doc, dict) else None
-        prev = (inp.get("init") or inp.get("poses")) if isinstance(inp, dict) else None
-        if not isinstance(prev, str) or not prev:
+        report = StageFolder(folder).read_stage_report()
+        prev = None if report is None else report.previous_folder(folder)
+        if prev is None:
             return None
-        folder = resolve_stored(prev, folder)
+        folder = prev
     return None
 
 
@@ -234,7 +232,7 @@ def _colmap_model(src: _Source, out: Path) -> tuple[Any, list[str], dict[str, An
                                f"{src.owner / src.owner.TRAJECTORY}")
     (out / SPARSE_DIR).mkdir(parents=True, exist_ok=True)
     rec.write_binary(str(out / SPARSE_DIR))
-    write_camera_yaml(out / StageFolder.CAMERA, src.camera)
+    write_camera_yaml(out / ExportFolder.CAMERA, src.camera)
     info.update({"camera_model": export.camera.model_name, "flip_u": export.flip_u,
                  "colmap_cam_from_cam": export.colmap_cam_from_cam.tolist(),
                  "num_images": rec.num_images(), "num_points3D": rec.num_points3D()})
@@ -254,7 +252,7 @@ def _export_colmap(src: _Source, out: Path, opts: ExportOptions, progress: bool
     store, _ = frames
     for name in _progress(names, "export", progress):
         _write_png(out / IMAGES_DIR / name, export.image_to_colmap(src.read(store, name)))
-    write_colmap_mask(out / InitFolder.COLMAP_MASK, src.camera)
+    write_colmap_mask(out / ExportFolder.COLMAP_MASK, src.camera)
     info["images"] = f"{IMAGES_DIR}/ ({len(names)} frames as COLMAP sees them)"
     return info
 
@@ -401,9 +399,9 @@ WRITERS = {"tum": _export_trajectory, "kitti": _export_trajectory, "colmap": _ex
 
 def run_export(input_dir: Path, output_dir: Path, options: ExportOptions, *,
                images: Path | None = None, overwrite: bool = False,
-               progress: bool = False) -> dict[str, Any]:
+               progress: bool = False) -> ExportReport:
     """Export the folder ``input_dir`` as ``options.fmt`` into ``output_dir`` (complete or not
-    at all); returns the export's ``report.json`` document."""
+    at all); returns the export's ``report.json``."""
     from omni_sfm import __version__
     from omni_sfm.fileio import stored_path
 
@@ -415,23 +413,21 @@ def run_export(input_dir: Path, output_dir: Path, options: ExportOptions, *,
     with atomic_output_dir(Path(output_dir), overwrite=overwrite,
                            inputs=(Path(input_dir), frames_path)) as tmp:
         info = WRITERS[options.fmt](src, tmp, options, progress)
-        report = {
-            "omni_sfm_version": __version__,
-            "format": options.fmt,
-            "input": stored_path(input_dir, output_dir),
-            "num_poses": len(src.traj),
-            "world": src.up.to_json(),
-            "camera_model": src.camera.model,
-            **info,
-            "seconds": round(time.perf_counter() - t0, 3),
-        }
-        atomic_write_text(tmp / REPORT_FILE, dumps_json(report))
+        report = ExportReport(
+            omni_sfm_version=__version__, format=options.fmt,
+            input=stored_path(input_dir, output_dir), num_poses=len(src.traj),
+            world=src.up.to_json(), camera_model=src.camera.model, written=info,
+            seconds=round(time.perf_counter() - t0, 3))
+        report.write(ExportFolder(tmp) / ExportFolder.REPORT)
     return report
 
 
-def export_trajectory_of(report: dict[str, Any], traj: Trajectory) -> Trajectory:
-    """``traj`` (the input folder's world) in the world an export's ``report`` records."""
-    m = np.asarray(report["world"]["export_from_world"], float)
+def export_trajectory_of(report: ExportReport | Mapping[str, Any], traj: Trajectory
+                         ) -> Trajectory:
+    """``traj`` (the input folder's world) in the world an export's ``report`` (or its JSON
+    document) records."""
+    world = report.world if isinstance(report, ExportReport) else report["world"]
+    m = np.asarray(world["export_from_world"], float)
     R, t = m[:3, :3], m[:3, 3]
     return Trajectory(traj.timestamps.copy(), R[None] @ traj.rotations, traj.positions @ R.T + t)
 

@@ -18,12 +18,12 @@ import numpy as np
 
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.fileio import atomic_write_text
-from omni_sfm.folders import StageFolder
+from omni_sfm.folders import ExportFolder
 from omni_sfm.poses import Trajectory, write_tum
 
-TUM_FILE = StageFolder.TRAJECTORY
-KITTI_POSES = "poses.txt"
-KITTI_TIMES = "times.txt"
+TUM_FILE = ExportFolder.TRAJECTORY
+KITTI_POSES = ExportFolder.KITTI_POSES
+KITTI_TIMES = ExportFolder.KITTI_TIMES
 
 
 def kitti_text(traj: Trajectory) -> str:

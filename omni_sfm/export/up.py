@@ -42,6 +42,7 @@ from omni_sfm.geometry import FloatArray, normalize
 from omni_sfm.lines.tracks import LineTracks
 from omni_sfm.lines3d import LineSegments3D
 from omni_sfm.poses import Trajectory
+from omni_sfm.reports import StageReport
 
 MOUNT_UP_AXIS: dict[str, tuple[float, float, float]] = {
     "hyperboloid": (0.0, 0.0, 1.0),
@@ -127,7 +128,7 @@ class UpFrame:
         }
 
 
-def family_candidates(lines: LineSegments3D | None, report: dict[str, Any] | None
+def family_candidates(lines: LineSegments3D | None, report: StageReport | None
                       ) -> tuple[FloatArray, np.ndarray, list[list[int]]]:
     """``(F, 3)`` unit directions of the line families a vertical may be chosen from, their
     ``(F,)`` sizes and each one's line track ids: the groups of ``lines`` with at least
@@ -139,11 +140,10 @@ def family_candidates(lines: LineSegments3D | None, report: dict[str, Any] | Non
             tids = [[] if lines.track_ids is None else
                     lines.track_ids[lines.groups == g].tolist() for g in keep]
             return normalize(lines.group_directions[keep]), counts[keep], tids
-    fam = report.get("parallel_family") if isinstance(report, dict) else None
-    d = fam.get("direction") if isinstance(fam, dict) else None
-    if isinstance(fam, dict) and isinstance(d, list) and len(d) == 3 and \
-            np.all(np.isfinite(d)) and np.linalg.norm(d) > 0:
-        ids = [int(i) for i in fam.get("track_ids", [])]
+    d = None if report is None else report.family_direction
+    if report is not None and d is not None and np.all(np.isfinite(d)) and \
+            np.linalg.norm(d) > 0:
+        ids = report.family_track_ids
         return normalize(np.asarray(d, float))[None], np.array([len(ids)]), [ids]
     raise OmniSfmError("the folder has no line family to find the vertical from (no "
                        "lines3d.json groups, no parallel_family in report.json); give --no-up "
@@ -184,7 +184,7 @@ def fit_direction(d0: FloatArray, track_ids: list[int], tracks: LineTracks, traj
 
 
 def find_up(traj: Trajectory, camera: CameraModel, lines: LineSegments3D | None,
-            report: dict[str, Any] | None, up_axis: FloatArray | None = None,
+            report: StageReport | None, up_axis: FloatArray | None = None,
             tracks: LineTracks | None = None) -> UpFrame:
     """The gravity-up world of a folder's poses (the rule: see the module docstring); with the
     line ``tracks`` the folder was estimated from, the chosen family's direction is fitted to

@@ -32,7 +32,7 @@ import numpy as np
 from omni_sfm.cameras import CameraModel
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.estimate.pipeline import EstimationOptions, EstimationResult, estimate_poses
-from omni_sfm.fileio import atomic_output_dir, atomic_write_text, dumps_json, stored_path
+from omni_sfm.fileio import atomic_output_dir, stored_path
 from omni_sfm.folders import InitFolder
 from omni_sfm.frames import (
     FrameSource,
@@ -46,6 +46,7 @@ from omni_sfm.lines.frontend import FrontEndOptions, FrontEndResult, track_lines
 from omni_sfm.lines.source_camera import camera_for_frames
 from omni_sfm.lines3d import LineSegments3D, write_lines3d
 from omni_sfm.poses import Trajectory
+from omni_sfm.reports import PluginInitReport
 from omni_sfm.transforms import paper_normalised_positions
 
 
@@ -415,7 +416,7 @@ class PluginInitResult:
     trajectory: Trajectory
     image_names: tuple[str, ...]
     not_estimated: tuple[str, ...]
-    report: dict[str, Any]
+    report: PluginInitReport
 
 
 def normalised_trajectory(traj: Trajectory) -> Trajectory:
@@ -466,19 +467,18 @@ def init_with_initializer(images: Path | str, camera: Path | str | CameraModel |
     posed = [frame_of[float(t)] for t in traj.timestamps]
     names = [seq.images.names[k] for k in posed]
     missing = sorted(set(range(seq.num_frames)) - set(posed))
-    report = {
-        "input": {"images": stored_path(images, output),
-                  "camera": _camera_entry(camera, cam, output),
-                  "timestamps": "seconds" if seq.images.is_video else "frame index"},
-        "initializer": name, "status": res.status, "reason": res.reason, "info": res.info,
-        "num_frames": seq.num_frames, "num_frames_estimated": len(traj),
-        "frames_not_estimated_names": [seq.images.names[k] for k in missing],
-        "wall_time_s": {"initializer": seconds},
-        "scale_convention": "world = first estimated camera, first-to-last distance = 1",
-    }
+    report = PluginInitReport(
+        input={"images": stored_path(images, output),
+               "camera": _camera_entry(camera, cam, output),
+               "timestamps": "seconds" if seq.images.is_video else "frame index"},
+        initializer=name, status=res.status, reason=res.reason, info=res.info,
+        num_frames=seq.num_frames, num_frames_estimated=len(traj),
+        frames_not_estimated_names=[seq.images.names[k] for k in missing],
+        wall_time_s={"initializer": seconds},
+        scale_convention="world = first estimated camera, first-to-last distance = 1")
     with atomic_output_dir(output, overwrite=overwrite, inputs=(Path(images),)) as tmp:
         write_init_model(tmp, cam, traj, names)
-        atomic_write_text(tmp / InitFolder.REPORT, dumps_json(report))
+        report.write(tmp / InitFolder.REPORT)
     return PluginInitResult(output=output, trajectory=traj, image_names=tuple(names),
                             not_estimated=tuple(seq.images.names[k] for k in missing),
                             report=report)

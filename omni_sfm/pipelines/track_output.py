@@ -9,10 +9,10 @@ from typing import IO
 
 from omni_sfm.estimate.online import TrackedPose, poses_trajectory
 from omni_sfm.estimate.pipeline import SEGMENT_FILE
-from omni_sfm.folders import StageFolder
+from omni_sfm.folders import TrackFolder
 from omni_sfm.poses import TUM_HEADER
 
-FRAMES_FILE = "frames.jsonl"
+FRAMES_FILE = TrackFolder.FRAMES
 """Per-frame results of ``omni-sfm track``: one :meth:`TrackedPose.to_json` line per frame."""
 
 
@@ -38,7 +38,7 @@ class TrackOutput:
 
     def path(self, world: int) -> Path:
         """The trajectory file of ``world``."""
-        name = StageFolder.TRAJECTORY if world == 0 else SEGMENT_FILE.format(world)
+        name = TrackFolder.TRAJECTORY if world == 0 else SEGMENT_FILE.format(world)
         return self.directory / name
 
     def _trajectory(self, world: int) -> IO[str]:

@@ -64,9 +64,7 @@ from omni_sfm.export.colmap import (
 )
 from omni_sfm.fileio import (
     atomic_output_dir,
-    atomic_write_text,
     check_output_dir,
-    dumps_json,
     stored_path,
 )
 from omni_sfm.folders import (
@@ -99,6 +97,7 @@ from omni_sfm.refine.joint_model import (
     read_line_evidence,
 )
 from omni_sfm.refine.triangulation import triangulate_seeded
+from omni_sfm.reports import RefineReport
 from omni_sfm.transforms import Similarity, similarity_from_poses
 
 MAPPERS = ("incremental", "global")
@@ -203,14 +202,14 @@ class RefineResult:
         trajectory: ``(N,)`` poses world_from_cam of our ray frame (``trajectory.tum``).
         input_trajectory: the init's poses.
         refined: ``(N,)`` bool, the frame's pose comes from the adjustment (else kept from input).
-        report: the content of ``report.json``.
+        report: ``report.json``.
     """
 
     output: Path
     trajectory: Trajectory
     input_trajectory: Trajectory
     refined: np.ndarray
-    report: dict[str, Any]
+    report: RefineReport
 
 
 class _Stages:
@@ -397,7 +396,7 @@ def refine(init_dir: Path, images: Path | None, output: Path,
     stages = _Stages(["images", "features", "matching", "triangulation", "mapper",
                       "bundle adjustment", "acceptance and output"], progress)
     export = init.camera.colmap_export()
-    report: dict[str, Any] = {
+    parts: dict[str, Any] = {  # the report's sections, as the steps add them
         "input": {"init": stored_path(init_dir, output),
                   "images": stored_path(images_dir, output),
                   "database": stored_path(database, output) if database else RefineFolder.DATABASE},
@@ -411,14 +410,14 @@ def refine(init_dir: Path, images: Path | None, output: Path,
         with library_logging(verbose), atomic_output_dir(output, overwrite=overwrite,
                                inputs=(init_dir, images_dir, database)) as tmp:
             run = _Run(o, init, init_dir, frames, all_names, unposed, tmp,
-                       Path(database) if database else tmp / RefineFolder.DATABASE, stages, report,
+                       Path(database) if database else tmp / RefineFolder.DATABASE, stages, parts,
                        progress)
             rec, seed, image_ids = run.colmap_model()
             obs0, trusted = run.bundle_adjustment(rec, image_ids)
             with stages.stage("acceptance and output"):
                 traj, refined = run.accept_and_write(rec, seed, image_ids, obs0, trusted)
-            report["timings_s"] = dict(stages.times)
-            atomic_write_text(tmp / RefineFolder.REPORT, dumps_json(report))
+            report = RefineReport(**parts, timings_s=dict(stages.times))
+            report.write(tmp / RefineFolder.REPORT)
     finally:
         stages.close()
     return RefineResult(output, traj, init.trajectory, refined, report)
@@ -438,6 +437,7 @@ class _Run:
     db_path: Path
     stages: _Stages
     report: dict[str, Any]
+    """The sections of :class:`omni_sfm.reports.RefineReport`, as the steps add them."""
     progress: bool
     joint: bool = False
     """The model was adjusted with the lines (:meth:`_joint`)."""

@@ -72,11 +72,12 @@ def load_view_scene(folder: Path, *, max_points: int = 200_000, seed: int = 0) -
     tum = owner / owner.TRAJECTORY
     if not tum.is_file():
         raise OmniSfmError(f"{tum}: no trajectory (give a dense, init or refine output folder)")
-    traj = owner.read_trajectory()
+    art = owner.load_stage()
+    traj = art.trajectory
     if len(traj) == 0:
         raise OmniSfmError(f"{tum}: the trajectory is empty")
     sources = {"trajectory": tum.name}
-    lines = owner.read_lines3d()
+    lines = art.lines3d
     if lines is not None:
         sources["lines"] = owner.LINES3D
     else:
@@ -92,9 +93,7 @@ def load_view_scene(folder: Path, *, max_points: int = 200_000, seed: int = 0) -
                                                               replace=False))
             pts, cols = pts[keep], cols[keep]
         sources["points"] = DenseFolder.POINTS
-    model = None
-    if (owner / owner.CAMERA).is_file():
-        model = owner.read_camera().model
+    model = None if art.camera is None else art.camera.model
     return ViewScene(traj, lines.starts, lines.ends, lines.groups, pts, cols,
                      up_direction(traj, model), sources)
 

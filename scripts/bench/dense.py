@@ -81,7 +81,7 @@ def main() -> None:
     t0, c0 = time.perf_counter(), time.process_time()
     res = run_dense(poses, args.render / "images", args.output, opts, overwrite=True)
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
-    r = res.report
+    r = res.report.to_json()
     sec = r["seconds"]
     print(f"frames {len(gt)}, keyframes {r['num_keyframes']} (step {r['keyframe_step']}), "
           f"views {r['views']['width']}x{r['views']['height']} f={r['views']['focal_px']:.0f}")

@@ -18,13 +18,13 @@ main trajectory. The tracks of a rendered video come from ``scripts/bench/long_v
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 from pathlib import Path
 
 from omni_sfm.estimate.segments import frame_range
 from omni_sfm.evaluate import trajectory_errors
+from omni_sfm.folders import InitFolder
 from omni_sfm.lines.tracks import read_tracks, write_tracks
 from omni_sfm.poses import read_tum
 from scripts.benchlib import add_log_arguments, run_sampled, write_log
@@ -65,10 +65,10 @@ def main() -> int:
             print(f"{n} frames: init exited {rc}: {said[-500:]}")
             continue
         peak = max((m for _, m in samples), default=0.0)
-        report = json.loads((out / "report.json").read_text())
-        posed = f"{report['num_frames_estimated']}/{n}"
-        rms = report["residuals"]["rms_final_deg"]
-        refine_s = report["timings_ms"].get("refinement", float("nan")) / 1e3
+        report = InitFolder(out).read_report()
+        posed = f"{report.num_frames_estimated}/{n}"
+        rms = report.rms_final_deg
+        refine_s = report.other["timings_ms"].get("refinement", float("nan")) / 1e3
         rot: str | None = None
         ate: float | None = None
         if gt is not None:

@@ -136,8 +136,8 @@ def run_task(task: dict[str, Any]) -> dict[str, Any]:
             seq = sequence_from_frames(rr.output / "images", rr.camera)
             gt, options = rr.groundtruth, {}
         results, trajs, _ = run_comparison(seq, gt, task["initializers"], options)
-    results["sequence"]["name"] = task_id(task)
-    return {"task": task, "results": results,
+    results.sequence["name"] = task_id(task)
+    return {"task": task, "results": results.to_json(),
             "tum": {k: v.to_tum() for k, v in trajs.items()},
             "groundtruth": gt.to_tum(), "wall_s": time.perf_counter() - t0}
 

@@ -40,6 +40,7 @@ from omni_sfm.evaluate import relative_rotation_errors_deg, trajectory_errors
 from omni_sfm.lines.frontend import FrontEndOptions
 from omni_sfm.pipelines.init import InitOptions, init_from_images
 from omni_sfm.poses import read_tum
+from omni_sfm.reports import InitReport
 from omni_sfm.synth.effects import Body, Effects
 from omni_sfm.synth.paths import Route
 from omni_sfm.synth.render import RenderOptions, prepare, render_sequence
@@ -129,7 +130,7 @@ def run_case(case: Case, work: Path) -> dict[str, Any]:
     gt = read_tum(seq / "groundtruth.tum")
     est = res.estimation.trajectory
     row.update(frames=len(gt), wall_s=wall, tracks=res.estimation.report["num_tracks"])
-    if "motion" in res.estimation.report:  # rotation only: no positions to compare
+    if InitReport.from_json(res.estimation.report).rotation_only:  # no positions to compare
         e, g = associate(est, gt)
         rot = relative_rotation_errors_deg(e, g)
         row.update(estimated=len(e), rot_max_deg=float(rot.max()),

@@ -44,8 +44,8 @@ def lines_refine(sequence: SequenceInput, options: Mapping[str, Any]) -> Initial
     r = res.report
     info: dict[str, Any] = {
         "init_frames": len(init.image_names),
-        "refined_frames": int(r["refined_frames"]),
-        "added_by_mapper": len(r.get("mapper", {}).get("added_to_trajectory") or []),
-        "kept_input_for_all": r.get("kept_input_for_all") or None,
+        "refined_frames": r.refined_frames,
+        "added_by_mapper": len(r.mapper_added),
+        "kept_input_for_all": r.kept_input_for_all or None,
     }
     return InitializerResult(res.trajectory, "ok", info=info)

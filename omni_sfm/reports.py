@@ -1,0 +1,440 @@
+"""The stages' reports, one frozen dataclass each with its JSON form, read and written here.
+
+- :class:`InitReport`: an init folder's ``report.json``, as the line-based estimator (which
+  writes it itself) or :class:`PluginInitReport` (``init --initializer``) wrote it;
+- :class:`RefineReport`, :class:`DenseReport`: a refine or dense folder's ``report.json``;
+- :class:`ExportReport`: an export's ``report.json``;
+- :class:`CompareResults` (of :class:`CompareEntry`): a comparison's ``results.json``;
+- :class:`StageReport`: any stage folder's ``report.json``, read for what each may record
+  (where its frames and its input folder are, the parallel family);
+- :class:`TrackFrame`: a line of ``omni-sfm track``'s ``frames.jsonl`` (read here:
+  :func:`read_track_frames`; ``TrackedPose.to_json`` writes it).
+
+The folders' loaders (:mod:`omni_sfm.folders`) read them; nothing else parses these files.
+
+Every field is a top-level key of the JSON document, of the same name, in the order written
+(docs/formats.md, docs/colmap.md, docs/dense.md, docs/comparison.md). A field that may be
+absent is None when it is (the key is then not written); sections nobody reads field by field
+stay JSON objects (``dict``). :meth:`JsonReport.to_json` gives the document,
+:meth:`JsonReport.from_json` reads one back (a one-line OmniSfmError when a required key is
+missing), :meth:`JsonReport.write` and :meth:`JsonReport.read` go through files (atomic write).
+Numpy arrays in a report are written as lists; a report read back holds what JSON holds.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import MISSING, dataclass, field, fields, replace
+from pathlib import Path
+from typing import Any, TypeVar
+
+from omni_sfm.errors import OmniSfmError
+from omni_sfm.fileio import atomic_write_text, dumps_json, read_json, resolve_stored
+
+_OMIT = "omit_when_none"
+_REST = "other_keys"
+
+R = TypeVar("R", bound="JsonReport")
+
+
+def absent() -> Any:
+    """A field whose key is not written when it is None."""
+    return field(default=None, metadata={_OMIT: True})
+
+
+def other_keys() -> Any:
+    """The field holding the keys no other field names, written at its place."""
+    return field(default_factory=dict, metadata={_REST: True})
+
+
+class JsonReport:
+    """JSON form of a frozen dataclass report (a mixin; see the module docstring)."""
+
+    def to_json(self) -> dict[str, Any]:
+        """The JSON document: the fields in order, their keys the fields' names."""
+        out: dict[str, Any] = {}
+        for f in fields(self):  # type: ignore[arg-type]
+            value = getattr(self, f.name)
+            if f.metadata.get(_REST):
+                out.update(value)
+            elif value is not None or not f.metadata.get(_OMIT):
+                out[f.name] = value
+        return out
+
+    @classmethod
+    def from_json(cls: type[R], doc: Any, where: str = "report") -> R:
+        """The report of the JSON document ``doc``; a one-line OmniSfmError naming ``where``
+        when it is not an object or lacks a required key."""
+        if not isinstance(doc, Mapping):
+            raise OmniSfmError(f"{where}: not a JSON object")
+        kwargs: dict[str, Any] = {}
+        rest, named = None, set()
+        for f in fields(cls):  # type: ignore[arg-type]
+            if f.metadata.get(_REST):
+                rest = f.name
+                continue
+            named.add(f.name)
+            if f.name in doc:
+                kwargs[f.name] = doc[f.name]
+            elif f.default is MISSING and f.default_factory is MISSING:
+                raise OmniSfmError(f"{where}: no {f.name!r} key")
+        if rest is not None:
+            kwargs[rest] = {k: v for k, v in doc.items() if k not in named}
+        return cls(**kwargs)
+
+    def write(self, path: Path | str) -> None:
+        """Write :meth:`to_json` to ``path`` (atomically)."""
+        atomic_write_text(Path(path), dumps_json(self.to_json()))
+
+    @classmethod
+    def read(cls: type[R], path: Path | str) -> R:
+        """The report in the file ``path`` (one-line OmniSfmError if unreadable or malformed)."""
+        return cls.from_json(read_json(Path(path), "report"), str(path))
+
+
+def _input_path(inp: Any, key: str, folder: Path) -> Path | None:
+    """The path ``inp[key]`` records (stored relative to ``folder`` or absolute), or None."""
+    value = inp.get(key) if isinstance(inp, Mapping) else None
+    return resolve_stored(value, folder) if isinstance(value, str) and value else None
+
+
+def _family_ids(fam: Any) -> list[int]:
+    """``parallel_family.track_ids`` (empty when absent)."""
+    ids = fam.get("track_ids") if isinstance(fam, Mapping) else None
+    return [int(i) for i in ids] if isinstance(ids, list) else []
+
+
+class _StageInput:
+    """What every stage folder's report says of its input (``input.images``, and the folder
+    it was made from: ``input.init`` of refine, ``input.poses`` of dense)."""
+
+    input: Any
+
+    def images(self, folder: Path | str) -> Path | None:
+        """The image folder or video the folder (``folder``, where the report lies) was made
+        from, or None when the report records none."""
+        return _input_path(self.input, "images", Path(folder))
+
+    def previous_folder(self, folder: Path | str) -> Path | None:
+        """The stage folder this one was made from (``input.init`` or ``input.poses``), or
+        None when it records none (an init folder)."""
+        return (_input_path(self.input, "init", Path(folder))
+                or _input_path(self.input, "poses", Path(folder)))
+
+
+@dataclass(frozen=True)
+class StageReport(_StageInput, JsonReport):
+    """Any stage folder's ``report.json`` (init, refine or dense), read for what every one may
+    record: where the input is and (init) the parallel family."""
+
+    input: dict[str, Any] = field(default_factory=dict)
+    parallel_family: dict[str, Any] | None = absent()
+    other: dict[str, Any] = other_keys()
+
+    @property
+    def family_direction(self) -> list[float] | None:
+        """``parallel_family.direction``: the unit direction of the parallel family in the
+        world, or None when the report has none."""
+        fam = self.parallel_family
+        d = fam.get("direction") if isinstance(fam, Mapping) else None
+        return [float(x) for x in d] if isinstance(d, list) and len(d) == 3 else None
+
+    @property
+    def family_track_ids(self) -> list[int]:
+        """``parallel_family.track_ids`` (empty when absent)."""
+        return _family_ids(self.parallel_family)
+
+
+@dataclass(frozen=True)
+class InitReport(_StageInput, JsonReport):
+    """An init folder's ``report.json`` (docs/formats.md), as the line-based estimator or an
+    initializer plugin (:class:`PluginInitReport`) wrote it; the keys its readers use typed,
+    the others in ``other``."""
+
+    num_frames: int
+    input: dict[str, Any] = field(default_factory=dict)
+    initializer: str | None = absent()
+    num_frames_estimated: int | None = absent()
+    parallel_family: dict[str, Any] | None = absent()
+    rejected_tracks: list[int] | None = absent()
+    residuals: dict[str, Any] | None = absent()
+    segments: list[dict[str, Any]] | None = absent()
+    motion: dict[str, Any] | None = absent()
+    """Only for a camera that only turned (docs/method.md §13)."""
+    other: dict[str, Any] = other_keys()
+
+    @property
+    def rotation_only(self) -> bool:
+        """The camera only turned: positions are 0, the scale and the 3D lines undetermined."""
+        return self.motion is not None
+
+    @property
+    def family_track_ids(self) -> list[int]:
+        """``parallel_family.track_ids`` (empty when absent)."""
+        return _family_ids(self.parallel_family)
+
+    @property
+    def rms_final_deg(self) -> float | None:
+        """``residuals.rms_final_deg``: RMS angle between observed and predicted normals after
+        refinement, or None when the report has none."""
+        res = self.residuals or {}
+        value = res.get("rms_final_deg")
+        return None if value is None else float(value)
+
+    @property
+    def segment_list(self) -> list[dict[str, Any]]:
+        """``segments`` (empty when the frames were estimated in one piece)."""
+        return list(self.segments or [])
+
+
+@dataclass(frozen=True)
+class PluginInitReport(JsonReport):
+    """``report.json`` of ``omni-sfm init --initializer NAME`` (docs/plugins.md)."""
+
+    input: dict[str, Any]
+    """``images``, ``camera``, ``timestamps`` (``seconds`` or ``frame index``)."""
+    initializer: str
+    status: str
+    reason: str | None
+    info: dict[str, Any]
+    num_frames: int
+    num_frames_estimated: int
+    frames_not_estimated_names: list[str]
+    wall_time_s: dict[str, float]
+    scale_convention: str
+
+
+@dataclass(frozen=True)
+class RefineReport(_StageInput, JsonReport):
+    """A refine folder's ``report.json`` (docs/colmap.md), in the order written."""
+
+    input: dict[str, Any]
+    """``init``, ``images``, ``database``: stored paths."""
+    camera: dict[str, Any]
+    frames: dict[str, int]
+    options: dict[str, Any]
+    features: dict[str, Any]
+    matching: dict[str, int]
+    triangulation: dict[str, Any]
+    mapper: dict[str, Any]
+    bundle_adjustment: dict[str, Any]
+    kept_input_for_all: str | None
+    """Why every input pose was kept, or None."""
+    refined_frames: int
+    kept_frames: dict[str, str]
+    """Frame name -> why its input pose was kept."""
+    alignment_to_input: dict[str, Any] | None
+    pose_changes: dict[str, Any] | None
+    model: dict[str, Any]
+    summary: str
+    carried_from_input: list[str]
+    trajectory_frames: int
+    timings_s: dict[str, float]
+    matching_guided: dict[str, Any] | None = absent()
+    joint_adjustment: dict[str, Any] | None = absent()
+    """Why the joint adjustment of lines and points was skipped or failed; absent otherwise."""
+    lines3d: str | None = absent()
+
+    _ORDER = ("input", "camera", "frames", "options", "features", "matching_guided",
+              "matching", "triangulation", "mapper", "joint_adjustment", "bundle_adjustment",
+              "kept_input_for_all", "refined_frames", "kept_frames", "alignment_to_input",
+              "pose_changes", "model", "summary", "lines3d", "carried_from_input",
+              "trajectory_frames", "timings_s")
+
+    def to_json(self) -> dict[str, Any]:
+        doc = super().to_json()
+        return {k: doc[k] for k in self._ORDER if k in doc}
+
+    @property
+    def mapper_added(self) -> list[str]:
+        """The frames without an input pose that COLMAP's mapper added to the trajectory."""
+        return list(self.mapper.get("added_to_trajectory") or [])
+
+    @property
+    def adjustment_rounds(self) -> list[dict[str, Any]]:
+        """COLMAP's bundle adjustment rounds (empty when it did not run)."""
+        return list(self.bundle_adjustment.get("rounds") or [])
+
+    @property
+    def joint(self) -> dict[str, Any] | None:
+        """The joint adjustment's report when it ran, else None."""
+        joint = self.bundle_adjustment.get("joint")
+        return joint if isinstance(joint, dict) else None
+
+
+@dataclass(frozen=True)
+class DenseReport(_StageInput, JsonReport):
+    """A dense folder's ``report.json`` (docs/dense.md), in the order written."""
+
+    scale: dict[str, Any]
+    """``source``, ``unit``, ``factor``."""
+    median_depth: float
+    stereo_baseline: float
+    voxel_size: float
+    calibration: dict[str, Any]
+    views: dict[str, Any]
+    keyframe_step: int
+    pair_pose: dict[str, Any]
+    num_keyframes: int
+    num_points: int
+    num_triangles: int
+    depth_share: dict[str, float]
+    """``median``, ``min``, ``max`` over the keyframes."""
+    seconds: dict[str, float]
+    frames: list[dict[str, Any]]
+    """One entry per keyframe."""
+    warnings: list[str]
+    backend: dict[str, Any]
+    note: str
+    input: dict[str, Any] = field(default_factory=dict)
+    """``poses``, ``images``: stored paths (written first; empty before the map is written)."""
+
+    def to_json(self) -> dict[str, Any]:
+        doc = super().to_json()
+        inp = doc.pop("input")
+        return {"input": inp, **doc} if inp else doc
+
+
+@dataclass(frozen=True)
+class ExportReport(JsonReport):
+    """An export's ``report.json`` (docs/formats.md, "Exports")."""
+
+    omni_sfm_version: str
+    format: str
+    input: str
+    """The exported folder (stored path)."""
+    num_poses: int
+    world: dict[str, Any]
+    """``turned``, ``export_from_world`` (4 x 4), ``vertical_in_world``, ``how``,
+    ``convention``."""
+    camera_model: str
+    written: dict[str, Any] = other_keys()
+    """What the format's writer wrote (files, image counts, views), as the writer names it."""
+    seconds: float = 0.0
+
+    @property
+    def turned(self) -> bool:
+        """The world was turned gravity-up."""
+        return bool(self.world["turned"])
+
+    @property
+    def num_images(self) -> int | None:
+        """Images written, for formats that write images."""
+        n = self.written.get("num_images")
+        return None if n is None else int(n)
+
+
+@dataclass(frozen=True)
+class CompareEntry(JsonReport):
+    """One initializer's entry of ``results.json`` (docs/comparison.md)."""
+
+    status: str
+    """``ok`` or ``failed``."""
+    trajectory: str | None
+    """``trajectories/NAME.tum``, or None when it registered nothing."""
+    registered: float
+    rot_max_deg: float | None
+    rot_mean_deg: float | None
+    ate_rel: float | None
+    rpe: float | None
+    rpe_rot_deg: float | None
+    step_error_after_alignment: float | None
+    frames_compared: int
+    frames_registered: int
+    time_s: float
+    reason: str | None = absent()
+    info: dict[str, Any] | None = absent()
+
+    _ORDER = ("status", "reason", "trajectory", "registered", "rot_max_deg", "rot_mean_deg",
+              "ate_rel", "rpe", "rpe_rot_deg", "step_error_after_alignment",
+              "frames_compared", "frames_registered", "time_s", "info")
+
+    def to_json(self) -> dict[str, Any]:
+        doc = super().to_json()
+        return {k: doc[k] for k in self._ORDER if k in doc}
+
+
+@dataclass(frozen=True)
+class CompareResults(JsonReport):
+    """``results.json`` of ``omni-sfm compare``: an entry per initializer, and the sequence
+    (``name``, ``frames``, ``camera``)."""
+
+    initializers: dict[str, CompareEntry]
+    sequence: dict[str, Any]
+
+    def to_json(self) -> dict[str, Any]:
+        return {"initializers": {k: e.to_json() for k, e in self.initializers.items()},
+                "sequence": dict(self.sequence)}
+
+    @classmethod
+    def from_json(cls, doc: Any, where: str = "results") -> CompareResults:
+        if not isinstance(doc, Mapping) or not isinstance(doc.get("initializers"), Mapping):
+            raise OmniSfmError(f"{where}: no 'initializers' object")
+        return cls({name: CompareEntry.from_json(e, f"{where}: {name}")
+                    for name, e in doc["initializers"].items()},
+                   dict(doc.get("sequence") or {}))
+
+
+@dataclass(frozen=True)
+class TrackPose(JsonReport):
+    """A pose in a line of ``frames.jsonl`` (docs/track.md): world_from_cam as the camera
+    centre and the rotation's quaternion (x, y, z, w), None where the frame has none."""
+
+    frame: int
+    timestamp: float
+    position: list[float] | None
+    quaternion_xyzw: list[float] | None
+
+
+@dataclass(frozen=True)
+class TrackFrame(JsonReport):
+    """One line of ``omni-sfm track``'s ``frames.jsonl`` (the same as ``--stream`` prints;
+    written by ``TrackedPose.to_json`` of :mod:`omni_sfm.estimate.online`, docs/track.md)."""
+
+    frame: int
+    timestamp: float
+    position: list[float] | None
+    quaternion_xyzw: list[float] | None
+    status: str
+    """``initialising``, ``tracking``, ``rotation-only``, ``lost`` or ``relocalised``."""
+    world: int
+    """Which start the pose is in (0: the first; +1 with each restart after a loss)."""
+    lines: int
+    lines_known: int
+    latency_ms: float
+    reason: str | None
+    start_poses: list[TrackPose]
+    """Where a start succeeded, the poses of the buffered frames it solved."""
+
+    def to_json(self) -> dict[str, Any]:
+        doc = super().to_json()
+        doc["start_poses"] = [p.to_json() for p in self.start_poses]
+        return doc
+
+    @classmethod
+    def from_json(cls, doc: Any, where: str = "track frame") -> TrackFrame:
+        frame = super().from_json(doc, where)
+        poses = [TrackPose.from_json(p, where) for p in frame.start_poses or []]
+        return replace(frame, start_poses=poses)
+
+    @property
+    def has_pose(self) -> bool:
+        """A full pose (rotation and position)."""
+        return self.position is not None and self.quaternion_xyzw is not None
+
+
+def read_track_frames(path: Path | str) -> list[TrackFrame]:
+    """Every line of a ``frames.jsonl`` (one-line OmniSfmError naming the line if one is not a
+    frame)."""
+    import json
+
+    out = []
+    for k, text in enumerate(Path(path).read_text(encoding="utf-8").splitlines(), 1):
+        if not text.strip():
+            continue
+        try:
+            doc = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise OmniSfmError(f"{path}:{k}: not JSON ({exc.msg})") from None
+        out.append(TrackFrame.from_json(doc, f"{path}:{k}"))
+    return out
