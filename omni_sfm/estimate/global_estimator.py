@@ -75,6 +75,9 @@ class GlobalOptions:
     """Tracks whose rotation residuals (their normals against their direction, RMS) exceed
     this many times the residuals' robust spread are left out of the positions (a wrong
     correspondence; the adjustment judges them again)."""
+    hold_world_directions: bool = True
+    """The adjustment holds the direction of every line of a world direction (the
+    directions man-made places repeat are exact; their lines' noise then moves no rotation)."""
     uncertain_information: float = 1e-3
     """A frame is flagged as not fixed by the data where the smallest eigenvalue of its
     position information (its observations, the lines held) is below this fraction of the
@@ -405,7 +408,8 @@ def _horizontal_directions(rot: GlobalRotations, families: list[ParallelFamily],
 
 def _rotations(tracks: LineTracks, frames: np.ndarray, lines: np.ndarray,
                families: list[ParallelFamily], options: GlobalOptions,
-               steps: list[dict[str, Any]]) -> tuple[GlobalRotations, FloatArray]:
+               steps: list[dict[str, Any]]
+               ) -> tuple[GlobalRotations, FloatArray, np.ndarray]:
     """Step 1: the start, the solve with the families' world directions shared, the solve
     with the lines' world directions (clusters of their directions) shared."""
     R0, same = anchored_start(tracks, frames, families, options.snap_deg)
@@ -445,7 +449,7 @@ def _rotations(tracks: LineTracks, frames: np.ndarray, lines: np.ndarray,
                           options.rotations)
     steps.append({"step": "rotations, world directions shared", "world_directions": len(worlds),
                   "iterations": rot.iterations, "sigma_deg": float(np.degrees(rot.sigma))})
-    return rot, worlds
+    return rot, worlds, label
 
 
 def _resected(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArray, p: FloatArray,
@@ -543,7 +547,7 @@ def solve_global(tracks: LineTracks, options: GlobalOptions = GlobalOptions()
     families = detect_parallel_families(tracks, options.vanishing)
     timings["parallel_lines"] = (time.perf_counter() - t) * 1e3
     t = time.perf_counter()
-    rot, worlds = _rotations(tracks, frames, lines, families, options, steps)
+    rot, worlds, label = _rotations(tracks, frames, lines, families, options, steps)
     timings["rotations"] = (time.perf_counter() - t) * 1e3
     t = time.perf_counter()
     free = _rotation_free(rot, frames, options)
@@ -559,8 +563,11 @@ def solve_global(tracks: LineTracks, options: GlobalOptions = GlobalOptions()
     timings["positions"] = (time.perf_counter() - t) * 1e3
     t = time.perf_counter()
     d0 = np.where(dir_ok[:, None], rot.directions, np.nan)
-    ba = bundle_adjust(tracks, R, c, d0, pos.points,
-                       frames=frames, options=options.bundle)
+    # the lines of a world direction keep it: only their positions move (and with two world
+    # directions or more they hold the rotation gauge)
+    held = dir_ok & (label >= 0) if options.hold_world_directions else None
+    ba = bundle_adjust(tracks, R, c, d0, pos.points, frames=frames, held_directions=held,
+                       options=options.bundle)
     timings["bundle_adjustment"] = (time.perf_counter() - t) * 1e3
     steps.append({"step": "bundle adjustment", "iterations": ba.iterations,
                   "outlier_tracks": int(ba.outlier_tracks.sum()),
