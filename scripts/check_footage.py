@@ -269,7 +269,8 @@ def table(res: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def main(argv: list[str] | None = None) -> int:
+def _parser() -> argparse.ArgumentParser:
+    """The command line's arguments."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--images", type=Path, required=True, help="image folder or video")
@@ -292,7 +293,22 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--overlap", type=int, default=10, help="COLMAP's sequential overlap")
     ap.add_argument("--groundtruth", type=Path, default=None,
                     help="ground truth TUM (renders): adds each method's errors")
-    args = ap.parse_args(argv)
+    return ap
+
+
+def _fresh_output(out: Path, overwrite: bool) -> None:
+    """Make ``out`` an empty folder (a non-empty one only with ``overwrite``)."""
+    if out.exists() and any(out.iterdir()):
+        if not overwrite:
+            raise SystemExit(f"check_footage: {out} is not empty (--overwrite to replace it)")
+        import shutil
+
+        shutil.rmtree(out)
+    out.mkdir(parents=True, exist_ok=True)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
 
     from omni_sfm.errors import OmniSfmError
     from omni_sfm.fileio import dumps_json
@@ -301,13 +317,7 @@ def main(argv: list[str] | None = None) -> int:
     from omni_sfm.poses import read_tum
 
     out: Path = args.output
-    if out.exists() and any(out.iterdir()):
-        if not args.overwrite:
-            raise SystemExit(f"check_footage: {out} is not empty (--overwrite to replace it)")
-        import shutil
-
-        shutil.rmtree(out)
-    out.mkdir(parents=True, exist_ok=True)
+    _fresh_output(out, args.overwrite)
     try:
         camera = camera_for_frames(args.camera, args.images,
                                    note=lambda t: print(f"note: {t}", file=sys.stderr))

@@ -35,9 +35,8 @@ def _number(path: Path, key: str, value: Any, *, integer: bool = False) -> float
     return float(value)
 
 
-def camera_from_dict(data: dict[str, Any], path: Path | str = "<camera>") -> CameraModel:
-    """Build a camera from the keys of an omni-sfm camera file (see docs/cameras.md)."""
-    path = Path(path)
+def _model_class(data: Any, path: Path) -> tuple[str, type[CameraModel]]:
+    """The model name and registered class a camera mapping names under ``model``."""
     if not isinstance(data, dict):
         raise OmniSfmError(f"{path}: camera file must be a YAML mapping")
     name = data.get("model")
@@ -47,7 +46,11 @@ def camera_from_dict(data: dict[str, Any], path: Path | str = "<camera>") -> Cam
         raise OmniSfmError(
             f"{path}: unknown camera model {name!r} (known: {', '.join(sorted(MODELS))})"
         )
-    cls = MODELS[name]
+    return name, MODELS[name]
+
+
+def _flat_keys(data: dict[str, Any], path: Path) -> dict[str, Any]:
+    """The camera keys without ``model``, with the ``mask`` mapping's keys lifted to the top."""
     flat = dict(data)
     flat.pop("model")
     mask = flat.pop("mask", None)
@@ -60,6 +63,26 @@ def camera_from_dict(data: dict[str, Any], path: Path | str = "<camera>") -> Cam
             flat[k] = v
     elif mask is not None:
         raise OmniSfmError(f"{path}: key 'mask' must be a mapping, got {mask!r}")
+    return flat
+
+
+def _field_value(path: Path, f: Any, val: Any, required: bool) -> Any:
+    """One dataclass field's value checked and converted from its YAML value."""
+    if val is None and not required:
+        return None
+    if f.name in ("width", "height"):
+        return _number(path, f.name, val, integer=True)
+    if "tuple" in str(f.type):
+        if not isinstance(val, list):
+            raise OmniSfmError(f"{path}: key {f.name!r} must be a list of numbers, got {val!r}")
+        return tuple(_number(path, f"{f.name}[{i}]", v) for i, v in enumerate(val))
+    return _number(path, f.name, val)
+
+
+def _model_kwargs(
+    cls: type[CameraModel], name: str, flat: dict[str, Any], path: Path
+) -> dict[str, Any]:
+    """The constructor arguments of ``cls`` taken (and removed) from ``flat``."""
     kwargs: dict[str, Any] = {}
     for f in fields(cls):
         required = f.default is MISSING and f.default_factory is MISSING
@@ -67,17 +90,16 @@ def camera_from_dict(data: dict[str, Any], path: Path | str = "<camera>") -> Cam
             if required:
                 raise OmniSfmError(f"{path}: missing key {f.name!r} for model {name!r}")
             continue
-        val = flat.pop(f.name)
-        if val is None and not required:
-            kwargs[f.name] = None
-        elif f.name in ("width", "height"):
-            kwargs[f.name] = _number(path, f.name, val, integer=True)
-        elif "tuple" in str(f.type):
-            if not isinstance(val, list):
-                raise OmniSfmError(f"{path}: key {f.name!r} must be a list of numbers, got {val!r}")
-            kwargs[f.name] = tuple(_number(path, f"{f.name}[{i}]", v) for i, v in enumerate(val))
-        else:
-            kwargs[f.name] = _number(path, f.name, val)
+        kwargs[f.name] = _field_value(path, f, flat.pop(f.name), required)
+    return kwargs
+
+
+def camera_from_dict(data: dict[str, Any], path: Path | str = "<camera>") -> CameraModel:
+    """Build a camera from the keys of an omni-sfm camera file (see docs/cameras.md)."""
+    path = Path(path)
+    name, cls = _model_class(data, path)
+    flat = _flat_keys(data, path)
+    kwargs = _model_kwargs(cls, name, flat, path)
     if flat:
         known = ", ".join(f.name for f in fields(cls))
         raise OmniSfmError(

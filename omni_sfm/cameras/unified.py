@@ -217,87 +217,114 @@ class UnifiedCamera(CameraModel):
         b, j = _Buffers(n), _Jacobian(n)
         err = np.empty(n)
         with np.errstate(divide="ignore", invalid="ignore"):
-            if self.p1 == 0.0 and self.p2 == 0.0:
-                # radial only: the radial inverse is the exact answer
-                rd = np.multiply(xd, xd)
-                np.multiply(yd, yd, out=b.t)
-                rd += b.t
-                np.sqrt(rd, out=rd)
-                s = self._radial_inverse(rd, clamp=True)
-                s /= rd
-                s[rd == 0] = 1.0
-            else:
-                scale, table, dtable = self._start_table
-                rho = np.multiply(xd, xd)
-                np.multiply(yd, yd, out=b.t)
-                rho += b.t
-                rho *= scale
-                far = np.flatnonzero(rho > START_TABLE)
-                np.fmin(rho, START_TABLE, out=rho)  # also NaN -> the table's end
-                i = rho.astype(np.intp)
-                rho -= i
-                s = table[i]
-                d = dtable[i]
-                d *= rho
-                s += d
-                if far.size:  # beyond the radial domain's image: start at radius r_max
-                    s[far] = self.r_max / np.hypot(xd[far], yd[far])
+            s = self._start_scale(xd, yd, b)
             x = np.multiply(xd, s)
             y = np.multiply(yd, s, out=s)
             if correct and (self.p1 != 0.0 or self.p2 != 0.0):
-                # add the tangential terms' effect at the nearest node of a grid over the
-                # image: the start is then good to ~1e-4 and two Newton steps finish
-                c = self._start_correction
-                tx = np.multiply(xd, c.inv_step, out=b.t)
-                tx += c.offset_x
-                np.clip(tx, 0.0, c.nx - 1, out=tx)
-                ty = np.multiply(yd, c.inv_step, out=b.a)
-                ty += c.offset_y
-                np.clip(ty, 0.0, c.ny - 1, out=ty)
-                np.floor(ty, out=ty)
-                ty *= c.nx
-                ty += tx
-                # NaN gives a nonsense index, clipped into the table: x stays NaN anyway
-                d = np.take(c.dxy, ty.astype(np.intp), mode="clip")
-                x += d.real
-                y += d.imag
-            steps = 0
+                self._correct_start(x, y, xd, yd, b)
             if not iterate:  # the start point only (to build _start_correction)
                 return x, y, b.r2, np.ones(n, dtype=bool)
-            while True:
-                self._residual(x, y, xd, yd, b)
-                # every |ex| + |ey| <= NEWTON_TOL (a bound from four reductions, NaN ignored)
-                if not _absmax(b.ex) + _absmax(b.ey) > NEWTON_TOL or steps == NEWTON_FAST:
-                    break
-                if steps < NEWTON_FAST - 1:
-                    self._jacobian(x, y, b, j)
-                self._step(x, y, b, j)  # the last fast step reuses the previous Jacobian
-                steps += 1
-            np.abs(b.ex, out=err)
-            np.abs(b.ey, out=b.t)
-            err += b.t
-            r2 = b.r2
-            idx = np.flatnonzero(err > NEWTON_TOL)
-            if idx.size:
-                # the few points not converged yet (far from the table's start, near the
-                # fold): full Newton steps on these alone
-                xs, ys, xds, yds = x[idx], y[idx], xd[idx], yd[idx]
-                bs, js = _Buffers(len(idx)), _Jacobian(len(idx))
-                errs = np.empty(len(idx))
-                self._residual(xs, ys, xds, yds, bs)
-                for _ in range(steps, NEWTON_MAX):
-                    self._jacobian(xs, ys, bs, js)
-                    self._step(xs, ys, bs, js)
-                    self._residual(xs, ys, xds, yds, bs)
-                    np.abs(bs.ex, out=errs)
-                    np.abs(bs.ey, out=bs.t)
-                    errs += bs.t
-                    if not np.fmax.reduce(errs, initial=0.0) > NEWTON_TOL:
-                        break
-                x[idx], y[idx], err[idx], r2[idx] = xs, ys, errs, bs.r2
+            steps = self._newton_fast(x, y, xd, yd, b, j)
+            r2 = self._newton_rest(x, y, xd, yd, b, err, steps)
             ok = err < RESIDUAL_OK
             ok &= r2 < self.r_max**2
         return x, y, r2, ok
+
+    def _start_scale(self, xd: FloatArray, yd: FloatArray, b: _Buffers) -> FloatArray:
+        """The start's scale ``s`` with ``(x, y) = s (xd, yd)`` from the radial part's inverse."""
+        if self.p1 == 0.0 and self.p2 == 0.0:
+            # radial only: the radial inverse is the exact answer
+            rd = np.multiply(xd, xd)
+            np.multiply(yd, yd, out=b.t)
+            rd += b.t
+            np.sqrt(rd, out=rd)
+            s = self._radial_inverse(rd, clamp=True)
+            s /= rd
+            s[rd == 0] = 1.0
+            return s
+        scale, table, dtable = self._start_table
+        rho = np.multiply(xd, xd)
+        np.multiply(yd, yd, out=b.t)
+        rho += b.t
+        rho *= scale
+        far = np.flatnonzero(rho > START_TABLE)
+        np.fmin(rho, START_TABLE, out=rho)  # also NaN -> the table's end
+        i = rho.astype(np.intp)
+        rho -= i
+        s = table[i]
+        d = dtable[i]
+        d *= rho
+        s += d
+        if far.size:  # beyond the radial domain's image: start at radius r_max
+            s[far] = self.r_max / np.hypot(xd[far], yd[far])
+        return s
+
+    def _correct_start(
+        self, x: FloatArray, y: FloatArray, xd: FloatArray, yd: FloatArray, b: _Buffers
+    ) -> None:
+        """Add to ``(x, y)`` the tangential terms' shift at the nearest correction-grid node."""
+        # add the tangential terms' effect at the nearest node of a grid over the
+        # image: the start is then good to ~1e-4 and two Newton steps finish
+        c = self._start_correction
+        tx = np.multiply(xd, c.inv_step, out=b.t)
+        tx += c.offset_x
+        np.clip(tx, 0.0, c.nx - 1, out=tx)
+        ty = np.multiply(yd, c.inv_step, out=b.a)
+        ty += c.offset_y
+        np.clip(ty, 0.0, c.ny - 1, out=ty)
+        np.floor(ty, out=ty)
+        ty *= c.nx
+        ty += tx
+        # NaN gives a nonsense index, clipped into the table: x stays NaN anyway
+        d = np.take(c.dxy, ty.astype(np.intp), mode="clip")
+        x += d.real
+        y += d.imag
+
+    def _newton_fast(
+        self, x: FloatArray, y: FloatArray, xd: FloatArray, yd: FloatArray, b: _Buffers,
+        j: _Jacobian,
+    ) -> int:
+        """Newton steps on the whole block, in place, up to ``NEWTON_FAST``; the steps taken."""
+        steps = 0
+        while True:
+            self._residual(x, y, xd, yd, b)
+            # every |ex| + |ey| <= NEWTON_TOL (a bound from four reductions, NaN ignored)
+            if not _absmax(b.ex) + _absmax(b.ey) > NEWTON_TOL or steps == NEWTON_FAST:
+                break
+            if steps < NEWTON_FAST - 1:
+                self._jacobian(x, y, b, j)
+            self._step(x, y, b, j)  # the last fast step reuses the previous Jacobian
+            steps += 1
+        return steps
+
+    def _newton_rest(
+        self, x: FloatArray, y: FloatArray, xd: FloatArray, yd: FloatArray, b: _Buffers,
+        err: FloatArray, steps: int,
+    ) -> FloatArray:
+        """Full Newton steps on the points not converged yet; fills ``err``, returns ``r^2``."""
+        np.abs(b.ex, out=err)
+        np.abs(b.ey, out=b.t)
+        err += b.t
+        r2 = b.r2
+        idx = np.flatnonzero(err > NEWTON_TOL)
+        if idx.size:
+            # the few points not converged yet (far from the table's start, near the
+            # fold): full Newton steps on these alone
+            xs, ys, xds, yds = x[idx], y[idx], xd[idx], yd[idx]
+            bs, js = _Buffers(len(idx)), _Jacobian(len(idx))
+            errs = np.empty(len(idx))
+            self._residual(xs, ys, xds, yds, bs)
+            for _ in range(steps, NEWTON_MAX):
+                self._jacobian(xs, ys, bs, js)
+                self._step(xs, ys, bs, js)
+                self._residual(xs, ys, xds, yds, bs)
+                np.abs(bs.ex, out=errs)
+                np.abs(bs.ey, out=bs.t)
+                errs += bs.t
+                if not np.fmax.reduce(errs, initial=0.0) > NEWTON_TOL:
+                    break
+            x[idx], y[idx], err[idx], r2[idx] = xs, ys, errs, bs.r2
+        return r2
 
     def _residual(
         self, x: FloatArray, y: FloatArray, xd: FloatArray, yd: FloatArray, b: _Buffers

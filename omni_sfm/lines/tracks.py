@@ -153,6 +153,74 @@ class LineTracks:
                 "tracks": tracks}
 
 
+def _checked_normals(num_frames: int, track_ids: IntArray, t: IntArray, f: IntArray,
+                     n: FloatArray, source: str) -> FloatArray:
+    """Check the normals (finite, unit) and frame indices (in range); the normals' lengths."""
+    if not np.isfinite(n).all():
+        raise OmniSfmError(f"{source}: normals must be finite (found NaN or inf)")
+    norms = np.linalg.norm(n, axis=1)
+    bad = np.flatnonzero(np.abs(norms - 1.0) > 1e-3)
+    if bad.size:
+        raise OmniSfmError(f"{source}: normals must be unit vectors; observation of track "
+                           f"{int(track_ids[t[bad[0]]])} has length {norms[bad[0]]:.6g}")
+    out = np.flatnonzero((f < 0) | (f >= num_frames))
+    if out.size:
+        raise OmniSfmError(f"{source}: frame index {int(f[out[0]])} of track "
+                           f"{int(track_ids[t[out[0]]])} is outside [0, {num_frames})")
+    return norms
+
+
+def _checked_rays(obs_ray: FloatArray | None, n: FloatArray, norms: FloatArray,
+                  source: str) -> FloatArray | None:
+    """The observations' rays as ``(N, 3)``, checked to be unit and in their line's plane."""
+    if obs_ray is None:
+        return None
+    rays = np.asarray(obs_ray, dtype=np.float64).reshape(-1, 3)
+    if rays.shape != n.shape:
+        raise OmniSfmError(f"{source}: need one ray per normal, got {rays.shape[0]} rays "
+                           f"for {n.shape[0]} normals")
+    rn = np.linalg.norm(rays, axis=1)
+    if not np.isfinite(rays).all() or np.any(np.abs(rn - 1.0) > 1e-3):
+        raise OmniSfmError(f"{source}: rays must be finite unit vectors")
+    if np.any(np.abs(np.sum(rays * n, axis=1)) / norms > 0.05):
+        raise OmniSfmError(f"{source}: a ray does not lie in its line's plane "
+                           "(|ray . normal| > 0.05)")
+    return rays
+
+
+def _checked_sigmas(obs_sigma: FloatArray | None, rays: FloatArray | None, n: FloatArray,
+                    source: str) -> FloatArray | None:
+    """The observations' ``[sigma_along, sigma_across]`` as ``(N, 2)``, checked positive."""
+    if obs_sigma is None:
+        return None
+    if rays is None:
+        raise OmniSfmError(f"{source}: sigmas need rays (they are given along the ray)")
+    sig = np.asarray(obs_sigma, dtype=np.float64).reshape(-1, 2)
+    if sig.shape[0] != n.shape[0]:
+        raise OmniSfmError(f"{source}: need one [sigma_along, sigma_across] per normal, got "
+                           f"{sig.shape[0]} for {n.shape[0]} normals")
+    if not np.isfinite(sig).all() or np.any(sig <= 0):
+        raise OmniSfmError(f"{source}: sigmas must be finite and positive")
+    return sig
+
+
+def _unit(v: FloatArray, length: FloatArray, as_stored: bool) -> FloatArray:
+    """``v / length`` row-wise; with ``as_stored``, lengths within 1e-12 of 1 count as 1."""
+    if as_stored:
+        length = np.where(np.abs(length - 1.0) <= 1e-12, 1.0, length)
+    return np.asarray(v / length[:, None])
+
+
+def _checked_timestamps(num_frames: int, timestamps: FloatArray | None,
+                        source: str) -> FloatArray:
+    """The frames' timestamps (the frame indices when none are given), checked finite."""
+    ts = np.arange(num_frames, dtype=np.float64) if timestamps is None else \
+        np.asarray(timestamps, dtype=np.float64)
+    if ts.shape != (num_frames,) or not np.isfinite(ts).all():
+        raise OmniSfmError(f"{source}: 'timestamps' must be {num_frames} finite numbers")
+    return ts
+
+
 def make_tracks(num_frames: int, track_ids: IntArray, obs_track: IntArray, obs_frame: IntArray,
                 obs_normal: FloatArray, timestamps: FloatArray | None = None,
                 source: str = "tracks", obs_ray: FloatArray | None = None,
@@ -169,61 +237,68 @@ def make_tracks(num_frames: int, track_ids: IntArray, obs_track: IntArray, obs_f
     n = np.asarray(obs_normal, dtype=np.float64).reshape(-1, 3)
     t = np.asarray(obs_track, dtype=np.int64)
     f = np.asarray(obs_frame, dtype=np.int64)
-    if not np.isfinite(n).all():
-        raise OmniSfmError(f"{source}: normals must be finite (found NaN or inf)")
-    norms = np.linalg.norm(n, axis=1)
-    bad = np.flatnonzero(np.abs(norms - 1.0) > 1e-3)
-    if bad.size:
-        raise OmniSfmError(f"{source}: normals must be unit vectors; observation of track "
-                           f"{int(track_ids[t[bad[0]]])} has length {norms[bad[0]]:.6g}")
-    out = np.flatnonzero((f < 0) | (f >= num_frames))
-    if out.size:
-        raise OmniSfmError(f"{source}: frame index {int(f[out[0]])} of track "
-                           f"{int(track_ids[t[out[0]]])} is outside [0, {num_frames})")
-    rays = None
-    if obs_ray is not None:
-        rays = np.asarray(obs_ray, dtype=np.float64).reshape(-1, 3)
-        if rays.shape != n.shape:
-            raise OmniSfmError(f"{source}: need one ray per normal, got {rays.shape[0]} rays "
-                               f"for {n.shape[0]} normals")
-        rn = np.linalg.norm(rays, axis=1)
-        if not np.isfinite(rays).all() or np.any(np.abs(rn - 1.0) > 1e-3):
-            raise OmniSfmError(f"{source}: rays must be finite unit vectors")
-        if np.any(np.abs(np.sum(rays * n, axis=1)) / norms > 0.05):
-            raise OmniSfmError(f"{source}: a ray does not lie in its line's plane "
-                               "(|ray . normal| > 0.05)")
-    sig = None
-    if obs_sigma is not None:
-        if rays is None:
-            raise OmniSfmError(f"{source}: sigmas need rays (they are given along the ray)")
-        sig = np.asarray(obs_sigma, dtype=np.float64).reshape(-1, 2)
-        if sig.shape[0] != n.shape[0]:
-            raise OmniSfmError(f"{source}: need one [sigma_along, sigma_across] per normal, got "
-                               f"{sig.shape[0]} for {n.shape[0]} normals")
-        if not np.isfinite(sig).all() or np.any(sig <= 0):
-            raise OmniSfmError(f"{source}: sigmas must be finite and positive")
-
-    def unit(v: FloatArray, length: FloatArray) -> FloatArray:
-        if as_stored:
-            length = np.where(np.abs(length - 1.0) <= 1e-12, 1.0, length)
-        return np.asarray(v / length[:, None])
-
+    norms = _checked_normals(num_frames, track_ids, t, f, n, source)
+    rays = _checked_rays(obs_ray, n, norms, source)
+    sig = _checked_sigmas(obs_sigma, rays, n, source)
     order = np.lexsort((f, t))
-    t, f, n = t[order], f[order], unit(n[order], norms[order])
+    t, f, n = t[order], f[order], _unit(n[order], norms[order], as_stored)
     if rays is not None:
-        rays = unit(rays[order], np.linalg.norm(rays[order], axis=1))
+        rays = _unit(rays[order], np.linalg.norm(rays[order], axis=1), as_stored)
     if sig is not None:
         sig = sig[order]
     dup = np.flatnonzero((np.diff(t) == 0) & (np.diff(f) == 0))
     if dup.size:
         raise OmniSfmError(f"{source}: track {int(track_ids[t[dup[0]]])} lists frame "
                            f"{int(f[dup[0]])} twice")
-    ts = np.arange(num_frames, dtype=np.float64) if timestamps is None else \
-        np.asarray(timestamps, dtype=np.float64)
-    if ts.shape != (num_frames,) or not np.isfinite(ts).all():
-        raise OmniSfmError(f"{source}: 'timestamps' must be {num_frames} finite numbers")
+    ts = _checked_timestamps(num_frames, timestamps, source)
     return LineTracks(int(num_frames), np.asarray(track_ids, dtype=np.int64), t, f, n, ts, rays,
                       sig)
+
+
+def _track_numbers(path: Path, k: int, tr: Any) -> tuple[Any, FloatArray, FloatArray]:
+    """Track ``#k``'s id, frame indices and normals, checked for shape and type."""
+    if not isinstance(tr, dict) or not {"frames", "normals"} <= tr.keys():
+        raise OmniSfmError(f"{path}: track #{k} needs keys 'frames' and 'normals'")
+    tid = tr.get("id", k)
+    try:
+        fr = np.asarray(tr["frames"], dtype=np.float64).reshape(-1)
+        nv = np.asarray(tr["normals"], dtype=np.float64)
+    except (TypeError, ValueError):
+        raise OmniSfmError(f"{path}: track {tid}: 'frames' and 'normals' must be numbers") \
+            from None
+    if nv.ndim != 2 or nv.shape[1] != 3 or nv.shape[0] != fr.shape[0]:
+        raise OmniSfmError(f"{path}: track {tid}: needs one [nx, ny, nz] per frame, got "
+                           f"{fr.shape[0]} frames and normals of shape {nv.shape}")
+    if not np.all(fr == np.round(fr)):
+        raise OmniSfmError(f"{path}: track {tid}: frame indices must be integers")
+    if not isinstance(tid, int) or isinstance(tid, bool):
+        raise OmniSfmError(f"{path}: track #{k}: 'id' must be an integer, got {tid!r}")
+    return tid, fr, nv
+
+
+def _track_rays(path: Path, tid: int, tr: dict[str, Any], nv: FloatArray) -> FloatArray:
+    """A track's ``rays``, one per normal."""
+    try:
+        rv = np.asarray(tr["rays"], dtype=np.float64)
+    except (TypeError, ValueError):
+        raise OmniSfmError(f"{path}: track {tid}: 'rays' must be numbers") from None
+    if rv.shape != nv.shape:
+        raise OmniSfmError(f"{path}: track {tid}: needs one ray per normal, got rays "
+                           f"of shape {rv.shape}")
+    return rv
+
+
+def _track_sigmas(path: Path, tid: int, tr: dict[str, Any], nv: FloatArray) -> FloatArray:
+    """A track's ``sigmas_deg`` in radians, one ``[along, across]`` pair per normal."""
+    try:
+        sv = np.radians(np.asarray(tr["sigmas_deg"], dtype=np.float64))
+    except (TypeError, ValueError):
+        raise OmniSfmError(f"{path}: track {tid}: 'sigmas_deg' must be numbers") \
+            from None
+    if sv.shape != (nv.shape[0], 2):
+        raise OmniSfmError(f"{path}: track {tid}: needs one [along, across] pair of "
+                           f"sigmas per normal, got shape {sv.shape}")
+    return sv
 
 
 def read_tracks(path: Path | str) -> LineTracks:
@@ -237,41 +312,11 @@ def read_tracks(path: Path | str) -> LineTracks:
         raise OmniSfmError(f"{path}: 'tracks' must be a list")
     ids, ot, of, on, orays, osig = [], [], [], [], [], []
     for k, tr in enumerate(tracks):
-        if not isinstance(tr, dict) or not {"frames", "normals"} <= tr.keys():
-            raise OmniSfmError(f"{path}: track #{k} needs keys 'frames' and 'normals'")
-        tid = tr.get("id", k)
-        try:
-            fr = np.asarray(tr["frames"], dtype=np.float64).reshape(-1)
-            nv = np.asarray(tr["normals"], dtype=np.float64)
-        except (TypeError, ValueError):
-            raise OmniSfmError(f"{path}: track {tid}: 'frames' and 'normals' must be numbers") \
-                from None
-        if nv.ndim != 2 or nv.shape[1] != 3 or nv.shape[0] != fr.shape[0]:
-            raise OmniSfmError(f"{path}: track {tid}: needs one [nx, ny, nz] per frame, got "
-                               f"{fr.shape[0]} frames and normals of shape {nv.shape}")
-        if not np.all(fr == np.round(fr)):
-            raise OmniSfmError(f"{path}: track {tid}: frame indices must be integers")
-        if not isinstance(tid, int) or isinstance(tid, bool):
-            raise OmniSfmError(f"{path}: track #{k}: 'id' must be an integer, got {tid!r}")
+        tid, fr, nv = _track_numbers(path, k, tr)
         if "rays" in tr:
-            try:
-                rv = np.asarray(tr["rays"], dtype=np.float64)
-            except (TypeError, ValueError):
-                raise OmniSfmError(f"{path}: track {tid}: 'rays' must be numbers") from None
-            if rv.shape != nv.shape:
-                raise OmniSfmError(f"{path}: track {tid}: needs one ray per normal, got rays "
-                                   f"of shape {rv.shape}")
-            orays.append(rv)
+            orays.append(_track_rays(path, tid, tr, nv))
         if "sigmas_deg" in tr:
-            try:
-                sv = np.radians(np.asarray(tr["sigmas_deg"], dtype=np.float64))
-            except (TypeError, ValueError):
-                raise OmniSfmError(f"{path}: track {tid}: 'sigmas_deg' must be numbers") \
-                    from None
-            if sv.shape != (nv.shape[0], 2):
-                raise OmniSfmError(f"{path}: track {tid}: needs one [along, across] pair of "
-                                   f"sigmas per normal, got shape {sv.shape}")
-            osig.append(sv)
+            osig.append(_track_sigmas(path, tid, tr, nv))
         ids.append(tid)
         ot.append(np.full(fr.shape[0], k))
         of.append(fr.astype(np.int64))

@@ -25,7 +25,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -48,6 +48,11 @@ from omni_sfm.lines3d import LineSegments3D, write_lines3d
 from omni_sfm.poses import Trajectory
 from omni_sfm.reports import PluginInitReport
 from omni_sfm.transforms import paper_normalised_positions
+
+if TYPE_CHECKING:
+    from omni_sfm.export.colmap import ColmapImages
+    from omni_sfm.lines.debug import KeptFrames
+    from omni_sfm.lines.tracks import LineTracks
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -275,9 +280,9 @@ def init_from_images(images: Path | str, camera: Path | str | CameraModel | None
             that are not straight) or no parallel family, degenerate motion.
     """
     from omni_sfm.estimate.pipeline import write_init_outputs
-    from omni_sfm.export.colmap import ColmapImages, write_init_model
+    from omni_sfm.export.colmap import write_init_model
     from omni_sfm.fileio import check_output_dir
-    from omni_sfm.lines.debug import KeptFrames, write_debug_view
+    from omni_sfm.lines.debug import KeptFrames
     from omni_sfm.lines.tracks import write_tracks
 
     o = options or InitOptions()
@@ -300,11 +305,7 @@ def init_from_images(images: Path | str, camera: Path | str | CameraModel | None
         n = len(source)
         kept = KeptFrames(_debug_numbers(source, o.debug_view)) if o.debug_view != "none" \
             else None
-        colmap_images = ColmapImages(tmp, cam,
-                                     lambda k: _image_names(source, np.asarray([k]))[0],
-                                     background=True) \
-            if o.colmap and (o.colmap_images or (o.colmap_images is None and
-                                                 n <= COLMAP_IMAGE_FRAMES)) else None
+        colmap_images = _colmap_images(tmp, cam, source, o, n)
         if colmap_images is not None:
             stop.callback(colmap_images.close)
         taps = [t for t in (kept, None if colmap_images is None else colmap_images.tap)
@@ -318,65 +319,26 @@ def init_from_images(images: Path | str, camera: Path | str | CameraModel | None
         if colmap_images is not None:  # its thread done before the estimator forks
             colmap_images.wait()
             colmap_images.close()
-        auto_said, fixed_ids = checks.auto_mask, []
-        if o.auto_mask:  # what the mask left of structure fixed to the camera
-            fixed = fe.camera_fixed_tracks()
-            if fixed.any():
-                fixed_ids = fe.tracks.track_ids[fixed].tolist()
-                fe = fe.without_tracks(fixed)
-                auto_said += f"; {len(fixed_ids)} line tracks fixed to the camera dropped"
+        fe, fixed_ids, auto_said = _without_camera_fixed(fe, o.auto_mask, checks.auto_mask)
         t1 = time.perf_counter()
-        too_few = fe.why_too_few_lines()
-        if too_few:
-            raise OmniSfmError(too_few)
-        tracks = fe.estimator_tracks()
-        try:
-            result = estimate_poses(tracks, replace(o.estimation, progress=o.progress))
-        except OmniSfmError as exc:
-            problem = fe.image_problem()  # the likely cause, where the images have one
-            if problem:
-                raise OmniSfmError(f"{exc} ({problem})") from exc
-            raise
+        tracks, result = _estimate(fe, o)
         t2 = time.perf_counter()
 
-        est_frames = np.flatnonzero(result.estimated)
         names = _image_names(source, fe.frame_numbers)
-        est_names = [names[f] for f in est_frames]
+        est_names = [names[f] for f in np.flatnonzero(result.estimated)]
         skipped_not_estimated = [names[f] for f in np.flatnonzero(~result.estimated)]
         unreadable = _image_names(source, np.asarray(fe.frames_skipped, dtype=int))
-        front_end = fe.summary()
-        for entry, name in zip(front_end["frames_skipped_reasons"], unreadable, strict=True):
-            entry["name"] = name
-        extra: dict[str, Any] = {
-            "input": {"images": stored_path(images, output),
-                      "camera": _camera_entry(camera, cam, output),
-                      "mask": None if mask is None else stored_path(mask, output),
-                      "start": o.start, "end": o.end, "step": o.step,
-                      "timestamps": "seconds" if source.is_video else "frame index"},
-            "front_end": front_end,
-            "front_end_per_frame": fe.per_frame(),
-            "frames_not_estimated_names": skipped_not_estimated,
-            "wall_time_s": {"front_end": t1 - t0, "estimation": t2 - t1},
-            **checks.report,
-            "camera_fixed_tracks": fixed_ids,
-            "warnings": list(checks.warnings),
-        }
+        extra = _init_extra(images, camera, cam, mask, output, o, source, fe, unreadable,
+                            skipped_not_estimated, {"front_end": t1 - t0, "estimation": t2 - t1},
+                            checks, fixed_ids)
         write_init_outputs(tmp, result, extra=extra)
         write_tracks(tmp / InitFolder.TRACKS, tracks)
         write_lines3d(tmp / InitFolder.LINES3D, estimated_segments(fe, result))
         if line_mask is not None:  # the user's mask and the automatic one: what refine uses
             write_mask(tmp / InitFolder.MASK, line_mask)
         plot_trajectory(tmp / InitFolder.TRAJECTORY_PLOT, result.trajectory)
-        # colour 0: the parallel family, 1: other lines, grey (-1): rejected as outliers
-        groups = np.where(result.outliers, -1, np.where(result.parallel, 0, 1))
         if kept is not None:
-            target = tmp / (InitFolder.DEBUG_VIDEO if o.debug_view == "mp4"
-                            else InitFolder.DEBUG_FRAMES)
-            # a video whose container gives no frame count (n = 0) is read again
-            from_pass = n > 0 and (len(kept.numbers) >= n or o.debug_view == "auto")
-            frames = kept if from_pass else read_frames(images, o.start, o.end, o.step,
-                                                        size=size)
-            write_debug_view(frames, cam, fe, target, groups=groups, progress=o.progress)
+            _write_debug(tmp, images, cam, o, fe, result, kept, n)
         if o.colmap:
             write_init_model(tmp, cam, result.trajectory, est_names, text=o.colmap_text)
             if colmap_images is not None:
@@ -386,6 +348,89 @@ def init_from_images(images: Path | str, camera: Path | str | CameraModel | None
                       unreadable=tuple(unreadable),
                       unreadable_reasons=fe.frames_skipped_reasons,
                       warnings=checks.warnings, auto_mask=auto_said)
+
+
+def _colmap_images(tmp: Path, cam: CameraModel, source: FrameSource, o: InitOptions,
+                   n: int) -> ColmapImages | None:
+    """The COLMAP image writer fed from the front end's pass, when the images are written."""
+    from omni_sfm.export.colmap import ColmapImages
+
+    if not (o.colmap and (o.colmap_images or (o.colmap_images is None and
+                                              n <= COLMAP_IMAGE_FRAMES))):
+        return None
+    return ColmapImages(tmp, cam, lambda k: _image_names(source, np.asarray([k]))[0],
+                        background=True)
+
+
+def _without_camera_fixed(fe: FrontEndResult, auto_mask: bool,
+                          auto_said: str) -> tuple[FrontEndResult, list[int], str]:
+    """With the automatic mask, drop what it left of structure fixed to the camera."""
+    fixed_ids: list[int] = []
+    if auto_mask:
+        fixed = fe.camera_fixed_tracks()
+        if fixed.any():
+            fixed_ids = fe.tracks.track_ids[fixed].tolist()
+            fe = fe.without_tracks(fixed)
+            auto_said += f"; {len(fixed_ids)} line tracks fixed to the camera dropped"
+    return fe, fixed_ids, auto_said
+
+
+def _estimate(fe: FrontEndResult, o: InitOptions) -> tuple[LineTracks, EstimationResult]:
+    """The estimator's tracks and poses; errors name the images' likely problem."""
+    too_few = fe.why_too_few_lines()
+    if too_few:
+        raise OmniSfmError(too_few)
+    tracks = fe.estimator_tracks()
+    try:
+        result = estimate_poses(tracks, replace(o.estimation, progress=o.progress))
+    except OmniSfmError as exc:
+        problem = fe.image_problem()  # the likely cause, where the images have one
+        if problem:
+            raise OmniSfmError(f"{exc} ({problem})") from exc
+        raise
+    return tracks, result
+
+
+def _init_extra(images: Path | str, camera: Path | str | CameraModel | None, cam: CameraModel,
+                mask: Path | str | None, output: Path, o: InitOptions, source: FrameSource,
+                fe: FrontEndResult, unreadable: list[str], skipped_not_estimated: list[str],
+                wall_time_s: dict[str, float], checks: _Checks,
+                fixed_ids: list[int]) -> dict[str, Any]:
+    """The entries ``init`` adds to the estimator's ``report.json``."""
+    front_end = fe.summary()
+    for entry, name in zip(front_end["frames_skipped_reasons"], unreadable, strict=True):
+        entry["name"] = name
+    return {
+        "input": {"images": stored_path(images, output),
+                  "camera": _camera_entry(camera, cam, output),
+                  "mask": None if mask is None else stored_path(mask, output),
+                  "start": o.start, "end": o.end, "step": o.step,
+                  "timestamps": "seconds" if source.is_video else "frame index"},
+        "front_end": front_end,
+        "front_end_per_frame": fe.per_frame(),
+        "frames_not_estimated_names": skipped_not_estimated,
+        "wall_time_s": wall_time_s,
+        **checks.report,
+        "camera_fixed_tracks": fixed_ids,
+        "warnings": list(checks.warnings),
+    }
+
+
+def _write_debug(tmp: Path, images: Path | str, cam: CameraModel, o: InitOptions,
+                 fe: FrontEndResult, result: EstimationResult, kept: KeptFrames,
+                 n: int) -> None:
+    """The debug view: frames kept from the front end's pass, or the frames read again."""
+    from omni_sfm.lines.debug import write_debug_view
+
+    # colour 0: the parallel family, 1: other lines, grey (-1): rejected as outliers
+    groups = np.where(result.outliers, -1, np.where(result.parallel, 0, 1))
+    target = tmp / (InitFolder.DEBUG_VIDEO if o.debug_view == "mp4"
+                    else InitFolder.DEBUG_FRAMES)
+    # a video whose container gives no frame count (n = 0) is read again
+    from_pass = n > 0 and (len(kept.numbers) >= n or o.debug_view == "auto")
+    frames = kept if from_pass else read_frames(images, o.start, o.end, o.step,
+                                                size=(cam.width, cam.height))
+    write_debug_view(frames, cam, fe, target, groups=groups, progress=o.progress)
 
 
 DEBUG_VIEWS = ("auto", "png", "mp4", "none")

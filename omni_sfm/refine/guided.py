@@ -164,12 +164,7 @@ def match_pair(a: FrameKeypoints, b: FrameKeypoints, b_from_a_rotation: FloatArr
         raise ValueError(f"{R.shape=} {t.shape=}, or not finite")
     if len(a.index) == 0 or len(b.index) == 0:
         return np.zeros((0, 2), np.int64)
-    length = float(np.linalg.norm(t))
-    moved = length > 0
-    pole = t / length if moved else np.array([0.0, 0.0, 1.0])
-    u = np.cross(pole, [1.0, 0.0, 0.0] if abs(pole[0]) < 0.9 else [0.0, 1.0, 0.0])
-    u /= np.linalg.norm(u)
-    basis = np.stack([u, np.cross(pole, u), pole])  # rows: x, y, z axes in a's frame
+    moved, basis = _pole_basis(t)
     xa, ya, za = basis @ a.rays_in_cam.T
     xb, yb, zb = basis @ (b.rays_in_cam @ R).T  # b's rays in a's frame
     f32 = np.float32
@@ -191,15 +186,7 @@ def match_pair(a: FrameKeypoints, b: FrameKeypoints, b_from_a_rotation: FloatArr
     za_high = (za + delta_a).astype(f32)
     if not moved:  # and no farther: the same ray
         za_low, zb_high = (za - delta_a).astype(f32), (zb + delta_b).astype(f32)
-    ext = []
-    for cols in bins:
-        if len(cols) == 0:
-            continue
-        order = cols[np.argsort(phi_b[cols], kind="stable")]
-        ph = phi_b[order]
-        rho_low = float(rho_b[cols].min())
-        ext.append((np.concatenate([ph - 2 * np.pi, ph, ph + 2 * np.pi]).astype(f32),
-                    np.tile(order, 3), min(np.pi, delta_max / rho_low), len(order)))
+    ext = _azimuth_windows(bins, phi_b, rho_b, delta_max)
 
     desc_a, desc_b = a.descriptors, b.descriptors
     rows_top, cols_top = _Top2(len(a.index)), _Top2(len(b.index))
@@ -207,16 +194,7 @@ def match_pair(a: FrameKeypoints, b: FrameKeypoints, b_from_a_rotation: FloatArr
     for s in range(0, len(by_phi), o.block):
         rows = by_phi[s:s + o.block]
         p0, p1 = float(phi_a[rows[0]]), float(phi_a[rows[-1]])
-        col_parts, phi_parts = [near_pole], [phi_b[near_pole].astype(f32)]
-        for ext_phi, ext_col, width, n in ext:
-            lo = int(np.searchsorted(ext_phi, p0 - width, "left"))
-            hi = int(np.searchsorted(ext_phi, p1 + width, "right"))
-            if hi - lo >= n:  # the whole circle: every keypoint once, azimuths near the rows'
-                lo = int(np.searchsorted(ext_phi, 0.5 * (p0 + p1) - np.pi, "left"))
-                hi = lo + n
-            col_parts.append(ext_col[lo:hi])
-            phi_parts.append(ext_phi[lo:hi])
-        cols = np.concatenate(col_parts)
+        cols, phi_parts = _block_columns(near_pole, phi_b, ext, p0, p1)
         if len(cols) == 0:
             continue
         sim = desc_a[rows] @ desc_b[cols].T
@@ -233,6 +211,57 @@ def match_pair(a: FrameKeypoints, b: FrameKeypoints, b_from_a_rotation: FloatArr
         rows_top.merge(rows, best, cols[arg], second)
         best, arg, second = _top2(sim, 0)
         cols_top.merge(cols, best, rows[arg], second)
+    return _mutual_matches(a, b, rows_top, cols_top, o)
+
+
+def _pole_basis(t: FloatArray) -> tuple[bool, FloatArray]:
+    """Whether the camera moved, and the rows x, y, z of a frame whose z is the baseline."""
+    length = float(np.linalg.norm(t))
+    moved = length > 0
+    pole = t / length if moved else np.array([0.0, 0.0, 1.0])
+    u = np.cross(pole, [1.0, 0.0, 0.0] if abs(pole[0]) < 0.9 else [0.0, 1.0, 0.0])
+    u /= np.linalg.norm(u)
+    basis = np.stack([u, np.cross(pole, u), pole])  # rows: x, y, z axes in a's frame
+    return moved, basis
+
+
+def _azimuth_windows(bins: list[np.ndarray], phi_b: FloatArray, rho_b: FloatArray,
+                     delta_max: float) -> list[tuple[np.ndarray, np.ndarray, float, int]]:
+    """Per bin of ``b``'s keypoints: azimuths sorted and wrapped thrice, their columns, the
+    half-width of the azimuth window, and the bin's size."""
+    f32 = np.float32
+    ext = []
+    for cols in bins:
+        if len(cols) == 0:
+            continue
+        order = cols[np.argsort(phi_b[cols], kind="stable")]
+        ph = phi_b[order]
+        rho_low = float(rho_b[cols].min())
+        ext.append((np.concatenate([ph - 2 * np.pi, ph, ph + 2 * np.pi]).astype(f32),
+                    np.tile(order, 3), min(np.pi, delta_max / rho_low), len(order)))
+    return ext
+
+
+def _block_columns(near_pole: np.ndarray, phi_b: FloatArray,
+                   ext: list[tuple[np.ndarray, np.ndarray, float, int]], p0: float,
+                   p1: float) -> tuple[np.ndarray, list[np.ndarray]]:
+    """The columns of ``b`` a block of rows with azimuths ``[p0, p1]`` may match, and the
+    parts of their azimuths."""
+    col_parts, phi_parts = [near_pole], [phi_b[near_pole].astype(np.float32)]
+    for ext_phi, ext_col, width, n in ext:
+        lo = int(np.searchsorted(ext_phi, p0 - width, "left"))
+        hi = int(np.searchsorted(ext_phi, p1 + width, "right"))
+        if hi - lo >= n:  # the whole circle: every keypoint once, azimuths near the rows'
+            lo = int(np.searchsorted(ext_phi, 0.5 * (p0 + p1) - np.pi, "left"))
+            hi = lo + n
+        col_parts.append(ext_col[lo:hi])
+        phi_parts.append(ext_phi[lo:hi])
+    return np.concatenate(col_parts), phi_parts
+
+
+def _mutual_matches(a: FrameKeypoints, b: FrameKeypoints, rows_top: _Top2, cols_top: _Top2,
+                    o: GuidedMatchOptions) -> np.ndarray:
+    """The matches ``(M, 2)`` that pass the ratio tests and are each other's best."""
     ok_a = rows_top.passes(o)
     ok_b = cols_top.passes(o)
     i = np.flatnonzero(ok_a)

@@ -867,57 +867,25 @@ def joint_adjust(lines: LineTracks, rotations: FloatArray, positions: FloatArray
             # off by outliers in an early round comes back)
             every = problem(candidate_lines.copy(), candidate_points.copy())
             al, ap = angles(every)
-            sig_l = sl or (robust_sigma(al) if len(al) else 1.0)
-            sig_p = spt or (robust_sigma(ap) if len(ap) else 1.0)
-            lim_l = options.outlier_threshold * np.sqrt(2.0) * sig_l
-            lim_p = options.outlier_threshold * np.sqrt(2.0) * sig_p
-            t = every.lines.t
-            cnt = np.bincount(t, minlength=M)
-            ss = np.bincount(t, weights=al ** 2, minlength=M)
-            with np.errstate(invalid="ignore", divide="ignore"):
-                lines_used = candidate_lines & ~(np.sqrt(ss / np.maximum(cnt, 1)) > lim_l)
-            pin = np.zeros_like(candidate_points)
-            pin[every.obs_index[ap <= lim_p]] = True
+            sig_l, sig_p = _noise_sigmas(al, ap, sl, spt)
+            lines_used, pin = _inliers(every, al, ap, sig_l, sig_p, candidate_lines,
+                                       candidate_points, M, options)
             if options.near_camera_ratio > 0:
                 line_obs, lines_used = _off_cameras(lines, state, frames, lines_used,
                                                     options.near_camera_ratio)
-            e, (_, v) = every.residuals(*state)
-            if "lines" in options.correlated:
-                line_weight = _correlation_weights(e[:every.Kl] / every.line_scale[:, None],
-                                                   t, every.lines.f, M)
-            if "points" in options.correlated:
-                Rf = state[0][every.f]
-                off = normalize(v) - points.ray[every.obs_index]
-                point_weight = _correlation_weights(np.einsum("kij,kj->ki", Rf, off), every.j,
-                                                    every.f, P)
+            line_weight, point_weight = _landmark_weights(every, state, points, M, P, options,
+                                                          line_weight, point_weight)
         prob = problem(lines_used, pin)
         if prob.Kl + len(prob.f) == 0:
             raise OmniSfmError("joint adjustment: no line or point observation")
         if round_ == 0:
             al, ap = angles(prob)
-            sig_l = sl or (robust_sigma(al) if len(al) else 1.0)
-            sig_p = spt or (robust_sigma(ap) if len(ap) else 1.0)
+            sig_l, sig_p = _noise_sigmas(al, ap, sl, spt)
             prob = problem(lines_used, pin)
-        final = round_ == options.robust_rounds
-        if not final:
-            prob.cg_tolerance = options.robust_cg_tolerance
-        tol = options.pose_tolerance if final else options.robust_pose_tolerance
-        step_tol = options.step_tolerance if final else options.robust_step_tolerance
-        state, it = levenberg_marquardt(
-            prob, state, RobustLoss.LINEAR if final else RobustLoss.HUBER, options.loss_scale,
-            options.max_iterations if final else options.robust_iterations,
-            options.tolerance if final else 1e-6, (tol, tol * extent), step_tol or None,
-            1e-4 if round_ == 0 else options.warm_damping)
+        state, it = _solve_round(prob, state, options, round_, extent)
         iterations += it
     al, ap = angles(prob)
-    info = _frame_information(prob, state)
-    tr = np.stack([np.einsum("kfii->kf", info[:, :, :3, :3]),
-                   np.einsum("kfii->kf", info[:, :, 3:, 3:])], axis=2)  # (2, F, 2)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        line_share = tr[0] / (tr[0] + tr[1])
-    line_share[~frames] = np.nan
-    line_share[~prob.lines.pose_free[:, :3].any(1), 0] = np.nan
-    line_share[~prob.lines.pose_free[:, 3:].any(1), 1] = np.nan
+    line_share = _line_share(prob, state, frames)
     R, c, d, p, X = state
     points_used = np.bincount(points.point[pin], minlength=P) >= 2
     nan3 = np.full(3, np.nan)
@@ -935,6 +903,80 @@ def joint_adjust(lines: LineTracks, rotations: FloatArray, positions: FloatArray
         line_rms_deg=float(np.degrees(np.sqrt(np.mean(al ** 2)))) if len(al) else np.nan,
         point_rms_deg=float(np.degrees(np.sqrt(np.mean(ap ** 2)))) if len(ap) else np.nan,
         iterations=iterations, line_share=line_share)
+
+
+def _noise_sigmas(al: FloatArray, ap: FloatArray, sl: float | None,
+                  spt: float | None) -> tuple[float, float]:
+    """The lines' and points' noise (radians): the options' where given, else robust ones."""
+    sig_l = sl or (robust_sigma(al) if len(al) else 1.0)
+    sig_p = spt or (robust_sigma(ap) if len(ap) else 1.0)
+    return sig_l, sig_p
+
+
+def _inliers(every: _JointProblem, al: FloatArray, ap: FloatArray, sig_l: float, sig_p: float,
+             candidate_lines: np.ndarray, candidate_points: np.ndarray, M: int,
+             options: JointOptions) -> tuple[np.ndarray, np.ndarray]:
+    """The candidate lines whose RMS angle and the point observations whose angle are within
+    the outlier threshold: ``(lines_used (M,), point_inliers)``."""
+    lim_l = options.outlier_threshold * np.sqrt(2.0) * sig_l
+    lim_p = options.outlier_threshold * np.sqrt(2.0) * sig_p
+    t = every.lines.t
+    cnt = np.bincount(t, minlength=M)
+    ss = np.bincount(t, weights=al ** 2, minlength=M)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        lines_used = candidate_lines & ~(np.sqrt(ss / np.maximum(cnt, 1)) > lim_l)
+    pin = np.zeros_like(candidate_points)
+    pin[every.obs_index[ap <= lim_p]] = True
+    return lines_used, pin
+
+
+def _landmark_weights(every: _JointProblem, state: tuple[FloatArray, ...],
+                      points: PointObservations, M: int, P: int, options: JointOptions,
+                      line_weight: FloatArray, point_weight: FloatArray
+                      ) -> tuple[FloatArray, FloatArray]:
+    """The lines' and points' weights from their residuals' correlation, for the kinds in
+    :attr:`JointOptions.correlated` (the others' weights as given)."""
+    e, (_, v) = every.residuals(*state)
+    if "lines" in options.correlated:
+        line_weight = _correlation_weights(e[:every.Kl] / every.line_scale[:, None],
+                                           every.lines.t, every.lines.f, M)
+    if "points" in options.correlated:
+        Rf = state[0][every.f]
+        off = normalize(v) - points.ray[every.obs_index]
+        point_weight = _correlation_weights(np.einsum("kij,kj->ki", Rf, off), every.j,
+                                            every.f, P)
+    return line_weight, point_weight
+
+
+def _solve_round(prob: _JointProblem, state: tuple[FloatArray, ...], options: JointOptions,
+                 round_: int, extent: float) -> tuple[tuple[FloatArray, ...], int]:
+    """One round's Levenberg-Marquardt solve (Huber and loose tolerances but in the last):
+    the new state and the iterations."""
+    final = round_ == options.robust_rounds
+    if not final:
+        prob.cg_tolerance = options.robust_cg_tolerance
+    tol = options.pose_tolerance if final else options.robust_pose_tolerance
+    step_tol = options.step_tolerance if final else options.robust_step_tolerance
+    return levenberg_marquardt(
+        prob, state, RobustLoss.LINEAR if final else RobustLoss.HUBER, options.loss_scale,
+        options.max_iterations if final else options.robust_iterations,
+        options.tolerance if final else 1e-6, (tol, tol * extent), step_tol or None,
+        1e-4 if round_ == 0 else options.warm_damping)
+
+
+def _line_share(prob: _JointProblem, state: tuple[FloatArray, ...],
+                frames: np.ndarray) -> FloatArray:
+    """``(F, 2)``: the lines' share of each frame's rotation and position information (NaN
+    where a frame is not adjusted or that part of it is held)."""
+    info = _frame_information(prob, state)
+    tr = np.stack([np.einsum("kfii->kf", info[:, :, :3, :3]),
+                   np.einsum("kfii->kf", info[:, :, 3:, 3:])], axis=2)  # (2, F, 2)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        line_share = tr[0] / (tr[0] + tr[1])
+    line_share[~frames] = np.nan
+    line_share[~prob.lines.pose_free[:, :3].any(1), 0] = np.nan
+    line_share[~prob.lines.pose_free[:, 3:].any(1), 1] = np.nan
+    return line_share
 
 
 def _off_cameras(lines: LineTracks, state: tuple[FloatArray, ...], frames: np.ndarray,

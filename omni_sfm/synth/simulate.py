@@ -171,14 +171,7 @@ def simulate(opts: SimulationOptions) -> Simulation:
     F, P, Q = opts.num_views, opts.num_parallel, opts.num_other
     M = P + Q
     v = normalize(rng.normal(size=3))
-    dirs = np.empty((M, 3))
-    dirs[:P] = v
-    k = P
-    while k < M:
-        d = normalize(rng.normal(size=3))
-        if abs(d @ v) < np.cos(np.radians(20.0)):
-            dirs[k] = d
-            k += 1
+    dirs = _line_directions(v, P, M, rng)
     # each line is anchored near a frame; with partial visibility it is seen around that frame
     if opts.visible_frames is None:
         anchor = rng.integers(0, F, size=M)
@@ -192,39 +185,78 @@ def simulate(opts: SimulationOptions) -> Simulation:
     pts = _lines_near_path(M, gt.positions[anchor], dirs,
                            (opts.line_distance[0] * scale, opts.line_distance[1] * scale), rng)
     pts += dirs * rng.uniform(-0.5, 0.5, size=(M, 1)) * scale
-
-    vis = np.ones((M, F), dtype=bool)
-    if opts.visible_frames is not None:
-        half = opts.visible_frames / 2.0
-        start = np.clip(anchor - half + rng.uniform(-0.2, 0.2, M) * half, 0, None)
-        start = np.minimum(start, max(0.0, F - opts.visible_frames))
-        fr = np.arange(F)
-        vis = (fr[None, :] >= np.floor(start)[:, None]) & \
-            (fr[None, :] < np.floor(start)[:, None] + opts.visible_frames)
+    vis, start = _visibility(opts, anchor, M, F, rng)
 
     outlier = np.zeros(M, dtype=bool)
     n_out = int(round(opts.outlier_fraction * M))
     if n_out:
         outlier[rng.choice(M, size=n_out, replace=False)] = True
     if opts.sparse:
-        first = np.floor(start).astype(np.int64) if opts.visible_frames is not None \
-            else np.zeros(M, dtype=np.int64)
-        count = F if opts.visible_frames is None else opts.visible_frames
-        mm = np.repeat(np.arange(M), count)
-        ff = first[mm] + np.tile(np.arange(count), M)
-        o_pts, o_dirs = pts[mm], dirs[mm]
-        for m in np.flatnonzero(outlier):
-            seen = np.arange(first[m], first[m] + count)
-            switch = seen[rng.integers(len(seen) // 4,
-                                       max(len(seen) // 4 + 1, 3 * len(seen) // 4))]
-            other = normalize(rng.normal(size=3))
-            sel = (mm == m) & (ff >= switch)
-            o_dirs[sel] = other
-            o_pts[sel] = _lines_near_path(1, gt.positions[[switch]], other[None],
-                                          (0.8 * scale, 2.0 * scale), rng)[0]
-        n_obs = _observe(gt, ff, o_pts, o_dirs, opts.noise_deg, rng)
-        tracks = make_tracks(F, np.arange(M), mm, ff, n_obs, source="simulation")
-        return Simulation(tracks, gt, pts, dirs, np.arange(M) < P, outlier, v)
+        tracks = _sparse_tracks(opts, gt, pts, dirs, outlier, start, scale, rng)
+    else:
+        tracks = _dense_tracks(opts, gt, pts, dirs, outlier, vis, scale, rng)
+    return Simulation(tracks, gt, pts, dirs, np.arange(M) < P, outlier, v)
+
+
+def _line_directions(v: FloatArray, P: int, M: int, rng: np.random.Generator) -> FloatArray:
+    """``(M, 3)``: ``P`` lines along ``v``, the others random and over 20 degrees off it."""
+    dirs = np.empty((M, 3))
+    dirs[:P] = v
+    k = P
+    while k < M:
+        d = normalize(rng.normal(size=3))
+        if abs(d @ v) < np.cos(np.radians(20.0)):
+            dirs[k] = d
+            k += 1
+    return dirs
+
+
+def _visibility(opts: SimulationOptions, anchor: np.ndarray, M: int, F: int,
+                rng: np.random.Generator) -> tuple[np.ndarray, FloatArray | None]:
+    """``(M, F)`` which frames see each line, and the first frame's (fractional) index of
+    each line's run (None when every frame sees every line)."""
+    if opts.visible_frames is None:
+        return np.ones((M, F), dtype=bool), None
+    half = opts.visible_frames / 2.0
+    start = np.clip(anchor - half + rng.uniform(-0.2, 0.2, M) * half, 0, None)
+    start = np.minimum(start, max(0.0, F - opts.visible_frames))
+    fr = np.arange(F)
+    vis = (fr[None, :] >= np.floor(start)[:, None]) & \
+        (fr[None, :] < np.floor(start)[:, None] + opts.visible_frames)
+    return vis, start
+
+
+def _sparse_tracks(opts: SimulationOptions, gt: Trajectory, pts: FloatArray, dirs: FloatArray,
+                   outlier: np.ndarray, start: FloatArray | None, scale: float,
+                   rng: np.random.Generator) -> LineTracks:
+    """The tracks built observation by observation (no ``(M, F)`` arrays); outlier lines
+    switch to another line part-way along their run."""
+    F, M = opts.num_views, len(pts)
+    first = np.floor(start).astype(np.int64) if start is not None \
+        else np.zeros(M, dtype=np.int64)
+    count = F if opts.visible_frames is None else opts.visible_frames
+    mm = np.repeat(np.arange(M), count)
+    ff = first[mm] + np.tile(np.arange(count), M)
+    o_pts, o_dirs = pts[mm], dirs[mm]
+    for m in np.flatnonzero(outlier):
+        seen = np.arange(first[m], first[m] + count)
+        switch = seen[rng.integers(len(seen) // 4,
+                                   max(len(seen) // 4 + 1, 3 * len(seen) // 4))]
+        other = normalize(rng.normal(size=3))
+        sel = (mm == m) & (ff >= switch)
+        o_dirs[sel] = other
+        o_pts[sel] = _lines_near_path(1, gt.positions[[switch]], other[None],
+                                      (0.8 * scale, 2.0 * scale), rng)[0]
+    n_obs = _observe(gt, ff, o_pts, o_dirs, opts.noise_deg, rng)
+    return make_tracks(F, np.arange(M), mm, ff, n_obs, source="simulation")
+
+
+def _dense_tracks(opts: SimulationOptions, gt: Trajectory, pts: FloatArray, dirs: FloatArray,
+                  outlier: np.ndarray, vis: np.ndarray, scale: float,
+                  rng: np.random.Generator) -> LineTracks:
+    """The tracks built from ``(M, F)`` arrays of every line in every frame; outlier lines
+    switch to another line part-way along the frames that see them."""
+    F, M = opts.num_views, len(pts)
     obs_pts = np.broadcast_to(pts[:, None, :], (M, F, 3)).copy()
     obs_dirs = np.broadcast_to(dirs[:, None, :], (M, F, 3)).copy()
     for m in np.flatnonzero(outlier):
@@ -245,8 +277,7 @@ def simulate(opts: SimulationOptions) -> Simulation:
         n_cam = n_cam * np.cos(ang) + np.cross(axis, n_cam) * np.sin(ang)
     n_cam *= rng.choice([-1.0, 1.0], size=(M, F, 1))
     mm, ff = np.nonzero(vis)
-    tracks = make_tracks(F, np.arange(M), mm, ff, n_cam[mm, ff], source="simulation")
-    return Simulation(tracks, gt, pts, dirs, np.arange(M) < P, outlier, v)
+    return make_tracks(F, np.arange(M), mm, ff, n_cam[mm, ff], source="simulation")
 
 
 # --- the Manhattan world: a walk through office corridors ---------------------------------------

@@ -137,7 +137,8 @@ def print_stages(src: Path, cam: Any, options: FrontEndOptions) -> None:
           f"{1000 * acc.get('KLT', 0.0) / n:.2f}")
 
 
-def main() -> int:
+def _parser() -> argparse.ArgumentParser:
+    """The command line's arguments."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--input", type=Path, help="a rendered sequence folder (else render one)")
     ap.add_argument("--camera", default="hyperboloid", help="hyperboloid or equirectangular")
@@ -156,27 +157,37 @@ def main() -> int:
     ap.add_argument("--stages", action="store_true",
                     help="also print the CPU time of each stage (one more pass over the frames)")
     add_log_arguments(ap)
+    return ap
+
+
+def _sequence(ap: argparse.ArgumentParser, args: argparse.Namespace) -> Path:
+    """The sequence folder: ``--input``, else a render kept in ``--cache``."""
+    if args.input is not None:
+        return Path(args.input)
+    from omni_sfm.synth.render import RenderOptions, render_sequence
+
+    width = height = None
+    if args.size:
+        try:
+            width, height = (int(v) for v in args.size.lower().split("x"))
+        except ValueError:
+            ap.error(f"--size: WxH, e.g. 1920x960, got {args.size!r}")
+    tag = (f"{args.scene}_{args.camera}_{args.frames}{'_tex' if args.textured else ''}"
+           f"{f'_{width}x{height}' if args.size else ''}")
+    seq = Path(args.cache / tag)
+    if not (seq / "lines3d.json").exists():
+        print(f"rendering {tag} into {seq} ...", file=sys.stderr)
+        render_sequence(seq, RenderOptions(scene=args.scene, camera=args.camera,
+                                           frames=args.frames, textured=args.textured,
+                                           width=width, height=height),
+                        overwrite=True)
+    return seq
+
+
+def main() -> int:
+    ap = _parser()
     args = ap.parse_args()
-
-    seq = args.input
-    if seq is None:
-        from omni_sfm.synth.render import RenderOptions, render_sequence
-
-        width = height = None
-        if args.size:
-            try:
-                width, height = (int(v) for v in args.size.lower().split("x"))
-            except ValueError:
-                ap.error(f"--size: WxH, e.g. 1920x960, got {args.size!r}")
-        tag = (f"{args.scene}_{args.camera}_{args.frames}{'_tex' if args.textured else ''}"
-               f"{f'_{width}x{height}' if args.size else ''}")
-        seq = args.cache / tag
-        if not (seq / "lines3d.json").exists():
-            print(f"rendering {tag} into {seq} ...", file=sys.stderr)
-            render_sequence(seq, RenderOptions(scene=args.scene, camera=args.camera,
-                                               frames=args.frames, textured=args.textured,
-                                               width=width, height=height),
-                            overwrite=True)
+    seq = _sequence(ap, args)
     cam = load_camera(seq / "camera.yaml")
     gt = read_tum(seq / "groundtruth.tum")
     lines3d = read_lines3d(seq / "lines3d.json")

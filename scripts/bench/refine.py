@@ -69,7 +69,8 @@ from omni_sfm.synth.scenes import SceneName
 from scripts.benchlib import add_log_arguments, run_timed, write_log
 
 
-def main() -> int:
+def _parser() -> argparse.ArgumentParser:
+    """The command line's arguments."""
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--work", type=Path, required=True, help="working folder (render reused)")
     p.add_argument("--scene", choices=["room", "corridor", "office"], default="room",
@@ -121,16 +122,12 @@ def main() -> int:
     p.add_argument("--record", default="bench_refine",
                    help="name of the record under docs/benchmarks/ (default: %(default)s)")
     add_log_arguments(p)
-    args = p.parse_args()
-    # freed memory kept for reuse in this process, as the omni-sfm command keeps it
-    from omni_sfm.libs import keep_freed_memory
+    return p
 
-    keep_freed_memory()
-    if (args.versus_colmap or args.lines_init) and args.init is not None:
-        p.error("--versus-colmap and --lines-init run their own `init --lines`; leave out "
-                "--init")
 
-    render = args.work / "render"
+def _render(args: argparse.Namespace) -> Path:
+    """``WORK/render``: the scene rendered, unless it already is."""
+    render = Path(args.work / "render")
     if not (render / "groundtruth.tum").is_file():
         t0 = time.perf_counter()
         if args.scene == "office":
@@ -144,12 +141,12 @@ def main() -> int:
                                  textured=args.scene == "room")
         render_sequence(render, opts, progress=sys.stderr.isatty())
         print(f"render: {time.perf_counter() - t0:.1f} s")
-    gt = read_tum(render / "groundtruth.tum")
-    rows: list[list[object]] = []  # the record: run, frames, rotation mean / max, ATE, wall
-    walls = _own_inits(args, render, gt, rows)
-    if walls is None:
-        return 1
-    init_wall, colmap_wall = walls
+    return render
+
+
+def _seed(args: argparse.Namespace, render: Path) -> tuple[Path, str, list[str]]:
+    """The init directory refined (the perturbed ground truth unless ``args.init``, without
+    the ``--missing`` frames' poses), its description, and the names of the missing frames."""
     if args.init is None:
         init_dir = args.work / "init_perturbed"
         write_perturbed_init(render, init_dir, seed=args.seed, overwrite=True)
@@ -162,6 +159,28 @@ def main() -> int:
         init_dir = write_init_without(init_dir, args.work / "init_missing", missed,
                                       overwrite=True)
         kind += f", without the poses of frames {', '.join(map(str, args.missing))}"
+    return Path(init_dir), kind, missed
+
+
+def main() -> int:
+    p = _parser()
+    args = p.parse_args()
+    # freed memory kept for reuse in this process, as the omni-sfm command keeps it
+    from omni_sfm.libs import keep_freed_memory
+
+    keep_freed_memory()
+    if (args.versus_colmap or args.lines_init) and args.init is not None:
+        p.error("--versus-colmap and --lines-init run their own `init --lines`; leave out "
+                "--init")
+
+    render = _render(args)
+    gt = read_tum(render / "groundtruth.tum")
+    rows: list[list[object]] = []  # the record: run, frames, rotation mean / max, ATE, wall
+    walls = _own_inits(args, render, gt, rows)
+    if walls is None:
+        return 1
+    init_wall, colmap_wall = walls
+    init_dir, kind, missed = _seed(args, render)
     init = read_init_model(init_dir).trajectory
     scene = {"room": "textured room", "corridor": "texture-poor corridor",
              "office": "textured office walk"}[args.scene]

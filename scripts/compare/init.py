@@ -287,85 +287,100 @@ def plot_sweep(done: list[dict[str, Any]], prefix: Path | str) -> list[Path]:
     import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from omni_sfm.compare import COLOURS
-
     names: list[str] = []
     for r in done:
         names += [n for n in r["results"]["initializers"] if n not in names]
     paths = []
     sims = [r for r in done if r["task"]["kind"] == "sim"]
     if sims:
-        noises = sorted({r["task"]["noise_deg"] for r in sims})
-        fig, axes = plt.subplots(1, 2, figsize=(10, 4), dpi=100)
-        for n in names:
-            for ax, key, scale in ((axes[0], "rot_max_deg", 1.0), (axes[1], "ate_rel", 100.0)):
-                med, xs = [], []
-                for nz in noises:
-                    v = [scale * r["results"]["initializers"][n][key] for r in sims
-                         if r["task"]["noise_deg"] == nz
-                         and n in r["results"]["initializers"]
-                         and r["results"]["initializers"][n]["status"] == "ok"]
-                    if v:
-                        xs.append(nz)
-                        med.append(np.median(v))
-                        ax.scatter([nz] * len(v), v, s=8, alpha=0.4, color=COLOURS.get(n))
-                if xs:
-                    ax.plot(xs, med, "o-", color=COLOURS.get(n), label=n)
-        axes[0].set_ylabel("max rotation error (deg)")
-        axes[1].set_ylabel("ATE (% of path)")
-        from matplotlib.ticker import NullFormatter
-
-        for ax in axes:
-            ax.set_xscale("log")
-            ax.set_yscale("log")
-            ax.set_xticks(noises, [f"{x:g}" for x in noises])
-            ax.xaxis.set_minor_formatter(NullFormatter())
-            ax.set_xlabel("noise on normals and rays (deg)")
-            ax.grid(True, which="both", alpha=0.3)
-        axes[0].legend(fontsize=8)
-        fig.suptitle("simulation (paper's set-up): median over seeds, dots = runs (ok only)")
-        fig.tight_layout()
-        p = Path(f"{prefix}noise.png")
-        fig.savefig(p)
-        plt.close(fig)
-        paths.append(p)
+        paths.append(_plot_noise(sims, names, prefix))
     kinds = [k for k in RENDER if any(r["task"]["kind"] == k for r in done)]
     if kinds:
-        fig, axes = plt.subplots(1, 2, figsize=(11, 4.2), dpi=100)
-        w = 0.8 / max(1, len(names))
-        for i, n in enumerate(names):
-            reg, ate = [], []
-            for k in kinds:
-                es = [r["results"]["initializers"][n] for r in done if r["task"]["kind"] == k
-                      and n in r["results"]["initializers"]]
-                reg.append(100 * np.mean([e["registered"] for e in es]) if es else np.nan)
-                ok = [100 * e["ate_rel"] for e in es if e["status"] == "ok"]
-                ate.append(np.median(ok) if ok else np.nan)
-            x = np.arange(len(kinds)) + (i - (len(names) - 1) / 2) * w
-            axes[0].bar(x, reg, w, color=COLOURS.get(n), label=n)
-            axes[1].bar(x, ate, w, color=COLOURS.get(n), label=n)
-            for xi, a in zip(x, ate, strict=True):
-                if not np.isfinite(a):
-                    axes[1].text(xi, 0.02, "all failed", rotation=90, ha="center", va="bottom",
-                                 fontsize=7, color=COLOURS.get(n),
-                                 transform=axes[1].get_xaxis_transform())
-        labels = [k.replace("-", "\n", 1) for k in kinds]
-        for ax in axes:
-            ax.set_xticks(np.arange(len(kinds)), labels, fontsize=8)
-        axes[0].set_ylabel("frames registered (% , mean over seeds)")
-        axes[1].set_ylabel("ATE (% of path, median of ok runs)")
-        axes[1].set_yscale("log")
-        handles, labs = axes[0].get_legend_handles_labels()
-        fig.legend(handles, labs, loc="lower center", ncol=len(names), fontsize=8)
-        fig.suptitle("rendered sequences: texture-poor corridor vs textured scenes")
-        fig.tight_layout(rect=(0, 0.07, 1, 1))
-        p = Path(f"{prefix}texture.png")
-        fig.savefig(p)
-        plt.close(fig)
-        paths.append(p)
+        paths.append(_plot_texture(done, kinds, names, prefix))
     return paths
+
+
+def _plot_noise(sims: list[dict[str, Any]], names: list[str], prefix: Path | str) -> Path:
+    """``<prefix>noise.png``: each initializer's simulation errors against the noise."""
+    import matplotlib.pyplot as plt
+
+    from omni_sfm.compare import COLOURS
+
+    noises = sorted({r["task"]["noise_deg"] for r in sims})
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4), dpi=100)
+    for n in names:
+        for ax, key, scale in ((axes[0], "rot_max_deg", 1.0), (axes[1], "ate_rel", 100.0)):
+            med, xs = [], []
+            for nz in noises:
+                v = [scale * r["results"]["initializers"][n][key] for r in sims
+                     if r["task"]["noise_deg"] == nz
+                     and n in r["results"]["initializers"]
+                     and r["results"]["initializers"][n]["status"] == "ok"]
+                if v:
+                    xs.append(nz)
+                    med.append(np.median(v))
+                    ax.scatter([nz] * len(v), v, s=8, alpha=0.4, color=COLOURS.get(n))
+            if xs:
+                ax.plot(xs, med, "o-", color=COLOURS.get(n), label=n)
+    axes[0].set_ylabel("max rotation error (deg)")
+    axes[1].set_ylabel("ATE (% of path)")
+    from matplotlib.ticker import NullFormatter
+
+    for ax in axes:
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xticks(noises, [f"{x:g}" for x in noises])
+        ax.xaxis.set_minor_formatter(NullFormatter())
+        ax.set_xlabel("noise on normals and rays (deg)")
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0].legend(fontsize=8)
+    fig.suptitle("simulation (paper's set-up): median over seeds, dots = runs (ok only)")
+    fig.tight_layout()
+    p = Path(f"{prefix}noise.png")
+    fig.savefig(p)
+    plt.close(fig)
+    return p
+
+
+def _plot_texture(done: list[dict[str, Any]], kinds: list[str], names: list[str],
+                  prefix: Path | str) -> Path:
+    """``<prefix>texture.png``: each initializer's registered share and ATE per rendered kind."""
+    import matplotlib.pyplot as plt
+
+    from omni_sfm.compare import COLOURS
+
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2), dpi=100)
+    w = 0.8 / max(1, len(names))
+    for i, n in enumerate(names):
+        reg, ate = [], []
+        for k in kinds:
+            es = [r["results"]["initializers"][n] for r in done if r["task"]["kind"] == k
+                  and n in r["results"]["initializers"]]
+            reg.append(100 * np.mean([e["registered"] for e in es]) if es else np.nan)
+            ok = [100 * e["ate_rel"] for e in es if e["status"] == "ok"]
+            ate.append(np.median(ok) if ok else np.nan)
+        x = np.arange(len(kinds)) + (i - (len(names) - 1) / 2) * w
+        axes[0].bar(x, reg, w, color=COLOURS.get(n), label=n)
+        axes[1].bar(x, ate, w, color=COLOURS.get(n), label=n)
+        for xi, a in zip(x, ate, strict=True):
+            if not np.isfinite(a):
+                axes[1].text(xi, 0.02, "all failed", rotation=90, ha="center", va="bottom",
+                             fontsize=7, color=COLOURS.get(n),
+                             transform=axes[1].get_xaxis_transform())
+    labels = [k.replace("-", "\n", 1) for k in kinds]
+    for ax in axes:
+        ax.set_xticks(np.arange(len(kinds)), labels, fontsize=8)
+    axes[0].set_ylabel("frames registered (% , mean over seeds)")
+    axes[1].set_ylabel("ATE (% of path, median of ok runs)")
+    axes[1].set_yscale("log")
+    handles, labs = axes[0].get_legend_handles_labels()
+    fig.legend(handles, labs, loc="lower center", ncol=len(names), fontsize=8)
+    fig.suptitle("rendered sequences: texture-poor corridor vs textured scenes")
+    fig.tight_layout(rect=(0, 0.07, 1, 1))
+    p = Path(f"{prefix}texture.png")
+    fig.savefig(p)
+    plt.close(fig)
+    return p
 
 
 def main(argv: list[str] | None = None) -> int:
