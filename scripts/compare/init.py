@@ -180,11 +180,16 @@ def run_all(tasks: list[dict[str, Any]], scheduler: str | None, workers: int,
 
 
 def comparable(results: dict[str, Any]) -> dict[str, Any]:
-    """``results`` without the wall times (what must be identical across schedulers)."""
-    res = json.loads(json.dumps(results))
-    for e in res["initializers"].values():
-        e.pop("time_s", None)
-    return res
+    """``results`` without the wall times (every key ending in ``_s``, at any depth: what must
+    be identical across schedulers)."""
+    def strip(x: Any) -> Any:
+        if isinstance(x, dict):
+            return {k: strip(v) for k, v in x.items() if not k.endswith("_s")}
+        if isinstance(x, list):
+            return [strip(v) for v in x]
+        return x
+
+    return dict(strip(json.loads(json.dumps(results))))
 
 
 def write_runs(output: Path, done: list[dict[str, Any]]) -> None:
