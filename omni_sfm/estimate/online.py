@@ -48,14 +48,29 @@ import numpy as np
 
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.estimate.bundle import BundleOptions
-from omni_sfm.estimate.families import family_of_lines, family_of_planes, line_families
-from omni_sfm.estimate.incremental import Growth, IncrementalOptions, rotation_from_directions
+from omni_sfm.estimate.families import (
+    family_of_lines,
+    family_of_planes,
+    line_families,
+    manhattan,
+    plane_directions,
+)
+from omni_sfm.estimate.incremental import (
+    Growth,
+    IncrementalOptions,
+    rotation_from_directions,
+)
 from omni_sfm.estimate.pipeline import EstimationOptions, estimate_poses
 from omni_sfm.geometry import FloatArray, quat_xyzw_from_matrix
 from omni_sfm.lines.extract import ExtractionOptions
 from omni_sfm.lines.track import TrackingOptions
 from omni_sfm.lines.tracks import LineTracks
 from omni_sfm.poses import Trajectory
+from omni_sfm.vanishing import detect_parallel_families
+
+_SAME_DIRECTION = math.cos(math.radians(15.0))
+"""Two parallel families whose world directions are within 15 deg are one world direction
+(:func:`~omni_sfm.estimate.families.world_families`' ``min_separation_deg``)."""
 
 
 class Status(StrEnum):
@@ -74,9 +89,11 @@ class Status(StrEnum):
 
 
 def _default_start() -> EstimationOptions:
-    # the buffered frames are few: one window of the paper's method covers them
+    # the global estimator: its rotations rest on the world directions, so that those found
+    # from them (the tracker's from then on) are right; the paper's windows on the rendered
+    # 200-frame corridor turned the start by 0.08 deg a frame
     return EstimationOptions(progress=False, bootstrap_frames=None, short_bootstrap_frames=None,
-                             min_segment_frames=0)
+                             min_segment_frames=0, estimator="global")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -111,6 +128,8 @@ class OnlineOptions:
     window: int = 30
     """Frames kept: their observations and poses, and the lines they see; at least
     ``registration.local_frames + 2`` (the adjustment holds the older frames of the window)."""
+    hold_anchored: bool = True
+    """The local adjustments hold the rotations referred to the world directions."""
     min_rotation_lines: int = 3
     """Lines of known directions a frame must see (and fit) to keep its rotation ..."""
     min_rotation_families: int = 2
@@ -194,6 +213,8 @@ class _Frame:
     R: FloatArray = field(default_factory=lambda: np.full((3, 3), np.nan))
     c: FloatArray = field(default_factory=lambda: np.full(3, np.nan))
     registered: bool = False
+    anchored: bool = False
+    """Its rotation is referred to the world directions (held by the adjustments)."""
 
 
 def _window_tracks(frames: list[_Frame], min_views: int = 1
@@ -344,10 +365,14 @@ class OnlineEstimator:
         wt, wids = _window_tracks(window)
         d, p = self._line_arrays(wids)
         ro = o.registration
+        self._D, of_family = self._start_families(tracks, uniq, frames, d, wids)
+        fam = np.array([of_family.get(t, -1) for t in wids.tolist()], np.int64)
         g = Growth(wt, np.stack([f.R for f in window]), np.stack([f.c for f in window]),
-                   np.array([f.registered for f in window]), d, p, self._sigma, ro, o.bundle)
-        self._D = g.D if ro.families else line_families(
-            d, max_angle_deg=ro.family_angle_deg, min_lines=ro.min_family_lines)[0]
+                   np.array([f.registered for f in window]), d, p, self._sigma, ro, o.bundle,
+                   families=(self._D, fam) if ro.families else None)
+        if ro.families:
+            g.snap(np.flatnonzero(g.known & (g.fam >= 0)))
+        self._family = of_family
         self._store(g, window, wids)
         self._window = deque(window, maxlen=o.window)
         self._buffer.clear()
@@ -359,6 +384,49 @@ class OnlineEstimator:
         starts = tuple(self._pose(f, Status.INITIALISING) for f in frames[:-1] if f.registered)
         return self._pose(fr, Status.RELOCALISED if lost else Status.TRACKING,
                           known=self._known_count(fr), start_poses=starts)
+
+    def _start_families(self, tracks: LineTracks, uniq: np.ndarray, frames: list[_Frame],
+                        d: FloatArray, wids: np.ndarray) -> tuple[FloatArray, dict[int, int]]:
+        """The world directions from now on, and the family of each line that has one: the
+        parallel families of the start's tracks (vanishing directions,
+        :func:`~omni_sfm.vanishing.detect_parallel_families`), each family's world direction
+        from every view of its members with the start's rotations
+        (:func:`~omni_sfm.estimate.families.plane_directions`: a few frames' baseline leaves
+        the members' triangulated directions off by degrees, their planes do not), families
+        within ``min_separation_deg`` of a larger one merged into it, made Manhattan where
+        they nearly are. Without parallel families, the families of the start's lines
+        (``d``, of the window's tracks ``wids``)."""
+        ro = self.options.registration
+        fams = detect_parallel_families(tracks, self.options.start.vanishing)
+        posed = np.array([f.registered for f in frames])
+        if not fams:
+            D, fam = line_families(d, max_angle_deg=ro.family_angle_deg,
+                                   min_lines=ro.min_family_lines)
+            return D, {int(t): int(j) for t, j in zip(wids, fam, strict=True) if j >= 0}
+        group = np.full(tracks.num_tracks, -1)
+        for j in range(len(fams) - 1, -1, -1):
+            group[np.asarray(fams[j].members, bool)] = j
+        ok = posed[tracks.obs_frame] & (group[tracks.obs_track] >= 0)
+        R = np.stack([f.R for f in frames])
+        m = np.einsum("kij,kj->ki", R[tracks.obs_frame[ok]], tracks.obs_normal[ok])
+        W = plane_directions(m, group[tracks.obs_track[ok]], len(fams))
+        index = np.full(len(fams), -1)  # each family's world direction
+        kept: list[int] = []
+        for j in range(len(fams)):
+            if not np.isfinite(W[j]).all():
+                continue
+            near = [i for i, k in enumerate(kept) if abs(float(W[k] @ W[j])) > _SAME_DIRECTION]
+            if near:
+                index[j] = near[0]
+            else:
+                index[j] = len(kept)
+                kept.append(j)
+        sizes = np.bincount(index[group[group >= 0]][index[group[group >= 0]] >= 0],
+                            minlength=len(kept))
+        D = manhattan(W[kept], sizes)
+        of_family = {int(uniq[m]): int(index[group[m]]) for m in np.flatnonzero(group >= 0)
+                     if index[group[m]] >= 0}
+        return D, of_family
 
     def _rot_or(self, fr: _Frame, status: Status, why: str,
                 rot: FloatArray | None) -> TrackedPose:
@@ -384,6 +452,7 @@ class OnlineEstimator:
         of the window sees are dropped."""
         for k, f in enumerate(window):
             f.R, f.c, f.registered = g.R[k].copy(), g.c[k].copy(), bool(g.est[k])
+            f.anchored = bool(g.anchored[k])
         lines: dict[int, tuple[FloatArray, FloatArray]] = {}
         for m in np.flatnonzero(g.known):
             lines[int(ids[m])] = (g.d[m].copy(), g.p[m].copy())
@@ -413,12 +482,14 @@ class OnlineEstimator:
                    np.array([f.registered for f in window]), d, p, self._sigma, ro,
                    o.bundle, families=(self._D, fam) if ro.families else None)
         g.last_median, g.refit = self._last_median, self._refit
+        g.anchored[:] = [f.anchored for f in window]
         reg = [k for k, f in enumerate(window[:-1]) if f.registered]
         f_new = len(window) - 1
         known = int(g.known[tracks.obs_track[g.frame_obs(f_new)]].sum())
         why = "no registered frame in the window" if not reg else \
             g.register(f_new, reg[-1], reg[-2] if len(reg) > 1 else None)
         if why is None:
+            self._anchor(g, f_new, ids)
             g.triangulate(f_new)
             reg.append(f_new)
             self._since_adjust += 1
@@ -446,28 +517,53 @@ class OnlineEstimator:
             return self._pose(fr, Status.ROTATION_ONLY, why, rotation=rot, known=known)
         return self._pose(fr, Status.LOST, why, known=known)
 
+    def _anchor(self, g: Growth, f: int, ids: np.ndarray) -> None:
+        """Frame ``f``'s rotation, just registered, from its lines of known world directions
+        alone (:meth:`_directions_rotation`), held from then on by the local adjustments
+        (``hold_anchored``): the registration's rotation leans on lines triangulated from
+        earlier poses and, adjusted with them, drifted with them (0.08 deg a frame on the
+        rendered 200-frame corridor); the world directions do not move. ``ids``: the track
+        ids of the growth's tracks."""
+        obs = g.frame_obs(f)
+        t = g.tracks.obs_track[obs]
+        fam = g.fam[t] if self.options.registration.families else \
+            np.array([self._family.get(int(i), -1) for i in ids[t].tolist()], np.int64)
+        R = self._directions_rotation(g.tracks.obs_normal[obs], fam, g.R[f])
+        if R is not None:
+            g.R[f], g.anchored[f] = R, self.options.hold_anchored
+
+    def _directions_rotation(self, normals: FloatArray, fam: np.ndarray, R0: FloatArray
+                             ) -> FloatArray | None:
+        """The world_from_cam rotation that makes the normals ``(L, 3)`` of lines of a family
+        (``fam`` ``(L,)``, -1: none) orthogonal to their world directions, from ``R0``; the
+        lines that miss it by more than the inlier threshold left out. None when fewer than
+        ``min_rotation_lines`` lines in ``min_rotation_families`` families fit."""
+        o = self.options
+        sel = fam >= 0
+        if sel.sum() < o.min_rotation_lines or \
+                len(np.unique(fam[sel])) < o.min_rotation_families:
+            return None
+        n, D = normals[sel], self._D[fam[sel]]
+        R = rotation_from_directions(n, D, R0)
+        off = np.abs(np.sum((n @ R.T) * D, axis=1))  # sines of the planes' misfit
+        inl = off <= math.sin(max(self._thr, 1e-6))
+        if inl.sum() < o.min_rotation_lines or \
+                len(np.unique(fam[sel][inl])) < o.min_rotation_families:
+            return None
+        return rotation_from_directions(n[inl], D[inl], R)
+
     # -- rotation only --------------------------------------------------------------------
     def _rotation_only(self, fr: _Frame) -> FloatArray | None:
         """The frame's rotation from the lines of known parallel families it sees (their
         world directions fixed), started from the latest rotation; None when it sees too few
         of them, in too few families, or they do not fit. Lines not yet of a family are given
         one from their views in the frames of the window whose rotation is known."""
-        o = self.options
         if self._last_R is None or len(self._D) == 0 or len(fr.ids) == 0:
             return None
         fam = np.array([self._family.get(t, -1) for t in fr.ids.tolist()], np.int64)
-        sel = fam >= 0
-        if sel.sum() < o.min_rotation_lines or \
-                len(np.unique(fam[sel])) < o.min_rotation_families:
+        R = self._directions_rotation(fr.normals, fam, self._last_R)
+        if R is None:
             return None
-        n, D = fr.normals[sel], self._D[fam[sel]]
-        R = rotation_from_directions(n, D, self._last_R)
-        off = np.abs(np.sum((n @ R.T) * D, axis=1))  # sines of the planes' misfit
-        inl = off <= math.sin(max(self._thr, 1e-6))
-        if inl.sum() < o.min_rotation_lines or \
-                len(np.unique(fam[sel][inl])) < o.min_rotation_families:
-            return None
-        R = rotation_from_directions(n[inl], D[inl], R)
         self._last_R = R
         self._classify(fr, R)
         return R
