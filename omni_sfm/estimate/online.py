@@ -47,7 +47,7 @@ from typing import Any
 import numpy as np
 
 from omni_sfm.errors import OmniSfmError
-from omni_sfm.estimate.bundle import BundleOptions
+from omni_sfm.estimate.bundle import BundleOptions, bundle_adjust
 from omni_sfm.estimate.families import (
     family_of_lines,
     family_of_planes,
@@ -61,7 +61,7 @@ from omni_sfm.estimate.incremental import (
     rotation_from_directions,
 )
 from omni_sfm.estimate.pipeline import EstimationOptions, estimate_poses
-from omni_sfm.geometry import FloatArray, quat_xyzw_from_matrix
+from omni_sfm.geometry import FloatArray, quat_xyzw_from_matrix, rotation_angle
 from omni_sfm.lines.extract import ExtractionOptions
 from omni_sfm.lines.track import TrackingOptions
 from omni_sfm.lines.tracks import LineTracks
@@ -89,11 +89,9 @@ class Status(StrEnum):
 
 
 def _default_start() -> EstimationOptions:
-    # the global estimator: its rotations rest on the world directions, so that those found
-    # from them (the tracker's from then on) are right; the paper's windows on the rendered
-    # 200-frame corridor turned the start by 0.08 deg a frame
+    # the buffered frames are few: one window of the paper's method covers them
     return EstimationOptions(progress=False, bootstrap_frames=None, short_bootstrap_frames=None,
-                             min_segment_frames=0, estimator="global")
+                             min_segment_frames=0)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -130,6 +128,12 @@ class OnlineOptions:
     ``registration.local_frames + 2`` (the adjustment holds the older frames of the window)."""
     hold_anchored: bool = True
     """The local adjustments hold the rotations referred to the world directions."""
+    anchor_inlier_deg: float = 0.3
+    """A line of a family fits a rotation from the world directions when its plane misses
+    its direction by at most this (or the registration's inlier threshold, if larger)."""
+    max_anchor_turn_deg: float = 3.0
+    """A rotation from the world directions that turns a registered frame by more than this
+    is not taken (lines given the wrong family): the frame keeps the registration's."""
     min_rotation_lines: int = 3
     """Lines of known directions a frame must see (and fit) to keep its rotation ..."""
     min_rotation_families: int = 2
@@ -366,13 +370,18 @@ class OnlineEstimator:
         d, p = self._line_arrays(wids)
         ro = o.registration
         self._D, of_family = self._start_families(tracks, uniq, frames, d, wids)
+        # the registration's inlier threshold (:class:`Growth`'s)
+        self._thr = max(ro.inlier_sigmas * self._sigma, math.radians(ro.min_inlier_deg))
+        if self._D.shape[0]:
+            self._anchor_start(tracks, uniq, frames, of_family)
+            d, p = self._line_arrays(wids)
         fam = np.array([of_family.get(t, -1) for t in wids.tolist()], np.int64)
         g = Growth(wt, np.stack([f.R for f in window]), np.stack([f.c for f in window]),
                    np.array([f.registered for f in window]), d, p, self._sigma, ro, o.bundle,
                    families=(self._D, fam) if ro.families else None)
         if ro.families:
             g.snap(np.flatnonzero(g.known & (g.fam >= 0)))
-        self._family = of_family
+        self._family, self._thr = of_family, g.thr
         self._store(g, window, wids)
         self._window = deque(window, maxlen=o.window)
         self._buffer.clear()
@@ -428,6 +437,47 @@ class OnlineEstimator:
                      if index[group[m]] >= 0}
         return D, of_family
 
+    def _anchor_start(self, tracks: LineTracks, uniq: np.ndarray, frames: list[_Frame],
+                      of_family: dict[int, int]) -> None:
+        """The start's rotations referred to the world directions (:meth:`_directions_rotation`
+        on each frame's lines of a family), then its positions and lines adjusted to them with
+        the rotations held (the start's own rotations may turn by a tenth of a degree a frame
+        where lines along the way look alike from every frame); ``self._lines`` updated."""
+        fam = np.array([of_family.get(int(t), -1) for t in uniq.tolist()], np.int64)
+        R = np.stack([f.R for f in frames])
+        c = np.stack([f.c for f in frames])
+        held = np.zeros(len(frames), bool)
+        for k, f in enumerate(frames):
+            if not f.registered:
+                continue
+            obs = np.flatnonzero(tracks.obs_frame == k)
+            Rk = self._directions_rotation(tracks.obs_normal[obs], fam[tracks.obs_track[obs]],
+                                           f.R, self.options.max_anchor_turn_deg)
+            if Rk is not None:
+                R[k], held[k] = Rk, True
+        if held.sum() < 3:
+            return
+        d, p = self._line_arrays(uniq)
+        first = int(np.flatnonzero([f.registered for f in frames])[0])
+        if held[first]:
+            # the world stays the first frame's camera: turned with everything in it onto
+            # the first frame's rotation from the world directions
+            Q = R[first].T
+            R, c, d, p = Q @ R, c @ Q.T, d @ Q.T, p @ Q.T
+            self._D = self._D @ Q.T
+        try:
+            res = bundle_adjust(tracks, R, c, d, p, held_rotations=held,
+                                options=replace(self.options.bundle, max_rounds=2,
+                                                final_loss=None))
+        except OmniSfmError:
+            return
+        for k, f in enumerate(frames):
+            if res.frames[k]:
+                f.R, f.c, f.anchored = res.rotations[k].copy(), res.positions[k].copy(), \
+                    bool(held[k]) and self.options.hold_anchored
+        for m in np.flatnonzero(res.used_tracks):
+            self._lines[int(uniq[m])] = (res.line_directions[m], res.line_points[m])
+
     def _rot_or(self, fr: _Frame, status: Status, why: str,
                 rot: FloatArray | None) -> TrackedPose:
         if rot is None:
@@ -460,14 +510,24 @@ class OnlineEstimator:
         if self.options.registration.families:
             self._family = {int(ids[m]): int(g.fam[m]) for m in np.flatnonzero(g.fam >= 0)}
             return
-        # the known lines' families from their directions; the others keep what
-        # :meth:`_classify` gave them, while their track is in the window
+        # each line's family from its planes in the window's registered frames (the one
+        # world direction they all contain), else from its direction (a known line), else as
+        # before (:meth:`_classify`, the start), while its track is in the window: a few
+        # frames' baseline leaves the directions of lines triangulated from them off by
+        # degrees, the planes are as good as the rotations
+        tr = g.tracks
+        ok = g.est[tr.obs_frame]
+        n_w = np.einsum("kij,kj->ki", g.R[tr.obs_frame[ok]], tr.obs_normal[ok])
+        planes = family_of_planes(n_w, tr.obs_track[ok], tr.num_tracks, self._D,
+                                  max_angle_deg=float(np.degrees(self._thr)),
+                                  min_views=self.options.registration.min_views)
         fam = family_of_lines(g.d, self._D,
                               max_angle_deg=self.options.registration.family_angle_deg)
+        fam = np.where(planes >= 0, planes, np.where(g.known, fam, -1))
         before = self._family
         self._family = {}
         for j, t in enumerate(ids.tolist()):
-            got = int(fam[j]) if g.known[j] else before.get(t, -1)
+            got = int(fam[j]) if fam[j] >= 0 else before.get(t, -1)
             if got >= 0:
                 self._family[t] = got
 
@@ -528,29 +588,38 @@ class OnlineEstimator:
         t = g.tracks.obs_track[obs]
         fam = g.fam[t] if self.options.registration.families else \
             np.array([self._family.get(int(i), -1) for i in ids[t].tolist()], np.int64)
-        R = self._directions_rotation(g.tracks.obs_normal[obs], fam, g.R[f])
+        R = self._directions_rotation(g.tracks.obs_normal[obs], fam, g.R[f],
+                                      self.options.max_anchor_turn_deg)
         if R is not None:
             g.R[f], g.anchored[f] = R, self.options.hold_anchored
 
-    def _directions_rotation(self, normals: FloatArray, fam: np.ndarray, R0: FloatArray
-                             ) -> FloatArray | None:
+    def _directions_rotation(self, normals: FloatArray, fam: np.ndarray, R0: FloatArray,
+                             max_turn_deg: float = 180.0) -> FloatArray | None:
         """The world_from_cam rotation that makes the normals ``(L, 3)`` of lines of a family
-        (``fam`` ``(L,)``, -1: none) orthogonal to their world directions, from ``R0``; the
-        lines that miss it by more than the inlier threshold left out. None when fewer than
-        ``min_rotation_lines`` lines in ``min_rotation_families`` families fit."""
+        (``fam`` ``(L,)``, -1: none) orthogonal to their world directions, from ``R0``: on the
+        lines that miss them by at most 4 times the threshold (the registration's inlier
+        threshold, at least ``anchor_inlier_deg``) at ``R0``, then again on those within it.
+        None when fewer than
+        ``min_rotation_lines`` lines in ``min_rotation_families`` families fit, or when it
+        turns more than ``max_turn_deg`` from ``R0``."""
         o = self.options
         sel = fam >= 0
         if sel.sum() < o.min_rotation_lines or \
                 len(np.unique(fam[sel])) < o.min_rotation_families:
             return None
         n, D = normals[sel], self._D[fam[sel]]
-        R = rotation_from_directions(n, D, R0)
-        off = np.abs(np.sum((n @ R.T) * D, axis=1))  # sines of the planes' misfit
-        inl = off <= math.sin(max(self._thr, 1e-6))
-        if inl.sum() < o.min_rotation_lines or \
-                len(np.unique(fam[sel][inl])) < o.min_rotation_families:
+        thr = max(self._thr, math.radians(o.anchor_inlier_deg))
+        R = R0
+        for times in (4.0, 1.0):
+            off = np.abs(np.sum((n @ R.T) * D, axis=1))  # sines of the planes' misfit
+            inl = off <= math.sin(times * thr)
+            if inl.sum() < o.min_rotation_lines or \
+                    len(np.unique(fam[sel][inl])) < o.min_rotation_families:
+                return None
+            R = rotation_from_directions(n[inl], D[inl], R)
+        if np.degrees(rotation_angle(R0.T @ R)) > max_turn_deg:
             return None
-        return rotation_from_directions(n[inl], D[inl], R)
+        return R
 
     # -- rotation only --------------------------------------------------------------------
     def _rotation_only(self, fr: _Frame) -> FloatArray | None:
