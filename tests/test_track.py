@@ -79,7 +79,9 @@ def test_causal_accuracy_on_rendered_corridors(which, corridor, corridor_poses, 
 def test_rotation_does_not_drift_on_rendered_corridor(corridor, corridor_poses):
     """Rotations referred to the world directions (issue 52): within 0.5 deg at every frame
     and not growing with the frame index (the last third's worst no worse than the first
-    third's + 0.2 deg). Measured on these 40 frames: see the assertion message."""
+    third's + 0.2 deg). Measured on these 40 frames: 0.077 deg at worst, 0.077 in the first
+    third and 0.073 in the last (before the world directions: the 200-frame corridor of
+    docs/track.md drifted to 27.9 deg)."""
     gt = read_tum(corridor / "groundtruth.tum")
     e, g = associate(poses_trajectory(corridor_poses), gt)
     err = relative_rotation_errors_deg(e, g)

@@ -13,9 +13,18 @@ wires the estimator's own pieces, nothing new:
    frames dropped beyond ``max_start_frames``. The frame where the start succeeds gets its pose
    (status ``tracking``) and, in :attr:`TrackedPose.start_poses`, the poses of the buffered
    frames that the start solved (computed from the frames up to this one).
+   **World directions.** The start's parallel families (vanishing directions) become fixed
+   world directions, each from every view of its members (their planes, with the start's
+   rotations); each start frame's rotation is then the one that puts its lines of a family
+   on their directions, the world turned onto the first frame's, and the start's positions
+   and lines adjusted to those rotations, held.
 2. **Tracking.** Each later frame is registered from the 3D lines already triangulated that it
    sees (:meth:`omni_sfm.estimate.incremental.Growth.register`: absolute pose, acceptance by
-   inliers), its new lines are triangulated once they have parallax
+   inliers); its rotation is then replaced by the one its lines of a family give against the
+   world directions (where they fit, in two families or more), which the local adjustments
+   hold, so that the rotation cannot drift with the lines triangulated from earlier poses;
+   a line's family comes from its planes in the window (the one world direction they all
+   contain). Its new lines are triangulated once they have parallax
    (:meth:`~omni_sfm.estimate.incremental.Growth.triangulate`), and every ``local_every``
    frames the last ``local_frames`` registered frames and their lines are adjusted with the
    line bundle adjustment, the older frames of the window held
@@ -113,10 +122,9 @@ class OnlineOptions:
     registration: IncrementalOptions = field(
         default_factory=lambda: IncrementalOptions(wide_every=0, families=False))
     """Registration, triangulation and local adjustment (``local_every``, ``local_frames``,
-    ``max_misses``: failures in a row before a new start). ``families`` is off: the families'
-    directions found from a start's few frames are off by tenths of a degree, and imposed on
-    every line they turned the rotations by as much (corridor: 0.5-1.8 deg instead of 0.1);
-    the families are still found, for the rotation-only fallback."""
+    ``max_misses``: failures in a row before a new start). ``families`` is off: the lines
+    keep their own directions; the world directions enter through the rotations (module
+    docstring)."""
     bundle: BundleOptions = field(
         default_factory=lambda: BundleOptions(reject_outliers=False))
     """The local adjustments' line bundle adjustment. Outlier tracks are not rejected there
