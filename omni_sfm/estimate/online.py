@@ -15,9 +15,10 @@ wires the estimator's own pieces, nothing new:
    frames that the start solved (computed from the frames up to this one).
    **World directions.** The start's parallel families (vanishing directions) become fixed
    world directions, each from every view of its members (their planes, with the start's
-   rotations); each start frame's rotation is then the one that puts its lines of a family
-   on their directions, the world turned onto the first frame's, and the start's positions
-   and lines adjusted to those rotations, held.
+   rotations); the start's rotations are then turned by the correction (a constant and a turn
+   growing with the frame index) that best puts each frame's lines of a family on their
+   directions, the world turned onto the first frame's, and the start's positions and lines
+   adjusted to those rotations, held.
 2. **Tracking.** Each later frame is registered from the 3D lines already triangulated that it
    sees (:meth:`omni_sfm.estimate.incremental.Growth.register`: absolute pose, acceptance by
    inliers); its rotation is then replaced by the one its lines of a family give against the
@@ -70,7 +71,13 @@ from omni_sfm.estimate.incremental import (
     rotation_from_directions,
 )
 from omni_sfm.estimate.pipeline import EstimationOptions, estimate_poses
-from omni_sfm.geometry import FloatArray, quat_xyzw_from_matrix, rotation_angle
+from omni_sfm.geometry import (
+    FloatArray,
+    matrix_to_rotvec,
+    quat_xyzw_from_matrix,
+    rotation_angle,
+    rotvec_to_matrix,
+)
 from omni_sfm.lines.extract import ExtractionOptions
 from omni_sfm.lines.track import TrackingOptions
 from omni_sfm.lines.tracks import LineTracks
@@ -447,10 +454,13 @@ class OnlineEstimator:
 
     def _anchor_start(self, tracks: LineTracks, uniq: np.ndarray, frames: list[_Frame],
                       of_family: dict[int, int]) -> None:
-        """The start's rotations referred to the world directions (:meth:`_directions_rotation`
-        on each frame's lines of a family), then its positions and lines adjusted to them with
-        the rotations held (the start's own rotations may turn by a tenth of a degree a frame
-        where lines along the way look alike from every frame); ``self._lines`` updated."""
+        """The start's rotations referred to the world directions: each frame's rotation from
+        its lines of a family (:meth:`_directions_rotation`), the start's own rotations turned
+        by the correction that fits them best as a constant plus a turn growing with the frame
+        index (the start's own rotations may turn by a tenth of a degree a frame where lines
+        along the way look alike from every frame), the world turned so that it stays the
+        first frame's camera, and the start's positions and lines adjusted to those rotations,
+        held; ``self._lines`` updated."""
         fam = np.array([of_family.get(int(t), -1) for t in uniq.tolist()], np.int64)
         R = np.stack([f.R for f in frames])
         c = np.stack([f.c for f in frames])
@@ -465,6 +475,18 @@ class OnlineEstimator:
                 R[k], held[k] = Rk, True
         if held.sum() < 3:
             return
+        # the start's own turns are smooth and right from frame to frame: what the world
+        # directions correct is their drift, a turn growing with the frame index (each
+        # frame's own correction, held, cost the positions: 0.34 % ATE instead of 0.11 on
+        # the bench's mirror-camera corridor)
+        R0 = np.stack([f.R for f in frames])
+        ks = np.flatnonzero(held)
+        w = matrix_to_rotvec(np.swapaxes(R0[ks], 1, 2) @ R[ks])
+        A = np.stack([np.ones(len(ks)), ks.astype(float)], axis=1)
+        a, b = np.linalg.lstsq(A, w, rcond=None)[0]
+        reg = np.flatnonzero([f.registered for f in frames])
+        R[reg] = R0[reg] @ rotvec_to_matrix(a + np.outer(reg, b))
+        held[reg] = True
         d, p = self._line_arrays(uniq)
         first = int(np.flatnonzero([f.registered for f in frames])[0])
         if held[first]:
