@@ -419,3 +419,22 @@ def test_embedded_line_iterations_bring_far_lines_back() -> None:
     plain = bundle_adjust(tr, R0, c0, d0, p0,
                           options=dataclasses.replace(opts, line_iterations=0))
     assert plain.rms_final_deg > 1.5 * o.rms_final_deg
+
+
+def test_held_rotations_stay_as_given_and_the_positions_move():
+    """``held_rotations``: those frames' rotations come back as given (the online tracker's,
+    referred to world directions); with the true rotations held, noise-free, the positions
+    still converge to the truth."""
+    sim = simulate(SimulationOptions(num_views=10, num_parallel=3, num_other=3, seed=4))
+    g = sim.groundtruth
+    R, c = _perturbed(sim, 0.0, 0.02, 0)
+    held = np.zeros(len(g), bool)
+    held[3:] = True
+    R_off = R.copy()
+    R_off[5] = R[5] @ rotvec_to_matrix([0.0, 0.0, 0.003])  # held off the truth: kept so
+    nan = np.full((6, 3), np.nan)
+    res = bundle_adjust(sim.tracks, R_off, c, nan, nan, held_rotations=held)
+    np.testing.assert_array_equal(res.rotations[held], R_off[held])
+    assert np.abs(res.positions[1:] - c[1:]).max() > 0  # the positions moved
+    exact = bundle_adjust(sim.tracks, R, c, nan, nan, held_rotations=held)
+    assert trajectory_errors(_traj(sim, exact), g).paper_trans.max() < 1e-6

@@ -26,7 +26,7 @@ from omni_sfm.estimate.online import (
     TrackedPose,
     poses_trajectory,
 )
-from omni_sfm.evaluate import trajectory_errors
+from omni_sfm.evaluate import associate, relative_rotation_errors_deg, trajectory_errors
 from omni_sfm.folders import TrackFolder
 from omni_sfm.frames import Frame
 from omni_sfm.pipelines.track import Tracker
@@ -68,13 +68,29 @@ def test_causal_accuracy_on_rendered_corridors(which, corridor, corridor_poses, 
     gt = read_tum(seq / "groundtruth.tum")
     err = trajectory_errors(poses_trajectory(poses), gt)
     assert err.num_common == len(gt)
-    # measured: hyperboloid 0.025 deg, 0.018 %; equirectangular 800x400 0.11 deg, 0.026 %
+    # measured: hyperboloid 0.069 deg, 0.034 %
     assert err.rot_max_deg <= 1.0
     assert err.ate_rel <= 0.02
     # the poses returned frame by frame (not the start's): the same bound
     tracked = poses_trajectory(poses, with_start=False)
     assert len(tracked) == len(gt) - START + 1
     assert trajectory_errors(tracked, gt).rot_max_deg <= 1.0
+
+
+def test_rotation_does_not_drift_on_rendered_corridor(corridor, corridor_poses):
+    """Rotations referred to the world directions (issue 52): within 0.5 deg at every frame
+    and not growing with the frame index (the last third's worst no worse than the first
+    third's + 0.2 deg). Measured on these 40 frames: 0.069 deg at worst, 0.019 in the first
+    third and 0.065 in the last (before the world directions: the 200-frame corridor of
+    docs/track.md drifted to 27.9 deg)."""
+    gt = read_tum(corridor / "groundtruth.tum")
+    e, g = associate(poses_trajectory(corridor_poses), gt)
+    err = relative_rotation_errors_deg(e, g)
+    third = len(err) // 3
+    msg = f"rotation errors (deg): {np.round(err, 3).tolist()}"
+    assert len(err) == len(gt)
+    assert err.max() <= 0.5, msg
+    assert err[-third:].max() <= err[:third].max() + 0.2, msg
 
 
 # -- simulated lines: below the front end ------------------------------------------------------

@@ -429,7 +429,8 @@ class LineProblem:
                  held: np.ndarray | None = None,
                  held_directions: np.ndarray | None = None, hold_rotation: bool = True,
                  observations: np.ndarray | None = None, *, line_iterations: int = 0,
-                 loss: RobustLoss = RobustLoss.LINEAR, loss_scale: float = 1.0) -> None:
+                 loss: RobustLoss = RobustLoss.LINEAR, loss_scale: float = 1.0,
+                 held_rotations: np.ndarray | None = None) -> None:
         self.line_iterations, self.loss, self.loss_scale = line_iterations, loss, loss_scale
         self._basis: tuple[FloatArray, FloatArray, FloatArray] | None = None
         self._reduced: tuple[np.ndarray, _ReducedSystem] | None = None
@@ -454,6 +455,8 @@ class LineProblem:
         pose_free[scale_frame, 3 + scale_axis] = False
         if held is not None:
             pose_free[held] = False
+        if held_rotations is not None:
+            pose_free[held_rotations, :3] = False
         self.pose_free = pose_free
         self.line_free = np.repeat(np.asarray(active, bool)[:, None], 4, axis=1)
         if held_directions is not None:
@@ -727,7 +730,8 @@ class _Adjustment:
     def __init__(self, tracks: LineTracks, state: _State, frames: np.ndarray,
                  scale_frames: np.ndarray | None, options: BundleOptions,
                  held_frames: np.ndarray | None = None,
-                 held_directions: np.ndarray | None = None) -> None:
+                 held_directions: np.ndarray | None = None,
+                 held_rotations: np.ndarray | None = None) -> None:
         """Set up from :func:`_initial_state`'s output.
 
         Raises:
@@ -751,6 +755,8 @@ class _Adjustment:
         self.held = None if held_frames is None else np.asarray(held_frames, bool) & self.frames
         self.held_directions = None if held_directions is None else \
             np.asarray(held_directions, bool)
+        self.held_rotations = None if held_rotations is None else \
+            np.asarray(held_rotations, bool)
         first_held = None if self.held is None or not self.held.any() else \
             int(np.flatnonzero(self.held)[0])
         self.fixed, self.scale_frame, self.scale_axis = gauge(self.c, self.frames, scale_frames,
@@ -785,7 +791,7 @@ class _Adjustment:
                            self.scale_axis, self.held, self.held_directions,
                            not _directions_fix_rotation(self.d, self.held_directions, active),
                            line_iterations=self.options.line_iterations, loss=loss,
-                           loss_scale=scale)
+                           loss_scale=scale, held_rotations=self.held_rotations)
         (self.R, self.c, self.d, self.p), it = levenberg_marquardt(
             prob, (self.R, self.c, self.d, self.p), loss, scale, max_iterations, tolerance)
         self.iterations += it
@@ -882,6 +888,7 @@ def bundle_adjust(tracks: LineTracks, rotations: FloatArray, positions: FloatArr
                   scale_frames: np.ndarray | None = None,
                   held_frames: np.ndarray | None = None,
                   held_directions: np.ndarray | None = None,
+                  held_rotations: np.ndarray | None = None,
                   options: BundleOptions = BundleOptions()) -> BundleResult:
     """Refine poses and lines jointly from all observations (partial tracks allowed).
 
@@ -904,6 +911,8 @@ def bundle_adjust(tracks: LineTracks, rotations: FloatArray, positions: FloatArr
             parallel family whose world direction is fixed: only their positions move). Held in
             two directions or more, they fix the rotation gauge: the first frame's rotation is
             then estimated too.
+        held_rotations: ``(F,)`` bool, frames whose rotations are held as given (referred to
+            fixed world directions elsewhere: the online tracker's); their positions move.
         options: see :class:`BundleOptions`.
 
     Raises:
@@ -922,10 +931,12 @@ def bundle_adjust(tracks: LineTracks, rotations: FloatArray, positions: FloatArr
         sub = bundle_adjust(tracks.subset(obs, lines, keep), R[keep], c[keep], d[lines],
                             p[lines], scale_frames=_rows(scale_frames, keep),
                             held_frames=_rows(held_frames, keep),
-                            held_directions=_rows(held_directions, lines), options=options)
+                            held_directions=_rows(held_directions, lines),
+                            held_rotations=_rows(held_rotations, keep), options=options)
         return replace(scattered(sub, keep, lines, F, M),
                        time_ms=(time.perf_counter() - t0) * 1e3)
-    adj = _Adjustment(tracks, state, fr, scale_frames, options, held_frames, held_directions)
+    adj = _Adjustment(tracks, state, fr, scale_frames, options, held_frames, held_directions,
+                      held_rotations)
     for round_ in range(max(1, options.max_rounds)):
         if adj.robust_round(round_):
             break

@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from omni_sfm.estimate.rotation_only import procrustes
-from omni_sfm.geometry import FloatArray, orthonormal_completion
+from omni_sfm.geometry import FloatArray, orthonormal_completion, smallest_eigenvector
 
 
 def _align(directions: FloatArray, ref: FloatArray) -> FloatArray:
@@ -208,3 +208,19 @@ def camera_anchors(obs_frame: np.ndarray, obs_track: np.ndarray, centres: FloatA
     n = np.bincount(obs_track[ok], minlength=num_tracks).astype(float)
     with np.errstate(invalid="ignore", divide="ignore"):
         return s / n[:, None]
+
+
+def plane_directions(world_normals: FloatArray, group: np.ndarray, num_groups: int
+                     ) -> FloatArray:
+    """``(G, 3)`` each group's direction from the world plane normals ``(K, 3)`` of its lines'
+    views (``group`` ``(K,)`` in ``0..num_groups-1``): the unit vector most nearly
+    perpendicular to all of them (the smallest eigenvector of their scatter). For a parallel
+    family this is its vanishing direction in the world: it rests on every view of every
+    member, not on the members' triangulated directions (which a short baseline leaves off by
+    degrees). NaN rows for groups with no views."""
+    m = np.asarray(world_normals, np.float64)
+    S = np.zeros((num_groups, 3, 3))
+    np.add.at(S, group, m[:, :, None] * m[:, None, :])
+    out = smallest_eigenvector(S)
+    out[np.bincount(group, minlength=num_groups) < 2] = np.nan
+    return np.asarray(out)

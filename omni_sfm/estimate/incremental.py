@@ -219,6 +219,9 @@ class Growth:
         self.d, self.p = np.array(d, np.float64), np.array(p, np.float64)
         self.known: np.ndarray = np.asarray(np.isfinite(self.d).all(1) &
                                             np.isfinite(self.p).all(1))
+        self.anchored = np.zeros(F, bool)
+        """Frames whose rotations the adjustments hold (referred to fixed world directions by
+        the caller: :mod:`omni_sfm.estimate.online`)."""
         self.sigma = sigma
         self.thr = max(options.inlier_sigmas * sigma, np.radians(options.min_inlier_deg))
         self.last_median = 0.0  # median angle of the last registered frame at its pose
@@ -421,6 +424,7 @@ class Growth:
             res = bundle_adjust(sub, self.R[frames], self.c[frames], self.d[lines],
                                 self.p[lines], held_frames=held_sub,
                                 held_directions=self.fam[lines] >= 0,
+                                held_rotations=self.anchored[frames],
                                 scale_frames=held_sub if spread else None,
                                 options=options or self.local)
         except OmniSfmError:

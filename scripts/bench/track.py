@@ -107,6 +107,10 @@ def bench_images(args: argparse.Namespace) -> None:
               f"{err.rot_max_deg:.3f} deg, mean {err.rot_mean_deg:.3f} deg; ATE "
               f"{100 * err.ate_rel:.3f} % of the path")
     e = errs["every posed frame"]
+    third = len(e.rot_deg) // 3
+    print(f"rotation error (every posed frame), worst of the first third of the frames "
+          f"{e.rot_deg[:third].max():.3f} deg, of the last third {e.rot_deg[-third:].max():.3f} "
+          "deg (drift: the second above the first)")
     write_log(args, "bench_track", "The online tracker, frame by frame", [
         "sequence", "posed", {"label": "latency median (ms)", "format": ".1f"},
         {"label": "latency p95 (ms)", "format": ".1f"},
