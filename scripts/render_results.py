@@ -52,6 +52,8 @@ SUMMARY = (
     SummaryRow("Long video (3,000 frames, 1920x960 H.264)", "bench_long_video",
                "docs/results.md"),
     SummaryRow("Short tracks against the oracle", "eval_sparse", "docs/results.md"),
+    SummaryRow("Global estimator (`init --estimator global`)", "eval_global_manhattan",
+               "docs/estimator.md"),
     SummaryRow("`refine` (lines and points adjusted together)", "bench_refine",
                "docs/colmap.md"),
     SummaryRow("`dense` map", "bench_dense", "docs/dense.md"),
