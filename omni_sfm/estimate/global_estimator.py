@@ -37,6 +37,7 @@ from omni_sfm.estimate.global_rotations import (
     GlobalRotations,
     chained_start,
     solve_rotations,
+    world_normals,
 )
 from omni_sfm.geometry import FloatArray, rotation_about_axis
 from omni_sfm.lines.tracks import LineTracks
@@ -360,7 +361,7 @@ def _labels(tracks: LineTracks, R: FloatArray, frames: np.ndarray, lines: np.nda
     if len(worlds) == 0:
         return label
     ok = frames[tracks.obs_frame] & lines[tracks.obs_track]
-    m = np.einsum("kij,kj->ki", R[tracks.obs_frame[ok]], tracks.obs_normal[ok])
+    m = world_normals(tracks, R, ok)
     t = tracks.obs_track[ok]
     sq = np.zeros((tracks.num_tracks, len(worlds)))
     np.add.at(sq, t, (m @ worlds.T) ** 2)
@@ -482,7 +483,7 @@ def _direction_rms(tracks: LineTracks, R: FloatArray, d: FloatArray, frames: np.
     """``(M,)`` RMS of each track's residuals ``(R n) . d`` over the posed frames (radians; NaN
     without a direction)."""
     ok = frames[tracks.obs_frame]
-    m = np.einsum("kij,kj->ki", R[tracks.obs_frame[ok]], tracks.obs_normal[ok])
+    m = world_normals(tracks, R, ok)
     r2 = np.einsum("ki,ki->k", m, d[tracks.obs_track[ok]]) ** 2
     n = np.bincount(tracks.obs_track[ok], minlength=tracks.num_tracks)
     sq = np.bincount(tracks.obs_track[ok], r2, minlength=tracks.num_tracks)
@@ -494,7 +495,7 @@ def plane_spread_deg(tracks: LineTracks, R: FloatArray, frames: np.ndarray) -> F
     its world normals about their mean plane normal, degrees; 0 for a line seen once): a line
     whose planes barely turn lies in a known plane but has no known direction within it."""
     ok = frames[tracks.obs_frame]
-    m = np.einsum("kij,kj->ki", R[tracks.obs_frame[ok]], tracks.obs_normal[ok])
+    m = world_normals(tracks, R, ok)
     S = np.zeros((tracks.num_tracks, 3, 3))
     np.add.at(S, tracks.obs_track[ok], m[:, :, None] * m[:, None, :])
     n = np.maximum(np.bincount(tracks.obs_track[ok], minlength=tracks.num_tracks), 1)

@@ -106,13 +106,18 @@ def chained_start(tracks: LineTracks, frames: np.ndarray) -> FloatArray:
     return R
 
 
+def world_normals(tracks: LineTracks, R: FloatArray, ok: np.ndarray) -> FloatArray:
+    """``(K', 3)`` the world normals ``R_k n`` of the observations ``ok`` ``(K,)`` bool."""
+    return np.asarray(np.einsum("kij,kj->ki", R[tracks.obs_frame[ok]], tracks.obs_normal[ok]))
+
+
 def group_directions(tracks: LineTracks, R: FloatArray, frames: np.ndarray,
                      group: np.ndarray) -> FloatArray:
     """``(G, 3)`` each group's direction: the unit vector most nearly perpendicular to the
     world normals of its tracks in the posed ``frames`` (smallest eigenvector of their
     scatter)."""
     ok = frames[tracks.obs_frame] & (group[tracks.obs_track] >= 0)
-    m = np.einsum("kij,kj->ki", R[tracks.obs_frame[ok]], tracks.obs_normal[ok])
+    m = world_normals(tracks, R, ok)
     S = np.zeros((int(group.max()) + 1, 3, 3))
     np.add.at(S, group[tracks.obs_track[ok]], m[:, :, None] * m[:, None, :])
     return smallest_eigenvector(S)
