@@ -16,8 +16,10 @@ Steps:
 4. **Per-frame information**: frames whose rotation or position the data leave (nearly) free
    are listed in the report with the reason (``frames_uncertain``).
 
-No step depends on the order in which frames are stored beyond round-off: the start rotations
-chain neighbouring frames, which the joint problem then replaces by its own minimum.
+Only the start rotations follow the frame order (they chain neighbouring frames); the joint
+problems replace them by their own minimum wherever the start lies in its basin. Where one
+family is the only world direction and the other lines point anywhere (docs/estimator.md,
+known limits) the start can drift out of it, and the answer then follows the order.
 """
 
 from __future__ import annotations
@@ -468,8 +470,11 @@ def _resected(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArray, p
     for a in range(3):
         c[todo, a] = np.interp(todo, fixed, c[fixed, a])
     known = np.asarray(np.isfinite(p).all(axis=1))
+    usable = np.flatnonzero(known[tracks.obs_track])
+    usable = usable[np.argsort(tracks.obs_frame[usable], kind="stable")]
+    bounds = np.searchsorted(tracks.obs_frame[usable], np.arange(len(frames) + 1))
     for k in todo:
-        obs = np.flatnonzero((tracks.obs_frame == k) & known[tracks.obs_track])
+        obs = usable[bounds[k]:bounds[k + 1]]
         if len(obs) < 3:
             continue
         t = tracks.obs_track[obs]

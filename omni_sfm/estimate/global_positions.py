@@ -68,14 +68,16 @@ def _second_differences(frames: np.ndarray, pose_idx: np.ndarray) -> sp.csr_matr
     """``D`` with ``(D c)_j = c_{j-1} - 2 c_j + c_{j+1}`` over consecutive posed frames (the
     gauge frame's centre, fixed at 0, has no column)."""
     posed = np.flatnonzero(frames)
-    rows, cols, vals = [], [], []
-    for j in range(1, len(posed) - 1):
-        for f, v in ((posed[j - 1], 1.0), (posed[j], -2.0), (posed[j + 1], 1.0)):
-            if pose_idx[f] >= 0:
-                for a in range(3):
-                    rows.append(3 * (j - 1) + a)
-                    cols.append(3 * pose_idx[f] + a)
-                    vals.append(v)
+    j = np.arange(1, len(posed) - 1)
+    # one row per (second difference, neighbour, axis); the gauge frame's entries dropped
+    f = np.stack([posed[j - 1], posed[j], posed[j + 1]], axis=1)  # (J, 3)
+    v = np.broadcast_to(np.array([1.0, -2.0, 1.0]), f.shape)
+    rows = 3 * (j - 1)[:, None, None] + np.arange(3)  # (J, 1, 3)
+    cols = 3 * pose_idx[f][:, :, None] + np.arange(3)  # (J, 3, 3)
+    rows = np.broadcast_to(rows, cols.shape)
+    vals = np.broadcast_to(v[:, :, None], cols.shape)
+    keep = np.broadcast_to((pose_idx[f] >= 0)[:, :, None], cols.shape)
+    rows, cols, vals = rows[keep], cols[keep], vals[keep]
     n = 3 * max(len(posed) - 2, 0)
     return sp.csr_matrix((vals, (rows, cols)), shape=(n, 3 * (len(posed) - 1)))
 

@@ -17,8 +17,7 @@ of freedom free (the turn about that direction): its information says so
 The start comes from consecutive frames: the normals a line shows in two neighbouring frames
 differ by the rotation between them and a small parallax, so a weighted Procrustes alignment of
 the shared normals gives each step; the joint problem then removes the parallax's bias and the
-drift of that chain. Every step is a deterministic function of the observations' values: the
-order in which frames or tracks are stored changes nothing but round-off.
+drift of that chain. The start follows the frame order; the joint problem's minimum does not.
 """
 
 from __future__ import annotations
