@@ -31,18 +31,25 @@ from typing import Any
 import numpy as np
 
 from omni_sfm.errors import OmniSfmError
-from omni_sfm.estimate.bundle import BundleOptions, bundle_adjust, resect_pose
+from omni_sfm.estimate.bundle import (
+    BundleOptions,
+    BundleResult,
+    bundle_adjust,
+    resect_pose,
+    weighted_residuals,
+)
 from omni_sfm.estimate.families import world_families
 from omni_sfm.estimate.global_positions import GlobalPositionOptions, solve_positions
 from omni_sfm.estimate.global_rotations import (
     GlobalRotationOptions,
     GlobalRotations,
     chained_start,
+    group_directions,
     solve_rotations,
     world_normals,
 )
 from omni_sfm.geometry import FloatArray, rotation_about_axis
-from omni_sfm.lines.tracks import LineTracks
+from omni_sfm.lines.tracks import LineTracks, reversed_frames
 from omni_sfm.vanishing import ParallelFamily, VanishingOptions, detect_parallel_families
 
 
@@ -65,8 +72,8 @@ class GlobalOptions:
     """A family first seen within this of a known world direction (or of the axis completing
     two known perpendicular ones) is taken to have that direction."""
     start_window: int = 60
-    """Frames of the windows that refine the start rotations (:func:`windowed_start`); 0: no
-    windows."""
+    """Posed frames of the windows whose own solutions make the start rotations
+    (:func:`windows_start`); 0: the start of :func:`anchored_start` alone."""
     min_family_size: int = 5
     """Families of fewer tracks share no direction in the first solve (a few lines seen
     together in a few frames can look parallel without being so)."""
@@ -79,8 +86,13 @@ class GlobalOptions:
     this many times the residuals' robust spread are left out of the positions (a wrong
     correspondence; the adjustment judges them again)."""
     hold_world_directions: bool = True
-    """The adjustment holds the direction of every line of a world direction (the
-    directions man-made places repeat are exact; their lines' noise then moves no rotation)."""
+    """The adjustment holds the direction of every line of a world direction (the directions
+    man-made places repeat are exact: their lines' noise then moves no rotation, and a frame
+    whose other lines leave a turn weak keeps it); the world directions are then fitted again
+    to the adjustment's rotations (``direction_rounds``)."""
+    direction_rounds: int = 4
+    """Rounds at most of the world directions fitted again to the adjustment's rotations and
+    the adjustment run again (:func:`_world_directions_refitted`)."""
     uncertain_information: float = 1e-3
     """A frame is flagged as not fixed by the data where the smallest eigenvalue of its
     position information (its observations, the lines held) is below this fraction of the
@@ -211,7 +223,8 @@ def _assign_lines(S: FloatArray, count: np.ndarray, line_world: np.ndarray,
 
 
 def anchored_start(tracks: LineTracks, frames: np.ndarray, families: list[ParallelFamily],
-                   snap_deg: float = 20.0, min_views: int = 5, line_deg: float = 8.0
+                   snap_deg: float = 20.0, min_views: int = 5, line_deg: float = 8.0,
+                   min_family_size: int = 5, vpv_deg: float = 5.0
                    ) -> tuple[FloatArray, np.ndarray]:
     """Start rotations ``(F, 3, 3)``, frame after frame: the step from the previous frame
     (:func:`chained_start`), then the smallest turn that puts the largest family's VPV on its
@@ -220,15 +233,20 @@ def anchored_start(tracks: LineTracks, frames: np.ndarray, families: list[Parall
     its VPV is first seen (snapped to a known one within ``snap_deg``); a line joins a world
     direction once all its planes so far contain it (:func:`_assign_lines`). The chain's
     parallax and drift are left only where a frame sees no line of known direction but the
-    largest family's. Returns the rotations and, per family, the family whose world direction
-    it shares."""
+    largest family's. Families of fewer than ``min_family_size`` tracks but the largest give no
+    world direction (a few lines that look parallel for a while need not be); a VPV more than
+    ``vpv_deg`` from where the step from the previous frame puts it is not used (two or three
+    of the family's lines seen nearly in one plane give a wrong one, and a step is right to a
+    fraction of a degree). Returns the rotations and, per family, the family whose world
+    direction it shares."""
     R_chain = chained_start(tracks, frames)
     if not families:
         return R_chain, np.zeros(0, int)
     M = tracks.num_tracks
     vpv = [np.asarray(f.vpv) for f in families]
     line_world = np.full(M, -1)
-    for j in range(len(families) - 1, -1, -1):
+    big = [j for j, f in enumerate(families) if j == 0 or f.size >= min_family_size]
+    for j in big[::-1]:
         line_world[np.asarray(families[j].members, bool)] = j
     order = np.argsort(tracks.obs_frame, kind="stable")
     starts = np.searchsorted(tracks.obs_frame[order], np.arange(tracks.num_frames + 1))
@@ -245,13 +263,17 @@ def anchored_start(tracks: LineTracks, frames: np.ndarray, families: list[Parall
         if np.isfinite(vpv[0][k]).all():
             if not np.isfinite(world[0]).all():
                 world[0] = Rk @ vpv[0][k]
-            Rk = _turn_onto(Rk @ vpv[0][k], world[0]) @ Rk
+            u = Rk @ vpv[0][k]
+            if u @ world[0] >= np.cos(np.radians(vpv_deg)):
+                # a VPV far from where the step from the previous frame puts it is wrong
+                # (a frame with two or three of the family's lines, nearly coplanar)
+                Rk = _turn_onto(u, world[0]) @ Rk
             j = line_world[t]
             known = (j > 0) & np.isfinite(world[np.maximum(j, 0), 0])
             if known.any():
                 a = tracks.obs_normal[obs[known]] @ Rk.T
                 Rk = _heading(world[0], a, world[j[known]]) @ Rk
-        for j in range(len(families)):
+        for j in big:
             if not np.isfinite(world[j]).all() and np.isfinite(vpv[j][k]).all():
                 known_rows = np.flatnonzero(np.isfinite(world[:, 0]))
                 world[j], i = _world_direction(Rk @ vpv[j][k], world, snap_deg)
@@ -296,36 +318,109 @@ def free_turns_interpolated(rot: GlobalRotations, free: np.ndarray) -> FloatArra
     return R
 
 
-def windowed_start(tracks: LineTracks, frames: np.ndarray, R0: FloatArray, group: np.ndarray,
-                   window: int, options: GlobalRotationOptions) -> FloatArray:
-    """The start rotations ``R0`` refined by the joint rotation problem on windows of
-    ``window`` posed frames that overlap by half, each from the previous one's solution (its
-    first frame held, the new frames chained on from ``R0``): within a window the lines'
-    directions fix the turns that a chain of neighbouring frames lets drift."""
-    idx = np.flatnonzero(frames)
-    R = R0.copy()
-    if len(idx) <= window:
-        return R
-    half = window // 2
-    done = 0  # frames idx[:done] have their final start rotation
-    start = 0
-    while done < len(idx):
-        sel = idx[start:start + window]
-        new = sel[max(done - start, 1):]
-        last = idx[done - 1] if done > 0 else sel[0]
-        R[new] = R[last] @ (R0[last].T @ R0[new])
-        mask = np.zeros(len(frames), bool)
-        mask[sel] = True
+def window_starts(count: int, window: int) -> list[int]:
+    """The first positions of windows of ``window`` among ``count`` items, overlapping by about
+    half, spread evenly from 0 to ``count - window``; the layout of ``count`` items in reverse
+    order is its mirror image (the same windows)."""
+    if count <= window:
+        return [0]
+    span = count - window
+    n = -(-span // (window // 2)) + 1
+    return [(i * span) // (n - 1) if 2 * i <= n - 1 else span - ((n - 1 - i) * span) // (n - 1)
+            for i in range(n)]
+
+
+def _polar(M: FloatArray) -> FloatArray:
+    """The rotation nearest ``M`` ``(3, 3)`` (Frobenius)."""
+    U, _, Vt = np.linalg.svd(M)
+    D = np.diag([1.0, 1.0, float(np.linalg.det(U @ Vt))])
+    return np.asarray(U @ D @ Vt)
+
+
+def _capped_cost(tracks: LineTracks, sol: GlobalSolution, cap: float) -> float:
+    """The mean over all observations of the squared residual (radians) capped at ``cap``
+    (an observation of a rejected track or an unposed frame counts as ``cap``)."""
+    ang = weighted_residuals(tracks, np.nan_to_num(sol.rotations), np.nan_to_num(sol.positions),
+                             sol.line_directions, sol.line_points)
+    ang = np.where(sol.frames[tracks.obs_frame], ang, np.nan)
+    return float(np.mean(np.minimum(np.nan_to_num(ang, nan=cap) ** 2, cap**2)))
+
+
+def _window_solution(tracks: LineTracks, sel: np.ndarray, options: GlobalOptions
+                     ) -> FloatArray | None:
+    """The rotations ``(len(sel), 3, 3)`` (NaN: not posed) of the frames ``sel`` solved on their
+    own (steps 1-3 from :func:`anchored_start`), from either end (the chain of the start runs
+    one way): the solution of the lower capped cost over the window's observations
+    (:func:`_capped_cost`, capped at three times the smaller noise estimate), so that the same
+    window gives the same solution whichever way the video runs. None where they determine
+    nothing."""
+    obs = np.flatnonzero(np.isin(tracks.obs_frame, sel))
+    sub = tracks.subset(obs, np.unique(tracks.obs_track[obs]), sel)
+    back = reversed_frames(sub)
+    sols: list[tuple[LineTracks, GlobalSolution, bool]] = []
+    for part, flipped in ((sub, False), (back, True)):
         try:
-            res = solve_rotations(tracks, mask, R, group, options)
-            keep = sel[max(done - start, 1):] if start + window >= len(idx) else \
-                sel[max(done - start, 1):half + 1]
-            R[keep] = res.rotations[keep]
+            sols.append((part, solve_global(part, replace(options, start_window=0)), flipped))
         except OmniSfmError:
-            pass
-        done = len(idx) if start + window >= len(idx) else start + half + 1
-        start += half
-    return R
+            continue
+    if not sols:
+        return None
+    cap = 3.0 * np.sqrt(2.0) * np.radians(min(s.sigma_deg for _, s, _ in sols))
+    part, best, flipped = min(sols, key=lambda x: _capped_cost(x[0], x[1], cap))
+    return best.rotations[::-1] if flipped else best.rotations
+
+
+def windows_start(tracks: LineTracks, frames: np.ndarray, R0: FloatArray,
+                  options: GlobalOptions) -> FloatArray:
+    """Start rotations ``(F, 3, 3)`` from windows of ``options.start_window`` posed frames,
+    overlapping by half, each solved on its own (rotations, positions, adjustment: within a
+    window the chain of :func:`anchored_start` drifts little and the lines' positions fix the
+    turns that their directions alone leave weak; :func:`_window_solution`). Each window's
+    solution is
+    turned onto its predecessor's by the rotation that best aligns their shared frames
+    (a step that depends on the two windows alone, whichever way the video runs), and each
+    frame takes the mean of its windows' rotations. Frames in no window that is kept take the
+    step of ``R0`` from the nearest frame that is."""
+    idx = np.flatnonzero(frames)
+    window = options.start_window
+    kept: list[tuple[np.ndarray, FloatArray]] = []
+    for a in window_starts(len(idx), window):
+        sel = idx[a:a + window]
+        got = _window_solution(tracks, sel, options)
+        if got is not None:
+            kept.append((sel, got))
+    if not kept:
+        return R0
+    acc = np.zeros((len(frames), 3, 3))
+    prev: tuple[np.ndarray, FloatArray] | None = None
+    for sel, R in kept:
+        good = np.asarray(np.isfinite(R).all(axis=(1, 2)))
+        if prev is None:
+            A = np.eye(3)
+        else:
+            psel, pR = prev  # pR already turned into the common world
+            _, i, j = np.intersect1d(psel, sel, return_indices=True)
+            both = np.isfinite(pR[i]).all(axis=(1, 2)) & good[j]
+            if both.sum() >= 3:
+                A = _polar(np.einsum("kij,klj->il", pR[i][both], R[j][both]))
+            else:  # no frames in common: the step of R0 between the nearest frames
+                p = psel[np.flatnonzero(np.isfinite(pR).all(axis=(1, 2)))[-1]]
+                q = int(np.flatnonzero(good)[0])
+                target = pR[np.searchsorted(psel, p)] @ R0[p].T @ R0[sel[q]]
+                A = target @ R[q].T
+        R = np.einsum("ij,kjl->kil", A, R)
+        acc[sel[good]] += R[good]
+        prev = (sel, R)
+    covered = np.abs(acc).sum(axis=(1, 2)) > 0
+    R = R0.copy()
+    for k in np.flatnonzero(covered):
+        R[k] = _polar(acc[k])
+    fixed = np.flatnonzero(covered)
+    for k in np.flatnonzero(frames & ~covered):
+        n = fixed[np.argmin(np.abs(fixed - k))]
+        R[k] = R[n] @ R0[n].T @ R0[k]
+    first = idx[0]
+    return np.asarray(np.einsum("ij,kjl->kil", R[first].T, R))
 
 
 def _groups(lines: np.ndarray, label: np.ndarray) -> np.ndarray:
@@ -415,12 +510,12 @@ def _rotations(tracks: LineTracks, frames: np.ndarray, lines: np.ndarray,
                ) -> tuple[GlobalRotations, FloatArray, np.ndarray]:
     """Step 1: the start, the solve with the families' world directions shared, the solve
     with the lines' world directions (clusters of their directions) shared."""
-    R0, same = anchored_start(tracks, frames, families, options.snap_deg)
+    R0, same = anchored_start(tracks, frames, families, options.snap_deg,
+                              min_family_size=options.min_family_size)
     label = _family_labels(tracks, families, same, options.min_family_size)
     group = _groups(lines, label)
-    if options.start_window:
-        R0 = windowed_start(tracks, frames, R0, group, options.start_window,
-                            replace(options.rotations, max_iterations=20))
+    if options.start_window and frames.sum() > options.start_window:
+        R0 = windows_start(tracks, frames, R0, options)
     first = solve_rotations(tracks, frames, R0, group, options.rotations)
     steps.append({"step": "rotations, the families' world directions shared",
                   "families": [f.size for f in families],
@@ -533,6 +628,33 @@ def _uncertain(rot: GlobalRotations, pos_info: FloatArray, frames: np.ndarray,
     return out
 
 
+def _world_directions_refitted(tracks: LineTracks, ba: BundleResult, held: np.ndarray,
+                               label: np.ndarray, options: GlobalOptions) -> BundleResult:
+    """The adjustment with the ``held`` lines' world directions (``label``) fitted again to its
+    rotations and the adjustment run again, until they move by less than 1e-8 rad (at most
+    ``options.direction_rounds`` times): the world directions and the poses then reach their
+    joint minimum, not the one step 1's directions (which follow its start) pin."""
+    for _ in range(options.direction_rounds):
+        use = held & ba.used_tracks
+        if not use.any():
+            break
+        group = np.where(use, label, -1)
+        _, inv = np.unique(group[use], return_inverse=True)
+        compact = np.full(len(group), -1)
+        compact[use] = inv
+        world = group_directions(tracks, ba.rotations, ba.frames, compact)
+        d = ba.line_directions.copy()
+        new = world[compact[use]]
+        new *= np.sign(np.einsum("ij,ij->i", new, d[use]))[:, None]
+        moved = float(np.max(np.linalg.norm(new - d[use], axis=1)))
+        d[use] = new
+        ba = bundle_adjust(tracks, ba.rotations, ba.positions, d, ba.line_points,
+                           frames=ba.frames, held_directions=use, options=options.bundle)
+        if moved < 1e-8:
+            break
+    return ba
+
+
 def solve_global(tracks: LineTracks, options: GlobalOptions = GlobalOptions()
                  ) -> GlobalSolution:
     """Steps 1-4 of the module docstring.
@@ -574,6 +696,8 @@ def solve_global(tracks: LineTracks, options: GlobalOptions = GlobalOptions()
     held = dir_ok & (label >= 0) if options.hold_world_directions else None
     ba = bundle_adjust(tracks, R, c, d0, pos.points, frames=frames, held_directions=held,
                        options=options.bundle)
+    if held is not None:
+        ba = _world_directions_refitted(tracks, ba, held, label, options)
     timings["bundle_adjustment"] = (time.perf_counter() - t) * 1e3
     steps.append({"step": "bundle adjustment", "iterations": ba.iterations,
                   "outlier_tracks": int(ba.outlier_tracks.sum()),

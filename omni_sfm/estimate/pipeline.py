@@ -66,7 +66,7 @@ from omni_sfm.fileio import atomic_write_text, dumps_json
 from omni_sfm.folders import REPORT_FILE, TRAJECTORY_FILE
 from omni_sfm.forked import Deferred, SharedCounters
 from omni_sfm.geometry import FloatArray, ray_line_closest, rotation_angle
-from omni_sfm.lines.tracks import LineTracks
+from omni_sfm.lines.tracks import LineTracks, reversed_frames
 from omni_sfm.poses import Trajectory, write_tum
 from omni_sfm.transforms import similarity_from_poses
 from omni_sfm.vanishing import (
@@ -930,20 +930,6 @@ def _reversed_start(tracks: LineTracks, options: EstimationOptions, run: RunLog,
         run.record(failed("reversed start", (0, F - 1), str(exc)))
         return None
     return _with_segments(tracks, _flipped(sol, F), options, run, t_all)
-
-
-def reversed_frames(tracks: LineTracks) -> LineTracks:
-    """``tracks`` with frame ``k`` as frame ``F - 1 - k`` (the timestamps stay in order: the
-    estimator does not use them)."""
-    f = tracks.num_frames - 1 - tracks.obs_frame
-    order = np.lexsort((f, tracks.obs_track))  # by track, then frame, as every LineTracks
-
-    def rows(a: FloatArray | None) -> FloatArray | None:
-        return None if a is None else a[order]
-
-    return replace(tracks, obs_track=tracks.obs_track[order], obs_frame=f[order],
-                   obs_normal=tracks.obs_normal[order], obs_ray=rows(tracks.obs_ray),
-                   obs_sigma=rows(tracks.obs_sigma))
 
 
 def _flipped(sol: _Solved, F: int) -> _Solved:

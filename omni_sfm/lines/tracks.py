@@ -19,7 +19,7 @@ side); the rays tell on which side each line is seen, which fixes that sign.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -340,3 +340,17 @@ def read_tracks(path: Path | str) -> LineTracks:
 def write_tracks(path: Path | str, tracks: LineTracks) -> None:
     """Write ``tracks`` as ``tracks.json`` (atomically)."""
     atomic_write_text(Path(path), dumps_json(tracks.to_json_dict()))
+
+
+def reversed_frames(tracks: LineTracks) -> LineTracks:
+    """``tracks`` with frame ``k`` as frame ``F - 1 - k`` (the timestamps stay in order: the
+    estimator does not use them)."""
+    f = tracks.num_frames - 1 - tracks.obs_frame
+    order = np.lexsort((f, tracks.obs_track))  # by track, then frame, as every LineTracks
+
+    def rows(a: FloatArray | None) -> FloatArray | None:
+        return None if a is None else a[order]
+
+    return replace(tracks, obs_track=tracks.obs_track[order], obs_frame=f[order],
+                   obs_normal=tracks.obs_normal[order], obs_ray=rows(tracks.obs_ray),
+                   obs_sigma=rows(tracks.obs_sigma))

@@ -63,7 +63,7 @@ def _run(seed: int, args: argparse.Namespace) -> tuple[list[object], float, bool
     t0 = time.perf_counter()
     try:
         res = estimate_poses(tr, EstimationOptions(
-            bootstrap_frames=args.bootstrap,
+            estimator=args.estimator, bootstrap_frames=args.bootstrap,
             short_bootstrap_frames=None if args.no_second_start
             else EstimationOptions().short_bootstrap_frames, start_margin=args.start_margin))
     except OmniSfmError as exc:
@@ -83,7 +83,7 @@ def _run(seed: int, args: argparse.Namespace) -> tuple[list[object], float, bool
     print(f"  oracle: {_fmt(eo)}, RMS residual {o.rms_final_deg:.4f} deg (same frames)")
     print(f"  ratio:  rotation {e[0] / eo[0]:.1f}x, translation {e[2] / eo[2]:.1f}x")
     kept = "the first start"
-    for a in res.report["attempts"]:
+    for a in res.report.get("attempts", []):
         if a["strategy"] in STARTS:
             print(f"  {a['strategy']}: {a['result']}: {a.get('why', '')}")
             if a["result"] == "kept":
@@ -125,6 +125,8 @@ def main() -> int:
                     help="EstimationOptions.bootstrap_frames (default: the estimator's)")
     ap.add_argument("--no-second-start", action="store_true",
                     help="without the second start (short_bootstrap_frames=None)")
+    ap.add_argument("--estimator", choices=["windows", "global"], default="windows",
+                    help="EstimationOptions.estimator")
     ap.add_argument("--polish", type=int, default=0,
                     help="also adjust again from the estimate for this many LM iterations")
     add_log_arguments(ap)
