@@ -9,7 +9,7 @@ import pytest
 
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.estimate.bundle import oracle
-from omni_sfm.estimate.global_estimator import solve_global
+from omni_sfm.estimate.global_estimator import solve_global, window_starts
 from omni_sfm.estimate.pipeline import (
     EstimationOptions,
     EstimationResult,
@@ -114,3 +114,14 @@ def test_nothing_to_estimate_is_an_error() -> None:
     # rotation-only fit of a camera that turns in place, as for every estimator)
     with pytest.raises(OmniSfmError, match="frames see 3 or more tracked lines"):
         solve_global(two)
+
+
+@pytest.mark.parametrize("count", [61, 100, 137, 600, 601])
+def test_start_windows_are_the_same_either_way(count: int) -> None:
+    """The windows of the start cover every frame, overlap, and the layout of the reversed
+    order is the mirror image of the forward one (the same windows)."""
+    window = 60
+    starts = window_starts(count, window)
+    assert starts[0] == 0 and starts[-1] == count - window
+    assert all(0 < b - a <= window // 2 for a, b in zip(starts[:-1], starts[1:], strict=False))
+    assert sorted(count - window - a for a in starts) == starts

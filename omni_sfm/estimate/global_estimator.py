@@ -36,7 +36,6 @@ from omni_sfm.estimate.bundle import (
     BundleResult,
     bundle_adjust,
     resect_pose,
-    weighted_residuals,
 )
 from omni_sfm.estimate.families import world_families
 from omni_sfm.estimate.global_positions import GlobalPositionOptions, solve_positions
@@ -49,7 +48,7 @@ from omni_sfm.estimate.global_rotations import (
     world_normals,
 )
 from omni_sfm.geometry import FloatArray, rotation_about_axis
-from omni_sfm.lines.tracks import LineTracks, reversed_frames
+from omni_sfm.lines.tracks import LineTracks
 from omni_sfm.vanishing import ParallelFamily, VanishingOptions, detect_parallel_families
 
 
@@ -337,37 +336,20 @@ def _polar(M: FloatArray) -> FloatArray:
     return np.asarray(U @ D @ Vt)
 
 
-def _capped_cost(tracks: LineTracks, sol: GlobalSolution, cap: float) -> float:
-    """The mean over all observations of the squared residual (radians) capped at ``cap``
-    (an observation of a rejected track or an unposed frame counts as ``cap``)."""
-    ang = weighted_residuals(tracks, np.nan_to_num(sol.rotations), np.nan_to_num(sol.positions),
-                             sol.line_directions, sol.line_points)
-    ang = np.where(sol.frames[tracks.obs_frame], ang, np.nan)
-    return float(np.mean(np.minimum(np.nan_to_num(ang, nan=cap) ** 2, cap**2)))
-
-
 def _window_solution(tracks: LineTracks, sel: np.ndarray, options: GlobalOptions
                      ) -> FloatArray | None:
     """The rotations ``(len(sel), 3, 3)`` (NaN: not posed) of the frames ``sel`` solved on their
-    own (steps 1-3 from :func:`anchored_start`), from either end (the chain of the start runs
-    one way): the solution of the lower capped cost over the window's observations
-    (:func:`_capped_cost`, capped at three times the smaller noise estimate), so that the same
-    window gives the same solution whichever way the video runs. None where they determine
-    nothing."""
+    own (steps 1-3 from :func:`anchored_start`); None where they determine nothing."""
     obs = np.flatnonzero(np.isin(tracks.obs_frame, sel))
     sub = tracks.subset(obs, np.unique(tracks.obs_track[obs]), sel)
-    back = reversed_frames(sub)
-    sols: list[tuple[LineTracks, GlobalSolution, bool]] = []
-    for part, flipped in ((sub, False), (back, True)):
-        try:
-            sols.append((part, solve_global(part, replace(options, start_window=0)), flipped))
-        except OmniSfmError:
-            continue
-    if not sols:
+    # a start needs the basin, not the last digit: two robust rounds, no polish
+    local = replace(options, start_window=0, direction_rounds=0,
+                    rotations=replace(options.rotations, max_iterations=20),
+                    bundle=replace(options.bundle, max_rounds=2, final_loss=None))
+    try:
+        return solve_global(sub, local).rotations
+    except OmniSfmError:
         return None
-    cap = 3.0 * np.sqrt(2.0) * np.radians(min(s.sigma_deg for _, s, _ in sols))
-    part, best, flipped = min(sols, key=lambda x: _capped_cost(x[0], x[1], cap))
-    return best.rotations[::-1] if flipped else best.rotations
 
 
 def windows_start(tracks: LineTracks, frames: np.ndarray, R0: FloatArray,
