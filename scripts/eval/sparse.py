@@ -137,7 +137,8 @@ def main() -> int:
     within = sum(r[1] <= 2 for r in runs)
     worst = max((r[1] for r in runs), default=float("nan"))
     every = sum(r[2] for r in runs)
-    write_log(args, "eval_sparse", "Sparse tracks against the oracle", [
+    name = "eval_sparse" if args.estimator == "windows" else f"eval_sparse_{args.estimator}"
+    write_log(args, name, f"Sparse tracks against the oracle ({args.estimator} estimator)", [
         "seed", "frames in the main trajectory", "main: rotation mean / max (deg)",
         "oracle, same frames (deg)", "ratio: rotation, translation",
         "RMS residual: main / oracle (deg)", "start kept", {"label": "time (s)", "format": ".1f"}],
