@@ -872,6 +872,17 @@ def _best_of_starts(tracks: LineTracks, options: EstimationOptions, other: Estim
     backwards = c.result
     if backwards is not None:
         candidates.append(("reversed start", backwards))
+    kept = _kept_start(tracks, first, candidates, options, run)
+    return replace(kept, report={**kept.report, "attempts": run.entries})
+
+
+def _kept_start(tracks: LineTracks, first: EstimationResult,
+                candidates: list[tuple[str, EstimationResult]], options: EstimationOptions,
+                run: RunLog) -> EstimationResult:
+    """The first start's result or the best of the other starts' named ``candidates``, where
+    it scores better by ``options.start_margin`` (every observation, misfits capped; ties by
+    :func:`_least_squares_among_ties`); each candidate recorded as kept or rejected."""
+    F = tracks.num_frames
     limit = outlier_limit(np.radians(first.sigma_deg), options.bundle)
 
     def score(r: EstimationResult) -> float:
@@ -893,7 +904,7 @@ def _best_of_starts(tracks: LineTracks, options: EstimationOptions, other: Estim
                     f"squares: {r.residual_rms_final_deg:.7g} deg RMS")
         att = Attempt(name, (0, F - 1), r, cost_deg=sc, why=why)
         run.record(att if r is kept else att.judged(Outcome.REJECTED, why))
-    return replace(kept, report={**kept.report, "attempts": run.entries})
+    return kept
 
 
 def _least_squares_among_ties(candidates: list[tuple[str, EstimationResult]],
@@ -1633,24 +1644,13 @@ def _with_segments(tracks: LineTracks, sol: _Solved, options: EstimationOptions,
             reach = lifted  # a short stretch widened into its neighbour's frames
         covered |= lifted.frames
         todo += _stretches(covered, a, b, options)
-        # join the nearest piece in time that shares enough lines with it
-        gap = [max(0, int(np.flatnonzero(q.frames)[0]) - b, a - int(np.flatnonzero(
-            q.frames)[-1])) for q in pieces]
-        for k in np.argsort(gap, kind="stable"):
-            if gap[k] > options.join_max_gap:
-                continue
-            merged, why = _join(tracks, pieces[k], lifted, options, reach)
-            fk = np.flatnonzero(pieces[k].frames)
-            run.record(Attempt("join", (a, b - 1), merged, why=why,
-                               outcome=Outcome.KEPT if merged is not None else Outcome.FAILED),
-                       to_frames=[int(fk[0]), int(fk[-1])])
-            if merged is not None:
-                pieces[k], joined = merged, joined + 1
-                grown[k] = True
-                break
-        else:
+        into = _join_nearest(tracks, pieces, lifted, reach, (a, b), options, run)
+        if into is None:
             pieces.append(lifted)
             grown.append(False)
+        else:
+            joined += 1
+            grown[into] = True
     for k in np.flatnonzero(grown):
         pieces[k] = _adjusted(tracks, pieces[k], options, run, "joining pieces")
     # the main trajectory is the largest piece
@@ -1663,31 +1663,10 @@ def _with_segments(tracks: LineTracks, sol: _Solved, options: EstimationOptions,
     report = dict(result.report)
     report["joined_pieces"] = joined
     report["attempts"] = run.entries
-    segments: list[Segment] = []
-    reasons_lost: dict[str, str] = {}
-    for piece in sorted(pieces[1:], key=lambda q: int(np.flatnonzero(q.frames)[0])):
-        try:
-            r = _moving_result(tracks, piece, RunLog(), time.perf_counter())
-        except OmniSfmError as exc:
-            fk = np.flatnonzero(piece.frames)
-            for g in fk:
-                reasons_lost[str(int(g))] = (f"its segment (frames {fk[0]}-{fk[-1]}) has no "
-                                             f"world and scale: {exc}")
-            continue
-        own = r.estimated & ~result.estimated
-        if own.any():  # a widened new start may pose only frames the main piece poses
-            segments.append(Segment(len(segments) + 1, own, r.trajectory, r.report))
-    reasons = {**report.get("frames_not_estimated_reasons", {}), **reasons_lost}
-    for seg in segments:
-        for f in np.flatnonzero(seg.frames):
-            reasons[str(f)] = (f"estimated in segment {seg.number} ({seg.file}), in its own "
-                               f"world and scale: too few lines link it to the main trajectory")
-    for (a, b), why in failures.items():
-        for j in range(a, b):
-            if str(j) in reasons and not covered[j]:
-                reasons[str(j)] = f"{reasons[str(j)]}; a new start on frames {a}-{b - 1} " \
-                                  f"failed: {why}"
-    report["frames_not_estimated_reasons"] = reasons
+    segments, reasons_lost = _segments_beside(tracks, pieces[1:], result)
+    report["frames_not_estimated_reasons"] = _reasons_not_estimated(
+        {**report.get("frames_not_estimated_reasons", {}), **reasons_lost}, segments, failures,
+        covered)
     if segments:
         report["segments"] = [{
             "file": seg.file,
@@ -1699,6 +1678,70 @@ def _with_segments(tracks: LineTracks, sol: _Solved, options: EstimationOptions,
             "residual_rms_deg": seg.report["residuals"]["rms_final_deg"],
         } for seg in segments]
     return replace(result, report=report, segments=tuple(segments))
+
+
+def _join_nearest(tracks: LineTracks, pieces: list[_Solved], lifted: _Solved,
+                  reach: _Solved | None, span: tuple[int, int], options: EstimationOptions,
+                  run: RunLog) -> int | None:
+    """The new piece ``lifted`` (from a start on frames ``span = (a, b)``) joined to the
+    nearest piece in time (within ``options.join_max_gap``) that shares enough lines with it:
+    that piece replaced in ``pieces`` by the join and its index returned; None where no piece
+    joins it. Each try recorded."""
+    a, b = span
+    gap = [max(0, int(np.flatnonzero(q.frames)[0]) - b, a - int(np.flatnonzero(
+        q.frames)[-1])) for q in pieces]
+    for k in np.argsort(gap, kind="stable"):
+        if gap[k] > options.join_max_gap:
+            continue
+        merged, why = _join(tracks, pieces[k], lifted, options, reach)
+        fk = np.flatnonzero(pieces[k].frames)
+        run.record(Attempt("join", (a, b - 1), merged, why=why,
+                           outcome=Outcome.KEPT if merged is not None else Outcome.FAILED),
+                   to_frames=[int(fk[0]), int(fk[-1])])
+        if merged is not None:
+            pieces[k] = merged
+            return int(k)
+    return None
+
+
+def _segments_beside(tracks: LineTracks, pieces: list[_Solved],
+                     result: EstimationResult) -> tuple[list[Segment], dict[str, str]]:
+    """The ``pieces`` other than the main one as numbered segments (in the order of their
+    first frame) with the frames they pose and the main ``result`` does not; also why the
+    frames of a piece that has no world and scale are lost (by frame)."""
+    segments: list[Segment] = []
+    reasons_lost: dict[str, str] = {}
+    for piece in sorted(pieces, key=lambda q: int(np.flatnonzero(q.frames)[0])):
+        try:
+            r = _moving_result(tracks, piece, RunLog(), time.perf_counter())
+        except OmniSfmError as exc:
+            fk = np.flatnonzero(piece.frames)
+            for g in fk:
+                reasons_lost[str(int(g))] = (f"its segment (frames {fk[0]}-{fk[-1]}) has no "
+                                             f"world and scale: {exc}")
+            continue
+        own = r.estimated & ~result.estimated
+        if own.any():  # a widened new start may pose only frames the main piece poses
+            segments.append(Segment(len(segments) + 1, own, r.trajectory, r.report))
+    return segments, reasons_lost
+
+
+def _reasons_not_estimated(reasons: dict[str, str], segments: list[Segment],
+                           failures: dict[tuple[int, int], str],
+                           covered: np.ndarray) -> dict[str, str]:
+    """``reasons`` (by frame) with the frames of ``segments`` said to be in them, and the
+    reasons of the frames still not ``covered`` extended by the new starts that ``failures``
+    record on them."""
+    for seg in segments:
+        for f in np.flatnonzero(seg.frames):
+            reasons[str(f)] = (f"estimated in segment {seg.number} ({seg.file}), in its own "
+                               f"world and scale: too few lines link it to the main trajectory")
+    for (a, b), why in failures.items():
+        for j in range(a, b):
+            if str(j) in reasons and not covered[j]:
+                reasons[str(j)] = f"{reasons[str(j)]}; a new start on frames {a}-{b - 1} " \
+                                  f"failed: {why}"
+    return reasons
 
 
 def _registered_again(tracks: LineTracks, sol: _Solved, options: EstimationOptions,
