@@ -3,7 +3,7 @@ bundle adjustment with outlier rejection -> poses of all estimable frames, and a
 
 Library entry point :func:`estimate_poses`; :func:`write_init_outputs` writes the documented
 artifacts (``trajectory.tum``, ``report.json``, see docs/formats.md) and is shared by every
-input mode of ``omni-sfm init`` (tracks file now, images later).
+input mode of ``omni-sfm init`` (``--tracks`` and ``--images``).
 
 Conventions of the result: world = the camera of the first estimated frame (frame 0 whenever it
 is estimated), poses world_from_cam, and the scale set so that the distance between the first
@@ -144,8 +144,7 @@ class EstimationOptions:
     start_margin: float = 0.001
     """Another start than the first is kept only where its score (:func:`_better_start`) is
     below the first start's by more than this fraction: nearly equal scores (a tie) keep the
-    first. 0.01 until 2026-11-27, which kept the worse of two fits 0.5 % apart on a real
-    video's tracks (docs/results.md)."""
+    first. Small, so that two fits half a percent apart are told apart."""
     min_segment_frames: int = 30
     """Where the registration stops and at least this many frames remain without a pose, the
     estimator starts again on them: a new segment in its own world and scale
@@ -154,7 +153,7 @@ class EstimationOptions:
     """At most this many new starts (joined or not); None: as many as the stretches left
     without a pose need (each is at least ``min_segment_frames`` long, so a sequence of F
     frames has fewer than F / ``min_segment_frames`` new starts beside those that fail; a fixed
-    cap left the later parts of a long video without a pose)."""
+    cap would leave the later parts of a long video without a pose)."""
     join_max_angle_deg: float = 1.0
     """Two pieces are joined when their common lines' directions agree within this (median,
     degrees) under the similarity between them ..."""
@@ -1106,7 +1105,7 @@ def _readjusted(tracks: LineTracks, ba: BundleResult, options: EstimationOptions
         both = ba.frames & new.frames
         old_cost, new_cost = (_capped_rms_deg(tracks, b.rotations, b.positions, both, limit)
                               for b in (ba, new))
-        why = (f"{int(new.used_tracks.sum())} tracks (were {int(ba.used_tracks.sum())}); all "
+        why = (f"{int(new.used_tracks.sum())} tracks ({int(ba.used_tracks.sum())} before); all "
                f"tracks, misfits capped at {np.degrees(limit):.3g} deg: {new_cost:.4g} deg RMS, "
                f"{old_cost:.4g} before")
         att = Attempt("adjustment from its own result", span, new, cost_deg=new.rms_final_deg,
@@ -1131,9 +1130,8 @@ def _lines_off_cameras(tracks: LineTracks, sol: _Solved, options: EstimationOpti
 
     A line through a camera is a false minimum of the adjustment: the plane of an observation
     through a camera on the line turns freely, so it fits any normal there, and the frames
-    around it bend to fit. Measured on the sparse tracks of scripts/eval_sparse.py, seeds
-    5, 6, 8 and 9 ended with such lines (0.001 % to 2 % of their median distance; the true
-    lines are 24 % or more) and 3-13 % above the oracle's cost."""
+    around it bend to fit. Some of the sparse simulations of ``scripts/eval/sparse.py`` reach
+    such lines, far closer to a camera than the true lines are (docs/estimator.md, stage 8)."""
     lim, M = options.line_camera_ratio, tracks.num_tracks
     if lim <= 0:
         return sol
@@ -1183,8 +1181,8 @@ def _lines_off_cameras(tracks: LineTracks, sol: _Solved, options: EstimationOpti
     if best is None:
         return sol
     ba = best[1]
-    # the frames around those lines bent to fit them: the way back is slow for LM (measured,
-    # sparse seed 6: 3.0x the oracle's translation error after 100 iterations, 1.0x after 1,000)
+    # the frames around those lines bent to fit them: the way back is slow for LM, hence
+    # line_camera_iterations of their own
     try:
         with run.timed("refinement"):
             ba = bundle_adjust(tracks, ba.rotations, ba.positions,
@@ -1752,9 +1750,8 @@ def _registered_again(tracks: LineTracks, sol: _Solved, options: EstimationOptio
     that were outliers then), then the adjustment of the piece; ``sol`` as it is where no
     frame is added (recorded). Up to three rounds, the next only where the adjustment took
     back a line that a frame still without a pose sees, within the first round's reach. The
-    reach is bounded: registered on and on, the
-    piece ran into stretches that the other pieces pose better (measured: a 5,000-frame walk
-    of scripts/bench_scaling.py, 338 frames added and 18.8 % ATE)."""
+    reach is bounded: registered on and on, the piece would run into stretches that the other
+    pieces pose better (docs/estimator.md, stage 8)."""
     if sol.frames.all():
         return sol
     F, ov = tracks.num_frames, options.restart_overlap
