@@ -6,9 +6,6 @@ comments) for the marks of a lab notebook: dates, former figures ("(was 1.06 deg
 tense as grammar ("the frame was skipped", "iterate until the cost settles") is not history
 and is allowed. The measurement
 records under docs/benchmarks/ carry their dates on purpose and are not searched.
-
-omni_sfm/estimate/ is left out for now: the global-estimator rewrite replaces it and cleans its
-docstrings; include it again when that lands.
 """
 
 from __future__ import annotations
@@ -19,7 +16,6 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-EXCLUDED = (ROOT / "omni_sfm" / "estimate",)  # being rewritten (see above)
 MONTHS = "Jan|Feb|Mar|Apr|May|Jun|Jul|Aug|Sep|Oct|Nov|Dec"
 HISTORY = re.compile("|".join([
     r"\b20\d\d-\d\d-\d\d\b",                                     # 2026-11-27
@@ -38,12 +34,11 @@ HISTORY = re.compile("|".join([
 
 def sources() -> list[Path]:
     """README.md, docs/*.md and the Python and C sources of the library, its plugins and the
-    scripts, less :data:`EXCLUDED`."""
+    scripts."""
     files = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
     for folder in ("omni_sfm", "plugins", "scripts"):
         for ext in ("*.py", "*.c"):
-            files += [p for p in sorted((ROOT / folder).rglob(ext))
-                      if not any(p.is_relative_to(e) for e in EXCLUDED)]
+            files += sorted((ROOT / folder).rglob(ext))
     return files
 
 
@@ -89,8 +84,3 @@ def test_history_is_recognised(line: str) -> None:
 ])
 def test_grammar_is_not_history(line: str) -> None:
     assert not HISTORY.search(line), line
-
-
-def test_the_excluded_folder_exists() -> None:
-    # when the estimator rewrite moves or empties it, drop it from EXCLUDED
-    assert all(e.is_dir() for e in EXCLUDED)

@@ -110,17 +110,15 @@ class BundleOptions:
     """Tracks whose plane normals turn by less than this many noise levels (RMS) are left
     out after the first round: nearly degenerate lines add little information and slow the
     convergence of long chains. 0 (default) keeps all: at high noise a threshold of a few
-    noise levels throws away useful lines (measured: the Fig. 12 oracle at 1.28 deg got 1.9x
-    worse with 3)."""
+    noise levels throws away useful lines."""
     min_distance_ratio: float = 0.0
     """Tracks whose line passes this close to a camera that sees it, relative to the track's
     median camera-line distance, are left out of the final polish (0, the default: keep all).
     The camera then (nearly) lies on the line: the line's plane through it is undefined there
     and the residuals are so far from linear that the adjustment of a long chain crawls. Off
-    by default, measured (scripts/eval_sparse.py, 10 seeds): 0.01 takes the sparse seeds 6
-    and 8 from 15.8x and 13.4x the oracle's translation error to 1.8x and 0.6x, but a wrong
-    start of a Fig. 12 trial (seed 1009, 1.28 deg) then loses lines it needs and the result
-    misses the oracle's minimum (1.339 against 1.188 deg RMS)."""
+    by default: it costs a Fig. 12 trial from a wrong start lines it needs; the estimator
+    triangulates such lines again instead, every track taking part (strategy "lines off the
+    cameras", docs/estimator.md stage 8)."""
     min_observations: int = 3
     """Tracks with fewer observations in the estimated frames take no part."""
     line_iterations: int = 2
@@ -329,9 +327,9 @@ class _ReducedSystem:
     (:func:`omni_sfm.estimate.kernels.reduce_lines`): the work of the pairs that share a frame
     and no more. The sparse matrix's structure (the pairs of lines seen in a frame together,
     :func:`omni_sfm.estimate.kernels.block_pattern`) is worked out once here, for all the steps
-    of an adjustment. Until 2026-11-28 the frames were taken 64 at a time and each run's dense
-    ``G`` block multiplied by itself (one BLAS call a run), which also multiplied the zeros of
-    the pairs of lines seen in a run but not in one frame (docs/estimator.md, "Solver")."""
+    of an adjustment. The pairs are taken frame by frame, not a dense block per run of frames,
+    which would also multiply the zeros of the pairs of lines seen in the run but not in one
+    frame (docs/estimator.md, "Solver")."""
 
     def __init__(self, f: np.ndarray, tc: np.ndarray, F: int, Ma: int) -> None:
         self.f, self.tc, self.F, self.Ma = f, tc, F, Ma
@@ -418,10 +416,9 @@ class LineProblem:
     where its own cost falls, so the step's cost can only fall by them. These are the
     "embedded point iterations" of Jeong et al. (CVPR 2010), for lines: a line that the chain's
     poses left far from where they now put it (triangulated from drifted poses, swung through a
-    camera) no longer holds every step back. Measured on the sparse simulation's adjustments
-    (600 frames, 80 lines, 4,800 observations, docs/estimator.md): the same minima in 36-98
-    iterations where the LM alone took 323-650 (and did not reach them in the 100 or 1,000 it
-    was allowed).
+    camera) does not hold every step back. On the sparse simulation's adjustments they reach
+    the LM's minima in a fraction of its iterations (docs/estimator.md, "Line bundle
+    adjustment").
     """
 
     def __init__(self, tracks: LineTracks, frames: np.ndarray, active: np.ndarray,

@@ -611,9 +611,8 @@ class OnlineEstimator:
         """Frame ``f``'s rotation, just registered, from its lines of known world directions
         alone (:meth:`_directions_rotation`), held from then on by the local adjustments
         (``hold_anchored``): the registration's rotation leans on lines triangulated from
-        earlier poses and, adjusted with them, drifted with them (0.08 deg a frame on the
-        rendered 200-frame corridor); the world directions do not move. ``ids``: the track
-        ids of the growth's tracks."""
+        earlier poses and, adjusted with them, drifts with them (docs/track.md); the world
+        directions do not move. ``ids``: the track ids of the growth's tracks."""
         obs = g.frame_obs(f)
         t = g.tracks.obs_track[obs]
         fam = g.fam[t] if self.options.registration.families else \

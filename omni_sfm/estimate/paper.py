@@ -26,7 +26,12 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from omni_sfm.errors import OmniSfmError
-from omni_sfm.estimate.rotation import RotationProblem, estimate_rotations, polish_angles
+from omni_sfm.estimate.rotation import (
+    RotationProblem,
+    RotationResult,
+    estimate_rotations,
+    polish_angles,
+)
 from omni_sfm.estimate.translation import (
     estimate_plane,
     estimate_vertical,
@@ -319,7 +324,7 @@ def _solve_once(tracks: LineTracks, family: ParallelFamily, opts: PaperOptions, 
                 side_rays: FloatArray | None) -> PaperSolution:
     """One weighted solve (inputs already checked)."""
     t_start = time.perf_counter()
-    F, M = tracks.num_frames, tracks.num_tracks
+    F = tracks.num_frames
     members = np.asarray(family.members, dtype=bool)
     normals = tracks.dense_normals().transpose(1, 0, 2)                  # (F, M, 3)
     par = np.flatnonzero(members & (w > 0))
@@ -331,8 +336,39 @@ def _solve_once(tracks: LineTracks, family: ParallelFamily, opts: PaperOptions, 
     ref = np.asarray(family.vpv, dtype=np.float64)
     vpv = chain_signs(vpv, ref if np.isfinite(ref).all(axis=1).any() else None)
 
-    # rotation: the paper's global 1-DOF search over phi_c (docs/method.md §4)
     t0 = time.perf_counter()
+    rot, c_rot = _rotation_search(normals, vpv, w, par, oth, opts)
+    candidates, polished_cost = _rotation_candidates(normals, vpv, w, oth, rot, c_rot, opts)
+    v = vpv[0]
+    t1 = time.perf_counter()
+    best_sol = _best_translation(candidates, normals, v, members, par, oth, w, opts)
+    R, positions, dirs, points = best_sol.R, best_sol.positions, best_sol.dirs, best_sol.points
+    t3 = time.perf_counter()
+    sign_from_rays = side_rays is not None
+    if side_rays is not None:
+        positions, points = _signed_by_rays(tracks, R, positions, points, dirs, w, side_rays)
+    t4 = time.perf_counter()
+    timings = {"rotation": (t1 - t0) * 1e3, "translation": (t3 - t1) * 1e3,
+               "translation_plane": best_sol.ms_plane,
+               "translation_vertical": best_sol.ms_vertical, "total": (t4 - t_start) * 1e3}
+    costs = {"E_rot": rot.cost, "E_rot_all_views": polished_cost, "E_t1": best_sol.cost_plane,
+             "E_t": best_sol.cost_vertical, "plane_ratio": best_sol.ratio,
+             "rms_deg": float(np.degrees(best_sol.rms)),
+             "polished_rotation": float(best_sol.R is not candidates[-1]),
+             "polished_translation": float(best_sol.all_views)}
+    return PaperSolution(R, positions, best_sol.c, rot.second_view, dirs, points, v,
+                         members.copy(), sign_from_rays, timings, costs, w.copy())
+
+
+def _rotation_search(normals: FloatArray, vpv: FloatArray, w: FloatArray, par: np.ndarray,
+                     oth: np.ndarray, opts: PaperOptions) -> tuple[RotationResult, int]:
+    """The paper's global 1-DOF search over phi_c (docs/method.md §4), with the second view
+    ``c`` (returned with the search) chosen by motion and, unless ``opts`` fixes it, again by
+    the parallax of the lines the first search places.
+
+    Raises:
+        OmniSfmError: the camera barely moved (``opts.min_parallax_deg``).
+    """
     xtol = opts.rotation_xtol if opts.rotation_xtol is not None else \
         (1e-6 if opts.polish_rotation else 1e-10)
     search_views = opts.rotation_search_views if opts.polish_rotation else None
@@ -368,8 +404,16 @@ def _solve_once(tracks: LineTracks, family: ParallelFamily, opts: PaperOptions, 
                                      softening=opts.rotation_softening, polish=False,
                                      search_views=search_views,
                                      continuity=opts.rotation_continuity)
-    # candidates: the search's minimum, then (if polishing) every local minimum of E_rot within
-    # a factor of the best, polished with all views; the full model decides among them
+    return rot, c_rot
+
+
+def _rotation_candidates(normals: FloatArray, vpv: FloatArray, w: FloatArray, oth: np.ndarray,
+                         rot: RotationResult, c_rot: int,
+                         opts: PaperOptions) -> tuple[list[FloatArray], float]:
+    """The rotations the full model decides among: (if polishing) the search's minimum, then
+    every local minimum of E_rot within ``opts.rotation_rival_factor`` of the best, each
+    polished with all views; last the search's own rotations. Also returns the polished cost
+    of the search's minimum (NaN without polishing)."""
     prob = RotationProblem.build(normals[:, oth], vpv, w[oth], c_rot)
     starts = [rot.phi]
     if opts.polish_rotation:
@@ -386,9 +430,18 @@ def _solve_once(tracks: LineTracks, family: ParallelFamily, opts: PaperOptions, 
             R_pol[0] = np.eye(3)
             candidates.append(R_pol)
     candidates.append(rot.rotations)
-    v = vpv[0]
-    t1 = time.perf_counter()
+    return candidates, polished_cost
 
+
+def _best_translation(candidates: list[FloatArray], normals: FloatArray, v: FloatArray,
+                      members: np.ndarray, par: np.ndarray, oth: np.ndarray, w: FloatArray,
+                      opts: PaperOptions) -> _Translation:
+    """The translation (docs/method.md §5) of the candidate rotations whose model has the
+    least RMS angle; a candidate that fails is skipped.
+
+    Raises:
+        OmniSfmError: every candidate fails (the last one's error).
+    """
     best_sol: _Translation | None = None
     for k, R in enumerate(candidates):
         try:
@@ -400,30 +453,24 @@ def _solve_once(tracks: LineTracks, family: ParallelFamily, opts: PaperOptions, 
         if best_sol is None or sol.rms < best_sol.rms:
             best_sol = sol
     assert best_sol is not None
-    R, positions, dirs, points = best_sol.R, best_sol.positions, best_sol.dirs, best_sol.points
-    t3 = time.perf_counter()
-    sign_from_rays = False
-    if side_rays is not None:
-        rays = np.asarray(side_rays, dtype=np.float64)
-        dense = np.zeros((F, M, 3))
-        dense[tracks.obs_frame, tracks.obs_track] = rays
-        rays_w = np.einsum("fij,fmj->fmi", R, dense)
-        sel = np.zeros((F, M), dtype=bool)
-        sel[:, w > 0] = True
-        if resolve_sign(rays_w, positions, points, dirs, sel) < 0:
-            positions, points = -positions, -points
-        sign_from_rays = True
-    t4 = time.perf_counter()
-    timings = {"rotation": (t1 - t0) * 1e3, "translation": (t3 - t1) * 1e3,
-               "translation_plane": best_sol.ms_plane,
-               "translation_vertical": best_sol.ms_vertical, "total": (t4 - t_start) * 1e3}
-    costs = {"E_rot": rot.cost, "E_rot_all_views": polished_cost, "E_t1": best_sol.cost_plane,
-             "E_t": best_sol.cost_vertical, "plane_ratio": best_sol.ratio,
-             "rms_deg": float(np.degrees(best_sol.rms)),
-             "polished_rotation": float(best_sol.R is not candidates[-1]),
-             "polished_translation": float(best_sol.all_views)}
-    return PaperSolution(R, positions, best_sol.c, rot.second_view, dirs, points, v,
-                         members.copy(), sign_from_rays, timings, costs, w.copy())
+    return best_sol
+
+
+def _signed_by_rays(tracks: LineTracks, R: FloatArray, positions: FloatArray, points: FloatArray,
+                    dirs: FloatArray, w: FloatArray,
+                    side_rays: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """``positions`` and line ``points``, reflected through the first camera where the rays
+    towards the observed segments say so (cheirality of the weighted lines)."""
+    F, M = tracks.num_frames, tracks.num_tracks
+    rays = np.asarray(side_rays, dtype=np.float64)
+    dense = np.zeros((F, M, 3))
+    dense[tracks.obs_frame, tracks.obs_track] = rays
+    rays_w = np.einsum("fij,fmj->fmi", R, dense)
+    sel = np.zeros((F, M), dtype=bool)
+    sel[:, w > 0] = True
+    if resolve_sign(rays_w, positions, points, dirs, sel) < 0:
+        positions, points = -positions, -points
+    return positions, points
 
 
 @dataclass(frozen=True)

@@ -3,7 +3,7 @@ bundle adjustment with outlier rejection -> poses of all estimable frames, and a
 
 Library entry point :func:`estimate_poses`; :func:`write_init_outputs` writes the documented
 artifacts (``trajectory.tum``, ``report.json``, see docs/formats.md) and is shared by every
-input mode of ``omni-sfm init`` (tracks file now, images later).
+input mode of ``omni-sfm init`` (``--tracks`` and ``--images``).
 
 Conventions of the result: world = the camera of the first estimated frame (frame 0 whenever it
 is estimated), poses world_from_cam, and the scale set so that the distance between the first
@@ -144,8 +144,7 @@ class EstimationOptions:
     start_margin: float = 0.001
     """Another start than the first is kept only where its score (:func:`_better_start`) is
     below the first start's by more than this fraction: nearly equal scores (a tie) keep the
-    first. 0.01 until 2026-11-27, which kept the worse of two fits 0.5 % apart on a real
-    video's tracks (docs/results.md)."""
+    first. Small, so that two fits half a percent apart are told apart."""
     min_segment_frames: int = 30
     """Where the registration stops and at least this many frames remain without a pose, the
     estimator starts again on them: a new segment in its own world and scale
@@ -154,7 +153,7 @@ class EstimationOptions:
     """At most this many new starts (joined or not); None: as many as the stretches left
     without a pose need (each is at least ``min_segment_frames`` long, so a sequence of F
     frames has fewer than F / ``min_segment_frames`` new starts beside those that fail; a fixed
-    cap left the later parts of a long video without a pose)."""
+    cap would leave the later parts of a long video without a pose)."""
     join_max_angle_deg: float = 1.0
     """Two pieces are joined when their common lines' directions agree within this (median,
     degrees) under the similarity between them ..."""
@@ -872,6 +871,17 @@ def _best_of_starts(tracks: LineTracks, options: EstimationOptions, other: Estim
     backwards = c.result
     if backwards is not None:
         candidates.append(("reversed start", backwards))
+    kept = _kept_start(tracks, first, candidates, options, run)
+    return replace(kept, report={**kept.report, "attempts": run.entries})
+
+
+def _kept_start(tracks: LineTracks, first: EstimationResult,
+                candidates: list[tuple[str, EstimationResult]], options: EstimationOptions,
+                run: RunLog) -> EstimationResult:
+    """The first start's result or the best of the other starts' named ``candidates``, where
+    it scores better by ``options.start_margin`` (every observation, misfits capped; ties by
+    :func:`_least_squares_among_ties`); each candidate recorded as kept or rejected."""
+    F = tracks.num_frames
     limit = outlier_limit(np.radians(first.sigma_deg), options.bundle)
 
     def score(r: EstimationResult) -> float:
@@ -893,7 +903,7 @@ def _best_of_starts(tracks: LineTracks, options: EstimationOptions, other: Estim
                     f"squares: {r.residual_rms_final_deg:.7g} deg RMS")
         att = Attempt(name, (0, F - 1), r, cost_deg=sc, why=why)
         run.record(att if r is kept else att.judged(Outcome.REJECTED, why))
-    return replace(kept, report={**kept.report, "attempts": run.entries})
+    return kept
 
 
 def _least_squares_among_ties(candidates: list[tuple[str, EstimationResult]],
@@ -1095,7 +1105,7 @@ def _readjusted(tracks: LineTracks, ba: BundleResult, options: EstimationOptions
         both = ba.frames & new.frames
         old_cost, new_cost = (_capped_rms_deg(tracks, b.rotations, b.positions, both, limit)
                               for b in (ba, new))
-        why = (f"{int(new.used_tracks.sum())} tracks (were {int(ba.used_tracks.sum())}); all "
+        why = (f"{int(new.used_tracks.sum())} tracks ({int(ba.used_tracks.sum())} before); all "
                f"tracks, misfits capped at {np.degrees(limit):.3g} deg: {new_cost:.4g} deg RMS, "
                f"{old_cost:.4g} before")
         att = Attempt("adjustment from its own result", span, new, cost_deg=new.rms_final_deg,
@@ -1120,9 +1130,8 @@ def _lines_off_cameras(tracks: LineTracks, sol: _Solved, options: EstimationOpti
 
     A line through a camera is a false minimum of the adjustment: the plane of an observation
     through a camera on the line turns freely, so it fits any normal there, and the frames
-    around it bend to fit. Measured on the sparse tracks of scripts/eval_sparse.py, seeds
-    5, 6, 8 and 9 ended with such lines (0.001 % to 2 % of their median distance; the true
-    lines are 24 % or more) and 3-13 % above the oracle's cost."""
+    around it bend to fit. Some of the sparse simulations of ``scripts/eval/sparse.py`` reach
+    such lines, far closer to a camera than the true lines are (docs/estimator.md, stage 8)."""
     lim, M = options.line_camera_ratio, tracks.num_tracks
     if lim <= 0:
         return sol
@@ -1172,8 +1181,8 @@ def _lines_off_cameras(tracks: LineTracks, sol: _Solved, options: EstimationOpti
     if best is None:
         return sol
     ba = best[1]
-    # the frames around those lines bent to fit them: the way back is slow for LM (measured,
-    # sparse seed 6: 3.0x the oracle's translation error after 100 iterations, 1.0x after 1,000)
+    # the frames around those lines bent to fit them: the way back is slow for LM, hence
+    # line_camera_iterations of their own
     try:
         with run.timed("refinement"):
             ba = bundle_adjust(tracks, ba.rotations, ba.positions,
@@ -1633,24 +1642,13 @@ def _with_segments(tracks: LineTracks, sol: _Solved, options: EstimationOptions,
             reach = lifted  # a short stretch widened into its neighbour's frames
         covered |= lifted.frames
         todo += _stretches(covered, a, b, options)
-        # join the nearest piece in time that shares enough lines with it
-        gap = [max(0, int(np.flatnonzero(q.frames)[0]) - b, a - int(np.flatnonzero(
-            q.frames)[-1])) for q in pieces]
-        for k in np.argsort(gap, kind="stable"):
-            if gap[k] > options.join_max_gap:
-                continue
-            merged, why = _join(tracks, pieces[k], lifted, options, reach)
-            fk = np.flatnonzero(pieces[k].frames)
-            run.record(Attempt("join", (a, b - 1), merged, why=why,
-                               outcome=Outcome.KEPT if merged is not None else Outcome.FAILED),
-                       to_frames=[int(fk[0]), int(fk[-1])])
-            if merged is not None:
-                pieces[k], joined = merged, joined + 1
-                grown[k] = True
-                break
-        else:
+        into = _join_nearest(tracks, pieces, lifted, reach, (a, b), options, run)
+        if into is None:
             pieces.append(lifted)
             grown.append(False)
+        else:
+            joined += 1
+            grown[into] = True
     for k in np.flatnonzero(grown):
         pieces[k] = _adjusted(tracks, pieces[k], options, run, "joining pieces")
     # the main trajectory is the largest piece
@@ -1663,31 +1661,10 @@ def _with_segments(tracks: LineTracks, sol: _Solved, options: EstimationOptions,
     report = dict(result.report)
     report["joined_pieces"] = joined
     report["attempts"] = run.entries
-    segments: list[Segment] = []
-    reasons_lost: dict[str, str] = {}
-    for piece in sorted(pieces[1:], key=lambda q: int(np.flatnonzero(q.frames)[0])):
-        try:
-            r = _moving_result(tracks, piece, RunLog(), time.perf_counter())
-        except OmniSfmError as exc:
-            fk = np.flatnonzero(piece.frames)
-            for g in fk:
-                reasons_lost[str(int(g))] = (f"its segment (frames {fk[0]}-{fk[-1]}) has no "
-                                             f"world and scale: {exc}")
-            continue
-        own = r.estimated & ~result.estimated
-        if own.any():  # a widened new start may pose only frames the main piece poses
-            segments.append(Segment(len(segments) + 1, own, r.trajectory, r.report))
-    reasons = {**report.get("frames_not_estimated_reasons", {}), **reasons_lost}
-    for seg in segments:
-        for f in np.flatnonzero(seg.frames):
-            reasons[str(f)] = (f"estimated in segment {seg.number} ({seg.file}), in its own "
-                               f"world and scale: too few lines link it to the main trajectory")
-    for (a, b), why in failures.items():
-        for j in range(a, b):
-            if str(j) in reasons and not covered[j]:
-                reasons[str(j)] = f"{reasons[str(j)]}; a new start on frames {a}-{b - 1} " \
-                                  f"failed: {why}"
-    report["frames_not_estimated_reasons"] = reasons
+    segments, reasons_lost = _segments_beside(tracks, pieces[1:], result)
+    report["frames_not_estimated_reasons"] = _reasons_not_estimated(
+        {**report.get("frames_not_estimated_reasons", {}), **reasons_lost}, segments, failures,
+        covered)
     if segments:
         report["segments"] = [{
             "file": seg.file,
@@ -1701,6 +1678,70 @@ def _with_segments(tracks: LineTracks, sol: _Solved, options: EstimationOptions,
     return replace(result, report=report, segments=tuple(segments))
 
 
+def _join_nearest(tracks: LineTracks, pieces: list[_Solved], lifted: _Solved,
+                  reach: _Solved | None, span: tuple[int, int], options: EstimationOptions,
+                  run: RunLog) -> int | None:
+    """The new piece ``lifted`` (from a start on frames ``span = (a, b)``) joined to the
+    nearest piece in time (within ``options.join_max_gap``) that shares enough lines with it:
+    that piece replaced in ``pieces`` by the join and its index returned; None where no piece
+    joins it. Each try recorded."""
+    a, b = span
+    gap = [max(0, int(np.flatnonzero(q.frames)[0]) - b, a - int(np.flatnonzero(
+        q.frames)[-1])) for q in pieces]
+    for k in np.argsort(gap, kind="stable"):
+        if gap[k] > options.join_max_gap:
+            continue
+        merged, why = _join(tracks, pieces[k], lifted, options, reach)
+        fk = np.flatnonzero(pieces[k].frames)
+        run.record(Attempt("join", (a, b - 1), merged, why=why,
+                           outcome=Outcome.KEPT if merged is not None else Outcome.FAILED),
+                   to_frames=[int(fk[0]), int(fk[-1])])
+        if merged is not None:
+            pieces[k] = merged
+            return int(k)
+    return None
+
+
+def _segments_beside(tracks: LineTracks, pieces: list[_Solved],
+                     result: EstimationResult) -> tuple[list[Segment], dict[str, str]]:
+    """The ``pieces`` other than the main one as numbered segments (in the order of their
+    first frame) with the frames they pose and the main ``result`` does not; also why the
+    frames of a piece that has no world and scale are lost (by frame)."""
+    segments: list[Segment] = []
+    reasons_lost: dict[str, str] = {}
+    for piece in sorted(pieces, key=lambda q: int(np.flatnonzero(q.frames)[0])):
+        try:
+            r = _moving_result(tracks, piece, RunLog(), time.perf_counter())
+        except OmniSfmError as exc:
+            fk = np.flatnonzero(piece.frames)
+            for g in fk:
+                reasons_lost[str(int(g))] = (f"its segment (frames {fk[0]}-{fk[-1]}) has no "
+                                             f"world and scale: {exc}")
+            continue
+        own = r.estimated & ~result.estimated
+        if own.any():  # a widened new start may pose only frames the main piece poses
+            segments.append(Segment(len(segments) + 1, own, r.trajectory, r.report))
+    return segments, reasons_lost
+
+
+def _reasons_not_estimated(reasons: dict[str, str], segments: list[Segment],
+                           failures: dict[tuple[int, int], str],
+                           covered: np.ndarray) -> dict[str, str]:
+    """``reasons`` (by frame) with the frames of ``segments`` said to be in them, and the
+    reasons of the frames still not ``covered`` extended by the new starts that ``failures``
+    record on them."""
+    for seg in segments:
+        for f in np.flatnonzero(seg.frames):
+            reasons[str(f)] = (f"estimated in segment {seg.number} ({seg.file}), in its own "
+                               f"world and scale: too few lines link it to the main trajectory")
+    for (a, b), why in failures.items():
+        for j in range(a, b):
+            if str(j) in reasons and not covered[j]:
+                reasons[str(j)] = f"{reasons[str(j)]}; a new start on frames {a}-{b - 1} " \
+                                  f"failed: {why}"
+    return reasons
+
+
 def _registered_again(tracks: LineTracks, sol: _Solved, options: EstimationOptions,
                       run: RunLog) -> _Solved:
     """Strategy "registration again": up to ``restart_overlap`` frames before and after the
@@ -1709,9 +1750,8 @@ def _registered_again(tracks: LineTracks, sol: _Solved, options: EstimationOptio
     that were outliers then), then the adjustment of the piece; ``sol`` as it is where no
     frame is added (recorded). Up to three rounds, the next only where the adjustment took
     back a line that a frame still without a pose sees, within the first round's reach. The
-    reach is bounded: registered on and on, the
-    piece ran into stretches that the other pieces pose better (measured: a 5,000-frame walk
-    of scripts/bench_scaling.py, 338 frames added and 18.8 % ATE)."""
+    reach is bounded: registered on and on, the piece would run into stretches that the other
+    pieces pose better (docs/estimator.md, stage 8)."""
     if sol.frames.all():
         return sol
     F, ov = tracks.num_frames, options.restart_overlap
