@@ -684,6 +684,9 @@ def solve_global(tracks: LineTracks, options: GlobalOptions = GlobalOptions()
     steps.append({"step": "bundle adjustment", "iterations": ba.iterations,
                   "outlier_tracks": int(ba.outlier_tracks.sum()),
                   "rms_final_deg": float(ba.rms_final_deg)})
+    for k in np.flatnonzero(frames & ~ba.frames):
+        not_posed[int(k)] = ("fewer than 3 of its lines are left after the adjustment rejected "
+                             "outlier tracks")
     members = np.asarray(families[0].members, bool) if families else \
         np.zeros(tracks.num_tracks, bool)
     return GlobalSolution(

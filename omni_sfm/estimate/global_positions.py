@@ -11,7 +11,7 @@ smallest eigenvalue of the normal equations (lines included), found by inverse i
 sparse factorisation. Each row is weighted by the inverse distance between camera and line (its
 residual is then the observation's angle) and by a Cauchy loss, re-weighted a few times.
 
-A weak second-difference prior on the centres (in frame order) makes every frame's position
+A second-difference prior on the centres (in frame order) makes every frame's position
 defined: a frame that its lines do not fix (a stop with the lines along the motion, a stretch
 with two lines) takes its position from its neighbours instead of a free direction, and its
 information (:attr:`GlobalPositions.frame_information`) says that the data did not fix it. The
@@ -33,9 +33,14 @@ from omni_sfm.lines.tracks import LineTracks
 
 @dataclass(frozen=True, kw_only=True)
 class GlobalPositionOptions:
-    smoothness: float = 1e-4
+    smoothness: float = 0.1
     """Weight of the second-difference prior on the centres, relative to the median weight of a
-    frame's own observations (per frame)."""
+    frame's own observations (per frame). Under the scale condition ``sum |c|^2 = 1`` a frame
+    whose short tracks barely fix it could carry the whole norm alone at almost no cost; the
+    prior makes that cost what moving it off its neighbours' line costs, while a smooth walk's
+    own second differences cost next to nothing. The adjustment then drops it. (Rendered
+    hand-held 360 walk, 60 frames, tracks of 6.5 frames median: 0.43-0.45 % ATE with 0.03-1,
+    17-27 % with 1e-4-1e-2.)"""
     reweight_rounds: int = 4
     """Solves with the rows re-weighted by the current distances and residuals."""
     loss_scale: float = 3.0
