@@ -109,7 +109,10 @@ def typed_command() -> str:
     if module is not None:
         cmd = [".venv/bin/python", "-m", module, *argv]
     else:
-        cmd = [".venv/bin/python", sys.argv[0], *argv]
+        script = Path(sys.argv[0]).resolve()
+        root = Path(__file__).resolve().parent.parent
+        shown = script.relative_to(root) if script.is_relative_to(root) else script
+        cmd = [".venv/bin/python", str(shown), *argv]
     threads = os.environ.get("OPENBLAS_NUM_THREADS")
     prefix = f"OPENBLAS_NUM_THREADS={threads} " if threads else ""
     return prefix + shlex.join(cmd)

@@ -293,7 +293,38 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--overlap", type=int, default=10, help="COLMAP's sequential overlap")
     ap.add_argument("--groundtruth", type=Path, default=None,
                     help="ground truth TUM (renders): adds each method's errors")
+    ap.add_argument("--record", default=None, metavar="NAME",
+                    help="with --groundtruth: add init's figures as the row --label of the "
+                         "record docs/benchmarks/NAME.json (python -m scripts.render_results "
+                         "renders it into the docs)")
+    ap.add_argument("--label", default=None, help="the record's row label (default: --images)")
+    ap.add_argument("--log-dir", type=Path, default=Path(__file__).resolve().parent.parent
+                    / "docs" / "benchmarks", help="folder of the record")
     return ap
+
+
+def _record(args: argparse.Namespace, res: dict[str, Any]) -> None:
+    """Add init's figures against the truth as one row of the record ``args.record``."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+    from scripts.benchlib import write_log
+
+    li = res["lines"]
+    t = li.get("groundtruth") or {}
+    if li.get("status") != "ok" or "rot_max_deg" not in t:
+        raise SystemExit(f"check_footage: no figures to record ({li.get('reason', 'no truth')})")
+    extra = " ".join(args.init_arg) or "(defaults)"
+    posed = f"{li['posed']}/{res['frames']}"
+    if li.get("segments_frames"):
+        posed += f" (+{li['segments_frames']} in segments)"
+    flagged = li.get("uncertain")
+    row = [args.label or str(args.images), extra, posed,
+           "n/a" if flagged is None else len(flagged), t["rot_mean_deg"], t["rot_max_deg"],
+           t["ate_pct_of_path"], li["time_s"]]
+    write_log(args, args.record, "init on footage against its ground truth", [
+        "footage", "init arguments", "frames posed", "flagged",
+        {"label": "rotation mean (deg)", "format": ".3f"},
+        {"label": "rotation max (deg)", "format": ".3f"}, {"label": "ATE (%)", "format": ".2f"},
+        {"label": "time (s)", "format": ".1f"}], [row], merge=True)
 
 
 def _fresh_output(out: Path, overwrite: bool) -> None:
@@ -363,6 +394,8 @@ def main(argv: list[str] | None = None) -> int:
     text = table(res)
     res["table"] = text.splitlines()
     (out / "check.json").write_text(dumps_json(res))
+    if args.record:
+        _record(args, res)
     print(text)
     print(f"wrote {out / 'check.json'}")
     return 0

@@ -114,3 +114,22 @@ def test_uncertain_flags_and_frame_selection(wide, tmp_path):
     assert sorted(p.name for p in sel.iterdir()) == ["000001.png", "000004.png", "000007.png"]
     assert check.frame_selection(wide / "video.mp4", 0, None, 1, tmp_path / "x") == \
         wide / "video.mp4"
+
+
+def test_record_row_holds_inits_figures_against_the_truth(wide, tmp_path):
+    """``--record`` adds init's figures as one row (its label's), kept beside the others."""
+    check = _script()
+    logs = tmp_path / "logs"
+    for label in ("first", "second"):
+        out = tmp_path / label
+        assert check.main(["--images", str(wide / "video.mp4"), "--camera", "equirectangular",
+                           "--output", str(out), "--no-colmap", "--groundtruth",
+                           str(wide / "groundtruth.tum"), "--record", "eval_walks", "--label",
+                           label, "--log-dir", str(logs)]) == 0
+    rec = json.loads((logs / "eval_walks.json").read_text())
+    assert [r[0] for r in rec["rows"]] == ["first", "second"]
+    res = json.loads((tmp_path / "second" / "check.json").read_text())
+    row = rec["rows"][1]
+    assert row[2] == f"{res['lines']['posed']}/{WIDE.frames}"
+    assert row[6] == pytest.approx(res["lines"]["groundtruth"]["ate_pct_of_path"])
+    assert len(rec["row_commands"]) == 2
