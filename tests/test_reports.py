@@ -176,6 +176,10 @@ def test_init_report_reads_what_its_readers_use(tmp_path: Path) -> None:
     text = summary(turned, tmp_path, ["0", "1"], [], [])
     assert "rotation only" in text and "3 parallel lines, 1 outlier tracks" in text
     assert "first-to-last camera distance = 1" in summary(_init_doc(), tmp_path, ["0"], [], [])
+    assert "uncertain" not in summary(_init_doc(), tmp_path, ["0"], [], [])
+    flagged = {str(k): "position not fixed" for k in (0, 1, 2, 5, 7, 8)}
+    text = summary(_init_doc(frames_uncertain=flagged), tmp_path, ["0"], [], [])
+    assert "uncertain: 6 frames the data do not fix (frames 0-2, 5, 7-8;" in text
     with pytest.raises(OmniSfmError, match="no 'num_frames' key"):
         InitReport.from_json({"input": {}}, "init/report.json")
     with pytest.raises(OmniSfmError, match="not a JSON object"):

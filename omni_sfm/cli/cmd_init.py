@@ -105,6 +105,18 @@ def _names(names: list[str], most: int = 5) -> str:
     return ", ".join(names[:most]) + more
 
 
+def _index_runs(idx: list[int], most: int = 6) -> str:
+    """Sorted frame indices as runs (``0-22, 24, 27-29``), the first ``most`` of them."""
+    runs: list[list[int]] = []
+    for k in idx:
+        if runs and k == runs[-1][1] + 1:
+            runs[-1][1] = k
+        else:
+            runs.append([k, k])
+    text = [f"{a}-{b}" if b > a else f"{a}" for a, b in runs[:most]]
+    return ", ".join(text) + (f", ... ({len(runs) - most} more runs)" if len(runs) > most else "")
+
+
 def _skipped(names: list[str], reasons: list[str], most: int = 3) -> str:
     """``skipped: ...``: the skipped frames with their reasons, runs of frames with one reason
     as one entry (``000018.png-000029.png: ...``)."""
@@ -153,6 +165,10 @@ def summary(rep: InitReport | dict[str, Any], output: Path, estimated: list[str]
         lines.append(f"not estimated: {len(not_estimated) - n_seg} frames"
                      + (f" besides the segments' {n_seg}" if n_seg else "")
                      + f" ({_names(not_estimated)}; reasons in report.json)")
+    if rep.frames_uncertain:
+        idx = sorted(int(k) for k in rep.frames_uncertain)
+        lines.append(f"uncertain: {len(idx)} frames the data do not fix (frames "
+                     f"{_index_runs(idx)}; reasons in report.json frames_uncertain)")
     if unreadable and reasons:
         lines.append(_skipped(unreadable, reasons))
     elif unreadable:
