@@ -193,6 +193,19 @@ def centre_given_rotation(normals: FloatArray, directions: FloatArray, points: F
     return np.asarray(np.linalg.lstsq(m, b, rcond=None)[0])
 
 
+def plane_parallax_deg(world_normals: FloatArray, line: np.ndarray, num_lines: int
+                       ) -> FloatArray:
+    """``(num_lines,)`` how far (deg) each line's planes turn about it across its views: the
+    world normals ``(N, 3)`` of its observations (``line`` ``(N,)``: which line each is of),
+    from the spread of their scatter matrix (0 for a line seen from one place, or only along
+    its own direction)."""
+    A = np.zeros((num_lines, 3, 3))
+    np.add.at(A, line, world_normals[:, :, None] * world_normals[:, None, :])
+    ev = np.linalg.eigvalsh(A)
+    ratio = ev[:, 1] / np.maximum(ev[:, 1] + ev[:, 2], 1e-300)
+    return np.asarray(np.degrees(2.0 * np.arcsin(np.sqrt(np.clip(ratio, 0.0, 1.0)))))
+
+
 def _spread(directions: FloatArray) -> float:
     """Largest angle (deg) between two of the (unsigned) directions ``(K, 3)``."""
     if len(directions) < 2:
@@ -355,11 +368,7 @@ class Growth:
                 return
             local_t = np.searchsorted(cand, tracks.obs_track[obs])
             cnt = np.bincount(local_t, minlength=len(cand))
-        A = np.zeros((len(cand), 3, 3))
-        np.add.at(A, local_t, n_w[:, :, None] * n_w[:, None, :])
-        ev = np.linalg.eigvalsh(A)
-        ratio = ev[:, 1] / np.maximum(ev[:, 1] + ev[:, 2], 1e-300)
-        parallax = np.degrees(2.0 * np.arcsin(np.sqrt(np.clip(ratio, 0.0, 1.0))))
+        parallax = plane_parallax_deg(n_w, local_t, len(cand))
         ready = (cnt >= o.min_views) & (parallax >= o.min_parallax_deg)
         if not ready.any():
             return

@@ -10,9 +10,11 @@ wires the estimator's own pieces, nothing new:
    offline estimator (:func:`~omni_sfm.estimate.pipeline.estimate_poses`: the paper's windows,
    the line bundle adjustment) solves the buffered frames and poses the newest of them: the
    first try after ``start_frames`` frames, again every ``start_retry`` frames, the oldest
-   frames dropped beyond ``max_start_frames``. The frame where the start succeeds gets its pose
-   (status ``tracking``) and, in :attr:`TrackedPose.start_poses`, the poses of the buffered
-   frames that the start solved (computed from the frames up to this one).
+   frames dropped beyond ``max_start_frames``; a start is taken once its lines' planes turn
+   by ``min_start_parallax_deg`` across the buffered frames (or the buffer is full): its
+   baseline fixes the scale that the tracking carries on. The frame where the start succeeds
+   gets its pose (status ``tracking``) and, in :attr:`TrackedPose.start_poses`, the poses of
+   the buffered frames that the start solved (computed from the frames up to this one).
    **World directions.** The start's parallel families (vanishing directions) become fixed
    world directions, each from every view of its members (their planes, with the start's
    rotations); the start's rotations are then turned by the correction (a constant and a turn
@@ -68,9 +70,10 @@ from omni_sfm.estimate.families import (
 from omni_sfm.estimate.incremental import (
     Growth,
     IncrementalOptions,
+    plane_parallax_deg,
     rotation_from_directions,
 )
-from omni_sfm.estimate.pipeline import EstimationOptions, estimate_poses
+from omni_sfm.estimate.pipeline import EstimationOptions, EstimationResult, estimate_poses
 from omni_sfm.geometry import (
     FloatArray,
     matrix_to_rotvec,
@@ -126,6 +129,12 @@ class OnlineOptions:
     """A start that fails is tried again after this many more frames ..."""
     max_start_frames: int = 40
     """... on at most this many of the latest frames."""
+    min_start_parallax_deg: float = 2.5
+    """A start is taken once the planes of its lines turn by this much across the buffered
+    frames (90th percentile over the lines; or once ``max_start_frames`` are buffered): the
+    start's lines and baseline fix the scale that the tracking carries on, and a start on too
+    short a baseline leaves them out of proportion, which the tracking then relaxes as a scale
+    drift (docs/track.md)."""
     registration: IncrementalOptions = field(
         default_factory=lambda: IncrementalOptions(wide_every=0, families=False))
     """Registration, triangulation and local adjustment (``local_every``, ``local_frames``,
@@ -265,6 +274,17 @@ def _window_tracks(frames: list[_Frame], min_views: int = 1
     return tracks, uniq
 
 
+def _start_parallax(tracks: LineTracks, res: EstimationResult) -> float:
+    """The 90th percentile over the start's lines of how far their planes turn across the
+    posed buffered frames (:func:`~omni_sfm.estimate.incremental.plane_parallax_deg`)."""
+    R = np.full((tracks.num_frames, 3, 3), np.nan)
+    R[res.estimated] = res.trajectory.rotations
+    ok = res.estimated[tracks.obs_frame]
+    n_w = np.einsum("kij,kj->ki", R[tracks.obs_frame[ok]], tracks.obs_normal[ok])
+    return float(np.percentile(plane_parallax_deg(n_w, tracks.obs_track[ok],
+                                                  tracks.num_tracks), 90))
+
+
 class OnlineEstimator:
     """Steps 1-3 of the module docstring on line observations: feed each frame's tracked lines
     with :meth:`add`, in order."""
@@ -364,6 +384,11 @@ class OnlineEstimator:
         if not res.estimated[-1] or res.estimated.sum() < 3:
             return self._rot_or(fr, status, f"{head}start on {n} frames did not pose the "
                                             "newest frame", rot)
+        turn = _start_parallax(tracks, res)
+        if turn < o.min_start_parallax_deg and n < o.max_start_frames:
+            return self._rot_or(fr, status, f"{head}start on {n} frames: its lines' planes "
+                                            f"turn by {turn:.1f} deg (90th percentile); need "
+                                            f"{o.min_start_parallax_deg:g}", rot)
         # the start's poses and lines
         traj = res.trajectory
         est = np.flatnonzero(res.estimated)
