@@ -70,7 +70,10 @@ def render(args: argparse.Namespace) -> Path:
 def bench_images(args: argparse.Namespace) -> None:
     seq = Path(args.input) if args.input else render(args)
     camera = load_camera(seq / "camera.yaml")
-    files = sorted((seq / "images").glob("*.png"))
+    files = sorted(f for f in (seq / "images").iterdir()
+                   if f.suffix.lower() in (".png", ".jpg", ".jpeg"))  # --footage renders: JPEG
+    if not files:
+        raise SystemExit(f"bench.track: no PNG or JPEG frames in {seq / 'images'}")
     tracker = Tracker(camera)
     poses = []
     cpu = []
@@ -133,7 +136,10 @@ def _rss_now_mb() -> float:
 def bench_memory_images(args: argparse.Namespace, N: int) -> None:
     seq = Path(args.input) if args.input else render(args)
     camera = load_camera(seq / "camera.yaml")
-    files = sorted((seq / "images").glob("*.png"))
+    files = sorted(f for f in (seq / "images").iterdir()
+                   if f.suffix.lower() in (".png", ".jpg", ".jpeg"))  # --footage renders: JPEG
+    if not files:
+        raise SystemExit(f"bench.track: no PNG or JPEG frames in {seq / 'images'}")
     cycle = list(range(len(files))) + list(range(len(files) - 2, 0, -1))
     tracker = Tracker(camera)
     status: Counter[str] = Counter()
