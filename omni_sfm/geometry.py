@@ -225,6 +225,17 @@ def matrix_to_rotvec(R: ArrayLike) -> FloatArray:
         m.shape[:-1])
 
 
+def nearest_rotation(M: ArrayLike) -> FloatArray:
+    """The rotation nearest each ``(..., 3, 3)`` matrix (Frobenius; the polar factor with its
+    determinant made +1): the chordal mean of rotations summed into ``M``, or the Kabsch
+    rotation of a correlation matrix ``sum b a^T``."""
+    U, _, Vt = np.linalg.svd(np.asarray(M, dtype=np.float64))
+    d = np.sign(np.linalg.det(U @ Vt))
+    d = np.where(d == 0, 1.0, d)
+    scale = np.stack([np.ones_like(d), np.ones_like(d), d], axis=-1)
+    return np.asarray((U * scale[..., None, :]) @ Vt)
+
+
 def rotation_angle(R: ArrayLike) -> FloatArray:
     """Rotation angle in radians of ``(..., 3, 3)`` rotation matrices, robust near 0 and pi."""
     m = np.asarray(R, dtype=np.float64)

@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from omni_sfm.errors import OmniSfmError
-from omni_sfm.geometry import FloatArray
+from omni_sfm.geometry import FloatArray, nearest_rotation
 from omni_sfm.poses import Trajectory
 
 
@@ -84,9 +84,7 @@ def similarity_from_poses(rot_dst: FloatArray, pos_dst: FloatArray, rot_src: Flo
             where the fit is not positive or the source centres spread by at most ``1e-18``
             (sum of squares); never raises.
     """
-    M = np.einsum("kij,klj->il", rot_dst, rot_src)
-    U, _, Vt = np.linalg.svd(M)
-    R = U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
+    R = nearest_rotation(np.einsum("kij,klj->il", rot_dst, rot_src))
     m_dst, m_src = pos_dst.mean(0), pos_src.mean(0)
     x_dst, x_src = pos_dst - m_dst, (pos_src - m_src) @ R.T
     den = float(np.sum(x_src * x_src))

@@ -7,7 +7,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from omni_sfm.geometry import cross3, normalize, rotation_about_axis, rotvec_to_matrix, skew
+from omni_sfm.geometry import (
+    cross3,
+    nearest_rotation,
+    normalize,
+    rotation_about_axis,
+    rotvec_to_matrix,
+    skew,
+)
 
 
 def _reference_about_axis(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
@@ -81,3 +88,16 @@ def test_skew_and_cross3() -> None:
     cross3(a, b, out=out[..., 3:])
     np.testing.assert_array_equal(out[..., 3:], np.cross(a, b))
     assert (out[..., :3] == 0).all()
+
+
+def test_nearest_rotation_is_the_chordal_mean_and_never_a_reflection() -> None:
+    rng = np.random.default_rng(3)
+    R = rotvec_to_matrix(rng.normal(size=(4, 3)))
+    # a rotation perturbed, a sum of rotations near one, a reflection's polar factor
+    assert np.allclose(nearest_rotation(R + 1e-9), R, atol=1e-8)
+    near = rotvec_to_matrix(1e-3 * rng.normal(size=(6, 3))) @ R[0]
+    assert np.allclose(nearest_rotation(near.sum(axis=0)), R[0], atol=2e-3)
+    Q = nearest_rotation(-R)  # det -1 before the sign fix
+    assert np.allclose(np.linalg.det(Q), 1.0) and np.allclose(Q @ np.swapaxes(Q, 1, 2),
+                                                             np.eye(3), atol=1e-12)
+    assert nearest_rotation(R[1]).shape == (3, 3)

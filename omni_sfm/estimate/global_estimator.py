@@ -47,7 +47,7 @@ from omni_sfm.estimate.global_rotations import (
     solve_rotations,
     world_normals,
 )
-from omni_sfm.geometry import FloatArray, rotation_about_axis
+from omni_sfm.geometry import FloatArray, nearest_rotation, rotation_about_axis
 from omni_sfm.lines.tracks import LineTracks
 from omni_sfm.vanishing import ParallelFamily, VanishingOptions, detect_parallel_families
 
@@ -329,13 +329,6 @@ def window_starts(count: int, window: int) -> list[int]:
             for i in range(n)]
 
 
-def _polar(M: FloatArray) -> FloatArray:
-    """The rotation nearest ``M`` ``(3, 3)`` (Frobenius)."""
-    U, _, Vt = np.linalg.svd(M)
-    D = np.diag([1.0, 1.0, float(np.linalg.det(U @ Vt))])
-    return np.asarray(U @ D @ Vt)
-
-
 def _window_solution(tracks: LineTracks, sel: np.ndarray, options: GlobalOptions
                      ) -> FloatArray | None:
     """The rotations ``(len(sel), 3, 3)`` (NaN: not posed) of the frames ``sel`` solved on their
@@ -358,10 +351,9 @@ def windows_start(tracks: LineTracks, frames: np.ndarray, R0: FloatArray,
     overlapping by half, each solved on its own (rotations, positions, adjustment: within a
     window the chain of :func:`anchored_start` drifts little and the lines' positions fix the
     turns that their directions alone leave weak; :func:`_window_solution`). Each window's
-    solution is
-    turned onto its predecessor's by the rotation that best aligns their shared frames
-    (a step that depends on the two windows alone, whichever way the video runs), and each
-    frame takes the mean of its windows' rotations. Frames in no window that is kept take the
+    solution is turned onto its predecessor's by the rotation that best aligns their shared
+    frames (a step that depends on the two windows alone, whichever way the video runs), and
+    each frame takes the mean of its windows' rotations. Frames in no window that is kept take the
     step of ``R0`` from the nearest frame that is."""
     idx = np.flatnonzero(frames)
     window = options.start_window
@@ -384,7 +376,7 @@ def windows_start(tracks: LineTracks, frames: np.ndarray, R0: FloatArray,
             _, i, j = np.intersect1d(psel, sel, return_indices=True)
             both = np.isfinite(pR[i]).all(axis=(1, 2)) & good[j]
             if both.sum() >= 3:
-                A = _polar(np.einsum("kij,klj->il", pR[i][both], R[j][both]))
+                A = nearest_rotation(np.einsum("kij,klj->il", pR[i][both], R[j][both]))
             else:  # no frames in common: the step of R0 between the nearest frames
                 p = psel[np.flatnonzero(np.isfinite(pR).all(axis=(1, 2)))[-1]]
                 q = int(np.flatnonzero(good)[0])
@@ -395,8 +387,7 @@ def windows_start(tracks: LineTracks, frames: np.ndarray, R0: FloatArray,
         prev = (sel, R)
     covered = np.abs(acc).sum(axis=(1, 2)) > 0
     R = R0.copy()
-    for k in np.flatnonzero(covered):
-        R[k] = _polar(acc[k])
+    R[covered] = nearest_rotation(acc[covered])
     fixed = np.flatnonzero(covered)
     for k in np.flatnonzero(frames & ~covered):
         n = fixed[np.argmin(np.abs(fixed - k))]

@@ -38,9 +38,8 @@ class GlobalPositionOptions:
     frame's own observations (per frame). Under the scale condition ``sum |c|^2 = 1`` a frame
     whose short tracks barely fix it could carry the whole norm alone at almost no cost; the
     prior makes that cost what moving it off its neighbours' line costs, while a smooth walk's
-    own second differences cost next to nothing. The adjustment then drops it. (Rendered
-    hand-held 360 walk, 60 frames, tracks of 6.5 frames median: 0.43-0.45 % ATE with 0.03-1,
-    17-27 % with 1e-4-1e-2.)"""
+    own second differences cost next to nothing; the adjustment then drops the prior
+    (docs/estimator.md, the hand-held 360 walks)."""
     reweight_rounds: int = 4
     """Solves with the rows re-weighted by the current distances and residuals."""
     loss_scale: float = 3.0

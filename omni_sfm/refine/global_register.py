@@ -32,7 +32,7 @@ import numpy as np
 
 from omni_sfm.cameras.base import CameraModel
 from omni_sfm.export.colmap import ColmapExport
-from omni_sfm.geometry import FloatArray
+from omni_sfm.geometry import FloatArray, nearest_rotation
 from omni_sfm.refine.triangulation import angular_resolution_rad
 
 
@@ -70,9 +70,7 @@ def _pose(rec: Any, image_id: int) -> tuple[FloatArray, FloatArray]:
 
 
 def _chordal_mean(Rs: list[FloatArray]) -> FloatArray:
-    U, _, Vt = np.linalg.svd(np.sum(Rs, axis=0))
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
-    return U @ D @ Vt
+    return nearest_rotation(np.sum(Rs, axis=0))
 
 
 @dataclass
