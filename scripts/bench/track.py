@@ -44,8 +44,10 @@ import cv2
 import numpy as np
 
 from omni_sfm.cameras import load_camera
+from omni_sfm.errors import OmniSfmError
 from omni_sfm.estimate.online import OnlineEstimator, Status, poses_trajectory
 from omni_sfm.evaluate import trajectory_errors
+from omni_sfm.frames import read_frames
 from omni_sfm.libs import keep_freed_memory
 from omni_sfm.pipelines.track import Tracker
 from omni_sfm.poses import read_tum
@@ -67,13 +69,15 @@ def render(args: argparse.Namespace) -> Path:
     return out
 
 
+def _frame_files(seq: Path) -> list[Path]:
+    """The image files of ``seq/images`` in order (PNG, or the --footage renders' JPEG)."""
+    return list(read_frames(seq / "images").files)
+
+
 def bench_images(args: argparse.Namespace) -> None:
     seq = Path(args.input) if args.input else render(args)
     camera = load_camera(seq / "camera.yaml")
-    files = sorted(f for f in (seq / "images").iterdir()
-                   if f.suffix.lower() in (".png", ".jpg", ".jpeg"))  # --footage renders: JPEG
-    if not files:
-        raise SystemExit(f"bench.track: no PNG or JPEG frames in {seq / 'images'}")
+    files = _frame_files(seq)
     tracker = Tracker(camera)
     poses = []
     cpu = []
@@ -136,10 +140,7 @@ def _rss_now_mb() -> float:
 def bench_memory_images(args: argparse.Namespace, N: int) -> None:
     seq = Path(args.input) if args.input else render(args)
     camera = load_camera(seq / "camera.yaml")
-    files = sorted(f for f in (seq / "images").iterdir()
-                   if f.suffix.lower() in (".png", ".jpg", ".jpeg"))  # --footage renders: JPEG
-    if not files:
-        raise SystemExit(f"bench.track: no PNG or JPEG frames in {seq / 'images'}")
+    files = _frame_files(seq)
     cycle = list(range(len(files))) + list(range(len(files) - 2, 0, -1))
     tracker = Tracker(camera)
     status: Counter[str] = Counter()
@@ -250,4 +251,7 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    try:
+        main()
+    except OmniSfmError as exc:  # a missing folder or camera file: one line, not a traceback
+        raise SystemExit(f"bench.track: {exc}") from None
