@@ -82,7 +82,8 @@ def _run(seed: int, args: argparse.Namespace) -> tuple[list[object], float, bool
     print(f"  main:   {_fmt(e)}, RMS residual {res.residual_rms_final_deg:.4f} deg")
     print(f"  oracle: {_fmt(eo)}, RMS residual {o.rms_final_deg:.4f} deg (same frames)")
     print(f"  ratio:  rotation {e[0] / eo[0]:.1f}x, translation {e[2] / eo[2]:.1f}x")
-    kept = "the first start"
+    # the global estimator has one start (no attempts to choose between)
+    kept = "the first start" if "attempts" in res.report else "-"
     for a in res.report.get("attempts", []):
         if a["strategy"] in STARTS:
             print(f"  {a['strategy']}: {a['result']}: {a.get('why', '')}")
