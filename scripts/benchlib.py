@@ -210,7 +210,12 @@ def record_json(record: dict[str, Any]) -> str:
 def markdown_table(text: str) -> tuple[list[str], list[list[str]]]:
     """``(columns, rows)`` of the first Markdown table in ``text`` (for a script that prints
     its results as one)."""
-    lines = [ln.strip() for ln in text.splitlines() if ln.strip().startswith("|")]
+    lines: list[str] = []
+    for ln in text.splitlines():
+        if ln.strip().startswith("|"):
+            lines.append(ln.strip())
+        elif lines:  # the first table ends here
+            break
     cells = [[c.strip() for c in ln.strip("|").split("|")] for ln in lines]
     if len(cells) < 2:
         return [], []

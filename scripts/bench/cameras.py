@@ -4,8 +4,8 @@ Run ``OPENBLAS_NUM_THREADS=1 python -m scripts.bench.cameras [--repeats N] [--mo
 prints the median wall time and, in brackets, the median CPU time of this process
 (``time.process_time``) of ``rays_from_pixels`` on every pixel centre, ``pixels_from_rays`` on the
 valid rays, the first (computing) and a later (cached) ``pixel_grid_rays``, and the wall time of
-``valid_mask``. On a loaded machine the CPU time is the figure to compare. Numbers depend on the
-machine and its load; docs/cameras.md quotes a run.
+``valid_mask``. On a loaded machine the CPU time is the figure to compare. Writes the record
+``docs/benchmarks/bench_cameras.json`` (docs/cameras.md renders it).
 """
 
 from __future__ import annotations
@@ -95,15 +95,19 @@ def main(argv: list[str] | None = None) -> None:
         mask = timed(cam.valid_mask, args.repeats)
         print(f"{name:16s} {r2p[0]:8.1f} [{r2p[1]:6.1f}] {p2r[0]:8.1f} [{p2r[1]:6.1f}] "
               f"{first[0]:7.1f} [{first[1]:6.1f}] {cached[0]:12.4f} {mask[0]:11.2f}")
-        rows.append([name, r2p[0], r2p[1], p2r[0], p2r[1], first[0], cached[0], mask[0]])
+        rows.append([name, r2p[0], r2p[1], p2r[0], p2r[1], first[0], first[1], cached[0],
+                     mask[0]])
     ms = {"format": ".1f"}
     write_log(args, "bench_cameras", f"Camera models on {W} x {H} pixels", [
         "model", {"label": "rays_from_pixels wall ms", **ms}, {"label": "CPU ms", **ms},
         {"label": "pixels_from_rays wall ms", **ms}, {"label": "CPU ms", **ms},
-        {"label": "grid, first call (ms)", **ms}, {"label": "grid, cached (ms)", "format": ".4f"},
+        {"label": "grid, first call (ms)", **ms}, {"label": "CPU ms", **ms},
+        {"label": "grid, cached (ms)", "format": ".4f"},
         {"label": "valid_mask (ms)", "format": ".2f"}], rows,
         headline=", ".join(f"{{rows[{k}][0]}} {{rows[{k}][1]}} ms" for k in range(len(rows))),
-        notes=f"Median of {args.repeats} runs.")
+        notes=f"Median of {args.repeats} runs: wall time and the process's CPU time "
+              "(`time.process_time`), which is about what the wall time comes to on an idle "
+              "core (numpy runs these kernels on one thread).")
 
 
 if __name__ == "__main__":

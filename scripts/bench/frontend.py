@@ -6,7 +6,9 @@ per frame for line tracking on a Core i7 975), the NV error of every extracted l
 tracked observation against the renderer's true 3D lines (``lines3d.json`` with
 ``groundtruth.tum``), the share of false lines (NV further than 0.5 deg from every true NV), and
 track statistics. ``--stages`` adds where the CPU time goes: each stage of the extraction and the
-KLT calls of the tracking, in one more pass over the frames.
+KLT calls of the tracking, in one more pass over the frames. Writes its row (one sequence) of
+the records ``docs/benchmarks/bench_frontend.json`` (time, accuracy) and
+``bench_frontend_tracks.json`` (tracks); docs/frontend.md renders them.
 
     .venv/bin/python -m scripts.bench.frontend --frames 200
     .venv/bin/python -m scripts.bench.frontend --camera equirectangular --frames 50
@@ -240,6 +242,15 @@ def main() -> int:
     if args.stages:
         print_stages(src, cam, opts)
     texture = "textured " if args.textured else ""
+    sequence = f"{texture}{args.scene}, {cam.model} {cam.width}x{cam.height}, {nf} frames"
+    write_log(args, "bench_frontend_tracks", "The line front end's tracks", [
+        "sequence", "lines a frame (median)", "continued a frame (median)", "tracks",
+        "track length median (frames)", "longest track (frames)"],
+        [[sequence, int(np.median(res.lines_extracted)), int(np.median(res.lines_continued[1:])),
+          tr.num_tracks, int(np.median(lengths)), int(lengths.max())]],
+        headline="{rows[0][3]} tracks, {rows[0][4]} frames long (median; {rows[0][0]})",
+        notes="Lines extracted and lines continued from the frame before, per frame.",
+        merge=True)
     write_log(args, "bench_frontend", "The line front end: CPU time and accuracy", [
         "sequence", {"label": "extraction (CPU ms a frame)", "format": ".2f"},
         {"label": "tracking", "format": ".2f"}, {"label": "extraction + tracking", "format": ".2f"},
@@ -247,7 +258,7 @@ def main() -> int:
         {"label": "false (%)", "format": ".1f"}, "tracked observations",
         {"label": "tracked: NV error median (deg)", "format": ".3f"},
         {"label": "tracked: false (%)", "format": ".1f"}],
-        [[f"{texture}{args.scene}, {cam.model} {cam.width}x{cam.height}, {nf} frames", ec, tc,
+        [[sequence, ec, tc,
           ec + tc, len(lines_err), np.median(lines_err), 100 * np.mean(lines_err > FALSE_DEG),
           len(obs), np.median(obs), 100 * np.mean(obs > FALSE_DEG)]],
         headline="{rows[0][3]} ms CPU a frame (corridor, 800x600; paper: 5 ms, C++); "

@@ -1,8 +1,9 @@
 """Front-end checks on rendered sequences: dark frames, the automatic mask, the camera check.
 
-Reproduces the measured tables of docs/frontend.md ("Real footage: damaged frames, dark and
-low-contrast images", "Automatic mask", "Camera check"). Renders (or reuses, under ``--work``)
-each sequence, prints one JSON line per run and a Markdown table per part.
+Measures the tables of docs/frontend.md ("Real footage: damaged frames, dark and low-contrast
+images", "Automatic mask", "Camera check"). Renders (or reuses, under ``--work``) each
+sequence, prints one JSON line per run and a Markdown table per part, and writes each part's
+record, ``docs/benchmarks/eval_frontend_checks_{dark,mask,camera}.json``.
 
 - ``dark``: the demo corridor (``omni-sfm demo``'s render: hyperboloid 800x600, 100 frames,
   seed 0) with every grey level multiplied by 1, 0.25, 0.1, 0.02, 0.01 and rounded (written as
@@ -209,7 +210,7 @@ def run_dark(work: Path, fixed: bool, repeat: int) -> str:
                 rows[factor, m].append(r)
                 _emit(r)
     cols = ["brightness", "median grey, contrast", *(["fixed thresholds"] if fixed else []),
-            "normalised"]
+            "contrast-scaled (the default)"]
     lines = ["| " + " | ".join(cols) + " |", "|" + " --- |" * len(cols)]
     for factor, label in DARK_FACTORS.items():
         r = rows[factor, False][0]
@@ -441,8 +442,9 @@ def main() -> int:
             text = part()
             print(f"\n{text}\n", flush=True)
             columns, rows = markdown_table(text)
+            notes = " ".join(ln for ln in text.splitlines() if ln.startswith("("))
             write_log(args, f"eval_frontend_checks_{name}", titles[name], columns, rows,
-                      headline=f"{len(rows)} runs")
+                      headline=f"{len(rows)} runs", notes=notes)
     return 0
 
 
