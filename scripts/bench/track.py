@@ -6,7 +6,11 @@ frames one at a time to :class:`omni_sfm.pipelines.track.Tracker` and prints the
 decoded) with the core count and the load average, and the accuracy of the poses as they were
 returned (each from the frames up to it) against the ground truth: the largest rotation error
 and the ATE as a share of the path, over every posed frame and over the frames posed one by
-one (after the start).
+one (after the start). Writes the sequence's row (scene, camera and seed from its
+``render.json``) of the records ``docs/benchmarks/bench_track.json`` (latency, accuracy) and
+``bench_track_drift.json`` (the worst rotation error in the first and the last third); with
+``--memory`` the record ``bench_track_memory.json``, with ``--memory-images``
+``bench_track_memory_images.json`` (docs/track.md renders them).
 
 ``--memory``: the tracker's state over a long run. Rendering 10,000 frames takes hours here, so
 the run feeds :class:`omni_sfm.estimate.online.OnlineEstimator` (the tracker below the front
@@ -32,6 +36,7 @@ statuses and the latency.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import resource
 import sys
@@ -43,7 +48,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from omni_sfm.cameras import load_camera
+from omni_sfm.cameras import CameraModel, load_camera
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.estimate.online import OnlineEstimator, Status, poses_trajectory
 from omni_sfm.evaluate import trajectory_errors
@@ -72,6 +77,15 @@ def render(args: argparse.Namespace) -> Path:
 def _frame_files(seq: Path) -> list[Path]:
     """The image files of ``seq/images`` in order (PNG, or the --footage renders' JPEG)."""
     return list(read_frames(seq / "images").files)
+
+
+def sequence_label(seq: Path, camera: CameraModel) -> str:
+    """``corridor, hyperboloid 800x600, seed 1``: the scene and seed from the render's
+    ``render.json`` (``?`` where a folder has none)."""
+    meta_file = seq / "render.json"
+    meta = json.loads(meta_file.read_text(encoding="utf-8")) if meta_file.is_file() else {}
+    return (f"{meta.get('scene', '?')}, {camera.model} {camera.width}x{camera.height}, "
+            f"seed {meta.get('seed', '?')}")
 
 
 def bench_images(args: argparse.Namespace) -> None:
@@ -118,12 +132,25 @@ def bench_images(args: argparse.Namespace) -> None:
     print(f"rotation error (every posed frame), worst of the first third of the frames "
           f"{e.rot_deg[:third].max():.3f} deg, of the last third {e.rot_deg[-third:].max():.3f} "
           "deg (drift: the second above the first)")
+    label = sequence_label(seq, camera)
+    write_log(args, "bench_track_drift", "The online tracker's drift", [
+        "sequence", "start at frame", {"label": "rotation error, worst (deg)", "format": ".3f"},
+        {"label": "worst in the first third (deg)", "format": ".3f"},
+        {"label": "worst in the last third (deg)", "format": ".3f"},
+        {"label": "ATE (%)", "format": ".3f"}, {"label": "CPU median (ms)", "format": ".1f"}],
+        [[label, start, e.rot_max_deg, e.rot_deg[:third].max(), e.rot_deg[-third:].max(),
+          100 * e.ate_rel, np.median(cpu)]],
+        headline="worst {rows[0][2]} deg, {rows[0][3]} / {rows[0][4]} deg in the first / last "
+                 "third ({rows[0][0]})",
+        notes="Every posed frame, the start's frames included (their poses come with the frame "
+              "where the start succeeds); the rotation error is relative to the first frame of "
+              "the compared set. Drift shows as a last third worse than the first.", merge=True)
     write_log(args, "bench_track", "The online tracker, frame by frame", [
         "sequence", "posed", {"label": "latency median (ms)", "format": ".1f"},
         {"label": "latency p95 (ms)", "format": ".1f"},
         {"label": "CPU median (ms)", "format": ".1f"},
         {"label": "rotation max (deg)", "format": ".3f"}, {"label": "ATE (%)", "format": ".3f"}],
-        [[f"corridor, {camera.model} {camera.width}x{camera.height}", f"{e.num_common}/{len(gt)}",
+        [[label, f"{e.num_common}/{len(gt)}",
           np.median(after), np.percentile(after, 95), np.median(cpu), e.rot_max_deg,
           100 * e.ate_rel]],
         headline="{rows[0][1]} frames posed as they come, {rows[0][2]} ms a frame (median), "
@@ -147,6 +174,7 @@ def bench_memory_images(args: argparse.Namespace, N: int) -> None:
     lat = np.zeros(N)
     checkpoints = sorted({min(1000, N), min(5000, N), N})
     peaks: dict[int, float] = {}
+    rows: list[list[object]] = []
     t0 = time.perf_counter()
     for k in range(N):
         img = cv2.imread(str(files[cycle[k % len(cycle)]]), cv2.IMREAD_UNCHANGED)
@@ -157,7 +185,9 @@ def bench_memory_images(args: argparse.Namespace, N: int) -> None:
         if k + 1 in checkpoints:
             peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
             peaks[k + 1] = peak
-            print(f"{k + 1} frames: resident now {_rss_now_mb():.1f} MiB, peak {peak:.1f} MiB; "
+            rows.append([k + 1, _rss_now_mb(), peak, tracker.estimator.num_frames_held,
+                         tracker.estimator.num_lines, time.perf_counter() - t0])
+            print(f"{k + 1} frames: resident now {rows[-1][1]:.1f} MiB, peak {peak:.1f} MiB; "
                   f"holding {tracker.estimator.num_frames_held} frames and "
                   f"{tracker.estimator.num_lines} lines; {time.perf_counter() - t0:.0f} s",
                   flush=True)
@@ -169,6 +199,17 @@ def bench_memory_images(args: argparse.Namespace, N: int) -> None:
         a, b = peaks[checkpoints[0]], peaks[checkpoints[-1]]
         print(f"peak resident size at {checkpoints[-1]} frames / at {checkpoints[0]}: "
               f"{b / a:.3f}")
+    mib = {"format": ".1f"}
+    write_log(args, "bench_track_memory_images", "The whole tracker's memory over a long run", [
+        {"label": "after (frames)", "format": ","}, {"label": "resident now (MiB)", **mib},
+        {"label": "peak resident, ru_maxrss (MiB)", **mib}, "frames held", "lines held",
+        {"label": "wall (s)", "format": ".0f"}], rows,
+        headline=f"peak {{rows[0][2]}} MiB at {{rows[0][0]}} frames, {{rows[{len(rows) - 1}][2]}} "
+                 f"MiB at {{rows[{len(rows) - 1}][0]}}",
+        notes=f"{seq.name} played forth and back; statuses: "
+              + ", ".join(f"{n} {s}" for s, n in status.items())
+              + f"; latency median {np.median(lat):.1f} ms, 95th percentile "
+                f"{np.percentile(lat, 95):.1f} ms ({os.cpu_count()} CPUs).")
 
 
 def bench_memory(args: argparse.Namespace) -> None:
@@ -185,6 +226,7 @@ def bench_memory(args: argparse.Namespace) -> None:
     status: Counter[str] = Counter()
     checkpoints = sorted({min(1000, F), min(5000, F), F})
     peaks: dict[int, tuple[float, float]] = {}
+    rows: list[list[object]] = []
     tracemalloc.start()
     t0 = time.perf_counter()
     lat = np.zeros(F)  # preallocated: a growing list would be the only thing that grows
@@ -197,6 +239,7 @@ def bench_memory(args: argparse.Namespace) -> None:
             rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
             now, peak = (x / 2**20 for x in tracemalloc.get_traced_memory())
             peaks[k + 1] = (peak, rss)
+            rows.append([k + 1, now, peak, rss, est.num_frames_held, est.num_lines])
             print(f"{k + 1} frames: traced now {now:.2f} MiB, traced peak {peak:.2f} MiB, "
                   f"process peak RSS {rss:.1f} MiB; holding {est.num_frames_held} frames and "
                   f"{est.num_lines} lines; {time.perf_counter() - t0:.0f} s", flush=True)
@@ -209,6 +252,16 @@ def bench_memory(args: argparse.Namespace) -> None:
         a, b = peaks[checkpoints[0]], peaks[checkpoints[-1]]
         print(f"peak at {checkpoints[-1]} frames / peak at {checkpoints[0]}: traced "
               f"{b[0] / a[0]:.3f}, RSS {b[1] / a[1]:.3f}")
+    mib = {"format": ".2f"}
+    write_log(args, "bench_track_memory", "The online estimator's memory over a simulated walk", [
+        {"label": "after (frames)", "format": ","}, {"label": "traced now (MiB)", **mib},
+        {"label": "traced peak (MiB)", **mib},
+        {"label": "process peak RSS (MiB)", "format": ".1f"}, "frames held", "lines held"], rows,
+        headline=f"traced {{rows[{len(rows) - 1}][1]}} MiB after {{rows[{len(rows) - 1}][0]}} "
+                 f"frames (peak {{rows[{len(rows) - 1}][2]}} MiB)",
+        notes=f"A simulated walk of {F} frames, {0.05 * (F - 1):.0f} m, {tr.num_tracks} lines "
+              "(tracemalloc on); statuses: "
+              + ", ".join(f"{n} {s}" for s, n in status.items()) + ".")
 
 
 def main() -> None:
