@@ -6,8 +6,13 @@ then the command that measured it, the commit and the machine. ``<!-- results:su
 the README's table of headlines, one row per entry of :data:`SUMMARY`. Everything between the
 markers is rewritten; the rest of the page is left alone.
 
+A table of measured figures belongs in such a block: :func:`measurement_tables` finds the
+tables outside the blocks (and outside code blocks) whose cells are mostly figures, and
+``--check`` fails on them as on a stale block.
+
     .venv/bin/python -m scripts.render_results          # rewrite the blocks in README.md, docs/
-    .venv/bin/python -m scripts.render_results --check  # exit 1 where a block differs
+    .venv/bin/python -m scripts.render_results --check  # exit 1 where a block differs, or a
+                                                        # page has a hand-written measurement table
 
 tests/test_docs_benchmarks.py runs the check.
 """
@@ -29,6 +34,19 @@ REQUIRED = ("name", "title", "command", "commit", "machine", "source", "columns"
             "headline")
 BLOCK = re.compile(r"(<!-- results:(?P<name>[A-Za-z0-9_-]+) -->\n)(?P<body>.*?)"
                    r"(<!-- /results:(?P=name) -->)", re.S)
+
+# A figure: a number, with its unit if it has one ("0.12 %", "16.6 s", "1.3x", "662k").
+FIGURE = re.compile(r"[-+~<>]?\d[\d,]*(?:\.\d+)?(?:e-?\d+)?"
+                    r"(?:\s?(?:ms|s|min|h|%|deg|fps|MB|MiB|GB|GiB|kB|mm|cm|px|k)(?!\w)|x(?!\w))?")
+#: A table is a measurement table when at least this share of its cells (the first column,
+#: the rows' names, left out) are figures.
+MEASURED_SHARE = 0.5
+#: Reference tables whose cells are mostly numbers that are settings, not measurements, by
+#: their header row.
+REFERENCE_TABLES = frozenset({
+    "| preset | frames | hyperboloid | equirectangular |",  # docs/rendering.md: image sizes
+    "| kind | what | seeds |",  # docs/comparison.md: the sweep's sequences and their seeds
+})
 
 
 @dataclass(frozen=True)
@@ -151,6 +169,53 @@ def block_names(text: str) -> list[str]:
     return [m.group("name") for m in BLOCK.finditer(text)]
 
 
+def figure_cell(text: str) -> bool:
+    """Whether a table cell is a figure: a number (with its unit, or several such, as in
+    ``100/100, 0.05 deg, 0.01 %``) and at most two words beside it; code spans do not count."""
+    text = re.sub(r"`[^`]*`", "", text)
+    if not re.search(r"\d", text):
+        return False
+    return len(re.findall(r"[A-Za-z]{2,}", FIGURE.sub(" ", text))) <= 2
+
+
+def markdown_tables(text: str) -> list[tuple[int, str, list[list[str]]]]:
+    """``(line number, header row, body rows as cells)`` of every Markdown table of ``text``
+    outside results blocks and fenced code blocks."""
+    text = BLOCK.sub(lambda m: "\n" * m.group(0).count("\n"), text)
+    lines = text.split("\n")
+    out: list[tuple[int, str, list[list[str]]]] = []
+    fence, i = False, 0
+    while i < len(lines):
+        if lines[i].lstrip().startswith(("```", "~~~")):
+            fence = not fence
+        elif (not fence and lines[i].strip().startswith("|") and i + 1 < len(lines)
+              and re.fullmatch(r"\s*\|[\s:|-]+\|\s*", lines[i + 1])):
+            j = i + 2
+            while j < len(lines) and lines[j].strip().startswith("|"):
+                j += 1
+            body = [[c.strip() for c in ln.strip().strip("|").split("|")]
+                    for ln in lines[i + 2:j]]
+            out.append((i + 1, lines[i].strip(), body))
+            i = j
+            continue
+        i += 1
+    return out
+
+
+def measurement_tables(text: str) -> list[tuple[int, str]]:
+    """``(line number, header row)`` of the tables of ``text`` outside results blocks whose
+    cells are mostly figures (:data:`MEASURED_SHARE`, the first column left out), but for
+    :data:`REFERENCE_TABLES`: measurements written by hand instead of rendered from a record."""
+    found = []
+    for line, header, body in markdown_tables(text):
+        cells = [c for row in body for c in row[1:]]
+        if not cells or header in REFERENCE_TABLES:
+            continue
+        if sum(map(figure_cell, cells)) >= MEASURED_SHARE * len(cells):
+            found.append((line, header))
+    return found
+
+
 def pages() -> list[Path]:
     """The pages that may hold results blocks: README.md and docs/*.md."""
     return [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
@@ -162,7 +227,8 @@ def main() -> int:
                     help="change nothing; exit 1 when a block differs from its record")
     args = ap.parse_args()
     records = load_records()
-    stale = []
+    stale: list[Path] = []
+    by_hand: list[str] = []
     for page in pages():
         text = page.read_text(encoding="utf-8")
         new = render_text(text, page, records)
@@ -170,10 +236,15 @@ def main() -> int:
             stale.append(page.relative_to(ROOT))
             if not args.check:
                 page.write_text(new, encoding="utf-8")
+        for line, header in measurement_tables(new):
+            by_hand.append(f"{page.relative_to(ROOT)}:{line}: a measurement table outside a "
+                           f"results block: {header}")
     verb = "differ from their records" if args.check else "rewritten"
     for p in stale:
         print(f"{p}: results blocks {verb}")
-    return 1 if args.check and stale else 0
+    for msg in by_hand:
+        print(msg)
+    return 1 if (args.check and stale) or by_hand else 0
 
 
 if __name__ == "__main__":

@@ -1,8 +1,9 @@
 """The docs' results tables are the measurement records, rendered (scripts/render_results.py).
 
 Every ``<!-- results:NAME -->`` block of README.md and docs/*.md must be exactly what the
-generator renders from ``docs/benchmarks/NAME.json``; every record is shown somewhere; a
-benchmark script writes a record that the generator reads back (one cheap run end to end).
+generator renders from ``docs/benchmarks/NAME.json``; every record is shown somewhere; no
+page has a table of measured figures outside such a block (written by hand); a benchmark
+script writes a record that the generator reads back (one cheap run end to end).
 """
 
 from __future__ import annotations
@@ -35,6 +36,33 @@ def test_page_tables_match_their_records(page: Path, records: dict[str, dict]) -
     assert render_results.render_text(text, page, records) == text, (
         f"{page.relative_to(ROOT)}: a results block differs from its record; run "
         "`.venv/bin/python -m scripts.render_results`")
+
+
+@pytest.mark.parametrize("page", render_results.pages(), ids=lambda p: p.name)
+def test_no_measurement_table_outside_results_blocks(page: Path) -> None:
+    found = render_results.measurement_tables(page.read_text(encoding="utf-8"))
+    assert not found, (
+        f"{page.relative_to(ROOT)}: measured figures in a hand-written table (line, header): "
+        f"{found}; give them a record in docs/benchmarks/ (written by the script that measures "
+        "them) and a results block, or say the one current figure and its command in prose")
+
+
+def test_a_hand_written_measurement_table_is_caught() -> None:
+    page = (ROOT / "docs" / "results.md").read_text(encoding="utf-8")
+    assert "<!-- results:eval_init -->" in page
+    assert render_results.measurement_tables(page) == []
+    # the same table without its markers: figures typed into the page
+    unmarked = page.replace("<!-- results:eval_init -->\n", "", 1) \
+                   .replace("<!-- /results:eval_init -->", "", 1)
+    found = render_results.measurement_tables(unmarked)
+    assert len(found) == 1 and found[0][1].startswith("| sequence |"), found
+    typed = ("Timed by hand:\n\n| sequence | wall | ATE |\n|---|---|---|\n"
+             "| corridor | 12.4 s | 0.02 % |\n| room, 100 frames | 1:02 | 100/100, 0.04 deg |\n")
+    assert render_results.measurement_tables(typed) == [(3, "| sequence | wall | ATE |")]
+    assert render_results.measurement_tables("```\n" + typed + "```\n") == []  # an example
+    reference = ("| key | meaning |\n|---|---|\n| `num_frames` | number of frames, 1 or more |\n"
+                 "| `step` | every 5th frame (`--step 5`) |\n")
+    assert render_results.measurement_tables(reference) == []
 
 
 def test_every_record_is_shown(records: dict[str, dict]) -> None:
@@ -72,7 +100,7 @@ def test_a_stale_table_is_caught(records: dict[str, dict], tmp_path: Path) -> No
 
 def test_merged_rows_keep_their_commands(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     args = argparse.Namespace(log_dir=tmp_path, no_log=False)
-    cols = ["sequence", {"label": "ms", "format": ".1f"}]
+    cols: list[str | dict] = ["sequence", {"label": "ms", "format": ".1f"}]
     monkeypatch.setattr(sys, "argv", ["x", "--scene", "a"])
     write_log(args, "t", "title", cols, [["a", 1.0]], merge=True)
     monkeypatch.setattr(sys, "argv", ["x", "--scene", "b"])
