@@ -22,7 +22,7 @@ if str(ROOT) not in sys.path:  # scripts/ is a package at the repository root
     sys.path.insert(0, str(ROOT))
 
 from scripts import render_results  # noqa: E402
-from scripts.benchlib import write_log  # noqa: E402
+from scripts.benchlib import markdown_table, write_log  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -63,6 +63,12 @@ def test_a_hand_written_measurement_table_is_caught() -> None:
     reference = ("| key | meaning |\n|---|---|\n| `num_frames` | number of frames, 1 or more |\n"
                  "| `step` | every 5th frame (`--step 5`) |\n")
     assert render_results.measurement_tables(reference) == []
+
+
+def test_a_printed_table_becomes_rows_of_the_first_table_only() -> None:
+    printed = ("| part | share |\n| --- | --- |\n| a | 1 % |\n| b | 2 % |\n\n(a note)\n\n"
+               "| still camera | edges |\n| --- | --- |\n| c | 95 % |\n")
+    assert markdown_table(printed) == (["part", "share"], [["a", "1 %"], ["b", "2 %"]])
 
 
 def test_every_record_is_shown(records: dict[str, dict]) -> None:
