@@ -246,8 +246,9 @@ def main() -> int:
     write_log(args, "bench_frontend_tracks", "The line front end's tracks", [
         "sequence", "lines a frame (median)", "continued a frame (median)", "tracks",
         "track length median (frames)", "longest track (frames)"],
-        [[sequence, int(np.median(res.lines_extracted)), int(np.median(res.lines_continued[1:])),
-          tr.num_tracks, int(np.median(lengths)), int(lengths.max())]],
+        [[sequence, round(float(np.median(res.lines_extracted))),
+          round(float(np.median(res.lines_continued[1:]))),
+          tr.num_tracks, round(float(np.median(lengths))), int(lengths.max())]],
         headline="{rows[0][3]} tracks, {rows[0][4]} frames long (median; {rows[0][0]})",
         notes="Lines extracted and lines continued from the frame before, per frame.",
         merge=True)
