@@ -12,7 +12,9 @@ Steps:
 2. **Positions** of all frames and lines at once, the rotations given: one sparse homogeneous
    linear problem (:mod:`~omni_sfm.estimate.global_positions`).
 3. **One robust bundle adjustment** of all cameras and lines from that start
-   (:func:`~omni_sfm.estimate.bundle.bundle_adjust`, outlier tracks rejected).
+   (:func:`~omni_sfm.estimate.bundle.bundle_adjust`, outlier tracks rejected), and one from
+   the start with the positions settled on the rotations first; the lower cost is kept
+   (:func:`_adjusted`).
 4. **Per-frame information**: frames whose rotation or position the data leave (nearly) free
    are listed in the report with the reason (``frames_uncertain``).
 
@@ -35,10 +37,16 @@ from omni_sfm.estimate.bundle import (
     BundleOptions,
     BundleResult,
     bundle_adjust,
+    outlier_limit,
     resect_pose,
+    truncated_cost,
 )
 from omni_sfm.estimate.families import world_families
-from omni_sfm.estimate.global_positions import GlobalPositionOptions, solve_positions
+from omni_sfm.estimate.global_positions import (
+    GlobalPositionOptions,
+    GlobalPositions,
+    solve_positions,
+)
 from omni_sfm.estimate.global_rotations import (
     GlobalRotationOptions,
     GlobalRotations,
@@ -47,7 +55,12 @@ from omni_sfm.estimate.global_rotations import (
     solve_rotations,
     world_normals,
 )
-from omni_sfm.geometry import FloatArray, nearest_rotation, rotation_about_axis
+from omni_sfm.geometry import (
+    FloatArray,
+    matrix_to_rotvec,
+    nearest_rotation,
+    rotation_about_axis,
+)
 from omni_sfm.lines.tracks import LineTracks
 from omni_sfm.vanishing import ParallelFamily, VanishingOptions, detect_parallel_families
 
@@ -84,6 +97,9 @@ class GlobalOptions:
     """Tracks whose rotation residuals (their normals against their direction, RMS) exceed
     this many times the residuals' robust spread are left out of the positions (a wrong
     correspondence; the adjustment judges them again)."""
+    settled_start: bool = True
+    """The adjustment also starts from the positions and lines settled on the rotations held,
+    and the lower cost is kept (:func:`_adjusted`); the windows of the start do without."""
     hold_world_directions: bool = True
     """The adjustment holds the direction of every line of a world direction (the directions
     man-made places repeat are exact: their lines' noise then moves no rotation, and a frame
@@ -93,9 +109,14 @@ class GlobalOptions:
     """Rounds at most of the world directions fitted again to the adjustment's rotations and
     the adjustment run again (:func:`_world_directions_refitted`)."""
     uncertain_information: float = 1e-3
-    """A frame is flagged as not fixed by the data where the smallest eigenvalue of its
+    """A frame's own lines leave its position free where the smallest eigenvalue of its
     position information (its observations, the lines held) is below this fraction of the
-    median frame's largest."""
+    median frame's largest (its rotation: the same with its rotation information)."""
+    uncertain_deg: float = 0.5
+    uncertain_path: float = 0.005
+    """A frame that its own lines leave free is flagged where its interpolation between the
+    frames that fix it can be off by more than this (degrees; fraction of the path length;
+    :func:`_uncertain`)."""
 
 
 @dataclass(frozen=True)
@@ -336,7 +357,7 @@ def _window_solution(tracks: LineTracks, sel: np.ndarray, options: GlobalOptions
     obs = np.flatnonzero(np.isin(tracks.obs_frame, sel))
     sub = tracks.subset(obs, np.unique(tracks.obs_track[obs]), sel)
     # a start needs the basin, not the last digit: two robust rounds, no polish
-    local = replace(options, start_window=0, direction_rounds=0,
+    local = replace(options, start_window=0, direction_rounds=0, settled_start=False,
                     rotations=replace(options.rotations, max_iterations=20),
                     bundle=replace(options.bundle, max_rounds=2, final_loss=None))
     try:
@@ -586,18 +607,78 @@ def _rotation_free(rot: GlobalRotations, frames: np.ndarray, options: GlobalOpti
     return ok & (rinfo < options.uncertain_information * ref)
 
 
-def _uncertain(rot: GlobalRotations, pos_info: FloatArray, frames: np.ndarray,
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """``[(first, end), ...]`` the runs of True in ``mask`` ``(N,)``, ``end`` exclusive."""
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], mask.astype(int), [0]])))
+    return list(zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True))
+
+
+def _gap_errors(free: np.ndarray, values: FloatArray, direction: FloatArray | None = None,
+                lag: int = 4) -> FloatArray:
+    """``(N,)`` the error to expect (two standard deviations) where the ``free`` items of a
+    sequence ``values`` ``(N, D)`` are interpolated between the fixed ones on either side.
+    The motion is taken as an integrated random walk whose second differences have the spread
+    that the fixed items show over ``lag`` steps (along ``direction`` ``(N, D)``, each item's,
+    where given; over several steps, so that the estimates' own noise counts little): its
+    variance at the ``i``-th of a gap of ``G`` steps is ``s^2 i^3 (G - i)^3 / (3 G^3)``
+    between two fixed items, ``s^2 i^3 / 3`` beyond the last one."""
+    out = np.zeros(len(free))
+    h = lag
+    k = np.arange(h, len(free) - h)
+    k = k[~free[k] & ~free[k - h] & ~free[k + h]]
+    if not free.any() or len(k) == 0:
+        return out
+    d2 = values[k + h] - 2 * values[k] + values[k - h]
+    size = np.abs(np.einsum("ki,ki->k", d2, direction[k])) if direction is not None else \
+        np.linalg.norm(d2, axis=1)
+    size = size[np.isfinite(size)]
+    if len(size) == 0:
+        return out
+    spread = 1.4826 * float(np.median(size)) / np.sqrt((2 * h**3 + h) / 3)
+    for a, b in _runs(free):
+        i = np.arange(a, b) - a + 1.0
+        G = b - a + 1.0
+        if a > 0 and b < len(free):
+            var = i**3 * (G - i) ** 3 / (3 * G**3)
+        else:
+            var = (i if a > 0 else G - i) ** 3 / 3
+        out[a:b] = 2.0 * spread * np.sqrt(var)
+    return out
+
+
+def _uncertain(rot: GlobalRotations, pos: GlobalPositions, ba: BundleResult,
                options: GlobalOptions) -> dict[int, str]:
-    """Frames whose rotation or position the data leave (nearly) free, with the reason."""
+    """Frames whose rotation or position the data leave (nearly) free and whose interpolation
+    between the frames that fix them can be off by more than ``options.uncertain_deg`` or
+    ``options.uncertain_path`` of the path, with the reason (:func:`_gap_errors`: the walk's
+    own curvature over the length of the stretch; a frame or two between fixed ones are
+    interpolated well)."""
+    idx = np.flatnonzero(ba.frames)
+    if len(idx) < 3:
+        return {}
+    R, c = ba.rotations[idx], ba.positions[idx]
+    rfree = _rotation_free(rot, ba.frames, options)[idx]
+    pfree = ~rfree & (pos.frame_information[idx] < options.uncertain_information)
+    # rotations as rotation vectors from the first frame's (small turns between frames:
+    # their second differences are the turns' second differences)
+    rvec = matrix_to_rotvec(np.einsum("ji,kjl->kil", R[0], R))
+    path = float(np.sum(np.linalg.norm(np.diff(c, axis=0), axis=1)))
+    rot_err = np.degrees(_gap_errors(rfree, rvec))
+    # the motion along the direction the frame's lines fix least (a frame whose lines all run
+    # along the walk is free along the walk, where walking is smooth)
+    pos_err = 100.0 * _gap_errors(rfree | pfree, c, np.nan_to_num(pos.free_direction[idx])) / \
+        max(path, 1e-300)
     out: dict[int, str] = {}
-    free = _rotation_free(rot, frames, options)
-    for k in np.flatnonzero(frames):
-        if free[k]:
-            out[int(k)] = ("rotation not fixed: its lines have (nearly) one direction; the "
-                           "turn about it comes from the neighbouring frames")
-        elif pos_info[k] < options.uncertain_information:
-            out[int(k)] = ("position not fixed by its own lines (they leave a direction of "
-                           "motion free); it comes from the neighbouring frames")
+    for j, k in enumerate(idx):
+        if rfree[j] and (rot_err[j] > options.uncertain_deg or
+                         pos_err[j] > 100 * options.uncertain_path):
+            out[int(k)] = (f"rotation not fixed: its lines have (nearly) one direction; the "
+                           f"turn about it comes from the neighbouring frames (up to "
+                           f"{rot_err[j]:.2f} deg, {pos_err[j]:.2f} % of the path)")
+        elif pfree[j] and pos_err[j] > 100 * options.uncertain_path:
+            out[int(k)] = (f"position not fixed by its own lines (they leave a direction of "
+                           f"motion free); it comes from the neighbouring frames (up to "
+                           f"{pos_err[j]:.2f} % of the path)")
     return out
 
 
@@ -626,6 +707,33 @@ def _world_directions_refitted(tracks: LineTracks, ba: BundleResult, held: np.nd
         if moved < 1e-8:
             break
     return ba
+
+
+def _adjusted(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArray, p: FloatArray,
+              frames: np.ndarray, held: np.ndarray | None, options: GlobalOptions
+              ) -> BundleResult:
+    """Step 3: the robust adjustment of all cameras and lines from the start as it is and, with
+    ``options.settled_start``, from the start with the positions and lines first settled on the
+    rotations held (one robust round, no track rejected); the one with the lower truncated cost
+    (:func:`~omni_sfm.estimate.bundle.truncated_cost`, every observation) is kept. Where the
+    parallax is low the linear positions can be off by many times the noise: from them the
+    rotations turn to absorb the error and can settle in another minimum, and from the settled
+    start too at times; which of the two does depends on the data, not on the frame order."""
+    bo = options.bundle
+    plain = bundle_adjust(tracks, R, c, d, p, frames=frames, held_directions=held, options=bo)
+    if not options.settled_start:
+        return plain
+    settled = bundle_adjust(tracks, R, c, d, p, frames=frames, held_directions=held,
+                            held_rotations=frames,
+                            options=replace(bo, reject_outliers=False, max_rounds=1,
+                                            final_loss=None))
+    other = bundle_adjust(tracks, settled.rotations, settled.positions,
+                          settled.line_directions, settled.line_points, frames=settled.frames,
+                          held_directions=held, options=bo)
+    limit = outlier_limit(float(np.radians(max(plain.sigma_deg, other.sigma_deg))), bo)
+    cost = [truncated_cost(tracks, x.rotations, x.positions, x.frames, limit, everywhere=True)
+            for x in (plain, other)]
+    return plain if cost[0] <= cost[1] else other
 
 
 def solve_global(tracks: LineTracks, options: GlobalOptions = GlobalOptions()
@@ -667,8 +775,7 @@ def solve_global(tracks: LineTracks, options: GlobalOptions = GlobalOptions()
     # the lines of a world direction keep it: only their positions move (and with two world
     # directions or more they hold the rotation gauge)
     held = dir_ok & (label >= 0) if options.hold_world_directions else None
-    ba = bundle_adjust(tracks, R, c, d0, pos.points, frames=frames, held_directions=held,
-                       options=options.bundle)
+    ba = _adjusted(tracks, R, c, d0, pos.points, frames, held, options)
     if held is not None:
         ba = _world_directions_refitted(tracks, ba, held, label, options)
     timings["bundle_adjustment"] = (time.perf_counter() - t) * 1e3
@@ -686,5 +793,5 @@ def solve_global(tracks: LineTracks, options: GlobalOptions = GlobalOptions()
         used_tracks=ba.used_tracks, outlier_tracks=ba.outlier_tracks, members=members,
         world_directions=worlds, rms_initial_deg=ba.rms_initial_deg,
         rms_final_deg=ba.rms_final_deg, sigma_deg=ba.sigma_deg,
-        uncertain=_uncertain(rot, pos.frame_information, ba.frames, options),
+        uncertain=_uncertain(rot, pos, ba, options),
         not_posed=not_posed, steps=steps, timings_ms=timings)

@@ -59,12 +59,15 @@ class GlobalPositions:
         frame_information: ``(F,)`` smallest eigenvalue of each frame's 3x3 information block
             from its observations alone (the lines' positions held), relative to the median
             frame's largest: near 0 where the frame's lines leave its position free.
+        free_direction: ``(F, 3)`` the direction of that smallest eigenvalue (world, unit):
+            the direction of motion the frame's lines fix least.
         residual_sigma: robust spread of the final residuals (radians).
     """
 
     positions: FloatArray
     points: FloatArray
     frame_information: FloatArray
+    free_direction: FloatArray
     residual_sigma: float
 
 
@@ -133,8 +136,9 @@ def solve_positions(tracks: LineTracks, rotations: FloatArray, directions: Float
     q = x[P:].reshape(-1, 2)
     pts = np.full((M, 3), np.nan)
     pts[used] = q[:, :1] * e1 + q[:, 1:] * e2
-    info = _frame_information(m, w, f, F, frames)
+    info, free = _frame_information(m, w, f, F, frames)
     return GlobalPositions(positions=c_all, points=pts, frame_information=info,
+                           free_direction=free,
                            residual_sigma=sigma)
 
 
@@ -190,13 +194,15 @@ def _smallest(A: sp.csr_matrix, w: FloatArray, D: sp.csr_matrix, options: Global
 
 
 def _frame_information(m: FloatArray, w: FloatArray, f: np.ndarray, F: int,
-                       frames: np.ndarray) -> FloatArray:
+                       frames: np.ndarray) -> tuple[FloatArray, FloatArray]:
     """Each posed frame's smallest eigenvalue of ``sum w m m^T`` over its observations, over
-    the median frame's largest eigenvalue."""
+    the median frame's largest, and its eigenvector (NaN: not posed)."""
     S = np.zeros((F, 3, 3))
     np.add.at(S, f, w[:, None, None] * m[:, :, None] * m[:, None, :])
-    ev = np.linalg.eigvalsh(S)
+    ev, vec = np.linalg.eigh(S)
     ref = float(np.median(ev[frames, 2])) if frames.any() else 1.0
     out = np.full(F, np.nan)
     out[frames] = ev[frames, 0] / max(ref, 1e-300)
-    return out
+    direction = np.full((F, 3), np.nan)
+    direction[frames] = vec[frames, :, 0]
+    return out, direction
