@@ -148,6 +148,10 @@ class TrajectoryErrors:
     step_error_after_alignment: float
     paper_trans: FloatArray
     alignment: Similarity
+    timestamps: FloatArray
+    """``(N,)`` the common frames' timestamps (the order of ``rot_deg`` and ``pos_rel``)."""
+    pos_rel: FloatArray
+    """``(N,)`` each common frame's position error after the alignment, over the path length."""
 
     @property
     def rot_max_deg(self) -> float:
@@ -193,7 +197,8 @@ def trajectory_errors(est: Trajectory, gt: Trajectory) -> TrajectoryErrors:
         if mean_step > 0 else float("nan")
     return TrajectoryErrors(len(e), relative_rotation_errors_deg(e, g), ate,
                             relative_pose_errors(e, g, delta=1), step_err,
-                            paper_translation_errors(e, g), sim)
+                            paper_translation_errors(e, g), sim, e.timestamps.copy(),
+                            resid / length)
 
 
 def reflect_positions(traj: Trajectory) -> Trajectory:

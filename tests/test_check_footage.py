@@ -125,11 +125,18 @@ def test_record_row_holds_inits_figures_against_the_truth(wide, tmp_path):
         assert check.main(["--images", str(wide / "video.mp4"), "--camera", "equirectangular",
                            "--output", str(out), "--no-colmap", "--groundtruth",
                            str(wide / "groundtruth.tum"), "--record", "eval_walks", "--label",
-                           label, "--log-dir", str(logs)]) == 0
+                           label, "--log-dir", str(logs),
+                           *(["--init-arg=--estimator=global"] if label == "second" else [])
+                           ]) == 0
     rec = json.loads((logs / "eval_walks.json").read_text())
     assert [r[0] for r in rec["rows"]] == ["first", "second"]
     res = json.loads((tmp_path / "second" / "check.json").read_text())
     row = rec["rows"][1]
     assert row[2] == f"{res['lines']['posed']}/{WIDE.frames}"
-    assert row[6] == pytest.approx(res["lines"]["groundtruth"]["ate_pct_of_path"])
+    t = res["lines"]["groundtruth"]
+    assert row[8] == pytest.approx(t["ate_pct_of_path"])
+    # how honest the flags are, counted against the truth (the windows flag nothing)
+    assert row[4:6] == [t["flagged_but_fine"], t["off_not_flagged"]]
+    assert 0 <= t["flagged_but_fine"] <= row[3] and t["off_not_flagged"] >= 0
+    assert rec["rows"][0][3:6] == ["n/a", "n/a", "n/a"]
     assert len(rec["row_commands"]) == 2
