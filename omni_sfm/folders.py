@@ -239,6 +239,9 @@ class InitFolder(StageFolder):
     """``omni-sfm init`` output (docs/formats.md, docs/colmap.md)."""
 
     TRACKS: ClassVar[str] = "tracks.json"
+    UNCERTAIN_TRAJECTORY: ClassVar[str] = "trajectory_uncertain.tum"
+    """The poses of the frames the data do not fix (``report.json`` ``frames_uncertain``),
+    kept out of ``trajectory.tum`` unless ``init --keep-uncertain``."""
     TRAJECTORY_PLOT: ClassVar[str] = "trajectory.png"
     DEBUG_FRAMES: ClassVar[str] = "debug"
     DEBUG_VIDEO: ClassVar[str] = "debug.mp4"
@@ -260,6 +263,11 @@ class InitFolder(StageFolder):
     def read_report(self) -> InitReport:
         """``report.json``, typed (a one-line error if missing or malformed)."""
         return InitReport.read(self / self.REPORT)
+
+
+
+UNCERTAIN_FILE = InitFolder.UNCERTAIN_TRAJECTORY
+"""The estimator's name for :class:`InitFolder`'s ``UNCERTAIN_TRAJECTORY``."""
 
 
 @dataclass(frozen=True)

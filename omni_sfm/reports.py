@@ -162,6 +162,7 @@ class InitReport(_StageInput, JsonReport):
     motion: dict[str, Any] | None = absent()
     """Only for a camera that only turned (docs/method.md §13)."""
     frames_uncertain: dict[str, str] | None = absent()
+    uncertain_poses: str | None = absent()
     """Frame index -> why the data do not fix its pose (the global estimator's flags)."""
     other: dict[str, Any] = other_keys()
 

@@ -109,6 +109,22 @@ def _flags_by_name(lines: dict[str, Any], frame_names: Sequence[str]) -> None:
                                   for k, v in lines.get("uncertain_reasons", {}).items()}
 
 
+def _with_uncertain(traj: Any, path: Path) -> Any:
+    """init's poses with those of the frames it flags (kept apart in ``trajectory_uncertain.
+    tum`` beside ``path`` unless ``--keep-uncertain``): the check judges every pose it gave."""
+    from omni_sfm.folders import UNCERTAIN_FILE
+    from omni_sfm.poses import Trajectory, read_tum
+
+    extra = path.parent / UNCERTAIN_FILE
+    if not extra.is_file():
+        return traj
+    more = read_tum(extra)
+    order = np.argsort(np.concatenate([traj.timestamps, more.timestamps]), kind="stable")
+    return Trajectory(np.concatenate([traj.timestamps, more.timestamps])[order],
+                      np.concatenate([traj.rotations, more.rotations])[order],
+                      np.concatenate([traj.positions, more.positions])[order])
+
+
 def run_init(images: Path, camera: str | None, out: Path, extra: list[str]) -> dict[str, Any]:
     """``omni-sfm init --lines`` in a fresh process: status, time and what its folder says."""
     cmd = [sys.executable, "-m", "omni_sfm", "init", "--lines", "--images", str(images),
@@ -413,7 +429,7 @@ def main(argv: list[str] | None = None) -> int:
     for key in ("lines", "colmap"):
         r = res[key]
         if r.get("status") == "ok":
-            trajs[key] = read_tum(Path(r["trajectory"]))
+            trajs[key] = _with_uncertain(read_tum(Path(r["trajectory"])), Path(r["trajectory"]))
             r["posed"] = len(trajs[key])
             if args.groundtruth is not None:
                 flagged = res["lines"].get("uncertain") if key == "lines" else None

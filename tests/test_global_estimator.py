@@ -2,6 +2,7 @@
 truth and the maximum-likelihood oracle, the same answer whatever the frame order or round-off,
 per-frame flags and the errors of data that determine nothing."""
 
+import json
 from dataclasses import replace
 
 import numpy as np
@@ -164,3 +165,38 @@ def test_expected_gap_errors_cover_the_interpolation_of_a_random_motion() -> Non
     end = np.zeros(n, bool)
     end[-24:] = True
     assert _gap_errors(end, x)[-1] > _gap_errors(free, x).max()
+
+
+def test_uncertain_frames_are_kept_out_of_the_trajectory(tmp_path, capsys) -> None:
+    """Frames 50-74 of a walk see lines of one world direction only: the frames the data do not
+    fix are flagged, and their poses go to trajectory_uncertain.tum, not to trajectory.tum (nor
+    to the COLMAP model), unless ``--keep-uncertain``; the summary says where they are."""
+    from omni_sfm.cli import main
+    from omni_sfm.lines.tracks import write_tracks
+    from omni_sfm.poses import read_tum
+
+    sim = _walk(seed=6, views=120)
+    tr = sim.tracks
+    axis = np.argmax(np.abs(sim.line_directions), axis=1)
+    cut = (tr.obs_frame >= 50) & (tr.obs_frame < 75) & (axis[tr.obs_track] != 0)
+    one = replace(tr, obs_track=tr.obs_track[~cut], obs_frame=tr.obs_frame[~cut],
+                  obs_normal=tr.obs_normal[~cut])
+    write_tracks(tmp_path / "tracks.json", one)
+    runs = {}
+    for name, extra in (("out", []), ("kept", ["--keep-uncertain"])):
+        assert main(["init", "--lines", "--tracks", str(tmp_path / "tracks.json"), "--estimator",
+                     "global", "--output", str(tmp_path / name), *extra]) == 0
+        runs[name] = capsys.readouterr().out
+    report = json.loads((tmp_path / "out" / "report.json").read_text())
+    flagged = sorted(int(k) for k in report["frames_uncertain"])
+    assert flagged and set(flagged) <= set(range(45, 80))
+    assert report["uncertain_poses"] == "trajectory_uncertain.tum"
+    trusted = read_tum(tmp_path / "out" / "trajectory.tum")
+    uncertain = read_tum(tmp_path / "out" / "trajectory_uncertain.tum")
+    assert np.array_equal(uncertain.timestamps, tr.timestamps[flagged])
+    assert not np.isin(trusted.timestamps, uncertain.timestamps).any()
+    kept = read_tum(tmp_path / "kept" / "trajectory.tum")
+    assert len(kept) == len(trusted) + len(uncertain)
+    assert not (tmp_path / "kept" / "trajectory_uncertain.tum").exists()
+    assert "poses in trajectory_uncertain.tum, not in trajectory.tum" in runs["out"]
+    assert "uncertain:" in runs["kept"] and "poses in trajectory.tum" in runs["kept"]

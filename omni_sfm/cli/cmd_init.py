@@ -75,6 +75,11 @@ def add_parser(subparsers: Any) -> None:
                         "PNGs in OUTPUT/debug/ of every frame of a run of at most 300 frames, "
                         "else of 300 frames spread over it; png: every frame; mp4: every frame "
                         "in OUTPUT/debug.mp4; none. png and mp4 read a longer input twice")
+    p.add_argument("--keep-uncertain", action="store_true",
+                   help="keep the poses of the frames the data do not fix in trajectory.tum "
+                        "(default: they go to trajectory_uncertain.tum, listed with their "
+                        "reasons in report.json frames_uncertain, and later stages do without "
+                        "them)")
     p.add_argument("--no-colmap", action="store_true",
                    help="do not write the COLMAP model (sparse/, images_colmap/)")
     p.add_argument("--colmap-images", action=argparse.BooleanOptionalAction, default=None,
@@ -167,8 +172,10 @@ def summary(rep: InitReport | dict[str, Any], output: Path, estimated: list[str]
                      + f" ({_names(not_estimated)}; reasons in report.json)")
     if rep.frames_uncertain:
         idx = sorted(int(k) for k in rep.frames_uncertain)
+        where = (f"poses in {rep.uncertain_poses}, not in trajectory.tum" if rep.uncertain_poses
+                 else "poses in trajectory.tum")
         lines.append(f"uncertain: {len(idx)} frames the data do not fix (frames "
-                     f"{_index_runs(idx)}; reasons in report.json frames_uncertain)")
+                     f"{_index_runs(idx)}; {where}; reasons in report.json frames_uncertain)")
     if unreadable and reasons:
         lines.append(_skipped(unreadable, reasons))
     elif unreadable:
@@ -181,6 +188,7 @@ def run(args: argparse.Namespace) -> int:
     from omni_sfm.errors import OmniSfmError
     from omni_sfm.estimate.pipeline import EstimationOptions, estimate_poses, write_init_outputs
     from omni_sfm.fileio import atomic_output_dir, check_output_dir, stored_path
+    from omni_sfm.folders import InitFolder
 
     if args.initializer is not None:
         return _run_plugin(args)
@@ -201,11 +209,13 @@ def run(args: argparse.Namespace) -> int:
                         debug_view=args.debug_view, colmap=not args.no_colmap,
                         colmap_images=args.colmap_images,
                         colmap_text=args.text, progress=not args.quiet,
+                        keep_uncertain=args.keep_uncertain,
                         auto_mask=not args.no_auto_mask, strict=args.strict),
             mask=args.mask, overwrite=args.overwrite,
             warn=lambda text: print(f"omni-sfm: warning: {text}", file=sys.stderr, flush=True),
             note=_note)
-        print(summary(res.estimation.report, args.output, list(res.image_names),
+        print(summary(InitFolder(args.output).read_report(), args.output,
+                      list(res.image_names),
                       list(res.not_estimated), list(res.unreadable),
                       list(res.unreadable_reasons)))
         if res.auto_mask:
@@ -227,10 +237,12 @@ def run(args: argparse.Namespace) -> int:
     result = estimate_poses(tracks, estimation)
     with atomic_output_dir(args.output, overwrite=args.overwrite, inputs=(args.tracks,)) as tmp:
         write_init_outputs(
-            tmp, result, extra={"input": {"tracks": stored_path(args.tracks, args.output)}})
+            tmp, result, extra={"input": {"tracks": stored_path(args.tracks, args.output)}},
+            keep_uncertain=args.keep_uncertain)
     frames = [f"{k}" for k in range(tracks.num_frames)]
     est = result.estimated
-    print(summary(result.report, args.output, [f for f, e in zip(frames, est, strict=True) if e],
+    print(summary(InitFolder(args.output).read_report(), args.output,
+                  [f for f, e in zip(frames, est, strict=True) if e],
                   [f for f, e in zip(frames, est, strict=True) if not e], []))
     return 0
 
@@ -266,6 +278,7 @@ def _run_plugin(args: argparse.Namespace) -> int:
                  "--edge-low/--edge-high": (args.edge_low, args.edge_high) != (None, None),
                  "--no-colmap": args.no_colmap, "--text": args.text,
                  "--no-auto-mask": args.no_auto_mask, "--strict": args.strict,
+                 "--keep-uncertain": args.keep_uncertain,
                  "--workers": args.workers is not None}
     given = [flag for flag, on in line_only.items() if on]
     if given:

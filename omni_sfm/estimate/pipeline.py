@@ -63,7 +63,7 @@ from omni_sfm.estimate.windows import (
     window_tracks,
 )
 from omni_sfm.fileio import atomic_write_text, dumps_json
-from omni_sfm.folders import REPORT_FILE, TRAJECTORY_FILE
+from omni_sfm.folders import REPORT_FILE, TRAJECTORY_FILE, UNCERTAIN_FILE
 from omni_sfm.forked import Deferred, SharedCounters
 from omni_sfm.geometry import FloatArray, ray_line_closest, rotation_angle
 from omni_sfm.lines.tracks import LineTracks, reversed_frames
@@ -2050,20 +2050,40 @@ def _report(tracks: LineTracks, frames: np.ndarray, members: np.ndarray, directi
     }
 
 
+def trusted(result: EstimationResult) -> np.ndarray:
+    """``(N,)`` bool over ``result.trajectory``'s poses: those of frames the report does not
+    flag as uncertain (``frames_uncertain``), where at least 3 are; else all."""
+    idx = np.flatnonzero(result.estimated)
+    flagged = [int(k) for k in result.report.get("frames_uncertain") or {}]
+    keep = ~np.isin(idx, flagged)
+    return keep if keep.sum() >= 3 else np.ones(len(idx), bool)
+
+
 def write_init_outputs(directory: Path, result: EstimationResult,
-                       extra: dict[str, Any] | None = None) -> list[Path]:
+                       extra: dict[str, Any] | None = None, *,
+                       keep_uncertain: bool = False) -> list[Path]:
     """Write ``trajectory.tum`` and ``report.json`` of ``result`` into ``directory``.
 
-    ``extra`` entries (e.g. the input files) are added to the report. Use inside
-    :func:`omni_sfm.fileio.atomic_output_dir` so that the folder appears complete or not at all.
+    The poses of the frames the report flags as uncertain go to ``trajectory_uncertain.tum``
+    instead of ``trajectory.tum`` (so that no later stage takes them for fixed; the report
+    says so in ``uncertain_poses``), unless ``keep_uncertain`` or fewer than 3 frames would be
+    left (:func:`trusted`). ``extra`` entries (e.g. the input files) are added to the report.
+    Use inside :func:`omni_sfm.fileio.atomic_output_dir` so that the folder appears complete
+    or not at all.
     """
     directory = Path(directory)
-    write_tum(directory / TRAJECTORY_FILE, result.trajectory)
+    keep = np.ones(len(result.trajectory), bool) if keep_uncertain else trusted(result)
+    write_tum(directory / TRAJECTORY_FILE, result.trajectory.subset(keep))
     written = [directory / TRAJECTORY_FILE]
+    if not keep.all():
+        write_tum(directory / UNCERTAIN_FILE, result.trajectory.subset(~keep))
+        written.append(directory / UNCERTAIN_FILE)
     for seg in result.segments:
         write_tum(directory / seg.file, seg.trajectory)
         written.append(directory / seg.file)
     report = dict(result.report)
+    if not keep.all():
+        report["uncertain_poses"] = UNCERTAIN_FILE
     if extra:
         report.update(extra)
     atomic_write_text(directory / REPORT_FILE, dumps_json(report))

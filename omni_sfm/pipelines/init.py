@@ -74,6 +74,10 @@ class InitOptions:
     most :data:`DEBUG_FRAMES` frames, else of that many frames spread evenly over it), ``png``
     (every frame), ``mp4`` (every frame, ``debug.mp4``) or ``none``. The frames come from the
     front end's pass; ``png`` and ``mp4`` on longer runs read the input a second time."""
+    keep_uncertain: bool = False
+    """Keep the poses of the frames the data do not fix in ``trajectory.tum`` (and the COLMAP
+    model); by default they go to ``trajectory_uncertain.tum`` and later stages do without
+    them."""
     colmap: bool = True
     """Write the COLMAP model seeded with the poses (``sparse/``, ``images_colmap/``)."""
     colmap_images: bool | None = None
@@ -279,7 +283,7 @@ def init_from_images(images: Path | str, camera: Path | str | CameraModel | None
             (with the front end's reason: dark or low-contrast frames, an empty mask, edges
             that are not straight) or no parallel family, degenerate motion.
     """
-    from omni_sfm.estimate.pipeline import write_init_outputs
+    from omni_sfm.estimate.pipeline import trusted, write_init_outputs
     from omni_sfm.export.colmap import write_init_model
     from omni_sfm.fileio import check_output_dir
     from omni_sfm.lines.debug import KeptFrames
@@ -331,7 +335,7 @@ def init_from_images(images: Path | str, camera: Path | str | CameraModel | None
         extra = _init_extra(images, camera, cam, mask, output, o, source, fe, unreadable,
                             skipped_not_estimated, {"front_end": t1 - t0, "estimation": t2 - t1},
                             checks, fixed_ids)
-        write_init_outputs(tmp, result, extra=extra)
+        write_init_outputs(tmp, result, extra=extra, keep_uncertain=o.keep_uncertain)
         write_tracks(tmp / InitFolder.TRACKS, tracks)
         write_lines3d(tmp / InitFolder.LINES3D, estimated_segments(fe, result))
         if line_mask is not None:  # the user's mask and the automatic one: what refine uses
@@ -340,9 +344,12 @@ def init_from_images(images: Path | str, camera: Path | str | CameraModel | None
         if kept is not None:
             _write_debug(tmp, images, cam, o, fe, result, kept, n)
         if o.colmap:
-            write_init_model(tmp, cam, result.trajectory, est_names, text=o.colmap_text)
+            keep = np.ones(len(est_names), bool) if o.keep_uncertain else trusted(result)
+            model_names = [n for n, k in zip(est_names, keep, strict=True) if k]
+            write_init_model(tmp, cam, result.trajectory.subset(keep), model_names,
+                             text=o.colmap_text)
             if colmap_images is not None:
-                colmap_images.keep(est_names)
+                colmap_images.keep(model_names)
     return InitResult(output=output, camera=cam, frontend=fe, estimation=result,
                       image_names=tuple(est_names), not_estimated=tuple(skipped_not_estimated),
                       unreadable=tuple(unreadable),
