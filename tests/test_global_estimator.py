@@ -200,3 +200,20 @@ def test_uncertain_frames_are_kept_out_of_the_trajectory(tmp_path, capsys) -> No
     assert not (tmp_path / "kept" / "trajectory_uncertain.tum").exists()
     assert "poses in trajectory_uncertain.tum, not in trajectory.tum" in runs["out"]
     assert "uncertain:" in runs["kept"] and "poses in trajectory.tum" in runs["kept"]
+
+
+def test_frames_with_three_lines_are_flagged() -> None:
+    """Three lines fix a pose with nothing to spare (several poses fit them exactly): such a
+    frame is posed but flagged, whatever its error."""
+    sim = _walk(seed=6, views=120)
+    tr = sim.tracks
+    drop = np.zeros(tr.num_observations, bool)
+    for f in range(50, 55):
+        drop[np.flatnonzero(tr.obs_frame == f)[3:]] = True
+    three = replace(tr, obs_track=tr.obs_track[~drop], obs_frame=tr.obs_frame[~drop],
+                    obs_normal=tr.obs_normal[~drop])
+    res = _run(three)
+    assert res.estimated[50:55].all()
+    flagged = res.report["frames_uncertain"]
+    assert all("sees 3 lines only" in flagged[str(k)] for k in range(50, 55))
+    assert not any("sees 3 lines" in v for k, v in flagged.items() if int(k) not in range(50, 55))

@@ -646,13 +646,14 @@ def _gap_errors(free: np.ndarray, values: FloatArray, direction: FloatArray | No
     return out
 
 
-def _uncertain(rot: GlobalRotations, pos: GlobalPositions, ba: BundleResult,
-               options: GlobalOptions) -> dict[int, str]:
-    """Frames whose rotation or position the data leave (nearly) free and whose interpolation
-    between the frames that fix them can be off by more than ``options.uncertain_deg`` or
-    ``options.uncertain_path`` of the path, with the reason (:func:`_gap_errors`: the walk's
-    own curvature over the length of the stretch; a frame or two between fixed ones are
-    interpolated well)."""
+def _uncertain(tracks: LineTracks, rot: GlobalRotations, pos: GlobalPositions,
+               ba: BundleResult, options: GlobalOptions) -> dict[int, str]:
+    """Frames that see 3 lines only (they fit several poses exactly: nothing checks the one
+    found), and frames whose rotation or position the data leave (nearly) free and whose
+    interpolation between the frames that fix them can be off by more than
+    ``options.uncertain_deg`` or ``options.uncertain_path`` of the path, with the reason
+    (:func:`_gap_errors`: the walk's own curvature over the length of the stretch; a frame or
+    two between fixed ones are interpolated well)."""
     idx = np.flatnonzero(ba.frames)
     if len(idx) < 3:
         return {}
@@ -662,15 +663,19 @@ def _uncertain(rot: GlobalRotations, pos: GlobalPositions, ba: BundleResult,
     # rotations as rotation vectors from the first frame's (small turns between frames:
     # their second differences are the turns' second differences)
     rvec = matrix_to_rotvec(np.einsum("ji,kjl->kil", R[0], R))
-    path = float(np.sum(np.linalg.norm(np.diff(c, axis=0), axis=1)))
+    path = max(float(np.sum(np.linalg.norm(np.diff(c, axis=0), axis=1))), 1e-300)
     rot_err = np.degrees(_gap_errors(rfree, rvec))
     # the motion along the direction the frame's lines fix least (a frame whose lines all run
     # along the walk is free along the walk, where walking is smooth)
-    pos_err = 100.0 * _gap_errors(rfree | pfree, c, np.nan_to_num(pos.free_direction[idx])) / \
-        max(path, 1e-300)
+    pos_err = 100.0 * _gap_errors(rfree | pfree, c, np.nan_to_num(pos.free_direction[idx])) / path
+    used = ba.frames[tracks.obs_frame] & ba.used_tracks[tracks.obs_track]
+    seen = np.bincount(tracks.obs_frame[used], minlength=tracks.num_frames)[idx]
     out: dict[int, str] = {}
     for j, k in enumerate(idx):
-        if rfree[j] and (rot_err[j] > options.uncertain_deg or
+        if seen[j] <= 3:
+            out[int(k)] = (f"sees {seen[j]} lines only: they fix its pose with nothing to spare "
+                           f"(several poses fit them exactly, and no other line tells which)")
+        elif rfree[j] and (rot_err[j] > options.uncertain_deg or
                          pos_err[j] > 100 * options.uncertain_path):
             out[int(k)] = (f"rotation not fixed: its lines have (nearly) one direction; the "
                            f"turn about it comes from the neighbouring frames (up to "
@@ -793,5 +798,5 @@ def solve_global(tracks: LineTracks, options: GlobalOptions = GlobalOptions()
         used_tracks=ba.used_tracks, outlier_tracks=ba.outlier_tracks, members=members,
         world_directions=worlds, rms_initial_deg=ba.rms_initial_deg,
         rms_final_deg=ba.rms_final_deg, sigma_deg=ba.sigma_deg,
-        uncertain=_uncertain(rot, pos, ba, options),
+        uncertain=_uncertain(tracks, rot, pos, ba, options),
         not_posed=not_posed, steps=steps, timings_ms=timings)
