@@ -47,8 +47,10 @@ def _track(seq: Path, frames: int | None = None) -> list[TrackedPose]:
 
 
 @pytest.fixture(scope="module")
-def corridor_poses(corridor) -> list[TrackedPose]:
-    return _track(corridor)
+def corridor_poses(corridor, built_once) -> list[TrackedPose]:
+    """The corridor's poses frame by frame, tracked once per test run (``built_once``)."""
+    poses: list[TrackedPose] = built_once("track-corridor-poses", lambda _: _track(corridor))[1]
+    return poses
 
 
 @pytest.mark.parametrize("which", ["hyperboloid", "equirectangular"])
