@@ -80,7 +80,7 @@ def run_chain(tmp: Path, video: bool) -> Path:
     return cwd
 
 
-@pytest.mark.slow
+@pytest.mark.slow(seconds=60)
 @pytest.mark.parametrize("video", [False, True], ids=["image-folder", "video"])
 def test_readme_chain_end_to_end(tmp_path: Path, video: bool) -> None:
     ex = run_chain(tmp_path, video)
