@@ -76,8 +76,9 @@ def built_once(tmp_path_factory: pytest.TempPathFactory) -> Callable[[str, Calla
     again); the folder is then made read-only: a test that needs to write next to it copies
     what it needs.
 
-    For deterministic artefacts that several test files, or the tests of one file spread over
-    both processes of ``make test``, would otherwise each compute."""
+    For deterministic artefacts that several test files would otherwise each compute (and,
+    under pytest-xdist's test-by-test scheduling, the tests of one file spread over the
+    processes)."""
     root = _session_root(tmp_path_factory) / "built-once"
     root.mkdir(exist_ok=True)
     values: dict[str, tuple[Path, Any]] = {}
