@@ -33,9 +33,10 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	@# pytest exits 5 when it collected no test; that is not a failure of the suite. One test
-	@# process per core (pytest-xdist): each renders the shared sequences it needs itself; one
-	@# test sent at a time, the slow ones first (tests/conftest.py), so the processes end together.
-	OPENBLAS_NUM_THREADS=1 $(VENV)/bin/python -m pytest -q -n auto --maxschedchunk 1; rc=$$?; if [ $$rc -eq 5 ]; then rc=0; fi; exit $$rc
+	@# process per core (pytest-xdist), one test file at a time to each, so that a file's shared
+	@# fixtures are computed once; the files with slow tests first (tests/conftest.py); renders
+	@# several files share are made once, by the first process that needs them.
+	OPENBLAS_NUM_THREADS=1 $(VENV)/bin/python -m pytest -q -n auto --dist loadfile; rc=$$?; if [ $$rc -eq 5 ]; then rc=0; fi; exit $$rc
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .

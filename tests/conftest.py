@@ -1,8 +1,13 @@
 """Test-session settings and fixtures shared by every test file."""
 
+import fcntl
+import hashlib
 import os
+import pickle
+import shutil
 import stat
 from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -14,10 +19,16 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """The tests marked ``slow`` first (in their order), so that with one test process per
-    core (``make test``) the long ones start at once and the short ones fill in around them,
-    instead of one process running a minute-long test alone at the end."""
-    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
+    """The tests marked ``slow`` first, the longest first (``slow(seconds=N)``, 15 s when not
+    given; equal ones in their order). ``make test`` sends whole files to its test processes
+    (``--dist loadfile``) in the order of their first test: the files with slow tests start
+    at once and the short files fill in around them, instead of one process running a
+    minute-long file alone at the end."""
+    def key(item: pytest.Item) -> float:
+        slow = item.get_closest_marker("slow")
+        return 0.0 if slow is None else -float(slow.kwargs.get("seconds", 15))
+
+    items.sort(key=key)
 
 
 def _make_read_only(root: Path) -> None:
@@ -37,29 +48,80 @@ def _snapshot(root: Path) -> dict[str, tuple[int, int]]:
             for p in sorted(root.rglob("*"))}
 
 
+def _session_root(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The folder every test process of this run shares: with pytest-xdist each worker's
+    temporary folder lies in it (``pytest-N/popen-gwK``), without it is the run's own."""
+    base = tmp_path_factory.getbasetemp()
+    return base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
+
+
+@contextmanager
+def _locked(lock: Path) -> Iterator[None]:
+    """Hold an exclusive lock on the file ``lock`` (the test processes of a run take turns)."""
+    with open(lock, "a") as f:
+        fcntl.flock(f, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(f, fcntl.LOCK_UN)
+
+
 @pytest.fixture(scope="session")
-def rendered(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Callable[[Any], Any]]:
+def built_once(tmp_path_factory: pytest.TempPathFactory) -> Callable[[str, Callable[[Path], Any]],
+                                                                     tuple[Path, Any]]:
+    """``built_once(name, build)``: ``(folder, value)``, where ``value = build(folder)`` ran
+    once per test run for ``name``, by the first test process that asked; the others wait for
+    it and get the same folder and value (pickled beside it). ``build`` writes ``folder``
+    whole before it returns (a process that finds a folder without its value builds it
+    again); the folder is then made read-only: a test that needs to write next to it copies
+    what it needs.
+
+    For deterministic artefacts that several test files would otherwise each compute (and,
+    under pytest-xdist's test-by-test scheduling, the tests of one file spread over the
+    processes)."""
+    root = _session_root(tmp_path_factory) / "built-once"
+    root.mkdir(exist_ok=True)
+    values: dict[str, tuple[Path, Any]] = {}
+
+    def get(name: str, build: Callable[[Path], Any]) -> tuple[Path, Any]:
+        if name not in values:
+            folder, value_file = root / name, root / f"{name}.pickle"
+            with _locked(root / f"{name}.lock"):
+                if not value_file.exists():               # written last: the build is whole
+                    shutil.rmtree(folder, ignore_errors=True)     # what a failed build left
+                    folder.mkdir()
+                    value = build(folder)
+                    _make_read_only(folder)
+                    value_file.write_bytes(pickle.dumps(value))
+            values[name] = (folder, pickle.loads(value_file.read_bytes()))
+        return values[name]
+
+    return get
+
+
+@pytest.fixture(scope="session")
+def rendered(built_once: Callable[[str, Callable[[Path], Any]], tuple[Path, Any]]
+             ) -> Iterator[Callable[[Any], Any]]:
     """``rendered(options)``: the :class:`RenderResult` of ``render_sequence(folder, options)``,
-    rendered once per test session for each distinct :class:`RenderOptions` (equal options,
-    equal files), into a session temporary folder.
+    rendered once per test run for each distinct :class:`RenderOptions` (equal options, equal
+    files), by whichever test process asks first (``built_once``).
 
     The folder is shared by every test that asks for the same options: a test that needs to
     write next to the frames copies what it needs into its own folder. The folder is made
     read-only (which stops a test that writes into it, unless it runs as root), and at the end
     of the session it must hold exactly the files it was rendered with.
     """
-    from omni_sfm.synth.render import RenderOptions, render_sequence
+    from omni_sfm.synth.render import render_sequence
 
-    cache: dict[RenderOptions, Any] = {}
     snapshots: dict[Path, dict[str, tuple[int, int]]] = {}
 
-    def get(options: RenderOptions) -> Any:
-        if options not in cache:
-            out = tmp_path_factory.mktemp("render") / "seq"
-            cache[options] = render_sequence(out, options, progress=False)
-            _make_read_only(out)
-            snapshots[out] = _snapshot(out)
-        return cache[options]
+    def get(options: Any) -> Any:
+        # the options' repr names every field and value: equal options, equal name
+        name = "render-" + hashlib.sha256(repr(options).encode()).hexdigest()[:16]
+        _, result = built_once(name, lambda d: render_sequence(d / "seq", options,
+                                                                 progress=False))
+        snapshots.setdefault(result.output, _snapshot(result.output))
+        return result
 
     yield get
     for out, before in snapshots.items():

@@ -26,22 +26,26 @@ def _pose(k):
 
 
 @pytest.fixture(scope="module")
-def sequence(tmp_path_factory):
-    """Six 800x600 hyperboloid frames as PNGs, a lossless FFV1 .avi and an mp4v .mp4."""
-    cam = hyperboloid_camera()
-    room = Room()
-    root = tmp_path_factory.mktemp("seq")
-    (root / "images").mkdir()
-    imgs = [render(cam, room, *_pose(k), noise=1.0, seed=k) for k in range(NFRAMES)]
-    for k, img in enumerate(imgs):
-        cv2.imwrite(str(root / "images" / f"{k:04d}.png"), img)
-    for name, fourcc in (("video.avi", "FFV1"), ("video.mp4", "mp4v")):
-        w = cv2.VideoWriter(str(root / name), cv2.VideoWriter.fourcc(*fourcc), 10.0,
-                            (cam.width, cam.height), False)
-        assert w.isOpened()
-        for img in imgs:
-            w.write(img)
-        w.release()
+def sequence(built_once):
+    """Six 800x600 hyperboloid frames as PNGs, a lossless FFV1 .avi and an mp4v .mp4 (made
+    once per test run: ``built_once``, read-only)."""
+    def build(root):
+        cam = hyperboloid_camera()
+        room = Room()
+        (root / "images").mkdir()
+        imgs = [render(cam, room, *_pose(k), noise=1.0, seed=k) for k in range(NFRAMES)]
+        for k, img in enumerate(imgs):
+            cv2.imwrite(str(root / "images" / f"{k:04d}.png"), img)
+        for name, fourcc in (("video.avi", "FFV1"), ("video.mp4", "mp4v")):
+            w = cv2.VideoWriter(str(root / name), cv2.VideoWriter.fourcc(*fourcc), 10.0,
+                                (cam.width, cam.height), False)
+            assert w.isOpened()
+            for img in imgs:
+                w.write(img)
+            w.release()
+        return cam, room, imgs
+
+    root, (cam, room, imgs) = built_once("frontend-sequence", build)
     return cam, room, root, imgs
 
 

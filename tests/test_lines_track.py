@@ -57,8 +57,10 @@ def _purity(obs, truth):
 
 
 @pytest.fixture(scope="module")
-def hyper_run():
-    return _run(hyperboloid_camera(), _poses(8))
+def hyper_run(built_once):
+    """The hyperboloid's 8 frames tracked, once per test run (``built_once``)."""
+    return built_once("lines-track-hyperboloid", lambda _: _run(hyperboloid_camera(),
+                                                                  _poses(8)))[1]
 
 
 def test_tracks_keep_identity_hyperboloid(hyper_run):

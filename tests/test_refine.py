@@ -56,9 +56,10 @@ def _keypoints_in_database(db: Path) -> int:
 
 
 @pytest.fixture(scope="module")
-def room_refined(room, tmp_path_factory):
-    return refine_perturbed(room, tmp_path_factory.mktemp("refine"), MISSING,
-                            RefineOptions(overlap=5, features="sift"))
+def room_refined(room, built_once):
+    """``refine_perturbed`` of the room, once per test run (``built_once``: read-only)."""
+    return built_once("refine-room-sift", lambda d: refine_perturbed(
+        room, d, MISSING, RefineOptions(overlap=5, features="sift")))[1]
 
 
 def _on(traj: Trajectory, ts: np.ndarray) -> Trajectory:

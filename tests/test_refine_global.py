@@ -20,9 +20,10 @@ MISSING = (8, 9, 10, 15)  # frames without a seed pose: three in a row and one a
 
 
 @pytest.fixture(scope="module")
-def room_global(room, tmp_path_factory):
-    return refine_perturbed(room, tmp_path_factory.mktemp("refine_global"), MISSING,
-                            RefineOptions(overlap=5, mapper="global"))
+def room_global(room, built_once):
+    """``refine_perturbed`` of the room, once per test run (``built_once``: read-only)."""
+    return built_once("refine-room-global", lambda d: refine_perturbed(
+        room, d, MISSING, RefineOptions(overlap=5, mapper="global")))[1]
 
 
 def _missed_errors(traj, gt) -> tuple[np.ndarray, np.ndarray]:

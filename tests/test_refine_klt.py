@@ -37,9 +37,10 @@ def _table_rows(db: Path, table: str) -> list[tuple[int, int]]:
 
 
 @pytest.fixture(scope="module")
-def klt_refined(room, tmp_path_factory):
-    return refine_perturbed(room, tmp_path_factory.mktemp("refine_klt"), MISSING,
-                            RefineOptions(features="klt", overlap=5))
+def klt_refined(room, built_once):
+    """``refine_perturbed`` of the room, once per test run (``built_once``: read-only)."""
+    return built_once("refine-room-klt", lambda d: refine_perturbed(
+        room, d, MISSING, RefineOptions(features="klt", overlap=5)))[1]
 
 
 def test_klt_refine_improves_the_seed_and_triangulates_points(klt_refined):

@@ -47,11 +47,17 @@ def _track(seq: Path, frames: int | None = None) -> list[TrackedPose]:
 
 
 @pytest.fixture(scope="module")
-def corridor_poses(corridor) -> list[TrackedPose]:
-    return _track(corridor)
+def corridor_poses(corridor, built_once) -> list[TrackedPose]:
+    """The corridor's poses frame by frame, tracked once per test run (``built_once``)."""
+    poses: list[TrackedPose] = built_once("track-corridor-poses", lambda _: _track(corridor))[1]
+    return poses
 
 
-@pytest.mark.parametrize("which", ["hyperboloid", "equirectangular"])
+@pytest.mark.parametrize("which", [
+    "hyperboloid",
+    # renders its 40 frames and tracks them: 17 s in make test (slow: this file starts first)
+    pytest.param("equirectangular", marks=pytest.mark.slow),
+])
 def test_causal_accuracy_on_rendered_corridors(which, corridor, corridor_poses, rendered):
     if which == "hyperboloid":
         seq, poses = corridor, corridor_poses
