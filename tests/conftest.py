@@ -20,10 +20,9 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     """The tests marked ``slow`` first, the longest first (``slow(seconds=N)``, 15 s when not
-    given; equal ones in their order). ``make test`` sends whole files to its test processes
-    (``--dist loadfile``) in the order of their first test: the files with slow tests start
-    at once and the short files fill in around them, instead of one process running a
-    minute-long file alone at the end."""
+    given; equal ones in their order): ``make test`` hands its test processes one test at a
+    time in this order, so the long ones start at once and the short ones fill in around them,
+    instead of one process running a minute-long test alone at the end."""
     def key(item: pytest.Item) -> float:
         slow = item.get_closest_marker("slow")
         return 0.0 if slow is None else -float(slow.kwargs.get("seconds", 15))
