@@ -217,3 +217,30 @@ def test_frames_with_three_lines_are_flagged() -> None:
     flagged = res.report["frames_uncertain"]
     assert all("sees 3 lines only" in flagged[str(k)] for k in range(50, 55))
     assert not any("sees 3 lines" in v for k, v in flagged.items() if int(k) not in range(50, 55))
+
+
+def test_a_part_tied_to_the_rest_through_frames_of_three_lines_is_flagged() -> None:
+    """Frames 80-130 of a walk keep 2 or 3 of their lines, and fewer than 4 lines are seen on
+    both sides of that stretch: the part after it is posed in the same world but flagged (its
+    pose relative to the first part rests on frames that fix theirs with nothing to spare),
+    and the frames left unflagged are right."""
+    sim = _walk(seed=1)
+    tr = sim.tracks
+    rng = np.random.default_rng(1)
+    drop = np.zeros(tr.num_observations, bool)
+    for f in range(80, 131):
+        obs = np.flatnonzero(tr.obs_frame == f)
+        keep = rng.choice(obs, size=min(len(obs), 2 + f % 2), replace=False)
+        drop[np.setdiff1d(obs, keep)] = True
+    thin = replace(tr, obs_track=tr.obs_track[~drop], obs_frame=tr.obs_frame[~drop],
+                   obs_normal=tr.obs_normal[~drop])
+    res = _run(thin)
+    flagged = res.report["frames_uncertain"]
+    tied = sorted(int(k) for k, v in flagged.items() if "tied to frames 0-79" in v)
+    assert tied == list(range(131, 200))
+    idx = np.flatnonzero(res.estimated)
+    trusted = np.array([str(k) not in flagged for k in idx])
+    assert set(idx[trusted]) == set(range(80))
+    e = trajectory_errors(match_reflection(res.trajectory.subset(trusted), sim.groundtruth),
+                          sim.groundtruth)
+    assert e.rot_max_deg < 0.5 and e.ate_rel < 1e-3

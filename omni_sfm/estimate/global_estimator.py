@@ -646,6 +646,45 @@ def _gap_errors(free: np.ndarray, values: FloatArray, direction: FloatArray | No
     return out
 
 
+def _weak_ties(tracks: LineTracks, ba: BundleResult, seen: np.ndarray, min_ties: int = 4
+               ) -> dict[int, str]:
+    """Frames in another part of the video than the largest, where the parts are cut at a
+    stretch of frames that see 3 lines or fewer (or are not posed) across which fewer than
+    ``min_ties`` lines are seen on both sides: the pose of one part relative to the other then
+    rests on frames whose lines fix them with nothing to spare, and nothing checks it (a turn
+    of 90 deg or a wrong scale fits as well). ``seen``: ``(F,)`` lines used in each frame."""
+    strong = np.flatnonzero(ba.frames & (seen > 3))
+    if len(strong) < 2:
+        return {}
+    used = ba.frames[tracks.obs_frame] & ba.used_tracks[tracks.obs_track]
+    M = tracks.num_tracks
+    first = np.full(M, tracks.num_frames)
+    last = np.full(M, -1)
+    np.minimum.at(first, tracks.obs_track[used], tracks.obs_frame[used])
+    np.maximum.at(last, tracks.obs_track[used], tracks.obs_frame[used])
+    cuts = [(int(a), int(b), int(np.sum((first <= a) & (last >= b))))
+            for a, b in zip(strong[:-1], strong[1:], strict=True) if b - a > 1]
+    cuts = [c for c in cuts if c[2] < min_ties]
+    if not cuts:
+        return {}
+    edges = [0, *[b for _, b, _ in cuts], tracks.num_frames]
+    parts = [(lo, hi) for lo, hi in zip(edges[:-1], edges[1:], strict=True)]
+    size = [int(np.sum((strong >= lo) & (strong < hi))) for lo, hi in parts]
+    main = parts[int(np.argmax(size))]
+    fixed = strong[(strong >= main[0]) & (strong < main[1])]
+    out: dict[int, str] = {}
+    for lo, hi in parts:
+        if (lo, hi) == main:
+            continue
+        # the cut between this part and the main one, on the main one's side
+        a, b, n = next(c for c in cuts if c[1] == (main[0] if hi <= main[0] else main[1]))
+        for k in np.flatnonzero(ba.frames[lo:hi]) + lo:
+            out[int(k)] = (f"tied to frames {fixed[0]}-{fixed[-1]} only through frames {a + 1}-"
+                           f"{b - 1}, which see 3 lines or fewer, and {n} lines seen on both "
+                           "sides: its pose relative to them is not checked by the data")
+    return out
+
+
 def _uncertain(tracks: LineTracks, rot: GlobalRotations, pos: GlobalPositions,
                ba: BundleResult, options: GlobalOptions) -> dict[int, str]:
     """Frames that see 3 lines only (they fit several poses exactly: nothing checks the one
@@ -669,9 +708,12 @@ def _uncertain(tracks: LineTracks, rot: GlobalRotations, pos: GlobalPositions,
     # along the walk is free along the walk, where walking is smooth)
     pos_err = 100.0 * _gap_errors(rfree | pfree, c, np.nan_to_num(pos.free_direction[idx])) / path
     used = ba.frames[tracks.obs_frame] & ba.used_tracks[tracks.obs_track]
-    seen = np.bincount(tracks.obs_frame[used], minlength=tracks.num_frames)[idx]
-    out: dict[int, str] = {}
+    seen_all = np.bincount(tracks.obs_frame[used], minlength=tracks.num_frames)
+    seen = seen_all[idx]
+    out = _weak_ties(tracks, ba, seen_all)
     for j, k in enumerate(idx):
+        if int(k) in out:
+            continue
         if seen[j] <= 3:
             out[int(k)] = (f"sees {seen[j]} lines only: they fix its pose with nothing to spare "
                            f"(several poses fit them exactly, and no other line tells which)")
