@@ -36,6 +36,7 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
 from omni_sfm.errors import OmniSfmError
+from omni_sfm.estimate.pipeline import EstimationOptions
 from omni_sfm.evaluate import relative_rotation_errors_deg, trajectory_errors
 from omni_sfm.lines.frontend import FrontEndOptions
 from omni_sfm.pipelines.init import InitOptions, init_from_images
@@ -104,7 +105,7 @@ def slug(name: str) -> str:
     return "".join(ch if ch.isalnum() else "-" for ch in name).strip("-").replace("--", "-")
 
 
-def run_case(case: Case, work: Path) -> dict[str, Any]:
+def run_case(case: Case, work: Path, estimator: str = "windows") -> dict[str, Any]:
     seq = work / slug(case.name)
     if not (seq / "groundtruth.tum").is_file():
         render_sequence(seq, case.render, overwrite=True)
@@ -121,7 +122,9 @@ def run_case(case: Case, work: Path) -> dict[str, Any]:
     try:
         res = init_from_images(images, seq / "camera.yaml", work / (seq.name + "-init"),
                                InitOptions(frontend=FrontEndOptions(progress=False),
-                                           debug_view="none", colmap=False, progress=False),
+                                           estimation=EstimationOptions(estimator=estimator),
+                                           debug_view="none", colmap=False, progress=False,
+                                           keep_uncertain=True),
                                mask=mask, overwrite=True)
     except OmniSfmError as exc:
         row.update(error=str(exc), wall_s=time.perf_counter() - t0)
@@ -129,7 +132,8 @@ def run_case(case: Case, work: Path) -> dict[str, Any]:
     wall = time.perf_counter() - t0
     gt = read_tum(seq / "groundtruth.tum")
     est = res.estimation.trajectory
-    row.update(frames=len(gt), wall_s=wall, tracks=res.estimation.report["num_tracks"])
+    row.update(frames=len(gt), wall_s=wall, tracks=res.estimation.report["num_tracks"],
+               flagged=len(res.estimation.report.get("frames_uncertain") or {}))
     if InitReport.from_json(res.estimation.report).rotation_only:  # no positions to compare
         e, g = associate(est, gt)
         rot = relative_rotation_errors_deg(e, g)
@@ -168,11 +172,14 @@ def main() -> int:
     p.add_argument("--work", type=Path, required=True, help="folder for renders and results")
     p.add_argument("--frames", type=int, default=600, help="frames of the walk (default 600)")
     p.add_argument("--only", nargs="*", help="run only cases whose name contains one of these")
+    p.add_argument("--estimator", choices=["windows", "global"], default="windows",
+                   help="init's estimator (default windows); global writes its own record, "
+                        "eval_footage_global")
     add_log_arguments(p)
     args = p.parse_args()
     rows = []
     for case in cases(args.frames, args.only):
-        row = run_case(case, args.work)
+        row = run_case(case, args.work, args.estimator)
         rows.append(row)
         print(json.dumps(row), flush=True)
     cells = table(rows)
@@ -181,7 +188,8 @@ def main() -> int:
     every = [k for k, r in enumerate(cells) if str(r[1]).startswith("all:")]
     headline = "; ".join(f"{{rows[{k}][0]}}: {{rows[{k}][2]}} frames, {{rows[{k}][3]}} deg, "
                          f"{{rows[{k}][5]}} % ATE" for k in every)
-    write_log(args, "eval_footage", "The office walk, effect by effect", COLUMNS, cells,
+    name = "eval_footage" if args.estimator == "windows" else "eval_footage_global"
+    write_log(args, name, "The office walk, effect by effect", COLUMNS, cells,
               headline=f"{args.frames}-frame 23 m office walk with a 90 deg turn, every effect "
                        f"of real footage at once: {headline}")
     return 0
