@@ -23,8 +23,10 @@ Numpy arrays in a report are written as lists; a report read back holds what JSO
 
 from __future__ import annotations
 
+import types
+import typing
 from collections.abc import Mapping
-from dataclasses import MISSING, dataclass, field, fields, replace
+from dataclasses import MISSING, dataclass, field, fields
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -47,8 +49,52 @@ def other_keys() -> Any:
     return field(default_factory=dict, metadata={_REST: True})
 
 
+def _dump(value: Any) -> Any:
+    """``value`` with every report in it (nested in lists and dicts) as its JSON document."""
+    if isinstance(value, JsonReport):
+        return value.to_json()
+    if isinstance(value, list):
+        return [_dump(v) for v in value]
+    if isinstance(value, dict):
+        return {k: _dump(v) for k, v in value.items()}
+    return value
+
+
+_HINTS: dict[type, dict[str, Any]] = {}
+
+
+def _hints(cls: type) -> dict[str, Any]:
+    """The fields' types of the dataclass ``cls`` (its annotations resolved, once)."""
+    if cls not in _HINTS:
+        _HINTS[cls] = typing.get_type_hints(cls)
+    return _HINTS[cls]
+
+
+def _load(hint: Any, value: Any, where: str) -> Any:
+    """``value`` of a JSON document read as the field type ``hint``: a report type (alone, in
+    ``X | None``, ``list[X]`` or ``dict[str, X]``) is read with its ``from_json``; anything
+    else is kept as JSON holds it."""
+    if value is None or hint is Any:
+        return value
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if origin in (typing.Union, types.UnionType):
+        kinds = [a for a in args if a is not type(None)]
+        return _load(kinds[0], value, where) if len(kinds) == 1 else value
+    if isinstance(hint, type) and issubclass(hint, JsonReport):
+        return hint.from_json(value, where)
+    if origin is list and isinstance(value, list):
+        return [_load(args[0], v, f"{where}[{k}]") for k, v in enumerate(value)]
+    if origin is dict and isinstance(value, Mapping) and len(args) == 2:
+        return {k: _load(args[1], v, f"{where}.{k}") for k, v in value.items()}
+    return value
+
+
 class JsonReport:
-    """JSON form of a frozen dataclass report (a mixin; see the module docstring)."""
+    """JSON form of a frozen dataclass report (a mixin; see the module docstring).
+
+    A field whose type is a report (``X``, ``X | None``, ``list[X]``, ``dict[str, X]``) is
+    written as that report's document and read back with that report's :meth:`from_json`, so
+    a section typed as its own dataclass needs no (de)serialisation of its own."""
 
     def to_json(self) -> dict[str, Any]:
         """The JSON document: the fields in order, their keys the fields' names."""
@@ -58,7 +104,7 @@ class JsonReport:
             if f.metadata.get(_REST):
                 out.update(value)
             elif value is not None or not f.metadata.get(_OMIT):
-                out[f.name] = value
+                out[f.name] = _dump(value)
         return out
 
     @classmethod
@@ -69,13 +115,14 @@ class JsonReport:
             raise OmniSfmError(f"{where}: not a JSON object")
         kwargs: dict[str, Any] = {}
         rest, named = None, set()
+        hints = _hints(cls)
         for f in fields(cls):  # type: ignore[arg-type]
             if f.metadata.get(_REST):
                 rest = f.name
                 continue
             named.add(f.name)
             if f.name in doc:
-                kwargs[f.name] = doc[f.name]
+                kwargs[f.name] = _load(hints[f.name], doc[f.name], f"{where}: {f.name}")
             elif f.default is MISSING and f.default_factory is MISSING:
                 raise OmniSfmError(f"{where}: no {f.name!r} key")
         if rest is not None:
@@ -363,19 +410,13 @@ class CompareResults(JsonReport):
     (``name``, ``frames``, ``camera``)."""
 
     initializers: dict[str, CompareEntry]
-    sequence: dict[str, Any]
-
-    def to_json(self) -> dict[str, Any]:
-        return {"initializers": {k: e.to_json() for k, e in self.initializers.items()},
-                "sequence": dict(self.sequence)}
+    sequence: dict[str, Any] = field(default_factory=dict)
 
     @classmethod
     def from_json(cls, doc: Any, where: str = "results") -> CompareResults:
         if not isinstance(doc, Mapping) or not isinstance(doc.get("initializers"), Mapping):
             raise OmniSfmError(f"{where}: no 'initializers' object")
-        return cls({name: CompareEntry.from_json(e, f"{where}: {name}")
-                    for name, e in doc["initializers"].items()},
-                   dict(doc.get("sequence") or {}))
+        return super().from_json(doc, where)
 
 
 @dataclass(frozen=True)
@@ -408,17 +449,6 @@ class TrackFrame(JsonReport):
     reason: str | None
     start_poses: list[TrackPose]
     """Where a start succeeded, the poses of the buffered frames it solved."""
-
-    def to_json(self) -> dict[str, Any]:
-        doc = super().to_json()
-        doc["start_poses"] = [p.to_json() for p in self.start_poses]
-        return doc
-
-    @classmethod
-    def from_json(cls, doc: Any, where: str = "track frame") -> TrackFrame:
-        frame = super().from_json(doc, where)
-        poses = [TrackPose.from_json(p, where) for p in frame.start_poses or []]
-        return replace(frame, start_poses=poses)
 
     @property
     def has_pose(self) -> bool:

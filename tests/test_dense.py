@@ -25,7 +25,7 @@ from omni_sfm.dense.relpose import PairPoseOptions, frame_features, pair_pose
 from omni_sfm.dense.views import ViewGeometry, stereo_rig
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.evaluate import umeyama
-from omni_sfm.fileio import stored_path
+from omni_sfm.fileio import dumps_json, stored_path
 from omni_sfm.folders import DenseFolder
 from omni_sfm.geometry import angle_between, rotation_angle, rotvec_to_matrix
 from omni_sfm.libs import open3d_module
@@ -111,6 +111,7 @@ def test_dense_room_accuracy_scale_and_files(room: Path, dense_out: Path) -> Non
     loaded = DenseFolder(dense_out).load()
     assert loaded.report.to_json() == report and list(report)[:3] == ["input", "scale",
                                                                       "median_depth"]
+    assert dumps_json(loaded.report.to_json()) == (dense_out / "report.json").read_text()
     assert loaded.points == dense_out / "dense.ply" and loaded.mesh == dense_out / "mesh.ply"
     assert loaded.images is not None and loaded.images.resolve() == (room / "images").resolve()
     # --known-distance undoes the arbitrary pose scale

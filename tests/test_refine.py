@@ -96,6 +96,9 @@ def test_refine_improves_a_perturbed_seed_on_a_textured_room(room_refined):
     # the folder's loader reads back the report refine returned, and the refined poses
     art = RefineFolder(work / "out").load()
     assert art.report.to_json() == json.loads(dumps_json(r.to_json()))
+    # read and written again, the file is the same to the byte
+    text = (work / "out" / RefineFolder.REPORT).read_text()
+    assert dumps_json(art.report.to_json()) == text == dumps_json(r.to_json())
     np.testing.assert_allclose(art.trajectory.positions, res.trajectory.positions, atol=1e-9)
     before = trajectory_errors(init, gt)
     after_all = trajectory_errors(res.trajectory, gt)

@@ -125,6 +125,8 @@ def test_a_report_written_and_read_back_is_the_same(kind: str, tmp_path: Path) -
     assert again.to_json() == doc
     assert type(report).from_json(doc) == again
     assert list(doc) == list(again.to_json())  # the order written survives the round trip
+    again.write(tmp_path / "again.json")  # and the file is the same to the byte
+    assert (tmp_path / "again.json").read_bytes() == (tmp_path / "r.json").read_bytes()
 
 
 def test_refine_report_keys_are_written_in_the_documented_order() -> None:
