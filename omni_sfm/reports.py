@@ -255,6 +255,90 @@ class PluginInitReport(JsonReport):
 
 
 @dataclass(frozen=True)
+class ModelStatistics(JsonReport):
+    """A COLMAP model's numbers as ``colmap model_analyzer`` gives them (refine's ``model``,
+    ``triangulation`` and ``bundle_adjustment.after``)."""
+
+    cameras: int
+    images: int
+    registered_images: int
+    points: int
+    observations: int
+    mean_track_length: float
+    mean_observations_per_image: float
+    mean_reprojection_error_px: float
+    other: dict[str, Any] = other_keys()
+
+
+@dataclass(frozen=True)
+class TriangulationReport(ModelStatistics):
+    """Refine's ``triangulation``: the model triangulated on the input poses, and the seeded
+    frames it posed again (their input disagreed with the points)."""
+
+    frames_posed_again: list[str] | None = absent()
+
+
+@dataclass(frozen=True)
+class FeaturesReport(JsonReport):
+    """Refine's ``features``: where they came from (``sift`` or ``klt``) and how many."""
+
+    source: str
+    extracted_images: int
+    reused_images: int
+    """Images whose features the database already held."""
+    keypoints: int
+    tracks: int | None = absent()
+    """KLT tracks (``klt`` only)."""
+    other: dict[str, Any] = other_keys()
+
+
+@dataclass(frozen=True)
+class MapperReport(JsonReport):
+    """Refine's ``mapper``: how the frames without an input pose were registered. Either
+    ``skipped`` (why), or ``registered`` / ``not_registered`` (frame names; the global mapper
+    adds ``mapper``: ``global`` and its figures), then ``added_to_trajectory`` and
+    ``timestamps`` (how they were placed)."""
+
+    mapper: str | None = absent()
+    skipped: str | None = absent()
+    registered: list[str] | None = absent()
+    not_registered: list[str] | None = absent()
+    relative_poses: int | None = absent()
+    rotation_averaging_converged: bool | None = absent()
+    global_positioning_converged: bool | None = absent()
+    observations_of_registered_frames: int | None = absent()
+    added_to_trajectory: list[str] | None = absent()
+    timestamps: str | None = absent()
+    other: dict[str, Any] = other_keys()
+
+
+@dataclass(frozen=True)
+class AdjustmentRound(JsonReport):
+    """One round of COLMAP's bundle adjustment and the filtering after it."""
+
+    mean_reprojection_error_before_px: float
+    mean_reprojection_error_after_px: float
+    termination: str | None = absent()
+    usable: bool | None = absent()
+    removed_observations: int | None = absent()
+    points: int | None = absent()
+    other: dict[str, Any] = other_keys()
+
+
+@dataclass(frozen=True)
+class BundleAdjustmentReport(JsonReport):
+    """Refine's ``bundle_adjustment``: ``skipped`` (why), COLMAP's ``rounds`` (with
+    ``held_fixed_frames`` and the model ``after``), or the ``joint`` adjustment's report."""
+
+    skipped: str | None = absent()
+    rounds: list[AdjustmentRound] | None = absent()
+    held_fixed_frames: int | None = absent()
+    after: ModelStatistics | None = absent()
+    joint: dict[str, Any] | None = absent()
+    other: dict[str, Any] = other_keys()
+
+
+@dataclass(frozen=True)
 class RefineReport(_StageInput, JsonReport):
     """A refine folder's ``report.json`` (docs/colmap.md), in the order written."""
 
@@ -263,11 +347,11 @@ class RefineReport(_StageInput, JsonReport):
     camera: dict[str, Any]
     frames: dict[str, int]
     options: dict[str, Any]
-    features: dict[str, Any]
+    features: FeaturesReport
     matching: dict[str, int]
-    triangulation: dict[str, Any]
-    mapper: dict[str, Any]
-    bundle_adjustment: dict[str, Any]
+    triangulation: TriangulationReport
+    mapper: MapperReport
+    bundle_adjustment: BundleAdjustmentReport
     kept_input_for_all: str | None
     """Why every input pose was kept, or None."""
     refined_frames: int
@@ -275,7 +359,7 @@ class RefineReport(_StageInput, JsonReport):
     """Frame name -> why its input pose was kept."""
     alignment_to_input: dict[str, Any] | None
     pose_changes: dict[str, Any] | None
-    model: dict[str, Any]
+    model: ModelStatistics
     summary: str
     carried_from_input: list[str]
     trajectory_frames: int
@@ -298,17 +382,17 @@ class RefineReport(_StageInput, JsonReport):
     @property
     def mapper_added(self) -> list[str]:
         """The frames without an input pose that COLMAP's mapper added to the trajectory."""
-        return list(self.mapper.get("added_to_trajectory") or [])
+        return list(self.mapper.added_to_trajectory or [])
 
     @property
-    def adjustment_rounds(self) -> list[dict[str, Any]]:
+    def adjustment_rounds(self) -> list[AdjustmentRound]:
         """COLMAP's bundle adjustment rounds (empty when it did not run)."""
-        return list(self.bundle_adjustment.get("rounds") or [])
+        return list(self.bundle_adjustment.rounds or [])
 
     @property
     def joint(self) -> dict[str, Any] | None:
         """The joint adjustment's report when it ran, else None."""
-        joint = self.bundle_adjustment.get("joint")
+        joint = self.bundle_adjustment.joint
         return joint if isinstance(joint, dict) else None
 
 

@@ -43,6 +43,12 @@ from omni_sfm.reports import (
 )
 
 
+def _stats(**extra: Any) -> dict[str, Any]:
+    return {"cameras": 1, "images": 5, "registered_images": 5, "points": 120,
+            "observations": 600, "mean_track_length": 5.0, "mean_observations_per_image": 120.0,
+            "mean_reprojection_error_px": 0.5, **extra}
+
+
 def _refine(**changes: Any) -> RefineReport:
     doc: dict[str, Any] = dict(
         input={"init": "../init", "images": "/data/frames", "database": "database.db"},
@@ -53,20 +59,21 @@ def _refine(**changes: Any) -> RefineReport:
         features={"source": "sift", "extracted_images": 5, "reused_images": 0,
                   "keypoints": 900},
         matching={"verified_pairs": 10, "inlier_matches": 800},
-        triangulation={"points": 120, "frames_posed_again": []},
+        triangulation=_stats(frames_posed_again=[]),
         mapper={"registered": ["000004.png"], "not_registered": [],
                 "added_to_trajectory": ["000004.png"], "timestamps": "affine in the frame index"},
         bundle_adjustment={"rounds": [{"mean_reprojection_error_before_px": 0.9,
-                                       "mean_reprojection_error_after_px": 0.5}]},
+                                       "mean_reprojection_error_after_px": 0.5}],
+                           "after": _stats()},
         kept_input_for_all=None, refined_frames=4, kept_frames={},
         alignment_to_input={"rotation": np.eye(3), "translation": np.zeros(3), "scale": 1.0,
                             "rotation_deg": 0.0},
-        pose_changes={"rotation_deg_max": 0.1}, model={"points": 120, "observations": 600},
+        pose_changes={"rotation_deg_max": 0.1}, model=_stats(),
         summary="Reconstruction:\n\tnum_points3D = 120", carried_from_input=["camera.yaml"],
         trajectory_frames=5, timings_s={"features": 1.0, "matching": 0.5},
         matching_guided={"pairs": 6, "written": 6, "matches": 700})
     doc.update(changes)
-    return RefineReport(**doc)
+    return RefineReport.from_json(doc)
 
 
 def _dense() -> DenseReport:
@@ -145,7 +152,15 @@ def test_refine_report_keys_are_written_in_the_documented_order() -> None:
 def test_typed_views_of_the_reports() -> None:
     r = _refine()
     assert r.mapper_added == ["000004.png"] and r.joint is None
-    assert r.adjustment_rounds[0]["mean_reprojection_error_after_px"] == 0.5
+    assert r.adjustment_rounds[0].mean_reprojection_error_after_px == 0.5
+    assert r.model.points == 120 and r.triangulation.frames_posed_again == []
+    assert r.features.reused_images == 0 and r.mapper.registered == ["000004.png"]
+    assert r.bundle_adjustment.after is not None and r.bundle_adjustment.after.observations == 600
+    with pytest.raises(OmniSfmError, match="report: model: no 'images' key"):
+        _refine(model={"cameras": 1})
+    # keys a section does not name are kept, at their place
+    extra = _refine(mapper={"registered": [], "why": "test"}).to_json()["mapper"]
+    assert extra == {"registered": [], "why": "test"}
     joint = _refine(bundle_adjustment={"joint": {"line_observations": 3}})
     assert joint.joint == {"line_observations": 3} and joint.adjustment_rounds == []
     e = _export()
