@@ -397,28 +397,131 @@ class RefineReport(_StageInput, JsonReport):
 
 
 @dataclass(frozen=True)
+class ScaleReport(JsonReport):
+    """Dense's ``scale``: where the output unit comes from (``source``: ``known_distance``,
+    ``camera_height`` or ``poses``), the source's figures, and ``factor``, the output units per
+    pose unit."""
+
+    source: str
+    unit: str
+    first_last_pose_units: float | None = absent()
+    known_distance: float | None = absent()
+    camera_height: float | None = absent()
+    other: dict[str, Any] = other_keys()
+    """The floor fit's figures (``camera_height``)."""
+    factor: float = field(kw_only=True)
+
+
+@dataclass(frozen=True)
+class CalibrationTrial(JsonReport):
+    """One frame offset the baseline calibration tried."""
+
+    offset: int
+    baseline: float
+    median_disparity_px: float | None
+    depth_share: float
+    other: dict[str, Any] = other_keys()
+
+
+@dataclass(frozen=True)
+class CalibrationReport(JsonReport):
+    """Dense's ``calibration``: the frame and the frame offset that set the stereo baseline."""
+
+    frame: int
+    frame_offset: int
+    trials: list[CalibrationTrial]
+    other: dict[str, Any] = other_keys()
+
+
+@dataclass(frozen=True)
+class ViewsReport(JsonReport):
+    """Dense's ``views``: the virtual pinhole views stereo runs on."""
+
+    focal_px: float
+    width: int
+    height: int
+    per_pair: int
+    num_disparities: int
+    other: dict[str, Any] = other_keys()
+
+
+@dataclass(frozen=True)
+class PairPoseSummary(JsonReport):
+    """Dense's ``pair_pose``: the relative-pose check of the stereo pairs over all keyframes."""
+
+    enabled: bool
+    pairs: int
+    corrected: int
+    median_rotation_change_deg: float | None
+    """None when no pair was corrected."""
+    other: dict[str, Any] = other_keys()
+
+
+@dataclass(frozen=True)
+class PairPoseCheck(JsonReport):
+    """The relative-pose check of one stereo pair of a keyframe."""
+
+    corrected: bool
+    inliers: int
+    rotation_change_deg: float
+    """Estimate minus given (NaN without an estimate); also ``direction_change_deg``."""
+    direction_change_deg: float
+    other: dict[str, Any] = other_keys()
+
+
+@dataclass(frozen=True)
+class DenseFrame(JsonReport):
+    """One keyframe of dense's ``frames``."""
+
+    frame: int
+    timestamp: float
+    image: str
+    sources: list[int]
+    """The frames it was matched with."""
+    baselines: list[float]
+    depth_share: float
+    view_share: float | None = absent()
+    view_pixels: int | None = absent()
+    depth_pixels: int | None = absent()
+    seconds_depth: float | None = absent()
+    seconds_fusion: float | None = absent()
+    pair_pose: list[PairPoseCheck] | None = absent()
+    other: dict[str, Any] = other_keys()
+
+
+@dataclass(frozen=True)
+class BackendReport(JsonReport):
+    """Dense's ``backend``: what computed the depths and the fusion."""
+
+    stereo: str
+    fusion: str
+    pycolmap_cuda: bool | None = absent()
+    note: str | None = absent()
+    other: dict[str, Any] = other_keys()
+
+
+@dataclass(frozen=True)
 class DenseReport(_StageInput, JsonReport):
     """A dense folder's ``report.json`` (docs/dense.md), in the order written."""
 
-    scale: dict[str, Any]
-    """``source``, ``unit``, ``factor``."""
+    scale: ScaleReport
     median_depth: float
     stereo_baseline: float
     voxel_size: float
-    calibration: dict[str, Any]
-    views: dict[str, Any]
+    calibration: CalibrationReport
+    views: ViewsReport
     keyframe_step: int
-    pair_pose: dict[str, Any]
+    pair_pose: PairPoseSummary
     num_keyframes: int
     num_points: int
     num_triangles: int
     depth_share: dict[str, float]
     """``median``, ``min``, ``max`` over the keyframes."""
     seconds: dict[str, float]
-    frames: list[dict[str, Any]]
+    frames: list[DenseFrame]
     """One entry per keyframe."""
     warnings: list[str]
-    backend: dict[str, Any]
+    backend: BackendReport
     note: str
     input: dict[str, Any] = field(default_factory=dict)
     """``poses``, ``images``: stored paths (written first; empty before the map is written)."""

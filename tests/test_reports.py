@@ -77,15 +77,25 @@ def _refine(**changes: Any) -> RefineReport:
 
 
 def _dense() -> DenseReport:
-    return DenseReport(
-        scale={"source": "known_distance", "unit": "m", "factor": 2.0}, median_depth=1.5,
-        stereo_baseline=0.1, voxel_size=0.01, calibration={"frame": 0, "trials": []},
-        views={"focal_px": 100.0, "width": 64, "height": 64}, keyframe_step=2,
-        pair_pose={"enabled": True, "pairs": 4}, num_keyframes=3, num_points=1000,
+    return DenseReport.from_json(dict(
+        input={"poses": "../refined", "images": "frames"},
+        scale={"source": "known_distance", "unit": "m", "known_distance": 2.0, "factor": 2.0},
+        median_depth=1.5, stereo_baseline=0.1, voxel_size=0.01,
+        calibration={"frame": 0, "frame_offset": 2, "trials": [
+            {"offset": 2, "baseline": 0.1, "median_disparity_px": 8.0, "depth_share": 0.5}]},
+        views={"focal_px": 100.0, "width": 64, "height": 64, "per_pair": 4,
+               "num_disparities": 32}, keyframe_step=2,
+        pair_pose={"enabled": True, "pairs": 4, "corrected": 1,
+                   "median_rotation_change_deg": 0.2},
+        num_keyframes=3, num_points=1000,
         num_triangles=500, depth_share={"median": 0.4, "min": 0.1, "max": 0.6},
-        seconds={"depth_per_keyframe": 0.2, "fusion_per_keyframe": 0.1}, frames=[{"frame": 0}],
-        warnings=["few points"], backend={"stereo": "cv2.StereoSGBM (CPU)"}, note="n",
-        input={"poses": "../refined", "images": "frames"})
+        seconds={"depth_per_keyframe": 0.2, "fusion_per_keyframe": 0.1},
+        frames=[{"frame": 0, "timestamp": 0.0, "image": "000000.png", "sources": [2],
+                 "baselines": [0.1], "depth_share": 0.4,
+                 "pair_pose": [{"corrected": True, "inliers": 80, "rotation_change_deg": 0.2,
+                                "direction_change_deg": 1.0}]}],
+        warnings=["few points"], backend={"stereo": "cv2.StereoSGBM (CPU)",
+                                          "fusion": "open3d"}, note="n"))
 
 
 def _export() -> ExportReport:
@@ -168,6 +178,12 @@ def test_typed_views_of_the_reports() -> None:
     assert list(e.to_json())[-1] == "seconds" and e.to_json()["num_images"] == 24
     assert _dense().to_json()["input"] == {"poses": "../refined", "images": "frames"}
     assert list(_dense().to_json())[0] == "input"
+    d = _dense()
+    assert d.scale.factor == 2.0 and d.scale.known_distance == 2.0 and d.scale.other == {}
+    assert d.calibration.trials[0].median_disparity_px == 8.0 and d.views.per_pair == 4
+    assert d.frames[0].pair_pose is not None and d.frames[0].pair_pose[0].corrected
+    assert d.frames[0].view_share is None and "view_share" not in d.to_json()["frames"][0]
+    assert d.pair_pose.median_rotation_change_deg == 0.2 and d.backend.pycolmap_cuda is None
     doc = _compare().to_json()["initializers"]
     assert "reason" not in doc["lines"] and doc["five-point"]["reason"] == "too few points"
     assert list(doc["five-point"])[:3] == ["status", "reason", "trajectory"]
