@@ -145,10 +145,57 @@ def _input_path(inp: Any, key: str, folder: Path) -> Path | None:
     return resolve_stored(value, folder) if isinstance(value, str) and value else None
 
 
-def _family_ids(fam: Any) -> list[int]:
+@dataclass(frozen=True)
+class FamilyReport(JsonReport):
+    """An init report's ``parallel_family``: the tracks of the family of parallel lines and
+    its unit direction in the world (NaN, and ``none`` saying why, when none was found)."""
+
+    track_ids: list[int] | None = absent()
+    direction: list[float] | None = absent()
+    none: str | None = absent()
+    other: dict[str, Any] = other_keys()
+
+
+@dataclass(frozen=True)
+class InitResiduals(JsonReport):
+    """An init report's ``residuals``: RMS angle (deg) between observed and predicted line
+    normals before and after the adjustment, and the noise it implies."""
+
+    rms_initial_deg: float | None = absent()
+    rms_final_deg: float | None = absent()
+    noise_sigma_deg: float | None = absent()
+    other: dict[str, Any] = other_keys()
+
+
+@dataclass(frozen=True)
+class InitMotion(JsonReport):
+    """An init report's ``motion``, written only for a camera that only turned: ``kind``
+    (``rotation only``), what ``translation`` is then, and ``why``."""
+
+    kind: str
+    translation: str | None = absent()
+    why: str | None = absent()
+    other: dict[str, Any] = other_keys()
+
+
+@dataclass(frozen=True)
+class InitSegment(JsonReport):
+    """One of an init report's ``segments``: frames estimated apart from the main trajectory,
+    in their own world and scale (``file``: their TUM file)."""
+
+    file: str
+    frames: list[int]
+    """First and last frame."""
+    num_frames_estimated: int
+    world: str | None = absent()
+    scale_convention: str | None = absent()
+    residual_rms_deg: float | None = absent()
+    other: dict[str, Any] = other_keys()
+
+
+def _family_ids(fam: FamilyReport | None) -> list[int]:
     """``parallel_family.track_ids`` (empty when absent)."""
-    ids = fam.get("track_ids") if isinstance(fam, Mapping) else None
-    return [int(i) for i in ids] if isinstance(ids, list) else []
+    return [] if fam is None else [int(i) for i in fam.track_ids or []]
 
 
 class _StageInput:
@@ -175,15 +222,14 @@ class StageReport(_StageInput, JsonReport):
     record: where the input is and (init) the parallel family."""
 
     input: dict[str, Any] = field(default_factory=dict)
-    parallel_family: dict[str, Any] | None = absent()
+    parallel_family: FamilyReport | None = absent()
     other: dict[str, Any] = other_keys()
 
     @property
     def family_direction(self) -> list[float] | None:
         """``parallel_family.direction``: the unit direction of the parallel family in the
         world, or None when the report has none."""
-        fam = self.parallel_family
-        d = fam.get("direction") if isinstance(fam, Mapping) else None
+        d = None if self.parallel_family is None else self.parallel_family.direction
         return [float(x) for x in d] if isinstance(d, list) and len(d) == 3 else None
 
     @property
@@ -202,11 +248,11 @@ class InitReport(_StageInput, JsonReport):
     input: dict[str, Any] = field(default_factory=dict)
     initializer: str | None = absent()
     num_frames_estimated: int | None = absent()
-    parallel_family: dict[str, Any] | None = absent()
+    parallel_family: FamilyReport | None = absent()
     rejected_tracks: list[int] | None = absent()
-    residuals: dict[str, Any] | None = absent()
-    segments: list[dict[str, Any]] | None = absent()
-    motion: dict[str, Any] | None = absent()
+    residuals: InitResiduals | None = absent()
+    segments: list[InitSegment] | None = absent()
+    motion: InitMotion | None = absent()
     """Only for a camera that only turned (docs/method.md §13)."""
     frames_uncertain: dict[str, str] | None = absent()
     uncertain_poses: str | None = absent()
@@ -227,12 +273,11 @@ class InitReport(_StageInput, JsonReport):
     def rms_final_deg(self) -> float | None:
         """``residuals.rms_final_deg``: RMS angle between observed and predicted normals after
         refinement, or None when the report has none."""
-        res = self.residuals or {}
-        value = res.get("rms_final_deg")
+        value = None if self.residuals is None else self.residuals.rms_final_deg
         return None if value is None else float(value)
 
     @property
-    def segment_list(self) -> list[dict[str, Any]]:
+    def segment_list(self) -> list[InitSegment]:
         """``segments`` (empty when the frames were estimated in one piece)."""
         return list(self.segments or [])
 

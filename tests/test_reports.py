@@ -204,8 +204,16 @@ def test_init_report_reads_what_its_readers_use(tmp_path: Path) -> None:
     assert rep.other["world"] == "first camera"
     assert rep.to_json() == _init_doc()
     assert rep.images(tmp_path) == tmp_path / "frames"
+    assert rep.parallel_family is not None and rep.parallel_family.direction == [0.0, 0.0, 1.0]
+    assert rep.residuals is not None and rep.residuals.rms_initial_deg is None
     turned = InitReport.from_json(_init_doc(motion={"kind": "rotation only"}))
-    assert turned.rotation_only
+    assert turned.rotation_only and turned.motion is not None
+    assert turned.motion.kind == "rotation only" and turned.motion.why is None
+    seg = {"file": "segment_1.tum", "frames": [5, 9], "num_frames_estimated": 5, "note": "x"}
+    pieces = InitReport.from_json(_init_doc(segments=[seg]))
+    assert pieces.segment_list[0].frames == [5, 9] and pieces.segment_list[0].other == {
+        "note": "x"}
+    assert pieces.to_json()["segments"] == [seg]
     text = summary(turned, tmp_path, ["0", "1"], [], [])
     assert "rotation only" in text and "3 parallel lines, 1 outlier tracks" in text
     assert "first-to-last camera distance = 1" in summary(_init_doc(), tmp_path, ["0"], [], [])
