@@ -578,6 +578,20 @@ class DenseReport(_StageInput, JsonReport):
 
 
 @dataclass(frozen=True)
+class ExportWorld(JsonReport):
+    """An export's ``world``: whether the folder's world was ``turned`` gravity-up, the 4 x 4
+    ``export_from_world`` (x_export = R x_world + t), the vertical found in the folder's world
+    (null when not turned), ``how`` it was found and the ``convention``."""
+
+    turned: bool
+    export_from_world: list[list[float]]
+    vertical_in_world: list[float] | None = None
+    how: str | None = absent()
+    convention: str | None = absent()
+    other: dict[str, Any] = other_keys()
+
+
+@dataclass(frozen=True)
 class ExportReport(JsonReport):
     """An export's ``report.json`` (docs/formats.md, "Exports")."""
 
@@ -586,9 +600,7 @@ class ExportReport(JsonReport):
     input: str
     """The exported folder (stored path)."""
     num_poses: int
-    world: dict[str, Any]
-    """``turned``, ``export_from_world`` (4 x 4), ``vertical_in_world``, ``how``,
-    ``convention``."""
+    world: ExportWorld
     camera_model: str
     written: dict[str, Any] = other_keys()
     """What the format's writer wrote (files, image counts, views), as the writer names it."""
@@ -597,7 +609,7 @@ class ExportReport(JsonReport):
     @property
     def turned(self) -> bool:
         """The world was turned gravity-up."""
-        return bool(self.world["turned"])
+        return bool(self.world.turned)
 
     @property
     def num_images(self) -> int | None:

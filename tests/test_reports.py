@@ -33,6 +33,7 @@ from omni_sfm.reports import (
     CompareResults,
     DenseReport,
     ExportReport,
+    ExportWorld,
     InitReport,
     JsonReport,
     PluginInitReport,
@@ -101,7 +102,8 @@ def _dense() -> DenseReport:
 def _export() -> ExportReport:
     return ExportReport(
         omni_sfm_version="1.0", format="colmap-rig", input="../refined", num_poses=4,
-        world={"turned": True, "export_from_world": np.eye(4).tolist()},
+        world=ExportWorld(turned=True, export_from_world=np.eye(4).tolist(),
+                          vertical_in_world=[0.0, 0.0, 1.0], how="parallel family"),
         camera_model="equirectangular", written={"num_images": 24, "views": {"views": []}},
         seconds=1.25)
 
@@ -175,6 +177,8 @@ def test_typed_views_of_the_reports() -> None:
     assert joint.joint == {"line_observations": 3} and joint.adjustment_rounds == []
     e = _export()
     assert e.turned and e.num_images == 24
+    assert e.world.how == "parallel family" and "convention" not in e.to_json()["world"]
+    assert ExportReport.from_json(e.to_json()).world == e.world
     assert list(e.to_json())[-1] == "seconds" and e.to_json()["num_images"] == 24
     assert _dense().to_json()["input"] == {"poses": "../refined", "images": "frames"}
     assert list(_dense().to_json())[0] == "input"
