@@ -384,12 +384,80 @@ class BundleAdjustmentReport(JsonReport):
 
 
 @dataclass(frozen=True)
+class RefineCamera(JsonReport):
+    """Refine's ``camera``: the init's camera model and the COLMAP model it was given as."""
+
+    model: str
+    colmap_model: str
+    image_mirrored_for_colmap: bool
+    other: dict[str, Any] = other_keys()
+
+
+@dataclass(frozen=True)
+class GuidedMatchingReport(JsonReport):
+    """Refine's ``matching_guided``: pairs of posed frames matched along their poses, those
+    written as verified, and the matches written."""
+
+    pairs: int
+    written: int
+    matches: int
+    other: dict[str, Any] = other_keys()
+
+
+@dataclass(frozen=True)
+class JointAdjustmentNote(JsonReport):
+    """Refine's ``joint_adjustment``: why the joint adjustment of lines and points was
+    ``skipped`` or how it ``failed``."""
+
+    skipped: str | None = absent()
+    failed: str | None = absent()
+    other: dict[str, Any] = other_keys()
+
+
+@dataclass(frozen=True)
+class AlignmentReport(JsonReport):
+    """Refine's ``alignment_to_input``: the similarity ``x_in = s R x_ref + t`` mapping the
+    adjusted frames onto the input's."""
+
+    rotation: Any
+    """3 x 3 (a numpy array as built, lists as read back); also ``translation`` (3)."""
+    translation: Any
+    scale: float
+    rotation_deg: float
+    other: dict[str, Any] = other_keys()
+
+
+@dataclass(frozen=True)
+class FrameChange(JsonReport):
+    """A frame's change from its input pose, and its support in the images."""
+
+    rotation_deg: float
+    position_fraction_of_path: float
+    observations: int
+    mean_reprojection_error_px: float
+    other: dict[str, Any] = other_keys()
+
+
+@dataclass(frozen=True)
+class PoseChanges(JsonReport):
+    """Refine's ``pose_changes``: the changes from the input poses of the frames refined (the
+    large ones, which the frames' own observations back, by frame name)."""
+
+    large_changes_backed_by_images: dict[str, FrameChange] | None = absent()
+    rotation_deg_median: float | None = absent()
+    rotation_deg_max: float | None = absent()
+    position_fraction_of_path_median: float | None = absent()
+    position_fraction_of_path_max: float | None = absent()
+    other: dict[str, Any] = other_keys()
+
+
+@dataclass(frozen=True)
 class RefineReport(_StageInput, JsonReport):
     """A refine folder's ``report.json`` (docs/colmap.md), in the order written."""
 
     input: dict[str, Any]
     """``init``, ``images``, ``database``: stored paths."""
-    camera: dict[str, Any]
+    camera: RefineCamera
     frames: dict[str, int]
     options: dict[str, Any]
     features: FeaturesReport
@@ -402,15 +470,15 @@ class RefineReport(_StageInput, JsonReport):
     refined_frames: int
     kept_frames: dict[str, str]
     """Frame name -> why its input pose was kept."""
-    alignment_to_input: dict[str, Any] | None
-    pose_changes: dict[str, Any] | None
+    alignment_to_input: AlignmentReport | None
+    pose_changes: PoseChanges | None
     model: ModelStatistics
     summary: str
     carried_from_input: list[str]
     trajectory_frames: int
     timings_s: dict[str, float]
-    matching_guided: dict[str, Any] | None = absent()
-    joint_adjustment: dict[str, Any] | None = absent()
+    matching_guided: GuidedMatchingReport | None = absent()
+    joint_adjustment: JointAdjustmentNote | None = absent()
     """Why the joint adjustment of lines and points was skipped or failed; absent otherwise."""
     lines3d: str | None = absent()
 

@@ -116,8 +116,8 @@ def test_refine_improves_a_perturbed_seed_on_a_textured_room(room_refined):
     assert set(r.timings_s) >= {"features", "matching", "triangulation", "bundle adjustment"}
     # pairs of seeded frames were matched along their poses, the mapper's frames by COLMAP
     g = r.matching_guided
-    assert g["written"] >= 0.8 * g["pairs"] > 0 and g["matches"] > 100 * g["written"]
-    assert r.matching["verified_pairs"] > g["written"]
+    assert g is not None and g.written >= 0.8 * g.pairs > 0 and g.matches > 100 * g.written
+    assert r.matching["verified_pairs"] > g.written
 
 
 def test_a_missed_frame_the_mapper_cannot_register_is_listed(room, tmp_path):
@@ -204,7 +204,9 @@ def test_a_large_correction_is_taken_only_where_the_images_back_it(room, room_re
     res = refine(tmp_path / "init", room / "images", tmp_path / "out",
                  RefineOptions(overlap=5), database=db, progress=False)
     assert res.refined[bad]
-    assert list(res.report.pose_changes["large_changes_backed_by_images"]) == [names[bad]]
+    changes = res.report.pose_changes
+    assert changes is not None
+    assert list(changes.large_changes_backed_by_images or {}) == [names[bad]]
     # its observations disagree with the points the other frames triangulate: it is posed
     # again from them before the adjustment (without that it would have none)
     assert res.report.triangulation.frames_posed_again == [names[bad]]

@@ -159,6 +159,12 @@ def test_refine_report_keys_are_written_in_the_documented_order() -> None:
     assert doc["kept_input_for_all"] is None  # null is written, not left out
     plain = _refine(matching_guided=None).to_json()
     assert "matching_guided" not in plain and "joint_adjustment" not in plain
+    typed = _refine(joint_adjustment={"failed": "singular"})
+    assert typed.joint_adjustment is not None and typed.joint_adjustment.failed == "singular"
+    assert typed.camera.colmap_model == "OPENCV" and not typed.camera.image_mirrored_for_colmap
+    assert typed.pose_changes is not None and typed.pose_changes.rotation_deg_max == 0.1
+    assert typed.alignment_to_input is not None and typed.alignment_to_input.scale == 1.0
+    assert typed.matching_guided is not None and typed.matching_guided.written == 6
 
 
 def test_typed_views_of_the_reports() -> None:
