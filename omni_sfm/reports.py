@@ -717,12 +717,22 @@ class CompareEntry(JsonReport):
 
 
 @dataclass(frozen=True)
+class CompareSequence(JsonReport):
+    """``results.json``'s ``sequence``: its name, number of frames and camera model."""
+
+    name: str | None = absent()
+    frames: int | None = absent()
+    camera: str | None = absent()
+    other: dict[str, Any] = other_keys()
+
+
+@dataclass(frozen=True)
 class CompareResults(JsonReport):
     """``results.json`` of ``omni-sfm compare``: an entry per initializer, and the sequence
     (``name``, ``frames``, ``camera``)."""
 
     initializers: dict[str, CompareEntry]
-    sequence: dict[str, Any] = field(default_factory=dict)
+    sequence: CompareSequence = field(default_factory=CompareSequence)
 
     @classmethod
     def from_json(cls, doc: Any, where: str = "results") -> CompareResults:

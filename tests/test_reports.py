@@ -31,6 +31,7 @@ from omni_sfm.poses import Trajectory, write_tum
 from omni_sfm.reports import (
     CompareEntry,
     CompareResults,
+    CompareSequence,
     DenseReport,
     ExportReport,
     ExportWorld,
@@ -118,7 +119,7 @@ def _compare() -> CompareResults:
                           step_error_after_alignment=None, frames_compared=0,
                           frames_registered=0, time_s=0.5, reason="too few points")
     return CompareResults({"lines": ok, "five-point": failed},
-                          {"name": "room", "frames": 10, "camera": "hyperboloid"})
+                          CompareSequence(name="room", frames=10, camera="hyperboloid"))
 
 
 def _plugin_init() -> PluginInitReport:
