@@ -14,8 +14,11 @@ The folders' loaders (:mod:`omni_sfm.folders`) read them; nothing else parses th
 
 Every field is a top-level key of the JSON document, of the same name, in the order written
 (docs/formats.md, docs/colmap.md, docs/dense.md, docs/comparison.md). A field that may be
-absent is None when it is (the key is then not written); sections nobody reads field by field
-stay JSON objects (``dict``). :meth:`JsonReport.to_json` gives the document,
+absent is None when it is (the key is then not written). A section read key by key is a
+dataclass of its own (:class:`MapperReport`, :class:`ScaleReport`, ...), (de)serialised by the
+same two methods; the keys it does not name are kept in its ``other`` and written back at their
+place, so a file read and written again is the same to the byte. Sections nobody reads key by
+key stay JSON objects (``dict``). :meth:`JsonReport.to_json` gives the document,
 :meth:`JsonReport.from_json` reads one back (a one-line OmniSfmError when a required key is
 missing), :meth:`JsonReport.write` and :meth:`JsonReport.read` go through files (atomic write).
 Numpy arrays in a report are written as lists; a report read back holds what JSON holds.
