@@ -374,6 +374,31 @@ class AdjustmentRound(JsonReport):
 
 
 @dataclass(frozen=True)
+class JointReport(JsonReport):
+    """``bundle_adjustment.joint``: the joint adjustment of the init's lines and the model's
+    points (docs/colmap.md): observations used and rejected, noise and RMS (deg), iterations,
+    the evidence per frame, then the observations COLMAP's filter removed and the model
+    ``after``."""
+
+    line_observations: int
+    point_observations: int
+    point_observations_rejected: int | None = absent()
+    lines_used: int | None = absent()
+    points_used: int | None = absent()
+    line_noise_deg: float | None = absent()
+    point_noise_deg: float | None = absent()
+    line_rms_deg: float | None = absent()
+    point_rms_deg: float | None = absent()
+    iterations: int | None = absent()
+    evidence_per_frame: dict[str, Any] | None = absent()
+    registered_frames: dict[str, Any] | None = absent()
+    """The mapper's frames adjusted too: ``names`` and their ``evidence_per_frame``."""
+    removed_observations: int | None = absent()
+    after: ModelStatistics | None = absent()
+    other: dict[str, Any] = other_keys()
+
+
+@dataclass(frozen=True)
 class BundleAdjustmentReport(JsonReport):
     """Refine's ``bundle_adjustment``: ``skipped`` (why), COLMAP's ``rounds`` (with
     ``held_fixed_frames`` and the model ``after``), or the ``joint`` adjustment's report."""
@@ -382,7 +407,7 @@ class BundleAdjustmentReport(JsonReport):
     rounds: list[AdjustmentRound] | None = absent()
     held_fixed_frames: int | None = absent()
     after: ModelStatistics | None = absent()
-    joint: dict[str, Any] | None = absent()
+    joint: JointReport | None = absent()
     other: dict[str, Any] = other_keys()
 
 
@@ -506,10 +531,9 @@ class RefineReport(_StageInput, JsonReport):
         return list(self.bundle_adjustment.rounds or [])
 
     @property
-    def joint(self) -> dict[str, Any] | None:
+    def joint(self) -> JointReport | None:
         """The joint adjustment's report when it ran, else None."""
-        joint = self.bundle_adjustment.joint
-        return joint if isinstance(joint, dict) else None
+        return self.bundle_adjustment.joint
 
 
 @dataclass(frozen=True)

@@ -180,8 +180,11 @@ def test_typed_views_of_the_reports() -> None:
     # keys a section does not name are kept, at their place
     extra = _refine(mapper={"registered": [], "why": "test"}).to_json()["mapper"]
     assert extra == {"registered": [], "why": "test"}
-    joint = _refine(bundle_adjustment={"joint": {"line_observations": 3}})
-    assert joint.joint == {"line_observations": 3} and joint.adjustment_rounds == []
+    joint = _refine(bundle_adjustment={"joint": {"line_observations": 3,
+                                                 "point_observations": 9, "after": _stats()}})
+    assert joint.joint is not None and joint.adjustment_rounds == []
+    assert (joint.joint.line_observations, joint.joint.point_observations) == (3, 9)
+    assert joint.joint.after is not None and joint.joint.after.points == 120
     e = _export()
     assert e.turned and e.num_images == 24
     assert e.world.how == "parallel family" and "convention" not in e.to_json()["world"]
