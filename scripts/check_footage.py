@@ -147,7 +147,7 @@ def run_init(images: Path, camera: str | None, out: Path, extra: list[str]) -> d
     key, names, reasons = uncertain_frames(report)
     segs = typed.segment_list
     res.update(status="ok", trajectory=str(out / "trajectory.tum"),
-               segments_frames=int(sum(int(s["num_frames_estimated"]) for s in segs)),
+               segments_frames=int(sum(int(s.num_frames_estimated) for s in segs)),
                uncertain_key=key, uncertain=names, uncertain_reasons=reasons,
                uncertain_count=(len(names) if names is not None else
                                 report.get(key) if key else None),

@@ -10,6 +10,7 @@ from helpers import assert_one_line_error
 
 from omni_sfm.cli import main
 from omni_sfm.evaluate import trajectory_errors
+from omni_sfm.folders import InitFolder
 from omni_sfm.lines.tracks import read_tracks, write_tracks
 from omni_sfm.poses import read_tum
 from omni_sfm.synth.simulate import SimulationOptions, simulate
@@ -33,11 +34,13 @@ def test_simulate_then_init_end_to_end(tmp_path, capsys):
     rep = json.loads((out / "report.json").read_text())
     assert rep["num_frames"] == 12 and rep["num_frames_estimated"] == 12
     assert rep["num_tracks"] == 10 and rep["frames_not_estimated"] == []
-    assert sorted(rep["parallel_family"]["track_ids"]) == [0, 1, 2, 3, 4]
+    typed = InitFolder(out).read_report()
+    assert typed.to_json() == rep  # every key read back, sections typed
+    assert sorted(typed.family_track_ids) == [0, 1, 2, 3, 4]
     assert rep["rejected_tracks"] == [] and "first" in rep["scale_convention"]
     assert {"parallel_lines", "rotation", "translation", "refinement"} <= \
         rep["timings_ms"].keys()
-    assert rep["residuals"]["rms_final_deg"] < 1e-6
+    assert typed.residuals is not None and (typed.residuals.rms_final_deg or 1.0) < 1e-6
     # an existing output is refused without --overwrite, replaced with it
     assert main(["init", "--tracks", str(sim_dir / "tracks.json"), "--output", str(out)]) == 2
     assert_one_line_error(capsys, "--overwrite")

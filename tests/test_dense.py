@@ -25,7 +25,7 @@ from omni_sfm.dense.relpose import PairPoseOptions, frame_features, pair_pose
 from omni_sfm.dense.views import ViewGeometry, stereo_rig
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.evaluate import umeyama
-from omni_sfm.fileio import stored_path
+from omni_sfm.fileio import dumps_json, stored_path
 from omni_sfm.folders import DenseFolder
 from omni_sfm.geometry import angle_between, rotation_angle, rotvec_to_matrix
 from omni_sfm.libs import open3d_module
@@ -111,11 +111,12 @@ def test_dense_room_accuracy_scale_and_files(room: Path, dense_out: Path) -> Non
     loaded = DenseFolder(dense_out).load()
     assert loaded.report.to_json() == report and list(report)[:3] == ["input", "scale",
                                                                       "median_depth"]
+    assert dumps_json(loaded.report.to_json()) == (dense_out / "report.json").read_text()
     assert loaded.points == dense_out / "dense.ply" and loaded.mesh == dense_out / "mesh.ply"
     assert loaded.images is not None and loaded.images.resolve() == (room / "images").resolve()
     # --known-distance undoes the arbitrary pose scale
-    assert report["scale"]["source"] == "known_distance"
-    assert report["scale"]["factor"] == pytest.approx(1 / SCALE, rel=1e-9)
+    assert loaded.report.scale.source == "known_distance"
+    assert loaded.report.scale.factor == pytest.approx(1 / SCALE, rel=1e-9)
     gt = read_tum(room / "groundtruth.tum")
     traj = read_tum(dense_out / "trajectory.tum")
     sim = umeyama(traj.positions, gt.positions)
@@ -140,11 +141,11 @@ def test_dense_room_accuracy_scale_and_files(room: Path, dense_out: Path) -> Non
     # colours come from the images (textured grey walls: not all one colour)
     assert np.asarray(pcd.colors).std(axis=0).min() > 0.02
     # per-frame report: every keyframe got depth on a part of its views
-    frames = report["frames"]
-    assert len(frames) == report["num_keyframes"] >= 8
-    shares = np.array([f["depth_share"] for f in frames])
+    frames = loaded.report.frames
+    assert len(frames) == loaded.report.num_keyframes >= 8
+    shares = np.array([f.depth_share for f in frames])
     assert np.all((shares > 0.02) & (shares < 1.0))
-    assert all(len(f["sources"]) == 2 for f in frames)
+    assert all(len(f.sources) == 2 for f in frames)
     # lines are carried over, scaled to metres
     lines = json.loads((dense_out / "lines3d.json").read_text())
     truth = json.loads((room / "lines3d.json").read_text())
@@ -180,10 +181,11 @@ def test_camera_height_cli(room: Path, poses: Path, work: Path) -> None:
     out = work / "dense_height"
     assert cli_main(["dense", "-i", str(poses), "--images", str(room / "images"), "-o", str(out),
                      "--camera-height", repr(true_height), "--keyframe-step", "4"]) == 0
-    report = json.loads((out / "report.json").read_text())
-    assert report["keyframe_step"] == 4 and report["num_keyframes"] == -(-len(gt) // 4)
-    assert report["scale"]["source"] == "camera_height"
-    assert report["scale"]["factor"] == pytest.approx(1 / SCALE, rel=0.01)
+    report = DenseFolder(out).read_report()
+    assert report.keyframe_step == 4 and report.num_keyframes == -(-len(gt) // 4)
+    assert report.scale.source == "camera_height" and report.scale.camera_height == true_height
+    assert report.scale.factor == pytest.approx(1 / SCALE, rel=0.01)
+    assert dumps_json(report.to_json()) == (out / "report.json").read_text()
 
 
 def test_pair_pose_undoes_rotation_drift(room: Path) -> None:

@@ -11,6 +11,7 @@ from helpers import assert_one_line_error
 
 from omni_sfm.cli import main
 from omni_sfm.evaluate import relative_rotation_errors_deg
+from omni_sfm.folders import InitFolder
 from omni_sfm.frames import read_mask
 from omni_sfm.poses import read_tum
 from omni_sfm.synth.effects import Body, Effects
@@ -35,8 +36,9 @@ def test_turning_in_place_gives_every_rotation(rendered, tmp_path: Path,
     said = capsys.readouterr().out
     assert "24 of 24 frames estimated" in said
     assert "rotation only: the camera turned without moving" in said
-    report = json.loads((out / "report.json").read_text())
-    assert report["motion"]["kind"] == "rotation only"
+    report = InitFolder(out).read_report()
+    assert report.rotation_only and report.motion is not None
+    assert report.motion.kind == "rotation only"
     est = read_tum(out / "trajectory.tum")
     assert np.all(est.positions == 0)
     e, g = associate(est, read_tum(seq / "groundtruth.tum"))

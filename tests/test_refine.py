@@ -96,6 +96,9 @@ def test_refine_improves_a_perturbed_seed_on_a_textured_room(room_refined):
     # the folder's loader reads back the report refine returned, and the refined poses
     art = RefineFolder(work / "out").load()
     assert art.report.to_json() == json.loads(dumps_json(r.to_json()))
+    # read and written again, the file is the same to the byte
+    text = (work / "out" / RefineFolder.REPORT).read_text()
+    assert dumps_json(art.report.to_json()) == text == dumps_json(r.to_json())
     np.testing.assert_allclose(art.trajectory.positions, res.trajectory.positions, atol=1e-9)
     before = trajectory_errors(init, gt)
     after_all = trajectory_errors(res.trajectory, gt)
@@ -105,16 +108,16 @@ def test_refine_improves_a_perturbed_seed_on_a_textured_room(room_refined):
     assert after.rot_mean_deg < 0.5 * before.rot_mean_deg
     assert r.refined_frames >= 0.8 * len(init)
     # the mapper registered the frames the seed lacked, and they are good too
-    assert sorted(r.mapper["registered"]) == [f"{k:06d}.png" for k in MISSING]
+    assert sorted(r.mapper.registered or []) == [f"{k:06d}.png" for k in MISSING]
     assert after_all.num_common == len(gt) and after_all.ate_rel < 0.0025
-    ba = r.bundle_adjustment["rounds"]
-    assert ba[-1]["mean_reprojection_error_after_px"] < ba[0]["mean_reprojection_error_before_px"]
-    assert r.model["mean_reprojection_error_px"] < 1.0
+    ba = r.adjustment_rounds
+    assert ba[-1].mean_reprojection_error_after_px < ba[0].mean_reprojection_error_before_px
+    assert r.model.mean_reprojection_error_px < 1.0
     assert set(r.timings_s) >= {"features", "matching", "triangulation", "bundle adjustment"}
     # pairs of seeded frames were matched along their poses, the mapper's frames by COLMAP
     g = r.matching_guided
-    assert g["written"] >= 0.8 * g["pairs"] > 0 and g["matches"] > 100 * g["written"]
-    assert r.matching["verified_pairs"] > g["written"]
+    assert g is not None and g.written >= 0.8 * g.pairs > 0 and g.matches > 100 * g.written
+    assert r.matching["verified_pairs"] > g.written
 
 
 def test_a_missed_frame_the_mapper_cannot_register_is_listed(room, tmp_path):
@@ -132,8 +135,8 @@ def test_a_missed_frame_the_mapper_cannot_register_is_listed(room, tmp_path):
     _, gt, _, res = refine_perturbed(render, tmp_path, MISSING,
                                      RefineOptions(overlap=5, features="klt"))
     r = res.report  # type: ignore[attr-defined]
-    assert r.mapper["registered"] == ["000006.png"]
-    assert r.mapper["not_registered"] == ["000013.png"]
+    assert r.mapper.registered == ["000006.png"]
+    assert r.mapper.not_registered == ["000013.png"]
     assert len(res.trajectory) == len(gt) - 1  # type: ignore[attr-defined]
 
 
@@ -141,12 +144,11 @@ def test_refined_model_opens_in_pycolmap_and_matches_the_trajectory(room_refined
     work, gt, init, res = room_refined
     out = work / "out"
     rec = pycolmap.Reconstruction(str(out / "sparse"))
-    report = read_json(out / "report.json")
-    stats = report["model"]
-    assert rec.num_reg_images() == stats["registered_images"] == len(gt)
-    assert rec.num_points3D() == stats["points"] > 100
-    assert stats["observations"] == rec.compute_num_observations()
-    assert "num_points3D" in report["summary"]
+    stats = RefineFolder(out).read_report().model
+    assert rec.num_reg_images() == stats.registered_images == len(gt)
+    assert rec.num_points3D() == stats.points > 100
+    assert stats.observations == rec.compute_num_observations()
+    assert "num_points3D" in RefineFolder(out).read_report().summary
     traj = read_tum(out / "trajectory.tum")
     centres = projection_centres(rec)
     for k, ts in enumerate(traj.timestamps):
@@ -202,10 +204,12 @@ def test_a_large_correction_is_taken_only_where_the_images_back_it(room, room_re
     res = refine(tmp_path / "init", room / "images", tmp_path / "out",
                  RefineOptions(overlap=5), database=db, progress=False)
     assert res.refined[bad]
-    assert list(res.report.pose_changes["large_changes_backed_by_images"]) == [names[bad]]
+    changes = res.report.pose_changes
+    assert changes is not None
+    assert list(changes.large_changes_backed_by_images or {}) == [names[bad]]
     # its observations disagree with the points the other frames triangulate: it is posed
     # again from them before the adjustment (without that it would have none)
-    assert res.report.triangulation["frames_posed_again"] == [names[bad]]
+    assert res.report.triangulation.frames_posed_again == [names[bad]]
 
     def rot_err(traj: Trajectory) -> float:  # frame `bad` relative to frame 0, vs ground truth
         rel = np.swapaxes(traj.rotations[0], 0, 1) @ traj.rotations[bad]

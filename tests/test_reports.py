@@ -31,8 +31,10 @@ from omni_sfm.poses import Trajectory, write_tum
 from omni_sfm.reports import (
     CompareEntry,
     CompareResults,
+    CompareSequence,
     DenseReport,
     ExportReport,
+    ExportWorld,
     InitReport,
     JsonReport,
     PluginInitReport,
@@ -41,6 +43,12 @@ from omni_sfm.reports import (
     TrackFrame,
     TrackPose,
 )
+
+
+def _stats(**extra: Any) -> dict[str, Any]:
+    return {"cameras": 1, "images": 5, "registered_images": 5, "points": 120,
+            "observations": 600, "mean_track_length": 5.0, "mean_observations_per_image": 120.0,
+            "mean_reprojection_error_px": 0.5, **extra}
 
 
 def _refine(**changes: Any) -> RefineReport:
@@ -53,38 +61,50 @@ def _refine(**changes: Any) -> RefineReport:
         features={"source": "sift", "extracted_images": 5, "reused_images": 0,
                   "keypoints": 900},
         matching={"verified_pairs": 10, "inlier_matches": 800},
-        triangulation={"points": 120, "frames_posed_again": []},
+        triangulation=_stats(frames_posed_again=[]),
         mapper={"registered": ["000004.png"], "not_registered": [],
                 "added_to_trajectory": ["000004.png"], "timestamps": "affine in the frame index"},
         bundle_adjustment={"rounds": [{"mean_reprojection_error_before_px": 0.9,
-                                       "mean_reprojection_error_after_px": 0.5}]},
+                                       "mean_reprojection_error_after_px": 0.5}],
+                           "after": _stats()},
         kept_input_for_all=None, refined_frames=4, kept_frames={},
         alignment_to_input={"rotation": np.eye(3), "translation": np.zeros(3), "scale": 1.0,
                             "rotation_deg": 0.0},
-        pose_changes={"rotation_deg_max": 0.1}, model={"points": 120, "observations": 600},
+        pose_changes={"rotation_deg_max": 0.1}, model=_stats(),
         summary="Reconstruction:\n\tnum_points3D = 120", carried_from_input=["camera.yaml"],
         trajectory_frames=5, timings_s={"features": 1.0, "matching": 0.5},
         matching_guided={"pairs": 6, "written": 6, "matches": 700})
     doc.update(changes)
-    return RefineReport(**doc)
+    return RefineReport.from_json(doc)
 
 
 def _dense() -> DenseReport:
-    return DenseReport(
-        scale={"source": "known_distance", "unit": "m", "factor": 2.0}, median_depth=1.5,
-        stereo_baseline=0.1, voxel_size=0.01, calibration={"frame": 0, "trials": []},
-        views={"focal_px": 100.0, "width": 64, "height": 64}, keyframe_step=2,
-        pair_pose={"enabled": True, "pairs": 4}, num_keyframes=3, num_points=1000,
+    return DenseReport.from_json(dict(
+        input={"poses": "../refined", "images": "frames"},
+        scale={"source": "known_distance", "unit": "m", "known_distance": 2.0, "factor": 2.0},
+        median_depth=1.5, stereo_baseline=0.1, voxel_size=0.01,
+        calibration={"frame": 0, "frame_offset": 2, "trials": [
+            {"offset": 2, "baseline": 0.1, "median_disparity_px": 8.0, "depth_share": 0.5}]},
+        views={"focal_px": 100.0, "width": 64, "height": 64, "per_pair": 4,
+               "num_disparities": 32}, keyframe_step=2,
+        pair_pose={"enabled": True, "pairs": 4, "corrected": 1,
+                   "median_rotation_change_deg": 0.2},
+        num_keyframes=3, num_points=1000,
         num_triangles=500, depth_share={"median": 0.4, "min": 0.1, "max": 0.6},
-        seconds={"depth_per_keyframe": 0.2, "fusion_per_keyframe": 0.1}, frames=[{"frame": 0}],
-        warnings=["few points"], backend={"stereo": "cv2.StereoSGBM (CPU)"}, note="n",
-        input={"poses": "../refined", "images": "frames"})
+        seconds={"depth_per_keyframe": 0.2, "fusion_per_keyframe": 0.1},
+        frames=[{"frame": 0, "timestamp": 0.0, "image": "000000.png", "sources": [2],
+                 "baselines": [0.1], "depth_share": 0.4,
+                 "pair_pose": [{"corrected": True, "inliers": 80, "rotation_change_deg": 0.2,
+                                "direction_change_deg": 1.0}]}],
+        warnings=["few points"], backend={"stereo": "cv2.StereoSGBM (CPU)",
+                                          "fusion": "open3d"}, note="n"))
 
 
 def _export() -> ExportReport:
     return ExportReport(
         omni_sfm_version="1.0", format="colmap-rig", input="../refined", num_poses=4,
-        world={"turned": True, "export_from_world": np.eye(4).tolist()},
+        world=ExportWorld(turned=True, export_from_world=np.eye(4).tolist(),
+                          vertical_in_world=[0.0, 0.0, 1.0], how="parallel family"),
         camera_model="equirectangular", written={"num_images": 24, "views": {"views": []}},
         seconds=1.25)
 
@@ -99,7 +119,7 @@ def _compare() -> CompareResults:
                           step_error_after_alignment=None, frames_compared=0,
                           frames_registered=0, time_s=0.5, reason="too few points")
     return CompareResults({"lines": ok, "five-point": failed},
-                          {"name": "room", "frames": 10, "camera": "hyperboloid"})
+                          CompareSequence(name="room", frames=10, camera="hyperboloid"))
 
 
 def _plugin_init() -> PluginInitReport:
@@ -125,6 +145,8 @@ def test_a_report_written_and_read_back_is_the_same(kind: str, tmp_path: Path) -
     assert again.to_json() == doc
     assert type(report).from_json(doc) == again
     assert list(doc) == list(again.to_json())  # the order written survives the round trip
+    again.write(tmp_path / "again.json")  # and the file is the same to the byte
+    assert (tmp_path / "again.json").read_bytes() == (tmp_path / "r.json").read_bytes()
 
 
 def test_refine_report_keys_are_written_in_the_documented_order() -> None:
@@ -138,19 +160,44 @@ def test_refine_report_keys_are_written_in_the_documented_order() -> None:
     assert doc["kept_input_for_all"] is None  # null is written, not left out
     plain = _refine(matching_guided=None).to_json()
     assert "matching_guided" not in plain and "joint_adjustment" not in plain
+    typed = _refine(joint_adjustment={"failed": "singular"})
+    assert typed.joint_adjustment is not None and typed.joint_adjustment.failed == "singular"
+    assert typed.camera.colmap_model == "OPENCV" and not typed.camera.image_mirrored_for_colmap
+    assert typed.pose_changes is not None and typed.pose_changes.rotation_deg_max == 0.1
+    assert typed.alignment_to_input is not None and typed.alignment_to_input.scale == 1.0
+    assert typed.matching_guided is not None and typed.matching_guided.written == 6
 
 
 def test_typed_views_of_the_reports() -> None:
     r = _refine()
     assert r.mapper_added == ["000004.png"] and r.joint is None
-    assert r.adjustment_rounds[0]["mean_reprojection_error_after_px"] == 0.5
-    joint = _refine(bundle_adjustment={"joint": {"line_observations": 3}})
-    assert joint.joint == {"line_observations": 3} and joint.adjustment_rounds == []
+    assert r.adjustment_rounds[0].mean_reprojection_error_after_px == 0.5
+    assert r.model.points == 120 and r.triangulation.frames_posed_again == []
+    assert r.features.reused_images == 0 and r.mapper.registered == ["000004.png"]
+    assert r.bundle_adjustment.after is not None and r.bundle_adjustment.after.observations == 600
+    with pytest.raises(OmniSfmError, match="report: model: no 'images' key"):
+        _refine(model={"cameras": 1})
+    # keys a section does not name are kept, at their place
+    extra = _refine(mapper={"registered": [], "why": "test"}).to_json()["mapper"]
+    assert extra == {"registered": [], "why": "test"}
+    joint = _refine(bundle_adjustment={"joint": {"line_observations": 3,
+                                                 "point_observations": 9, "after": _stats()}})
+    assert joint.joint is not None and joint.adjustment_rounds == []
+    assert (joint.joint.line_observations, joint.joint.point_observations) == (3, 9)
+    assert joint.joint.after is not None and joint.joint.after.points == 120
     e = _export()
     assert e.turned and e.num_images == 24
+    assert e.world.how == "parallel family" and "convention" not in e.to_json()["world"]
+    assert ExportReport.from_json(e.to_json()).world == e.world
     assert list(e.to_json())[-1] == "seconds" and e.to_json()["num_images"] == 24
     assert _dense().to_json()["input"] == {"poses": "../refined", "images": "frames"}
     assert list(_dense().to_json())[0] == "input"
+    d = _dense()
+    assert d.scale.factor == 2.0 and d.scale.known_distance == 2.0 and d.scale.other == {}
+    assert d.calibration.trials[0].median_disparity_px == 8.0 and d.views.per_pair == 4
+    assert d.frames[0].pair_pose is not None and d.frames[0].pair_pose[0].corrected
+    assert d.frames[0].view_share is None and "view_share" not in d.to_json()["frames"][0]
+    assert d.pair_pose.median_rotation_change_deg == 0.2 and d.backend.pycolmap_cuda is None
     doc = _compare().to_json()["initializers"]
     assert "reason" not in doc["lines"] and doc["five-point"]["reason"] == "too few points"
     assert list(doc["five-point"])[:3] == ["status", "reason", "trajectory"]
@@ -171,8 +218,16 @@ def test_init_report_reads_what_its_readers_use(tmp_path: Path) -> None:
     assert rep.other["world"] == "first camera"
     assert rep.to_json() == _init_doc()
     assert rep.images(tmp_path) == tmp_path / "frames"
+    assert rep.parallel_family is not None and rep.parallel_family.direction == [0.0, 0.0, 1.0]
+    assert rep.residuals is not None and rep.residuals.rms_initial_deg is None
     turned = InitReport.from_json(_init_doc(motion={"kind": "rotation only"}))
-    assert turned.rotation_only
+    assert turned.rotation_only and turned.motion is not None
+    assert turned.motion.kind == "rotation only" and turned.motion.why is None
+    seg = {"file": "segment_1.tum", "frames": [5, 9], "num_frames_estimated": 5, "note": "x"}
+    pieces = InitReport.from_json(_init_doc(segments=[seg]))
+    assert pieces.segment_list[0].frames == [5, 9] and pieces.segment_list[0].other == {
+        "note": "x"}
+    assert pieces.to_json()["segments"] == [seg]
     text = summary(turned, tmp_path, ["0", "1"], [], [])
     assert "rotation only" in text and "3 parallel lines, 1 outlier tracks" in text
     assert "first-to-last camera distance = 1" in summary(_init_doc(), tmp_path, ["0"], [], [])

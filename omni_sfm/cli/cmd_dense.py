@@ -73,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
     r = res.report
     sec = r.seconds
     print(f"dense: {r.num_points} points, {r.num_triangles} triangles from "
-          f"{r.num_keyframes} keyframes into {args.output} ({r.scale['unit']}; median "
+          f"{r.num_keyframes} keyframes into {args.output} ({r.scale.unit}; median "
           f"depth {r.median_depth:.3g}, voxel {r.voxel_size:.3g}); depth on "
           f"{100 * r.depth_share['median']:.0f}% of a keyframe's view pixels (median); "
           f"{sec['depth_per_keyframe']:.2f} s depth + {sec['fusion_per_keyframe']:.2f} s fusion "

@@ -159,9 +159,9 @@ def summary(rep: InitReport | dict[str, Any], output: Path, estimated: list[str]
                 "scale is undetermined" if rep.rotation_only else
                 "first-to-last camera distance = 1")]
     segs = rep.segment_list
-    n_seg = sum(int(sg["num_frames_estimated"]) for sg in segs)
+    n_seg = sum(int(sg.num_frames_estimated) for sg in segs)
     if segs:
-        files = [sg["file"] for sg in segs]
+        files = [sg.file for sg in segs]
         shown = ", ".join(files) if len(files) <= 3 else f"{files[0]} ... {files[-1]}"
         lines.append(f"segments: {n_seg} more frames in {len(segs)} separate piece"
                      f"{'' if len(segs) == 1 else 's'}, each in its own world and scale "

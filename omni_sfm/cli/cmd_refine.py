@@ -90,13 +90,13 @@ def run(args: argparse.Namespace) -> int:
     r = res.report
     n = len(res.input_trajectory)
     rounds = r.adjustment_rounds
-    err = (f", mean reprojection error {rounds[0]['mean_reprojection_error_before_px']:.3f} -> "
-           f"{rounds[-1]['mean_reprojection_error_after_px']:.3f} px" if rounds else "")
+    err = (f", mean reprojection error {rounds[0].mean_reprojection_error_before_px:.3f} -> "
+           f"{rounds[-1].mean_reprojection_error_after_px:.3f} px" if rounds else "")
     if r.joint is not None:
-        err = (f", adjusted with {r.joint['line_observations']} line and "
-               f"{r.joint['point_observations']} point observations")
+        err = (f", adjusted with {r.joint.line_observations} line and "
+               f"{r.joint.point_observations} point observations")
     print(f"refine: refined {r.refined_frames} of {n} input poses "
-          f"({r.model['points']} points, {r.model['observations']} observations{err}) "
+          f"({r.model.points} points, {r.model.observations} observations{err}) "
           f"into {res.output}")
     if r.mapper_added:
         print(f"COLMAP's mapper registered {len(r.mapper_added)} frames the init did not pose")

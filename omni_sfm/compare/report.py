@@ -34,8 +34,11 @@ def report_markdown(results: CompareResults) -> str:
     """``report.md``: the table, the reasons of failures and notes."""
     seq = results.sequence
     entries = results.initializers
-    lines = [f"# Initializers on {seq.get('name', 'the sequence')}", "",
-             f"{seq.get('frames', '?')} frames, camera `{seq.get('camera', '?')}`. Rotation error "
+    name = "the sequence" if seq.name is None else seq.name
+    frames = "?" if seq.frames is None else seq.frames
+    camera = "?" if seq.camera is None else seq.camera
+    lines = [f"# Initializers on {name}", "",
+             f"{frames} frames, camera `{camera}`. Rotation error "
              "relative to the first frame; ATE = RMSE of camera centres after similarity "
              "alignment, over the ground-truth path length; RPE = relative pose error between "
              "consecutive frames (TUM/evo, no alignment, scale fixed): RMSE of its translation "

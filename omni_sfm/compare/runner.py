@@ -24,7 +24,7 @@ from omni_sfm.plugin_contract import (
 )
 from omni_sfm.poses import Trajectory, write_tum
 from omni_sfm.registry import INITIALIZERS
-from omni_sfm.reports import CompareEntry, CompareResults
+from omni_sfm.reports import CompareEntry, CompareResults, CompareSequence
 
 DEFAULT_INITIALIZERS = ("lines", "five-point", "colmap", "upright-3pt")
 """The initializers :func:`compare` runs when none are named (those installed)."""
@@ -109,8 +109,9 @@ def run_comparison(sequence: SequenceInput, gt: Trajectory, names: Sequence[str]
         if ev is not None:
             evals[name] = ev
         entries[name] = CompareEntry(**entry, time_s=dt, info=res.info or None)
-    results = CompareResults(entries, {"name": sequence.name, "frames": sequence.num_frames,
-                                       "camera": sequence.camera.model})
+    results = CompareResults(entries, CompareSequence(name=sequence.name,
+                                                      frames=sequence.num_frames,
+                                                      camera=sequence.camera.model))
     return results, trajs, evals
 
 

@@ -63,7 +63,17 @@ from omni_sfm.libs import open3d_module
 from omni_sfm.lines.source_camera import camera_for_frames
 from omni_sfm.lines3d import LineSegments3D, write_lines3d
 from omni_sfm.poses import Trajectory, write_tum
-from omni_sfm.reports import DenseReport
+from omni_sfm.reports import (
+    BackendReport,
+    CalibrationReport,
+    CalibrationTrial,
+    DenseFrame,
+    DenseReport,
+    PairPoseCheck,
+    PairPoseSummary,
+    ScaleReport,
+    ViewsReport,
+)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -549,21 +559,20 @@ def _dense_report(inp: DenseInput, stats: list[KeyframeStats], calib: BaselineCa
     pposes = [p for s in stats for p in s.pair_poses]
     changes = [p.rotation_change_deg for p in pposes if p.corrected]
     return DenseReport(
-        scale=scale_info,
+        scale=ScaleReport.from_json(scale_info, "scale"),
         median_depth=calib.median_depth * scale,
         stereo_baseline=calib.baseline * scale,
         voxel_size=voxel * scale,
-        calibration={"frame": calib.frame, "frame_offset": calib.frame_offset,
-                     "trials": [{"offset": o, "baseline": b * scale, "median_disparity_px": d,
-                                 "depth_share": s} for o, b, d, s in calib.trials]},
-        views={"focal_px": geometry.focal, "width": geometry.width,
-               "height": geometry.height, "per_pair": 4,
-               "num_disparities": matcher.num_disparities},
+        calibration=CalibrationReport(
+            frame=calib.frame, frame_offset=calib.frame_offset,
+            trials=[CalibrationTrial(offset=o, baseline=b * scale, median_disparity_px=d,
+                                     depth_share=s) for o, b, d, s in calib.trials]),
+        views=ViewsReport(focal_px=geometry.focal, width=geometry.width, height=geometry.height,
+                          per_pair=4, num_disparities=matcher.num_disparities),
         keyframe_step=step,
-        pair_pose={"enabled": opts.pair_pose.enabled, "pairs": len(pposes),
-                   "corrected": len(changes),
-                   "median_rotation_change_deg": float(np.median(changes)) if changes
-                   else None},
+        pair_pose=PairPoseSummary(
+            enabled=opts.pair_pose.enabled, pairs=len(pposes), corrected=len(changes),
+            median_rotation_change_deg=float(np.median(changes)) if changes else None),
         num_keyframes=len(stats),
         num_points=int(points.shape[0]),
         num_triangles=int(len(mesh.triangles)),
@@ -575,21 +584,21 @@ def _dense_report(inp: DenseInput, stats: list[KeyframeStats], calib: BaselineCa
                  "depth_total": float(sum(s.seconds_depth for s in stats)),
                  "fusion_total": float(sum(s.seconds_fusion for s in stats)),
                  "extraction": seconds["extraction"]},
-        frames=[{"frame": s.frame, "timestamp": float(traj.timestamps[s.frame]),
-                 "image": inp.image_names[s.frame], "sources": list(s.sources),
-                 "baselines": [b * scale for b in s.baselines],
-                 "depth_share": s.depth_share, "view_share": s.view_share,
-                 "view_pixels": s.view_pixels, "depth_pixels": s.depth_pixels,
-                 "seconds_depth": s.seconds_depth,
-                 "seconds_fusion": s.seconds_fusion,
-                 "pair_pose": [{"corrected": p.corrected, "inliers": p.inliers,
-                                "rotation_change_deg": p.rotation_change_deg,
-                                "direction_change_deg": p.direction_change_deg}
-                               for p in s.pair_poses]} for s in stats],
+        frames=[DenseFrame(frame=s.frame, timestamp=float(traj.timestamps[s.frame]),
+                           image=inp.image_names[s.frame], sources=list(s.sources),
+                           baselines=[b * scale for b in s.baselines],
+                           depth_share=s.depth_share, view_share=s.view_share,
+                           view_pixels=s.view_pixels, depth_pixels=s.depth_pixels,
+                           seconds_depth=s.seconds_depth, seconds_fusion=s.seconds_fusion,
+                           pair_pose=[PairPoseCheck(corrected=p.corrected, inliers=p.inliers,
+                                                    rotation_change_deg=p.rotation_change_deg,
+                                                    direction_change_deg=p.direction_change_deg)
+                                      for p in s.pair_poses]) for s in stats],
         warnings=warnings,
-        backend={"stereo": "cv2.StereoSGBM (CPU)", "fusion": "open3d VoxelBlockGrid (CPU)",
-                 "pycolmap_cuda": _pycolmap_has_cuda(),
-                 "note": "pycolmap's patch_match_stereo needs CUDA; not used"},
+        backend=BackendReport(stereo="cv2.StereoSGBM (CPU)",
+                              fusion="open3d VoxelBlockGrid (CPU)",
+                              pycolmap_cuda=_pycolmap_has_cuda(),
+                              note="pycolmap's patch_match_stereo needs CUDA; not used"),
         note="depth_share: share of the keyframe's valid pixels (camera mask) whose ray got "
              "a depth that passed SGBM, the texture test and the 3-view check; view_share: "
              "the same over the virtual views' pixels. Directions within (180 - "

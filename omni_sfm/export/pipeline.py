@@ -34,7 +34,7 @@ from omni_sfm.folders import (
 )
 from omni_sfm.geometry import normalize
 from omni_sfm.poses import Trajectory
-from omni_sfm.reports import ExportReport
+from omni_sfm.reports import ExportReport, ExportWorld
 
 FORMATS: dict[str, bool] = {
     "tum": False, "kitti": False, "colmap": False,
@@ -416,7 +416,8 @@ def run_export(input_dir: Path, output_dir: Path, options: ExportOptions, *,
         report = ExportReport(
             omni_sfm_version=__version__, format=options.fmt,
             input=stored_path(input_dir, output_dir), num_poses=len(src.traj),
-            world=src.up.to_json(), camera_model=src.camera.model, written=info,
+            world=ExportWorld.from_json(src.up.to_json(), "world"),
+            camera_model=src.camera.model, written=info,
             seconds=round(time.perf_counter() - t0, 3))
         report.write(ExportFolder(tmp) / ExportFolder.REPORT)
     return report
@@ -426,8 +427,9 @@ def export_trajectory_of(report: ExportReport | Mapping[str, Any], traj: Traject
                          ) -> Trajectory:
     """``traj`` (the input folder's world) in the world an export's ``report`` (or its JSON
     document) records."""
-    world = report.world if isinstance(report, ExportReport) else report["world"]
-    m = np.asarray(world["export_from_world"], float)
+    world = report.world if isinstance(report, ExportReport) else \
+        ExportWorld.from_json(report["world"], "world")
+    m = np.asarray(world.export_from_world, float)
     R, t = m[:3, :3], m[:3, 3]
     return Trajectory(traj.timestamps.copy(), R[None] @ traj.rotations, traj.positions @ R.T + t)
 

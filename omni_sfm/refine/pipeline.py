@@ -416,7 +416,7 @@ def refine(init_dir: Path, images: Path | None, output: Path,
             obs0, trusted = run.bundle_adjustment(rec, image_ids)
             with stages.stage("acceptance and output"):
                 traj, refined = run.accept_and_write(rec, seed, image_ids, obs0, trusted)
-            report = RefineReport(**parts, timings_s=dict(stages.times))
+            report = RefineReport.from_json({**parts, "timings_s": dict(stages.times)})
             report.write(tmp / RefineFolder.REPORT)
     finally:
         stages.close()

@@ -212,7 +212,7 @@ def main() -> int:
             total = time.perf_counter() - t0
             label = features + (f", {matching} matching" if matching else "") + (
                 f", {mapper} mapper" if missed else "")
-            registered = res.report.mapper.get("registered")
+            registered = res.report.mapper.registered
             mapper_cell: object = "-" if not missed else \
                 f"{res.report.timings_s['mapper']:.1f} ({len(registered or [])} / " \
                 f"{len(missed)} registered)"
@@ -224,7 +224,7 @@ def main() -> int:
                        res.report.to_json(), total, trajectory_errors(res.trajectory, gt),
                        len(init))
             if init_wall is not None and colmap_wall is not None and \
-                    res.report.features["reused_images"] == 0:
+                    res.report.features.reused_images == 0:
                 both = init_wall + total
                 print(f"init + refine: {both:.1f} s ({init_wall:.1f} + {total:.1f}); COLMAP's "
                       f"incremental SfM {colmap_wall:.1f} s: {colmap_wall / both:.2f}x",

@@ -31,6 +31,7 @@ import tempfile
 import time
 from collections.abc import Callable, Iterable
 from concurrent.futures import ProcessPoolExecutor
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -136,7 +137,7 @@ def run_task(task: dict[str, Any]) -> dict[str, Any]:
             seq = sequence_from_frames(rr.output / "images", rr.camera)
             gt, options = rr.groundtruth, {}
         results, trajs, _ = run_comparison(seq, gt, task["initializers"], options)
-    results.sequence["name"] = task_id(task)
+    results = replace(results, sequence=replace(results.sequence, name=task_id(task)))
     return {"task": task, "results": results.to_json(),
             "tum": {k: v.to_tum() for k, v in trajs.items()},
             "groundtruth": gt.to_tum(), "wall_s": time.perf_counter() - t0}
