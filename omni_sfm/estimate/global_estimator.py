@@ -15,8 +15,10 @@ Steps:
    (:func:`~omni_sfm.estimate.bundle.bundle_adjust`, outlier tracks rejected), and one from
    the start with the positions settled on the rotations first; the lower cost is kept
    (:func:`_adjusted`).
-4. **Per-frame information**: frames whose rotation or position the data leave (nearly) free
-   are listed in the report with the reason (``frames_uncertain``).
+4. **Per-frame information**: frames that see 3 lines only, parts of the video tied to the rest
+   only through such frames, and frames whose rotation or position the data leave (nearly)
+   free where their interpolation can be far off are listed in the report with the reason
+   (``frames_uncertain``; :func:`_uncertain`).
 
 Only the start rotations follow the frame order (they chain neighbouring frames); the joint
 problems replace them by their own minimum wherever the start lies in its basin. Where one
@@ -55,6 +57,7 @@ from omni_sfm.estimate.global_rotations import (
     solve_rotations,
     world_normals,
 )
+from omni_sfm.estimate.segments import runs
 from omni_sfm.geometry import (
     FloatArray,
     matrix_to_rotvec,
@@ -607,12 +610,6 @@ def _rotation_free(rot: GlobalRotations, frames: np.ndarray, options: GlobalOpti
     return ok & (rinfo < options.uncertain_information * ref)
 
 
-def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
-    """``[(first, end), ...]`` the runs of True in ``mask`` ``(N,)``, ``end`` exclusive."""
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], mask.astype(int), [0]])))
-    return list(zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True))
-
-
 def _gap_errors(free: np.ndarray, values: FloatArray, direction: FloatArray | None = None,
                 lag: int = 4) -> FloatArray:
     """``(N,)`` the error to expect (two standard deviations) where the ``free`` items of a
@@ -635,7 +632,7 @@ def _gap_errors(free: np.ndarray, values: FloatArray, direction: FloatArray | No
     if len(size) == 0:
         return out
     spread = 1.4826 * float(np.median(size)) / np.sqrt((2 * h**3 + h) / 3)
-    for a, b in _runs(free):
+    for a, b in runs(free):
         i = np.arange(a, b) - a + 1.0
         G = b - a + 1.0
         if a > 0 and b < len(free):
@@ -646,17 +643,17 @@ def _gap_errors(free: np.ndarray, values: FloatArray, direction: FloatArray | No
     return out
 
 
-def _weak_ties(tracks: LineTracks, ba: BundleResult, seen: np.ndarray, min_ties: int = 4
-               ) -> dict[int, str]:
+def _weak_ties(tracks: LineTracks, ba: BundleResult, used: np.ndarray, seen: np.ndarray,
+               min_ties: int = 4) -> dict[int, str]:
     """Frames in another part of the video than the largest, where the parts are cut at a
     stretch of frames that see 3 lines or fewer (or are not posed) across which fewer than
     ``min_ties`` lines are seen on both sides: the pose of one part relative to the other then
     rests on frames whose lines fix them with nothing to spare, and nothing checks it (a turn
-    of 90 deg or a wrong scale fits as well). ``seen``: ``(F,)`` lines used in each frame."""
+    of 90 deg or a wrong scale fits as well). ``used``: ``(K,)`` the observations the adjustment
+    used; ``seen``: ``(F,)`` their count in each frame."""
     strong = np.flatnonzero(ba.frames & (seen > 3))
     if len(strong) < 2:
         return {}
-    used = ba.frames[tracks.obs_frame] & ba.used_tracks[tracks.obs_track]
     M = tracks.num_tracks
     first = np.full(M, tracks.num_frames)
     last = np.full(M, -1)
@@ -710,7 +707,7 @@ def _uncertain(tracks: LineTracks, rot: GlobalRotations, pos: GlobalPositions,
     used = ba.frames[tracks.obs_frame] & ba.used_tracks[tracks.obs_track]
     seen_all = np.bincount(tracks.obs_frame[used], minlength=tracks.num_frames)
     seen = seen_all[idx]
-    out = _weak_ties(tracks, ba, seen_all)
+    out = _weak_ties(tracks, ba, used, seen_all)
     for j, k in enumerate(idx):
         if int(k) in out:
             continue
