@@ -111,15 +111,17 @@ def _names(names: list[str], most: int = 5) -> str:
 
 
 def _index_runs(idx: list[int], most: int = 6) -> str:
-    """Sorted frame indices as runs (``0-22, 24, 27-29``), the first ``most`` of them."""
-    runs: list[list[int]] = []
-    for k in idx:
-        if runs and k == runs[-1][1] + 1:
-            runs[-1][1] = k
-        else:
-            runs.append([k, k])
-    text = [f"{a}-{b}" if b > a else f"{a}" for a, b in runs[:most]]
-    return ", ".join(text) + (f", ... ({len(runs) - most} more runs)" if len(runs) > most else "")
+    """Frame indices as runs (``0-22, 24, 27-29``), the first ``most`` of them."""
+    import numpy as np
+
+    from omni_sfm.estimate.segments import runs
+
+    mask = np.zeros(max(idx) + 1, bool)
+    mask[idx] = True
+    spans = runs(mask)
+    text = [f"{a}-{b - 1}" if b - 1 > a else f"{a}" for a, b in spans[:most]]
+    return ", ".join(text) + (f", ... ({len(spans) - most} more runs)" if len(spans) > most
+                              else "")
 
 
 def _skipped(names: list[str], reasons: list[str], most: int = 3) -> str:
