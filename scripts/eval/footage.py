@@ -123,8 +123,7 @@ def run_case(case: Case, work: Path, estimator: str = "windows") -> dict[str, An
         res = init_from_images(images, seq / "camera.yaml", work / (seq.name + "-init"),
                                InitOptions(frontend=FrontEndOptions(progress=False),
                                            estimation=EstimationOptions(estimator=estimator),
-                                           debug_view="none", colmap=False, progress=False,
-                                           keep_uncertain=True),
+                                           debug_view="none", colmap=False, progress=False),
                                mask=mask, overwrite=True)
     except OmniSfmError as exc:
         row.update(error=str(exc), wall_s=time.perf_counter() - t0)
