@@ -9,6 +9,7 @@ from omni_sfm.estimate.bundle import _directions_fix_rotation, bundle_adjust
 from omni_sfm.estimate.families import (
     camera_anchors,
     line_families,
+    manhattan,
     point_given_direction,
     snap_to_families,
 )
@@ -165,3 +166,25 @@ def test_families_that_do_not_fit_are_not_held() -> None:
                         free.line_points, frames)
     used = free.used_tracks
     np.testing.assert_allclose(rms[used], free.track_rms_deg[used], rtol=1e-9)
+
+
+def test_manhattan_pair_fixes_its_third_axis() -> None:
+    """Two orthogonal families fix the third axis: a family of a few lines 8 deg off it takes
+    it exactly, and where no family is near it, it is added (the corridor round the corner)."""
+    ax = np.eye(3)
+    tilt = np.array([0.0, np.cos(np.radians(8.0)), np.sin(np.radians(8.0))])
+    D = manhattan(np.stack([ax[2], ax[0], -tilt]), np.array([20, 10, 2]), complete_deg=15.0)
+    assert D.shape == (3, 3)
+    np.testing.assert_allclose(D @ D.T, np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(D[2], -ax[1], atol=1e-12)  # its sign kept
+    # without complete_deg the few lines' family stays where they put it
+    np.testing.assert_allclose(manhattan(np.stack([ax[2], ax[0], tilt]), np.array([20, 10, 2]))[2],
+                               tilt, atol=1e-12)
+    D = manhattan(np.stack([ax[2], ax[0]]), np.array([20, 10]), complete_deg=15.0)
+    assert D.shape == (3, 3)
+    np.testing.assert_allclose(np.abs(D[2]), ax[1], atol=1e-12)
+    # an Atlanta direction 45 deg off the axes is neither moved nor taken for the third axis
+    diag = np.array([1.0, 1.0, 0.0]) / np.sqrt(2.0)
+    D = manhattan(np.stack([ax[2], ax[0], diag]), np.array([20, 10, 5]), complete_deg=15.0)
+    assert D.shape == (4, 3)
+    np.testing.assert_allclose(D[2], diag, atol=1e-12)

@@ -133,11 +133,16 @@ def point_given_direction(world_normals: FloatArray, centres: FloatArray,
 
 
 def manhattan(families: FloatArray, sizes: np.ndarray, *,
-              max_deviation_deg: float = 2.5) -> FloatArray:
+              max_deviation_deg: float = 2.5, complete_deg: float | None = None) -> FloatArray:
     """The families ``(K, 3)`` with those that are mutually orthogonal within
     ``max_deviation_deg`` made exactly orthogonal (a Manhattan frame: the rotation that best
     aligns them with three orthogonal axes, each family weighted by its ``sizes``); the others
-    (an Atlanta world's further horizontal directions) as they are."""
+    (an Atlanta world's further horizontal directions) as they are.
+
+    With ``complete_deg``, the two families that make the frame fix its third axis: a family
+    within ``complete_deg`` of it takes it exactly (a family of a few lines, whose direction
+    their short baseline leaves off by degrees), and where none is, the axis is appended as
+    one more row (a direction not seen yet: the corridor round the next corner)."""
     D = np.asarray(families, np.float64).copy()
     if len(D) < 2:
         return D
@@ -147,6 +152,23 @@ def manhattan(families: FloatArray, sizes: np.ndarray, *,
     if not cand:
         return D
     b = max(cand, key=lambda k: float(sizes[k]))
+    D = _manhattan_frame(D, sizes, a, b, max_deviation_deg)
+    if complete_deg is None:
+        return D
+    third = np.cross(D[a], D[b])
+    third /= np.linalg.norm(third)
+    cos = D @ third
+    near = np.abs(cos) >= np.cos(np.radians(complete_deg))
+    near[[a, b]] = False
+    if not near.any():
+        return np.vstack([D, third])
+    D[near] = np.sign(cos[near])[:, None] * third
+    return D
+
+
+def _manhattan_frame(D: FloatArray, sizes: np.ndarray, a: int, b: int,
+                     max_deviation_deg: float) -> FloatArray:
+    """:func:`manhattan`'s snap onto the frame of the orthogonal families ``a`` and ``b``."""
     e2 = D[b] - float(D[b] @ D[a]) * D[a]
     axes = np.stack([D[a], e2 / np.linalg.norm(e2), np.cross(D[a], e2 / np.linalg.norm(e2))])
     g = D @ axes.T  # (K, 3) cosines

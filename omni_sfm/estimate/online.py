@@ -87,7 +87,8 @@ from omni_sfm.lines.tracks import LineTracks
 from omni_sfm.poses import Trajectory
 from omni_sfm.vanishing import detect_parallel_families
 
-_SAME_DIRECTION = math.cos(math.radians(15.0))
+_SAME_DIRECTION_DEG = 15.0
+_SAME_DIRECTION = math.cos(math.radians(_SAME_DIRECTION_DEG))
 """Two parallel families whose world directions are within 15 deg are one world direction
 (:func:`~omni_sfm.estimate.families.world_families`' ``min_separation_deg``)."""
 
@@ -443,8 +444,9 @@ class OnlineEstimator:
         (:func:`~omni_sfm.estimate.families.plane_directions`: a few frames' baseline leaves
         the members' triangulated directions off by degrees, their planes do not), families
         within ``min_separation_deg`` of a larger one merged into it, made Manhattan where
-        they nearly are. Without parallel families, the families of the start's lines
-        (``d``, of the window's tracks ``wids``)."""
+        they nearly are, the third axis of a Manhattan pair taken exactly (and added where no
+        family is near it: the corridor round the next corner). Without parallel families,
+        the families of the start's lines (``d``, of the window's tracks ``wids``)."""
         ro = self.options.registration
         fams = detect_parallel_families(tracks, self.options.start.vanishing)
         posed = np.array([f.registered for f in frames])
@@ -472,7 +474,7 @@ class OnlineEstimator:
                 kept.append(j)
         sizes = np.bincount(index[group[group >= 0]][index[group[group >= 0]] >= 0],
                             minlength=len(kept))
-        D = manhattan(W[kept], sizes)
+        D = manhattan(W[kept], sizes, complete_deg=_SAME_DIRECTION_DEG)
         of_family = {int(uniq[m]): int(index[group[m]]) for m in np.flatnonzero(group >= 0)
                      if index[group[m]] >= 0}
         return D, of_family
