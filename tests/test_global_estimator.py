@@ -53,7 +53,7 @@ def test_walk_at_the_oracle(seed: int) -> None:
     sim = _walk(seed)
     res = estimate_poses(sim.tracks, GLOBAL)
     assert res.estimated.all()
-    assert res.report["estimator"] == "global"
+    assert res.report.estimator == "global"
     g = sim.groundtruth
     e = trajectory_errors(match_reflection(res.trajectory, g), g)
     ba = oracle(sim.tracks, g.rotations, g.positions, sim.line_directions, sim.line_points)
@@ -97,10 +97,10 @@ def test_report_lists_every_frame_it_does_not_pose() -> None:
     res = _run(thin)
     assert not res.estimated[50:55].any()
     assert res.estimated.sum() == 115
-    reasons = res.report["frames_not_estimated_reasons"]
+    reasons = res.report.frames_not_estimated_reasons or {}
     assert sorted(int(k) for k in reasons) == list(range(50, 55))
     assert all("fewer than 3 lines" in v for v in reasons.values())
-    assert isinstance(res.report["frames_uncertain"], dict)
+    assert isinstance(res.report.frames_uncertain, dict)
 
 
 def test_nothing_to_estimate_is_an_error() -> None:
@@ -214,7 +214,7 @@ def test_frames_with_three_lines_are_flagged() -> None:
                     obs_normal=tr.obs_normal[~drop])
     res = _run(three)
     assert res.estimated[50:55].all()
-    flagged = res.report["frames_uncertain"]
+    flagged = res.report.frames_uncertain or {}
     assert all("sees 3 lines only" in flagged[str(k)] for k in range(50, 55))
     assert not any("sees 3 lines" in v for k, v in flagged.items() if int(k) not in range(50, 55))
 
@@ -235,7 +235,7 @@ def test_a_part_tied_to_the_rest_through_frames_of_three_lines_is_flagged() -> N
     thin = replace(tr, obs_track=tr.obs_track[~drop], obs_frame=tr.obs_frame[~drop],
                    obs_normal=tr.obs_normal[~drop])
     res = _run(thin)
-    flagged = res.report["frames_uncertain"]
+    flagged = res.report.frames_uncertain or {}
     tied = sorted(int(k) for k, v in flagged.items() if "tied to frames 0-79" in v)
     assert tied == list(range(131, 200))
     idx = np.flatnonzero(res.estimated)

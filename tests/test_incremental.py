@@ -104,7 +104,7 @@ def test_reasons_name_every_frame_not_registered() -> None:
                  obs_normal=tracks.obs_normal[keep])
     res = estimate_poses(t2)
     assert res.estimated[:len(gt) - 15].all() and not res.estimated[len(gt) - 15:].any()
-    reasons = res.report["frames_not_estimated_reasons"]
+    reasons = (res.report.frames_not_estimated_reasons or {})
     assert sorted(map(int, reasons)) == list(range(len(gt) - 15, len(gt)))
     assert "lines already reconstructed" in reasons[str(len(gt) - 15)]
 
@@ -136,16 +136,16 @@ def test_a_gap_gives_a_separate_segment(tmp_path: Path) -> None:
     err = trajectory_errors(Trajectory(tr.timestamps - 50, tr.rotations, tr.positions),
                             gt_b)
     assert err.rot_max_deg < 0.2 and err.ate_rel < 0.01
-    assert res.report["segments"][0]["frames"] == [50, 89]
-    assert "segment 1" in res.report["frames_not_estimated_reasons"]["60"]
-    (start,) = [a for a in res.report["attempts"] if a["strategy"] == "new start"]
+    assert res.report.segment_list[0].frames == [50, 89]
+    assert "segment 1" in (res.report.frames_not_estimated_reasons or {})["60"]
+    (start,) = [a for a in (res.report.attempts or []) if a["strategy"] == "new start"]
     assert start["frames"] == [50, 89] and start["result"] == "kept"
     assert start["why"] == "40 frames estimated"
-    (join,) = [a for a in res.report["attempts"] if a["strategy"] == "join"]
+    (join,) = [a for a in (res.report.attempts or []) if a["strategy"] == "join"]
     assert join["result"] == "failed" and "lines reconstructed in both" in join["why"]
     # the new start's own windows are recorded too, in the frames of the whole sequence
     assert any(a["strategy"] == "paper window" and a["frames"][0] >= 50
-               for a in res.report["attempts"])
+               for a in (res.report.attempts or []))
     # no new start where none is allowed (by default as many as the stretches left need)
     capped = estimate_poses(tracks, EstimationOptions(max_segments=0))
     assert not capped.segments and not capped.estimated[50:].any()
@@ -190,15 +190,15 @@ def test_a_walk_along_the_largest_family_uses_another_one() -> None:
         np.sin(ang)
     res = estimate_poses(make_tracks(F, np.arange(len(dirs)), m, f, n, source="test"))
     assert res.estimated.all()
-    fam = res.report["parallel_families"]
-    assert fam["sizes"] == [14, 9, 7]
-    assert len(fam["windows_with_another_family"]) == 1
+    fam = res.report.parallel_families
+    assert fam is not None and fam.sizes == [14, 9, 7]
+    assert len(fam.windows_with_another_family) == 1
     # every attempt is in the report: the paper's method failed with the largest family, the
     # vertical family (the second) gave the window, the adjustment of the chain was kept
-    tried = [(a["strategy"], a["result"]) for a in res.report["attempts"]]
+    tried = [(a["strategy"], a["result"]) for a in (res.report.attempts or [])]
     assert tried[:2] == [("paper window", "failed"), ("paper window, another family", "kept")]
     assert ("bundle adjustment", "kept") in tried
-    first, second = res.report["attempts"][:2]
+    first, second = (res.report.attempts or [])[:2]
     assert "degenerate motion" in first["why"] and second["why"].startswith("family 2")
     assert second["frames"] == [0, F - 1] and 0 < second["cost_rms_deg"] < 1.0
     err = trajectory_errors(match_reflection(res.trajectory, gt), gt)
@@ -315,7 +315,7 @@ def test_sparse_tracks_reach_the_oracle(seed: int, strategy: str | None,
     assert e.paper_trans.mean() <= 2.0 * eo.paper_trans.mean()
     assert strategy is None or any(
         a["result"] == "kept" and (how == "kept" or str(how) in a.get("why", ""))
-        for a in res.report["attempts"] if a["strategy"] == strategy)
+        for a in (res.report.attempts or []) if a["strategy"] == strategy)
 
 
 @pytest.mark.slow
@@ -343,14 +343,14 @@ def test_a_chain_that_ends_wrong_is_started_again_from_the_end() -> None:
     # the reversed start reaches the best score over all frames: kept, or tied with the
     # forward start as repaired by the later strategies (numpy 2.4 / scipy 1.17: "lines off
     # the cameras" polished it to the same 0.0755 deg)
-    attempts = res.report["attempts"]
+    attempts = (res.report.attempts or [])
     rev = [a for a in attempts if a["strategy"] == "reversed start"]
     assert len(rev) == 1 and rev[0]["frames"] == [0, 299]
     if rev[0]["result"] != "kept":  # "<its score> deg RMS against <the estimate's>"
         m = re.search(r"([0-9.]+) deg RMS against ([0-9.]+)", rev[0]["why"])
         assert m is not None and float(m.group(1)) <= float(m.group(2)), rev
     # its own attempts are in this sequence's frame order, marked
-    back = [a for a in res.report["attempts"] if a.get("reversed")]
+    back = [a for a in (res.report.attempts or []) if a.get("reversed")]
     assert back and all(0 <= a["frames"][0] <= a["frames"][1] <= 299
                         for a in back if "frames" in a)
 

@@ -19,6 +19,7 @@ from omni_sfm.export.colmap import read_init_model
 from omni_sfm.fileio import check_output_dir, resolve_stored, stored_path
 from omni_sfm.folders import recorded_images
 from omni_sfm.poses import read_tum
+from omni_sfm.reports import FamilyReport, InitReport, InitResiduals
 from omni_sfm.synth.render import RenderOptions, render_sequence
 
 
@@ -76,8 +77,8 @@ def test_compare_with_a_camera_of_another_size_is_exit_2(tiny: Path, tmp_path: P
 
 
 def test_init_summary_names_the_world_frame_and_frames_without_a_pose() -> None:
-    rep = {"num_frames": 20, "parallel_family": {"track_ids": [1, 2, 3]},
-           "rejected_tracks": [], "residuals": {"rms_final_deg": 0.03}}
+    rep = InitReport(num_frames=20, parallel_family=FamilyReport(track_ids=[1, 2, 3]),
+                     rejected_tracks=[], residuals=InitResiduals(rms_final_deg=0.03))
     est = [f"{k:06d}.png" for k in range(12, 20)]
     missing = [f"{k:06d}.png" for k in range(12) if k != 5]
     text = summary(rep, Path("init"), est, missing, ["000005.png"])

@@ -24,7 +24,12 @@ from omni_sfm.plugin_contract import (
 )
 from omni_sfm.poses import Trajectory, write_tum
 from omni_sfm.registry import INITIALIZERS
-from omni_sfm.reports import CompareEntry, CompareResults, CompareSequence
+from omni_sfm.reports import (
+    CompareEntry,
+    CompareResults,
+    CompareSequence,
+    InitializerInfo,
+)
 
 DEFAULT_INITIALIZERS = ("lines", "five-point", "colmap", "upright-3pt")
 """The initializers :func:`compare` runs when none are named (those installed)."""
@@ -108,7 +113,8 @@ def run_comparison(sequence: SequenceInput, gt: Trajectory, names: Sequence[str]
             trajs[name] = traj
         if ev is not None:
             evals[name] = ev
-        entries[name] = CompareEntry(**entry, time_s=dt, info=res.info or None)
+        info = InitializerInfo.from_json(res.info, f"{name}: info") if res.info else None
+        entries[name] = CompareEntry(**entry, time_s=dt, info=info)
     results = CompareResults(entries, CompareSequence(name=sequence.name,
                                                       frames=sequence.num_frames,
                                                       camera=sequence.camera.model))

@@ -68,6 +68,7 @@ from omni_sfm.reports import (
     CalibrationReport,
     CalibrationTrial,
     DenseFrame,
+    DenseInputRecord,
     DenseReport,
     PairPoseCheck,
     PairPoseSummary,
@@ -622,9 +623,9 @@ def write_dense(output: Path, inp: DenseInput, res: DenseResult, *, overwrite: b
     o3d = open3d_module()
     output = Path(output)
     inputs = (poses_dir, inp.frames.path)
-    report = replace(res.report, input={
-        "poses": None if poses_dir is None else stored_path(poses_dir, output),
-        "images": stored_path(inp.frames.path, output)})
+    report = replace(res.report, input=DenseInputRecord(
+        poses=None if poses_dir is None else stored_path(poses_dir, output),
+        images=stored_path(inp.frames.path, output)))
     with atomic_output_dir(output, overwrite=overwrite, inputs=inputs) as tmp:
         pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(res.points))
         pcd.colors = o3d.utility.Vector3dVector(res.colors)

@@ -378,7 +378,7 @@ class OnlineEstimator:
             res = estimate_poses(tracks, o.start)
         except OmniSfmError as exc:
             return self._rot_or(fr, status, f"{head}start on {n} frames failed: {exc}", rot)
-        if "motion" in res.report:
+        if res.report.rotation_only:
             return self._rot_or(fr, status, f"{head}start on {n} frames: the camera turns "
                                             "without moving (no position to start from)", rot)
         if not res.estimated[-1] or res.estimated.sum() < 3:

@@ -34,7 +34,7 @@ from omni_sfm.folders import (
 )
 from omni_sfm.geometry import normalize
 from omni_sfm.poses import Trajectory
-from omni_sfm.reports import ExportReport, ExportWorld
+from omni_sfm.reports import WRITTEN, ExportReport, ExportWorld
 
 FORMATS: dict[str, bool] = {
     "tum": False, "kitti": False, "colmap": False,
@@ -417,7 +417,8 @@ def run_export(input_dir: Path, output_dir: Path, options: ExportOptions, *,
             omni_sfm_version=__version__, format=options.fmt,
             input=stored_path(input_dir, output_dir), num_poses=len(src.traj),
             world=ExportWorld.from_json(src.up.to_json(), "world"),
-            camera_model=src.camera.model, written=info,
+            camera_model=src.camera.model,
+            written=WRITTEN[options.fmt].from_json(info, f"{options.fmt} export"),
             seconds=round(time.perf_counter() - t0, 3))
         report.write(ExportFolder(tmp) / ExportFolder.REPORT)
     return report
