@@ -142,6 +142,27 @@ class JsonReport:
         return cls.from_json(read_json(Path(path), "report"), str(path))
 
 
+def undeclared_keys(value: Any, where: str = "") -> list[str]:
+    """The keys no field names (those kept in an ``other``) in ``value``, a report (nested
+    reports, lists and dicts of them searched too), each as its path (``mapper.why``,
+    ``frames[2].note``). Empty for every report omni-sfm writes."""
+    out: list[str] = []
+    if isinstance(value, JsonReport):
+        for f in fields(value):  # type: ignore[arg-type]
+            v = getattr(value, f.name)
+            if f.metadata.get(_REST):
+                out += [f"{where}{k}" for k in v]
+            else:
+                out += undeclared_keys(v, f"{where}{f.name}.")
+    elif isinstance(value, list):
+        for k, v in enumerate(value):
+            out += undeclared_keys(v, f"{where.rstrip('.')}[{k}].")
+    elif isinstance(value, dict):
+        for k, v in value.items():
+            out += undeclared_keys(v, f"{where}{k}.")
+    return out
+
+
 @dataclass(frozen=True)
 class InitInput(JsonReport):
     """An init report's ``input``: the frames (``images``), the ``camera`` (its file, else the
@@ -981,13 +1002,13 @@ class TrajectoryWritten(ExportWritten):
 
 @dataclass(frozen=True)
 class ColmapWritten(ExportWritten):
-    """``colmap`` / ``limap``: where the ``model`` came from, COLMAP's camera model, the
-    image mirroring (``flip_u``) and rotation (``colmap_cam_from_cam``, 3 x 3) it needs, the
-    model's images and points; ``colmap``: the ``images`` written; ``limap``: the counts of
-    the LIMAP tracks (``tracks``, ``supported``, ``families``)."""
+    """``colmap`` / ``limap``: where the ``model`` came from (the report's ``camera_model`` is
+    then COLMAP's camera model), the image mirroring (``flip_u``) and rotation
+    (``colmap_cam_from_cam``, 3 x 3) it needs, the model's images and points; ``colmap``: the
+    ``images`` written; ``limap``: the counts of the LIMAP tracks (``tracks``, ``supported``,
+    ``families``)."""
 
     model: str = field(default="", kw_only=True)
-    camera_model: str = field(default="", kw_only=True)
     flip_u: bool = field(default=False, kw_only=True)
     colmap_cam_from_cam: list[list[float]] = field(default_factory=list, kw_only=True)
     num_images: int = field(default=0, kw_only=True)
@@ -1052,6 +1073,7 @@ class ExportReport(JsonReport):
     num_poses: int
     world: ExportWorld
     camera_model: str
+    """The camera model (of the ``colmap`` and ``limap`` formats: COLMAP's, e.g. ``OPENCV``)."""
     written: ExportWritten = field(default_factory=ExportWritten)
     seconds: float = 0.0
 

@@ -14,7 +14,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from helpers import assert_one_line_error
+from helpers import assert_every_key_declared, assert_one_line_error
 
 from omni_sfm.cameras import load_camera
 from omni_sfm.cli import main as cli_main
@@ -30,6 +30,7 @@ from omni_sfm.folders import DenseFolder
 from omni_sfm.geometry import angle_between, rotation_angle, rotvec_to_matrix
 from omni_sfm.libs import open3d_module
 from omni_sfm.poses import Trajectory, read_tum, write_tum
+from omni_sfm.reports import DenseReport
 
 SCALE = 0.37
 
@@ -109,6 +110,7 @@ def test_dense_room_accuracy_scale_and_files(room: Path, dense_out: Path) -> Non
     report = json.loads((dense_out / "report.json").read_text())
     # the folder's loader reads the report as written, keys in the documented order
     loaded = DenseFolder(dense_out).load()
+    assert_every_key_declared(DenseReport, dense_out / "report.json")
     assert loaded.report.to_json() == report and list(report)[:3] == ["input", "scale",
                                                                       "median_depth"]
     assert dumps_json(loaded.report.to_json()) == (dense_out / "report.json").read_text()

@@ -7,6 +7,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from helpers import assert_every_key_declared
 
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.estimate.bundle import oracle
@@ -20,6 +21,7 @@ from omni_sfm.estimate.pipeline import (
 from omni_sfm.evaluate import match_reflection, trajectory_errors
 from omni_sfm.lines.tracks import LineTracks
 from omni_sfm.poses import Trajectory
+from omni_sfm.reports import InitReport
 from omni_sfm.synth.simulate import Simulation, SimulationOptions, simulate
 
 GLOBAL = EstimationOptions(estimator="global")
@@ -187,6 +189,7 @@ def test_uncertain_frames_are_kept_out_of_the_trajectory(tmp_path, capsys) -> No
         assert main(["init", "--lines", "--tracks", str(tmp_path / "tracks.json"), "--estimator",
                      "global", "--output", str(tmp_path / name), *extra]) == 0
         runs[name] = capsys.readouterr().out
+    assert_every_key_declared(InitReport, tmp_path / "out" / "report.json")
     report = json.loads((tmp_path / "out" / "report.json").read_text())
     flagged = sorted(int(k) for k in report["frames_uncertain"])
     assert flagged and set(flagged) <= set(range(45, 80))

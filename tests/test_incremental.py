@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from helpers import assert_every_key_declared
 
 from omni_sfm.cli import main
 from omni_sfm.estimate.bundle import resect_pose
@@ -24,6 +25,7 @@ from omni_sfm.evaluate import match_reflection, trajectory_errors
 from omni_sfm.geometry import line_plane_normals, normalize, rotvec_to_matrix
 from omni_sfm.lines.tracks import LineTracks, make_tracks, write_tracks
 from omni_sfm.poses import Trajectory, read_tum
+from omni_sfm.reports import InitReport
 from omni_sfm.synth.paths import PathOptions, Route, camera_path
 from omni_sfm.synth.scenes import SceneName, make_scene
 from omni_sfm.synth.simulate import Simulation, SimulationOptions, simulate
@@ -150,6 +152,7 @@ def test_a_gap_gives_a_separate_segment(tmp_path: Path) -> None:
     capped = estimate_poses(tracks, EstimationOptions(max_segments=0))
     assert not capped.segments and not capped.estimated[50:].any()
     written = write_init_outputs(tmp_path, res)
+    assert_every_key_declared(InitReport, tmp_path / "report.json")
     assert tmp_path / "trajectory_segment_1.tum" in written
     assert len(read_tum(tmp_path / "trajectory_segment_1.tum")) == 40
     assert len(read_tum(tmp_path / "trajectory.tum")) == 50

@@ -12,6 +12,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from helpers import assert_every_key_declared
 
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.estimate.bundle import oracle
@@ -24,7 +25,7 @@ from omni_sfm.estimate.segments import frame_range
 from omni_sfm.evaluate import match_reflection, trajectory_errors
 from omni_sfm.lines.tracks import make_tracks
 from omni_sfm.poses import Trajectory
-from omni_sfm.reports import InitInput
+from omni_sfm.reports import InitInput, InitReport
 from omni_sfm.synth.simulate import SimulationOptions, simulate
 
 
@@ -157,6 +158,7 @@ def test_paper_alone_option_and_outputs(tmp_path):
     res = estimate_poses(sim.tracks, EstimationOptions(refine=False))
     assert res.estimated.all()
     write_init_outputs(tmp_path, res, replace(res.report, input=InitInput(tracks="x")))
+    assert_every_key_declared(InitReport, tmp_path / "report.json")
     rep = json.loads((tmp_path / "report.json").read_text())
     for key in ("num_frames", "num_tracks", "parallel_family", "rejected_tracks",
                 "frames_not_estimated", "scale_convention", "timings_ms", "residuals"):

@@ -1,13 +1,17 @@
 """The rotation-only estimator: a camera that turns in place (docs/method.md §13)."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
+from helpers import assert_every_key_declared
 
 from omni_sfm.errors import OmniSfmError
-from omni_sfm.estimate.pipeline import estimate_poses
+from omni_sfm.estimate.pipeline import estimate_poses, write_init_outputs
 from omni_sfm.estimate.rotation_only import estimate_rotation_only, procrustes
 from omni_sfm.geometry import line_plane_normals, normalize, rotation_about_axis
 from omni_sfm.lines.tracks import LineTracks, make_tracks
+from omni_sfm.reports import InitReport
 from omni_sfm.synth.simulate import SimulationOptions, simulate
 
 
@@ -86,10 +90,12 @@ def test_short_tracks_noise_and_outliers() -> None:
     assert res.outliers[:6].all() and not res.outliers[6:].any()
 
 
-def test_estimate_poses_turns_a_barely_moving_sequence_into_rotations() -> None:
+def test_estimate_poses_turns_a_barely_moving_sequence_into_rotations(tmp_path: Path) -> None:
     tracks, R = turning(noise_deg=0.05, seed=5)
     res = estimate_poses(tracks)
     assert res.estimated.all()
+    write_init_outputs(tmp_path, res)
+    assert_every_key_declared(InitReport, tmp_path / "report.json")
     assert np.all(res.trajectory.positions == 0)
     assert res.report.motion is not None and res.report.motion.kind == "rotation only"
     assert "undetermined" in (res.report.motion.translation or "")

@@ -413,11 +413,13 @@ def run_export(input_dir: Path, output_dir: Path, options: ExportOptions, *,
     with atomic_output_dir(Path(output_dir), overwrite=overwrite,
                            inputs=(Path(input_dir), frames_path)) as tmp:
         info = WRITERS[options.fmt](src, tmp, options, progress)
+        # the COLMAP formats name the model COLMAP is given (its ``camera_model``)
+        camera_model = info.pop("camera_model", src.camera.model)
         report = ExportReport(
             omni_sfm_version=__version__, format=options.fmt,
             input=stored_path(input_dir, output_dir), num_poses=len(src.traj),
             world=ExportWorld.from_json(src.up.to_json(), "world"),
-            camera_model=src.camera.model,
+            camera_model=camera_model,
             written=WRITTEN[options.fmt].from_json(info, f"{options.fmt} export"),
             seconds=round(time.perf_counter() - t0, 3))
         report.write(ExportFolder(tmp) / ExportFolder.REPORT)
