@@ -16,11 +16,13 @@ Every field is a top-level key of the JSON document, of the same name, in the or
 (docs/formats.md, docs/colmap.md, docs/dense.md, docs/comparison.md). A field that may be
 absent is None when it is (the key is then not written). A section read key by key is a
 dataclass of its own (:class:`MapperReport`, :class:`ScaleReport`, ...), (de)serialised by the
-same two methods; the keys it does not name are kept in its ``other`` and written back at their
-place, so a file read and written again is the same to the byte. Sections nobody reads key by
-key stay JSON objects (``dict``). :meth:`JsonReport.to_json` gives the document,
-:meth:`JsonReport.from_json` reads one back (a one-line OmniSfmError when a required key is
-missing), :meth:`JsonReport.write` and :meth:`JsonReport.read` go through files (atomic write).
+same two methods. Every key omni-sfm writes is a field, so a file read and written again is the
+same to the byte; a key no field names (another writer's) is kept in the section's ``other``
+and written back after its fields. Sections whose content is another module's record (the
+front end's figures, the estimator's attempts and steps, a view layout) stay JSON objects.
+:meth:`JsonReport.to_json` gives the document, :meth:`JsonReport.from_json` reads one back (a
+one-line OmniSfmError when a required key is missing), :meth:`JsonReport.write` and
+:meth:`JsonReport.read` go through files (atomic write).
 Numpy arrays in a report are written as lists; a report read back holds what JSON holds.
 """
 
@@ -45,11 +47,6 @@ R = TypeVar("R", bound="JsonReport")
 def absent() -> Any:
     """A field whose key is not written when it is None."""
     return field(default=None, metadata={_OMIT: True})
-
-
-def other_keys() -> Any:
-    """The field holding the keys no other field names, written at its place."""
-    return field(default_factory=dict, metadata={_REST: True})
 
 
 def _dump(value: Any) -> Any:
@@ -92,22 +89,30 @@ def _load(hint: Any, value: Any, where: str) -> Any:
     return value
 
 
+@dataclass(frozen=True)
 class JsonReport:
-    """JSON form of a frozen dataclass report (a mixin; see the module docstring).
+    """JSON form of a frozen dataclass report (the base of every report and section; see the
+    module docstring).
 
     A field whose type is a report (``X``, ``X | None``, ``list[X]``, ``dict[str, X]``) is
     written as that report's document and read back with that report's :meth:`from_json`, so
     a section typed as its own dataclass needs no (de)serialisation of its own."""
 
+    other: dict[str, Any] = field(default_factory=dict, kw_only=True, metadata={_REST: True})
+    """The keys of a document read that no field names, written back after the fields: a
+    reader's tolerance of another writer's (or a newer version's) keys. omni-sfm's own
+    writers write none (:func:`undeclared_keys`; tests/helpers.py checks the files they
+    write)."""
+
     def to_json(self) -> dict[str, Any]:
-        """The JSON document: the fields in order, their keys the fields' names."""
+        """The JSON document: the fields in order, their keys the fields' names, then the
+        keys of ``other``."""
         out: dict[str, Any] = {}
-        for f in fields(self):  # type: ignore[arg-type]
+        for f in fields(self):
             value = getattr(self, f.name)
-            if f.metadata.get(_REST):
-                out.update(value)
-            elif value is not None or not f.metadata.get(_OMIT):
+            if not f.metadata.get(_REST) and (value is not None or not f.metadata.get(_OMIT)):
                 out[f.name] = _dump(value)
+        out.update(self.other)
         return out
 
     @classmethod
@@ -119,7 +124,7 @@ class JsonReport:
         kwargs: dict[str, Any] = {}
         rest, named = None, set()
         hints = _hints(cls)
-        for f in fields(cls):  # type: ignore[arg-type]
+        for f in fields(cls):
             if f.metadata.get(_REST):
                 rest = f.name
                 continue
@@ -148,7 +153,7 @@ def undeclared_keys(value: Any, where: str = "") -> list[str]:
     ``frames[2].note``). Empty for every report omni-sfm writes."""
     out: list[str] = []
     if isinstance(value, JsonReport):
-        for f in fields(value):  # type: ignore[arg-type]
+        for f in fields(value):
             v = getattr(value, f.name)
             if f.metadata.get(_REST):
                 out += [f"{where}{k}" for k in v]
@@ -179,7 +184,6 @@ class InitInput(JsonReport):
     step: int | None = None
     timestamps: str | None = None
     tracks: str | None = absent()
-    other: dict[str, Any] = other_keys()
 
     def to_json(self) -> dict[str, Any]:
         doc = super().to_json()
@@ -201,7 +205,6 @@ class PluginInitInput(JsonReport):
     images: str
     camera: str
     timestamps: str
-    other: dict[str, Any] = other_keys()
 
     @property
     def previous(self) -> str | None:
@@ -217,7 +220,6 @@ class RefineInput(JsonReport):
     init: str
     images: str
     database: str
-    other: dict[str, Any] = other_keys()
 
     @property
     def previous(self) -> str | None:
@@ -232,7 +234,6 @@ class DenseInputRecord(JsonReport):
 
     poses: str | None
     images: str
-    other: dict[str, Any] = other_keys()
 
     @property
     def previous(self) -> str | None:
@@ -249,7 +250,6 @@ class StageInput(JsonReport):
     images: str | None = absent()
     init: str | None = absent()
     poses: str | None = absent()
-    other: dict[str, Any] = other_keys()
 
     @property
     def previous(self) -> str | None:
@@ -270,7 +270,6 @@ class FamilyReport(JsonReport):
     track_ids: list[int] | None = absent()
     direction: list[float] | None = absent()
     none: str | None = absent()
-    other: dict[str, Any] = other_keys()
 
 
 @dataclass(frozen=True)
@@ -281,7 +280,6 @@ class InitResiduals(JsonReport):
     rms_initial_deg: float | None = absent()
     rms_final_deg: float | None = absent()
     noise_sigma_deg: float | None = absent()
-    other: dict[str, Any] = other_keys()
 
 
 @dataclass(frozen=True)
@@ -292,7 +290,6 @@ class InitMotion(JsonReport):
     kind: str
     translation: str | None = absent()
     why: str | None = absent()
-    other: dict[str, Any] = other_keys()
 
 
 @dataclass(frozen=True)
@@ -307,7 +304,6 @@ class InitSegment(JsonReport):
     world: str | None = absent()
     scale_convention: str | None = absent()
     residual_rms_deg: float | None = absent()
-    other: dict[str, Any] = other_keys()
 
 
 def _family_ids(fam: FamilyReport | None) -> list[int]:
@@ -339,7 +335,6 @@ class StageReport(_StageInput, JsonReport):
 
     input: StageInput = field(default_factory=StageInput)
     parallel_family: FamilyReport | None = absent()
-    other: dict[str, Any] = other_keys()
 
     @property
     def family_direction(self) -> list[float] | None:
@@ -363,7 +358,6 @@ class FamiliesFound(JsonReport):
 
     sizes: list[int]
     windows_with_another_family: list[str]
-    other: dict[str, Any] = other_keys()
 
 
 @dataclass(frozen=True)
@@ -381,7 +375,6 @@ class CameraCheck(JsonReport):
     median_residual_px: float | None = None
     long_lines: float | None = None
     image_segments: float | None = None
-    other: dict[str, Any] = other_keys()
 
 
 @dataclass(frozen=True)
@@ -394,7 +387,6 @@ class AutoMaskReport(JsonReport):
     masked_fraction: float | None = absent()
     static_edge_fraction: float | None = absent()
     reason: str | None = absent()
-    other: dict[str, Any] = other_keys()
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -453,8 +445,6 @@ class InitReport(_StageInput, JsonReport):
     auto_mask: AutoMaskReport | None = absent()
     camera_fixed_tracks: list[int] | None = absent()
     warnings: list[str] | None = absent()
-    other: dict[str, Any] = other_keys()
-    """Keys no field names (a reader's tolerance of other writers; omni-sfm writes none)."""
 
     @property
     def rotation_only(self) -> bool:
@@ -514,8 +504,6 @@ class InitializerInfo(JsonReport):
     added_by_mapper: int | None = absent()
     kept_input_for_all: str | None = absent()
     """Why refine kept every input pose (absent when it refined some)."""
-    other: dict[str, Any] = other_keys()
-    """A third-party initializer's own figures."""
 
 
 @dataclass(frozen=True)
@@ -547,7 +535,6 @@ class ModelStatistics(JsonReport):
     mean_track_length: float
     mean_observations_per_image: float
     mean_reprojection_error_px: float
-    other: dict[str, Any] = other_keys()
 
 
 @dataclass(frozen=True)
@@ -569,7 +556,6 @@ class FeaturesReport(JsonReport):
     keypoints: int
     tracks: int | None = absent()
     """KLT tracks (``klt`` only)."""
-    other: dict[str, Any] = other_keys()
 
 
 @dataclass(frozen=True)
@@ -589,7 +575,6 @@ class MapperReport(JsonReport):
     observations_of_registered_frames: int | None = absent()
     added_to_trajectory: list[str] | None = absent()
     timestamps: str | None = absent()
-    other: dict[str, Any] = other_keys()
 
 
 @dataclass(frozen=True)
@@ -602,7 +587,6 @@ class AdjustmentRound(JsonReport):
     usable: bool | None = absent()
     removed_observations: int | None = absent()
     points: int | None = absent()
-    other: dict[str, Any] = other_keys()
 
 
 @dataclass(frozen=True)
@@ -618,7 +602,6 @@ class FrameEvidence(JsonReport):
     line_share_position: list[float | None]
     rotation_change_deg: list[float | None]
     position_change: list[float | None]
-    other: dict[str, Any] = other_keys()
 
 
 @dataclass(frozen=True)
@@ -628,7 +611,6 @@ class RegisteredFrames(JsonReport):
 
     names: list[str]
     evidence_per_frame: FrameEvidence
-    other: dict[str, Any] = other_keys()
 
 
 @dataclass(frozen=True)
@@ -654,7 +636,6 @@ class JointReport(JsonReport):
     """The mapper's frames adjusted too."""
     removed_observations: int | None = absent()
     after: ModelStatistics | None = absent()
-    other: dict[str, Any] = other_keys()
 
 
 @dataclass(frozen=True)
@@ -667,7 +648,6 @@ class BundleAdjustmentReport(JsonReport):
     held_fixed_frames: int | None = absent()
     after: ModelStatistics | None = absent()
     joint: JointReport | None = absent()
-    other: dict[str, Any] = other_keys()
 
 
 @dataclass(frozen=True)
@@ -677,7 +657,6 @@ class RefineCamera(JsonReport):
     model: str
     colmap_model: str
     image_mirrored_for_colmap: bool
-    other: dict[str, Any] = other_keys()
 
 
 @dataclass(frozen=True)
@@ -688,7 +667,6 @@ class GuidedMatchingReport(JsonReport):
     pairs: int
     written: int
     matches: int
-    other: dict[str, Any] = other_keys()
 
 
 @dataclass(frozen=True)
@@ -698,7 +676,6 @@ class JointAdjustmentNote(JsonReport):
 
     skipped: str | None = absent()
     failed: str | None = absent()
-    other: dict[str, Any] = other_keys()
 
 
 @dataclass(frozen=True)
@@ -711,7 +688,6 @@ class AlignmentReport(JsonReport):
     translation: Any
     scale: float
     rotation_deg: float
-    other: dict[str, Any] = other_keys()
 
 
 @dataclass(frozen=True)
@@ -722,7 +698,6 @@ class FrameChange(JsonReport):
     position_fraction_of_path: float
     observations: int
     mean_reprojection_error_px: float
-    other: dict[str, Any] = other_keys()
 
 
 @dataclass(frozen=True)
@@ -735,7 +710,6 @@ class PoseChanges(JsonReport):
     rotation_deg_max: float | None = absent()
     position_fraction_of_path_median: float | None = absent()
     position_fraction_of_path_max: float | None = absent()
-    other: dict[str, Any] = other_keys()
 
 
 @dataclass(frozen=True)
@@ -769,7 +743,6 @@ class RefineSettings(JsonReport):
     max_mean_reprojection_error_px: float | None = absent()
     adjustment: str | None = absent()
     text: bool | None = absent()
-    other: dict[str, Any] = other_keys()
 
 
 @dataclass(frozen=True)
@@ -811,7 +784,7 @@ class RefineReport(_StageInput, JsonReport):
 
     def to_json(self) -> dict[str, Any]:
         doc = super().to_json()
-        return {k: doc[k] for k in self._ORDER if k in doc}
+        return {**{k: doc[k] for k in self._ORDER if k in doc}, **self.other}
 
     @property
     def mapper_added(self) -> list[str]:
@@ -840,8 +813,11 @@ class ScaleReport(JsonReport):
     first_last_pose_units: float | None = absent()
     known_distance: float | None = absent()
     camera_height: float | None = absent()
-    other: dict[str, Any] = other_keys()
-    """The floor fit's figures (``camera_height``)."""
+    floor_points: int | None = absent()
+    """``camera_height``: the floor's points, its tilt from the cameras' up axis, and the
+    cameras' height above it in pose units."""
+    floor_tilt_deg: float | None = absent()
+    camera_height_pose_units: float | None = absent()
     factor: float = field(kw_only=True)
 
 
@@ -853,7 +829,6 @@ class CalibrationTrial(JsonReport):
     baseline: float
     median_disparity_px: float | None
     depth_share: float
-    other: dict[str, Any] = other_keys()
 
 
 @dataclass(frozen=True)
@@ -863,7 +838,6 @@ class CalibrationReport(JsonReport):
     frame: int
     frame_offset: int
     trials: list[CalibrationTrial]
-    other: dict[str, Any] = other_keys()
 
 
 @dataclass(frozen=True)
@@ -875,7 +849,6 @@ class ViewsReport(JsonReport):
     height: int
     per_pair: int
     num_disparities: int
-    other: dict[str, Any] = other_keys()
 
 
 @dataclass(frozen=True)
@@ -887,7 +860,6 @@ class PairPoseSummary(JsonReport):
     corrected: int
     median_rotation_change_deg: float | None
     """None when no pair was corrected."""
-    other: dict[str, Any] = other_keys()
 
 
 @dataclass(frozen=True)
@@ -899,7 +871,6 @@ class PairPoseCheck(JsonReport):
     rotation_change_deg: float
     """Estimate minus given (NaN without an estimate); also ``direction_change_deg``."""
     direction_change_deg: float
-    other: dict[str, Any] = other_keys()
 
 
 @dataclass(frozen=True)
@@ -919,7 +890,6 @@ class DenseFrame(JsonReport):
     seconds_depth: float | None = absent()
     seconds_fusion: float | None = absent()
     pair_pose: list[PairPoseCheck] | None = absent()
-    other: dict[str, Any] = other_keys()
 
 
 @dataclass(frozen=True)
@@ -930,7 +900,6 @@ class BackendReport(JsonReport):
     fusion: str
     pycolmap_cuda: bool | None = absent()
     note: str | None = absent()
-    other: dict[str, Any] = other_keys()
 
 
 @dataclass(frozen=True)
@@ -975,7 +944,6 @@ class ExportWorld(JsonReport):
     vertical_in_world: list[float] | None = None
     how: str | None = absent()
     convention: str | None = absent()
-    other: dict[str, Any] = other_keys()
 
 
 @dataclass(frozen=True)
@@ -983,8 +951,6 @@ class ExportWritten(JsonReport):
     """What an export's writer wrote, as its keys in ``report.json`` (between
     ``camera_model`` and ``seconds``); the base of each format's class, read for another
     format's keys (all in ``other``)."""
-
-    other: dict[str, Any] = other_keys()
 
     @property
     def images_written(self) -> int | None:
@@ -1130,7 +1096,7 @@ class CompareEntry(JsonReport):
 
     def to_json(self) -> dict[str, Any]:
         doc = super().to_json()
-        return {k: doc[k] for k in self._ORDER if k in doc}
+        return {**{k: doc[k] for k in self._ORDER if k in doc}, **self.other}
 
 
 @dataclass(frozen=True)
@@ -1140,7 +1106,6 @@ class CompareSequence(JsonReport):
     name: str | None = absent()
     frames: int | None = absent()
     camera: str | None = absent()
-    other: dict[str, Any] = other_keys()
 
 
 @dataclass(frozen=True)

@@ -167,11 +167,11 @@ def test_camera_height_finds_the_floor(room: Path, dense_out: Path) -> None:
     traj = read_tum(dense_out / "trajectory.tum")
     pts = np.asarray(o3d.io.read_point_cloud(str(dense_out / "dense.ply")).points)
     voxel = json.loads((dense_out / "report.json").read_text())["voxel_size"]
-    scale, info = _floor_scale(pts, traj, np.array([0.0, 0.0, 1.0]), true_height, voxel)
-    assert scale == pytest.approx(1.0, abs=0.01)       # observed within 0.1 %
+    info = _floor_scale(pts, traj, np.array([0.0, 0.0, 1.0]), true_height, voxel)
+    assert info.factor == pytest.approx(1.0, abs=0.01)       # observed within 0.1 %
     # the floor's normal against the cameras' mean mirror axis (the mount tilts ~1.6 deg here)
-    assert info["floor_tilt_deg"] < 3.0
-    assert info["floor_points"] > 5000
+    assert info.floor_tilt_deg is not None and info.floor_tilt_deg < 3.0
+    assert info.floor_points is not None and info.floor_points > 5000
 
 
 def test_camera_height_cli(room: Path, poses: Path, work: Path) -> None:
@@ -187,7 +187,7 @@ def test_camera_height_cli(room: Path, poses: Path, work: Path) -> None:
     assert report.keyframe_step == 4 and report.num_keyframes == -(-len(gt) // 4)
     assert report.scale.source == "camera_height" and report.scale.camera_height == true_height
     assert report.scale.factor == pytest.approx(1 / SCALE, rel=0.01)
-    assert dumps_json(report.to_json()) == (out / "report.json").read_text()
+    assert_every_key_declared(DenseReport, out / "report.json")
 
 
 def test_pair_pose_undoes_rotation_drift(room: Path) -> None:
