@@ -356,3 +356,17 @@ def test_every_report_class_is_a_json_report() -> None:
     for cls in (InitReport, StageReport, RefineReport, DenseReport, ExportReport,
                 CompareEntry, CompareResults, PluginInitReport, TrackFrame, TrackPose):
         assert issubclass(cls, JsonReport)
+
+
+def test_refine_settings_are_the_refine_options() -> None:
+    """``options`` of refine's report names every field of ``RefineOptions``, in order."""
+    from dataclasses import asdict, fields
+
+    from omni_sfm.refine.pipeline import RefineOptions
+    from omni_sfm.reports import RefineSettings
+
+    assert [f.name for f in fields(RefineSettings) if f.name != "other"] == \
+        [f.name for f in fields(RefineOptions)]
+    doc = asdict(RefineOptions(features="klt"))
+    settings = RefineSettings.from_json(doc)
+    assert settings.features == "klt" and settings.to_json() == doc and settings.other == {}
