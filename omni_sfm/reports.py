@@ -19,7 +19,8 @@ dataclass of its own (:class:`MapperReport`, :class:`ScaleReport`, ...), (de)ser
 same two methods. Every key omni-sfm writes is a field, so a file read and written again is the
 same to the byte; a key no field names (another writer's) is kept in the section's ``other``
 and written back after its fields. Sections whose content is another module's record (the
-front end's figures, the estimator's attempts and steps, a view layout) stay JSON objects.
+front end's per-frame columns, the estimator's attempts and steps, a view layout) stay JSON
+objects.
 :meth:`JsonReport.to_json` gives the document, :meth:`JsonReport.from_json` reads one back (a
 one-line OmniSfmError when a required key is missing), :meth:`JsonReport.write` and
 :meth:`JsonReport.read` go through files (atomic write).
@@ -389,6 +390,50 @@ class AutoMaskReport(JsonReport):
     reason: str | None = absent()
 
 
+@dataclass(frozen=True)
+class SkippedFrame(JsonReport):
+    """A frame the front end skipped (``front_end.frames_skipped_reasons``): its source index,
+    why, and (``init --images``) its image name."""
+
+    frame: int
+    reason: str
+    name: str | None = absent()
+
+
+@dataclass(frozen=True)
+class TrackLengths(JsonReport):
+    """``front_end.track_length_frames``: the tracks' lengths in frames."""
+
+    median: float
+    min: int
+    max: int
+
+
+@dataclass(frozen=True)
+class FrontEndSummary(JsonReport):
+    """An init report's ``front_end``: the line front end's counts and median timings
+    (``FrontEndResult.summary``): frames, the frames skipped and why, the pixels searched,
+    tracks and observations, track lengths, lines per frame, segments rejected, lines
+    continued, tracks started and revived, and the median per-frame and total timings (ms) of
+    each step."""
+
+    frames: int
+    frames_skipped: list[int]
+    frames_skipped_reasons: list[SkippedFrame]
+    valid_pixels: int
+    tracks: int
+    observations: int
+    track_length_frames: TrackLengths
+    lines_per_frame_median: float
+    lines_extracted_total: int
+    segments_rejected_total: int
+    lines_continued_per_frame_median: float
+    tracks_started_total: int
+    tracks_revived_total: int
+    timings_ms_per_frame_median: dict[str, float]
+    timings_ms_total: dict[str, float]
+
+
 @dataclass(frozen=True, kw_only=True)
 class InitReport(_StageInput, JsonReport):
     """An init folder's ``report.json`` as the line-based estimator writes it (docs/formats.md):
@@ -435,8 +480,7 @@ class InitReport(_StageInput, JsonReport):
     segments: list[InitSegment] | None = absent()
     uncertain_poses: str | None = absent()
     input: InitInput | None = absent()
-    front_end: dict[str, Any] | None = absent()
-    """The front end's counts and median timings (``FrontEndResult.summary``)."""
+    front_end: FrontEndSummary | None = absent()
     front_end_per_frame: dict[str, list[Any]] | None = absent()
     """The front end's per-frame columns (``FrontEndResult.per_frame``)."""
     frames_not_estimated_names: list[str] | None = absent()

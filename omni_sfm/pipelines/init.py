@@ -416,8 +416,9 @@ def _init_report(report: InitReport, images: Path | str,
                  fixed_ids: list[int]) -> InitReport:
     """The estimator's ``report`` with what ``init`` adds to it."""
     front_end = fe.summary()
-    for entry, name in zip(front_end["frames_skipped_reasons"], unreadable, strict=True):
-        entry["name"] = name
+    front_end = replace(front_end, frames_skipped_reasons=[
+        replace(entry, name=name)
+        for entry, name in zip(front_end.frames_skipped_reasons, unreadable, strict=True)])
     return replace(
         report,
         input=InitInput(images=stored_path(images, output),

@@ -63,7 +63,7 @@ def main() -> int:
                "ate_pct": 100 * err.ate_rel, "tracks": rep.num_tracks,
                "parallel": len(rep.family_track_ids),
                "rejected": len(rep.rejected_tracks or []), "wall_s": wall,
-               "front_end_ms_per_frame": res.frontend.summary()["timings_ms_per_frame_median"]}
+               "front_end_ms_per_frame": res.frontend.summary().timings_ms_per_frame_median}
         rows.append(row)
         print(json.dumps(row), flush=True)
     table = [[r["sequence"], f"{r['estimated']}/{r['frames']}", r["rot_max_deg"],
