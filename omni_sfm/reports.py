@@ -19,7 +19,7 @@ dataclass of its own (:class:`MapperReport`, :class:`ScaleReport`, ...), (de)ser
 same two methods. Every key omni-sfm writes is a field, so a file read and written again is the
 same to the byte; a key no field names (another writer's) is kept in the section's ``other``
 and written back after its fields. Sections whose content is another module's record (the
-front end's per-frame columns, the estimator's attempts and steps, a view layout) stay JSON
+front end's per-frame columns, the global estimator's steps, a view layout) stay JSON
 objects.
 :meth:`JsonReport.to_json` gives the document, :meth:`JsonReport.from_json` reads one back (a
 one-line OmniSfmError when a required key is missing), :meth:`JsonReport.write` and
@@ -390,6 +390,25 @@ class AutoMaskReport(JsonReport):
     reason: str | None = absent()
 
 
+@dataclass(frozen=True, kw_only=True)
+class AttemptRecord(JsonReport):
+    """One of an init report's ``attempts`` (docs/estimator.md, "Strategies and attempts"):
+    the ``strategy``, the first and last frame it ran on (whole-sequence indices; absent for
+    the whole input), its ``result`` (``kept``, ``rejected``, ``failed``, ``skipped``), the RMS
+    angle between observed and predicted normals at its solution, ``why``; ``reversed`` for an
+    attempt of the run on the frames in reverse order, ``to_frames`` for a ``join`` (the piece
+    it was joined to), ``family`` for a window solved with another family."""
+
+    strategy: str
+    frames: list[int] | None = absent()
+    result: str
+    cost_rms_deg: float | None = absent()
+    why: str | None = absent()
+    reversed: bool | None = absent()
+    to_frames: list[int] | None = absent()
+    family: int | None = absent()
+
+
 @dataclass(frozen=True)
 class SkippedFrame(JsonReport):
     """A frame the front end skipped (``front_end.frames_skipped_reasons``): its source index,
@@ -475,8 +494,8 @@ class InitReport(_StageInput, JsonReport):
     frames_uncertain: dict[str, str] | None = absent()
     """Frame index -> why the data do not fix its pose (the global estimator's flags)."""
     joined_pieces: int | None = absent()
-    attempts: list[dict[str, Any]] | None = absent()
-    """Every strategy tried, as :class:`omni_sfm.estimate.attempts.Attempt` records it."""
+    attempts: list[AttemptRecord] | None = absent()
+    """Every strategy tried, in the order it ran."""
     segments: list[InitSegment] | None = absent()
     uncertain_poses: str | None = absent()
     input: InitInput | None = absent()
@@ -489,6 +508,17 @@ class InitReport(_StageInput, JsonReport):
     auto_mask: AutoMaskReport | None = absent()
     camera_fixed_tracks: list[int] | None = absent()
     warnings: list[str] | None = absent()
+
+    def to_json(self) -> dict[str, Any]:
+        doc = super().to_json()
+        if self.motion is None or "reflection" not in doc:
+            return doc
+        # the rotation-only fit's report has its reflection note after the frames' reasons
+        keys = [k for k in doc if k != "reflection"]
+        at = keys.index("frames_not_estimated_reasons") + 1 \
+            if "frames_not_estimated_reasons" in keys else len(keys)
+        keys.insert(at, "reflection")
+        return {k: doc[k] for k in keys}
 
     @property
     def rotation_only(self) -> bool:

@@ -215,7 +215,7 @@ def test_same_result_with_one_and_two_workers():
                                      noise_deg=0.1, visible_frames=80, seed=3))
     one = estimate_poses(sim.tracks, EstimationOptions(workers=1))
     two = estimate_poses(sim.tracks, EstimationOptions(workers=2, progress=True))
-    strategies = {a["strategy"] for a in one.report.attempts or []}
+    strategies = {a.strategy for a in one.report.attempts or []}
     assert {"short bootstrap", "merged starts", "reversed start"} <= strategies
     assert np.array_equal(one.estimated, two.estimated)
     assert np.array_equal(one.trajectory.rotations, two.trajectory.rotations)

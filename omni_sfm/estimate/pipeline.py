@@ -68,6 +68,7 @@ from omni_sfm.geometry import FloatArray, ray_line_closest, rotation_angle
 from omni_sfm.lines.tracks import LineTracks, reversed_frames
 from omni_sfm.poses import Trajectory, write_tum
 from omni_sfm.reports import (
+    AttemptRecord,
     FamiliesFound,
     FamilyReport,
     InitMotion,
@@ -737,7 +738,7 @@ class _OtherStart:
     sol: _Solved | None
     result: EstimationResult | None
     error: OmniSfmError | None
-    entries: list[dict[str, Any]]
+    entries: list[AttemptRecord]
 
 
 def _short_start(tracks: LineTracks, other: EstimationOptions, t_all: float,

@@ -133,8 +133,8 @@ def main() -> int:
         if args.blocks > 0:
             print(f"  per {args.blocks} frames: {_blocks(res.trajectory, gt, args.blocks)}")
         for a in res.report.attempts or []:
-            if a["strategy"] in ("short bootstrap", "merged starts"):
-                print(f"  {a['strategy']}: {a['result']}: {a.get('why', '')}")
+            if a.strategy in ("short bootstrap", "merged starts"):
+                print(f"  {a.strategy}: {a.result}: {a.why or ''}")
         for seg in res.segments:
             first, last = np.flatnonzero(seg.frames)[[0, -1]]
             print(f"  segment {seg.number} (frames {first}-{last}): "
