@@ -419,7 +419,7 @@ def run_export(input_dir: Path, output_dir: Path, options: ExportOptions, *,
         report = ExportReport(
             omni_sfm_version=__version__, format=options.fmt,
             input=stored_path(input_dir, output_dir), num_poses=len(src.traj),
-            world=ExportWorld.from_json(src.up.to_json(), "world"),
+            world=src.up.report(),
             camera_model=src.camera.colmap_export().camera.model_name
             if isinstance(written, ColmapWritten) else src.camera.model,
             written=written,
