@@ -370,3 +370,21 @@ def test_refine_settings_are_the_refine_options() -> None:
     doc = asdict(RefineOptions(features="klt"))
     settings = RefineSettings.from_json(doc)
     assert settings.features == "klt" and settings.to_json() == doc and settings.other == {}
+
+
+def test_undeclared_keys_name_where_another_writer_added_keys() -> None:
+    from omni_sfm.reports import InitInput, undeclared_keys
+
+    assert undeclared_keys(_refine()) == [] and undeclared_keys(_dense()) == []
+    odd = _refine(mapper={"registered": [], "why": "test"},
+                  pose_changes={"rotation_deg_max": 0.1, "large_changes_backed_by_images": {
+                      "a.png": {"rotation_deg": 1.0, "position_fraction_of_path": 0.1,
+                                "observations": 50, "mean_reprojection_error_px": 0.3,
+                                "note": "x"}}})
+    assert undeclared_keys(odd) == [
+        "mapper.why", "pose_changes.large_changes_backed_by_images.a.png.note"]
+    # init's input: the frames' keys, null where not given; of --tracks, the file alone
+    assert InitInput(tracks="t.json").to_json() == {"tracks": "t.json"}
+    frames = InitInput(images="f", camera="c.yaml", start=0, step=1, timestamps="frame index")
+    assert frames.to_json() == {"images": "f", "camera": "c.yaml", "mask": None, "start": 0,
+                                "end": None, "step": 1, "timestamps": "frame index"}
