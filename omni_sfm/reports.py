@@ -16,11 +16,14 @@ Every field is a top-level key of the JSON document, of the same name, in the or
 (docs/formats.md, docs/colmap.md, docs/dense.md, docs/comparison.md). A field that may be
 absent is None when it is (the key is then not written). A section read key by key is a
 dataclass of its own (:class:`MapperReport`, :class:`ScaleReport`, ...), (de)serialised by the
-same two methods; the keys it does not name are kept in its ``other`` and written back at their
-place, so a file read and written again is the same to the byte. Sections nobody reads key by
-key stay JSON objects (``dict``). :meth:`JsonReport.to_json` gives the document,
-:meth:`JsonReport.from_json` reads one back (a one-line OmniSfmError when a required key is
-missing), :meth:`JsonReport.write` and :meth:`JsonReport.read` go through files (atomic write).
+same two methods. Every key omni-sfm writes is a field, so a file read and written again is the
+same to the byte; a key no field names (another writer's) is kept in the section's ``other``
+and written back after its fields. Sections whose content is another module's record (the
+front end's per-frame columns, the global estimator's steps, a view layout) stay JSON
+objects.
+:meth:`JsonReport.to_json` gives the document, :meth:`JsonReport.from_json` reads one back (a
+one-line OmniSfmError when a required key is missing), :meth:`JsonReport.write` and
+:meth:`JsonReport.read` go through files (atomic write).
 Numpy arrays in a report are written as lists; a report read back holds what JSON holds.
 """
 
@@ -45,11 +48,6 @@ R = TypeVar("R", bound="JsonReport")
 def absent() -> Any:
     """A field whose key is not written when it is None."""
     return field(default=None, metadata={_OMIT: True})
-
-
-def other_keys() -> Any:
-    """The field holding the keys no other field names, written at its place."""
-    return field(default_factory=dict, metadata={_REST: True})
 
 
 def _dump(value: Any) -> Any:
@@ -77,7 +75,7 @@ def _load(hint: Any, value: Any, where: str) -> Any:
     """``value`` of a JSON document read as the field type ``hint``: a report type (alone, in
     ``X | None``, ``list[X]`` or ``dict[str, X]``) is read with its ``from_json``; anything
     else is kept as JSON holds it."""
-    if value is None or hint is Any:
+    if value is None or hint is Any or isinstance(value, JsonReport):
         return value
     origin, args = typing.get_origin(hint), typing.get_args(hint)
     if origin in (typing.Union, types.UnionType):
@@ -92,22 +90,30 @@ def _load(hint: Any, value: Any, where: str) -> Any:
     return value
 
 
+@dataclass(frozen=True)
 class JsonReport:
-    """JSON form of a frozen dataclass report (a mixin; see the module docstring).
+    """JSON form of a frozen dataclass report (the base of every report and section; see the
+    module docstring).
 
     A field whose type is a report (``X``, ``X | None``, ``list[X]``, ``dict[str, X]``) is
     written as that report's document and read back with that report's :meth:`from_json`, so
     a section typed as its own dataclass needs no (de)serialisation of its own."""
 
+    other: dict[str, Any] = field(default_factory=dict, kw_only=True, metadata={_REST: True})
+    """The keys of a document read that no field names, written back after the fields: a
+    reader's tolerance of another writer's (or a newer version's) keys. omni-sfm's own
+    writers write none (:func:`undeclared_keys`; tests/helpers.py checks the files they
+    write)."""
+
     def to_json(self) -> dict[str, Any]:
-        """The JSON document: the fields in order, their keys the fields' names."""
+        """The JSON document: the fields in order, their keys the fields' names, then the
+        keys of ``other``."""
         out: dict[str, Any] = {}
-        for f in fields(self):  # type: ignore[arg-type]
+        for f in fields(self):
             value = getattr(self, f.name)
-            if f.metadata.get(_REST):
-                out.update(value)
-            elif value is not None or not f.metadata.get(_OMIT):
+            if not f.metadata.get(_REST) and (value is not None or not f.metadata.get(_OMIT)):
                 out[f.name] = _dump(value)
+        out.update(self.other)
         return out
 
     @classmethod
@@ -119,7 +125,7 @@ class JsonReport:
         kwargs: dict[str, Any] = {}
         rest, named = None, set()
         hints = _hints(cls)
-        for f in fields(cls):  # type: ignore[arg-type]
+        for f in fields(cls):
             if f.metadata.get(_REST):
                 rest = f.name
                 continue
@@ -142,9 +148,118 @@ class JsonReport:
         return cls.from_json(read_json(Path(path), "report"), str(path))
 
 
-def _input_path(inp: Any, key: str, folder: Path) -> Path | None:
-    """The path ``inp[key]`` records (stored relative to ``folder`` or absolute), or None."""
-    value = inp.get(key) if isinstance(inp, Mapping) else None
+def undeclared_keys(value: Any, where: str = "") -> list[str]:
+    """The keys no field names (those kept in an ``other``) in ``value``, a report (nested
+    reports, lists and dicts of them searched too), each as its path (``mapper.why``,
+    ``frames[2].note``). Empty for every report omni-sfm writes."""
+    out: list[str] = []
+    if isinstance(value, JsonReport):
+        for f in fields(value):
+            v = getattr(value, f.name)
+            if f.metadata.get(_REST):
+                out += [f"{where}{k}" for k in v]
+            else:
+                out += undeclared_keys(v, f"{where}{f.name}.")
+    elif isinstance(value, list):
+        for k, v in enumerate(value):
+            out += undeclared_keys(v, f"{where.rstrip('.')}[{k}].")
+    elif isinstance(value, dict):
+        for k, v in value.items():
+            out += undeclared_keys(v, f"{where}{k}.")
+    return out
+
+
+@dataclass(frozen=True)
+class InitInput(JsonReport):
+    """An init report's ``input``: the frames (``images``), the ``camera`` (its file, else the
+    model's name), the user's ``mask`` (null when none), ``start``/``end``/``step`` (``end``
+    null: to the last frame) and ``timestamps`` (``seconds`` for a video, ``frame index`` for
+    an image folder); of ``init --tracks``, the ``tracks`` file alone. Paths are stored paths
+    (relative to the folder when inside it, else absolute)."""
+
+    images: str | None = None
+    camera: str | None = None
+    mask: str | None = None
+    start: int | None = None
+    end: int | None = None
+    step: int | None = None
+    timestamps: str | None = None
+    tracks: str | None = absent()
+
+    def to_json(self) -> dict[str, Any]:
+        doc = super().to_json()
+        if self.tracks is None:
+            return doc
+        return {k: v for k, v in doc.items() if v is not None or k in self.other}
+
+    @property
+    def previous(self) -> str | None:
+        """An init folder is made from no other folder."""
+        return None
+
+
+@dataclass(frozen=True)
+class PluginInitInput(JsonReport):
+    """``input`` of ``init --initializer NAME``: the frames (``images``), the ``camera`` (its
+    file, else the model's name), ``timestamps`` (``seconds`` or ``frame index``)."""
+
+    images: str
+    camera: str
+    timestamps: str
+
+    @property
+    def previous(self) -> str | None:
+        """An init folder is made from no other folder."""
+        return None
+
+
+@dataclass(frozen=True)
+class RefineInput(JsonReport):
+    """Refine's ``input``: the ``init`` folder, the ``images`` and the COLMAP ``database``
+    (stored paths)."""
+
+    init: str
+    images: str
+    database: str
+
+    @property
+    def previous(self) -> str | None:
+        """The folder refined: ``init``."""
+        return self.init
+
+
+@dataclass(frozen=True)
+class DenseInputRecord(JsonReport):
+    """Dense's ``input``: the folder of the ``poses`` (null when they were given otherwise)
+    and the ``images`` (stored paths)."""
+
+    poses: str | None
+    images: str
+
+    @property
+    def previous(self) -> str | None:
+        """The folder of the poses: ``poses``."""
+        return self.poses
+
+
+@dataclass(frozen=True)
+class StageInput(JsonReport):
+    """Any stage report's ``input``, read for what every one may record: the ``images`` and
+    the folder it was made from (``init`` of refine, ``poses`` of dense); the stage's other
+    input keys in ``other``."""
+
+    images: str | None = absent()
+    init: str | None = absent()
+    poses: str | None = absent()
+
+    @property
+    def previous(self) -> str | None:
+        """The folder it was made from (``init`` or ``poses``), or None."""
+        return self.init or self.poses
+
+
+def _stored(value: str | None, folder: Path) -> Path | None:
+    """The path a report stores (relative to ``folder`` or absolute), or None."""
     return resolve_stored(value, folder) if isinstance(value, str) and value else None
 
 
@@ -156,7 +271,6 @@ class FamilyReport(JsonReport):
     track_ids: list[int] | None = absent()
     direction: list[float] | None = absent()
     none: str | None = absent()
-    other: dict[str, Any] = other_keys()
 
 
 @dataclass(frozen=True)
@@ -167,7 +281,6 @@ class InitResiduals(JsonReport):
     rms_initial_deg: float | None = absent()
     rms_final_deg: float | None = absent()
     noise_sigma_deg: float | None = absent()
-    other: dict[str, Any] = other_keys()
 
 
 @dataclass(frozen=True)
@@ -178,7 +291,6 @@ class InitMotion(JsonReport):
     kind: str
     translation: str | None = absent()
     why: str | None = absent()
-    other: dict[str, Any] = other_keys()
 
 
 @dataclass(frozen=True)
@@ -193,7 +305,6 @@ class InitSegment(JsonReport):
     world: str | None = absent()
     scale_convention: str | None = absent()
     residual_rms_deg: float | None = absent()
-    other: dict[str, Any] = other_keys()
 
 
 def _family_ids(fam: FamilyReport | None) -> list[int]:
@@ -205,18 +316,17 @@ class _StageInput:
     """What every stage folder's report says of its input (``input.images``, and the folder
     it was made from: ``input.init`` of refine, ``input.poses`` of dense)."""
 
-    input: Any
+    input: InitInput | PluginInitInput | RefineInput | DenseInputRecord | StageInput | None
 
     def images(self, folder: Path | str) -> Path | None:
         """The image folder or video the folder (``folder``, where the report lies) was made
         from, or None when the report records none."""
-        return _input_path(self.input, "images", Path(folder))
+        return None if self.input is None else _stored(self.input.images, Path(folder))
 
     def previous_folder(self, folder: Path | str) -> Path | None:
         """The stage folder this one was made from (``input.init`` or ``input.poses``), or
         None when it records none (an init folder)."""
-        return (_input_path(self.input, "init", Path(folder))
-                or _input_path(self.input, "poses", Path(folder)))
+        return None if self.input is None else _stored(self.input.previous, Path(folder))
 
 
 @dataclass(frozen=True)
@@ -224,9 +334,8 @@ class StageReport(_StageInput, JsonReport):
     """Any stage folder's ``report.json`` (init, refine or dense), read for what every one may
     record: where the input is and (init) the parallel family."""
 
-    input: dict[str, Any] = field(default_factory=dict)
+    input: StageInput = field(default_factory=StageInput)
     parallel_family: FamilyReport | None = absent()
-    other: dict[str, Any] = other_keys()
 
     @property
     def family_direction(self) -> list[float] | None:
@@ -242,25 +351,174 @@ class StageReport(_StageInput, JsonReport):
 
 
 @dataclass(frozen=True)
-class InitReport(_StageInput, JsonReport):
-    """An init folder's ``report.json`` (docs/formats.md), as the line-based estimator or an
-    initializer plugin (:class:`PluginInitReport`) wrote it; the keys its readers use typed,
-    the others in ``other``."""
+class FamiliesFound(JsonReport):
+    """An init report's ``parallel_families``: the ``sizes`` of the parallel families found
+    (tracks, largest first: the windows use the first) and the windows solved with another
+    family because the first was degenerate there (``windows_with_another_family``, with the
+    reason)."""
 
-    num_frames: int
-    input: dict[str, Any] = field(default_factory=dict)
+    sizes: list[int]
+    windows_with_another_family: list[str]
+
+
+@dataclass(frozen=True)
+class CameraCheck(JsonReport):
+    """An init report's ``camera_check``: whether the camera model fits the frames (``ok``,
+    the ``message``) and its figures (fractions, null where too few lines or segments to
+    tell; ``median_residual_px``; the counts of ``long_lines`` and ``image_segments``)."""
+
+    ok: bool
+    message: str
+    bent_lines: float | None = None
+    straight_in_image_curved_on_sphere: float | None = None
+    empty_valid: float | None = None
+    moving_outside: float | None = None
+    median_residual_px: float | None = None
+    long_lines: float | None = None
+    image_segments: float | None = None
+
+
+@dataclass(frozen=True)
+class AutoMaskReport(JsonReport):
+    """An init report's ``auto_mask``: whether the automatic mask was ``applied``, the
+    fractions of the image it masks and of edges that stayed put (absent when there were
+    too few frames to tell), and the ``reason``."""
+
+    applied: bool
+    masked_fraction: float | None = absent()
+    static_edge_fraction: float | None = absent()
+    reason: str | None = absent()
+
+
+@dataclass(frozen=True, kw_only=True)
+class AttemptRecord(JsonReport):
+    """One of an init report's ``attempts`` (docs/estimator.md, "Strategies and attempts"):
+    the ``strategy``, the first and last frame it ran on (whole-sequence indices; absent for
+    the whole input), its ``result`` (``kept``, ``rejected``, ``failed``, ``skipped``), the RMS
+    angle between observed and predicted normals at its solution, ``why``; ``reversed`` for an
+    attempt of the run on the frames in reverse order, ``to_frames`` for a ``join`` (the piece
+    it was joined to), ``family`` for a window solved with another family."""
+
+    strategy: str
+    frames: list[int] | None = absent()
+    result: str
+    cost_rms_deg: float | None = absent()
+    why: str | None = absent()
+    reversed: bool | None = absent()
+    to_frames: list[int] | None = absent()
+    family: int | None = absent()
+
+
+@dataclass(frozen=True)
+class SkippedFrame(JsonReport):
+    """A frame the front end skipped (``front_end.frames_skipped_reasons``): its source index,
+    why, and (``init --images``) its image name."""
+
+    frame: int
+    reason: str
+    name: str | None = absent()
+
+
+@dataclass(frozen=True)
+class TrackLengths(JsonReport):
+    """``front_end.track_length_frames``: the tracks' lengths in frames."""
+
+    median: float
+    min: int
+    max: int
+
+
+@dataclass(frozen=True)
+class FrontEndSummary(JsonReport):
+    """An init report's ``front_end``: the line front end's counts and median timings
+    (``FrontEndResult.summary``): frames, the frames skipped and why, the pixels searched,
+    tracks and observations, track lengths, lines per frame, segments rejected, lines
+    continued, tracks started and revived, and the median per-frame and total timings (ms) of
+    each step."""
+
+    frames: int
+    frames_skipped: list[int]
+    frames_skipped_reasons: list[SkippedFrame]
+    valid_pixels: int
+    tracks: int
+    observations: int
+    track_length_frames: TrackLengths
+    lines_per_frame_median: float
+    lines_extracted_total: int
+    segments_rejected_total: int
+    lines_continued_per_frame_median: float
+    tracks_started_total: int
+    tracks_revived_total: int
+    timings_ms_per_frame_median: dict[str, float]
+    timings_ms_total: dict[str, float]
+
+
+@dataclass(frozen=True, kw_only=True)
+class InitReport(_StageInput, JsonReport):
+    """An init folder's ``report.json`` as the line-based estimator writes it (docs/formats.md):
+    the estimator's keys (it builds this report), then ``uncertain_poses`` and what ``init``
+    adds (``input`` and, for frames, the front end's figures). Every key is a field, in the
+    order written; a key absent from a file (an older or another writer's) is None. A plugin's
+    init folder has :class:`PluginInitReport`."""
+
+    omni_sfm_version: str | None = absent()
     initializer: str | None = absent()
+    num_frames: int
     num_frames_estimated: int | None = absent()
+    frames_not_estimated: list[int] | None = absent()
+    num_tracks: int | None = absent()
+    num_observations: int | None = absent()
+    num_tracks_used: int | None = absent()
     parallel_family: FamilyReport | None = absent()
     rejected_tracks: list[int] | None = absent()
+    unused_tracks: list[int] | None = absent()
+    windows: list[list[int]] | None = absent()
+    """First and last frame of each window of the paper's method."""
+    window_failures: list[str] | None = absent()
+    world: str | None = absent()
+    scale_convention: str | None = absent()
+    reflection_ambiguity: str | None = absent()
+    timings_ms: dict[str, float] | None = absent()
     residuals: InitResiduals | None = absent()
-    segments: list[InitSegment] | None = absent()
+    estimator: str | None = absent()
+    """``global`` for ``init --estimator global``; absent for the windows."""
+    reflection: str | None = absent()
+    steps: list[dict[str, Any]] | None = absent()
+    """The global estimator's steps, each as it records itself (docs/estimator.md)."""
+    world_directions: list[list[float]] | None = absent()
+    half_turns_repaired: int | None = absent()
+    parallel_families: FamiliesFound | None = absent()
     motion: InitMotion | None = absent()
     """Only for a camera that only turned (docs/method.md §13)."""
+    frames_not_estimated_reasons: dict[str, str] | None = absent()
     frames_uncertain: dict[str, str] | None = absent()
-    uncertain_poses: str | None = absent()
     """Frame index -> why the data do not fix its pose (the global estimator's flags)."""
-    other: dict[str, Any] = other_keys()
+    joined_pieces: int | None = absent()
+    attempts: list[AttemptRecord] | None = absent()
+    """Every strategy tried, in the order it ran."""
+    segments: list[InitSegment] | None = absent()
+    uncertain_poses: str | None = absent()
+    input: InitInput | None = absent()
+    front_end: FrontEndSummary | None = absent()
+    front_end_per_frame: dict[str, list[Any]] | None = absent()
+    """The front end's per-frame columns (``FrontEndResult.per_frame``)."""
+    frames_not_estimated_names: list[str] | None = absent()
+    wall_time_s: dict[str, float] | None = absent()
+    camera_check: CameraCheck | None = absent()
+    auto_mask: AutoMaskReport | None = absent()
+    camera_fixed_tracks: list[int] | None = absent()
+    warnings: list[str] | None = absent()
+
+    def to_json(self) -> dict[str, Any]:
+        doc = super().to_json()
+        if self.motion is None or "reflection" not in doc:
+            return doc
+        # the rotation-only fit's report has its reflection note after the frames' reasons
+        keys = [k for k in doc if k != "reflection"]
+        at = keys.index("frames_not_estimated_reasons") + 1 \
+            if "frames_not_estimated_reasons" in keys else len(keys)
+        keys.insert(at, "reflection")
+        return {k: doc[k] for k in keys}
 
     @property
     def rotation_only(self) -> bool:
@@ -286,15 +544,51 @@ class InitReport(_StageInput, JsonReport):
 
 
 @dataclass(frozen=True)
+class InitializerInfo(JsonReport):
+    """An initializer's ``info`` (``init --initializer``'s report, ``compare``'s entries): the
+    figures omni-sfm's initializers give, each absent where the initializer has none.
+    ``five-point``/``upright`` chain relative poses (``observations``, ``tracks``,
+    ``median_inliers_per_pair``, ``stride``, ``features``, ``ransac_max_error_rad``; upright
+    also ``family_tracks``, ``frames_without_vpv``); ``lines``: ``tracks``,
+    ``parallel_tracks``, ``residual_rms_deg``, ``reflection``; ``colmap``: ``features``,
+    ``verified_pairs``, ``models``, ``mapper``, ``database_s``, ``mapper_s``, ``points3D``,
+    ``registered``; ``lines+refine``: ``init_frames``, ``refined_frames``,
+    ``added_by_mapper``, ``kept_input_for_all``."""
+
+    observations: int | None = absent()
+    tracks: int | None = absent()
+    parallel_tracks: int | None = absent()
+    residual_rms_deg: float | None = absent()
+    reflection: str | None = absent()
+    median_inliers_per_pair: float | None = absent()
+    stride: int | None = absent()
+    features: str | None = absent()
+    ransac_max_error_rad: float | None = absent()
+    family_tracks: int | None = absent()
+    frames_without_vpv: int | None = absent()
+    verified_pairs: int | None = absent()
+    models: int | None = absent()
+    mapper: str | None = absent()
+    database_s: float | None = absent()
+    mapper_s: float | None = absent()
+    points3D: int | None = absent()
+    registered: int | None = absent()
+    init_frames: int | None = absent()
+    refined_frames: int | None = absent()
+    added_by_mapper: int | None = absent()
+    kept_input_for_all: str | None = absent()
+    """Why refine kept every input pose (absent when it refined some)."""
+
+
+@dataclass(frozen=True)
 class PluginInitReport(JsonReport):
     """``report.json`` of ``omni-sfm init --initializer NAME`` (docs/plugins.md)."""
 
-    input: dict[str, Any]
-    """``images``, ``camera``, ``timestamps`` (``seconds`` or ``frame index``)."""
+    input: PluginInitInput
     initializer: str
     status: str
     reason: str | None
-    info: dict[str, Any]
+    info: InitializerInfo
     num_frames: int
     num_frames_estimated: int
     frames_not_estimated_names: list[str]
@@ -315,7 +609,6 @@ class ModelStatistics(JsonReport):
     mean_track_length: float
     mean_observations_per_image: float
     mean_reprojection_error_px: float
-    other: dict[str, Any] = other_keys()
 
 
 @dataclass(frozen=True)
@@ -337,7 +630,6 @@ class FeaturesReport(JsonReport):
     keypoints: int
     tracks: int | None = absent()
     """KLT tracks (``klt`` only)."""
-    other: dict[str, Any] = other_keys()
 
 
 @dataclass(frozen=True)
@@ -357,7 +649,6 @@ class MapperReport(JsonReport):
     observations_of_registered_frames: int | None = absent()
     added_to_trajectory: list[str] | None = absent()
     timestamps: str | None = absent()
-    other: dict[str, Any] = other_keys()
 
 
 @dataclass(frozen=True)
@@ -370,7 +661,30 @@ class AdjustmentRound(JsonReport):
     usable: bool | None = absent()
     removed_observations: int | None = absent()
     points: int | None = absent()
-    other: dict[str, Any] = other_keys()
+
+
+@dataclass(frozen=True)
+class FrameEvidence(JsonReport):
+    """The joint adjustment's evidence per frame (lists over the frames, in order): line and
+    point observations used, the lines' share of each frame's rotation and position
+    information, and how far the adjustment moved the frame (deg, path units); null where a
+    figure is undefined."""
+
+    lines: list[int]
+    points: list[int]
+    line_share_rotation: list[float | None]
+    line_share_position: list[float | None]
+    rotation_change_deg: list[float | None]
+    position_change: list[float | None]
+
+
+@dataclass(frozen=True)
+class RegisteredFrames(JsonReport):
+    """``bundle_adjustment.joint.registered_frames``: the frames COLMAP's mapper registered,
+    adjusted with the others: their ``names`` and ``evidence_per_frame``."""
+
+    names: list[str]
+    evidence_per_frame: FrameEvidence
 
 
 @dataclass(frozen=True)
@@ -390,12 +704,12 @@ class JointReport(JsonReport):
     line_rms_deg: float | None = absent()
     point_rms_deg: float | None = absent()
     iterations: int | None = absent()
-    evidence_per_frame: dict[str, Any] | None = absent()
-    registered_frames: dict[str, Any] | None = absent()
-    """The mapper's frames adjusted too: ``names`` and their ``evidence_per_frame``."""
+    evidence_per_frame: FrameEvidence | None = absent()
+    """Of the input's frames, in the trajectory's order."""
+    registered_frames: RegisteredFrames | None = absent()
+    """The mapper's frames adjusted too."""
     removed_observations: int | None = absent()
     after: ModelStatistics | None = absent()
-    other: dict[str, Any] = other_keys()
 
 
 @dataclass(frozen=True)
@@ -408,7 +722,6 @@ class BundleAdjustmentReport(JsonReport):
     held_fixed_frames: int | None = absent()
     after: ModelStatistics | None = absent()
     joint: JointReport | None = absent()
-    other: dict[str, Any] = other_keys()
 
 
 @dataclass(frozen=True)
@@ -418,7 +731,6 @@ class RefineCamera(JsonReport):
     model: str
     colmap_model: str
     image_mirrored_for_colmap: bool
-    other: dict[str, Any] = other_keys()
 
 
 @dataclass(frozen=True)
@@ -429,7 +741,6 @@ class GuidedMatchingReport(JsonReport):
     pairs: int
     written: int
     matches: int
-    other: dict[str, Any] = other_keys()
 
 
 @dataclass(frozen=True)
@@ -439,7 +750,6 @@ class JointAdjustmentNote(JsonReport):
 
     skipped: str | None = absent()
     failed: str | None = absent()
-    other: dict[str, Any] = other_keys()
 
 
 @dataclass(frozen=True)
@@ -452,7 +762,6 @@ class AlignmentReport(JsonReport):
     translation: Any
     scale: float
     rotation_deg: float
-    other: dict[str, Any] = other_keys()
 
 
 @dataclass(frozen=True)
@@ -463,7 +772,6 @@ class FrameChange(JsonReport):
     position_fraction_of_path: float
     observations: int
     mean_reprojection_error_px: float
-    other: dict[str, Any] = other_keys()
 
 
 @dataclass(frozen=True)
@@ -476,18 +784,50 @@ class PoseChanges(JsonReport):
     rotation_deg_max: float | None = absent()
     position_fraction_of_path_median: float | None = absent()
     position_fraction_of_path_max: float | None = absent()
-    other: dict[str, Any] = other_keys()
+
+
+@dataclass(frozen=True)
+class RefineSettings(JsonReport):
+    """Refine's ``options``: the :class:`omni_sfm.refine.pipeline.RefineOptions` it ran with,
+    field by field (the same names, in the same order; a test keeps the two alike); an option
+    a folder's report lacks (an older writer's) is None."""
+
+    features: str | None = absent()
+    max_features: int | None = absent()
+    guided_matching: bool | None = absent()
+    max_corners: int | None = absent()
+    klt_verify: bool | None = absent()
+    overlap: int | None = absent()
+    mask_erosion_px: int | None = absent()
+    num_threads: int | None = absent()
+    register_missing: bool | None = absent()
+    mapper: str | None = absent()
+    ba_rounds: int | None = absent()
+    ba_max_iterations: int | None = absent()
+    prior_position_sigma: float | None = absent()
+    loss_scale_px: float | None = absent()
+    max_reprojection_error_px: float | None = absent()
+    min_triangulation_angle_deg: float | None = absent()
+    min_points: int | None = absent()
+    min_points_per_frame: float | None = absent()
+    min_observations: int | None = absent()
+    max_rotation_change_deg: float | None = absent()
+    max_position_change: float | None = absent()
+    max_frame_error_px: float | None = absent()
+    max_mean_reprojection_error_px: float | None = absent()
+    adjustment: str | None = absent()
+    text: bool | None = absent()
 
 
 @dataclass(frozen=True)
 class RefineReport(_StageInput, JsonReport):
     """A refine folder's ``report.json`` (docs/colmap.md), in the order written."""
 
-    input: dict[str, Any]
-    """``init``, ``images``, ``database``: stored paths."""
+    input: RefineInput
     camera: RefineCamera
     frames: dict[str, int]
-    options: dict[str, Any]
+    """``input_poses``, ``images_in_folder``, ``unposed_in_folder``."""
+    options: RefineSettings
     features: FeaturesReport
     matching: dict[str, int]
     triangulation: TriangulationReport
@@ -518,7 +858,7 @@ class RefineReport(_StageInput, JsonReport):
 
     def to_json(self) -> dict[str, Any]:
         doc = super().to_json()
-        return {k: doc[k] for k in self._ORDER if k in doc}
+        return {**{k: doc[k] for k in self._ORDER if k in doc}, **self.other}
 
     @property
     def mapper_added(self) -> list[str]:
@@ -547,8 +887,11 @@ class ScaleReport(JsonReport):
     first_last_pose_units: float | None = absent()
     known_distance: float | None = absent()
     camera_height: float | None = absent()
-    other: dict[str, Any] = other_keys()
-    """The floor fit's figures (``camera_height``)."""
+    floor_points: int | None = absent()
+    """``camera_height``: the floor's points, its tilt from the cameras' up axis, and the
+    cameras' height above it in pose units."""
+    floor_tilt_deg: float | None = absent()
+    camera_height_pose_units: float | None = absent()
     factor: float = field(kw_only=True)
 
 
@@ -560,7 +903,6 @@ class CalibrationTrial(JsonReport):
     baseline: float
     median_disparity_px: float | None
     depth_share: float
-    other: dict[str, Any] = other_keys()
 
 
 @dataclass(frozen=True)
@@ -570,7 +912,6 @@ class CalibrationReport(JsonReport):
     frame: int
     frame_offset: int
     trials: list[CalibrationTrial]
-    other: dict[str, Any] = other_keys()
 
 
 @dataclass(frozen=True)
@@ -582,7 +923,6 @@ class ViewsReport(JsonReport):
     height: int
     per_pair: int
     num_disparities: int
-    other: dict[str, Any] = other_keys()
 
 
 @dataclass(frozen=True)
@@ -594,7 +934,6 @@ class PairPoseSummary(JsonReport):
     corrected: int
     median_rotation_change_deg: float | None
     """None when no pair was corrected."""
-    other: dict[str, Any] = other_keys()
 
 
 @dataclass(frozen=True)
@@ -606,7 +945,6 @@ class PairPoseCheck(JsonReport):
     rotation_change_deg: float
     """Estimate minus given (NaN without an estimate); also ``direction_change_deg``."""
     direction_change_deg: float
-    other: dict[str, Any] = other_keys()
 
 
 @dataclass(frozen=True)
@@ -626,7 +964,6 @@ class DenseFrame(JsonReport):
     seconds_depth: float | None = absent()
     seconds_fusion: float | None = absent()
     pair_pose: list[PairPoseCheck] | None = absent()
-    other: dict[str, Any] = other_keys()
 
 
 @dataclass(frozen=True)
@@ -637,7 +974,6 @@ class BackendReport(JsonReport):
     fusion: str
     pycolmap_cuda: bool | None = absent()
     note: str | None = absent()
-    other: dict[str, Any] = other_keys()
 
 
 @dataclass(frozen=True)
@@ -663,13 +999,12 @@ class DenseReport(_StageInput, JsonReport):
     warnings: list[str]
     backend: BackendReport
     note: str
-    input: dict[str, Any] = field(default_factory=dict)
-    """``poses``, ``images``: stored paths (written first; empty before the map is written)."""
+    input: DenseInputRecord | None = absent()
+    """Written first; None before the map is written."""
 
     def to_json(self) -> dict[str, Any]:
         doc = super().to_json()
-        inp = doc.pop("input")
-        return {"input": inp, **doc} if inp else doc
+        return {"input": doc.pop("input"), **doc} if "input" in doc else doc
 
 
 @dataclass(frozen=True)
@@ -683,12 +1018,93 @@ class ExportWorld(JsonReport):
     vertical_in_world: list[float] | None = None
     how: str | None = absent()
     convention: str | None = absent()
-    other: dict[str, Any] = other_keys()
+
+
+@dataclass(frozen=True)
+class ExportWritten(JsonReport):
+    """What an export's writer wrote, as its keys in ``report.json`` (between
+    ``camera_model`` and ``seconds``); the base of each format's class, read for another
+    format's keys (all in ``other``)."""
+
+    @property
+    def images_written(self) -> int | None:
+        """Images written, for formats that write images."""
+        return None
+
+
+@dataclass(frozen=True)
+class TrajectoryWritten(ExportWritten):
+    """``tum`` / ``kitti``: the ``files`` written and the camera frame the poses refer to."""
+
+    files: list[str] = field(default_factory=list, kw_only=True)
+    camera_frame: str = field(default="", kw_only=True)
+
+
+@dataclass(frozen=True)
+class ColmapWritten(ExportWritten):
+    """``colmap`` / ``limap``: where the ``model`` came from (the report's ``camera_model`` is
+    then COLMAP's camera model), the image mirroring (``flip_u``) and rotation
+    (``colmap_cam_from_cam``, 3 x 3) it needs, the model's images and points; ``colmap``: the
+    ``images`` written; ``limap``: the counts of the LIMAP tracks (``tracks``, ``supported``,
+    ``families``)."""
+
+    model: str = field(default="", kw_only=True)
+    flip_u: bool = field(default=False, kw_only=True)
+    colmap_cam_from_cam: list[list[float]] = field(default_factory=list, kw_only=True)
+    num_images: int = field(default=0, kw_only=True)
+    num_points3D: int = field(default=0, kw_only=True)
+    images: str | None = field(default=None, metadata={_OMIT: True}, kw_only=True)
+    limap: dict[str, int] | None = field(default=None, metadata={_OMIT: True}, kw_only=True)
+
+    @property
+    def images_written(self) -> int | None:
+        return self.num_images
+
+
+@dataclass(frozen=True)
+class NerfstudioWritten(ExportWritten):
+    """``nerfstudio``: what the ``images`` are, the perspective ``views`` (their layout, for
+    cameras nerfstudio has no model of), the ``points`` file and ``num_images``."""
+
+    images: str = field(default="", kw_only=True)
+    views: dict[str, Any] | None = field(default=None, metadata={_OMIT: True}, kw_only=True)
+    """:meth:`omni_sfm.export.perspective.ViewLayout.to_json`."""
+    points: str | None = field(default=None, metadata={_OMIT: True}, kw_only=True)
+    num_images: int = field(default=0, kw_only=True)
+
+    @property
+    def images_written(self) -> int | None:
+        return self.num_images
+
+
+@dataclass(frozen=True)
+class RigWritten(ExportWritten):
+    """``colmap-rig``: the images and frames (rig poses) of the model, the ``views`` layout,
+    and where the ``images`` and ``masks`` are."""
+
+    num_images: int = field(default=0, kw_only=True)
+    num_frames: int = field(default=0, kw_only=True)
+    views: dict[str, Any] = field(default_factory=dict, kw_only=True)
+    """:meth:`omni_sfm.export.perspective.ViewLayout.to_json`."""
+    images: str = field(default="", kw_only=True)
+    masks: str = field(default="", kw_only=True)
+
+    @property
+    def images_written(self) -> int | None:
+        return self.num_images
+
+
+WRITTEN: dict[str, type[ExportWritten]] = {
+    "tum": TrajectoryWritten, "kitti": TrajectoryWritten, "colmap": ColmapWritten,
+    "limap": ColmapWritten, "nerfstudio": NerfstudioWritten, "colmap-rig": RigWritten}
+"""The class of what each export format writes, by format."""
 
 
 @dataclass(frozen=True)
 class ExportReport(JsonReport):
-    """An export's ``report.json`` (docs/formats.md, "Exports")."""
+    """An export's ``report.json`` (docs/formats.md, "Exports"): what every export records,
+    then what its format's writer wrote (:data:`WRITTEN`, its keys at the top level), then
+    ``seconds``."""
 
     omni_sfm_version: str
     format: str
@@ -697,9 +1113,24 @@ class ExportReport(JsonReport):
     num_poses: int
     world: ExportWorld
     camera_model: str
-    written: dict[str, Any] = other_keys()
-    """What the format's writer wrote (files, image counts, views), as the writer names it."""
+    """The camera model (of the ``colmap`` and ``limap`` formats: COLMAP's, e.g. ``OPENCV``)."""
+    written: ExportWritten = field(default_factory=ExportWritten)
     seconds: float = 0.0
+
+    def to_json(self) -> dict[str, Any]:
+        doc = super().to_json()
+        seconds, written = doc.pop("seconds"), doc.pop("written")
+        return {**doc, **written, "seconds": seconds}
+
+    @classmethod
+    def from_json(cls, doc: Any, where: str = "report") -> ExportReport:
+        if not isinstance(doc, Mapping):
+            raise OmniSfmError(f"{where}: not a JSON object")
+        named = {f.name for f in fields(cls)}
+        kind = WRITTEN.get(str(doc.get("format")), ExportWritten)
+        written = kind.from_json({k: v for k, v in doc.items() if k not in named}, where)
+        return super().from_json({**{k: v for k, v in doc.items() if k in named},
+                                  "written": written}, where)
 
     @property
     def turned(self) -> bool:
@@ -709,8 +1140,7 @@ class ExportReport(JsonReport):
     @property
     def num_images(self) -> int | None:
         """Images written, for formats that write images."""
-        n = self.written.get("num_images")
-        return None if n is None else int(n)
+        return self.written.images_written
 
 
 @dataclass(frozen=True)
@@ -732,7 +1162,7 @@ class CompareEntry(JsonReport):
     frames_registered: int
     time_s: float
     reason: str | None = absent()
-    info: dict[str, Any] | None = absent()
+    info: InitializerInfo | None = absent()
 
     _ORDER = ("status", "reason", "trajectory", "registered", "rot_max_deg", "rot_mean_deg",
               "ate_rel", "rpe", "rpe_rot_deg", "step_error_after_alignment",
@@ -740,7 +1170,7 @@ class CompareEntry(JsonReport):
 
     def to_json(self) -> dict[str, Any]:
         doc = super().to_json()
-        return {k: doc[k] for k in self._ORDER if k in doc}
+        return {**{k: doc[k] for k in self._ORDER if k in doc}, **self.other}
 
 
 @dataclass(frozen=True)
@@ -750,7 +1180,6 @@ class CompareSequence(JsonReport):
     name: str | None = absent()
     frames: int | None = absent()
     camera: str | None = absent()
-    other: dict[str, Any] = other_keys()
 
 
 @dataclass(frozen=True)

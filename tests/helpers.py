@@ -4,6 +4,8 @@
 - :func:`independent_trajectory_errors`: the figures of ``omni_sfm.evaluate`` recomputed from
   two TUM files with numpy and scipy only (no omni_sfm code), to check reported figures against.
 - :func:`refine_perturbed`: ``refine`` from a perturbed ground truth with some frames missing.
+- :func:`assert_every_key_declared`: a report a stage wrote names every key it holds and
+  reads back to the same bytes.
 """
 
 from __future__ import annotations
@@ -13,6 +15,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
+
+from omni_sfm.reports import JsonReport
 
 ERROR_PREFIX = "omni-sfm: error: "
 
@@ -111,3 +115,15 @@ def refine_perturbed(render: Path, work: Path, missing: tuple[int, ...], options
     res = refine(work / "init", render / "images", work / "out", options,  # type: ignore[arg-type]
                  progress=False)
     return work, gt, init, res
+
+
+def assert_every_key_declared(cls: type[JsonReport], path: Path) -> None:
+    """The report file ``path`` (as ``omni-sfm`` wrote it) read as the report class ``cls``:
+    every key at every depth is a field of its section (no section keeps a key in its
+    ``other``), and written again it is the same to the byte."""
+    from omni_sfm.fileio import dumps_json
+    from omni_sfm.reports import undeclared_keys
+
+    rep = cls.read(path)
+    assert undeclared_keys(rep) == [], (path, undeclared_keys(rep))
+    assert dumps_json(rep.to_json()) == Path(path).read_text(encoding="utf-8"), path

@@ -32,14 +32,14 @@ def test_an_attempt_names_a_known_strategy_and_records_its_verdict() -> None:
     sub.record(Attempt("paper window", (0, 39), object(), cost_deg=0.1234567891))
     sub.record(failed("paper window", (30, 69), "degenerate motion"))
     att = Attempt("bundle adjustment", None, object()).judged(Outcome.REJECTED, "higher cost")
-    run.record(att, extra=1)
-    assert run.entries == [
+    run.record(att, family=2)
+    assert [e.to_json() for e in run.entries] == [
         {"strategy": "paper window", "frames": [100, 139], "result": "kept",
          "cost_rms_deg": 0.123457},
         {"strategy": "paper window", "frames": [130, 169], "result": "failed",
          "why": "degenerate motion"},
         {"strategy": "bundle adjustment", "result": "rejected", "why": "higher cost",
-         "extra": 1},
+         "family": 2},
     ]
     # a sub-run on a stretch keeps its own timings unless it shares them
     with sub.timed("x"):
@@ -56,17 +56,17 @@ def test_a_sequence_with_outliers_records_the_restart_and_its_verdict() -> None:
     sim = simulate(SimulationOptions(num_views=20, num_parallel=10, num_other=10,
                                      noise_deg=0.1, outlier_fraction=0.15, seed=1))
     res = estimate_poses(sim.tracks)
-    att = res.report["attempts"]
-    names = [a["strategy"] for a in att]
+    att = (res.report.attempts or [])
+    names = [a.strategy for a in att]
     assert set(names) <= set(STRATEGIES)
     assert names[0] == "paper window" and "bundle adjustment" in names
-    (restart,) = [a for a in att if a["strategy"] == "restart without outliers"]
-    assert restart["result"] in ("kept", "rejected") and "without" in restart["why"]
+    (restart,) = [a for a in att if a.strategy == "restart without outliers"]
+    assert restart.result in ("kept", "rejected") and "without" in restart.why
     # the kept solution's cost is the reported final residual (the restart's own attempts come
     # before it, in the order they ran)
-    first = next(a for a in att if a["strategy"] == "bundle adjustment")
-    kept = restart if restart["result"] == "kept" else first
-    assert np.isclose(kept["cost_rms_deg"], res.residual_rms_final_deg, rtol=1e-5)
+    first = next(a for a in att if a.strategy == "bundle adjustment")
+    kept = restart if restart.result == "kept" else first
+    assert np.isclose(kept.cost_rms_deg, res.residual_rms_final_deg, rtol=1e-5)
 
 
 class _Bar:
@@ -116,8 +116,8 @@ def test_second_start_is_skipped_where_one_window_covers_the_sequence() -> None:
                                      noise_deg=0.1, seed=0))
     res = estimate_poses(sim.tracks)
     assert res.estimated.all()
-    short = [a for a in res.report["attempts"] if a["strategy"] == "short bootstrap"]
-    assert [(a["result"], a["why"]) for a in short] == \
+    short = [a for a in (res.report.attempts or []) if a.strategy == "short bootstrap"]
+    assert [(a.result, a.why) for a in short] == \
         [("skipped", "one window covers the sequence")]
 
 
@@ -128,9 +128,10 @@ def test_a_reversed_run_records_its_frames_in_the_sequence_order() -> None:
     back.at(10).record(failed("new start", (0, 4), "y"))
     run.record(failed("join", (3, 5), "z"))
     first, second, third = run.entries
-    assert first["frames"] == [90, 99] and first["reversed"] is True
-    assert second["frames"] == [85, 89] and second["reversed"] is True
-    assert third["frames"] == [3, 5] and "reversed" not in third
+    assert first.frames == [90, 99] and first.reversed is True
+    assert second.frames == [85, 89] and second.reversed is True
+    assert third.frames == [3, 5] and third.reversed is None
+    assert "reversed" not in third.to_json()
 
 
 def test_frames_reversed_twice_are_the_tracks_again() -> None:

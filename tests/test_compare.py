@@ -13,11 +13,16 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from helpers import assert_one_line_error, independent_trajectory_errors
+from helpers import (
+    assert_every_key_declared,
+    assert_one_line_error,
+    independent_trajectory_errors,
+)
 
 from omni_sfm.cli import main
 from omni_sfm.compare import compare, evaluate_trajectory, recompute_results
 from omni_sfm.poses import Trajectory, read_tum, write_tum
+from omni_sfm.reports import CompareResults
 from omni_sfm.synth.render import RenderOptions
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -35,6 +40,7 @@ def check_results_match_trajectories(out: Path, gt_tum: Path, num_frames: int) -
     """Every figure of results.json equals its recomputation from the TUM files: by
     ``recompute_results`` (what ``compare`` uses) and, independently, by numpy from the
     definitions (tests/helpers.py); a failure has a reason and no figures."""
+    assert_every_key_declared(CompareResults, out / "results.json")
     res = json.loads((out / "results.json").read_text())
     again = recompute_results(out, read_tum(gt_tum), num_frames)
     for name, e in res["initializers"].items():

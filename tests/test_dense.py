@@ -14,7 +14,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from helpers import assert_one_line_error
+from helpers import assert_every_key_declared, assert_one_line_error
 
 from omni_sfm.cameras import load_camera
 from omni_sfm.cli import main as cli_main
@@ -30,6 +30,7 @@ from omni_sfm.folders import DenseFolder
 from omni_sfm.geometry import angle_between, rotation_angle, rotvec_to_matrix
 from omni_sfm.libs import open3d_module
 from omni_sfm.poses import Trajectory, read_tum, write_tum
+from omni_sfm.reports import DenseReport
 
 SCALE = 0.37
 
@@ -109,6 +110,7 @@ def test_dense_room_accuracy_scale_and_files(room: Path, dense_out: Path) -> Non
     report = json.loads((dense_out / "report.json").read_text())
     # the folder's loader reads the report as written, keys in the documented order
     loaded = DenseFolder(dense_out).load()
+    assert_every_key_declared(DenseReport, dense_out / "report.json")
     assert loaded.report.to_json() == report and list(report)[:3] == ["input", "scale",
                                                                       "median_depth"]
     assert dumps_json(loaded.report.to_json()) == (dense_out / "report.json").read_text()
@@ -165,11 +167,11 @@ def test_camera_height_finds_the_floor(room: Path, dense_out: Path) -> None:
     traj = read_tum(dense_out / "trajectory.tum")
     pts = np.asarray(o3d.io.read_point_cloud(str(dense_out / "dense.ply")).points)
     voxel = json.loads((dense_out / "report.json").read_text())["voxel_size"]
-    scale, info = _floor_scale(pts, traj, np.array([0.0, 0.0, 1.0]), true_height, voxel)
-    assert scale == pytest.approx(1.0, abs=0.01)       # observed within 0.1 %
+    info = _floor_scale(pts, traj, np.array([0.0, 0.0, 1.0]), true_height, voxel)
+    assert info.factor == pytest.approx(1.0, abs=0.01)       # observed within 0.1 %
     # the floor's normal against the cameras' mean mirror axis (the mount tilts ~1.6 deg here)
-    assert info["floor_tilt_deg"] < 3.0
-    assert info["floor_points"] > 5000
+    assert info.floor_tilt_deg is not None and info.floor_tilt_deg < 3.0
+    assert info.floor_points is not None and info.floor_points > 5000
 
 
 def test_camera_height_cli(room: Path, poses: Path, work: Path) -> None:
@@ -185,7 +187,7 @@ def test_camera_height_cli(room: Path, poses: Path, work: Path) -> None:
     assert report.keyframe_step == 4 and report.num_keyframes == -(-len(gt) // 4)
     assert report.scale.source == "camera_height" and report.scale.camera_height == true_height
     assert report.scale.factor == pytest.approx(1 / SCALE, rel=0.01)
-    assert dumps_json(report.to_json()) == (out / "report.json").read_text()
+    assert_every_key_declared(DenseReport, out / "report.json")
 
 
 def test_pair_pose_undoes_rotation_drift(room: Path) -> None:

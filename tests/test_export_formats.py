@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 import pycolmap
 import pytest
-from helpers import assert_one_line_error
+from helpers import assert_every_key_declared, assert_one_line_error
 
 from omni_sfm.cameras import EquirectangularCamera, OpenCVFisheyeCamera, UnifiedCamera, load_camera
 from omni_sfm.cli import main
@@ -31,6 +31,7 @@ from omni_sfm.export.up import UpFrame, find_up
 from omni_sfm.geometry import normalize, rotvec_to_matrix
 from omni_sfm.lines3d import LineSegments3D, read_lines3d
 from omni_sfm.poses import Trajectory, read_tum, write_tum
+from omni_sfm.reports import ExportReport, InitReport
 from omni_sfm.synth.render import RenderOptions
 
 # the renders test_init_images.py and test_one_pass.py use too (one render per session)
@@ -56,6 +57,7 @@ def inits(rendered, built_once):
     def get(name: str) -> tuple[Path, Path]:
         seq = rendered(RENDERS[name]).output
         folder, _ = built_once(f"export-formats-init-{name}", lambda d: build(seq, d))
+        assert_every_key_declared(InitReport, folder / "init" / "report.json")
         return seq, folder / "init"
     return get
 
@@ -63,6 +65,7 @@ def inits(rendered, built_once):
 def _export(folder: Path, fmt: str, out: Path, *extra: str) -> dict:
     assert main(["export", "--input", str(folder), "--format", fmt, "--output", str(out),
                  *extra]) == 0
+    assert_every_key_declared(ExportReport, out / "report.json")
     return json.loads((out / "report.json").read_text())
 
 

@@ -158,9 +158,9 @@ def test_families_that_do_not_fit_are_not_held() -> None:
     assert _held_in_families(tracks, g.rotations, g.positions, frames, wrong, p, held, ref,
                              opts, run, (0, 14)) is None
     # both attempts are in the report, the second rejected with the misfit
-    assert [(a["strategy"], a["result"]) for a in run.entries] == [
+    assert [(a.strategy, a.result) for a in run.entries] == [
         ("families held", "kept"), ("families held", "rejected")]
-    assert "over 1.2x" in run.entries[1]["why"]
+    assert "over 1.2x" in run.entries[1].why
     # the reference: each line's RMS at a solution
     rms = _line_rms_deg(tracks, free.rotations, free.positions, free.line_directions,
                         free.line_points, frames)

@@ -75,13 +75,13 @@ def test_folder_tracks(sequence, folder_result):
     assert res.obs_endpoint_rays.shape == (tr.num_observations, 2, 3)
     assert {"read", "extract", "track", "finish"} <= set(res.timings_ms)
     s = res.summary()
-    assert s["frames"] == NFRAMES and s["tracks"] == tr.num_tracks
-    assert s["lines_extracted_total"] == int(res.lines_extracted.sum())
+    assert s.frames == NFRAMES and s.tracks == tr.num_tracks
+    assert s.lines_extracted_total == int(res.lines_extracted.sum())
     pf = res.per_frame()
     assert pf["frame"] == list(range(NFRAMES)) and len(pf["lines_extracted"]) == NFRAMES
     import json
 
-    json.dumps({"summary": s, "per_frame": pf})  # plain JSON types only
+    json.dumps({"summary": s.to_json(), "per_frame": pf})  # plain JSON types only
 
 
 def test_lossless_video_gives_the_same_tracks(sequence, folder_result):

@@ -15,7 +15,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from helpers import assert_one_line_error
+from helpers import assert_every_key_declared, assert_one_line_error
 
 from omni_sfm.cli import main
 from omni_sfm.errors import OmniSfmError
@@ -24,6 +24,7 @@ from omni_sfm.frames import FrameStore, read_frames
 from omni_sfm.lines.frontend import FrontEndOptions
 from omni_sfm.pipelines.init import InitOptions, init_from_images
 from omni_sfm.poses import read_tum
+from omni_sfm.reports import InitReport
 
 NFRAMES = 20
 """Frames of the damaged-frame tests (the brightness test takes all 40)."""
@@ -104,6 +105,7 @@ def test_truncated_jpeg_is_skipped_named_and_silent(corridor, frames, tmp_path, 
     out, err = capfd.readouterr()
     _quiet_stderr(err)
     assert "skipped: 1 damaged frame (000007.jpg: truncated JPEG)" in out
+    assert_every_key_declared(InitReport, tmp_path / "a" / "report.json")
     rep = json.loads((tmp_path / "a" / "report.json").read_text())
     assert rep["front_end"]["frames_skipped_reasons"] == [
         {"frame": 7, "reason": "truncated JPEG", "name": "000007.jpg"}]

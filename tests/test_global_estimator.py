@@ -7,6 +7,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from helpers import assert_every_key_declared
 
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.estimate.bundle import oracle
@@ -20,6 +21,7 @@ from omni_sfm.estimate.pipeline import (
 from omni_sfm.evaluate import match_reflection, trajectory_errors
 from omni_sfm.lines.tracks import LineTracks
 from omni_sfm.poses import Trajectory
+from omni_sfm.reports import InitReport
 from omni_sfm.synth.simulate import Simulation, SimulationOptions, simulate
 
 GLOBAL = EstimationOptions(estimator="global")
@@ -53,7 +55,7 @@ def test_walk_at_the_oracle(seed: int) -> None:
     sim = _walk(seed)
     res = estimate_poses(sim.tracks, GLOBAL)
     assert res.estimated.all()
-    assert res.report["estimator"] == "global"
+    assert res.report.estimator == "global"
     g = sim.groundtruth
     e = trajectory_errors(match_reflection(res.trajectory, g), g)
     ba = oracle(sim.tracks, g.rotations, g.positions, sim.line_directions, sim.line_points)
@@ -97,10 +99,10 @@ def test_report_lists_every_frame_it_does_not_pose() -> None:
     res = _run(thin)
     assert not res.estimated[50:55].any()
     assert res.estimated.sum() == 115
-    reasons = res.report["frames_not_estimated_reasons"]
+    reasons = res.report.frames_not_estimated_reasons or {}
     assert sorted(int(k) for k in reasons) == list(range(50, 55))
     assert all("fewer than 3 lines" in v for v in reasons.values())
-    assert isinstance(res.report["frames_uncertain"], dict)
+    assert isinstance(res.report.frames_uncertain, dict)
 
 
 def test_nothing_to_estimate_is_an_error() -> None:
@@ -187,6 +189,7 @@ def test_uncertain_frames_are_kept_out_of_the_trajectory(tmp_path, capsys) -> No
         assert main(["init", "--lines", "--tracks", str(tmp_path / "tracks.json"), "--estimator",
                      "global", "--output", str(tmp_path / name), *extra]) == 0
         runs[name] = capsys.readouterr().out
+    assert_every_key_declared(InitReport, tmp_path / "out" / "report.json")
     report = json.loads((tmp_path / "out" / "report.json").read_text())
     flagged = sorted(int(k) for k in report["frames_uncertain"])
     assert flagged and set(flagged) <= set(range(45, 80))
@@ -214,7 +217,7 @@ def test_frames_with_three_lines_are_flagged() -> None:
                     obs_normal=tr.obs_normal[~drop])
     res = _run(three)
     assert res.estimated[50:55].all()
-    flagged = res.report["frames_uncertain"]
+    flagged = res.report.frames_uncertain or {}
     assert all("sees 3 lines only" in flagged[str(k)] for k in range(50, 55))
     assert not any("sees 3 lines" in v for k, v in flagged.items() if int(k) not in range(50, 55))
 
@@ -235,7 +238,7 @@ def test_a_part_tied_to_the_rest_through_frames_of_three_lines_is_flagged() -> N
     thin = replace(tr, obs_track=tr.obs_track[~drop], obs_frame=tr.obs_frame[~drop],
                    obs_normal=tr.obs_normal[~drop])
     res = _run(thin)
-    flagged = res.report["frames_uncertain"]
+    flagged = res.report.frames_uncertain or {}
     tied = sorted(int(k) for k, v in flagged.items() if "tied to frames 0-79" in v)
     assert tied == list(range(131, 200))
     idx = np.flatnonzero(res.estimated)

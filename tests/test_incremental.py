@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from helpers import assert_every_key_declared
 
 from omni_sfm.cli import main
 from omni_sfm.estimate.bundle import resect_pose
@@ -24,6 +25,7 @@ from omni_sfm.evaluate import match_reflection, trajectory_errors
 from omni_sfm.geometry import line_plane_normals, normalize, rotvec_to_matrix
 from omni_sfm.lines.tracks import LineTracks, make_tracks, write_tracks
 from omni_sfm.poses import Trajectory, read_tum
+from omni_sfm.reports import InitReport
 from omni_sfm.synth.paths import PathOptions, Route, camera_path
 from omni_sfm.synth.scenes import SceneName, make_scene
 from omni_sfm.synth.simulate import Simulation, SimulationOptions, simulate
@@ -104,7 +106,7 @@ def test_reasons_name_every_frame_not_registered() -> None:
                  obs_normal=tracks.obs_normal[keep])
     res = estimate_poses(t2)
     assert res.estimated[:len(gt) - 15].all() and not res.estimated[len(gt) - 15:].any()
-    reasons = res.report["frames_not_estimated_reasons"]
+    reasons = (res.report.frames_not_estimated_reasons or {})
     assert sorted(map(int, reasons)) == list(range(len(gt) - 15, len(gt)))
     assert "lines already reconstructed" in reasons[str(len(gt) - 15)]
 
@@ -136,20 +138,21 @@ def test_a_gap_gives_a_separate_segment(tmp_path: Path) -> None:
     err = trajectory_errors(Trajectory(tr.timestamps - 50, tr.rotations, tr.positions),
                             gt_b)
     assert err.rot_max_deg < 0.2 and err.ate_rel < 0.01
-    assert res.report["segments"][0]["frames"] == [50, 89]
-    assert "segment 1" in res.report["frames_not_estimated_reasons"]["60"]
-    (start,) = [a for a in res.report["attempts"] if a["strategy"] == "new start"]
-    assert start["frames"] == [50, 89] and start["result"] == "kept"
-    assert start["why"] == "40 frames estimated"
-    (join,) = [a for a in res.report["attempts"] if a["strategy"] == "join"]
-    assert join["result"] == "failed" and "lines reconstructed in both" in join["why"]
+    assert res.report.segment_list[0].frames == [50, 89]
+    assert "segment 1" in (res.report.frames_not_estimated_reasons or {})["60"]
+    (start,) = [a for a in (res.report.attempts or []) if a.strategy == "new start"]
+    assert start.frames == [50, 89] and start.result == "kept"
+    assert start.why == "40 frames estimated"
+    (join,) = [a for a in (res.report.attempts or []) if a.strategy == "join"]
+    assert join.result == "failed" and "lines reconstructed in both" in join.why
     # the new start's own windows are recorded too, in the frames of the whole sequence
-    assert any(a["strategy"] == "paper window" and a["frames"][0] >= 50
-               for a in res.report["attempts"])
+    assert any(a.strategy == "paper window" and a.frames[0] >= 50
+               for a in (res.report.attempts or []))
     # no new start where none is allowed (by default as many as the stretches left need)
     capped = estimate_poses(tracks, EstimationOptions(max_segments=0))
     assert not capped.segments and not capped.estimated[50:].any()
     written = write_init_outputs(tmp_path, res)
+    assert_every_key_declared(InitReport, tmp_path / "report.json")
     assert tmp_path / "trajectory_segment_1.tum" in written
     assert len(read_tum(tmp_path / "trajectory_segment_1.tum")) == 40
     assert len(read_tum(tmp_path / "trajectory.tum")) == 50
@@ -190,17 +193,17 @@ def test_a_walk_along_the_largest_family_uses_another_one() -> None:
         np.sin(ang)
     res = estimate_poses(make_tracks(F, np.arange(len(dirs)), m, f, n, source="test"))
     assert res.estimated.all()
-    fam = res.report["parallel_families"]
-    assert fam["sizes"] == [14, 9, 7]
-    assert len(fam["windows_with_another_family"]) == 1
+    fam = res.report.parallel_families
+    assert fam is not None and fam.sizes == [14, 9, 7]
+    assert len(fam.windows_with_another_family) == 1
     # every attempt is in the report: the paper's method failed with the largest family, the
     # vertical family (the second) gave the window, the adjustment of the chain was kept
-    tried = [(a["strategy"], a["result"]) for a in res.report["attempts"]]
+    tried = [(a.strategy, a.result) for a in (res.report.attempts or [])]
     assert tried[:2] == [("paper window", "failed"), ("paper window, another family", "kept")]
     assert ("bundle adjustment", "kept") in tried
-    first, second = res.report["attempts"][:2]
-    assert "degenerate motion" in first["why"] and second["why"].startswith("family 2")
-    assert second["frames"] == [0, F - 1] and 0 < second["cost_rms_deg"] < 1.0
+    first, second = (res.report.attempts or [])[:2]
+    assert "degenerate motion" in first.why and second.why.startswith("family 2")
+    assert second.frames == [0, F - 1] and 0 < second.cost_rms_deg < 1.0
     err = trajectory_errors(match_reflection(res.trajectory, gt), gt)
     assert err.rot_max_deg < 0.2 and err.ate_rel < 0.005
 
@@ -226,8 +229,8 @@ def test_an_adjustment_stopped_short_is_adjusted_again_from_its_result() -> None
                                                 final_loss=None))
     run = RunLog()
     again = _readjusted(sim.tracks, short, EstimationOptions(), run)
-    kept = [a for a in run.entries if a["result"] == "kept"]
-    assert kept and all(a["strategy"] == "adjustment from its own result" for a in run.entries)
+    kept = [a for a in run.entries if a.result == "kept"]
+    assert kept and all(a.strategy == "adjustment from its own result" for a in run.entries)
     assert again.rms_final_deg < short.rms_final_deg
     # where the whole adjustment from the same start ends
     full = bundle_adjust(sim.tracks, R, c, nan, nan)
@@ -237,7 +240,7 @@ def test_an_adjustment_stopped_short_is_adjusted_again_from_its_result() -> None
     assert errors[1].rot_mean_deg <= 1.01 * errors[2].rot_mean_deg
     run = RunLog()
     assert _readjusted(sim.tracks, again, EstimationOptions(), run) is again
-    assert [a["result"] for a in run.entries] == ["rejected"]
+    assert [a.result for a in run.entries] == ["rejected"]
 
 
 def test_a_short_run_turned_by_a_half_turn_is_turned_back() -> None:
@@ -263,9 +266,9 @@ def test_a_short_run_turned_by_a_half_turn_is_turned_back() -> None:
     err = np.degrees(rotation_angle(np.einsum("fji,fjk->fik", fixed.R, g.rotations)))
     assert err.max() < 1e-3
     repair, adjust = run.entries[0], run.entries[-1]
-    assert repair["strategy"] == "half-turn repair" and repair["frames"] == [20, 22]
-    assert repair["result"] == "kept" and repair["why"] == "3 of 3 frames turned back"
-    assert adjust["strategy"] == "bundle adjustment of a piece"
+    assert repair.strategy == "half-turn repair" and repair.frames == [20, 22]
+    assert repair.result == "kept" and repair.why == "3 of 3 frames turned back"
+    assert adjust.strategy == "bundle adjustment of a piece"
     # nothing to repair: nothing changes, nothing is tried
     exact = _Solved(replace(init, repairs=0), g.rotations, g.positions, frames,
                     sim.line_directions, sim.line_points, np.ones(M, bool), np.zeros(M, bool),
@@ -314,8 +317,8 @@ def test_sparse_tracks_reach_the_oracle(seed: int, strategy: str | None,
     assert e.rot_mean_deg <= 2.0 * eo.rot_mean_deg
     assert e.paper_trans.mean() <= 2.0 * eo.paper_trans.mean()
     assert strategy is None or any(
-        a["result"] == "kept" and (how == "kept" or str(how) in a.get("why", ""))
-        for a in res.report["attempts"] if a["strategy"] == strategy)
+        a.result == "kept" and (how == "kept" or str(how) in (a.why or ""))
+        for a in (res.report.attempts or []) if a.strategy == strategy)
 
 
 @pytest.mark.slow
@@ -343,16 +346,16 @@ def test_a_chain_that_ends_wrong_is_started_again_from_the_end() -> None:
     # the reversed start reaches the best score over all frames: kept, or tied with the
     # forward start as repaired by the later strategies (numpy 2.4 / scipy 1.17: "lines off
     # the cameras" polished it to the same 0.0755 deg)
-    attempts = res.report["attempts"]
-    rev = [a for a in attempts if a["strategy"] == "reversed start"]
-    assert len(rev) == 1 and rev[0]["frames"] == [0, 299]
-    if rev[0]["result"] != "kept":  # "<its score> deg RMS against <the estimate's>"
-        m = re.search(r"([0-9.]+) deg RMS against ([0-9.]+)", rev[0]["why"])
+    attempts = (res.report.attempts or [])
+    rev = [a for a in attempts if a.strategy == "reversed start"]
+    assert len(rev) == 1 and rev[0].frames == [0, 299]
+    if rev[0].result != "kept":  # "<its score> deg RMS against <the estimate's>"
+        m = re.search(r"([0-9.]+) deg RMS against ([0-9.]+)", rev[0].why)
         assert m is not None and float(m.group(1)) <= float(m.group(2)), rev
     # its own attempts are in this sequence's frame order, marked
-    back = [a for a in res.report["attempts"] if a.get("reversed")]
-    assert back and all(0 <= a["frames"][0] <= a["frames"][1] <= 299
-                        for a in back if "frames" in a)
+    back = [a for a in (res.report.attempts or []) if a.reversed]
+    assert back and all(0 <= a.frames[0] <= a.frames[1] <= 299
+                        for a in back if a.frames is not None)
 
 
 def _piece_of_the_truth(first: int) -> tuple[Simulation, Any]:
@@ -421,9 +424,9 @@ def test_a_line_through_a_camera_is_moved_off_it() -> None:
     out = _lines_off_cameras(tr, sol, EstimationOptions(), run)
     ratio = camera_distance_ratio(tr, out.R, out.c, out.d, out.p, obs, M)
     assert ratio[k] > 0.2 and out.used[k]
-    kept = [a for a in run.entries if a["result"] == "kept"]
-    assert len(kept) == 1 and kept[0]["strategy"] == "lines off the cameras"
-    assert kept[0]["why"].startswith("1 lines ")
+    kept = [a for a in run.entries if a.result == "kept"]
+    assert len(kept) == 1 and kept[0].strategy == "lines off the cameras"
+    assert kept[0].why.startswith("1 lines ")
     err = trajectory_errors(Trajectory(g.timestamps, out.R, out.c), g)
     assert err.rot_max_deg < 0.2 and err.ate_rel < 0.01
     # nothing through a camera: nothing is tried
@@ -444,8 +447,8 @@ def test_a_main_piece_that_lacks_its_first_frames_is_registered_again_without_a_
     run = RunLog()
     res = _with_segments(sim.tracks, piece, EstimationOptions(), run, 0.0)
     assert res.estimated.all() and not res.segments
-    again = [a for a in run.entries if a["strategy"] == "registration again"]
-    assert [a["result"] for a in again] == ["kept"]
+    again = [a for a in run.entries if a.strategy == "registration again"]
+    assert [a.result for a in again] == ["kept"]
     e = trajectory_errors(match_reflection(res.trajectory, g), g)
     assert e.rot_max_deg < 0.2
 
@@ -476,9 +479,9 @@ def test_registration_again_goes_on_where_its_adjustment_takes_back_a_line() -> 
     run = RunLog()
     res = _registered_again(tr, sol, EstimationOptions(), run)
     assert res.frames.all()
-    again = [a for a in run.entries if a["strategy"] == "registration again"]
-    assert [a["result"] for a in again] == ["kept", "kept"]
-    assert again[1]["why"].startswith("2 frames")
+    again = [a for a in run.entries if a.strategy == "registration again"]
+    assert [a.result for a in again] == ["kept", "kept"]
+    assert again[1].why.startswith("2 frames")
     # near the maximum-likelihood oracle on these frames (measured: rotation 1.09x mean, 1.26x
     # max, translation 1.01x)
     from omni_sfm.estimate.bundle import oracle

@@ -8,9 +8,11 @@ centres through the first camera; errors are measured on the matching branch
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
+from helpers import assert_every_key_declared
 
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.estimate.bundle import oracle
@@ -23,6 +25,7 @@ from omni_sfm.estimate.segments import frame_range
 from omni_sfm.evaluate import match_reflection, trajectory_errors
 from omni_sfm.lines.tracks import make_tracks
 from omni_sfm.poses import Trajectory
+from omni_sfm.reports import InitInput, InitReport
 from omni_sfm.synth.simulate import SimulationOptions, simulate
 
 
@@ -115,7 +118,7 @@ def test_outlier_tracks_rejected_and_named():
                                          noise_deg=0.1, outlier_fraction=0.15, seed=seed))
         res = estimate_poses(sim.tracks)
         true_ids = set(sim.tracks.track_ids[sim.outlier].tolist())
-        named = set(res.report["rejected_tracks"])
+        named = set(res.report.rejected_tracks or [])
         assert len(true_ids) == 6
         assert true_ids <= named and len(named - true_ids) <= 1, (seed, true_ids, named)
         ref.append(_err(res.trajectory, sim))
@@ -154,7 +157,8 @@ def test_paper_alone_option_and_outputs(tmp_path):
                                      seed=5))
     res = estimate_poses(sim.tracks, EstimationOptions(refine=False))
     assert res.estimated.all()
-    write_init_outputs(tmp_path, res, extra={"input": {"tracks": "x"}})
+    write_init_outputs(tmp_path, res, replace(res.report, input=InitInput(tracks="x")))
+    assert_every_key_declared(InitReport, tmp_path / "report.json")
     rep = json.loads((tmp_path / "report.json").read_text())
     for key in ("num_frames", "num_tracks", "parallel_family", "rejected_tracks",
                 "frames_not_estimated", "scale_convention", "timings_ms", "residuals"):
@@ -175,8 +179,9 @@ def test_window_flipped_by_a_half_turn_is_not_chained():
     gt = Trajectory(g.timestamps[300:520], g.rotations[300:520], g.positions[300:520])
     res = estimate_poses(sub)
     assert res.estimated.all()
-    assert any("turns by 180 deg" in s
-               for s in res.report["parallel_families"]["windows_with_another_family"])
+    fam = res.report.parallel_families
+    assert fam is not None
+    assert any("turns by 180 deg" in s for s in fam.windows_with_another_family)
     e = trajectory_errors(match_reflection(res.trajectory, gt), gt)
     assert e.rot_max_deg < 0.5 and e.ate_rel < 0.005
 
@@ -210,11 +215,11 @@ def test_same_result_with_one_and_two_workers():
                                      noise_deg=0.1, visible_frames=80, seed=3))
     one = estimate_poses(sim.tracks, EstimationOptions(workers=1))
     two = estimate_poses(sim.tracks, EstimationOptions(workers=2, progress=True))
-    strategies = {a["strategy"] for a in one.report["attempts"]}
+    strategies = {a.strategy for a in one.report.attempts or []}
     assert {"short bootstrap", "merged starts", "reversed start"} <= strategies
     assert np.array_equal(one.estimated, two.estimated)
     assert np.array_equal(one.trajectory.rotations, two.trajectory.rotations)
     assert np.array_equal(one.trajectory.positions, two.trajectory.positions)
-    assert one.report["attempts"] == two.report["attempts"]
+    assert one.report.attempts == two.report.attempts
     with pytest.raises(OmniSfmError, match="workers must be at least 1"):
         estimate_poses(sim.tracks, EstimationOptions(workers=0))

@@ -27,10 +27,12 @@ from pathlib import Path
 import numpy as np
 import pycolmap
 import pytest
+from helpers import assert_every_key_declared
 
 from omni_sfm.export.nerfstudio import opencv_poses, read_transforms
 from omni_sfm.export.pipeline import export_trajectory_of
 from omni_sfm.poses import read_tum
+from omni_sfm.reports import CompareResults, DenseReport, InitReport, RefineReport
 from omni_sfm.view.scene import load_view_scene
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -95,6 +97,11 @@ def test_readme_chain_end_to_end(tmp_path: Path, video: bool) -> None:
     for folder in ("refined", "dense"):
         assert (ex / folder / "camera.yaml").is_file()
     # refine adjusted the init's lines with the points (the joint adjustment, its default)
+    for cls, path in ((InitReport, ex / "init" / "report.json"),
+                      (RefineReport, ex / "refined" / "report.json"),
+                      (DenseReport, ex / "dense" / "report.json"),
+                      (CompareResults, ex / "cmp" / "results.json")):
+        assert_every_key_declared(cls, path)
     refined = json.loads((ex / "refined" / "report.json").read_text())
     joint = refined["bundle_adjustment"]["joint"]
     assert joint["line_observations"] > 0 and joint["point_observations"] > 0

@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 import pycolmap
 import pytest
-from helpers import assert_one_line_error, refine_perturbed
+from helpers import assert_every_key_declared, assert_one_line_error, refine_perturbed
 
 from omni_sfm.cameras import load_camera
 from omni_sfm.cli import main
@@ -31,6 +31,7 @@ from omni_sfm.folders import InitFolder, RefineFolder
 from omni_sfm.poses import Trajectory, read_tum
 from omni_sfm.refine import RefineOptions, refine
 from omni_sfm.refine.synthetic import perturb, write_perturbed_init
+from omni_sfm.reports import RefineReport
 from omni_sfm.synth.render import RenderOptions
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "docs" / "examples" / "cameras"
@@ -95,6 +96,7 @@ def test_refine_improves_a_perturbed_seed_on_a_textured_room(room_refined):
     r = res.report
     # the folder's loader reads back the report refine returned, and the refined poses
     art = RefineFolder(work / "out").load()
+    assert_every_key_declared(RefineReport, work / "out" / RefineFolder.REPORT)
     assert art.report.to_json() == json.loads(dumps_json(r.to_json()))
     # read and written again, the file is the same to the byte
     text = (work / "out" / RefineFolder.REPORT).read_text()

@@ -9,12 +9,14 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from helpers import refine_perturbed
+from helpers import assert_every_key_declared, refine_perturbed
 
 from omni_sfm.evaluate import associate, trajectory_errors
 from omni_sfm.export.colmap import read_init_model
+from omni_sfm.folders import RefineFolder
 from omni_sfm.refine import RefineOptions
 from omni_sfm.refine.synthetic import write_init_without, write_perturbed_init
+from omni_sfm.reports import RefineReport
 
 MISSING = (8, 9, 10, 15)  # frames without a seed pose: three in a row and one alone
 
@@ -37,7 +39,8 @@ def _missed_errors(traj, gt) -> tuple[np.ndarray, np.ndarray]:
 
 
 def test_the_global_mapper_registers_the_missed_frames_accurately(room_global):
-    _, gt, init, res = room_global
+    work, gt, init, res = room_global
+    assert_every_key_declared(RefineReport, work / "out" / RefineFolder.REPORT)
     r = res.report
     names = [f"{k:06d}.png" for k in MISSING]
     m = r.mapper

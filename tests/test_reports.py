@@ -35,10 +35,13 @@ from omni_sfm.reports import (
     DenseReport,
     ExportReport,
     ExportWorld,
+    InitializerInfo,
     InitReport,
     JsonReport,
+    PluginInitInput,
     PluginInitReport,
     RefineReport,
+    RigWritten,
     StageReport,
     TrackFrame,
     TrackPose,
@@ -105,7 +108,9 @@ def _export() -> ExportReport:
         omni_sfm_version="1.0", format="colmap-rig", input="../refined", num_poses=4,
         world=ExportWorld(turned=True, export_from_world=np.eye(4).tolist(),
                           vertical_in_world=[0.0, 0.0, 1.0], how="parallel family"),
-        camera_model="equirectangular", written={"num_images": 24, "views": {"views": []}},
+        camera_model="equirectangular",
+        written=RigWritten(num_images=24, num_frames=4, views={"views": []},
+                           images="images/VIEW/NAME.png", masks="masks/VIEW/NAME.png.png"),
         seconds=1.25)
 
 
@@ -113,7 +118,8 @@ def _compare() -> CompareResults:
     ok = CompareEntry(status="ok", trajectory="trajectories/lines.tum", registered=1.0,
                       rot_max_deg=0.2, rot_mean_deg=0.1, ate_rel=0.01, rpe=0.02,
                       rpe_rot_deg=0.05, step_error_after_alignment=0.03, frames_compared=10,
-                      frames_registered=10, time_s=1.5, info={"tracks": 40})
+                      frames_registered=10, time_s=1.5,
+                      info=InitializerInfo(tracks=40))
     failed = CompareEntry(status="failed", trajectory=None, registered=0.0, rot_max_deg=None,
                           rot_mean_deg=None, ate_rel=None, rpe=None, rpe_rot_deg=None,
                           step_error_after_alignment=None, frames_compared=0,
@@ -124,8 +130,9 @@ def _compare() -> CompareResults:
 
 def _plugin_init() -> PluginInitReport:
     return PluginInitReport(
-        input={"images": "frames", "camera": "camera.yaml", "timestamps": "frame index"},
-        initializer="five-point", status="ok", reason=None, info={}, num_frames=12,
+        input=PluginInitInput(images="frames", camera="camera.yaml", timestamps="frame index"),
+        initializer="five-point", status="ok", reason=None,
+        info=InitializerInfo(features="sift", stride=1), num_frames=12,
         num_frames_estimated=11, frames_not_estimated_names=["000011.png"],
         wall_time_s={"initializer": 2.0}, scale_convention="first-to-last distance = 1")
 
@@ -204,7 +211,9 @@ def test_typed_views_of_the_reports() -> None:
 
 
 def _init_doc(**extra: Any) -> dict[str, Any]:
-    return {"omni_sfm_version": "1.0", "initializer": "lines", "input": {"images": "frames"},
+    return {"omni_sfm_version": "1.0", "initializer": "lines",
+            "input": {"images": "frames", "camera": "camera.yaml", "mask": None, "start": 0,
+                      "end": None, "step": 1, "timestamps": "frame index"},
             "num_frames": 10, "num_frames_estimated": 9,
             "parallel_family": {"track_ids": [1, 2, 3], "direction": [0.0, 0.0, 1.0]},
             "rejected_tracks": [7], "residuals": {"rms_final_deg": 0.25},
@@ -215,7 +224,8 @@ def test_init_report_reads_what_its_readers_use(tmp_path: Path) -> None:
     rep = InitReport.from_json(_init_doc())
     assert (rep.num_frames, rep.family_track_ids, rep.rejected_tracks) == (10, [1, 2, 3], [7])
     assert rep.rms_final_deg == 0.25 and not rep.rotation_only and rep.segment_list == []
-    assert rep.other["world"] == "first camera"
+    assert rep.world == "first camera" and rep.other == {}
+    assert InitReport.from_json(_init_doc(note="x")).other == {"note": "x"}  # another writer's
     assert rep.to_json() == _init_doc()
     assert rep.images(tmp_path) == tmp_path / "frames"
     assert rep.parallel_family is not None and rep.parallel_family.direction == [0.0, 0.0, 1.0]
@@ -230,10 +240,11 @@ def test_init_report_reads_what_its_readers_use(tmp_path: Path) -> None:
     assert pieces.to_json()["segments"] == [seg]
     text = summary(turned, tmp_path, ["0", "1"], [], [])
     assert "rotation only" in text and "3 parallel lines, 1 outlier tracks" in text
-    assert "first-to-last camera distance = 1" in summary(_init_doc(), tmp_path, ["0"], [], [])
-    assert "uncertain" not in summary(_init_doc(), tmp_path, ["0"], [], [])
+    assert "first-to-last camera distance = 1" in summary(rep, tmp_path, ["0"], [], [])
+    assert "uncertain" not in summary(rep, tmp_path, ["0"], [], [])
     flagged = {str(k): "position not fixed" for k in (0, 1, 2, 5, 7, 8)}
-    text = summary(_init_doc(frames_uncertain=flagged), tmp_path, ["0"], [], [])
+    text = summary(InitReport.from_json(_init_doc(frames_uncertain=flagged)), tmp_path, ["0"],
+                   [], [])
     assert "uncertain: 6 frames the data do not fix (frames 0-2, 5, 7-8;" in text
     with pytest.raises(OmniSfmError, match="no 'num_frames' key"):
         InitReport.from_json({"input": {}}, "init/report.json")
@@ -345,3 +356,35 @@ def test_every_report_class_is_a_json_report() -> None:
     for cls in (InitReport, StageReport, RefineReport, DenseReport, ExportReport,
                 CompareEntry, CompareResults, PluginInitReport, TrackFrame, TrackPose):
         assert issubclass(cls, JsonReport)
+
+
+def test_refine_settings_are_the_refine_options() -> None:
+    """``options`` of refine's report names every field of ``RefineOptions``, in order."""
+    from dataclasses import asdict, fields
+
+    from omni_sfm.refine.pipeline import RefineOptions
+    from omni_sfm.reports import RefineSettings
+
+    assert [f.name for f in fields(RefineSettings) if f.name != "other"] == \
+        [f.name for f in fields(RefineOptions)]
+    doc = asdict(RefineOptions(features="klt"))
+    settings = RefineSettings.from_json(doc)
+    assert settings.features == "klt" and settings.to_json() == doc and settings.other == {}
+
+
+def test_undeclared_keys_name_where_another_writer_added_keys() -> None:
+    from omni_sfm.reports import InitInput, undeclared_keys
+
+    assert undeclared_keys(_refine()) == [] and undeclared_keys(_dense()) == []
+    odd = _refine(mapper={"registered": [], "why": "test"},
+                  pose_changes={"rotation_deg_max": 0.1, "large_changes_backed_by_images": {
+                      "a.png": {"rotation_deg": 1.0, "position_fraction_of_path": 0.1,
+                                "observations": 50, "mean_reprojection_error_px": 0.3,
+                                "note": "x"}}})
+    assert undeclared_keys(odd) == [
+        "mapper.why", "pose_changes.large_changes_backed_by_images.a.png.note"]
+    # init's input: the frames' keys, null where not given; of --tracks, the file alone
+    assert InitInput(tracks="t.json").to_json() == {"tracks": "t.json"}
+    frames = InitInput(images="f", camera="c.yaml", start=0, step=1, timestamps="frame index")
+    assert frames.to_json() == {"images": "f", "camera": "c.yaml", "mask": None, "start": 0,
+                                "end": None, "step": 1, "timestamps": "frame index"}

@@ -1,13 +1,17 @@
 """The rotation-only estimator: a camera that turns in place (docs/method.md §13)."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
+from helpers import assert_every_key_declared
 
 from omni_sfm.errors import OmniSfmError
-from omni_sfm.estimate.pipeline import estimate_poses
+from omni_sfm.estimate.pipeline import estimate_poses, write_init_outputs
 from omni_sfm.estimate.rotation_only import estimate_rotation_only, procrustes
 from omni_sfm.geometry import line_plane_normals, normalize, rotation_about_axis
 from omni_sfm.lines.tracks import LineTracks, make_tracks
+from omni_sfm.reports import InitReport
 from omni_sfm.synth.simulate import SimulationOptions, simulate
 
 
@@ -86,13 +90,15 @@ def test_short_tracks_noise_and_outliers() -> None:
     assert res.outliers[:6].all() and not res.outliers[6:].any()
 
 
-def test_estimate_poses_turns_a_barely_moving_sequence_into_rotations() -> None:
+def test_estimate_poses_turns_a_barely_moving_sequence_into_rotations(tmp_path: Path) -> None:
     tracks, R = turning(noise_deg=0.05, seed=5)
     res = estimate_poses(tracks)
     assert res.estimated.all()
+    write_init_outputs(tmp_path, res)
+    assert_every_key_declared(InitReport, tmp_path / "report.json")
     assert np.all(res.trajectory.positions == 0)
-    assert res.report["motion"]["kind"] == "rotation only"
-    assert "undetermined" in res.report["motion"]["translation"]
+    assert res.report.motion is not None and res.report.motion.kind == "rotation only"
+    assert "undetermined" in (res.report.motion.translation or "")
     assert rotation_errors_deg(res.trajectory.rotations, R).max() < 0.3
     # the vertical lines are found as the parallel family, pointing along world +-z
     assert abs(res.parallel_direction[2]) > 0.999
@@ -102,7 +108,7 @@ def test_translating_sequences_are_not_taken_for_rotation() -> None:
     sim = simulate(SimulationOptions(num_views=20, noise_deg=0.05, seed=2))
     assert estimate_rotation_only(sim.tracks).median_deg > 1.0
     res = estimate_poses(sim.tracks)
-    assert "motion" not in res.report
+    assert not res.report.rotation_only
     assert np.linalg.norm(res.trajectory.positions[-1]) == pytest.approx(1.0)
 
 

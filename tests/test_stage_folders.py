@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import assert_one_line_error
+from helpers import assert_every_key_declared, assert_one_line_error
 
 from omni_sfm.cli import main as cli_main
 from omni_sfm.cli.cmd_init import summary
@@ -19,6 +19,7 @@ from omni_sfm.export.colmap import read_init_model
 from omni_sfm.fileio import check_output_dir, resolve_stored, stored_path
 from omni_sfm.folders import recorded_images
 from omni_sfm.poses import read_tum
+from omni_sfm.reports import FamilyReport, InitReport, InitResiduals, PluginInitReport
 from omni_sfm.synth.render import RenderOptions, render_sequence
 
 
@@ -76,8 +77,8 @@ def test_compare_with_a_camera_of_another_size_is_exit_2(tiny: Path, tmp_path: P
 
 
 def test_init_summary_names_the_world_frame_and_frames_without_a_pose() -> None:
-    rep = {"num_frames": 20, "parallel_family": {"track_ids": [1, 2, 3]},
-           "rejected_tracks": [], "residuals": {"rms_final_deg": 0.03}}
+    rep = InitReport(num_frames=20, parallel_family=FamilyReport(track_ids=[1, 2, 3]),
+                     rejected_tracks=[], residuals=InitResiduals(rms_final_deg=0.03))
     est = [f"{k:06d}.png" for k in range(12, 20)]
     missing = [f"{k:06d}.png" for k in range(12) if k != 5]
     text = summary(rep, Path("init"), est, missing, ["000005.png"])
@@ -113,6 +114,7 @@ def test_init_with_an_initializer_plugin_makes_an_init_folder(
     assert np.linalg.norm(traj.positions[-1]) == pytest.approx(1.0)
     assert list(model.image_names) == [f"{k:06d}.png" for k in range(12)]
     assert recorded_images(out) == (textured / "images").resolve()
+    assert_every_key_declared(PluginInitReport, out / "report.json")
     report = json.loads((out / "report.json").read_text())
     assert report["initializer"] == "five-point" and report["num_frames_estimated"] == 12
     # the poses are the plugin's: the same frames against the truth as compare measures them

@@ -139,17 +139,12 @@ def _skipped(names: list[str], reasons: list[str], most: int = 3) -> str:
     return f"skipped: {n} damaged frame{'' if n == 1 else 's'} ({'; '.join(parts)}{more})"
 
 
-def summary(rep: InitReport | dict[str, Any], output: Path, estimated: list[str],
+def summary(rep: InitReport, output: Path, estimated: list[str],
             not_estimated: list[str], unreadable: list[str],
             reasons: list[str] | None = None) -> str:
     """The result lines ``init`` prints on stdout: frames estimated out of all given, the world
     frame, the frames without a pose and why to look in report.json, and the frames skipped
-    (``unreadable``) with their ``reasons`` where known. ``rep``: the report (or its JSON
-    document, as the estimator returns it)."""
-    from omni_sfm.reports import InitReport
-
-    if not isinstance(rep, InitReport):
-        rep = InitReport.from_json(rep)
+    (``unreadable``) with their ``reasons`` where known. ``rep``: the folder's report."""
     total = rep.num_frames + len(unreadable)
     rms = float("nan") if rep.rms_final_deg is None else rep.rms_final_deg
     lines = [f"init: {len(estimated)} of {total} frames estimated, "
@@ -187,10 +182,13 @@ def summary(rep: InitReport | dict[str, Any], output: Path, estimated: list[str]
 
 
 def run(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
     from omni_sfm.errors import OmniSfmError
     from omni_sfm.estimate.pipeline import EstimationOptions, estimate_poses, write_init_outputs
     from omni_sfm.fileio import atomic_output_dir, check_output_dir, stored_path
     from omni_sfm.folders import InitFolder
+    from omni_sfm.reports import InitInput
 
     if args.initializer is not None:
         return _run_plugin(args)
@@ -239,7 +237,8 @@ def run(args: argparse.Namespace) -> int:
     result = estimate_poses(tracks, estimation)
     with atomic_output_dir(args.output, overwrite=args.overwrite, inputs=(args.tracks,)) as tmp:
         write_init_outputs(
-            tmp, result, extra={"input": {"tracks": stored_path(args.tracks, args.output)}},
+            tmp, result, replace(result.report,
+                                 input=InitInput(tracks=stored_path(args.tracks, args.output))),
             keep_uncertain=args.keep_uncertain)
     frames = [f"{k}" for k in range(tracks.num_frames)]
     est = result.estimated

@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from omni_sfm import registry
-from omni_sfm.compare.metrics import METRIC_KEYS, Evaluation, evaluate_trajectory
+from omni_sfm.compare.metrics import Evaluation, evaluate_trajectory
 from omni_sfm.compare.plots import plot_errors, plot_trajectories
 from omni_sfm.compare.report import report_markdown
 from omni_sfm.errors import OmniSfmError
@@ -24,7 +24,12 @@ from omni_sfm.plugin_contract import (
 )
 from omni_sfm.poses import Trajectory, write_tum
 from omni_sfm.registry import INITIALIZERS
-from omni_sfm.reports import CompareEntry, CompareResults, CompareSequence
+from omni_sfm.reports import (
+    CompareEntry,
+    CompareResults,
+    CompareSequence,
+    InitializerInfo,
+)
 
 DEFAULT_INITIALIZERS = ("lines", "five-point", "colmap", "upright-3pt")
 """The initializers :func:`compare` runs when none are named (those installed)."""
@@ -103,12 +108,12 @@ def run_comparison(sequence: SequenceInput, gt: Trajectory, names: Sequence[str]
     evals: dict[str, Evaluation] = {}
     for name in tqdm(names, desc="compare", unit="initializer", disable=None if progress else True):
         res, dt = run_initializer(name, sequence, options.get(name, {}))
-        entry, traj, ev = _evaluated_entry(name, res, sequence, gt)
+        entry, traj, ev = _evaluated_entry(name, res, sequence, gt, dt)
         if traj is not None:
             trajs[name] = traj
         if ev is not None:
             evals[name] = ev
-        entries[name] = CompareEntry(**entry, time_s=dt, info=res.info or None)
+        entries[name] = entry
     results = CompareResults(entries, CompareSequence(name=sequence.name,
                                                       frames=sequence.num_frames,
                                                       camera=sequence.camera.model))
@@ -131,12 +136,11 @@ def _reflection_nearer(traj: Trajectory, gt: Trajectory) -> tuple[Trajectory, st
 
 
 def _evaluated_entry(name: str, res: InitializerResult, sequence: SequenceInput,
-                     gt: Trajectory
-                     ) -> tuple[dict[str, Any], Trajectory | None, Evaluation | None]:
-    """One initializer's ``results.json`` entry (the fields of :class:`CompareEntry` but time
-    and info), the trajectory to
-    write (None when it registered nothing) and its evaluation (None when it has none)."""
-    entry: dict[str, Any] = {"status": res.status}
+                     gt: Trajectory, time_s: float
+                     ) -> tuple[CompareEntry, Trajectory | None, Evaluation | None]:
+    """One initializer's ``results.json`` entry (it ran ``time_s``), the trajectory to write
+    (None when it registered nothing) and its evaluation (None when it has none)."""
+    status = res.status
     traj = res.trajectory if res.trajectory is not None and len(res.trajectory) else None
     notes = [res.reason] if res.reason else []
     ev: Evaluation | None = None
@@ -147,25 +151,29 @@ def _evaluated_entry(name: str, res: InitializerResult, sequence: SequenceInput,
         try:
             ev = evaluate_trajectory(traj, gt, sequence.num_frames)
         except OmniSfmError as exc:
-            entry["status"] = "failed"
+            status = "failed"
             notes.append(f"cannot evaluate {len(traj)} registered frames: {exc}")
     elif res.status == "ok":
-        entry["status"] = "failed"
+        status = "failed"
         notes.append("returned no poses")
-    if entry["status"] == "failed" and not notes:
+    if status == "failed" and not notes:
         notes.append("failed without a reason")
-    if notes:
-        entry["reason"] = "; ".join(notes)
-    entry["trajectory"] = None if traj is None else CompareFolder.trajectory(name)
-    if ev is not None:
-        entry["registered"] = ev.registered
-        entry.update({k: ev.metrics[k] for k in METRIC_KEYS})
-        entry["frames_compared"] = int(ev.metrics["frames_compared"])
-    else:
-        entry["registered"] = 0.0 if traj is None else len(traj) / sequence.num_frames
-        entry.update({k: None for k in METRIC_KEYS})
-        entry["frames_compared"] = 0
-    entry["frames_registered"] = 0 if traj is None else len(traj)
+    m = None if ev is None else ev.metrics
+
+    def metric(key: str) -> float | None:
+        return None if m is None else m[key]
+
+    entry = CompareEntry(
+        status=status, reason="; ".join(notes) if notes else None,
+        trajectory=None if traj is None else CompareFolder.trajectory(name),
+        registered=ev.registered if ev is not None else
+        0.0 if traj is None else len(traj) / sequence.num_frames,
+        rot_max_deg=metric("rot_max_deg"), rot_mean_deg=metric("rot_mean_deg"),
+        ate_rel=metric("ate_rel"), rpe=metric("rpe"), rpe_rot_deg=metric("rpe_rot_deg"),
+        step_error_after_alignment=metric("step_error_after_alignment"),
+        frames_compared=0 if m is None else int(m["frames_compared"]),
+        frames_registered=0 if traj is None else len(traj), time_s=time_s,
+        info=InitializerInfo.from_json(res.info, f"{name}: info") if res.info else None)
     return entry, traj, ev
 
 

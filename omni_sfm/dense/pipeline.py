@@ -68,6 +68,7 @@ from omni_sfm.reports import (
     CalibrationReport,
     CalibrationTrial,
     DenseFrame,
+    DenseInputRecord,
     DenseReport,
     PairPoseCheck,
     PairPoseSummary,
@@ -396,10 +397,11 @@ def _sources(traj: Trajectory, k: int, baseline: float) -> list[tuple[int, float
 
 
 def _floor_scale(points: FloatArray, traj: Trajectory, up_in_camera: FloatArray, height: float,
-                 tolerance: float) -> tuple[float, dict[str, Any]]:
-    """Scale from the camera height: the floor is the largest plane (RANSAC, inliers within
-    ``tolerance``) among the dense points below the cameras whose normal is within 20 deg of the
-    cameras' mean up axis; a least-squares fit to its inliers gives the camera height."""
+                 tolerance: float) -> ScaleReport:
+    """Scale (``factor``) from the camera height: the floor is the largest plane (RANSAC,
+    inliers within ``tolerance``) among the dense points below the cameras whose normal is
+    within 20 deg of the cameras' mean up axis; a least-squares fit to its inliers gives the
+    camera height."""
     o3d = open3d_module()
     up = normalize((traj.rotations @ up_in_camera).mean(axis=0))
     h = (points - traj.positions.mean(axis=0)) @ up
@@ -426,8 +428,9 @@ def _floor_scale(points: FloatArray, traj: Trajectory, up_in_camera: FloatArray,
     h_cam = float(np.median((traj.positions - centre) @ normal))
     if not h_cam > 0:
         raise OmniSfmError("--camera-height: the floor found is not below the cameras")
-    return height / h_cam, {"floor_points": int(len(floor)), "floor_tilt_deg": tilt,
-                            "camera_height_pose_units": h_cam}
+    return ScaleReport(source="camera_height", unit="unit of --camera-height",
+                       camera_height=height, floor_points=int(len(floor)), floor_tilt_deg=tilt,
+                       camera_height_pose_units=h_cam, factor=height / h_cam)
 
 
 def check_options(opts: DenseOptions) -> None:
@@ -474,23 +477,23 @@ def _keyframe_depth(matcher: _Matcher, traj: Trajectory, k: int, baseline: float
 
 
 def _output_scale(points: FloatArray, traj: Trajectory, cam: CameraModel, voxel: float,
-                  opts: DenseOptions) -> tuple[float, dict[str, Any]]:
-    """Output units per pose unit, and where the factor comes from (``report.json`` ``scale``)."""
+                  opts: DenseOptions) -> ScaleReport:
+    """Output units per pose unit (``factor``) and where they come from (``report.json``
+    ``scale``)."""
     if opts.known_distance is not None:
         first_last = float(np.linalg.norm(traj.positions[-1] - traj.positions[0]))
         if not first_last > 0:
             raise OmniSfmError("known_distance: the first and last cameras coincide")
-        return opts.known_distance / first_last, {
-            "source": "known_distance", "unit": "unit of --known-distance",
-            "first_last_pose_units": first_last, "known_distance": opts.known_distance}
+        return ScaleReport(source="known_distance", unit="unit of --known-distance",
+                           first_last_pose_units=first_last, known_distance=opts.known_distance,
+                           factor=opts.known_distance / first_last)
     if opts.camera_height is not None:
         up_cam = np.asarray(opts.up_in_camera if opts.up_in_camera is not None else
                             ((0.0, 0.0, 1.0) if cam.model == "hyperboloid" else (0.0, -1.0, 0.0)),
                             dtype=np.float64)
-        scale, info = _floor_scale(points, traj, normalize(up_cam), opts.camera_height, voxel)
-        return scale, {"source": "camera_height", "unit": "unit of --camera-height",
-                       "camera_height": opts.camera_height, **info}
-    return 1.0, {"source": "poses", "unit": "pose units (arbitrary scale of the input poses)"}
+        return _floor_scale(points, traj, normalize(up_cam), opts.camera_height, voxel)
+    return ScaleReport(source="poses", unit="pose units (arbitrary scale of the input poses)",
+                       factor=1.0)
 
 
 def dense_map(inp: DenseInput, opts: DenseOptions | None = None, *,
@@ -532,8 +535,8 @@ def dense_map(inp: DenseInput, opts: DenseOptions | None = None, *,
         raise OmniSfmError(f"stereo gave {points.shape[0]} surface points confirmed by enough "
                            "views: too little texture or baseline for stereo, or poses that do "
                            "not fit the images")
-    scale, scale_info = _output_scale(points, traj, cam, voxel, opts)
-    scale_info["factor"] = scale
+    scale_info = _output_scale(points, traj, cam, voxel, opts)
+    scale = scale_info.factor
     points = points * scale
     mesh.scale(scale, center=np.zeros(3))
     out_traj = Trajectory(traj.timestamps.copy(), traj.rotations.copy(), traj.positions * scale)
@@ -551,7 +554,7 @@ def dense_map(inp: DenseInput, opts: DenseOptions | None = None, *,
 
 def _dense_report(inp: DenseInput, stats: list[KeyframeStats], calib: BaselineCalibration,
                   geometry: ViewGeometry, matcher: _Matcher, opts: DenseOptions, scale: float,
-                  scale_info: dict[str, Any], voxel: float, step: int, points: FloatArray,
+                  scale_info: ScaleReport, voxel: float, step: int, points: FloatArray,
                   mesh: Any, warnings: list[str], seconds: dict[str, float]) -> DenseReport:
     """The ``report.json`` of a dense map (docs/dense.md), without ``input``."""
     traj = inp.trajectory
@@ -559,7 +562,7 @@ def _dense_report(inp: DenseInput, stats: list[KeyframeStats], calib: BaselineCa
     pposes = [p for s in stats for p in s.pair_poses]
     changes = [p.rotation_change_deg for p in pposes if p.corrected]
     return DenseReport(
-        scale=ScaleReport.from_json(scale_info, "scale"),
+        scale=scale_info,
         median_depth=calib.median_depth * scale,
         stereo_baseline=calib.baseline * scale,
         voxel_size=voxel * scale,
@@ -622,9 +625,9 @@ def write_dense(output: Path, inp: DenseInput, res: DenseResult, *, overwrite: b
     o3d = open3d_module()
     output = Path(output)
     inputs = (poses_dir, inp.frames.path)
-    report = replace(res.report, input={
-        "poses": None if poses_dir is None else stored_path(poses_dir, output),
-        "images": stored_path(inp.frames.path, output)})
+    report = replace(res.report, input=DenseInputRecord(
+        poses=None if poses_dir is None else stored_path(poses_dir, output),
+        images=stored_path(inp.frames.path, output)))
     with atomic_output_dir(output, overwrite=overwrite, inputs=inputs) as tmp:
         pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(res.points))
         pcd.colors = o3d.utility.Vector3dVector(res.colors)

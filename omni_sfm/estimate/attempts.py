@@ -20,6 +20,7 @@ from enum import StrEnum
 from typing import Any, Generic, TypeVar
 
 from omni_sfm.forked import SharedCounters
+from omni_sfm.reports import AttemptRecord
 
 T = TypeVar("T")
 
@@ -133,16 +134,16 @@ class Attempt(Generic[T]):
         """The same attempt with the caller's verdict."""
         return replace(self, outcome=outcome, why=self.why if why is None else why)
 
-    def to_json(self, offset: int = 0) -> dict[str, Any]:
-        out: dict[str, Any] = {"strategy": self.strategy}
-        if self.frames is not None:
-            out["frames"] = [self.frames[0] + offset, self.frames[1] + offset]
-        out["result"] = str(self.outcome)
-        if self.cost_deg == self.cost_deg:  # not NaN
-            out["cost_rms_deg"] = round(float(self.cost_deg), 6)
-        if self.why:
-            out["why"] = self.why
-        return out
+    def record(self, offset: int = 0) -> AttemptRecord:
+        """Its entry of the report's ``attempts`` (frames shifted by ``offset``)."""
+        return AttemptRecord(
+            strategy=self.strategy,
+            frames=None if self.frames is None else [self.frames[0] + offset,
+                                                     self.frames[1] + offset],
+            result=str(self.outcome),
+            cost_rms_deg=round(float(self.cost_deg), 6) if self.cost_deg == self.cost_deg
+            else None,  # NaN: no solution
+            why=self.why or None)
 
 
 def failed(strategy: str, frames: tuple[int, int] | None, why: str) -> Attempt[Any]:
@@ -178,11 +179,11 @@ class RunLog:
     whose frame indices it shifts to the whole sequence) and the wall time per stage (each run
     its own)."""
 
-    def __init__(self, offset: int = 0, entries: list[dict[str, Any]] | None = None,
+    def __init__(self, offset: int = 0, entries: list[AttemptRecord] | None = None,
                  timings: defaultdict[str, float] | None = None,
                  progress: Any | None = None, mirror: int | None = None) -> None:
         self.offset = offset
-        self.entries: list[dict[str, Any]] = [] if entries is None else entries
+        self.entries: list[AttemptRecord] = [] if entries is None else entries
         self.timings: defaultdict[str, float] = defaultdict(float) if timings is None \
             else timings
         self.progress = progress
@@ -211,15 +212,17 @@ class RunLog:
         if bar is not None and self.offset + frame + 1 > bar.n:
             bar.update(self.offset + frame + 1 - bar.n)
 
-    def record(self, attempt: Attempt[T], **extra: Any) -> Attempt[T]:
-        """Record ``attempt`` (with ``extra`` JSON fields) and return it."""
-        entry = attempt.to_json(self.offset)
+    def record(self, attempt: Attempt[T], *, to_frames: list[int] | None = None,
+               family: int | None = None) -> Attempt[T]:
+        """Record ``attempt`` (a join: the piece it was ``to_frames``; a window solved with
+        another ``family``) and return it."""
+        entry = replace(attempt.record(self.offset), to_frames=to_frames, family=family)
         if self.mirror is not None:
-            if "frames" in entry:
-                a, b = entry["frames"]
-                entry["frames"] = [self.mirror - 1 - b, self.mirror - 1 - a]
-            entry["reversed"] = True
-        entry.update(extra)
+            frames = entry.frames
+            if frames is not None:
+                a, b = frames
+                frames = [self.mirror - 1 - b, self.mirror - 1 - a]
+            entry = replace(entry, frames=frames, reversed=True)
         self.entries.append(entry)
         return attempt
 

@@ -85,6 +85,7 @@ from omni_sfm.lines.extract import ExtractionOptions
 from omni_sfm.lines.track import TrackingOptions
 from omni_sfm.lines.tracks import LineTracks
 from omni_sfm.poses import Trajectory
+from omni_sfm.reports import TrackFrame, TrackPose
 from omni_sfm.vanishing import detect_parallel_families
 
 _SAME_DIRECTION_DEG = 15.0
@@ -213,20 +214,26 @@ class TrackedPose:
         """A full pose (rotation and position)."""
         return self.rotation is not None and self.position is not None
 
-    def _pose_json(self) -> dict[str, Any]:
+    def _pose(self) -> TrackPose:
         q = None if self.rotation is None else quat_xyzw_from_matrix(self.rotation[None])[0]
-        return {"frame": self.frame, "timestamp": self.timestamp,
-                "position": None if self.position is None else [float(x) for x in
-                                                                 self.position],
-                "quaternion_xyzw": None if q is None else [float(x) for x in q]}
+        return TrackPose(frame=self.frame, timestamp=self.timestamp,
+                         position=None if self.position is None else
+                         [float(x) for x in self.position],
+                         quaternion_xyzw=None if q is None else [float(x) for x in q])
+
+    def record(self) -> TrackFrame:
+        """Its line of ``frames.jsonl`` and of ``--stream`` (docs/track.md); ``start_poses``:
+        the start's poses (frame, timestamp, position, quaternion_xyzw)."""
+        pose = self._pose()
+        return TrackFrame(frame=pose.frame, timestamp=pose.timestamp, position=pose.position,
+                          quaternion_xyzw=pose.quaternion_xyzw, status=str(self.status),
+                          world=self.world, lines=self.lines, lines_known=self.lines_known,
+                          latency_ms=round(self.latency_ms, 3), reason=self.reason,
+                          start_poses=[p._pose() for p in self.start_poses])
 
     def to_json(self) -> dict[str, Any]:
-        """A JSON-ready dict: the ``--stream`` line (docs/track.md); ``start_poses``: the
-        start's poses (frame, timestamp, position, quaternion_xyzw)."""
-        return {**self._pose_json(), "status": str(self.status), "world": self.world,
-                "lines": self.lines, "lines_known": self.lines_known,
-                "latency_ms": round(self.latency_ms, 3), "reason": self.reason,
-                "start_poses": [p._pose_json() for p in self.start_poses]}
+        """:meth:`record`'s JSON document."""
+        return self.record().to_json()
 
 
 @dataclass
@@ -379,7 +386,7 @@ class OnlineEstimator:
             res = estimate_poses(tracks, o.start)
         except OmniSfmError as exc:
             return self._rot_or(fr, status, f"{head}start on {n} frames failed: {exc}", rot)
-        if "motion" in res.report:
+        if res.report.rotation_only:
             return self._rot_or(fr, status, f"{head}start on {n} frames: the camera turns "
                                             "without moving (no position to start from)", rot)
         if not res.estimated[-1] or res.estimated.sum() < 3:

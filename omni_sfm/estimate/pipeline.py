@@ -62,12 +62,20 @@ from omni_sfm.estimate.windows import (
     window_family,
     window_tracks,
 )
-from omni_sfm.fileio import atomic_write_text, dumps_json
 from omni_sfm.folders import REPORT_FILE, TRAJECTORY_FILE, UNCERTAIN_FILE
 from omni_sfm.forked import Deferred, SharedCounters
 from omni_sfm.geometry import FloatArray, ray_line_closest, rotation_angle
 from omni_sfm.lines.tracks import LineTracks, reversed_frames
 from omni_sfm.poses import Trajectory, write_tum
+from omni_sfm.reports import (
+    AttemptRecord,
+    FamiliesFound,
+    FamilyReport,
+    InitMotion,
+    InitReport,
+    InitResiduals,
+    InitSegment,
+)
 from omni_sfm.transforms import similarity_from_poses
 from omni_sfm.vanishing import (
     ParallelFamily,
@@ -230,7 +238,7 @@ class Segment:
     number: int
     frames: np.ndarray
     trajectory: Trajectory
-    report: dict[str, Any]
+    report: InitReport
 
     @property
     def file(self) -> str:
@@ -260,7 +268,7 @@ class EstimationResult:
         residual_rms_final_deg: the same after refinement.
         sigma_deg: robust estimate of the NV noise (per axis) at the solution, degrees.
         scale_convention: the world and scale of the result, in words.
-        report: the JSON-ready report (see docs/formats.md).
+        report: the report (``report.json`` without what ``init`` adds, docs/formats.md).
         segments: the stretches estimated on their own, each in its own world and scale.
     """
 
@@ -280,7 +288,7 @@ class EstimationResult:
     residual_rms_final_deg: float
     sigma_deg: float
     scale_convention: str
-    report: dict[str, Any]
+    report: InitReport
     segments: tuple[Segment, ...] = ()
 
 
@@ -656,7 +664,7 @@ def _estimate(tracks: LineTracks, options: EstimationOptions, run: RunLog,
     rot_only = _try_rotation_only(tracks, options, run, why, better_than=result)
     if rot_only is not None:
         return _rotation_only_result(tracks, rot_only, options, run, why, t_all)
-    return replace(result, report={**result.report, "attempts": run.entries})
+    return replace(result, report=replace(result.report, attempts=run.entries))
 
 
 def _global_result(tracks: LineTracks, options: EstimationOptions,
@@ -696,15 +704,14 @@ def _global_result(tracks: LineTracks, options: EstimationOptions,
     timings = dict(sol.timings_ms)
     timings["total"] = (time.perf_counter() - t_all) * 1e3
     traj = Trajectory(tracks.timestamps[idx].copy(), R_n[idx], c_n[idx])
-    report = _report(tracks, frames, members, direction, sol.outlier_tracks, sol.used_tracks,
-                     [], [], timings, sol.rms_initial_deg, sol.rms_final_deg, sol.sigma_deg)
-    report["estimator"] = "global"
-    report["reflection"] = reflection
-    report["steps"] = sol.steps
-    report["world_directions"] = [[float(x) for x in v @ sol.rotations[idx[0]]]
-                                  for v in sol.world_directions]
-    report["frames_not_estimated_reasons"] = {str(k): v for k, v in sol.not_posed.items()}
-    report["frames_uncertain"] = {str(k): v for k, v in sol.uncertain.items()}
+    report = replace(
+        _report(tracks, frames, members, direction, sol.outlier_tracks, sol.used_tracks, [], [],
+                timings, sol.rms_initial_deg, sol.rms_final_deg, sol.sigma_deg),
+        estimator="global", reflection=reflection, steps=sol.steps,
+        world_directions=[[float(x) for x in v @ sol.rotations[idx[0]]]
+                          for v in sol.world_directions],
+        frames_not_estimated_reasons={str(k): v for k, v in sol.not_posed.items()},
+        frames_uncertain={str(k): v for k, v in sol.uncertain.items()})
     return EstimationResult(
         trajectory=traj, estimated=frames, initial_trajectory=traj,
         track_ids=tracks.track_ids.copy(), parallel=members, parallel_direction=direction,
@@ -731,7 +738,7 @@ class _OtherStart:
     sol: _Solved | None
     result: EstimationResult | None
     error: OmniSfmError | None
-    entries: list[dict[str, Any]]
+    entries: list[AttemptRecord]
 
 
 def _short_start(tracks: LineTracks, other: EstimationOptions, t_all: float,
@@ -840,11 +847,11 @@ def _best_of_starts(tracks: LineTracks, options: EstimationOptions, other: Estim
             assert error is not None
             raise error
         return first
-    if first is not None and len(first.report.get("windows", [])) <= 1:
+    if first is not None and len(first.report.windows or []) <= 1:
         # one window of the paper's method covers the sequence: no chain to drift
         run.record(Attempt("short bootstrap", (0, F - 1), None, outcome=Outcome.SKIPPED,
                            why="one window covers the sequence"))
-        return replace(first, report={**first.report, "attempts": run.entries})
+        return replace(first, report=replace(first.report, attempts=run.entries))
     if refresh is not None:
         refresh()
     b = jobs[0].result(refresh)
@@ -854,13 +861,13 @@ def _best_of_starts(tracks: LineTracks, options: EstimationOptions, other: Estim
         if first is None:
             assert error is not None
             raise error from b.error
-        return replace(first, report={**first.report, "attempts": run.entries})
+        return replace(first, report=replace(first.report, attempts=run.entries))
     sol_b, alt = b.sol, b.result
     if first is None or sol_a is None:
         run.record(Attempt("short bootstrap", (0, F - 1), alt,
                            why=f"{int(alt.estimated.sum())} frames; the chain on "
                                f"{long} frames failed: {error}"))
-        return replace(alt, report={**alt.report, "attempts": run.entries})
+        return replace(alt, report=replace(alt.report, attempts=run.entries))
     candidates = [("short bootstrap", alt)]
     merged_sol = _merged_starts(tracks, sol_b, sol_a, other, run)
     if merged_sol is not None:
@@ -872,7 +879,7 @@ def _best_of_starts(tracks: LineTracks, options: EstimationOptions, other: Estim
     if backwards is not None:
         candidates.append(("reversed start", backwards))
     kept = _kept_start(tracks, first, candidates, options, run)
-    return replace(kept, report={**kept.report, "attempts": run.entries})
+    return replace(kept, report=replace(kept.report, attempts=run.entries))
 
 
 def _kept_start(tracks: LineTracks, first: EstimationResult,
@@ -1308,18 +1315,16 @@ def _moving_result(tracks: LineTracks, sol: _Solved, run: RunLog,
     run.timings["total"] = (time.perf_counter() - t_all) * 1e3
     timings = dict(run.timings)
     windows = [(w.start, w.stop) for w in init.windows]
-    report = _report(tracks, frames, members, direction, outliers, used, windows,
-                     init.failures, timings, rms0, rms1, sigma)
-    report["reflection"] = reflection
-    report["half_turns_repaired"] = init.repairs
-    report["parallel_families"] = {
-        "sizes": init.families,
-        "windows_with_another_family": init.switched,
-    }
-    report["frames_not_estimated_reasons"] = {
-        str(k): init.reasons.get(int(k), "not reached: the registration of the frames beyond "
-                                         "the chain stopped before it")
-        for k in np.flatnonzero(~frames)}
+    report = replace(
+        _report(tracks, frames, members, direction, outliers, used, windows, init.failures,
+                timings, rms0, rms1, sigma),
+        reflection=reflection, half_turns_repaired=init.repairs,
+        parallel_families=FamiliesFound(sizes=init.families,
+                                        windows_with_another_family=init.switched),
+        frames_not_estimated_reasons={
+            str(k): init.reasons.get(int(k), "not reached: the registration of the frames "
+                                             "beyond the chain stopped before it")
+            for k in np.flatnonzero(~frames)})
     return EstimationResult(
         trajectory=traj, estimated=frames, initial_trajectory=traj0,
         track_ids=tracks.track_ids.copy(), parallel=members, parallel_direction=direction,
@@ -1658,23 +1663,21 @@ def _with_segments(tracks: LineTracks, sol: _Solved, options: EstimationOptions,
     pieces[0] = _registered_again(tracks, pieces[0], options, run)
     run.timings["segments"] += (time.perf_counter() - t0) * 1e3
     result = _moving_result(tracks, pieces[0], run, t_all)
-    report = dict(result.report)
-    report["joined_pieces"] = joined
-    report["attempts"] = run.entries
     segments, reasons_lost = _segments_beside(tracks, pieces[1:], result)
-    report["frames_not_estimated_reasons"] = _reasons_not_estimated(
-        {**report.get("frames_not_estimated_reasons", {}), **reasons_lost}, segments, failures,
-        covered)
-    if segments:
-        report["segments"] = [{
-            "file": seg.file,
-            "frames": [int(np.flatnonzero(seg.frames)[0]), int(np.flatnonzero(seg.frames)[-1])],
-            "num_frames_estimated": int(seg.frames.sum()),
-            "world": "camera of the segment's first estimated frame (world_from_cam, TUM)",
-            "scale_convention": "distance between the segment's first and last estimated "
-                                "camera centres = 1",
-            "residual_rms_deg": seg.report["residuals"]["rms_final_deg"],
-        } for seg in segments]
+    report = replace(
+        result.report, joined_pieces=joined, attempts=run.entries,
+        frames_not_estimated_reasons=_reasons_not_estimated(
+            {**(result.report.frames_not_estimated_reasons or {}), **reasons_lost}, segments,
+            failures, covered),
+        segments=[InitSegment(
+            file=seg.file,
+            frames=[int(np.flatnonzero(seg.frames)[0]), int(np.flatnonzero(seg.frames)[-1])],
+            num_frames_estimated=int(seg.frames.sum()),
+            world="camera of the segment's first estimated frame (world_from_cam, TUM)",
+            scale_convention="distance between the segment's first and last estimated "
+                             "camera centres = 1",
+            residual_rms_deg=seg.report.rms_final_deg,
+        ) for seg in segments] or None)
     return replace(result, report=report, segments=tuple(segments))
 
 
@@ -1967,18 +1970,19 @@ def _rotation_only_result(tracks: LineTracks, res: RotationOnlyResult,
     nan3 = np.full((M, 3), np.nan)
     report = _report(tracks, frames, members, direction, res.outliers, res.used_tracks, [],
                      [], timings, res.rms_initial_deg, res.rms_final_deg, sigma)
-    if no_family:
-        report["parallel_family"]["none"] = no_family
-    report["scale_convention"] = ROTATION_ONLY_CONVENTION
-    report["motion"] = {
-        "kind": "rotation only",
-        "translation": "undetermined: the camera turned without moving (positions are 0, "
-                       "the scale and the 3D lines are undetermined)",
-        "why": f"the paper's method found no motion ({why}); the rotations alone explain the "
-               f"line normals to {res.median_deg:.3g} deg (median)"}
-    report["frames_not_estimated_reasons"] = {str(k): v for k, v in res.reasons.items()}
-    report["reflection"] = "none: no translation"
-    report["attempts"] = run.entries
+    assert report.parallel_family is not None  # _report writes it
+    report = replace(
+        report,
+        parallel_family=replace(report.parallel_family, none=no_family or None),
+        scale_convention=ROTATION_ONLY_CONVENTION,
+        motion=InitMotion(
+            kind="rotation only",
+            translation="undetermined: the camera turned without moving (positions are 0, "
+                        "the scale and the 3D lines are undetermined)",
+            why=f"the paper's method found no motion ({why}); the rotations alone explain "
+                f"the line normals to {res.median_deg:.3g} deg (median)"),
+        frames_not_estimated_reasons={str(k): v for k, v in res.reasons.items()},
+        reflection="none: no translation", attempts=run.entries)
     return EstimationResult(
         trajectory=traj, estimated=frames, initial_trajectory=traj,
         track_ids=tracks.track_ids.copy(), parallel=members, parallel_direction=direction,
@@ -2019,55 +2023,52 @@ def _expand(ba: BundleResult, idx: np.ndarray, M: int, first_outliers: np.ndarra
 def _report(tracks: LineTracks, frames: np.ndarray, members: np.ndarray, direction: FloatArray,
             outliers: np.ndarray, used: np.ndarray, windows: list[tuple[int, int]],
             failures: list[str], timings: dict[str, float], rms0: float, rms1: float,
-            sigma: float) -> dict[str, Any]:
+            sigma: float) -> InitReport:
+    """The report's keys every estimate has (the callers add their own)."""
     ids = tracks.track_ids
-    return {
-        "omni_sfm_version": __version__,
-        "initializer": "lines",
-        "num_frames": tracks.num_frames,
-        "num_frames_estimated": int(frames.sum()),
-        "frames_not_estimated": np.flatnonzero(~frames).tolist(),
-        "num_tracks": tracks.num_tracks,
-        "num_observations": tracks.num_observations,
-        "num_tracks_used": int(used.sum()),
-        "parallel_family": {
-            "track_ids": ids[members].tolist(),
-            "direction": [float(x) for x in direction],
-        },
-        "rejected_tracks": ids[outliers].tolist(),
-        "unused_tracks": ids[~used & ~outliers].tolist(),
-        "windows": [[int(a), int(b) - 1] for a, b in windows],
-        "window_failures": failures,
-        "world": "camera of the first estimated frame (world_from_cam, TUM)",
-        "scale_convention": SCALE_CONVENTION,
-        "reflection_ambiguity": REFLECTION_NOTE,
-        "timings_ms": {k: round(float(v), 3) for k, v in timings.items()},
-        "residuals": {
-            "rms_initial_deg": float(rms0),
-            "rms_final_deg": float(rms1),
-            "noise_sigma_deg": float(sigma),
-        },
-    }
+    return InitReport(
+        omni_sfm_version=__version__,
+        initializer="lines",
+        num_frames=tracks.num_frames,
+        num_frames_estimated=int(frames.sum()),
+        frames_not_estimated=np.flatnonzero(~frames).tolist(),
+        num_tracks=tracks.num_tracks,
+        num_observations=tracks.num_observations,
+        num_tracks_used=int(used.sum()),
+        parallel_family=FamilyReport(track_ids=ids[members].tolist(),
+                                     direction=[float(x) for x in direction]),
+        rejected_tracks=ids[outliers].tolist(),
+        unused_tracks=ids[~used & ~outliers].tolist(),
+        windows=[[int(a), int(b) - 1] for a, b in windows],
+        window_failures=failures,
+        world="camera of the first estimated frame (world_from_cam, TUM)",
+        scale_convention=SCALE_CONVENTION,
+        reflection_ambiguity=REFLECTION_NOTE,
+        timings_ms={k: round(float(v), 3) for k, v in timings.items()},
+        residuals=InitResiduals(rms_initial_deg=float(rms0), rms_final_deg=float(rms1),
+                                noise_sigma_deg=float(sigma)),
+    )
 
 
 def trusted(result: EstimationResult) -> np.ndarray:
     """``(N,)`` bool over ``result.trajectory``'s poses: those of frames the report does not
     flag as uncertain (``frames_uncertain``), where at least 3 are; else all."""
     idx = np.flatnonzero(result.estimated)
-    flagged = [int(k) for k in result.report.get("frames_uncertain") or {}]
+    flagged = [int(k) for k in result.report.frames_uncertain or {}]
     keep = ~np.isin(idx, flagged)
     return keep if keep.sum() >= 3 else np.ones(len(idx), bool)
 
 
 def write_init_outputs(directory: Path, result: EstimationResult,
-                       extra: dict[str, Any] | None = None, *,
+                       report: InitReport | None = None, *,
                        keep_uncertain: bool = False) -> list[Path]:
     """Write ``trajectory.tum`` and ``report.json`` of ``result`` into ``directory``.
 
     The poses of the frames the report flags as uncertain go to ``trajectory_uncertain.tum``
     instead of ``trajectory.tum`` (so that no later stage takes them for fixed; the report
     says so in ``uncertain_poses``), unless ``keep_uncertain`` or fewer than 3 frames would be
-    left (:func:`trusted`). ``extra`` entries (e.g. the input files) are added to the report.
+    left (:func:`trusted`). ``report``: the report to write, ``result.report`` by default
+    (``init`` gives it with what it adds: the input files, the front end's figures).
     Use inside :func:`omni_sfm.fileio.atomic_output_dir` so that the folder appears complete
     or not at all.
     """
@@ -2081,10 +2082,8 @@ def write_init_outputs(directory: Path, result: EstimationResult,
     for seg in result.segments:
         write_tum(directory / seg.file, seg.trajectory)
         written.append(directory / seg.file)
-    report = dict(result.report)
+    report = result.report if report is None else report
     if not keep.all():
-        report["uncertain_poses"] = UNCERTAIN_FILE
-    if extra:
-        report.update(extra)
-    atomic_write_text(directory / REPORT_FILE, dumps_json(report))
+        report = replace(report, uncertain_poses=UNCERTAIN_FILE)
+    report.write(directory / REPORT_FILE)
     return [*written, directory / REPORT_FILE]

@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import sys
 import time
-from collections.abc import Iterator, Mapping
-from dataclasses import dataclass
+from collections.abc import Callable, Iterator, Mapping
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -34,7 +34,15 @@ from omni_sfm.folders import (
 )
 from omni_sfm.geometry import normalize
 from omni_sfm.poses import Trajectory
-from omni_sfm.reports import ExportReport, ExportWorld
+from omni_sfm.reports import (
+    ColmapWritten,
+    ExportReport,
+    ExportWorld,
+    ExportWritten,
+    NerfstudioWritten,
+    RigWritten,
+    TrajectoryWritten,
+)
 
 FORMATS: dict[str, bool] = {
     "tum": False, "kitti": False, "colmap": False,
@@ -188,14 +196,14 @@ def png_name(name: str) -> str:
 # --- the formats ----------------------------------------------------------------------------
 
 def _export_trajectory(src: _Source, out: Path, opts: ExportOptions, progress: bool
-                       ) -> dict[str, Any]:
+                       ) -> TrajectoryWritten:
     from omni_sfm.export.trajectories import write_trajectory_export
 
-    return {"files": write_trajectory_export(out, src.traj_out, opts.fmt),
-            "camera_frame": "the camera model's ray frame (docs/cameras.md)"}
+    return TrajectoryWritten(files=write_trajectory_export(out, src.traj_out, opts.fmt),
+                             camera_frame="the camera model's ray frame (docs/cameras.md)")
 
 
-def _colmap_model(src: _Source, out: Path) -> tuple[Any, list[str], dict[str, Any]]:
+def _colmap_model(src: _Source, out: Path) -> tuple[Any, list[str], ColmapWritten]:
     """The folder's COLMAP model (``sparse/``, with its points) moved to the export's world, or
     one built from the poses; written to ``out/sparse``."""
     import pycolmap
@@ -204,8 +212,7 @@ def _colmap_model(src: _Source, out: Path) -> tuple[Any, list[str], dict[str, An
 
     export = src.camera.colmap_export()
     sparse = src.owner / SPARSE_DIR
-    info: dict[str, Any] = {}
-    rec = None
+    rec, model = None, ""
     if (sparse / "cameras.bin").is_file() or (sparse / "cameras.txt").is_file():
         try:
             rec = pycolmap.Reconstruction(str(sparse))
@@ -213,12 +220,12 @@ def _colmap_model(src: _Source, out: Path) -> tuple[Any, list[str], dict[str, An
             raise OmniSfmError(f"{sparse}: cannot read the COLMAP model: {exc}") from None
         R, t = src.up.up_from_world, -src.up.up_from_world @ src.up.origin
         rec.transform(pycolmap.Sim3d(1.0, pycolmap.Rotation3d(R), t[:, None]))
-        info["model"] = f"the folder's {SPARSE_DIR}/ ({rec.num_points3D()} points), turned"
+        model = f"the folder's {SPARSE_DIR}/ ({rec.num_points3D()} points), turned"
     frames = src.frames(required=False)
     if rec is None:
         names = frames[1] if frames is not None else src.default_names()
         rec = build_reconstruction(src.camera, src.traj_out, names).reconstruction
-        info["model"] = "built from the poses (no points)"
+        model = "built from the poses (no points)"
     by_name = {im.name: im for im in rec.images.values() if im.has_pose}
     names = [n for n in (frames[1] if frames is not None else src.default_names())
              if n in by_name]
@@ -233,32 +240,30 @@ def _colmap_model(src: _Source, out: Path) -> tuple[Any, list[str], dict[str, An
     (out / SPARSE_DIR).mkdir(parents=True, exist_ok=True)
     rec.write_binary(str(out / SPARSE_DIR))
     write_camera_yaml(out / ExportFolder.CAMERA, src.camera)
-    info.update({"camera_model": export.camera.model_name, "flip_u": export.flip_u,
-                 "colmap_cam_from_cam": export.colmap_cam_from_cam.tolist(),
-                 "num_images": rec.num_images(), "num_points3D": rec.num_points3D()})
-    return rec, sorted(by_name), info
+    return rec, sorted(by_name), ColmapWritten(
+        model=model, flip_u=export.flip_u,
+        colmap_cam_from_cam=export.colmap_cam_from_cam.tolist(), num_images=rec.num_images(),
+        num_points3D=rec.num_points3D())
 
 
 def _export_colmap(src: _Source, out: Path, opts: ExportOptions, progress: bool
-                   ) -> dict[str, Any]:
+                   ) -> ColmapWritten:
     from omni_sfm.export.colmap import write_colmap_mask
 
     export = src.camera.colmap_export()
     rec, names, info = _colmap_model(src, out)
     frames = src.frames(required=False)
     if frames is None:
-        info["images"] = "none: the folder records no frames (give --images)"
-        return info
+        return replace(info, images="none: the folder records no frames (give --images)")
     store, _ = frames
     for name in _progress(names, "export", progress):
         _write_png(out / IMAGES_DIR / name, export.image_to_colmap(src.read(store, name)))
     write_colmap_mask(out / ExportFolder.COLMAP_MASK, src.camera)
-    info["images"] = f"{IMAGES_DIR}/ ({len(names)} frames as COLMAP sees them)"
-    return info
+    return replace(info, images=f"{IMAGES_DIR}/ ({len(names)} frames as COLMAP sees them)")
 
 
 def _export_limap(src: _Source, out: Path, opts: ExportOptions, progress: bool
-                  ) -> dict[str, Any]:
+                  ) -> ColmapWritten:
     from omni_sfm.export.limap import write_limap_tracks
 
     if src.lines_out is None or not len(src.lines_out):
@@ -266,9 +271,8 @@ def _export_limap(src: _Source, out: Path, opts: ExportOptions, progress: bool
     rec, _, info = _colmap_model(src, out)
     # the LIMAP tracks' image ids are the model's: pose row k is image k + 1 when the model was
     # built from the poses or is the init's; a refine model is matched by name
-    info["limap"] = write_limap_tracks(out, src.camera, src.traj_out, src.lines_out,
-                                       image_ids=_image_ids(rec, src))
-    return info
+    return replace(info, limap=write_limap_tracks(out, src.camera, src.traj_out, src.lines_out,
+                                                  image_ids=_image_ids(rec, src)))
 
 
 def _image_ids(rec: Any, src: _Source) -> list[int]:
@@ -280,7 +284,7 @@ def _image_ids(rec: Any, src: _Source) -> list[int]:
 
 
 def _export_nerfstudio(src: _Source, out: Path, opts: ExportOptions, progress: bool
-                       ) -> dict[str, Any]:
+                       ) -> NerfstudioWritten:
     from omni_sfm.export.nerfstudio import (
         TRANSFORMS_FILE,
         camera_intrinsics,
@@ -296,14 +300,14 @@ def _export_nerfstudio(src: _Source, out: Path, opts: ExportOptions, progress: b
     traj = src.traj_out
     intr = camera_intrinsics(src.camera)
     entries = []
-    info: dict[str, Any] = {}
+    layout_json: dict[str, Any] | None = None
     if intr is not None:
         c2w = transform_matrices(traj.rotations, traj.positions)
         for k, name in enumerate(_progress(names, "export", progress)):
             rel = f"{IMAGES_DIR}/{png_name(name)}"
             _write_png(out / rel, src.read(store, name))
             entries.append(frame_entry(rel, c2w[k], timestamp=float(traj.timestamps[k])))
-        info["images"] = f"the frames themselves ({intr['camera_model']})"
+        images = f"the frames themselves ({intr['camera_model']})"
     else:
         from omni_sfm.export.perspective import view_layout
 
@@ -326,11 +330,11 @@ def _export_nerfstudio(src: _Source, out: Path, opts: ExportOptions, progress: b
                     _write_png(out / mask, np.where(ok[v], 255, 0).astype(np.uint8))
                 entries.append(frame_entry(rel, c2w[v], mask_path=mask,
                                            timestamp=float(traj.timestamps[k]), view=view))
-        info["images"] = f"perspective views ({opts.views}: {len(layout.names)} per frame)"
-        info["views"] = layout.to_json()
+        images = f"perspective views ({opts.views}: {len(layout.names)} per frame)"
+        layout_json = layout.to_json()
     doc = transforms_document(intr, entries, src.up.matrix() if src.up.vertical is not None
                               else None)
-    points = _sparse_points(src)
+    points, said = _sparse_points(src), None
     if points is not None:
         from omni_sfm.libs import open3d_module
 
@@ -340,10 +344,9 @@ def _export_nerfstudio(src: _Source, out: Path, opts: ExportOptions, progress: b
         if not o3d.io.write_point_cloud(str(out / PLY_FILE), pcd):
             raise OmniSfmError(f"{out / PLY_FILE}: Open3D could not write the points")
         doc["ply_file_path"] = PLY_FILE
-        info["points"] = f"{PLY_FILE}: {len(points[0])} points of the folder's COLMAP model"
+        said = f"{PLY_FILE}: {len(points[0])} points of the folder's COLMAP model"
     atomic_write_text(out / TRANSFORMS_FILE, dumps_json(doc))
-    info["num_images"] = len(entries)
-    return info
+    return NerfstudioWritten(images=images, views=layout_json, points=said, num_images=len(entries))
 
 
 def _sparse_points(src: _Source) -> tuple[np.ndarray, np.ndarray] | None:
@@ -366,7 +369,7 @@ def _sparse_points(src: _Source) -> tuple[np.ndarray, np.ndarray] | None:
 
 
 def _export_colmap_rig(src: _Source, out: Path, opts: ExportOptions, progress: bool
-                       ) -> dict[str, Any]:
+                       ) -> RigWritten:
     from omni_sfm.export.colmap_rig import build_rig_reconstruction, view_image_name
     from omni_sfm.export.perspective import view_layout
 
@@ -387,14 +390,14 @@ def _export_colmap_rig(src: _Source, out: Path, opts: ExportOptions, progress: b
                 # COLMAP's mask of image I is MASK_PATH/I.png (0: no features)
                 _write_png(out / MASKS_DIR / f"{rel}.png",
                            np.where(ok[v], 255, 0).astype(np.uint8))
-    return {"num_images": rec.num_images(), "num_frames": rec.num_frames(),
-            "views": layout.to_json(), "images": f"{IMAGES_DIR}/VIEW/NAME.png",
-            "masks": f"{MASKS_DIR}/VIEW/NAME.png.png where a view is not all covered"}
+    return RigWritten(num_images=rec.num_images(), num_frames=rec.num_frames(),
+                      views=layout.to_json(), images=f"{IMAGES_DIR}/VIEW/NAME.png",
+                      masks=f"{MASKS_DIR}/VIEW/NAME.png.png where a view is not all covered")
 
 
-WRITERS = {"tum": _export_trajectory, "kitti": _export_trajectory, "colmap": _export_colmap,
-           "nerfstudio": _export_nerfstudio, "limap": _export_limap,
-           "colmap-rig": _export_colmap_rig}
+WRITERS: dict[str, Callable[[_Source, Path, ExportOptions, bool], ExportWritten]] = {
+    "tum": _export_trajectory, "kitti": _export_trajectory, "colmap": _export_colmap,
+    "nerfstudio": _export_nerfstudio, "limap": _export_limap, "colmap-rig": _export_colmap_rig}
 
 
 def run_export(input_dir: Path, output_dir: Path, options: ExportOptions, *,
@@ -412,12 +415,14 @@ def run_export(input_dir: Path, output_dir: Path, options: ExportOptions, *,
     frames_path = src.images_arg
     with atomic_output_dir(Path(output_dir), overwrite=overwrite,
                            inputs=(Path(input_dir), frames_path)) as tmp:
-        info = WRITERS[options.fmt](src, tmp, options, progress)
+        written = WRITERS[options.fmt](src, tmp, options, progress)
         report = ExportReport(
             omni_sfm_version=__version__, format=options.fmt,
             input=stored_path(input_dir, output_dir), num_poses=len(src.traj),
-            world=ExportWorld.from_json(src.up.to_json(), "world"),
-            camera_model=src.camera.model, written=info,
+            world=src.up.report(),
+            camera_model=src.camera.colmap_export().camera.model_name
+            if isinstance(written, ColmapWritten) else src.camera.model,
+            written=written,
             seconds=round(time.perf_counter() - t0, 3))
         report.write(ExportFolder(tmp) / ExportFolder.REPORT)
     return report

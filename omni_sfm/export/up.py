@@ -42,7 +42,7 @@ from omni_sfm.geometry import FloatArray, normalize
 from omni_sfm.lines.tracks import LineTracks
 from omni_sfm.lines3d import LineSegments3D
 from omni_sfm.poses import Trajectory
-from omni_sfm.reports import StageReport
+from omni_sfm.reports import ExportWorld, StageReport
 
 MOUNT_UP_AXIS: dict[str, tuple[float, float, float]] = {
     "hyperboloid": (0.0, 0.0, 1.0),
@@ -117,15 +117,15 @@ class UpFrame:
         m[:3, 3] = -self.up_from_world @ self.origin
         return m
 
-    def to_json(self) -> dict[str, Any]:
-        return {
-            "turned": self.vertical is not None,
-            "export_from_world": self.matrix().tolist(),
-            "vertical_in_world": None if self.vertical is None else self.vertical.tolist(),
-            "how": self.how,
-            "convention": "x_export = R (x_world - origin); +z up, origin at the first camera"
-            if self.vertical is not None else "the folder's world (first camera's frame)",
-        }
+    def report(self) -> ExportWorld:
+        """An export report's ``world``."""
+        return ExportWorld(
+            turned=self.vertical is not None,
+            export_from_world=self.matrix().tolist(),
+            vertical_in_world=None if self.vertical is None else self.vertical.tolist(),
+            how=self.how,
+            convention="x_export = R (x_world - origin); +z up, origin at the first camera"
+            if self.vertical is not None else "the folder's world (first camera's frame)")
 
 
 def family_candidates(lines: LineSegments3D | None, report: StageReport | None

@@ -30,6 +30,7 @@ import numpy as np
 
 from omni_sfm.cameras.base import CameraModel
 from omni_sfm.lines.extract import usable_pixels
+from omni_sfm.reports import AutoMaskReport
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -91,11 +92,12 @@ class AutoMask:
     static_edge_fraction: float
     reason: str
 
-    def summary(self) -> dict[str, object]:
-        """Plain numbers for ``report.json``."""
-        return {"applied": self.applied, "masked_fraction": round(self.masked_fraction, 4),
-                "static_edge_fraction": round(self.static_edge_fraction, 4),
-                "reason": self.reason}
+    def summary(self) -> AutoMaskReport:
+        """Its section of ``report.json`` (``auto_mask``)."""
+        return AutoMaskReport(applied=self.applied,
+                              masked_fraction=round(self.masked_fraction, 4),
+                              static_edge_fraction=round(self.static_edge_fraction, 4),
+                              reason=self.reason)
 
 
 def _usable_region(camera: CameraModel, user_mask: np.ndarray | None,

@@ -27,6 +27,7 @@ from omni_sfm.lines.extract import ExtractedLines, ExtractionOptions, LineExtrac
 from omni_sfm.lines.track import LineTracker, TrackingOptions
 from omni_sfm.lines.tracks import LineTracks, make_tracks
 from omni_sfm.lines.workers import ExtractionWorkers, extract_timed
+from omni_sfm.reports import FrontEndSummary, SkippedFrame, TrackLengths
 
 IntArray = np.ndarray
 
@@ -177,35 +178,35 @@ class FrontEndResult:
             "track_ms": np.round(self.timings_ms["track"], 3).tolist(),
         }
 
-    def summary(self) -> dict[str, Any]:
-        """Counts and median timings, as plain numbers (for ``report.json``)."""
+    def summary(self) -> FrontEndSummary:
+        """Counts and median timings, as plain numbers (``report.json`` ``front_end``)."""
         lengths = self.track_lengths()
         t = self.timings_ms
 
         def med(a: np.ndarray) -> float:
             return float(np.median(a)) if len(a) else 0.0
 
-        return {
-            "frames": int(self.tracks.num_frames),
-            "frames_skipped": list(self.frames_skipped),
-            "frames_skipped_reasons": [
-                {"frame": n, "reason": r}
+        return FrontEndSummary(
+            frames=int(self.tracks.num_frames),
+            frames_skipped=list(self.frames_skipped),
+            frames_skipped_reasons=[
+                SkippedFrame(frame=n, reason=r)
                 for n, r in zip(self.frames_skipped, self.frames_skipped_reasons, strict=True)],
-            "valid_pixels": self.valid_pixels,
-            "tracks": int(self.tracks.num_tracks),
-            "observations": int(self.tracks.num_observations),
-            "track_length_frames": {
-                "median": med(lengths), "min": int(lengths.min()) if len(lengths) else 0,
-                "max": int(lengths.max()) if len(lengths) else 0},
-            "lines_per_frame_median": med(self.lines_extracted),
-            "lines_extracted_total": int(self.lines_extracted.sum()),
-            "segments_rejected_total": int(self.segments_rejected.sum()),
-            "lines_continued_per_frame_median": med(self.lines_continued[1:]),
-            "tracks_started_total": int(self.tracks_started.sum()),
-            "tracks_revived_total": int(self.tracks_revived.sum()),
-            "timings_ms_per_frame_median": {k: med(v) for k, v in t.items() if k != "finish"},
-            "timings_ms_total": {k: float(np.sum(v)) for k, v in t.items()},
-        }
+            valid_pixels=self.valid_pixels,
+            tracks=int(self.tracks.num_tracks),
+            observations=int(self.tracks.num_observations),
+            track_length_frames=TrackLengths(
+                median=med(lengths), min=int(lengths.min()) if len(lengths) else 0,
+                max=int(lengths.max()) if len(lengths) else 0),
+            lines_per_frame_median=med(self.lines_extracted),
+            lines_extracted_total=int(self.lines_extracted.sum()),
+            segments_rejected_total=int(self.segments_rejected.sum()),
+            lines_continued_per_frame_median=med(self.lines_continued[1:]),
+            tracks_started_total=int(self.tracks_started.sum()),
+            tracks_revived_total=int(self.tracks_revived.sum()),
+            timings_ms_per_frame_median={k: med(v) for k, v in t.items() if k != "finish"},
+            timings_ms_total={k: float(np.sum(v)) for k, v in t.items()},
+        )
 
     def image_problem(self) -> str | None:
         """What is wrong with the images as a whole, if anything: the mask leaves no pixels, the

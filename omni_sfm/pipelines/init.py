@@ -46,7 +46,15 @@ from omni_sfm.lines.frontend import FrontEndOptions, FrontEndResult, track_lines
 from omni_sfm.lines.source_camera import camera_for_frames
 from omni_sfm.lines3d import LineSegments3D, write_lines3d
 from omni_sfm.poses import Trajectory
-from omni_sfm.reports import PluginInitReport
+from omni_sfm.reports import (
+    AutoMaskReport,
+    CameraCheck,
+    InitializerInfo,
+    InitInput,
+    InitReport,
+    PluginInitInput,
+    PluginInitReport,
+)
 from omni_sfm.transforms import paper_normalised_positions
 
 if TYPE_CHECKING:
@@ -221,7 +229,8 @@ class _Checks:
     """The automatic mask and the camera check of one ``init`` run."""
 
     mask: np.ndarray | None
-    report: dict[str, Any]
+    camera_check: CameraCheck | None
+    auto_mask_report: AutoMaskReport | None
     warnings: tuple[str, ...]
     auto_mask: str
 
@@ -234,17 +243,18 @@ def _check_frames(images: Path | str, cam: CameraModel, o: InitOptions,
     from omni_sfm.lines.camfit import check_camera_fit
 
     if not (o.auto_mask or o.camera_check):
-        return _Checks(user_mask, {}, (), "")
+        return _Checks(user_mask, None, None, (), "")
     sample = read_frames(images, o.start, o.end, o.step, size=(cam.width, cam.height)
                          ).sample(SAMPLE_FRAMES)
-    report: dict[str, Any] = {}
+    camera_check, auto_mask = None, None
     warnings: list[str] = []
     if o.camera_check and sample:
         fit = check_camera_fit(sample[::max(1, len(sample) // 5)][:5], cam, user_mask,
                                o.frontend.extraction)
-        report["camera_check"] = {"ok": fit.ok, "message": fit.message,
-                                  **{k: (None if not np.isfinite(v) else float(v))
-                                     for k, v in fit.figures.items()}}
+        camera_check = CameraCheck.from_json(
+            {"ok": fit.ok, "message": fit.message,
+             **{k: (None if not np.isfinite(v) else float(v)) for k, v in fit.figures.items()}},
+            "camera check")
         if not fit.ok:
             if o.strict:
                 raise OmniSfmError(f"{fit.message} (--strict)")
@@ -254,14 +264,14 @@ def _check_frames(images: Path | str, cam: CameraModel, o: InitOptions,
     mask, said = user_mask, ""
     if o.auto_mask and len(sample) >= 5:
         auto = static_mask(sample, cam, user_mask)
-        report["auto_mask"] = auto.summary()
+        auto_mask = auto.summary()
         said = f"automatic mask: {auto.reason}"
         if auto.applied:
             mask = auto.mask
     elif o.auto_mask:
         said = f"automatic mask: not applied: {len(sample)} frames, too few to tell"
-        report["auto_mask"] = {"applied": False, "reason": said}
-    return _Checks(mask, report, tuple(warnings), said)
+        auto_mask = AutoMaskReport(applied=False, reason=said)
+    return _Checks(mask, camera_check, auto_mask, tuple(warnings), said)
 
 
 def init_from_images(images: Path | str, camera: Path | str | CameraModel | None,
@@ -332,10 +342,10 @@ def init_from_images(images: Path | str, camera: Path | str | CameraModel | None
         est_names = [names[f] for f in np.flatnonzero(result.estimated)]
         skipped_not_estimated = [names[f] for f in np.flatnonzero(~result.estimated)]
         unreadable = _image_names(source, np.asarray(fe.frames_skipped, dtype=int))
-        extra = _init_extra(images, camera, cam, mask, output, o, source, fe, unreadable,
-                            skipped_not_estimated, {"front_end": t1 - t0, "estimation": t2 - t1},
-                            checks, fixed_ids)
-        write_init_outputs(tmp, result, extra=extra, keep_uncertain=o.keep_uncertain)
+        report = _init_report(result.report, images, camera, cam, mask, output, o, source, fe,
+                              unreadable, skipped_not_estimated,
+                              {"front_end": t1 - t0, "estimation": t2 - t1}, checks, fixed_ids)
+        write_init_outputs(tmp, result, report, keep_uncertain=o.keep_uncertain)
         write_tracks(tmp / InitFolder.TRACKS, tracks)
         write_lines3d(tmp / InitFolder.LINES3D, estimated_segments(fe, result))
         if line_mask is not None:  # the user's mask and the automatic one: what refine uses
@@ -398,29 +408,32 @@ def _estimate(fe: FrontEndResult, o: InitOptions) -> tuple[LineTracks, Estimatio
     return tracks, result
 
 
-def _init_extra(images: Path | str, camera: Path | str | CameraModel | None, cam: CameraModel,
-                mask: Path | str | None, output: Path, o: InitOptions, source: FrameSource,
-                fe: FrontEndResult, unreadable: list[str], skipped_not_estimated: list[str],
-                wall_time_s: dict[str, float], checks: _Checks,
-                fixed_ids: list[int]) -> dict[str, Any]:
-    """The entries ``init`` adds to the estimator's ``report.json``."""
+def _init_report(report: InitReport, images: Path | str,
+                 camera: Path | str | CameraModel | None, cam: CameraModel,
+                 mask: Path | str | None, output: Path, o: InitOptions, source: FrameSource,
+                 fe: FrontEndResult, unreadable: list[str], skipped_not_estimated: list[str],
+                 wall_time_s: dict[str, float], checks: _Checks,
+                 fixed_ids: list[int]) -> InitReport:
+    """The estimator's ``report`` with what ``init`` adds to it."""
     front_end = fe.summary()
-    for entry, name in zip(front_end["frames_skipped_reasons"], unreadable, strict=True):
-        entry["name"] = name
-    return {
-        "input": {"images": stored_path(images, output),
-                  "camera": _camera_entry(camera, cam, output),
-                  "mask": None if mask is None else stored_path(mask, output),
-                  "start": o.start, "end": o.end, "step": o.step,
-                  "timestamps": "seconds" if source.is_video else "frame index"},
-        "front_end": front_end,
-        "front_end_per_frame": fe.per_frame(),
-        "frames_not_estimated_names": skipped_not_estimated,
-        "wall_time_s": wall_time_s,
-        **checks.report,
-        "camera_fixed_tracks": fixed_ids,
-        "warnings": list(checks.warnings),
-    }
+    front_end = replace(front_end, frames_skipped_reasons=[
+        replace(entry, name=name)
+        for entry, name in zip(front_end.frames_skipped_reasons, unreadable, strict=True)])
+    return replace(
+        report,
+        input=InitInput(images=stored_path(images, output),
+                        camera=_camera_entry(camera, cam, output),
+                        mask=None if mask is None else stored_path(mask, output),
+                        start=o.start, end=o.end, step=o.step,
+                        timestamps="seconds" if source.is_video else "frame index"),
+        front_end=front_end,
+        front_end_per_frame=fe.per_frame(),
+        frames_not_estimated_names=skipped_not_estimated,
+        wall_time_s=wall_time_s,
+        camera_check=checks.camera_check,
+        auto_mask=checks.auto_mask_report,
+        camera_fixed_tracks=fixed_ids,
+        warnings=list(checks.warnings))
 
 
 def _write_debug(tmp: Path, images: Path | str, cam: CameraModel, o: InitOptions,
@@ -520,10 +533,11 @@ def init_with_initializer(images: Path | str, camera: Path | str | CameraModel |
     names = [seq.images.names[k] for k in posed]
     missing = sorted(set(range(seq.num_frames)) - set(posed))
     report = PluginInitReport(
-        input={"images": stored_path(images, output),
-               "camera": _camera_entry(camera, cam, output),
-               "timestamps": "seconds" if seq.images.is_video else "frame index"},
-        initializer=name, status=res.status, reason=res.reason, info=res.info,
+        input=PluginInitInput(images=stored_path(images, output),
+                              camera=_camera_entry(camera, cam, output),
+                              timestamps="seconds" if seq.images.is_video else "frame index"),
+        initializer=name, status=res.status, reason=res.reason,
+        info=InitializerInfo.from_json(res.info, f"{name}: info"),
         num_frames=seq.num_frames, num_frames_estimated=len(traj),
         frames_not_estimated_names=[seq.images.names[k] for k in missing],
         wall_time_s={"initializer": seconds},

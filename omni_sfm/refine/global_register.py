@@ -34,6 +34,7 @@ from omni_sfm.cameras.base import CameraModel
 from omni_sfm.export.colmap import ColmapExport
 from omni_sfm.geometry import FloatArray, nearest_rotation
 from omni_sfm.refine.triangulation import angular_resolution_rad
+from omni_sfm.reports import MapperReport
 
 
 @dataclass(frozen=True)
@@ -49,12 +50,12 @@ class GlobalRegistration:
     observations: int
     """Observations of the registered frames on the model's points."""
 
-    def report(self) -> dict[str, Any]:
-        return {"mapper": "global", "registered": self.registered,
-                "not_registered": self.not_registered, "relative_poses": self.pairs,
-                "rotation_averaging_converged": self.rotation_averaging,
-                "global_positioning_converged": self.global_positioning,
-                "observations_of_registered_frames": self.observations}
+    def report(self) -> MapperReport:
+        return MapperReport(mapper="global", registered=self.registered,
+                            not_registered=self.not_registered, relative_poses=self.pairs,
+                            rotation_averaging_converged=self.rotation_averaging,
+                            global_positioning_converged=self.global_positioning,
+                            observations_of_registered_frames=self.observations)
 
 
 def _rigid(R: FloatArray, t: FloatArray) -> Any:

@@ -23,6 +23,7 @@ from omni_sfm.lines.tracks import LineTracks
 from omni_sfm.lines3d import LineSegments3D
 from omni_sfm.poses import Trajectory
 from omni_sfm.refine.joint import JointOptions, JointResult, PointObservations, joint_adjust
+from omni_sfm.reports import FrameEvidence, JointReport, RegisteredFrames
 from omni_sfm.transforms import Similarity
 
 
@@ -155,7 +156,7 @@ def pixel_jacobians(camera: CameraModel, obs: PointObservations, step: float = 1
 def adjust_model(rec: Any, image_ids: list[int], traj: Trajectory, lines: LineEvidence,
                  camera: CameraModel, options: JointOptions | None = None, *,
                  registered: Sequence[str] = (), registered_timestamps: FloatArray | None = None
-                 ) -> tuple[JointResult, dict[str, Any]]:
+                 ) -> tuple[JointResult, JointReport]:
     """The joint adjustment of the model's seeded images (``image_ids``, poses ``traj``), the
     init's lines and the model's points from their current positions; the model's poses and
     points set to its result, its rejected observations deleted. Returns the result (frames
@@ -200,38 +201,35 @@ def adjust_model(rec: Any, image_ids: list[int], traj: Trajectory, lines: LineEv
             rec.points3D[q].xyz = res.points[j]
     rec.update_point_3d_errors()
     ev = res.evidence(tracks, pobs)
-    report = {
-        "line_observations": int(ev["lines"].sum()),
-        "point_observations": int(res.point_inliers.sum()),
-        "point_observations_rejected": int((~res.point_inliers).sum()),
-        "lines_used": int(res.lines_used.sum()),
-        "points_used": int(res.points_used.sum()),
-        "line_noise_deg": res.line_sigma_deg, "point_noise_deg": res.point_sigma_deg,
-        "line_rms_deg": res.line_rms_deg, "point_rms_deg": res.point_rms_deg,
-        "iterations": res.iterations,
-        "evidence_per_frame": _evidence(ev, res, k, traj),
-    }
-    if len(extra_ids):
-        report["registered_frames"] = {
-            "names": [rec.images[i].name for i in extra_ids],
-            "evidence_per_frame": _evidence(ev, res, k_extra, extra)}
+    report = JointReport(
+        line_observations=int(ev["lines"].sum()),
+        point_observations=int(res.point_inliers.sum()),
+        point_observations_rejected=int((~res.point_inliers).sum()),
+        lines_used=int(res.lines_used.sum()),
+        points_used=int(res.points_used.sum()),
+        line_noise_deg=res.line_sigma_deg, point_noise_deg=res.point_sigma_deg,
+        line_rms_deg=res.line_rms_deg, point_rms_deg=res.point_rms_deg,
+        iterations=res.iterations,
+        evidence_per_frame=_evidence(ev, res, k, traj),
+        registered_frames=RegisteredFrames(
+            names=[rec.images[i].name for i in extra_ids],
+            evidence_per_frame=_evidence(ev, res, k_extra, extra)) if len(extra_ids) else None)
     return res, report
 
 
 def _evidence(ev: dict[str, np.ndarray], res: JointResult, k: np.ndarray, before: Trajectory
-              ) -> dict[str, Any]:
+              ) -> FrameEvidence:
     """Per frame ``k``: its line and point observations, the lines' share of its rotation and
     position information, and how far the adjustment moved it from ``before``."""
-    return {
-        "lines": ev["lines"][k].tolist(),
-        "points": ev["points"][k].tolist(),
-        "line_share_rotation": _rounded(res.line_share[k, 0]),
-        "line_share_position": _rounded(res.line_share[k, 1]),
-        "rotation_change_deg": _rounded(np.degrees(rotation_angle(
+    return FrameEvidence(
+        lines=ev["lines"][k].tolist(),
+        points=ev["points"][k].tolist(),
+        line_share_rotation=_rounded(res.line_share[k, 0]),
+        line_share_position=_rounded(res.line_share[k, 1]),
+        rotation_change_deg=_rounded(np.degrees(rotation_angle(
             np.swapaxes(before.rotations, 1, 2) @ res.rotations[k]))),
-        "position_change": _rounded(np.linalg.norm(res.positions[k] - before.positions,
-                                                   axis=1)),
-    }
+        position_change=_rounded(np.linalg.norm(res.positions[k] - before.positions, axis=1)),
+    )
 
 
 def _registered_frames(rec: Any, export: ColmapExport, names: Sequence[str],

@@ -45,7 +45,7 @@ import sys
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -97,7 +97,24 @@ from omni_sfm.refine.joint_model import (
     read_line_evidence,
 )
 from omni_sfm.refine.triangulation import triangulate_seeded
-from omni_sfm.reports import RefineReport
+from omni_sfm.reports import (
+    AdjustmentRound,
+    AlignmentReport,
+    BundleAdjustmentReport,
+    FeaturesReport,
+    FrameChange,
+    GuidedMatchingReport,
+    JointAdjustmentNote,
+    JointReport,
+    MapperReport,
+    ModelStatistics,
+    PoseChanges,
+    RefineCamera,
+    RefineInput,
+    RefineReport,
+    RefineSettings,
+    TriangulationReport,
+)
 from omni_sfm.transforms import Similarity, similarity_from_poses
 
 MAPPERS = ("incremental", "global")
@@ -236,18 +253,18 @@ class _Stages:
         self.bar.close()
 
 
-def model_statistics(rec: Any) -> dict[str, Any]:
+def model_statistics(rec: Any) -> ModelStatistics:
     """``colmap model_analyzer``'s numbers for a pycolmap Reconstruction."""
-    return {
-        "cameras": int(rec.num_cameras()),
-        "images": int(rec.num_images()),
-        "registered_images": int(rec.num_reg_images()),
-        "points": int(rec.num_points3D()),
-        "observations": int(rec.compute_num_observations()),
-        "mean_track_length": float(rec.compute_mean_track_length()),
-        "mean_observations_per_image": float(rec.compute_mean_observations_per_reg_image()),
-        "mean_reprojection_error_px": float(rec.compute_mean_reprojection_error()),
-    }
+    return ModelStatistics(
+        cameras=int(rec.num_cameras()),
+        images=int(rec.num_images()),
+        registered_images=int(rec.num_reg_images()),
+        points=int(rec.num_points3D()),
+        observations=int(rec.compute_num_observations()),
+        mean_track_length=float(rec.compute_mean_track_length()),
+        mean_observations_per_image=float(rec.compute_mean_observations_per_reg_image()),
+        mean_reprojection_error_px=float(rec.compute_mean_reprojection_error()),
+    )
 
 
 def _observations(rec: Any, image_ids: list[int]) -> np.ndarray:
@@ -272,7 +289,7 @@ def _position_priors(rec: Any, image_ids: list[int], inp: Trajectory,
 
 
 def _bundle_adjust(rec: Any, fixed_frames: set[int], priors: list[Any],
-                   opts: RefineOptions) -> dict[str, Any]:
+                   opts: RefineOptions) -> list[AdjustmentRound]:
     """Rounds of BA (poses and points free, intrinsics and ``fixed_frames`` fixed) each followed
     by removing observations with large errors or small triangulation angles (the reported
     error after a round is after that filtering).
@@ -313,15 +330,15 @@ def _bundle_adjust(rec: Any, fixed_frames: set[int], priors: list[Any],
         # the mean is taken after they are filtered
         removed = pycolmap.ObservationManager(rec).filter_all_points3D(
             opts.max_reprojection_error_px, opts.min_triangulation_angle_deg)
-        rounds.append({
-            "mean_reprojection_error_before_px": before,
-            "mean_reprojection_error_after_px": float(rec.compute_mean_reprojection_error()),
-            "termination": str(summary.termination_type).rsplit(".", 1)[-1],
-            "usable": bool(summary.is_solution_usable()),
-            "removed_observations": int(removed),
-            "points": int(rec.num_points3D()),
-        })
-    return {"rounds": rounds}
+        rounds.append(AdjustmentRound(
+            mean_reprojection_error_before_px=before,
+            mean_reprojection_error_after_px=float(rec.compute_mean_reprojection_error()),
+            termination=str(summary.termination_type).rsplit(".", 1)[-1],
+            usable=bool(summary.is_solution_usable()),
+            removed_observations=int(removed),
+            points=int(rec.num_points3D()),
+        ))
+    return rounds
 
 
 def _align_to_input(ref: Trajectory, inp: Trajectory) -> tuple[FloatArray, FloatArray, float]:
@@ -396,16 +413,16 @@ def refine(init_dir: Path, images: Path | None, output: Path,
     stages = _Stages(["images", "features", "matching", "triangulation", "mapper",
                       "bundle adjustment", "acceptance and output"], progress)
     export = init.camera.colmap_export()
-    parts: dict[str, Any] = {  # the report's sections, as the steps add them
-        "input": {"init": stored_path(init_dir, output),
-                  "images": stored_path(images_dir, output),
-                  "database": stored_path(database, output) if database else RefineFolder.DATABASE},
-        "camera": {"model": init.camera.model, "colmap_model": export.camera.model_name,
-                   "image_mirrored_for_colmap": export.flip_u},
-        "frames": {"input_poses": len(init.trajectory), "images_in_folder": len(all_names),
-                   "unposed_in_folder": len(unposed)},
-        "options": asdict(o),
-    }
+    parts = _Sections(
+        input=RefineInput(init=stored_path(init_dir, output),
+                          images=stored_path(images_dir, output),
+                          database=stored_path(database, output) if database
+                          else RefineFolder.DATABASE),
+        camera=RefineCamera(model=init.camera.model, colmap_model=export.camera.model_name,
+                            image_mirrored_for_colmap=export.flip_u),
+        frames={"input_poses": len(init.trajectory), "images_in_folder": len(all_names),
+                "unposed_in_folder": len(unposed)},
+        options=RefineSettings(**asdict(o)))
     try:
         with library_logging(verbose), atomic_output_dir(output, overwrite=overwrite,
                                inputs=(init_dir, images_dir, database)) as tmp:
@@ -416,11 +433,53 @@ def refine(init_dir: Path, images: Path | None, output: Path,
             obs0, trusted = run.bundle_adjustment(rec, image_ids)
             with stages.stage("acceptance and output"):
                 traj, refined = run.accept_and_write(rec, seed, image_ids, obs0, trusted)
-            report = RefineReport.from_json({**parts, "timings_s": dict(stages.times)})
+            report = parts.report(dict(stages.times))
             report.write(tmp / RefineFolder.REPORT)
     finally:
         stages.close()
     return RefineResult(output, traj, init.trajectory, refined, report)
+
+
+@dataclass
+class _Sections:
+    """The sections of refine's :class:`~omni_sfm.reports.RefineReport`, as the steps of
+    :class:`_Run` add them."""
+
+    input: RefineInput
+    camera: RefineCamera
+    frames: dict[str, int]
+    options: RefineSettings
+    features: FeaturesReport | None = None
+    matching_guided: GuidedMatchingReport | None = None
+    matching: dict[str, int] | None = None
+    triangulation: TriangulationReport | None = None
+    mapper: MapperReport | None = None
+    joint_adjustment: JointAdjustmentNote | None = None
+    bundle_adjustment: BundleAdjustmentReport | None = None
+    acceptance: Acceptance | None = None
+    model: ModelStatistics | None = None
+    summary: str = ""
+    lines3d: str | None = None
+    carried_from_input: list[str] = field(default_factory=list)
+    trajectory_frames: int = 0
+
+    def report(self, timings_s: dict[str, float]) -> RefineReport:
+        """The report, once every step has added its section."""
+        assert self.features is not None and self.matching is not None
+        assert self.triangulation is not None and self.mapper is not None
+        assert self.bundle_adjustment is not None and self.acceptance is not None
+        assert self.model is not None
+        acc = self.acceptance
+        return RefineReport(
+            input=self.input, camera=self.camera, frames=self.frames, options=self.options,
+            features=self.features, matching_guided=self.matching_guided,
+            matching=self.matching, triangulation=self.triangulation, mapper=self.mapper,
+            joint_adjustment=self.joint_adjustment, bundle_adjustment=self.bundle_adjustment,
+            kept_input_for_all=acc.kept_input_for_all, refined_frames=int(acc.refined.sum()),
+            kept_frames=acc.kept_frames, alignment_to_input=acc.alignment_report(),
+            pose_changes=acc.pose_changes, model=self.model, summary=self.summary,
+            lines3d=self.lines3d, carried_from_input=self.carried_from_input,
+            trajectory_frames=self.trajectory_frames, timings_s=timings_s)
 
 
 @dataclass
@@ -436,8 +495,7 @@ class _Run:
     tmp: Path
     db_path: Path
     stages: _Stages
-    report: dict[str, Any]
-    """The sections of :class:`omni_sfm.reports.RefineReport`, as the steps add them."""
+    report: _Sections
     progress: bool
     joint: bool = False
     """The model was adjusted with the lines (:meth:`_joint`)."""
@@ -479,12 +537,10 @@ class _Run:
                 feats = extract_features(db, images, colmap_mask, names, export,
                                          max_features=o.max_features,
                                          num_threads=o.num_threads)
-        report["features"] = {"source": o.features,
-                              "extracted_images": len(feats.extracted),
-                              "reused_images": len(feats.reused),
-                              "keypoints": feats.num_keypoints}
-        if feats.tracks is not None:
-            report["features"]["tracks"] = int(len(np.unique(feats.tracks.track)))
+        report.features = FeaturesReport(
+            source=o.features, extracted_images=len(feats.extracted),
+            reused_images=len(feats.reused), keypoints=feats.num_keypoints,
+            tracks=None if feats.tracks is None else int(len(np.unique(feats.tracks.track))))
         with self.stages.stage("matching"):
             if klt:
                 matches = match_tracks(db, names, feats.tracks, work, overlap=o.overlap,
@@ -494,10 +550,10 @@ class _Run:
                     guided = match_guided(db, names, init.trajectory, init.image_names,
                                           camera, export, overlap=o.overlap,
                                           progress=self.progress)
-                    report["matching_guided"] = asdict(guided)
+                    report.matching_guided = GuidedMatchingReport(**asdict(guided))
                 matches = match_sequential(db, overlap=o.overlap, num_threads=o.num_threads)
-        report["matching"] = {"verified_pairs": matches.verified_pairs,
-                              "inlier_matches": matches.inlier_matches}
+        report.matching = {"verified_pairs": matches.verified_pairs,
+                           "inlier_matches": matches.inlier_matches}
         seed = seed_for_database(camera, init.trajectory, init.image_names, db)
         image_ids = [seed.reconstruction.find_image_with_name(n).image_id
                      for n in init.image_names]
@@ -506,8 +562,8 @@ class _Run:
                 seed.reconstruction, db, images, camera, export,
                 max_error_px=o.max_reprojection_error_px,
                 min_angle_deg=o.min_triangulation_angle_deg)
-        report["triangulation"] = model_statistics(rec)
-        report["triangulation"]["frames_posed_again"] = list(self.reposed)
+        report.triangulation = TriangulationReport(**asdict(model_statistics(rec)),
+                                                   frames_posed_again=list(self.reposed))
         with self.stages.stage("mapper"):
             if self.register and o.mapper == "global":
                 got = register_global(rec, db, self.unposed, camera, export,
@@ -516,10 +572,10 @@ class _Run:
                 for name in got.registered:
                     rec.extract_colors_for_image(rec.find_image_with_name(name).image_id,
                                                  str(images))
-                report["mapper"] = got.report()
+                report.mapper = got.report()
             else:
-                rec, report["mapper"] = _register_missing(rec, self.register, self.unposed,
-                                                          db, images, o)
+                rec, report.mapper = _register_missing(rec, self.register, self.unposed, db,
+                                                       images, o)
         shutil.rmtree(work, ignore_errors=True)
         return rec, seed, image_ids
 
@@ -538,26 +594,26 @@ class _Run:
                 else None
             if joint is not None:
                 self.joint = True
-                self.report["bundle_adjustment"] = joint
+                self.report.bundle_adjustment = BundleAdjustmentReport(joint=joint)
             elif trusted:
                 priors = _position_priors(rec, image_ids, inp,
                                           o.prior_position_sigma * max(inp.path_length(), 1e-9))
-                ba = _bundle_adjust(rec, fixed, priors, o)
-                ba["held_fixed_frames"] = int(len(fixed))
-                ba["after"] = model_statistics(rec)
-                self.report["bundle_adjustment"] = ba
+                rounds = _bundle_adjust(rec, fixed, priors, o)
+                self.report.bundle_adjustment = BundleAdjustmentReport(
+                    rounds=rounds, held_fixed_frames=int(len(fixed)),
+                    after=model_statistics(rec))
             else:
-                self.report["bundle_adjustment"] = {
-                    "skipped": f"too few points ({rec.num_points3D()} < {need_points}) "
-                               f"or well-observed frames ({int((~weak).sum())} < 3)"}
+                self.report.bundle_adjustment = BundleAdjustmentReport(
+                    skipped=f"too few points ({rec.num_points3D()} < {need_points}) "
+                            f"or well-observed frames ({int((~weak).sum())} < 3)")
         return obs0, bool(trusted)
 
-    def _joint(self, rec: Any, image_ids: list[int]) -> dict[str, Any] | None:
+    def _joint(self, rec: Any, image_ids: list[int]) -> JointReport | None:
         """The joint adjustment of lines and points on ``rec`` (its report), or None where the
         init folder has no line evidence or the adjustment fails (the reason reported)."""
         lines = read_line_evidence(self.init.artifacts)
         if isinstance(lines, str):
-            self.report["joint_adjustment"] = {"skipped": lines}
+            self.report.joint_adjustment = JointAdjustmentNote(skipped=lines)
             return None
         # the mapper's frames go in too: held at their mapper poses they would stay in the
         # model's frame before the adjustment (0.9 m off on the 1,000-frame office walk)
@@ -568,16 +624,15 @@ class _Run:
                                     registered_timestamps=ts)
             self.lines = (lines, res)
         except OmniSfmError as exc:
-            self.report["joint_adjustment"] = {"failed": str(exc)}
+            self.report.joint_adjustment = JointAdjustmentNote(failed=str(exc))
             return None
         # as after COLMAP's adjustment: points that the camera model does not image where
         # they are seen (a few end up behind a mirror, errors of 1e150 px) go
         import pycolmap
 
-        rep["removed_observations"] = int(pycolmap.ObservationManager(rec).filter_all_points3D(
+        removed = int(pycolmap.ObservationManager(rec).filter_all_points3D(
             self.o.max_reprojection_error_px, self.o.min_triangulation_angle_deg))
-        rep["after"] = model_statistics(rec)
-        return {"joint": rep}
+        return replace(rep, removed_observations=removed, after=model_statistics(rec))
 
     def _start(self, rec: Any) -> Trajectory:
         """The adjustment's start: the input poses, those the triangulation posed again
@@ -612,7 +667,7 @@ class _Run:
         o, init, tmp, report = self.o, self.init, self.tmp, self.report
         acc = _accept(rec, seed.export, init, image_ids, obs0, trusted, o,
                       init.trajectory.path_length(), lines_too=self.joint)
-        report.update(acc.report())
+        report.acceptance = acc
         traj, refined = acc.trajectory, acc.refined
         _, ts_why = _frame_timestamps(self.all_names, init)
         added, ts = self.registered(rec)
@@ -621,13 +676,14 @@ class _Run:
         else:
             new, _ = trajectory_from_reconstruction(rec, seed.export, added, ts)
             traj, refined = _merge(traj, refined, acc.alignment.apply(new))
-        if self.register:
-            report["mapper"]["added_to_trajectory"] = added
-            report["mapper"]["timestamps"] = ts_why if acc.alignment is not None else (
-                "not placed: the adjusted model was not trusted")
+        if self.register and report.mapper is not None:
+            report.mapper = replace(
+                report.mapper, added_to_trajectory=added,
+                timestamps=ts_why if acc.alignment is not None else (
+                    "not placed: the adjusted model was not trusted"))
         final = _final_model(rec, seed.export, acc.alignment, image_ids, init, traj, added)
-        report["model"] = model_statistics(final)
-        report["summary"] = final.summary()
+        report.model = model_statistics(final)
+        report.summary = final.summary()
         (tmp / RefineFolder.SPARSE).mkdir()
         final.write_binary(str(tmp / RefineFolder.SPARSE))
         if o.text:
@@ -637,14 +693,14 @@ class _Run:
         if self.lines is not None and acc.alignment is not None:
             # the adjusted lines, in the output's world (carry_forward then skips the init's)
             write_lines3d(tmp / RefineFolder.LINES3D, adjusted_segments(*self.lines, acc.alignment))
-            report["lines3d"] = "adjusted with the points (joint adjustment)"
-        report["carried_from_input"] = carry_forward(self.init_dir, tmp)
-        report["trajectory_frames"] = len(image_ids) + len(added)
+            report.lines3d = "adjusted with the points (joint adjustment)"
+        report.carried_from_input = carry_forward(self.init_dir, tmp)
+        report.trajectory_frames = len(image_ids) + len(added)
         return traj, refined
 
 
 def _register_missing(rec: Any, register: bool, unposed: list[str], db_path: Path,
-                      image_dir: Path, o: RefineOptions) -> tuple[Any, dict[str, Any]]:
+                      image_dir: Path, o: RefineOptions) -> tuple[Any, MapperReport]:
     """COLMAP's registration of the frames ``unposed`` into ``rec`` (in place), the seeded
     frames held: the incremental mapper's next-image loop (absolute pose, triangulation of the
     new frame's observations, local adjustments around it) without its global refinements,
@@ -653,8 +709,8 @@ def _register_missing(rec: Any, register: bool, unposed: list[str], db_path: Pat
     import pycolmap
 
     if not register:
-        return rec, {"skipped": "every frame of the folder has an input pose" if not unposed
-                     else "disabled"}
+        return rec, MapperReport(skipped="every frame of the folder has an input pose"
+                                 if not unposed else "disabled")
     opts = pycolmap.IncrementalPipelineOptions()
     opts.fix_existing_frames = True
     opts.ba_refine_focal_length = False
@@ -682,8 +738,8 @@ def _register_missing(rec: Any, register: bool, unposed: list[str], db_path: Pat
         if rec.exists_image(image_id) and rec.images[image_id].has_pose:
             rec.extract_colors_for_image(image_id, str(image_dir))
     names = {im.name for im in rec.images.values() if im.has_pose}
-    return rec, {"registered": [n for n in unposed if n in names],
-                 "not_registered": [n for n in unposed if n not in names]}
+    return rec, MapperReport(registered=[n for n in unposed if n in names],
+                             not_registered=[n for n in unposed if n not in names])
 
 
 def _merge(traj: Trajectory, refined: np.ndarray, new: Trajectory
@@ -726,7 +782,7 @@ class Acceptance:
             or None when the adjustment was not trusted at all.
         kept_input_for_all: why every input pose was kept, or None.
         kept_frames: frame name -> why its input pose was kept.
-        pose_changes: how far the accepted poses moved (JSON-ready), or None.
+        pose_changes: how far the accepted poses moved, or None.
     """
 
     trajectory: Trajectory
@@ -734,19 +790,14 @@ class Acceptance:
     alignment: Similarity | None = None
     kept_input_for_all: str | None = None
     kept_frames: dict[str, str] = field(default_factory=dict)
-    pose_changes: dict[str, Any] | None = None
+    pose_changes: PoseChanges | None = None
 
-    def report(self) -> dict[str, Any]:
+    def alignment_report(self) -> AlignmentReport | None:
+        """``alignment_to_input`` of the report."""
         a = self.alignment
-        return {
-            "kept_input_for_all": self.kept_input_for_all,
-            "refined_frames": int(self.refined.sum()),
-            "kept_frames": self.kept_frames,
-            "alignment_to_input": None if a is None else {
-                "rotation": a.rotation, "translation": a.translation, "scale": a.scale,
-                "rotation_deg": float(np.degrees(rotation_angle(a.rotation)))},
-            "pose_changes": self.pose_changes,
-        }
+        return None if a is None else AlignmentReport(
+            rotation=a.rotation, translation=a.translation, scale=a.scale,
+            rotation_deg=float(np.degrees(rotation_angle(a.rotation))))
 
 
 def _accept(rec: Any, export: Any, init: InitModel, image_ids: list[int], obs0: np.ndarray,
@@ -818,18 +869,18 @@ def _accept(rec: Any, export: Any, init: InitModel, image_ids: list[int], obs0: 
     rot = np.where(use[:, None, None], aligned.rotations, inp.rotations)
     pos = np.where(use[:, None], aligned.positions, inp.positions)
     traj = Trajectory(inp.timestamps.copy(), rot, pos)
-    changes = {
-        "large_changes_backed_by_images": {
-            init.image_names[k]: {"rotation_deg": float(rot_change[k]),
-                                  "position_fraction_of_path": float(pos_change[k]),
-                                  "observations": int(obs[k]),
-                                  "mean_reprojection_error_px": float(err[k])}
+    changes = PoseChanges(
+        large_changes_backed_by_images={
+            init.image_names[k]: FrameChange(rotation_deg=float(rot_change[k]),
+                                             position_fraction_of_path=float(pos_change[k]),
+                                             observations=int(obs[k]),
+                                             mean_reprojection_error_px=float(err[k]))
             for k in np.flatnonzero(large)},
-        "rotation_deg_median": float(np.median(rot_change[use])),
-        "rotation_deg_max": float(rot_change[use].max()),
-        "position_fraction_of_path_median": float(np.median(pos_change[use])),
-        "position_fraction_of_path_max": float(pos_change[use].max()),
-    }
+        rotation_deg_median=float(np.median(rot_change[use])),
+        rotation_deg_max=float(rot_change[use].max()),
+        position_fraction_of_path_median=float(np.median(pos_change[use])),
+        position_fraction_of_path_max=float(pos_change[use].max()),
+    )
     return Acceptance(traj, use, Similarity(R, t, s), kept_frames=reasons, pose_changes=changes)
 
 

@@ -68,7 +68,7 @@ def main() -> int:
         report = InitFolder(out).read_report()
         posed = f"{report.num_frames_estimated}/{n}"
         rms = report.rms_final_deg
-        refine_s = report.other["timings_ms"].get("refinement", float("nan")) / 1e3
+        refine_s = (report.timings_ms or {}).get("refinement", float("nan")) / 1e3
         rot: str | None = None
         ate: float | None = None
         if gt is not None:

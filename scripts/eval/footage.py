@@ -41,7 +41,6 @@ from omni_sfm.evaluate import relative_rotation_errors_deg, trajectory_errors
 from omni_sfm.lines.frontend import FrontEndOptions
 from omni_sfm.pipelines.init import InitOptions, init_from_images
 from omni_sfm.poses import read_tum
-from omni_sfm.reports import InitReport
 from omni_sfm.synth.effects import Body, Effects
 from omni_sfm.synth.paths import Route
 from omni_sfm.synth.render import RenderOptions, prepare, render_sequence
@@ -131,9 +130,9 @@ def run_case(case: Case, work: Path, estimator: str = "windows") -> dict[str, An
     wall = time.perf_counter() - t0
     gt = read_tum(seq / "groundtruth.tum")
     est = res.estimation.trajectory
-    row.update(frames=len(gt), wall_s=wall, tracks=res.estimation.report["num_tracks"],
-               flagged=len(res.estimation.report.get("frames_uncertain") or {}))
-    if InitReport.from_json(res.estimation.report).rotation_only:  # no positions to compare
+    row.update(frames=len(gt), wall_s=wall, tracks=res.estimation.report.num_tracks,
+               flagged=len(res.estimation.report.frames_uncertain or {}))
+    if res.estimation.report.rotation_only:  # no positions to compare
         e, g = associate(est, gt)
         rot = relative_rotation_errors_deg(e, g)
         row.update(estimated=len(e), rot_max_deg=float(rot.max()),

@@ -168,7 +168,7 @@ def _dark_run(work: Path, seq: Path, factor: float, fixed: bool) -> dict[str, ob
         err = trajectory_errors(res.estimation.trajectory, gt)
         grey, contrast = res.frontend.median_grey, res.frontend.contrast
         row.update(estimated=int(res.estimation.estimated.sum()), rot_max_deg=err.rot_max_deg,
-                   ate_pct=100 * err.ate_rel, tracks=int(res.estimation.report["num_tracks"]),
+                   ate_pct=100 * err.ate_rel, tracks=int(res.estimation.report.num_tracks or 0),
                    stats_from="frontend")
     row.update(frames=len(gt), wall_s=round(time.perf_counter() - t0, 1),
                median_grey=[float(np.nanmin(grey)), float(np.nanmax(grey))],

@@ -21,7 +21,6 @@ from omni_sfm.evaluate import trajectory_errors
 from omni_sfm.lines.frontend import FrontEndOptions
 from omni_sfm.pipelines.init import InitOptions, init_from_images
 from omni_sfm.poses import read_tum
-from omni_sfm.reports import InitReport
 from omni_sfm.synth.render import RenderOptions, render_sequence
 from omni_sfm.synth.scenes import SceneName
 from scripts.benchlib import add_log_arguments, write_log
@@ -61,10 +60,10 @@ def main() -> int:
         rep = res.estimation.report
         row = {"sequence": name, "frames": len(gt), "estimated": err.num_common,
                "rot_max_deg": err.rot_max_deg, "rot_mean_deg": err.rot_mean_deg,
-               "ate_pct": 100 * err.ate_rel, "tracks": rep["num_tracks"],
-               "parallel": len(InitReport.from_json(rep).family_track_ids),
-               "rejected": len(rep["rejected_tracks"]), "wall_s": wall,
-               "front_end_ms_per_frame": res.frontend.summary()["timings_ms_per_frame_median"]}
+               "ate_pct": 100 * err.ate_rel, "tracks": rep.num_tracks,
+               "parallel": len(rep.family_track_ids),
+               "rejected": len(rep.rejected_tracks or []), "wall_s": wall,
+               "front_end_ms_per_frame": res.frontend.summary().timings_ms_per_frame_median}
         rows.append(row)
         print(json.dumps(row), flush=True)
     table = [[r["sequence"], f"{r['estimated']}/{r['frames']}", r["rot_max_deg"],

@@ -83,12 +83,12 @@ def _run(seed: int, args: argparse.Namespace) -> tuple[list[object], float, bool
     print(f"  oracle: {_fmt(eo)}, RMS residual {o.rms_final_deg:.4f} deg (same frames)")
     print(f"  ratio:  rotation {e[0] / eo[0]:.1f}x, translation {e[2] / eo[2]:.1f}x")
     # the global estimator has one start (no attempts to choose between)
-    kept = "the first start" if "attempts" in res.report else "-"
-    for a in res.report.get("attempts", []):
-        if a["strategy"] in STARTS:
-            print(f"  {a['strategy']}: {a['result']}: {a.get('why', '')}")
-            if a["result"] == "kept":
-                kept = a["strategy"]
+    kept = "the first start" if res.report.attempts is not None else "-"
+    for a in res.report.attempts or []:
+        if a.strategy in STARTS:
+            print(f"  {a.strategy}: {a.result}: {a.why or ''}")
+            if a.result == "kept":
+                kept = a.strategy
     row: list[object] = [
         seed, f"{int(est.sum())}" + (f" + {in_segs} in segments" if in_segs else ""),
         f"{e[0]:.3f} / {e[1]:.3f}", f"{eo[0]:.3f} / {eo[1]:.3f}",

@@ -34,7 +34,6 @@ import os
 import time
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -60,9 +59,9 @@ def _pair(arg: str) -> tuple[Path, Path]:
     return d, d.with_name(d.name[: -len("-init")])
 
 
-def moving_of(report: dict[str, Any]) -> bool:
+def moving_of(report: InitReport) -> bool:
     """The camera moved (not a rotation-only estimate): its positions can be compared."""
-    return not InitReport.from_json(report).rotation_only
+    return not report.rotation_only
 
 
 def _errors(traj: Trajectory, gt: Trajectory, positions: bool) -> str:
@@ -133,9 +132,9 @@ def main() -> int:
                      wall])
         if args.blocks > 0:
             print(f"  per {args.blocks} frames: {_blocks(res.trajectory, gt, args.blocks)}")
-        for a in res.report.get("attempts", []):
-            if a["strategy"] in ("short bootstrap", "merged starts"):
-                print(f"  {a['strategy']}: {a['result']}: {a.get('why', '')}")
+        for a in res.report.attempts or []:
+            if a.strategy in ("short bootstrap", "merged starts"):
+                print(f"  {a.strategy}: {a.result}: {a.why or ''}")
         for seg in res.segments:
             first, last = np.flatnonzero(seg.frames)[[0, -1]]
             print(f"  segment {seg.number} (frames {first}-{last}): "

@@ -45,6 +45,6 @@ def lines(sequence: SequenceInput, options: Mapping[str, Any]) -> InitializerRes
     info: dict[str, Any] = {"tracks": int(tracks.num_tracks),
                             "parallel_tracks": int(np.count_nonzero(res.parallel)),
                             "residual_rms_deg": float(res.residual_rms_final_deg),
-                            "reflection": res.report["reflection"]}
+                            "reflection": res.report.reflection}
     return InitializerResult(res.trajectory, "ok", reflection_ambiguous=tracks.obs_ray is None,
                              info=info)

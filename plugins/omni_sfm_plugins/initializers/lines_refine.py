@@ -46,6 +46,7 @@ def lines_refine(sequence: SequenceInput, options: Mapping[str, Any]) -> Initial
         "init_frames": len(init.image_names),
         "refined_frames": r.refined_frames,
         "added_by_mapper": len(r.mapper_added),
-        "kept_input_for_all": r.kept_input_for_all or None,
     }
+    if r.kept_input_for_all:
+        info["kept_input_for_all"] = r.kept_input_for_all
     return InitializerResult(res.trajectory, "ok", info=info)
