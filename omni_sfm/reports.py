@@ -19,8 +19,7 @@ dataclass of its own (:class:`MapperReport`, :class:`ScaleReport`, ...), (de)ser
 same two methods. Every key omni-sfm writes is a field, so a file read and written again is the
 same to the byte; a key no field names (another writer's) is kept in the section's ``other``
 and written back after its fields. Sections whose content is another module's record (the
-front end's per-frame columns, the global estimator's steps, a view layout) stay JSON
-objects.
+front end's per-frame columns, a view layout) stay JSON objects.
 :meth:`JsonReport.to_json` gives the document, :meth:`JsonReport.from_json` reads one back (a
 one-line OmniSfmError when a required key is missing), :meth:`JsonReport.write` and
 :meth:`JsonReport.read` go through files (atomic write).
@@ -391,6 +390,25 @@ class AutoMaskReport(JsonReport):
 
 
 @dataclass(frozen=True, kw_only=True)
+class EstimatorStep(JsonReport):
+    """One of the global estimator's ``steps`` (docs/estimator.md), as far as it applies: the
+    ``step``; the sizes of the parallel families, the ``start`` the rotations were kept from
+    (``anchored`` or ``windows``), the number of ``directions`` or ``world_directions`` shared;
+    the solver's ``iterations``, the ``outlier_tracks`` it rejected, the robust noise estimate
+    ``sigma_deg`` and the final RMS residual ``rms_final_deg``."""
+
+    step: str
+    families: list[int] | None = absent()
+    start: str | None = absent()
+    directions: int | None = absent()
+    world_directions: int | None = absent()
+    iterations: int | None = absent()
+    outlier_tracks: int | None = absent()
+    sigma_deg: float | None = absent()
+    rms_final_deg: float | None = absent()
+
+
+@dataclass(frozen=True, kw_only=True)
 class AttemptRecord(JsonReport):
     """One of an init report's ``attempts`` (docs/estimator.md, "Strategies and attempts"):
     the ``strategy``, the first and last frame it ran on (whole-sequence indices; absent for
@@ -483,8 +501,8 @@ class InitReport(_StageInput, JsonReport):
     estimator: str | None = absent()
     """``global`` for ``init --estimator global``; absent for the windows."""
     reflection: str | None = absent()
-    steps: list[dict[str, Any]] | None = absent()
-    """The global estimator's steps, each as it records itself (docs/estimator.md)."""
+    steps: list[EstimatorStep] | None = absent()
+    """The global estimator's steps (docs/estimator.md)."""
     world_directions: list[list[float]] | None = absent()
     half_turns_repaired: int | None = absent()
     parallel_families: FamiliesFound | None = absent()

@@ -11,7 +11,14 @@ from helpers import assert_every_key_declared
 
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.estimate.bundle import oracle
-from omni_sfm.estimate.global_estimator import _gap_errors, solve_global, window_starts
+from omni_sfm.estimate.global_estimator import (
+    _gap_errors,
+    _posable,
+    lowest_cost_rotations,
+    solve_global,
+    window_starts,
+)
+from omni_sfm.estimate.global_rotations import GlobalRotationOptions
 from omni_sfm.estimate.pipeline import (
     EstimationOptions,
     EstimationResult,
@@ -19,6 +26,7 @@ from omni_sfm.estimate.pipeline import (
     reversed_frames,
 )
 from omni_sfm.evaluate import match_reflection, trajectory_errors
+from omni_sfm.geometry import rotation_angle, rotvec_to_matrix
 from omni_sfm.lines.tracks import LineTracks
 from omni_sfm.poses import Trajectory
 from omni_sfm.reports import InitReport
@@ -247,3 +255,26 @@ def test_a_part_tied_to_the_rest_through_frames_of_three_lines_is_flagged() -> N
     e = trajectory_errors(match_reflection(res.trajectory.subset(trusted), sim.groundtruth),
                           sim.groundtruth)
     assert e.rot_max_deg < 0.5 and e.ate_rel < 1e-3
+
+
+def test_of_two_rotation_starts_the_one_that_fits_every_line_is_kept() -> None:
+    """Step 1 solves from the anchored chain and from the windows and keeps the rotations that
+    fit every line best: a start with a stretch turned 90 deg about the vertical, which the
+    solve cannot undo in a few iterations, loses in either order; equal starts go to the
+    later one."""
+    sim = _walk(seed=3)
+    tr, g = sim.tracks, sim.groundtruth.rotations
+    frames, lines = _posable(tr, 3)
+    group = np.where(lines, np.cumsum(lines) - 1, -1)  # each line its own direction
+    good = np.einsum("ji,kjl->kil", g[0], g)  # the first frame's camera is the world
+    turn = rotvec_to_matrix(np.radians(90.0) * good[100] @ np.array([0.0, 0.0, 1.0]))
+    bad = good.copy()
+    bad[100:] = turn @ good[100:]
+    opts = GlobalRotationOptions(max_iterations=3)
+    for starts in ({"good": good, "bad": bad}, {"bad": bad, "good": good}):
+        name, rot = lowest_cost_rotations(tr, frames, lines, starts, group, opts)
+        assert name == "good"
+        err = [rotation_angle(good[k].T @ rot.rotations[k]) for k in range(tr.num_frames)]
+        assert np.degrees(max(err)) < 0.5
+    assert lowest_cost_rotations(tr, frames, lines, {"a": good, "b": good.copy()}, group,
+                                 opts)[0] == "b"

@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field, replace
-from typing import Any
 
 import numpy as np
 
@@ -54,6 +53,7 @@ from omni_sfm.estimate.global_rotations import (
     GlobalRotations,
     chained_start,
     group_directions,
+    rotation_cost,
     solve_rotations,
     world_normals,
 )
@@ -65,6 +65,7 @@ from omni_sfm.geometry import (
     rotation_about_axis,
 )
 from omni_sfm.lines.tracks import LineTracks
+from omni_sfm.reports import EstimatorStep
 from omni_sfm.vanishing import ParallelFamily, VanishingOptions, detect_parallel_families
 
 
@@ -155,7 +156,7 @@ class GlobalSolution:
     sigma_deg: float
     uncertain: dict[int, str]
     not_posed: dict[int, str]
-    steps: list[dict[str, Any]]
+    steps: list[EstimatorStep]
     timings_ms: dict[str, float]
 
 
@@ -501,23 +502,55 @@ def _horizontal_directions(rot: GlobalRotations, families: list[ParallelFamily],
     return np.asarray(out).reshape(-1, 3)
 
 
+def lowest_cost_rotations(tracks: LineTracks, frames: np.ndarray, lines: np.ndarray,
+                          starts: dict[str, FloatArray], group: np.ndarray,
+                          options: GlobalRotationOptions) -> tuple[str, GlobalRotations]:
+    """The joint rotation problem (the tracks of ``group`` sharing its directions) solved
+    from each of the ``starts`` (name: ``(F, 3, 3)`` rotations): the name and the solution
+    whose rotations fit every line of ``lines`` ``(M,)`` best, each line its own direction
+    (:func:`rotation_cost` at one loss scale, the smallest noise estimate of the solutions;
+    ties go to the later start). A frame that sees none of the groups' lines is held by its
+    other lines only here, so a start that turned a stretch of such frames the wrong way
+    shows in this cost and not in the solve's own."""
+    solved = {name: solve_rotations(tracks, frames, R, group, options)
+              for name, R in starts.items()}
+    if len(solved) == 1:
+        name = next(iter(solved))
+        return name, solved[name]
+    own = np.where(lines, np.cumsum(lines) - 1, -1)
+    sigma = min(x.sigma for x in solved.values())
+    cost = {name: rotation_cost(tracks, frames, x.rotations, own, sigma, options)
+            for name, x in solved.items()}
+    best = min(reversed(list(cost)), key=lambda name: cost[name])
+    return best, solved[best]
+
+
 def _rotations(tracks: LineTracks, frames: np.ndarray, lines: np.ndarray,
                families: list[ParallelFamily], options: GlobalOptions,
-               steps: list[dict[str, Any]]
+               steps: list[EstimatorStep]
                ) -> tuple[GlobalRotations, FloatArray, np.ndarray]:
     """Step 1: the start, the solve with the families' world directions shared, the solve
-    with the lines' world directions (clusters of their directions) shared."""
+    with the lines' world directions (clusters of their directions) shared.
+
+    The first solve runs from two starts, the chain anchored on the families' directions
+    (:func:`anchored_start`) and the windows solved on their own (:func:`windows_start`),
+    and keeps the lower robust cost (one loss scale for both): where the families anchor every
+    frame the chain is right to a fraction of a degree and a window solved in a stretch of few
+    lines can be off by tens of degrees; where one family anchors a random world the chain
+    drifts about it and the windows do not."""
     R0, same = anchored_start(tracks, frames, families, options.snap_deg,
                               min_family_size=options.min_family_size)
     label = _family_labels(tracks, families, same, options.min_family_size)
     group = _groups(lines, label)
+    starts = {"anchored": R0}
     if options.start_window and frames.sum() > options.start_window:
-        R0 = windows_start(tracks, frames, R0, options)
-    first = solve_rotations(tracks, frames, R0, group, options.rotations)
-    steps.append({"step": "rotations, the families' world directions shared",
-                  "families": [f.size for f in families],
-                  "iterations": first.iterations,
-                  "sigma_deg": float(np.degrees(first.sigma))})
+        starts["windows"] = windows_start(tracks, frames, R0, options)
+    start, first = lowest_cost_rotations(tracks, frames, lines, starts, group,
+                                         options.rotations)
+    steps.append(EstimatorStep(step="rotations, the families' world directions shared",
+                               families=[f.size for f in families], start=start,
+                               iterations=first.iterations,
+                               sigma_deg=float(np.degrees(first.sigma))))
     rot = first
     horizontal = _horizontal_directions(first, families, options)
     if len(horizontal):
@@ -532,18 +565,19 @@ def _rotations(tracks: LineTracks, frames: np.ndarray, lines: np.ndarray,
         label[lines & np.asarray(families[0].members, bool)] = len(horizontal)
         rot = solve_rotations(tracks, frames, rot.rotations, _groups(lines, label),
                               options.rotations)
-        steps.append({"step": "rotations, lines across the largest family snapped to the "
-                              "other families' directions",
-                      "directions": len(horizontal), "iterations": rot.iterations,
-                      "sigma_deg": float(np.degrees(rot.sigma))})
+        steps.append(EstimatorStep(step="rotations, lines across the largest family snapped "
+                                        "to the other families' directions",
+                                   directions=len(horizontal), iterations=rot.iterations,
+                                   sigma_deg=float(np.degrees(rot.sigma))))
     used = np.flatnonzero(lines)
     angle = options.world_direction_deg
     worlds = world_families(rot.directions[used], max_angle_deg=angle)
     label = _labels(tracks, rot.rotations, frames, lines, worlds, angle)
     rot = solve_rotations(tracks, frames, rot.rotations, _groups(lines, label),
                           options.rotations)
-    steps.append({"step": "rotations, world directions shared", "world_directions": len(worlds),
-                  "iterations": rot.iterations, "sigma_deg": float(np.degrees(rot.sigma))})
+    steps.append(EstimatorStep(step="rotations, world directions shared",
+                               world_directions=len(worlds), iterations=rot.iterations,
+                               sigma_deg=float(np.degrees(rot.sigma))))
     return rot, worlds, label
 
 
@@ -789,7 +823,7 @@ def solve_global(tracks: LineTracks, options: GlobalOptions = GlobalOptions()
             finds the data do not determine it.
     """
     timings: dict[str, float] = {}
-    steps: list[dict[str, Any]] = []
+    steps: list[EstimatorStep] = []
     t = time.perf_counter()
     frames, lines = _posable(tracks, options.min_lines)
     not_posed = {int(k): f"sees fewer than {options.min_lines} lines that are tracked"
@@ -812,7 +846,8 @@ def solve_global(tracks: LineTracks, options: GlobalOptions = GlobalOptions()
     pos = solve_positions(tracks, R, rot.directions, frames & ~free, dir_ok, options.positions)
     R, c = _resected(tracks, R, pos.positions, rot.directions, pos.points, frames, free,
                      pos.residual_sigma)
-    steps.append({"step": "positions", "sigma_deg": float(np.degrees(pos.residual_sigma))})
+    steps.append(EstimatorStep(step="positions",
+                               sigma_deg=float(np.degrees(pos.residual_sigma))))
     timings["positions"] = (time.perf_counter() - t) * 1e3
     t = time.perf_counter()
     d0 = np.where(dir_ok[:, None], rot.directions, np.nan)
@@ -823,9 +858,9 @@ def solve_global(tracks: LineTracks, options: GlobalOptions = GlobalOptions()
     if held is not None:
         ba = _world_directions_refitted(tracks, ba, held, label, options)
     timings["bundle_adjustment"] = (time.perf_counter() - t) * 1e3
-    steps.append({"step": "bundle adjustment", "iterations": ba.iterations,
-                  "outlier_tracks": int(ba.outlier_tracks.sum()),
-                  "rms_final_deg": float(ba.rms_final_deg)})
+    steps.append(EstimatorStep(step="bundle adjustment", iterations=ba.iterations,
+                               outlier_tracks=int(ba.outlier_tracks.sum()),
+                               rms_final_deg=float(ba.rms_final_deg)))
     for k in np.flatnonzero(frames & ~ba.frames):
         not_posed[int(k)] = ("fewer than 3 of its lines are left after the adjustment rejected "
                              "outlier tracks")
