@@ -13,12 +13,14 @@ which the estimator reads as lines at infinity in the wrong direction.
    frames; pieces shorter than ``min_component_px`` are dropped;
 3. guard: if most edges of the sample persist, the camera barely moved and nothing can be told
    apart, so no mask is made (``applied`` False, with the reason);
-4. *wobbling* edges, of a hand that holds the camera and moves a little with it: an edge of
-   about the same orientation within a few pixels (``wobble_px`` of the smaller image side) in
-   at least ``persist_fraction`` of the frames, in pieces that do not touch the persistent
-   edges, kept only where the piece parts a still area (the body's plain inside) from a moving
-   one (the scene sliding past): a scene line that barely moves has the scene on both sides,
-   still on both sides in a plain scene, moving on both in a textured one;
+4. *wobbling* edges, of a hand that holds the camera and moves a little with it (or a body
+   whose outline the scene behind it shifts by a pixel): an edge of about the same
+   orientation within a few pixels (``wobble_px`` of the smaller image side) in at least
+   ``persist_fraction`` of the frames, kept only where the piece parts a still area from a
+   moving one (the scene sliding past) and the still side is enclosed by such edges, the
+   persistent ones and the border band (the body's plain inside): a scene line that barely
+   moves has the scene on both sides, still on both sides in a plain scene, moving on both in
+   a textured one, and a plain stretch of the scene beside it goes on past it;
 5. the persistent and wobbling edges are closed into regions, the areas they enclose whose grey
    levels do not change over the sample are filled in (the body's plain inside), and the result
    is grown by a margin.
@@ -107,7 +109,7 @@ class AutoMask:
         static_edge_fraction: fraction of the sample's edge pixels that persist.
         reason: one line for the log and ``report.json``.
         wobbling_edge_fraction: fraction of the sample's edge pixels on the wobbling edges
-            that were kept (step 4 of the module docstring).
+            that were kept and do not persist within 1 px (step 4 of the module docstring).
     """
 
     mask: np.ndarray
@@ -226,19 +228,17 @@ def _wobbling_edges(wobble: np.ndarray, persistent: np.ndarray, std: np.ndarray,
     shape = wobble.shape
     r = _wobble_radius(shape, o)
     near_fixed = cv2.dilate(persistent.astype(np.uint8), _disk(r + 1)) > 0
-    cand = (wobble >= o.persist_fraction) & inner
+    cand = (wobble >= o.persist_fraction) & inner & ~near_fixed
     n, lab, stats, _ = cv2.connectedComponentsWithStats(cand.astype(np.uint8), connectivity=8)
     out = np.zeros(shape, bool)
     if n <= 1:
         return out
-    touches = np.zeros(n, bool)
-    touches[np.unique(lab[near_fixed & cand])] = True
     ring_r = max(4, int(round(o.wobble_ring_px * min(shape))))
     still = std < o.still_grey
     moving = std > o.moving_grey
     boxes: list[tuple[int, int, int, int, np.ndarray]] = []
     for k in np.flatnonzero(stats[:, cv2.CC_STAT_AREA] >= max(1, o.min_component_px)):
-        if k == 0 or touches[k]:
+        if k == 0:
             continue
         x, y, w, h = (int(v) for v in stats[k, :4])
         pad = r + ring_r + 1
@@ -256,7 +256,7 @@ def _wobbling_edges(wobble: np.ndarray, persistent: np.ndarray, std: np.ndarray,
         return out
     # the still side must be enclosed: by these edges, the persistent ones and the border band
     # (a body's plain inside), not a plain stretch of the scene that goes on past them
-    _, filled = _enclosed_still(persistent | out, std, base, inner, o)
+    _, filled = _enclosed_still(out, std, base, inner, o)
     kt = _disk(_close_radius(shape, o) + 1)
     kept = np.zeros(shape, bool)
     for y0, y1, x0, x1, piece in boxes:
@@ -367,7 +367,7 @@ def static_mask(frames: Sequence[np.ndarray], camera: CameraModel,
     wobbling = (_wobbling_edges(wobble, persistent, std, base, inner, o)
                 if wobble is not None else np.zeros((h, w), bool))
     total = float(raw[inner].sum())
-    wobble_frac = float(raw[wobbling].sum()) / total if total > 0 else 0.0
+    wobble_frac = float(raw[wobbling & ~persistent].sum()) / total if total > 0 else 0.0
     if not (persistent.any() or wobbling.any()):
         return AutoMask(keep, False, 0.0, static_frac,
                         "nothing masked: no edges stay put while the scene moves")
@@ -379,8 +379,8 @@ def static_mask(frames: Sequence[np.ndarray], camera: CameraModel,
                         "of the image (too much to be the camera's mount or operator)",
                         wobble_frac)
     said = "edges that stay put while the scene moves"
-    if wobbling.any():
-        said += (f" ({100 * wobble_frac:.1f} % of the edges within {_wobble_radius((h, w), o)} "
-                 "px, a hand that wobbles)")
+    if wobble_frac > 0:
+        said += (f", or within {_wobble_radius((h, w), o)} px ({100 * wobble_frac:.1f} % of the "
+                 "edges)")
     return AutoMask(keep & ~region, True, frac, static_frac,
                     f"masked {100 * frac:.1f} % of the image: {said}", wobble_frac)
