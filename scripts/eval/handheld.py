@@ -2,8 +2,8 @@
 item 2; docs/frontend.md, "Automatic mask").
 
 Renders (or reuses, under ``--work``) a hand-held walk through the textured office
-(equirectangular 640x320, H.264 at CRF 23, every effect of ``--footage``, the operator holding
-the camera and a person walking past), with the operator wobbling about the camera centre by
+(equirectangular, 640x320 unless told, H.264 at CRF 23, every effect of ``--footage``, the
+operator holding the camera and a person walking past), with the operator wobbling about the camera centre by
 ``--wobble`` degrees per axis or rigidly fixed, runs ``init --lines --estimator global`` on the
 video as the command line does, and reports: frames estimated and flagged, rotation error
 relative to the first frame and ATE after similarity alignment (all estimated frames), the
@@ -12,7 +12,7 @@ tracks that lie on the body and on the walker (an observation whose middle half 
 it, in its frame) and what the estimator made of the walker's tracks (rejected as outliers,
 left unused, or used). Each wobbling walk runs twice: with the automatic mask as it is, and
 with its wobbling edges off (``AutoMaskOptions(wobble_px=0)``: only edges that stay within
-1 px). Prints JSON lines and writes the record ``docs/benchmarks/eval_handheld.json``.
+1 px). Prints JSON lines and writes the record ``docs/benchmarks/eval_handheld_mask.json``.
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python -m scripts.eval.handheld --work /tmp/handheld
 """
@@ -63,16 +63,19 @@ class Case:
     wobbling_edges: bool
 
 
-def walk(frames: int, wobble: float, path_length: float) -> RenderOptions:
+def walk(frames: int, wobble: float, path_length: float | None, width: int, height: int
+         ) -> RenderOptions:
     o = footage_options(RenderOptions(
         scene=SceneName.OFFICE, route=Route.WALK, textured=True, camera="equirectangular",
-        width=640, height=320, frames=frames, path_length=path_length, video=True))
+        width=width, height=height, frames=frames, path_length=path_length, video=True))
     return replace(o, effects=replace(o.effects, body=Body.OPERATOR, body_wobble_deg=wobble,
                                       occluder=True))
 
 
-def cases(frames: int, wobble: float, path_length: float) -> list[Case]:
-    w, r = walk(frames, wobble, path_length), walk(frames, 0.0, path_length)
+def cases(frames: int, wobble: float, path_length: float | None, width: int, height: int
+          ) -> list[Case]:
+    w = walk(frames, wobble, path_length, width, height)
+    r = walk(frames, 0.0, path_length, width, height)
     return [Case(f"hand wobbling {wobble:g} deg, automatic mask", w, True),
             Case(f"hand wobbling {wobble:g} deg, edges within 1 px only", w, False),
             Case("hand rigid, automatic mask", r, True)]
@@ -119,7 +122,9 @@ def walker_pixels(setup: RenderSetup, k: int) -> np.ndarray:
 
 
 def run_case(case: Case, work: Path) -> dict[str, Any]:
-    seq = work / f"walk-{case.render.effects.body_wobble_deg:g}"
+    o = case.render
+    seq = work / (f"walk-{o.width}x{o.height}-{o.frames}-{o.path_length}-"
+                  f"{o.effects.body_wobble_deg:g}")
     if not (seq / "groundtruth.tum").is_file():
         render_sequence(seq, case.render, overwrite=True, progress=False)
     row: dict[str, Any] = {"case": case.name}
@@ -158,7 +163,8 @@ def run_case(case: Case, work: Path) -> dict[str, Any]:
     row.update(
         frames=n, estimated=err.num_common, flagged=len(rep.get("frames_uncertain") or {}),
         rot_max_deg=err.rot_max_deg, rot_mean_deg=err.rot_mean_deg, ate_pct=100 * err.ate_rel,
-        wall_s=wall, auto_mask=rep.get("auto_mask", {}).get("reason"),
+        wall_s=wall,
+        auto_mask=json.loads((res.output / "report.json").read_text())["auto_mask"]["reason"],
         hand_masked=float((masked & always).sum() / max(1, always.sum())),
         other_masked=float((masked & ~anywhere & valid).sum() / valid.sum()),
         tracks=int(fe.tracks.num_tracks), body_tracks=int(on_body.sum()),
@@ -207,22 +213,24 @@ def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--work", type=Path, required=True, help="folder for renders and results")
     p.add_argument("--frames", type=int, default=60, help="frames of the walk (default 60)")
-    p.add_argument("--path-length", type=float, default=4.0,
-                   help="metres walked (default 4: 1.0 m/s at 15 fps over 60 frames)")
+    p.add_argument("--path-length", type=float, default=None,
+                   help="metres walked (default: the walk route's 10 m)")
+    p.add_argument("--width", type=int, default=640, help="image width (default 640)")
+    p.add_argument("--height", type=int, default=320, help="image height (default 320)")
     p.add_argument("--wobble", type=float, default=1.5,
                    help="the hand's wobble, degrees per axis (default 1.5)")
     add_log_arguments(p)
     args = p.parse_args()
     args.work.mkdir(parents=True, exist_ok=True)
     rows = []
-    for case in cases(args.frames, args.wobble, args.path_length):
+    for case in cases(args.frames, args.wobble, args.path_length, args.width, args.height):
         row = run_case(case, args.work)
         rows.append(row)
         print(json.dumps(row), flush=True)
     cells = table(rows)
     print("\n".join(" | ".join(str(c) for c in row) for row in cells))
-    write_log(args, "eval_handheld", "Hand-held walk: a wobbling hand and a walker", COLUMNS,
-              cells, headline="hand-held 640x320 H.264 walk, hand wobbling "
+    write_log(args, "eval_handheld_mask", "Hand-held walk: a wobbling hand and a walker", COLUMNS,
+              cells, headline=f"hand-held {args.width}x{args.height} H.264 walk, hand wobbling "
                               f"{args.wobble:g} deg: {{rows[0][6]}} of the hand masked, "
                               "{rows[0][1]} frames, {rows[0][3]} deg, {rows[0][5]} % ATE")
     return 0
