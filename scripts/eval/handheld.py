@@ -1,18 +1,20 @@
 """Hand-held 360 footage: a wobbling hand and people walking past (issue "Real 360 footage",
 item 2; docs/frontend.md, "Automatic mask").
 
-Renders (or reuses, under ``--work``) a hand-held walk through the textured office
-(equirectangular, 640x320 unless told, H.264 at CRF 23, every effect of ``--footage``, the
-operator holding the camera and a person walking past), with the operator wobbling about the camera centre by
-``--wobble`` degrees per axis or rigidly fixed, runs ``init --lines --estimator global`` on the
-video as the command line does, and reports: frames estimated and flagged, rotation error
-relative to the first frame and ATE after similarity alignment (all estimated frames), the
-automatic mask's share of the hand (the body's pixels in every frame) and of the rest, the
-tracks that lie on the body and on the walker (an observation whose middle half lies mostly on
-it, in its frame) and what the estimator made of the walker's tracks (rejected as outliers,
-left unused, or used). Each wobbling walk runs twice: with the automatic mask as it is, and
-with its wobbling edges off (``AutoMaskOptions(wobble_px=0)``: only edges that stay within
-1 px). Prints JSON lines and writes the record ``docs/benchmarks/eval_handheld_mask.json``.
+Renders (or reuses, under ``--work``) a hand-held walk through the textured office (route
+``walk``, 10 m unless told; equirectangular, 640x320 unless told; H.264 at CRF 23 and every
+effect of ``--footage``; the operator holding the camera and a person walking past), with the
+operator wobbling about the camera centre by ``--wobble`` degrees per axis or rigidly fixed,
+runs ``init --lines --estimator global`` on the video as the command line does, and reports:
+frames estimated and flagged, rotation error relative to the first frame and ATE after
+similarity alignment (all estimated frames), the automatic mask's share of the hand (the body's
+pixels in every frame) and of the rest, the tracks that lie on the body and on the walker (an
+observation whose middle half lies mostly on it, in its frame) and what the estimator made of
+the walker's tracks (rejected as outliers, left unused, or used). The wobbling walk runs twice:
+with the automatic mask as it is, and with its wobbling edges off
+(``AutoMaskOptions(wobble_px=0)``: only edges that stay within 1 px). Prints JSON lines and
+writes the record ``docs/benchmarks/eval_handheld_mask.json`` (a run's rows replace the rows
+of the same image size).
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python -m scripts.eval.handheld --work /tmp/handheld
 """
@@ -76,9 +78,10 @@ def cases(frames: int, wobble: float, path_length: float | None, width: int, hei
           ) -> list[Case]:
     w = walk(frames, wobble, path_length, width, height)
     r = walk(frames, 0.0, path_length, width, height)
-    return [Case(f"hand wobbling {wobble:g} deg, automatic mask", w, True),
-            Case(f"hand wobbling {wobble:g} deg, edges within 1 px only", w, False),
-            Case("hand rigid, automatic mask", r, True)]
+    size = f"{width}x{height}"
+    return [Case(f"{size}, hand wobbling {wobble:g} deg, automatic mask", w, True),
+            Case(f"{size}, hand wobbling {wobble:g} deg, edges within 1 px only", w, False),
+            Case(f"{size}, hand rigid, automatic mask", r, True)]
 
 
 def _on(fe: FrontEndResult, width: int, height: int, camera: Any,
@@ -229,10 +232,9 @@ def main() -> int:
         print(json.dumps(row), flush=True)
     cells = table(rows)
     print("\n".join(" | ".join(str(c) for c in row) for row in cells))
+    # one run per image size: its rows replace that size's rows of the record
     write_log(args, "eval_handheld_mask", "Hand-held walk: a wobbling hand and a walker", COLUMNS,
-              cells, headline=f"hand-held {args.width}x{args.height} H.264 walk, hand wobbling "
-                              f"{args.wobble:g} deg: {{rows[0][6]}} of the hand masked, "
-                              "{rows[0][1]} frames, {rows[0][3]} deg, {rows[0][5]} % ATE")
+              cells, merge=True)
     return 0
 
 
