@@ -87,12 +87,16 @@ class AutoMaskOptions:
     fraction of the smaller image side (at least 4 px)."""
     still_side: float = 0.25
     """Wobbling edges: a piece is kept if at least this fraction of its ring is still (grey
-    level std below ``still_grey``) ..."""
+    level std below ``wobble_still_grey``) ..."""
     moving_side: float = 0.25
     """... and at least this fraction of its ring moves (std above ``moving_grey``)."""
     moving_grey: float = 8.0
     """Wobbling edges: grey-level standard deviation over the sample above which a pixel sees
     the scene move (grey levels)."""
+    wobble_still_grey: float = 6.0
+    """Wobbling edges: grey-level standard deviation below which a pixel is still, and the
+    largest median of an area they enclose that is filled (a shaded body that wobbles changes
+    its grey levels a little; grey levels)."""
 
 
 @dataclass(frozen=True)
@@ -221,10 +225,12 @@ def _disk(radius: int) -> np.ndarray:
 
 
 def _wobbling_edges(wobble: np.ndarray, persistent: np.ndarray, std: np.ndarray,
-                    base: np.ndarray, inner: np.ndarray, o: AutoMaskOptions) -> np.ndarray:
-    """Bool ``(H, W)``: the pieces of edges that stay within the wobble radius (``wobble``:
-    the fraction of frames, :func:`_edge_statistics`), away from the persistent edges, that
-    part a still area they enclose from a moving one (module docstring, step 4)."""
+                    base: np.ndarray, inner: np.ndarray, o: AutoMaskOptions
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Bool ``(H, W)`` ``(edges, inside)``: the pieces of edges that stay within the wobble
+    radius (``wobble``: the fraction of frames, :func:`_edge_statistics`), away from the
+    persistent edges, that part a still area they enclose from a moving one (module
+    docstring, step 4), and the still areas they enclose."""
     shape = wobble.shape
     r = _wobble_radius(shape, o)
     near_fixed = cv2.dilate(persistent.astype(np.uint8), _disk(r + 1)) > 0
@@ -232,9 +238,9 @@ def _wobbling_edges(wobble: np.ndarray, persistent: np.ndarray, std: np.ndarray,
     n, lab, stats, _ = cv2.connectedComponentsWithStats(cand.astype(np.uint8), connectivity=8)
     out = np.zeros(shape, bool)
     if n <= 1:
-        return out
+        return out, out
     ring_r = max(4, int(round(o.wobble_ring_px * min(shape))))
-    still = std < o.still_grey
+    still = std < o.wobble_still_grey
     moving = std > o.moving_grey
     boxes: list[tuple[int, int, int, int, np.ndarray]] = []
     for k in np.flatnonzero(stats[:, cv2.CC_STAT_AREA] >= max(1, o.min_component_px)):
@@ -253,17 +259,20 @@ def _wobbling_edges(wobble: np.ndarray, persistent: np.ndarray, std: np.ndarray,
             out[y0:y1, x0:x1] |= piece > 0
             boxes.append((y0, y1, x0, x1, piece))
     if not boxes:
-        return out
+        return out, out
     # the still side must be enclosed by these edges and the border band (a body's plain
     # inside), not a plain stretch of the scene that goes on past them; the persistent edges
     # do not count: with a rigid body's help, slow far lines beside it would enclose scene
-    _, filled = _enclosed_still(out, std, base, inner, o)
+    _, filled = _enclosed_still(out, std, base, inner, o, o.wobble_still_grey)
     kt = _disk(_close_radius(shape, o) + 1)
     kept = np.zeros(shape, bool)
     for y0, y1, x0, x1, piece in boxes:
         if (filled[y0:y1, x0:x1] & (cv2.dilate(piece, kt) > 0)).any():
             kept[y0:y1, x0:x1] |= piece > 0
-    return kept
+    if not kept.any():
+        return kept, kept
+    _, inside = _enclosed_still(kept, std, base, inner, o, o.wobble_still_grey)
+    return kept, inside
 
 
 def _still_hulls(thick: np.ndarray, still: np.ndarray, base: np.ndarray,
@@ -288,9 +297,12 @@ def _close_radius(shape: tuple[int, int], o: AutoMaskOptions) -> int:
 
 
 def _enclosed_still(persistent: np.ndarray, std: np.ndarray, base: np.ndarray,
-                    inner: np.ndarray, o: AutoMaskOptions) -> tuple[np.ndarray, np.ndarray]:
+                    inner: np.ndarray, o: AutoMaskOptions, still_grey: float | None = None
+                    ) -> tuple[np.ndarray, np.ndarray]:
     """Bool ``(H, W)`` ``(thick, filled)``: the persistent edges thickened into walls, and the
-    still areas that they and the border band enclose."""
+    still areas (median std below ``still_grey``, default ``o.still_grey``) that they and the
+    border band enclose."""
+    still_grey = o.still_grey if still_grey is None else still_grey
     # dilation, not closing: closing does not bridge the gaps of a one-pixel-thin edge
     kc = _disk(_close_radius(persistent.shape, o))
     thick = cv2.dilate(persistent.astype(np.uint8), kc) > 0
@@ -314,20 +326,20 @@ def _enclosed_still(persistent: np.ndarray, std: np.ndarray, base: np.ndarray,
         ends = np.searchsorted(flat[order], cand, side="right")
         flat_std = std.ravel()[order]
         for k, i0, i1 in zip(cand, starts, ends, strict=True):
-            if touching[k] and np.median(flat_std[i0:i1]) < o.still_grey:
+            if touching[k] and np.median(flat_std[i0:i1]) < still_grey:
                 fill[k] = True
     return thick, fill[lab]
 
 
 def _regions(persistent: np.ndarray, std: np.ndarray, base: np.ndarray, inner: np.ndarray,
-             o: AutoMaskOptions) -> np.ndarray:
+             o: AutoMaskOptions, inside: np.ndarray) -> np.ndarray:
     """Bool ``(H, W)``: the persistent edges thickened into walls, the still areas they
-    enclose filled, grown by the margin."""
+    enclose and ``inside`` (what the wobbling edges enclose) filled, grown by the margin."""
     side = min(persistent.shape)
     kc = _disk(_close_radius(persistent.shape, o))
     thick, filled = _enclosed_still(persistent, std, base, inner, o)
     limit = o.max_fill_fraction * max(1, int(base.sum()))
-    region = thick | filled | _still_hulls(thick, std < o.still_grey, base, limit)
+    region = thick | filled | inside | _still_hulls(thick, std < o.still_grey, base, limit)
     # the border band is masked only where it touches a masked region
     region |= ~inner & (cv2.dilate(region.astype(np.uint8), kc) > 0)
     m = int(round(o.margin_px * side))
@@ -365,14 +377,14 @@ def static_mask(frames: Sequence[np.ndarray], camera: CameraModel,
         return AutoMask(keep, False, 0.0, static_frac,
                         f"not applied: the camera barely moves ({100 * static_frac:.0f} % of "
                         "the edges stay put)")
-    wobbling = (_wobbling_edges(wobble, persistent, std, base, inner, o)
-                if wobble is not None else np.zeros((h, w), bool))
+    wobbling, inside = (_wobbling_edges(wobble, persistent, std, base, inner, o)
+                        if wobble is not None else (np.zeros((h, w), bool),) * 2)
     total = float(raw[inner].sum())
     wobble_frac = float(raw[wobbling & ~persistent].sum()) / total if total > 0 else 0.0
     if not (persistent.any() or wobbling.any()):
         return AutoMask(keep, False, 0.0, static_frac,
                         "nothing masked: no edges stay put while the scene moves")
-    region = _regions(persistent | wobbling, std, base, inner, o)
+    region = _regions(persistent | wobbling, std, base, inner, o, inside)
     frac = float(region.sum()) / max(1, int(base.sum()))
     if frac > o.max_masked_fraction:
         return AutoMask(keep, False, 0.0, static_frac,
