@@ -380,12 +380,14 @@ class CameraCheck(JsonReport):
 @dataclass(frozen=True)
 class AutoMaskReport(JsonReport):
     """An init report's ``auto_mask``: whether the automatic mask was ``applied``, the
-    fractions of the image it masks and of edges that stayed put (absent when there were
-    too few frames to tell), and the ``reason``."""
+    fractions of the image it masks, of edges that stayed put and of edges that wobbled a few
+    pixels with the camera (absent when there were too few frames to tell), and the
+    ``reason``."""
 
     applied: bool
     masked_fraction: float | None = absent()
     static_edge_fraction: float | None = absent()
+    wobbling_edge_fraction: float | None = absent()
     reason: str | None = absent()
 
 

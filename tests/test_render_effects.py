@@ -7,8 +7,9 @@ when asked for.
 - Drift and flicker scale the linear radiance by the frame's gain; vignetting darkens the rim;
   shot noise grows with the signal.
 - JPEG frames and H.264 video are written and read back (OpenCV) close to the renders.
-- The body occupies a fixed image region, the same in every frame; the seam shifts the
-  content along the seam meridian by the set angle; the occluder is composited by depth.
+- The body occupies a fixed image region, the same in every frame, or, with a wobble, a region
+  turned by a few pixels from frame to frame (seeded, smooth); the seam shifts the content
+  along the seam meridian by the set angle; the occluder is composited by depth.
 - Bad values: one-line errors, exit code 2.
 """
 
@@ -53,8 +54,8 @@ def test_defaults_are_the_clean_render():
     assert RenderOptions().effects == Effects() and Effects().is_off()
     opts = RenderOptions(**HYP, frames=2, seed=3)
     off = Effects(motion_blur=0.0, exposure_drift=0.0, flicker=0.0, shot_noise=0.0,
-                  jpeg_quality=None, vignetting=0.0, body=Body.NONE, seam_deg=0.0,
-                  occluder=False)
+                  jpeg_quality=None, vignetting=0.0, body=Body.NONE, body_wobble_deg=0.0,
+                  seam_deg=0.0, occluder=False)
     setup, a = render_frames(opts)
     _, b = render_frames(replace(opts, effects=off))
     assert np.array_equal(a, b)
@@ -270,6 +271,45 @@ def test_body_is_a_fixed_region_the_same_in_every_frame(base, body):
     assert (imgs[0][out] != imgs[2][out]).any(axis=1).mean() > 0.3
 
 
+def test_wobbling_body_turns_a_few_pixels_from_frame_to_frame():
+    from omni_sfm.synth.effects import body_wobble
+
+    opts = RenderOptions(**EQ, frames=4, noise_sigma=0.0, seed=5,
+                         effects=Effects(body=Body.OPERATOR, body_wobble_deg=2.0))
+    setup, imgs = render_frames(opts)
+    r = setup.renderer
+    masks = [r.body_mask(k) for k in range(4)]
+    rigid = prepare(replace(opts, effects=Effects(body=Body.OPERATOR))).renderer
+    # frame by frame the region the rotation gives: the rigid body's rays turned back
+    turn = [body_wobble(opts.effects, opts.seed, k) for k in range(4)]
+    angles = [np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1))) for R in turn]
+    assert all(0.05 < a <= 2.0 * np.sqrt(3) for a in angles)
+    assert np.array_equal(turn[1], body_wobble(opts.effects, opts.seed, 1))  # seeded
+    assert np.array_equal(body_wobble(Effects(body=Body.OPERATOR), 5, 1), np.eye(3))
+    for m in masks:
+        # the same size as the rigid body's region, moved: at most 2 deg * sqrt(3) = 6.2 px
+        assert abs(int(m.sum()) - int(rigid.body_mask().sum())) < 0.1 * rigid.body_mask().sum()
+        grown = cv2.dilate(rigid.body_mask().astype(np.uint8), np.ones((15, 15), np.uint8))
+        assert not (m & ~grown.astype(bool)).any()
+    assert not np.array_equal(masks[0], masks[1])
+    # the image shows the body where the mask of its frame says
+    for k in (0, 3):
+        inner = cv2.erode(masks[k].astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+        again = r.render(setup.groundtruth.rotations[k], setup.groundtruth.positions[k], k)
+        assert np.array_equal(again, imgs[k])
+        _, clean = render_frames(replace(opts, frames=k + 1, effects=Effects()))
+        assert (imgs[k][inner] != clean[k][inner]).any(axis=1).mean() > 0.9
+
+
+def test_body_wobble_flag_is_in_render_json(tmp_path):
+    out = tmp_path / "w"
+    assert cli_main(["render", "-o", str(out), "--camera", "equirectangular", "--width", "160",
+                     "--preset", "small", "--frames", "2", "--footage", "--body-wobble",
+                     "1.5"]) == 0
+    effects = json.loads((out / "render.json").read_text())["effects"]
+    assert effects["body_wobble_deg"] == 1.5 and effects["body"] == "operator"
+
+
 def test_body_is_not_in_the_true_lines(rendered):
     res = rendered(RenderOptions(**HYP, frames=2, effects=Effects(body=Body.ROBOT)))
     clean = prepare(RenderOptions(**HYP, frames=2))
@@ -357,8 +397,8 @@ def test_footage_flag_sets_the_documented_defaults(tmp_path):
     meta = json.loads((out / "render.json").read_text())
     assert meta["effects"] == {
         "motion_blur": 0.5, "exposure_drift": 0.3, "flicker": 0.02, "shot_noise": 2.0,
-        "jpeg_quality": 85, "vignetting": 0.1, "body": "robot", "seam_deg": 0.0,
-        "occluder": False}
+        "jpeg_quality": 85, "vignetting": 0.1, "body": "robot", "body_wobble_deg": 0.0,
+        "seam_deg": 0.0, "occluder": False}
     assert meta["route"] == "lane" and meta["path_length"] is None
     assert sorted(p.name for p in (out / "images").iterdir()) == ["000000.jpg", "000001.jpg"]
     eq = footage_options(RenderOptions(camera="equirectangular", video=True))
@@ -381,6 +421,7 @@ def test_footage_flag_sets_the_documented_defaults(tmp_path):
         (["--video", "--video-codec", "h264", "--width", "201", "--height", "151"],
          "needs an even image size"),
         (["--fps", "0"], "frame rate must be > 0"),
+        (["--body", "operator", "--body-wobble", "12"], "body wobble must be in [0, 10] deg"),
     ],
 )
 def test_bad_effect_values_are_one_line_and_exit_2(tmp_path, capsys, args, message):

@@ -94,6 +94,9 @@ def _add_effect_arguments(p: argparse.ArgumentParser, bodies: list[str]) -> None
                    help="fraction of light lost at the image rim, 0..1")
     g.add_argument("--body", choices=bodies, default=None,
                    help="camera-fixed body in view")
+    g.add_argument("--body-wobble", type=float, default=None, metavar="DEG",
+                   help="the body wobbles about the camera centre by up to DEG per axis, "
+                        "0..10 (a hand holding the camera)")
     g.add_argument("--seam", type=float, default=None, metavar="DEG",
                    help="stitching-seam misalignment in degrees (equirectangular only)")
     g.add_argument("--occluder", action="store_const", const=True, default=None,
@@ -102,7 +105,8 @@ def _add_effect_arguments(p: argparse.ArgumentParser, bodies: list[str]) -> None
 
 _EFFECT_FLAGS = {"motion_blur": "motion_blur", "exposure_drift": "exposure_drift",
                  "flicker": "flicker", "shot_noise": "shot_noise", "jpeg": "jpeg_quality",
-                 "vignetting": "vignetting", "body": "body", "seam": "seam_deg",
+                 "vignetting": "vignetting", "body": "body", "body_wobble": "body_wobble_deg",
+                 "seam": "seam_deg",
                  "occluder": "occluder"}
 
 

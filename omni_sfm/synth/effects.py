@@ -9,7 +9,8 @@ What a real omnidirectional camera adds to a clean rendering, each one an option
 - vignetting (radial fall-off of the gain), on linear radiance;
 - shot noise (grows with the square root of the signal), beside the renderer's read noise;
 - JPEG frames or H.264 video (:func:`open_video_writer`);
-- a camera-fixed body (operator, tripod, robot) occupying a fixed image region;
+- a camera-fixed body (operator, tripod, robot) occupying a fixed image region, or wobbling
+  a little about the camera centre from frame to frame (a hand that holds the camera);
 - a stitching seam of a dual-fisheye 360 camera (equirectangular only);
 - a person-like occluder walking past the camera in the scene.
 
@@ -73,6 +74,9 @@ class Effects:
     """Fraction of light lost at the image rim (0..1): gain ``1 - v rho^2``."""
     body: Body = Body.NONE
     """Camera-fixed body in view (none, operator, tripod, robot)."""
+    body_wobble_deg: float = 0.0
+    """Peak rotation of the body about the camera centre per axis, degrees (0..10; 0: rigidly
+    fixed): a smooth seeded wobble from frame to frame (:func:`body_wobble`)."""
     seam_deg: float = 0.0
     """Stitching-seam misalignment, degrees (equirectangular only; |seam| <= 10)."""
     occluder: bool = False
@@ -108,6 +112,7 @@ def check_effects(effects: Effects, camera_model: str) -> None:
     _check_range("shot noise", e.shot_noise, 0.0, 100.0, " grey levels")
     _check_range("vignetting", e.vignetting, 0.0, 1.0)
     _check_range("seam", e.seam_deg, -10.0, 10.0, " deg")
+    _check_range("body wobble", e.body_wobble_deg, 0.0, 10.0, " deg")
     q = e.jpeg_quality
     if q is not None and (isinstance(q, bool) or not isinstance(q, int | np.integer)
                           or not 1 <= q <= 100):
@@ -255,6 +260,23 @@ def blur_along_flow(image: np.ndarray, weight: np.ndarray, flow: np.ndarray, *,
     out = image.copy()
     out[ok] = acc[..., :3][ok] / w[ok]
     return out
+
+
+def body_wobble(effects: Effects, seed: int, frame_index: int) -> FloatArray:
+    """``(3, 3)`` rotation (camera frame, about the camera centre) of the body in frame
+    ``frame_index``: the identity without ``body_wobble_deg``, else the rotation vector
+    ``A w(k)`` with each of its three components ``w`` two seeded sines (periods 6..12 and
+    20..40 frames, the hand's tremor and the walk's sway at 15 fps) normalised to peak 1."""
+    from scipy.spatial.transform import Rotation
+
+    if effects.body_wobble_deg <= 0:
+        return np.eye(3)
+    rng = np.random.default_rng([seed, 3304])
+    p1, p2 = rng.uniform(6.0, 12.0, size=3), rng.uniform(20.0, 40.0, size=3)
+    f1, f2 = rng.uniform(0.0, 2 * np.pi, size=(2, 3))
+    k = float(frame_index)
+    w = (np.sin(2 * np.pi * k / p1 + f1) + np.sin(2 * np.pi * k / p2 + f2)) / 2.0
+    return np.asarray(Rotation.from_rotvec(np.radians(effects.body_wobble_deg) * w).as_matrix())
 
 
 # ------------------------------------------------------------------ analytic shapes

@@ -51,6 +51,7 @@ from omni_sfm.synth.effects import (
     VideoWriter,
     blur_along_flow,
     body_shapes,
+    body_wobble,
     check_effects,
     effects_json,
     frame_gain,
@@ -188,7 +189,8 @@ _OCCLUDER_SID = 2_000_000
 
 @dataclass(frozen=True)
 class _BodyPixels:
-    """The camera-fixed body as the valid pixels see it (the same in every frame).
+    """The camera-fixed body as the valid pixels see it (in every frame; in one frame when the
+    body wobbles).
 
     ``t (P,)`` distance along the centre ray (inf: no body), ``rad (P, 3)``, ``sid (P,)``;
     ``hits``: indices of the pixels whose centre ray hits it. Pixels on the body's outline
@@ -257,29 +259,50 @@ class Renderer:
             (len(_TEX_WAVELENGTHS) + len(_TEX_SPOTS), _TEX_TABLE, _TEX_TABLE)).astype(np.float32)
         self.tex_offsets = rng.uniform(0, 50.0, size=(len(MATERIAL_ALBEDO), 3, 2)).astype(
             np.float32)
-        shapes = body_shapes(e.body, self.mount)
-        self.body = self._body_pixels(shapes) if shapes is not None else None
+        self.body_shapes = body_shapes(e.body, self.mount)
+        # a rigid body is intersected once; a wobbling one per frame (_body_at)
+        self.body = (self._body_pixels(self.body_shapes)
+                     if self.body_shapes is not None and e.body_wobble_deg == 0 else None)
+        self._wobbled: tuple[int, _BodyPixels] | None = None
         self.occluder: Shapes | None = occluder_shapes() if e.occluder else None
 
-    def body_mask(self) -> np.ndarray:
-        """``(height, width)`` bool: pixels whose centre ray hits the camera-fixed body (in a
-        given frame the scene can still be nearer, e.g. the floor at a tripod's feet)."""
+    def body_mask(self, frame_index: int = 0) -> np.ndarray:
+        """``(height, width)`` bool: pixels whose centre ray hits the camera-fixed body in frame
+        ``frame_index`` (the same in every frame unless the body wobbles; in a given frame the
+        scene can still be nearer, e.g. the floor at a tripod's feet)."""
         out = np.zeros(self.camera.height * self.camera.width, dtype=bool)
-        if self.body is not None:
-            out[self.pixel_index[self.body.hits]] = True
+        b = self._body_at(frame_index)
+        if b is not None:
+            out[self.pixel_index[b.hits]] = True
         return out.reshape(self.camera.height, self.camera.width)
 
-    def _body_pixels(self, shapes: Shapes) -> _BodyPixels:
+    def _body_at(self, frame_index: int) -> _BodyPixels | None:
+        """The body's pixels in frame ``frame_index`` (the last wobbled frame is kept)."""
+        if self.body is not None or self.body_shapes is None:
+            return self.body
+        k = int(frame_index)
+        if self._wobbled is None or self._wobbled[0] != k:
+            o = self.options
+            self._wobbled = (k, self._body_pixels(
+                self.body_shapes, body_wobble(o.effects, o.seed, k)))
+        return self._wobbled[1]
+
+    def _body_pixels(self, shapes: Shapes, cam_from_body: FloatArray | None = None
+                     ) -> _BodyPixels:
         """Intersect the centre rays, and the sub-pixel rays of the body's outline, with the
-        camera-fixed body, once."""
+        camera-fixed body turned by ``cam_from_body`` (``(3, 3)`` about the camera centre;
+        None: not turned)."""
         P = len(self.pixel_index)
         t = np.full(P, np.inf, dtype=np.float32)
         rad = np.zeros((P, 3), dtype=np.float32)
         sid = np.full(P, -1, dtype=np.int32)
         origin = np.zeros(3)
+        # a ray d meets the turned body where the ray cam_from_body^T d meets the body
+        rot = None if cam_from_body is None else np.asarray(cam_from_body, np.float32)
         chunk = 1 << 18
         for i in range(0, P, chunk):
-            h = shapes.hit(origin, self.centre_rays[i:i + chunk])
+            rays = self.centre_rays[i:i + chunk]
+            h = shapes.hit(origin, rays if rot is None else rays @ rot)
             ok = h.part >= 0
             t[i:i + chunk][ok] = h.t[ok]
             rad[i:i + chunk][ok] = h.radiance[ok]
@@ -290,7 +313,7 @@ class Renderer:
                 else np.zeros(0, dtype=np.int64))
         sub_row[edge] = np.arange(len(edge))
         sub = self._subpixel_rays(edge) if len(edge) else np.zeros((S2, 0, 3), np.float32)
-        hs = shapes.hit(origin, sub.reshape(-1, 3))
+        hs = shapes.hit(origin, sub.reshape(-1, 3) if rot is None else sub.reshape(-1, 3) @ rot)
         ok = hs.part >= 0
         sub_sid = np.where(ok, _BODY_SID + hs.part, -1).astype(np.int32)
         return _BodyPixels(
@@ -407,19 +430,20 @@ class Renderer:
         return edge.ravel()[self.pixel_index]
 
     def radiance(self, world_from_cam: FloatArray, position: FloatArray, *,
-                 occluder: FloatArray | None = None) -> FloatArray:
+                 occluder: FloatArray | None = None, frame_index: int = 0) -> FloatArray:
         """``(P, 3)`` linear radiance of the valid pixels (adaptively supersampled), with the
-        body and, at ``occluder`` (its feet, scene frame), the walking person."""
-        return self._radiance(world_from_cam, position, occluder)[0]
+        body (as in frame ``frame_index``) and, at ``occluder`` (its feet, scene frame), the
+        walking person."""
+        return self._radiance(world_from_cam, position, occluder, frame_index)[0]
 
     def _radiance(self, world_from_cam: FloatArray, position: FloatArray,
-                  occluder: FloatArray | None) -> tuple[FloatArray, np.ndarray, FloatArray,
-                                                        FloatArray]:
+                  occluder: FloatArray | None, frame_index: int = 0
+                  ) -> tuple[FloatArray, np.ndarray, FloatArray, FloatArray]:
         """Radiance ``(P, 3)``, surface id ``(P,)``, distance ``(P,)`` and world direction
         ``(P, 3)`` of the valid pixels' centre rays (radiance supersampled on edges)."""
         rad, sid, t, dirs = self._shade(world_from_cam, position, self.centre_rays,
                                         self.pixel_angle)
-        b = self.body
+        b = self._body_at(frame_index)
         if b is not None:
             h = b.hits[b.t[b.hits] < t[b.hits]]
             rad[h], sid[h], t[h] = b.rad[h], b.sid[h], b.t[h]
@@ -433,18 +457,16 @@ class Renderer:
             angle = np.tile(self.pixel_angle[idx] / self.options.supersample, S2)
             rs, ss, ts, ds = self._shade(world_from_cam, position, sub, angle)
             if b is not None:
-                self._composite_body_sub(idx, rs, ss, ts)
+                self._composite_body_sub(b, idx, rs, ss, ts)
             if occluder is not None:
                 self._composite_occluder(occluder, position, ds, rs, ss, ts)
             rad[idx] = rs.reshape(S2, len(idx), 3).mean(axis=0)
         return rad, sid, t, dirs
 
-    def _composite_body_sub(self, idx: np.ndarray, rad: FloatArray, sid: np.ndarray,
-                            t: FloatArray) -> None:
-        """Put the body in front of the ``(S*S * len(idx))`` sub-pixel samples of pixels
+    def _composite_body_sub(self, b: _BodyPixels, idx: np.ndarray, rad: FloatArray,
+                            sid: np.ndarray, t: FloatArray) -> None:
+        """Put the body ``b`` in front of the ``(S*S * len(idx))`` sub-pixel samples of pixels
         ``idx`` where it is nearer (in place)."""
-        b = self.body
-        assert b is not None
         S2, n = self.options.supersample**2, len(idx)
         tb = np.repeat(b.t[idx][None], S2, axis=0)
         sb = np.repeat(b.sid[idx][None], S2, axis=0)
@@ -510,7 +532,7 @@ class Renderer:
         camera). ``occluder``: ``(3,)`` feet of the walking person (scene frame), or None.
         """
         o, e = self.options, self.options.effects
-        rad, sid, t, dirs = self._radiance(world_from_cam, position, occluder)
+        rad, sid, t, dirs = self._radiance(world_from_cam, position, occluder, frame_index)
         if shutter is not None and e.motion_blur > 0:
             rad = self._motion_blur(position, shutter, rad, sid, t, dirs)
         gain = o.exposure * frame_gain(e, o.seed, frame_index)
