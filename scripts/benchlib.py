@@ -119,14 +119,16 @@ def typed_command() -> str:
 
 
 def git_commit() -> str:
-    """The short commit of the working tree, ``-dirty`` when tracked files differ from it;
-    ``unknown`` outside a git checkout."""
+    """The short commit of the working tree, ``-dirty`` when tracked files other than the
+    records (``docs/benchmarks/``) differ from it; ``unknown`` outside a git checkout."""
     def git(*a: str) -> str:
         return subprocess.run(["git", *a], cwd=ROOT, capture_output=True, text=True,
                               check=True).stdout.strip()
     try:
         head = git("rev-parse", "--short", "HEAD")
-        dirty = git("status", "--porcelain", "--untracked-files=no")
+        # the records themselves change as a run of several scripts goes on
+        dirty = git("status", "--porcelain", "--untracked-files=no", "--", ".",
+                    ":(exclude)docs/benchmarks")
     except (OSError, subprocess.CalledProcessError):
         return "unknown"
     return head + ("-dirty" if dirty else "")
