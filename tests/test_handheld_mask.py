@@ -4,7 +4,7 @@ wobbles a few pixels with it, and people walk past.
 - A textured office walk (equirectangular 384x192, 16 frames) with the renderer's operator
   turned about the camera centre by up to 1.5 deg per axis from frame to frame: the automatic
   mask covers most of the body the render knows and little else; with only the edges that stay
-  within 1 px (``wobble_px=0``) it does not find the body.
+  within 1 px (the default, ``wobble_px=0``) it does not find the body.
 - A person walking past (simulated tracks of the two vertical edges of their silhouette): the
   estimator rejects both tracks as outliers and the poses are those without them.
 """
@@ -21,7 +21,7 @@ from omni_sfm.estimate.pipeline import EstimationOptions, estimate_poses
 from omni_sfm.evaluate import match_reflection, trajectory_errors
 from omni_sfm.frames import read_frames
 from omni_sfm.geometry import normalize
-from omni_sfm.lines.automask import AutoMaskOptions, static_mask
+from omni_sfm.lines.automask import HAND_HELD_WOBBLE, AutoMaskOptions, static_mask
 from omni_sfm.lines.tracks import LineTracks
 from omni_sfm.synth.effects import Body, Effects
 from omni_sfm.synth.paths import Route
@@ -53,14 +53,14 @@ def test_wobbling_hand_is_masked(walk):
     valid = cam.valid_mask()
     anywhere, always = bodies.any(axis=0), bodies.all(axis=0)
     assert (anywhere & ~always).sum() > 0.1 * always.sum()  # it wobbles
-    auto = static_mask(frames, cam)
+    auto = static_mask(frames, cam, options=AutoMaskOptions(wobble_px=HAND_HELD_WOBBLE))
     assert auto.applied, auto.reason
     assert "within 2 px" in auto.reason and auto.wobbling_edge_fraction > 0
     masked = ~auto.mask
     assert (masked & always).sum() > 0.6 * always.sum()
     assert (masked & ~anywhere & valid).sum() < 0.05 * valid.sum()
     # the edges that stay put within 1 px alone do not find it
-    strict = static_mask(frames, cam, options=AutoMaskOptions(wobble_px=0.0))
+    strict = static_mask(frames, cam)  # the default
     assert (~strict.mask & always).sum() < 0.2 * always.sum(), strict.reason
 
 

@@ -55,6 +55,10 @@ def add_parser(subparsers: Any) -> None:
                         "operator, a tripod, the mount, the camera's own reflection); by "
                         "default it is found from the frames, reported and written with the "
                         "user's mask as OUTPUT/mask.png")
+    p.add_argument("--mask-wobbling", action="store_true",
+                   help="the automatic mask also takes edges that wobble a few pixels with "
+                        "the camera (a hand holding a 360 camera; docs/frontend.md); off by "
+                        "default: a corridor's far end stays within a few pixels too")
     p.add_argument("--strict", action="store_true",
                    help="refuse, instead of warning, when the camera model does not fit the "
                         "images (docs/frontend.md, 'Camera check')")
@@ -210,7 +214,8 @@ def run(args: argparse.Namespace) -> int:
                         colmap_images=args.colmap_images,
                         colmap_text=args.text, progress=not args.quiet,
                         keep_uncertain=args.keep_uncertain,
-                        auto_mask=not args.no_auto_mask, strict=args.strict),
+                        auto_mask=not args.no_auto_mask, mask_wobbling=args.mask_wobbling,
+                        strict=args.strict),
             mask=args.mask, overwrite=args.overwrite,
             warn=lambda text: print(f"omni-sfm: warning: {text}", file=sys.stderr, flush=True),
             note=_note)
@@ -226,7 +231,7 @@ def run(args: argparse.Namespace) -> int:
         if getattr(args, flag) is not None:
             raise OmniSfmError(f"--{flag.replace('_', '-')} applies to --images input, not to "
                                "--tracks")
-    for flag in ("no_auto_mask", "strict"):
+    for flag in ("no_auto_mask", "mask_wobbling", "strict"):
         if getattr(args, flag):
             raise OmniSfmError(f"--{flag.replace('_', '-')} applies to --images input, not to "
                                "--tracks")
@@ -278,7 +283,8 @@ def _run_plugin(args: argparse.Namespace) -> int:
                  "--start/--end/--step": (args.start, args.end, args.step) != (0, None, 1),
                  "--edge-low/--edge-high": (args.edge_low, args.edge_high) != (None, None),
                  "--no-colmap": args.no_colmap, "--text": args.text,
-                 "--no-auto-mask": args.no_auto_mask, "--strict": args.strict,
+                 "--no-auto-mask": args.no_auto_mask, "--mask-wobbling": args.mask_wobbling,
+                 "--strict": args.strict,
                  "--keep-uncertain": args.keep_uncertain,
                  "--workers": args.workers is not None}
     given = [flag for flag, on in line_only.items() if on]

@@ -100,6 +100,10 @@ class InitOptions:
     """Mask what stays put in the image while the scene moves (the operator, a tripod, the
     mount, the camera's own reflection), found from a sample of the frames
     (:func:`omni_sfm.lines.automask.static_mask`), on top of the user's mask."""
+    mask_wobbling: bool = False
+    """The automatic mask also takes edges that wobble a few pixels with the camera (a hand
+    holding it; :data:`omni_sfm.lines.automask.HAND_HELD_WOBBLE`). Off by default: the far
+    end of a corridor stays within a few pixels while the camera walks straight along it."""
     camera_check: bool = True
     """Check on a few frames that the camera model fits the images
     (:func:`omni_sfm.lines.camfit.check_camera_fit`); a misfit is a warning."""
@@ -239,7 +243,7 @@ def _check_frames(images: Path | str, cam: CameraModel, o: InitOptions,
                   user_mask: np.ndarray | None,
                   warn: Callable[[str], None] | None) -> _Checks:
     """Camera check (a misfit warns, or refuses with ``strict``), then the automatic mask."""
-    from omni_sfm.lines.automask import static_mask
+    from omni_sfm.lines.automask import HAND_HELD_WOBBLE, AutoMaskOptions, static_mask
     from omni_sfm.lines.camfit import check_camera_fit
 
     if not (o.auto_mask or o.camera_check):
@@ -263,7 +267,8 @@ def _check_frames(images: Path | str, cam: CameraModel, o: InitOptions,
                 warn(fit.message)
     mask, said = user_mask, ""
     if o.auto_mask and len(sample) >= 5:
-        auto = static_mask(sample, cam, user_mask)
+        auto = static_mask(sample, cam, user_mask, AutoMaskOptions(
+            wobble_px=HAND_HELD_WOBBLE if o.mask_wobbling else 0.0))
         auto_mask = auto.summary()
         said = f"automatic mask: {auto.reason}"
         if auto.applied:

@@ -12,8 +12,8 @@ the estimator does not flag, the automatic mask's share of the hand (the body's
 pixels in every frame) and of the rest, the tracks that lie on the body and on the walker (an
 observation whose middle half lies mostly on it, in its frame) and what the estimator made of
 the walker's tracks (rejected as outliers, left unused, or used). The wobbling walk runs twice:
-with the automatic mask as it is, and with its wobbling edges off
-(``AutoMaskOptions(wobble_px=0)``: only edges that stay within 1 px). Prints JSON lines and
+with the automatic mask's wobbling edges (``init --mask-wobbling``) and without them (the
+default: only edges that stay within 1 px). Prints JSON lines and
 writes the record ``docs/benchmarks/eval_handheld_mask.json`` (a run's rows replace the rows
 of the same image size).
 
@@ -23,15 +23,12 @@ of the same image size).
 from __future__ import annotations
 
 import argparse
-import contextlib
-import functools
 import json
 import os
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
-from unittest import mock
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
@@ -42,7 +39,6 @@ from omni_sfm.errors import OmniSfmError
 from omni_sfm.estimate.pipeline import EstimationOptions, trusted
 from omni_sfm.evaluate import trajectory_errors
 from omni_sfm.geometry import normalize
-from omni_sfm.lines import automask
 from omni_sfm.lines.frontend import FrontEndOptions, FrontEndResult
 from omni_sfm.pipelines.init import InitOptions, init_from_images
 from omni_sfm.poses import read_tum
@@ -134,16 +130,13 @@ def run_case(case: Case, work: Path) -> dict[str, Any]:
     row: dict[str, Any] = {"case": case.name}
     opts = InitOptions(frontend=FrontEndOptions(progress=False),
                        estimation=EstimationOptions(estimator="global"),
-                       debug_view="none", colmap=False, progress=False)
-    patch = (mock.patch.object(automask, "AutoMaskOptions",
-                               functools.partial(automask.AutoMaskOptions, wobble_px=0.0))
-             if not case.wobbling_edges else contextlib.nullcontext())
+                       debug_view="none", colmap=False, progress=False,
+                       mask_wobbling=case.wobbling_edges)
     t0 = time.perf_counter()
     try:
-        with patch:
-            res = init_from_images(seq / "video.mp4", "equirectangular",
-                                   work / (seq.name + f"-init-{int(case.wobbling_edges)}"),
-                                   opts, overwrite=True)
+        res = init_from_images(seq / "video.mp4", "equirectangular",
+                               work / (seq.name + f"-init-{int(case.wobbling_edges)}"),
+                               opts, overwrite=True)
     except OmniSfmError as exc:
         row.update(error=str(exc), wall_s=time.perf_counter() - t0)
         return row
