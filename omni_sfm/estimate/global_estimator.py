@@ -534,10 +534,10 @@ def _rotations(tracks: LineTracks, frames: np.ndarray, lines: np.ndarray,
 
     The first solve runs from two starts, the chain anchored on the families' directions
     (:func:`anchored_start`) and the windows solved on their own (:func:`windows_start`),
-    and keeps the lower robust cost (one loss scale for both): where the families anchor every
-    frame the chain is right to a fraction of a degree and a window solved in a stretch of few
-    lines can be off by tens of degrees; where one family anchors a random world the chain
-    drifts about it and the windows do not."""
+    and keeps the rotations that fit every line best (:func:`lowest_cost_rotations`): where
+    the families anchor every frame the chain is right to a fraction of a degree and a window
+    solved in a stretch of few lines can be off by tens of degrees; where one family anchors a
+    random world the chain drifts about it and the windows do not."""
     R0, same = anchored_start(tracks, frames, families, options.snap_deg,
                               min_family_size=options.min_family_size)
     label = _family_labels(tracks, families, same, options.min_family_size)

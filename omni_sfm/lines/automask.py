@@ -86,7 +86,7 @@ class AutoMaskOptions:
     of the smaller image side (at least 2 px); 0 (the default): no wobbling edges are looked
     for. :data:`HAND_HELD_WOBBLE` for hand-held footage (``init --mask-wobbling``): off by
     default, because the far end of a corridor stays within a few pixels while the camera
-    walks straight along it (on the demo's corridor it masked 1.9 % of the image)."""
+    walks straight along it (docs/frontend.md, "Automatic mask")."""
     wobble_orientation_bins: int = 8
     """Wobbling edges: an edge counts near a pixel only if its gradient orientation (modulo
     180 deg) is in the same or a neighbouring one of this many bins."""
