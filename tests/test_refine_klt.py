@@ -60,11 +60,19 @@ def test_klt_refine_improves_the_seed_and_triangulates_points(klt_refined):
     assert rec.num_points3D() == r.model.points
 
 
+def _own_copy(work: Path, tmp_path: Path) -> Path:
+    """The shared refine's database, copied: pycolmap opens a database for writing, and two
+    test processes opening the shared one at once find it locked."""
+    db = tmp_path / "database.db"
+    shutil.copy(work / "out" / "database.db", db)
+    return db
+
+
 @pytest.mark.parametrize("overlap", [3, 10])
-def test_sequential_pairs_are_colmaps(klt_refined, overlap):
+def test_sequential_pairs_are_colmaps(klt_refined, overlap, tmp_path):
     """The KLT pairs are the pairs COLMAP's own sequential matching would match."""
     work, gt, _, _ = klt_refined
-    with pycolmap.Database.open(str(work / "out" / "database.db")) as d:
+    with pycolmap.Database.open(str(_own_copy(work, tmp_path))) as d:
         ids = {im.name: im.image_id for im in d.read_all_images()}
         options = pycolmap.SequentialPairingOptions()
         options.overlap = overlap
@@ -76,11 +84,11 @@ def test_sequential_pairs_are_colmaps(klt_refined, overlap):
     assert ours == theirs and len(ours) > len(order)
 
 
-def test_klt_database_holds_keypoints_tracks_and_no_descriptors(klt_refined):
+def test_klt_database_holds_keypoints_tracks_and_no_descriptors(klt_refined, tmp_path):
     """Keypoints on a common track are matched for the sequential pairs (and only those), each
     match written as an inlier; no SIFT descriptors."""
     work, gt, _, _ = klt_refined
-    db = work / "out" / "database.db"
+    db = _own_copy(work, tmp_path)
     assert _table_rows(db, "descriptors") == []
     keypoints = _table_rows(db, "keypoints")
     assert len(keypoints) == len(gt) and min(n for _, n in keypoints) > 300
