@@ -182,7 +182,8 @@ def test_camera_height_cli(room: Path, poses: Path, work: Path) -> None:
     true_height = float(np.median(((gt.positions - wfs[:3, 3]) @ wfs[:3, :3])[:, 2]))
     out = work / "dense_height"
     assert cli_main(["dense", "-i", str(poses), "--images", str(room / "images"), "-o", str(out),
-                     "--camera-height", repr(true_height), "--keyframe-step", "4"]) == 0
+                     "--camera-height", repr(true_height), "--keyframe-step", "4",
+                     "--resolution-scale", "0.5"]) == 0
     report = DenseFolder(out).read_report()
     assert report.keyframe_step == 4 and report.num_keyframes == -(-len(gt) // 4)
     assert report.scale.source == "camera_height" and report.scale.camera_height == true_height
