@@ -17,8 +17,14 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from omni_sfm.reports import JsonReport
+from omni_sfm.synth.render import RenderOptions
 
 ERROR_PREFIX = "omni-sfm: error: "
+
+# The 360 corridor that test_track.py, test_export_formats.py and test_init_images.py share (the
+# ``rendered`` fixture renders equal options once a run): 40 frames, 800 x 400.
+EQUIRECT_CORRIDOR = RenderOptions(camera="equirectangular", frames=40, width=800, height=400,
+                                  seed=2)
 
 
 def assert_one_line_error(capsys: pytest.CaptureFixture[str], *needles: str,

@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 import pycolmap
 import pytest
-from helpers import assert_every_key_declared, assert_one_line_error
+from helpers import EQUIRECT_CORRIDOR, assert_every_key_declared, assert_one_line_error
 
 from omni_sfm.cameras import EquirectangularCamera, OpenCVFisheyeCamera, UnifiedCamera, load_camera
 from omni_sfm.cli import main
@@ -36,8 +36,7 @@ from omni_sfm.synth.render import RenderOptions
 
 # the renders test_init_images.py and test_one_pass.py use too (one render per session)
 HYPERBOLOID = RenderOptions(camera="hyperboloid", frames=40, seed=1)
-EQUIRECT = RenderOptions(camera="equirectangular", frames=16, seed=2)
-RENDERS = {"hyperboloid": HYPERBOLOID, "equirectangular": EQUIRECT}
+RENDERS = {"hyperboloid": HYPERBOLOID, "equirectangular": EQUIRECT_CORRIDOR}
 
 
 def _angle_deg(a, b) -> float:
@@ -84,9 +83,9 @@ def _truth_folder(seq: Path, dst: Path, frames: list[int]) -> Path:
 # --- the gravity-up world ----------------------------------------------------------------------
 
 @pytest.mark.parametrize("name", [
-    # the first to ask for the 1600 x 800 walk renders it and runs init on it: 18 s (slow: this
-    # file starts first)
-    pytest.param("equirectangular", marks=pytest.mark.slow(seconds=18)),
+    # the first to ask for the 360 corridor runs init on it (and renders it, unless
+    # test_track.py did): 4-13 s (slow: this file starts first)
+    pytest.param("equirectangular", marks=pytest.mark.slow(seconds=13)),
     "hyperboloid",
 ])
 def test_up_world_is_the_true_vertical(name, inits, tmp_path):

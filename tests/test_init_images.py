@@ -12,7 +12,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from helpers import assert_one_line_error
+from helpers import EQUIRECT_CORRIDOR, assert_one_line_error
 
 from omni_sfm.cli import main
 from omni_sfm.evaluate import trajectory_errors
@@ -65,7 +65,7 @@ def test_corridor_hyperboloid_every_frame_within_thresholds(corridor, tmp_path):
 
 @pytest.mark.parametrize("opts", [
     # the 360 camera
-    RenderOptions(camera="equirectangular", frames=16, seed=2),
+    EQUIRECT_CORRIDOR,
     # surface texture beside every edge: the paper's strict corner test would leave about 14
     # lines per frame; the default front end keeps about 26 and the weighted adjustment uses
     # them (full size, 100 frames: docs/results.md); measured 24/24, max 0.08 deg, ATE 0.04 %;

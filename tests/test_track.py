@@ -15,7 +15,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from helpers import assert_one_line_error
+from helpers import EQUIRECT_CORRIDOR, assert_one_line_error
 
 from omni_sfm.cameras import load_camera
 from omni_sfm.cli import main
@@ -62,8 +62,7 @@ def test_causal_accuracy_on_rendered_corridors(which, corridor, corridor_poses, 
     if which == "hyperboloid":
         seq, poses = corridor, corridor_poses
     else:
-        seq = rendered(RenderOptions(camera="equirectangular", frames=40, width=800, height=400,
-                                     seed=2)).output
+        seq = rendered(EQUIRECT_CORRIDOR).output
         poses = _track(seq)
     status = [p.status for p in poses]
     assert status[:START - 1] == [Status.INITIALISING] * (START - 1)
