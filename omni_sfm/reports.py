@@ -411,6 +411,18 @@ class EstimatorStep(JsonReport):
 
 
 @dataclass(frozen=True, kw_only=True)
+class PoseSpreadRecord(JsonReport):
+    """An init report's ``pose_spread`` (the global estimator's): per frame (by index), the RMS
+    error that the adjustment's covariance expects of its rotation (``rotation_deg``) and of
+    its centre (``position_pct_of_path``), the whole aligned to the truth (docs/estimator.md);
+    null for a frame not posed, flagged by another rule, or left free (``frames_uncertain``
+    says which)."""
+
+    rotation_deg: list[float | None]
+    position_pct_of_path: list[float | None]
+
+
+@dataclass(frozen=True, kw_only=True)
 class AttemptRecord(JsonReport):
     """One of an init report's ``attempts`` (docs/estimator.md, "Strategies and attempts"):
     the ``strategy``, the first and last frame it ran on (whole-sequence indices; absent for
@@ -513,6 +525,8 @@ class InitReport(_StageInput, JsonReport):
     frames_not_estimated_reasons: dict[str, str] | None = absent()
     frames_uncertain: dict[str, str] | None = absent()
     """Frame index -> why the data do not fix its pose (the global estimator's flags)."""
+    pose_spread: PoseSpreadRecord | None = absent()
+    """How well the data fix each frame's pose (the global estimator's)."""
     joined_pieces: int | None = absent()
     attempts: list[AttemptRecord] | None = absent()
     """Every strategy tried, in the order it ran."""

@@ -18,7 +18,9 @@ Steps:
 4. **Per-frame information**: frames that see 3 lines only, parts of the video tied to the rest
    only through such frames, and frames whose rotation or position the data leave (nearly)
    free where their interpolation can be far off are listed in the report with the reason
-   (``frames_uncertain``; :func:`_uncertain`).
+   (``frames_uncertain``; :func:`_uncertain`); of the others, each frame's expected error from
+   the adjustment's covariance (:mod:`~omni_sfm.estimate.uncertainty`, ``pose_spread`` in the
+   report), and those it leaves weak are listed too (:func:`_spread_flags`).
 
 Only the start rotations follow the frame order (they chain neighbouring frames); the joint
 problems replace them by their own minimum wherever the start lies in its basin. Where one
@@ -58,6 +60,7 @@ from omni_sfm.estimate.global_rotations import (
     world_normals,
 )
 from omni_sfm.estimate.segments import runs
+from omni_sfm.estimate.uncertainty import pose_spread
 from omni_sfm.geometry import (
     FloatArray,
     matrix_to_rotvec,
@@ -121,6 +124,15 @@ class GlobalOptions:
     """A frame that its own lines leave free is flagged where its interpolation between the
     frames that fix it can be off by more than this (degrees; fraction of the path length;
     :func:`_uncertain`)."""
+    spread_deg: float = 0.6
+    spread_path: float = 0.01
+    """A frame is flagged where twice the error the adjustment's covariance expects exceeds
+    this (degrees; fraction of the path length; :func:`_spread_flags`): a frame left unflagged
+    is then off by more than 1 deg or 2 % of the path only beyond three times that error,
+    and a flagged one is rarely within 0.2 deg and 0.2 %."""
+    spread_window: int = 300
+    """Posed frames a window of the covariance takes at most
+    (:func:`~omni_sfm.estimate.uncertainty.pose_spread`)."""
 
 
 @dataclass(frozen=True)
@@ -137,6 +149,10 @@ class GlobalSolution:
         world_directions: ``(K, 3)`` the world directions found.
         rms_initial_deg, rms_final_deg, sigma_deg: the adjustment's residuals.
         uncertain: ``{frame: reason}`` frames the data do not fix.
+        spread_deg, spread_path: ``(F,)`` the RMS error the adjustment's covariance expects of
+            each frame's rotation (degrees) and centre (fraction of the path), the whole
+            aligned to the truth (:func:`_spread`; NaN: not posed or flagged by another rule;
+            inf: left free).
         not_posed: ``{frame: reason}``.
         steps: what each step did (for the report).
         timings_ms: wall time per step.
@@ -155,6 +171,8 @@ class GlobalSolution:
     rms_final_deg: float
     sigma_deg: float
     uncertain: dict[int, str]
+    spread_deg: FloatArray
+    spread_path: FloatArray
     not_posed: dict[int, str]
     steps: list[EstimatorStep]
     timings_ms: dict[str, float]
@@ -760,6 +778,48 @@ def _uncertain(tracks: LineTracks, rot: GlobalRotations, pos: GlobalPositions,
     return out
 
 
+def _spread(tracks: LineTracks, ba: BundleResult, flagged: dict[int, str],
+            options: GlobalOptions) -> tuple[FloatArray, FloatArray]:
+    """``(rotation_deg, path)`` ``(F,)`` the RMS error the adjustment's covariance expects of
+    each posed frame (degrees; fraction of the path length of the frames not ``flagged``), the
+    frames not ``flagged`` aligned to the truth (:func:`~omni_sfm.estimate.uncertainty.
+    pose_spread`, over every posed frame: the flagged ones tie the others together; inf where
+    the data leave the pose free)."""
+    nan = np.full(tracks.num_frames, np.nan)
+    trusted = ba.frames.copy()
+    trusted[list(flagged)] = False
+    if trusted.sum() < 3:
+        return nan, nan.copy()
+    c = ba.positions[trusted]
+    path = max(float(np.sum(np.linalg.norm(np.diff(c, axis=0), axis=1))), 1e-300)
+    spread = pose_spread(tracks, ba.rotations, ba.positions, ba.line_directions,
+                         ba.line_points, ba.frames, ba.used_tracks, np.radians(ba.sigma_deg),
+                         window=options.spread_window, aligned=trusted)
+    return spread.rotation_deg, spread.position / path
+
+
+def _spread_flags(rotation_deg: FloatArray, path: FloatArray, options: GlobalOptions
+                  ) -> dict[int, str]:
+    """The frames whose pose the whole of the data fix to no better than
+    ``options.spread_deg`` or ``options.spread_path`` of their path (twice the error
+    :func:`_spread` expects): a stretch whose lines leave the walk's speed or bend nearly
+    free, although each frame's own lines look enough."""
+    rot, pos = 2.0 * rotation_deg, 2.0 * path
+    with np.errstate(invalid="ignore"):
+        weak = (rot > options.spread_deg) | (pos > options.spread_path)
+    out = {}
+    for k in np.flatnonzero(weak):
+        if not np.isfinite(rot[k] + pos[k]):
+            out[int(k)] = ("the data leave its pose free (a direction of the adjustment that "
+                           "moves it, and few other frames, is not fixed by any line)")
+            continue
+        out[int(k)] = (f"the data fix its pose only to {rot[k]:.2f} deg and "
+                       f"{100 * pos[k]:.2f} % of the path (twice the error the adjustment's "
+                       f"covariance expects): the lines leave the walk's speed or bend between "
+                       f"it and the other frames nearly free")
+    return out
+
+
 def _world_directions_refitted(tracks: LineTracks, ba: BundleResult, held: np.ndarray,
                                label: np.ndarray, options: GlobalOptions) -> BundleResult:
     """The adjustment with the ``held`` lines' world directions (``label``) fitted again to its
@@ -866,11 +926,17 @@ def solve_global(tracks: LineTracks, options: GlobalOptions = GlobalOptions()
                              "outlier tracks")
     members = np.asarray(families[0].members, bool) if families else \
         np.zeros(tracks.num_tracks, bool)
+    t = time.perf_counter()
+    uncertain = _uncertain(tracks, rot, pos, ba, options)
+    spread_deg, spread_path = _spread(tracks, ba, uncertain, options)
+    uncertain.update({k: v for k, v in _spread_flags(spread_deg, spread_path, options).items()
+                      if k not in uncertain})
+    timings["pose_spread"] = (time.perf_counter() - t) * 1e3
     return GlobalSolution(
         rotations=ba.rotations, positions=ba.positions, frames=ba.frames,
         line_directions=ba.line_directions, line_points=ba.line_points,
         used_tracks=ba.used_tracks, outlier_tracks=ba.outlier_tracks, members=members,
         world_directions=worlds, rms_initial_deg=ba.rms_initial_deg,
         rms_final_deg=ba.rms_final_deg, sigma_deg=ba.sigma_deg,
-        uncertain=_uncertain(tracks, rot, pos, ba, options),
+        uncertain=uncertain, spread_deg=spread_deg, spread_path=spread_path,
         not_posed=not_posed, steps=steps, timings_ms=timings)

@@ -75,6 +75,7 @@ from omni_sfm.reports import (
     InitReport,
     InitResiduals,
     InitSegment,
+    PoseSpreadRecord,
 )
 from omni_sfm.transforms import similarity_from_poses
 from omni_sfm.vanishing import (
@@ -89,6 +90,12 @@ SCALE_CONVENTION = ("world = camera of the first estimated frame; distance betwe
 
 REFLECTION_NOTE = ("line normals carry no sign, so the camera centres (and lines) are determined "
                    "only up to a point reflection through the first camera")
+
+
+def _finite_or_none(values: np.ndarray) -> list[float | None]:
+    """Per frame: the value, rounded to 6 significant digits, or None where it is NaN or inf
+    (JSON holds neither)."""
+    return [float(f"{v:.6g}") if np.isfinite(v) else None for v in np.asarray(values, float)]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -711,7 +718,10 @@ def _global_result(tracks: LineTracks, options: EstimationOptions,
         world_directions=[[float(x) for x in v @ sol.rotations[idx[0]]]
                           for v in sol.world_directions],
         frames_not_estimated_reasons={str(k): v for k, v in sol.not_posed.items()},
-        frames_uncertain={str(k): v for k, v in sol.uncertain.items()})
+        frames_uncertain={str(k): v for k, v in sol.uncertain.items()},
+        pose_spread=PoseSpreadRecord(rotation_deg=_finite_or_none(sol.spread_deg),
+                                     position_pct_of_path=_finite_or_none(
+                                         100.0 * sol.spread_path)))
     return EstimationResult(
         trajectory=traj, estimated=frames, initial_trajectory=traj,
         track_ids=tracks.track_ids.copy(), parallel=members, parallel_direction=direction,

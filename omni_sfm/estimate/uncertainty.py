@@ -1,0 +1,198 @@
+"""How well the data fix each frame's pose: the covariance of the line adjustment's solution.
+
+At the solution, the adjustment's information ``J^T J`` over its inlier observations, every
+line free (4 parameters), with the lines eliminated (Schur complement), leaves the cameras'
+``6n x 6n`` information ``S`` (each frame's camera-frame rotation increment, then its centre,
+as :class:`~omni_sfm.estimate.bundle.LineProblem` moves them). Lines fix the poses only up to a
+similarity of the world (its rotation, translation and scale: 7 degrees of freedom, ``S``'s
+null space), so the covariance is taken as ``sigma^2 S^+`` in the gauge orthogonal to the
+similarities: the spread of each frame's pose after the whole is aligned to the truth by a
+similarity, which is how the trajectory's error (ATE) is measured. A frame with a large spread
+is one whose pose the data do not fix, whatever its own lines say (a stretch whose lines leave
+the walk's speed or bend free ties it weakly to the rest).
+
+Long videos are taken in overlapping windows of ``window`` posed frames (each with its own
+similarity gauge): each frame's figures come from the window in which it lies farthest from
+the ends. Where the data leave a direction free that moves a few of a window's frames, their
+spread is infinite; a free direction that moves most of them (two parts whose relative pose
+nothing fixes) is left out.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+
+from omni_sfm.estimate.bundle import LineProblem
+from omni_sfm.geometry import FloatArray, skew
+from omni_sfm.lines.tracks import LineTracks
+
+
+@dataclass(frozen=True)
+class PoseSpread:
+    """Each frame's pose spread: the RMS error to expect of its rotation (the angle) and of its
+    centre (the distance), after the whole is aligned to the truth: the centres by the
+    similarity that fits them best, the rotations by the turn that fits them best.
+
+    Attributes:
+        rotation_deg: ``(F,)`` degrees (NaN: frame not posed; inf: the data leave it free).
+        position: ``(F,)`` in the world's units (NaN, inf as ``rotation_deg``).
+    """
+
+    rotation_deg: FloatArray
+    position: FloatArray
+
+
+def _similarity_motions(R: FloatArray, c: FloatArray) -> FloatArray:
+    """``(6n, 7)`` the poses' change under an infinitesimal similarity of the world (rotation
+    ``w``, translation ``t``, scale ``s``): the camera-frame rotation increment ``R^T w`` and
+    the centre's ``w x c + t + s c``."""
+    n = len(R)
+    G = np.zeros((n, 6, 7))
+    G[:, :3, :3] = np.transpose(R, (0, 2, 1))
+    G[:, 3:, :3] = -skew(c)
+    G[:, 3:, 3:6] = np.eye(3)
+    G[:, 3:, 6] = c
+    return G.reshape(6 * n, 7)
+
+
+def _camera_information(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArray,
+                        p: FloatArray, frames: np.ndarray, used: np.ndarray
+                        ) -> tuple[np.ndarray, FloatArray]:
+    """``(idx, S)``: the posed frames of ``frames`` and their ``6n x 6n`` information with the
+    ``used`` lines (those seen twice or more among ``frames``) eliminated."""
+    F = tracks.num_frames
+    idx = np.flatnonzero(frames)
+    seen = np.bincount(tracks.obs_track[frames[tracks.obs_frame]], minlength=tracks.num_tracks)
+    active = used & (seen >= 2)
+    prob = LineProblem(tracks, frames, active, fixed_frame=int(idx[0]),
+                       scale_frame=int(idx[-1]), scale_axis=0)
+    prob.pose_free[:] = False
+    prob.pose_free[frames] = True  # every pose free: the gauge is handled by the caller
+    e, u = prob.residuals(R, c, d, p)
+    Jp, Jl = prob.jacobian(R, c, d, p, u)
+    Hpp, Hll, Hpl, _, _ = prob.normal_equations(Jp, Jl, e, np.ones(len(prob.f)))
+    n = len(idx)
+    at = np.full(F, -1)
+    at[idx] = np.arange(n)
+    S = np.zeros((n, 6, n, 6))
+    S[np.arange(n), :, np.arange(n), :] = Hpp[idx]
+    order = np.argsort(prob.t, kind="stable")
+    bounds = np.searchsorted(prob.t[order], np.arange(tracks.num_tracks + 1))
+    for line in np.flatnonzero(active):
+        ks = order[bounds[line]:bounds[line + 1]]
+        A = Hpl[ks]                                              # (m, 6, 4)
+        H = Hll[line] + 1e-12 * float(np.trace(Hll[line])) * np.eye(4)
+        Af = A.reshape(-1, 4)                                    # (6m, 4)
+        block = (Af @ np.linalg.solve(H, Af.T)).reshape(len(ks), 6, len(ks), 6)
+        fi = at[prob.f[ks]]
+        S[fi[:, None], :, fi[None, :], :] -= np.transpose(block, (0, 2, 1, 3))
+    return idx, S.reshape(6 * n, 6 * n)
+
+
+def _inverse(A: FloatArray, G: FloatArray, Amap: FloatArray
+             ) -> tuple[FloatArray, np.ndarray | None]:
+    """``(C, moves)``: the inverse of the symmetric ``A`` (Cholesky), or, where ``A`` is not
+    positive definite (a direction the data leave free), its inverse on the other directions
+    and ``(n,)`` which frames the free directions move (``G`` the similarities, ``Amap`` the
+    alignment that removes them; None: no free direction)."""
+    try:
+        L = scipy.linalg.cholesky(A, lower=True, check_finite=False)
+        inv, info = scipy.linalg.lapack.dpotri(L, lower=1)
+        if info == 0:
+            return np.tril(inv) + np.tril(inv, -1).T, None
+    except np.linalg.LinAlgError:
+        pass
+    w, V = np.linalg.eigh(A)
+    free = w <= 1e-13 * float(w[-1])
+    keep = ~free
+    C = (V[:, keep] / w[keep]) @ V[:, keep].T
+    Vf = V[:, free] - G @ (Amap @ V[:, free])      # the free directions, the gauge removed
+    moves = (np.square(Vf).reshape(-1, 6, int(free.sum())).sum(axis=(1, 2)) > 1e-12)
+    return C, moves
+
+
+def _window_spread(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArray,
+                   p: FloatArray, frames: np.ndarray, used: np.ndarray, sigma: float,
+                   aligned: np.ndarray) -> tuple[np.ndarray, FloatArray, FloatArray]:
+    """``(idx, rotation (n,) rad, position (n,))`` the RMS error to expect of each posed frame of
+    ``frames`` (the root of its covariance block's trace), the ``aligned`` frames (``(F,)``; all
+    where fewer than 3 of them are posed) aligned as the trajectory's error is measured
+    (module docstring)."""
+    idx, S = _camera_information(tracks, R, c, d, p, frames, used)
+    n = len(idx)
+    on = aligned[idx] if aligned[idx].sum() >= 3 else np.ones(n, bool)
+    G = _similarity_motions(R[idx], c[idx])
+    Q, _ = np.linalg.qr(G)
+    scale = max(float(np.trace(S)) / len(S), 1e-300)
+    # the alignment: the similarity that best fits the aligned frames' centres (their
+    # rotations, weighted 1e-6, only settle the turn about a straight walk)
+    weight = (on[:, None] * np.r_[np.full(3, 1e-6), np.ones(3)]).ravel()
+    GW = G.T * weight
+    Amap = np.linalg.solve(GW @ G, GW)                # (7, 6n)
+    # the similarities' directions have eigenvalue ~scale after this, and no part in the
+    # covariance once the alignment removes them
+    C, moves = _inverse(S + scale * (Q @ Q.T), G, Amap)
+    CA = C @ Amap.T
+    Y = (C - G @ CA.T - CA @ G.T + G @ (Amap @ CA) @ G.T).reshape(n, 6, n, 6)
+    pos = np.einsum("kiki->k", Y[:, 3:, :, 3:])
+    # the rotations' errors in the world, less the aligned frames' mean (the common turn that
+    # best aligns them): the traces of the world-frame blocks
+    Z = np.einsum("kab,kbjc,jdc->kjad", R[idx], Y[:, :3, :, :3], R[idx], optimize=True)
+    tr = np.einsum("kjaa->kj", Z)
+    m = int(on.sum())
+    rot = np.diag(tr) - 2.0 / m * tr[:, on].sum(axis=1) + tr[np.ix_(on, on)].sum() / m**2
+    var = sigma**2 * np.stack([rot, pos], axis=1)
+    # a free direction that moves a few frames leaves those free; one that moves most of
+    # them is a split of the window into parts whose relative pose nothing fixes, which the
+    # spread cannot attribute to a part (the caller's ties between parts judge it)
+    if moves is not None and moves.sum() <= n // 2:
+        var[moves] = np.inf
+    return idx, np.sqrt(np.maximum(var[:, 0], 0.0)), np.sqrt(np.maximum(var[:, 1], 0.0))
+
+
+def pose_spread(tracks: LineTracks, rotations: FloatArray, positions: FloatArray,
+                line_directions: FloatArray, line_points: FloatArray, frames: np.ndarray,
+                used_tracks: np.ndarray, sigma_rad: float, window: int = 300,
+                aligned: np.ndarray | None = None) -> PoseSpread:
+    """Each posed frame's pose spread (module docstring) at the adjustment's solution
+    (``rotations``, ``positions`` world_from_cam; the lines; ``frames`` posed; the
+    ``used_tracks``), the observations' noise ``sigma_rad`` (radians, per axis), with the
+    ``aligned`` frames (default: every posed frame) aligned to the truth: the others' poses
+    still tie the lines together, but their errors do not count in the alignment."""
+    F = tracks.num_frames
+    rot, pos = np.full(F, np.nan), np.full(F, np.nan)
+    posed = np.flatnonzero(frames)
+    if len(posed) < 3:
+        return PoseSpread(rot, pos)
+    # in units of the path's length (the rotations' and the centres' information then have
+    # comparable sizes, and a direction left free stands out against both); steps of more
+    # than 10 times the median (a frame posed far off) count as 10
+    steps = np.linalg.norm(np.diff(positions[posed], axis=0), axis=1)
+    unit = float(np.sum(np.minimum(steps, 10.0 * np.median(steps))))
+    if not np.isfinite(unit) or unit <= 0.0:
+        unit = 1.0
+    positions, line_points = positions / unit, line_points / unit
+    aligned = frames if aligned is None else aligned & frames
+    step = max(window // 2, 1)
+    starts = list(range(0, max(len(posed) - window, 0) + 1, step))
+    if starts[-1] + window < len(posed):
+        starts.append(len(posed) - window)
+    centrality = np.full(F, -1.0)
+    for a in starts:
+        members = posed[a:a + window]
+        sel = np.zeros(F, bool)
+        sel[members] = True
+        idx, r, q = _window_spread(tracks, rotations, positions, line_directions, line_points,
+                                   sel, used_tracks, sigma_rad, aligned)
+        k = np.arange(len(idx))
+        # a window at the video's end is as good as a central one there
+        left = k if a > 0 else np.full(len(k), len(k))
+        right = len(k) - 1 - k if a + window < len(posed) else np.full(len(k), len(k))
+        central = np.minimum(left, right).astype(float)
+        better = central > centrality[idx]
+        rot[idx[better]], pos[idx[better]] = r[better], q[better]
+        centrality[idx[better]] = central[better]
+    return PoseSpread(np.degrees(rot), pos * unit)
