@@ -119,7 +119,7 @@ def _parser() -> argparse.ArgumentParser:
                    default=[RefineOptions().mapper],
                    help="how refine registers the missing frames; several: each its own run "
                         "and fresh database")
-    p.add_argument("--record", default="bench_refine",
+    p.add_argument("--record", default="bench_refine_room",
                    help="name of the record under docs/benchmarks/ (default: %(default)s)")
     add_log_arguments(p)
     return p
