@@ -414,9 +414,9 @@ class EstimatorStep(JsonReport):
 class PoseSpreadRecord(JsonReport):
     """An init report's ``pose_spread`` (the global estimator's): per frame (by index), the RMS
     error that the adjustment's covariance expects of its rotation (``rotation_deg``) and of
-    its centre (``position_pct_of_path``), the whole aligned to the truth (docs/estimator.md);
-    null for a frame not posed, flagged by another rule, or left free (``frames_uncertain``
-    says which)."""
+    its centre (``position_pct_of_path``), the frames not flagged aligned to the truth
+    (docs/estimator.md); null for a frame not posed or left free (``frames_uncertain`` says
+    which)."""
 
     rotation_deg: list[float | None]
     position_pct_of_path: list[float | None]

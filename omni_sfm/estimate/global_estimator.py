@@ -150,9 +150,9 @@ class GlobalSolution:
         rms_initial_deg, rms_final_deg, sigma_deg: the adjustment's residuals.
         uncertain: ``{frame: reason}`` frames the data do not fix.
         spread_deg, spread_path: ``(F,)`` the RMS error the adjustment's covariance expects of
-            each frame's rotation (degrees) and centre (fraction of the path), the whole
-            aligned to the truth (:func:`_spread`; NaN: not posed or flagged by another rule;
-            inf: left free).
+            each frame's rotation (degrees) and centre (fraction of the path), the frames not
+            flagged aligned to the truth (:func:`_spread`; NaN: not posed or too few frames
+            left unflagged; inf: left free).
         not_posed: ``{frame: reason}``.
         steps: what each step did (for the report).
         timings_ms: wall time per step.
