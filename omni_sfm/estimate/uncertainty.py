@@ -123,6 +123,8 @@ def _window_spread(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArr
     (module docstring)."""
     idx, S = _camera_information(tracks, R, c, d, p, frames, used)
     n = len(idx)
+    if not np.isfinite(S).all() or np.trace(S) <= 0.0:
+        return idx, np.full(n, np.inf), np.full(n, np.inf)
     on = aligned[idx] if aligned[idx].sum() >= 3 else np.ones(n, bool)
     G = _similarity_motions(R[idx], c[idx])
     Q, _ = np.linalg.qr(G)
@@ -131,7 +133,7 @@ def _window_spread(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArr
     # rotations, weighted 1e-6, only settle the turn about a straight walk)
     weight = (on[:, None] * np.r_[np.full(3, 1e-6), np.ones(3)]).ravel()
     GW = G.T * weight
-    Amap = np.linalg.solve(GW @ G, GW)                # (7, 6n)
+    Amap = np.linalg.lstsq(GW @ G, GW, rcond=None)[0]  # (7, 6n); a stop: rank < 7
     # the similarities' directions have eigenvalue ~scale after this, and no part in the
     # covariance once the alignment removes them
     C, moves = _inverse(S + scale * (Q @ Q.T), G, Amap)
