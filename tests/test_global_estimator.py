@@ -3,6 +3,7 @@ truth and the maximum-likelihood oracle, the same answer whatever the frame orde
 per-frame flags and the errors of data that determine nothing."""
 
 import json
+import re
 from dataclasses import replace
 
 import numpy as np
@@ -217,6 +218,8 @@ def test_uncertain_frames_are_kept_out_of_the_trajectory(tmp_path, capsys) -> No
     assert len(kept) == len(trusted) + len(uncertain)
     assert not (tmp_path / "kept" / "trajectory_uncertain.tum").exists()
     assert "poses in trajectory_uncertain.tum, not in trajectory.tum" in runs["out"]
+    assert re.search(r"expected error of the \d+ trusted frames \(the adjustment's covariance, "
+                     r"RMS\): median [0-9.]+ deg and [0-9.]+ % of the path", runs["out"])
     assert "uncertain:" in runs["kept"] and "poses in trajectory.tum" in runs["kept"]
 
 

@@ -177,12 +177,33 @@ def summary(rep: InitReport, output: Path, estimated: list[str],
                  else "poses in trajectory.tum")
         lines.append(f"uncertain: {len(idx)} frames the data do not fix (frames "
                      f"{_index_runs(idx)}; {where}; reasons in report.json frames_uncertain)")
+    spread = _expected_error(rep)
+    if spread:
+        lines.append(spread)
     if unreadable and reasons:
         lines.append(_skipped(unreadable, reasons))
     elif unreadable:
         lines.append(f"unreadable: {len(unreadable)} frames could not be decoded "
                      f"({_names(unreadable)})")
     return "\n".join(lines)
+
+
+def _expected_error(rep: InitReport) -> str | None:
+    """The summary's line on the errors the adjustment's covariance expects of the frames not
+    flagged (``report.json`` ``pose_spread``), or None without such figures."""
+    spread = rep.pose_spread
+    if spread is None:
+        return None
+    flagged = {int(k) for k in rep.frames_uncertain or {}}
+    pairs = [(r, q) for k, (r, q) in enumerate(zip(spread.rotation_deg,
+                                                     spread.position_pct_of_path, strict=True))
+             if k not in flagged and r is not None and q is not None]
+    if not pairs:
+        return None
+    rot, pos = (sorted(v) for v in zip(*pairs, strict=True))
+    return (f"expected error of the {len(pairs)} trusted frames (the adjustment's covariance, "
+            f"RMS): median {rot[len(rot) // 2]:.3f} deg and {pos[len(pos) // 2]:.3f} % of the "
+            f"path, largest {rot[-1]:.3f} deg and {pos[-1]:.3f} %")
 
 
 def run(args: argparse.Namespace) -> int:
