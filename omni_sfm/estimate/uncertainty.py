@@ -1,13 +1,14 @@
 """How well the data fix each frame's pose: the covariance of the line adjustment's solution.
 
-At the solution, the adjustment's information ``J^T J`` over its inlier observations, every
+At the solution, the adjustment's information ``J^T J`` over the used lines' observations (each
+weighted as the adjustment weighs it, robust loss aside), every
 line free (4 parameters), with the lines eliminated (Schur complement), leaves the cameras'
 ``6n x 6n`` information ``S`` (each frame's camera-frame rotation increment, then its centre,
 as :class:`~omni_sfm.estimate.bundle.LineProblem` moves them). Lines fix the poses only up to a
 similarity of the world (its rotation, translation and scale: 7 degrees of freedom, ``S``'s
-null space), so the covariance is taken as ``sigma^2 S^+`` in the gauge orthogonal to the
-similarities: the spread of each frame's pose after the whole is aligned to the truth by a
-similarity, which is how the trajectory's error (ATE) is measured. A frame with a large spread
+null space), so the covariance ``sigma^2 S^+`` is taken with the whole aligned to the truth as
+the trajectory's error is measured: the centres (of the frames given as aligned) by the
+similarity that fits them best, the rotations by their mean turn. A frame with a large spread
 is one whose pose the data do not fix, whatever its own lines say (a stretch whose lines leave
 the walk's speed or bend free ties it weakly to the rest).
 
