@@ -1,10 +1,10 @@
 """How well the data fix each frame's pose: the covariance of the line adjustment's solution.
 
 At the solution, the adjustment's information ``J^T J`` over the used lines' observations (each
-weighted as the adjustment weighs it, robust loss aside), every
-line free (4 parameters), with the lines eliminated (Schur complement), leaves the cameras'
-``6n x 6n`` information ``S`` (each frame's camera-frame rotation increment, then its centre,
-as :class:`~omni_sfm.estimate.bundle.LineProblem` moves them). Lines fix the poses only up to a
+weighted as the adjustment weighs it, robust loss aside), every line free (4 parameters), with
+the lines eliminated (Schur complement), leaves the cameras' ``6n x 6n`` information ``S``
+(each frame's camera-frame rotation increment, then its centre, as
+:class:`~omni_sfm.estimate.bundle.LineProblem` moves them). Lines fix the poses only up to a
 similarity of the world (its rotation, translation and scale: 7 degrees of freedom, ``S``'s
 null space), so the covariance ``sigma^2 S^+`` is taken with the whole aligned to the truth as
 the trajectory's error is measured: the centres (of the frames given as aligned) by the
@@ -142,9 +142,8 @@ def _window_spread(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArr
     Y = (C - G @ CA.T - CA @ G.T + G @ (Amap @ CA) @ G.T).reshape(n, 6, n, 6)
     pos = np.einsum("kiki->k", Y[:, 3:, :, 3:])
     # the rotations' errors in the world, less the aligned frames' mean (the common turn that
-    # best aligns them): the traces of the world-frame blocks
-    Z = np.einsum("kab,kbjc,jdc->kjad", R[idx], Y[:, :3, :, :3], R[idx], optimize=True)
-    tr = np.einsum("kjaa->kj", Z)
+    # best aligns them): the traces of the world-frame blocks R_k Y_kj R_j^T
+    tr = np.einsum("kab,kbjc,jac->kj", R[idx], Y[:, :3, :, :3], R[idx], optimize=True)
     m = int(on.sum())
     rot = np.diag(tr) - 2.0 / m * tr[:, on].sum(axis=1) + tr[np.ix_(on, on)].sum() / m**2
     var = sigma**2 * np.stack([rot, pos], axis=1)
