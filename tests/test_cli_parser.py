@@ -14,9 +14,13 @@ COMMANDS = sorted(m.name[4:] for m in pkgutil.iter_modules(omni_sfm.cli.__path__
                   if m.name.startswith("cmd_"))
 
 
+def _choices(parser) -> dict:
+    """The subcommands' parsers of ``parser``, by name."""
+    return next(a for a in parser._actions if a.dest == "command").choices
+
+
 def _subcommands(parser) -> list[str]:
-    action = next(a for a in parser._actions if a.dest == "command")
-    return sorted(action.choices)
+    return sorted(_choices(parser))
 
 
 def test_full_parser_has_every_command() -> None:
@@ -28,9 +32,7 @@ def test_full_parser_has_every_command() -> None:
 def test_one_commands_parser_is_the_full_ones(command: str) -> None:
     one, full = build_parser(command), build_parser()
     assert _subcommands(one) == [command]
-    sub = next(a for a in one._actions if a.dest == "command").choices[command]
-    ref = next(a for a in full._actions if a.dest == "command").choices[command]
-    assert sub.format_help() == ref.format_help()
+    assert _choices(one)[command].format_help() == _choices(full)[command].format_help()
 
 
 def test_unknown_command_lists_the_commands(capsys) -> None:

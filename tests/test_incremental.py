@@ -301,9 +301,8 @@ def test_sparse_tracks_reach_the_oracle(seed: int, strategy: str | None,
                                        how: str | None) -> None:
     """The every-frame issue's sparse case (600 frames, 4-13 lines a frame, each seen for about
     60 frames, 0.1 deg noise; no line seen throughout, so more than one window): every frame in
-    one trajectory, rotation and translation errors
-    within 2x of the maximum-likelihood oracle's, through the strategy named (kept, its
-    ``why`` saying how where given)."""
+    one trajectory, rotation and translation errors within 2x of the maximum-likelihood
+    oracle's, through the strategy named (kept, its ``why`` saying how where given)."""
     from omni_sfm.estimate.bundle import oracle
 
     sim = simulate(SimulationOptions(num_views=600, num_parallel=40, num_other=40,
