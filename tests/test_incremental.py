@@ -280,10 +280,6 @@ def test_a_short_run_turned_by_a_half_turn_is_turned_back() -> None:
 
 @pytest.mark.slow
 @pytest.mark.parametrize(("seed", "strategy", "how"), [
-    # the first start is kept (before the embedded line iterations of the adjustment, its
-    # main piece stopped 6 frames before the end and the registration at the end posed them:
-    # 594 frames and 3.9x the oracle's translation error before that)
-    (0, None, None),
     # the chain of windows over all 600 frames drifts; the chain on the last frames,
     # registered backwards, scores 1.4 % below the first start (before the embedded line
     # iterations the second start, on the first 100 frames, was kept)
