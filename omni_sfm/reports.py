@@ -513,7 +513,9 @@ class InitReport(_StageInput, JsonReport):
     timings_ms: dict[str, float] | None = absent()
     residuals: InitResiduals | None = absent()
     estimator: str | None = absent()
-    """``global`` for ``init --estimator global``; absent for the windows."""
+    """The estimator that ran: ``windows`` or ``global``."""
+    estimator_choice: str | None = absent()
+    """Why that one: ``asked for`` (``--estimator windows|global``) or what ``auto`` saw."""
     reflection: str | None = absent()
     steps: list[EstimatorStep] | None = absent()
     """The global estimator's steps (docs/estimator.md)."""

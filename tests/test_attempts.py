@@ -5,14 +5,16 @@ from __future__ import annotations
 
 import contextlib
 import re
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import WINDOWS
 
 from omni_sfm.estimate import pipeline
 from omni_sfm.estimate.attempts import STRATEGIES, Attempt, Outcome, RunLog, failed
-from omni_sfm.estimate.pipeline import EstimationOptions, estimate_poses
+from omni_sfm.estimate.pipeline import estimate_poses
 from omni_sfm.synth.simulate import SimulationOptions, simulate
 
 DOCS = Path(__file__).resolve().parents[1] / "docs"
@@ -55,7 +57,7 @@ def test_a_sequence_with_outliers_records_the_restart_and_its_verdict() -> None:
     # estimator starts again without them, and the report says which solution it kept
     sim = simulate(SimulationOptions(num_views=20, num_parallel=10, num_other=10,
                                      noise_deg=0.1, outlier_fraction=0.15, seed=1))
-    res = estimate_poses(sim.tracks)
+    res = estimate_poses(sim.tracks, WINDOWS)
     att = (res.report.attempts or [])
     names = [a.strategy for a in att]
     assert set(names) <= set(STRATEGIES)
@@ -104,7 +106,7 @@ def test_progress_shows_the_furthest_frame_reached_and_the_stage(monkeypatch) ->
         return contextlib.nullcontext(bars[-1])
 
     monkeypatch.setattr(pipeline, "tqdm", fake_tqdm)
-    res = estimate_poses(sim.tracks, EstimationOptions(progress=True))
+    res = estimate_poses(sim.tracks, replace(WINDOWS, progress=True))
     assert len(bars) == 1 and bars[0].n == int(np.flatnonzero(res.estimated).max()) + 1
     assert "refinement" in bars[0].stages
 
@@ -114,7 +116,7 @@ def test_second_start_is_skipped_where_one_window_covers_the_sequence() -> None:
     drift, so the short bootstrap (docs/estimator.md stage 9) is recorded as skipped."""
     sim = simulate(SimulationOptions(num_views=200, num_parallel=10, num_other=5,
                                      noise_deg=0.1, seed=0))
-    res = estimate_poses(sim.tracks)
+    res = estimate_poses(sim.tracks, WINDOWS)
     assert res.estimated.all()
     short = [a for a in (res.report.attempts or []) if a.strategy == "short bootstrap"]
     assert [(a.result, a.why) for a in short] == \

@@ -4,8 +4,9 @@
 from dataclasses import replace
 
 import numpy as np
+from helpers import WINDOWS
 
-from omni_sfm.estimate.pipeline import EstimationOptions, estimate_poses
+from omni_sfm.estimate.pipeline import estimate_poses
 from omni_sfm.evaluate import trajectory_errors
 from omni_sfm.synth.simulate import SimulationOptions, simulate
 
@@ -19,9 +20,9 @@ def test_frames_without_a_window_are_registered_from_known_lines() -> None:
     keep = ~(sim.parallel[tr.obs_track] & (tr.obs_frame >= 45))
     tracks = replace(tr, obs_track=tr.obs_track[keep], obs_frame=tr.obs_frame[keep],
                      obs_normal=tr.obs_normal[keep])
-    chain_only = estimate_poses(tracks, EstimationOptions(extend=None))
+    chain_only = estimate_poses(tracks, replace(WINDOWS, extend=None))
     assert chain_only.estimated.sum() == 45
-    res = estimate_poses(tracks)
+    res = estimate_poses(tracks, WINDOWS)
     assert res.estimated.all()
     err = trajectory_errors(res.trajectory, sim.groundtruth)
     assert err.rot_max_deg < 0.1 and err.ate_rel < 0.002

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from helpers import assert_every_key_declared
+from helpers import WINDOWS, assert_every_key_declared
 
 from omni_sfm.cli import main
 from omni_sfm.estimate.bundle import resect_pose
@@ -104,7 +104,7 @@ def test_reasons_name_every_frame_not_registered() -> None:
     keep = ~last | (tracks.obs_track < 2)
     t2 = replace(tracks, obs_track=tracks.obs_track[keep], obs_frame=tracks.obs_frame[keep],
                  obs_normal=tracks.obs_normal[keep])
-    res = estimate_poses(t2)
+    res = estimate_poses(t2, WINDOWS)
     assert res.estimated[:len(gt) - 15].all() and not res.estimated[len(gt) - 15:].any()
     reasons = (res.report.frames_not_estimated_reasons or {})
     assert sorted(map(int, reasons)) == list(range(len(gt) - 15, len(gt)))
@@ -191,7 +191,7 @@ def test_a_walk_along_the_largest_family_uses_another_one() -> None:
     ang = np.radians(0.05) * rng.normal(size=(len(n), 1))
     n = n * np.cos(ang) + np.cross(normalize(np.cross(n, rng.normal(size=n.shape))), n) * \
         np.sin(ang)
-    res = estimate_poses(make_tracks(F, np.arange(len(dirs)), m, f, n, source="test"))
+    res = estimate_poses(make_tracks(F, np.arange(len(dirs)), m, f, n, source="test"), WINDOWS)
     assert res.estimated.all()
     fam = res.report.parallel_families
     assert fam is not None and fam.sizes == [14, 9, 7]
@@ -305,7 +305,7 @@ def test_sparse_tracks_reach_the_oracle(seed: int, strategy: str | None,
                                      noise_deg=0.1, visible_frames=60, seed=seed))
     g = sim.groundtruth
     assert not sim.tracks.visibility().all(1).any()  # no line is seen throughout
-    res = estimate_poses(sim.tracks)
+    res = estimate_poses(sim.tracks, WINDOWS)
     assert res.estimated.all() and not res.segments and len(res.windows) > 1
     e = trajectory_errors(match_reflection(res.trajectory, g), g)
     o = oracle(sim.tracks, g.rotations, g.positions, sim.line_directions, sim.line_points)
@@ -332,7 +332,7 @@ def test_a_chain_that_ends_wrong_is_started_again_from_the_end() -> None:
                                      noise_deg=0.1, visible_frames=60, seed=13))
     tracks, idx = frame_range(sim.tracks, 300, 600)
     g = sim.groundtruth.subset(np.arange(300, 600))
-    res = estimate_poses(tracks)
+    res = estimate_poses(tracks, WINDOWS)
     assert res.estimated.all() and not res.segments
     e = trajectory_errors(match_reflection(res.trajectory, g), g)
     o = oracle(tracks, g.rotations, g.positions, sim.line_directions[idx], sim.line_points[idx])

@@ -12,18 +12,19 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from helpers import assert_every_key_declared
+from helpers import WINDOWS, assert_every_key_declared
 
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.estimate.bundle import oracle
 from omni_sfm.estimate.pipeline import (
     EstimationOptions,
+    chosen_estimator,
     estimate_poses,
     write_init_outputs,
 )
 from omni_sfm.estimate.segments import frame_range
 from omni_sfm.evaluate import match_reflection, trajectory_errors
-from omni_sfm.lines.tracks import make_tracks
+from omni_sfm.lines.tracks import make_tracks, reversed_frames
 from omni_sfm.poses import Trajectory
 from omni_sfm.reports import InitInput, InitReport
 from omni_sfm.synth.simulate import SimulationOptions, simulate
@@ -133,6 +134,35 @@ def test_too_few_other_lines():
         estimate_poses(sim.tracks)
 
 
+def test_auto_takes_the_windows_where_one_window_covers_the_sequence():
+    """``estimator="auto"`` (the default): the paper's data (every line in every frame) go to
+    the windows, a walk whose lines come and go to the global estimator, two walks with no line
+    in common to the windows (each part in a world of its own); the same choice in reversed
+    frame order; the report says which ran and why."""
+    paper = simulate(SimulationOptions(num_views=12, num_parallel=5, num_other=5, seed=1))
+    walk = simulate(SimulationOptions(num_views=120, num_parallel=12, num_other=12,
+                                      visible_frames=40, seed=1))
+    a = simulate(SimulationOptions(num_views=30, num_parallel=6, num_other=6, seed=2)).tracks
+    b = simulate(SimulationOptions(num_views=20, num_parallel=6, num_other=6, seed=3)).tracks
+    apart = make_tracks(50, np.arange(a.num_tracks + b.num_tracks),
+                        np.concatenate([a.obs_track, b.obs_track + a.num_tracks]),
+                        np.concatenate([a.obs_frame, b.obs_frame + 30]),
+                        np.concatenate([a.obs_normal, b.obs_normal]), source="test")
+    for tracks, want, why in ((paper.tracks, "windows", "one window covers every frame"),
+                              (walk.tracks, "global", "lines seen in every frame"),
+                              (apart, "windows", "no line is seen on both sides of frame")):
+        for t in (tracks, reversed_frames(tracks)):
+            got, reason = chosen_estimator(t, EstimationOptions())
+            assert got == want and why in reason, (got, reason)
+    res = estimate_poses(paper.tracks)
+    assert res.report.estimator == "windows" and "auto: one window" in \
+        (res.report.estimator_choice or "")
+    res = estimate_poses(paper.tracks, EstimationOptions(estimator="global"))
+    assert (res.report.estimator, res.report.estimator_choice) == ("global", "asked for")
+    with pytest.raises(OmniSfmError, match="unknown estimator 'best'"):
+        estimate_poses(paper.tracks, EstimationOptions(estimator="best"))
+
+
 def test_too_few_frames():
     tr = make_tracks(2, np.arange(6), np.repeat(np.arange(6), 2), np.tile([0, 1], 6),
                      np.tile([1.0, 0.0, 0.0], (12, 1)))
@@ -165,7 +195,7 @@ def test_window_flipped_by_a_half_turn_is_not_chained():
     sub, _ = frame_range(sim.tracks, 300, 520)
     g = sim.groundtruth
     gt = Trajectory(g.timestamps[300:520], g.rotations[300:520], g.positions[300:520])
-    res = estimate_poses(sub)
+    res = estimate_poses(sub, WINDOWS)
     assert res.estimated.all()
     fam = res.report.parallel_families
     assert fam is not None
@@ -201,8 +231,8 @@ def test_same_result_with_one_and_two_workers():
     # bit and the same attempts, in the same order
     sim = simulate(SimulationOptions(num_views=200, num_parallel=20, num_other=20,
                                      noise_deg=0.1, visible_frames=80, seed=3))
-    one = estimate_poses(sim.tracks, EstimationOptions(workers=1))
-    two = estimate_poses(sim.tracks, EstimationOptions(workers=2, progress=True))
+    one = estimate_poses(sim.tracks, replace(WINDOWS, workers=1))
+    two = estimate_poses(sim.tracks, replace(WINDOWS, workers=2, progress=True))
     strategies = {a.strategy for a in one.report.attempts or []}
     assert {"short bootstrap", "merged starts", "reversed start"} <= strategies
     assert np.array_equal(one.estimated, two.estimated)

@@ -100,11 +100,12 @@ def add_parser(subparsers: Any) -> None:
     p.add_argument("--overwrite", action="store_true", help="replace a non-empty OUTPUT")
     p.add_argument("--no-refine", action="store_true",
                    help="skip the bundle adjustment (the paper's method alone)")
-    p.add_argument("--estimator", choices=["windows", "global"], default="windows",
-                   help="windows: the paper's method on windows, chained and adjusted "
-                        "(default); global: rotations of all frames at once, positions of "
-                        "all frames at once, one bundle adjustment (docs/estimator.md, "
-                        "\"Global estimator\")")
+    p.add_argument("--estimator", choices=["auto", "windows", "global"], default="auto",
+                   help="auto (default): windows where lines seen in every frame make one "
+                        "window (the paper's setting), else global; windows: the paper's "
+                        "method on windows, chained and adjusted; global: rotations of all "
+                        "frames at once, positions of all frames at once, one bundle "
+                        "adjustment (docs/estimator.md, \"Which estimator runs\")")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=run)
 
@@ -159,6 +160,8 @@ def summary(rep: InitReport, output: Path, estimated: list[str],
              + ("rotation only: the camera turned without moving, positions are 0 and the "
                 "scale is undetermined" if rep.rotation_only else
                 "first-to-last camera distance = 1")]
+    if rep.estimator:
+        lines.append(f"estimator: {rep.estimator} ({rep.estimator_choice or 'asked for'})")
     segs = rep.segment_list
     n_seg = sum(int(sg.num_frames_estimated) for sg in segs)
     if segs:

@@ -183,7 +183,11 @@ def _smallest(A: sp.csr_matrix, w: FloatArray, D: sp.csr_matrix, options: Global
         rhs = np.zeros(P + L)
         rhs[:P] = x[:P]
         y = lu.solve(rhs)
-        y /= np.linalg.norm(y[:P])
+        size = float(np.linalg.norm(y[:P]))
+        if not np.isfinite(size) or size == 0.0:
+            raise OmniSfmError("the lines leave every camera centre at one point: no "
+                               "translation to estimate (a camera that only turns?)")
+        y /= size
         if y[:P] @ x[:P] < 0:
             y = -y
         done = np.linalg.norm(y[:P] - x[:P]) < 1e-13

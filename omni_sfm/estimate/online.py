@@ -110,9 +110,10 @@ class Status(StrEnum):
 
 
 def _default_start() -> EstimationOptions:
-    # the buffered frames are few: one window of the paper's method covers them
+    # the buffered frames are few: the paper's method on them, in one window where the lines
+    # seen throughout allow it, a few chained where some lines come or go
     return EstimationOptions(progress=False, bootstrap_frames=None, short_bootstrap_frames=None,
-                             min_segment_frames=0)
+                             min_segment_frames=0, estimator="windows")
 
 
 @dataclass(frozen=True, kw_only=True)

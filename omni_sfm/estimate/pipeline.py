@@ -206,11 +206,13 @@ class EstimationOptions:
     join_max_residual_factor: float = 1.5
     """... and the bundle adjustment of the joined piece ends with an RMS residual at most this
     times the larger of the two pieces' own."""
-    estimator: str = "windows"
+    estimator: str = "auto"
     """``"windows"``: the paper's method on windows, chained, adjusted and rescued by the
     strategies below; ``"global"``: the global estimator (:mod:`omni_sfm.estimate.
     global_estimator`: rotations of all frames at once, positions of all frames at once, one
-    bundle adjustment), which uses ``vanishing``, ``bundle`` and ``global_`` only."""
+    bundle adjustment), which uses ``vanishing``, ``bundle`` and ``global_`` only; ``"auto"``:
+    the windows where one window covers the sequence (the paper's setting), the global
+    estimator otherwise (:func:`chosen_estimator`)."""
     global_: GlobalOptions = field(default_factory=GlobalOptions)
     """The global estimator's options (``estimator="global"``); its parallel-family detection
     and bundle adjustment are ``vanishing`` and ``bundle`` above."""
@@ -642,14 +644,68 @@ def estimate_poses(tracks: LineTracks,
     if M < 6:
         raise OmniSfmError(f"tracks have {M} lines; need at least 6 (3 parallel and 3 others)")
     start_workers(options)  # a bad number of workers fails here, whatever the sequence
-    if options.estimator == "global":
-        return _global_result(tracks, options, t_all)
-    if options.estimator != "windows":
-        raise OmniSfmError(f"unknown estimator {options.estimator!r}: 'windows' or 'global'")
+    estimator, why = chosen_estimator(tracks, options)
+    if estimator == "global":
+        res = _global_result(tracks, options, t_all)
+        return replace(res, report=replace(res.report, estimator="global", estimator_choice=why))
     with tqdm(total=F, desc="poses", unit="frame", leave=False,
               disable=None if options.progress else True) as bar:
-        return _estimate(tracks, options, RunLog(progress=bar if options.progress else None),
-                         t_all)
+        res = _estimate(tracks, options, RunLog(progress=bar if options.progress else None),
+                        t_all)
+    return replace(res, report=replace(res.report, estimator="windows", estimator_choice=why))
+
+
+def chosen_estimator(tracks: LineTracks, options: EstimationOptions) -> tuple[str, str]:
+    """The estimator that ``options.estimator`` names (``windows`` or ``global``) and why.
+
+    ``auto`` takes the windows where one window covers the sequence: a vanishing point in every
+    frame and at least ``windows.min_parallel`` lines of the parallel family and
+    ``windows.min_other`` others seen in every frame, the paper's setting, where its method
+    reaches the maximum-likelihood floor (docs/estimator.md). Anywhere else (lines that come
+    and go, a walk longer than its lines) it takes the global estimator, which needs no line
+    seen throughout. The choice depends on which lines are seen in which frames only, not on
+    their order or on the normals' last bits.
+
+    Raises:
+        OmniSfmError: an unknown name; for ``auto``, lines seen throughout of which fewer than
+            3 are parallel or fewer than 3 are not (the windows' own error).
+    """
+    if options.estimator in ("windows", "global"):
+        return options.estimator, "asked for"
+    if options.estimator != "auto":
+        raise OmniSfmError(f"unknown estimator {options.estimator!r}: 'auto', 'windows' or "
+                           f"'global'")
+    w = options.windows
+    vis = tracks.visibility()
+    seen = vis.any(1)
+    first = np.where(seen, vis.argmax(1), tracks.num_frames)
+    last = np.where(seen, tracks.num_frames - 1 - vis[:, ::-1].argmax(1), -1)
+    spanning = np.zeros(tracks.num_frames + 1, np.int64)  # lines seen on both sides of a cut
+    np.add.at(spanning, first[seen] + 1, 1)
+    np.add.at(spanning, last[seen] + 1, -1)
+    lo, hi = int(first[seen].min()), int(last[seen].max())  # frames that see nothing at the
+    cuts = lo + np.flatnonzero(np.cumsum(spanning)[lo + 1:hi + 1] == 0)  # ends cut nothing
+    if len(cuts):
+        return "windows", (f"auto: no line is seen on both sides of frame {int(cuts[0]) + 1} "
+                           f"(parts with nothing in common: the windows pose each in a world "
+                           f"of its own)")
+    full = vis.all(1)
+    if int(full.sum()) < w.min_parallel + w.min_other:
+        return "global", (f"auto: {int(full.sum())} lines seen in every frame, fewer than one "
+                          f"window needs ({w.min_parallel} parallel + {w.min_other} others)")
+    family = detect_parallel_family(tracks, options.vanishing)
+    members = np.asarray(family.members, bool)
+    _check_counts(tracks, members)
+    if bool(np.isfinite(family.vpv).all()) and int((full & members).sum()) >= w.min_parallel \
+            and int((full & ~members).sum()) >= w.min_other:
+        return "windows", (f"auto: one window covers every frame ({int((full & members).sum())} "
+                           f"parallel and {int((full & ~members).sum())} other lines seen "
+                           f"throughout)")
+    return "global", (f"auto: no window covers every frame ({int((full & members).sum())} "
+                      f"parallel and {int((full & ~members).sum())} other lines seen "
+                      f"throughout, a vanishing point in "
+                      f"{int(np.isfinite(family.vpv).all(1).sum())} of {tracks.num_frames} "
+                      f"frames)")
 
 
 def _estimate(tracks: LineTracks, options: EstimationOptions, run: RunLog,

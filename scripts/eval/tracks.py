@@ -20,7 +20,12 @@ start's chain alone, to measure each on the same input.
 ``--blocks N`` also prints the mean rotation error of each block of N frames. ``--perturb N``
 also runs the estimator N more times on each input with its normals turned by
 about 1e-7 (random, seeds 1..N): a result that changes with the last bits of the input is
-chaotic, and one run of it says little (docs/results.md, the stop-and-go walk).
+chaotic, and one run of it says little (docs/results.md, the stop-and-go walk). ``--reversed``
+also runs it on the frames in reversed order (the same observations, timestamps kept) and
+prints how far the two trajectories differ: the largest rotation difference and the RMS
+position difference in per cent of the path, after a similarity alignment.
+``--estimator`` picks the estimator (``EstimationOptions.estimator``: ``auto``, the default,
+``windows`` or ``global``).
 
 Each argument is ``INIT_DIR:RENDER_DIR`` (``RENDER_DIR`` holds ``groundtruth.tum``); a bare
 ``INIT_DIR`` ending in ``-init`` pairs with the folder of the same name without it, as
@@ -42,7 +47,7 @@ from omni_sfm.estimate.pipeline import EstimationOptions, estimate_poses
 from omni_sfm.estimate.segments import frame_range
 from omni_sfm.evaluate import match_reflection, relative_rotation_errors_deg, trajectory_errors
 from omni_sfm.geometry import normalize
-from omni_sfm.lines.tracks import read_tracks
+from omni_sfm.lines.tracks import read_tracks, reversed_frames
 from omni_sfm.poses import Trajectory, read_tum
 from omni_sfm.reports import InitReport
 from omni_sfm.transforms import associate
@@ -95,6 +100,10 @@ def main() -> int:
                     help="also the main trajectory's mean rotation error per block of N frames "
                          "(where the error comes from: drift grows along the blocks, a stretch "
                          "turned against the rest shows as a step)")
+    ap.add_argument("--reversed", action="store_true",
+                    help="also the frames in reversed order, and how far the two differ")
+    ap.add_argument("--estimator", choices=["auto", "windows", "global"], default="auto",
+                    help="EstimationOptions.estimator (default auto)")
     ap.add_argument("--no-second-start", action="store_true",
                     help="without the second start (short_bootstrap_frames=None)")
     ap.add_argument("--bootstrap", type=int, default=EstimationOptions().bootstrap_frames,
@@ -103,7 +112,7 @@ def main() -> int:
     add_log_arguments(ap)
     args = ap.parse_args()
     rows: list[list[object]] = []
-    options = EstimationOptions(bootstrap_frames=args.bootstrap)
+    options = EstimationOptions(bootstrap_frames=args.bootstrap, estimator=args.estimator)
     if args.no_second_start:
         options = replace(options, short_bootstrap_frames=None)
     print(f"# estimator alone on saved tracks; {os.cpu_count()} CPUs, "
@@ -126,7 +135,7 @@ def main() -> int:
         in_segs = sum(int(s.frames.sum()) for s in res.segments)
         print(f"{init_dir.name}: {int(res.estimated.sum())}/{tracks.num_frames} in the main "
               f"trajectory, {in_segs} in {len(res.segments)} segments, {wall:.1f} s")
-        print(f"  main: {_errors(res.trajectory, gt, moving)}")
+        print(f"  main: {_errors(res.trajectory, gt, moving)} ({res.report.estimator})")
         rows.append([init_dir.name, f"{int(res.estimated.sum())}/{tracks.num_frames}",
                      f"{in_segs} in {len(res.segments)}", _errors(res.trajectory, gt, moving),
                      wall])
@@ -139,6 +148,14 @@ def main() -> int:
             first, last = np.flatnonzero(seg.frames)[[0, -1]]
             print(f"  segment {seg.number} (frames {first}-{last}): "
                   f"{_errors(seg.trajectory, gt, True)}")
+        if args.reversed:
+            back = estimate_poses(replace(reversed_frames(tracks),
+                                          timestamps=tracks.timestamps[::-1].copy()), options)
+            d = trajectory_errors(match_reflection(back.trajectory, res.trajectory),
+                                  res.trajectory)
+            print(f"  reversed: {int(back.estimated.sum())} frames; differs from the forward "
+                  f"run by {d.rot_max_deg:.4f} deg (largest rotation), "
+                  f"{100 * d.ate_rel:.4f} % of the path (RMS position)")
         for seed in range(1, args.perturb + 1):
             rng = np.random.default_rng(seed)
             n = normalize(tracks.obs_normal + 1e-7 * rng.normal(size=tracks.obs_normal.shape))
