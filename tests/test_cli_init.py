@@ -31,8 +31,10 @@ def test_simulate_then_init_end_to_end(tmp_path, capsys):
     refl = trajectory_errors(type(est)(est.timestamps, est.rotations, -est.positions), gt)
     assert err.rot_max_deg < 1e-6
     assert min(err.paper_trans.max(), refl.paper_trans.max()) < 1e-6
+    assert "estimator: windows (auto: one window covers every frame" in capsys.readouterr().out
     rep = json.loads((out / "report.json").read_text())
     assert rep["num_frames"] == 12 and rep["num_frames_estimated"] == 12
+    assert rep["estimator"] == "windows" and rep["estimator_choice"].startswith("auto: ")
     assert rep["num_tracks"] == 10 and rep["frames_not_estimated"] == []
     typed = InitFolder(out).read_report()
     assert typed.to_json() == rep  # every key read back, sections typed
