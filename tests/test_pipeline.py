@@ -137,8 +137,9 @@ def test_too_few_other_lines():
 def test_auto_takes_the_windows_where_one_window_covers_the_sequence():
     """``estimator="auto"`` (the default): the paper's data (every line in every frame) go to
     the windows, a walk whose lines come and go to the global estimator, two walks with no line
-    in common to the windows (each part in a world of its own); the same choice in reversed
-    frame order; the report says which ran and why."""
+    in common to the windows (each part in a world of its own), and so does a sequence longer
+    than the global estimator takes; the same choice in reversed frame order; the report says
+    which ran and why."""
     paper = simulate(SimulationOptions(num_views=12, num_parallel=5, num_other=5, seed=1))
     walk = simulate(SimulationOptions(num_views=120, num_parallel=12, num_other=12,
                                       visible_frames=40, seed=1))
@@ -154,6 +155,8 @@ def test_auto_takes_the_windows_where_one_window_covers_the_sequence():
         for t in (tracks, reversed_frames(tracks)):
             got, reason = chosen_estimator(t, EstimationOptions())
             assert got == want and why in reason, (got, reason)
+    got, reason = chosen_estimator(walk.tracks, EstimationOptions(auto_global_max_frames=100))
+    assert got == "windows" and "120 frames, more than the global estimator takes" in reason
     res = estimate_poses(paper.tracks)
     assert res.report.estimator == "windows" and "auto: one window" in \
         (res.report.estimator_choice or "")

@@ -213,6 +213,10 @@ class EstimationOptions:
     bundle adjustment), which uses ``vanishing``, ``bundle`` and ``global_`` only; ``"auto"``:
     the windows where one window covers the sequence (the paper's setting), the global
     estimator otherwise (:func:`chosen_estimator`)."""
+    auto_global_max_frames: int = 5000
+    """``auto`` takes the windows for a sequence of more frames than this: the global
+    estimator's time grows faster than the frames beyond (docs/estimator.md, "Which estimator
+    runs")."""
     global_: GlobalOptions = field(default_factory=GlobalOptions)
     """The global estimator's options (``estimator="global"``); its parallel-family detection
     and bundle adjustment are ``vanishing`` and ``bundle`` above."""
@@ -658,13 +662,14 @@ def estimate_poses(tracks: LineTracks,
 def chosen_estimator(tracks: LineTracks, options: EstimationOptions) -> tuple[str, str]:
     """The estimator that ``options.estimator`` names (``windows`` or ``global``) and why.
 
-    ``auto`` takes the windows where one window covers the sequence: a vanishing point in every
-    frame and at least ``windows.min_parallel`` lines of the parallel family and
-    ``windows.min_other`` others seen in every frame, the paper's setting, where its method
-    reaches the maximum-likelihood floor (docs/estimator.md). Anywhere else (lines that come
-    and go, a walk longer than its lines) it takes the global estimator, which needs no line
-    seen throughout. The choice depends on which lines are seen in which frames only, not on
-    their order or on the normals' last bits.
+    ``auto`` takes the windows where one window covers the sequence (a vanishing point in
+    every frame and at least ``windows.min_parallel`` lines of the parallel family and
+    ``windows.min_other`` others seen in every frame: the paper's setting, where its method
+    reaches the maximum-likelihood floor, docs/estimator.md), where its parts share no line
+    (each gets a world of its own) and for more than ``auto_global_max_frames`` frames.
+    Anywhere else (lines that come and go, a walk longer than its lines) it takes the global
+    estimator, which needs no line seen throughout. The choice depends on the number of
+    frames and on which lines each sees, not on their order or on the normals' last bits.
 
     Raises:
         OmniSfmError: an unknown name; for ``auto``, lines seen throughout of which fewer than
@@ -675,6 +680,10 @@ def chosen_estimator(tracks: LineTracks, options: EstimationOptions) -> tuple[st
     if options.estimator != "auto":
         raise OmniSfmError(f"unknown estimator {options.estimator!r}: 'auto', 'windows' or "
                            f"'global'")
+    if tracks.num_frames > options.auto_global_max_frames:
+        return "windows", (f"auto: {tracks.num_frames} frames, more than the global estimator "
+                           f"takes ({options.auto_global_max_frames}: its time grows faster "
+                           f"than the frames beyond)")
     w = options.windows
     vis = tracks.visibility()
     seen = vis.any(1)
