@@ -102,7 +102,8 @@ def add_parser(subparsers: Any) -> None:
                    help="skip the bundle adjustment (the paper's method alone)")
     p.add_argument("--estimator", choices=["auto", "windows", "global"], default="auto",
                    help="auto (default): windows where lines seen in every frame make one "
-                        "window (the paper's setting), else global; windows: the paper's "
+                        "window (the paper's setting), where parts share no line and beyond "
+                        "5,000 frames, else global; windows: the paper's "
                         "method on windows, chained and adjusted; global: rotations of all "
                         "frames at once, positions of all frames at once, one bundle "
                         "adjustment (docs/estimator.md, \"Which estimator runs\")")
