@@ -103,7 +103,7 @@ def add_parser(subparsers: Any) -> None:
     p.add_argument("--estimator", choices=["auto", "windows", "global"], default="auto",
                    help="auto (default): windows where lines seen in every frame make one "
                         "window (the paper's setting), where parts share no line and beyond "
-                        "5,000 frames, else global; windows: the paper's "
+                        "2,000 frames, else global; windows: the paper's "
                         "method on windows, chained and adjusted; global: rotations of all "
                         "frames at once, positions of all frames at once, one bundle "
                         "adjustment (docs/estimator.md, \"Which estimator runs\")")

@@ -213,10 +213,10 @@ class EstimationOptions:
     bundle adjustment), which uses ``vanishing``, ``bundle`` and ``global_`` only; ``"auto"``:
     the windows where one window covers the sequence (the paper's setting), the global
     estimator otherwise (:func:`chosen_estimator`)."""
-    auto_global_max_frames: int = 5000
-    """``auto`` takes the windows for a sequence of more frames than this: the global
-    estimator's time grows faster than the frames beyond (docs/estimator.md, "Which estimator
-    runs")."""
+    auto_global_max_frames: int = 2000
+    """``auto`` takes the windows for a sequence of more frames than this: on longer walks with
+    few lines the frames the global estimator trusts are not yet reliable (docs/estimator.md,
+    "Which estimator runs")."""
     global_: GlobalOptions = field(default_factory=GlobalOptions)
     """The global estimator's options (``estimator="global"``); its parallel-family detection
     and bundle adjustment are ``vanishing`` and ``bundle`` above."""
@@ -682,8 +682,7 @@ def chosen_estimator(tracks: LineTracks, options: EstimationOptions) -> tuple[st
                            f"'global'")
     if tracks.num_frames > options.auto_global_max_frames:
         return "windows", (f"auto: {tracks.num_frames} frames, more than the global estimator "
-                           f"takes ({options.auto_global_max_frames}: its time grows faster "
-                           f"than the frames beyond)")
+                           f"takes ({options.auto_global_max_frames})")
     w = options.windows
     vis = tracks.visibility()
     seen = vis.any(1)
