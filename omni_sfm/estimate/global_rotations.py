@@ -198,25 +198,6 @@ def _cost(r: FloatArray, scale: float) -> float:
     return float(0.5 * scale**2 * np.sum(np.log1p((r / scale) ** 2)))
 
 
-def _reduced_solve(A: sp.csc_matrix, g: FloatArray, P: int) -> FloatArray:
-    """``A^-1 g`` for the joint problem's damped normal equations, the rotations (the first
-    ``P`` unknowns) eliminated first: each observation involves one frame, so their part of
-    ``A`` is block diagonal (3 x 3 a frame) and the reduced system is on the directions alone.
-    Solved whole, the directions shared by every frame (the world directions) fill a sparse
-    factorisation of all frames' unknowns, and its time grows faster than the frames."""
-    A = A.tocsr()
-    coo = A[:P, :P].tocoo()
-    blocks = np.zeros((P // 3, 3, 3))
-    np.add.at(blocks, (coo.row // 3, coo.row % 3, coo.col % 3), coo.data)
-    inv = np.linalg.inv(blocks)
-    Ainv = sp.bsr_matrix((inv, np.arange(P // 3), np.arange(P // 3 + 1)), shape=(P, P)).tocsr()
-    Apl = A[:P, P:]
-    S = (A[P:, P:] - Apl.T @ Ainv @ Apl).tocsc()
-    x_l = spla.splu(S).solve(g[P:] - Apl.T @ (Ainv @ g[:P]))
-    x_p = Ainv @ (g[:P] - Apl @ x_l)
-    return np.concatenate([x_p, x_l])
-
-
 def solve_rotations(tracks: LineTracks, frames: np.ndarray, R0: FloatArray,
                     group: np.ndarray,
                     options: GlobalRotationOptions = GlobalRotationOptions()) -> GlobalRotations:
@@ -241,7 +222,7 @@ def solve_rotations(tracks: LineTracks, frames: np.ndarray, R0: FloatArray,
         improved = False
         while lam < 1e12:
             A = H + sp.diags(lam * np.maximum(diag, 1e-12))
-            step = -_reduced_solve(A, g, 3 * prob.num_pose)
+            step = -spla.splu(A.tocsc()).solve(g)
             R2, d2 = prob.retract(R, d, step)
             r2 = prob.residuals(R2, d2)
             cost2 = _cost(r2, scale)
