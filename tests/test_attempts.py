@@ -144,6 +144,13 @@ def test_frames_reversed_twice_are_the_tracks_again() -> None:
     assert back.num_frames == tr.num_frames
     vis, vis_back = tr.visibility(), back.visibility()
     assert np.array_equal(vis_back, vis[:, ::-1])
+    # each track's first and last frame, reversed with it; a track left without observations
+    first, last = tr.frame_spans()
+    assert np.array_equal(first, vis.argmax(1)) and np.array_equal(
+        last, tr.num_frames - 1 - vis[:, ::-1].argmax(1))
+    assert np.array_equal(back.frame_spans()[0], tr.num_frames - 1 - last)
+    first0, last0 = tr.frame_spans(tr.obs_track != 0)
+    assert (first0[0], last0[0]) == (tr.num_frames, -1) and np.array_equal(first0[1:], first[1:])
     again = pipeline.reversed_frames(back)
     for name in ("obs_track", "obs_frame", "obs_normal"):
         assert np.array_equal(getattr(again, name), getattr(tr, name)), name

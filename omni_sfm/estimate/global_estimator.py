@@ -706,11 +706,7 @@ def _weak_ties(tracks: LineTracks, ba: BundleResult, used: np.ndarray, seen: np.
     strong = np.flatnonzero(ba.frames & (seen > 3))
     if len(strong) < 2:
         return {}
-    M = tracks.num_tracks
-    first = np.full(M, tracks.num_frames)
-    last = np.full(M, -1)
-    np.minimum.at(first, tracks.obs_track[used], tracks.obs_frame[used])
-    np.maximum.at(last, tracks.obs_track[used], tracks.obs_frame[used])
+    first, last = tracks.frame_spans(used)
     cuts = [(int(a), int(b), int(np.sum((first <= a) & (last >= b))))
             for a, b in zip(strong[:-1], strong[1:], strict=True) if b - a > 1]
     cuts = [c for c in cuts if c[2] < min_ties]

@@ -684,10 +684,8 @@ def chosen_estimator(tracks: LineTracks, options: EstimationOptions) -> tuple[st
         return "windows", (f"auto: {tracks.num_frames} frames, more than the global estimator "
                            f"takes ({options.auto_global_max_frames})")
     w = options.windows
-    vis = tracks.visibility()
-    seen = vis.any(1)
-    first = np.where(seen, vis.argmax(1), tracks.num_frames)
-    last = np.where(seen, tracks.num_frames - 1 - vis[:, ::-1].argmax(1), -1)
+    first, last = tracks.frame_spans()
+    seen = last >= 0
     spanning = np.zeros(tracks.num_frames + 1, np.int64)  # lines seen on both sides of a cut
     np.add.at(spanning, first[seen] + 1, 1)
     np.add.at(spanning, last[seen] + 1, -1)
@@ -697,7 +695,7 @@ def chosen_estimator(tracks: LineTracks, options: EstimationOptions) -> tuple[st
         return "windows", (f"auto: no line is seen on both sides of frame {int(cuts[0]) + 1} "
                            f"(parts with nothing in common: the windows pose each in a world "
                            f"of its own)")
-    full = vis.all(1)
+    full = tracks.visibility().all(1)
     if int(full.sum()) < w.min_parallel + w.min_other:
         return "global", (f"auto: {int(full.sum())} lines seen in every frame, fewer than one "
                           f"window needs ({w.min_parallel} parallel + {w.min_other} others)")

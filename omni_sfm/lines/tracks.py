@@ -77,6 +77,18 @@ class LineTracks:
         vis[self.obs_track, self.obs_frame] = True
         return vis
 
+    def frame_spans(self, obs: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """``(M,)`` the first and ``(M,)`` the last frame in which each track is observed
+        (among the observations ``obs`` ``(K,)`` bool, all when None); ``num_frames`` and -1
+        for a track without one."""
+        t, f = (self.obs_track, self.obs_frame) if obs is None else \
+            (self.obs_track[obs], self.obs_frame[obs])
+        first = np.full(self.num_tracks, self.num_frames)
+        last = np.full(self.num_tracks, -1)
+        np.minimum.at(first, t, f)
+        np.maximum.at(last, t, f)
+        return first, last
+
     def dense_normals(self) -> FloatArray:
         """``(M, F, 3)`` normals, NaN where a track is not observed."""
         out = np.full((self.num_tracks, self.num_frames, 3), np.nan)
