@@ -114,26 +114,25 @@ def test_upright_basis_and_poselib_convention() -> None:
 
 
 @pytest.fixture(scope="module")
-def corridor(tmp_path_factory: pytest.TempPathFactory):
-    """The rendered texture-poor corridor, paper's camera at 640 x 480, 20 frames."""
-    from omni_sfm.synth.render import RenderOptions, render_sequence
+def small_corridor(rendered):
+    """The rendered texture-poor corridor, paper's camera at 640 x 480, 20 frames, seed 2 (the
+    session's read-only render; smaller than conftest's ``corridor``)."""
+    from omni_sfm.synth.render import RenderOptions
 
-    out = tmp_path_factory.mktemp("corridor") / "seq"
-    return render_sequence(out, RenderOptions(scene="corridor", camera="hyperboloid",
-                                              frames=20, width=640, height=480, seed=2),
-                           progress=False)
+    return rendered(RenderOptions(scene="corridor", camera="hyperboloid", frames=20,
+                                  width=640, height=480, seed=2))
 
 
-def test_lines_on_texture_poor_corridor(corridor) -> None:
+def test_lines_on_texture_poor_corridor(small_corridor) -> None:
     """Every frame registered, rotation error <= 0.5 deg, ATE <= 1 % of the path; the
     reflection is decided by the segments' ends, not by the ground truth."""
     from omni_sfm.compare import sequence_from_frames
 
-    seq = sequence_from_frames(corridor.output / "images", corridor.camera)
+    seq = sequence_from_frames(small_corridor.output / "images", small_corridor.camera)
     res, _ = run_initializer("lines", seq, {})
     assert res.status == "ok", res.reason
     assert not res.reflection_ambiguous
     assert res.trajectory is not None and len(res.trajectory) == seq.num_frames
-    e = trajectory_errors(res.trajectory, read_tum(corridor.output / "groundtruth.tum"))
+    e = trajectory_errors(res.trajectory, read_tum(small_corridor.output / "groundtruth.tum"))
     assert e.rot_max_deg <= 0.5, e.as_dict()
     assert e.ate_rel <= 0.01, e.as_dict()
