@@ -18,9 +18,10 @@ scores; ``--no-second-start`` runs the estimator without it
 start's chain alone, to measure each on the same input.
 
 ``--blocks N`` also prints the mean rotation error of each block of N frames. ``--perturb N``
-also runs the estimator N more times on each input with its normals turned by
-about 1e-7 (random, seeds 1..N): a result that changes with the last bits of the input is
-chaotic, and one run of it says little (docs/results.md, the stop-and-go walk). ``--reversed``
+also runs the estimator N more times on each input with its normals turned by about
+``--noise`` (default 1e-9, random, seeds 1..N) and prints how far each run differs from the
+first: a result that changes with the last bits of the input is chaotic, and one run of it
+says little. ``--reversed``
 also runs it on the frames in reversed order (the same observations, timestamps kept) and
 prints how far the two trajectories differ: the largest rotation difference and the RMS
 position difference in per cent of the path, after a similarity alignment.
@@ -93,7 +94,9 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("pairs", nargs="+", help="INIT_DIR:RENDER_DIR (or INIT_DIR ending in -init)")
     ap.add_argument("--perturb", type=int, default=0, metavar="N",
-                    help="also N runs with the normals perturbed by about 1e-7 (default 0)")
+                    help="also N runs with the normals perturbed by about --noise (default 0)")
+    ap.add_argument("--noise", type=float, default=1e-9,
+                    help="the perturbation of --perturb, radians (default 1e-9)")
     ap.add_argument("--frames", type=int, nargs=2, metavar=("START", "STOP"),
                     help="only these frames (STOP excluded)")
     ap.add_argument("--blocks", type=int, default=0, metavar="N",
@@ -158,14 +161,17 @@ def main() -> int:
                   f"{100 * d.ate_rel:.4f} % of the path (RMS position)")
         for seed in range(1, args.perturb + 1):
             rng = np.random.default_rng(seed)
-            n = normalize(tracks.obs_normal + 1e-7 * rng.normal(size=tracks.obs_normal.shape))
+            n = normalize(tracks.obs_normal + args.noise * rng.normal(size=tracks.obs_normal.shape))
             try:
                 r = estimate_poses(replace(tracks, obs_normal=n), options)
             except OmniSfmError as exc:
                 print(f"  perturbed {seed}: error: {exc}")
                 continue
+            d = trajectory_errors(match_reflection(r.trajectory, res.trajectory),
+                                  res.trajectory)
             print(f"  perturbed {seed}: {int(r.estimated.sum())} frames; main: "
-                  f"{_errors(r.trajectory, gt, moving_of(r.report))}")
+                  f"{_errors(r.trajectory, gt, moving_of(r.report))}; differs from the first "
+                  f"run by {d.rot_max_deg:.4f} deg, {100 * d.ate_rel:.4f} % of the path")
             rows.append([f"{init_dir.name}, normals perturbed ({seed})",
                          f"{int(r.estimated.sum())}/{tracks.num_frames}", "",
                          _errors(r.trajectory, gt, moving_of(r.report)), None])
