@@ -57,6 +57,7 @@ def _distances(scene, points: np.ndarray) -> np.ndarray:
      (Route.OFFICE, "office", 4.0, 4.0), (Route.STOP_AND_GO, "office", None, 6.0),
      (Route.STOP_AND_GO, "office", 9.0, 9.0), (Route.WALK, "corridor", None, 10.0),
      (Route.WALK, "room", None, 6.0), (Route.WALK, "office", 20.0, 20.0),
+     (Route.WALK, "cellhouse", None, 10.0), (Route.WALK, "cellhouse", 20.0, 20.0),
      (Route.LANE, "office", None, 1.5), (Route.TURN, "room", None, 0.0)],
 )
 @pytest.mark.parametrize("mount", list(Mount))
@@ -285,3 +286,44 @@ def test_office_scene_renders(rendered):
     assert img.shape == (80, 160, 3) and 40 < img.mean() < 220 and img.std() > 20
     lines = read_lines3d(res.output / "lines3d.json")
     assert len(lines) == len(make_scene("office").lines)
+
+
+def test_cellhouse_scene_has_railings_along_the_walk_and_dense_bars_across_it(scenes):
+    """The cell house (issue #54's railing corridor): every line on the mesh; long lines along
+    the walk (galleries, railings, cross bars), dense verticals across it (bars every 0.125 m
+    between posts every 1.5 m, two tiers on both sides), a free walkway."""
+    sc = scenes["cellhouse"]
+    L = sc.lines
+    for a in (0.1, 0.5, 0.9):
+        assert _distances(sc, L.starts + a * (L.ends - L.starts)).max() < 2e-3
+    kinds = np.asarray(L.kinds)
+    assert {"cell_bar", "cell_post", "cell_crossbar", "railing", "railing_post", "gallery",
+            "cell_wall", "door_frame", "light_panel"} <= set(kinds)
+    d = L.ends - L.starts
+    length = np.linalg.norm(d, axis=1)
+    along = np.abs(d[:, 0]) > 0.999 * length
+    vertical = np.abs(d[:, 2]) > 0.999 * length
+    assert np.sum(along & (length >= 20.0)) >= 16  # galleries' and rails' edges, the walls'
+    assert np.sum(vertical & (kinds == "cell_bar")) >= 2000
+    # the bars of one tier of one cell front: 0.125 m apart, between posts 1.5 m apart
+    bars = (kinds == "cell_bar") & (L.starts[:, 1] < 3.1) & (L.starts[:, 2] < 0.1)
+    x = np.unique(np.round(L.starts[bars, 0], 4))  # each bar's two faces, 0.025 m apart
+    assert np.allclose(x[1::2] - x[::2], 0.025, atol=1e-3)
+    assert np.isclose(np.median(np.diff(x[::2])), 0.125, atol=0.005)
+    posts = np.unique(np.round(L.starts[kinds == "cell_post", 0], 3))  # faces 0.12 m apart
+    assert np.isclose(np.median(np.diff(posts[::2])), 1.5, atol=0.01)
+    t = np.linspace(0, 1, 300)[:, None]
+    a, b = sc.walkway
+    for z in (1.0, 1.6, 2.0):
+        assert _distances(sc, a + t * (b - a) + [0, 0, z]).min() >= sc.walkway_halfwidth - 1e-6
+
+
+def test_cellhouse_scene_renders(rendered):
+    res = rendered(RenderOptions(scene=SceneName.CELLHOUSE, route=Route.WALK,
+                                 camera="equirectangular", preset=Preset.SMALL, width=160,
+                                 height=80, frames=3, seed=1))
+    import cv2
+
+    images = sorted((res.output / "images").glob("*.png"))
+    img = cv2.imread(str(images[1]))
+    assert img.shape == (80, 160, 3) and 40 < img.mean() < 220 and img.std() > 20

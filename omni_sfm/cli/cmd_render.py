@@ -19,8 +19,9 @@ def add_parser(sub: Any) -> None:
         "render",
         help="render an omnidirectional video of a man-made scene with exact ground truth",
         description=(
-            "Render a corridor, room or L-shaped office through an omnidirectional camera model "
-            "along a 3D path (--route), clean or with the effects of real footage (--footage). "
+            "Render a corridor, room, L-shaped office or cell house through an omnidirectional "
+            "camera model along a 3D path (--route), clean or with the effects of real footage "
+            "(--footage). "
             "Writes images/ (or video.mp4), camera.yaml, groundtruth.tum, scene.ply, "
             "lines3d.json and render.json into OUTPUT (see docs/rendering.md)."
         ),

@@ -39,6 +39,7 @@ class SceneName(StrEnum):
     CORRIDOR = "corridor"
     ROOM = "room"
     OFFICE = "office"
+    CELLHOUSE = "cellhouse"
 
 
 class Material(IntEnum):
@@ -631,8 +632,85 @@ def _office_clutter(b: _Builder, south: _Wall, east: _Wall, west_b: _Wall,
     _box_against(b, west_b, 4.3, (1.0, 0.35, 0.8), 10.0, wood, top_mat=dark)
     b.prism(west_b.point(7.6, 0.0, 0.24), 0.2, 0.6, Material.BIN)
 
+def _cell_front(b: _Builder, x0: float, x1: float, y: float, side: float, z0: float,
+                z1: float, cell: float = 1.5, bar: float = 0.025, spacing: float = 0.125) -> None:
+    """A tier of cell fronts in the plane ``y`` from ``x0`` to ``x1`` and ``z0`` to ``z1``: a
+    post every ``cell`` metres, vertical bars (``bar`` square) every ``spacing`` metres between
+    the posts and a flat cross bar across each cell at a third and two thirds of the height, on
+    the corridor's side (``side``: +1 or -1 along ``Y``). Lines: every vertical edge of posts
+    and bars, the cross bars' long edges (along ``X``)."""
+    dark = Material.FURNITURE_DARK
+    h = z1 - z0
+    posts = np.arange(x0, x1 + 1e-9, cell)
+    for px in posts:
+        b.box((px, y, z0 + h / 2), (0.12, 0.12, h), dark, "cell_post", vertical_only=True)
+    for a, c in zip(posts[:-1], posts[1:], strict=True):
+        n = int(round((c - a - 0.12) / spacing))
+        for k in range(1, n):
+            b.box((a + 0.06 + k * (c - a - 0.12) / n, y, z0 + h / 2), (bar, bar, h), dark,
+                  "cell_bar", vertical_only=True)
+        for zc in (z0 + h / 3, z0 + 2 * h / 3):
+            b.rect_lines((a + 0.06, y + side * 0.03, zc - 0.02), (c - a - 0.12, 0.0, 0.0),
+                         (0.0, 0.0, 0.04), dark, "cell_crossbar", "02")
 
-SCENES = {SceneName.CORRIDOR: corridor, SceneName.ROOM: room, SceneName.OFFICE: office}
+
+def _gallery(b: _Builder, x0: float, x1: float, y_front: float, y_edge: float, z: float,
+             post_every: float = 1.5) -> None:
+    """An upper-tier walkway: a slab from the cell fronts (``y_front``) to its edge
+    (``y_edge``) at height ``z`` (0.2 m thick), and a railing along its edge: posts every
+    ``post_every`` metres, a top rail 1 m and a middle rail 0.5 m above the slab. Lines: the
+    slab's and the rails' edges along ``X``, the posts' vertical edges."""
+    dark = Material.FURNITURE_DARK
+    yc, depth = (y_front + y_edge) / 2, abs(y_edge - y_front)
+    b.box(((x0 + x1) / 2, yc, z - 0.1), (x1 - x0, depth, 0.2), Material.PILLAR, "gallery")
+    inward = np.sign(y_front - y_edge)
+    yr = y_edge + inward * 0.05
+    for px in np.arange(x0 + 0.25, x1 - 0.2, post_every):
+        b.box((px, yr, z + 0.5), (0.05, 0.05, 1.0), dark, "railing_post", vertical_only=True)
+    for zr in (z + 0.5, z + 1.0):
+        b.box(((x0 + x1) / 2, yr, zr), (x1 - x0 - 0.2, 0.05, 0.05), dark, "railing")
+
+
+def cellhouse() -> Scene:
+    """A prison cell house 24 m x 9 m x 6.5 m along ``+X``: a corridor 3 m wide between two
+    blocks of cells, each block two tiers high (2.5 m each; the upper tier reached by a gallery
+    1 m wide with a railing along it), every cell 1.5 m wide behind a front of vertical bars
+    (0.025 m every 0.125 m) with two cross bars, partition walls between the cells, a door in
+    each end wall, lights under the ceiling and along the corridor. Long lines along the walk
+    (galleries, railings, cross bars, where walls meet floor and ceiling) and dense short
+    verticals across it (bars, posts): the lines along the walk leave the motion along them
+    free, the verticals fix it."""
+    X, Y, Z = 24.0, 9.0, 6.5
+    front_s, front_n = 3.0, 6.0  # the cell fronts: south block y < 3, north block y > 6
+    tier, slab = 2.5, 0.2
+    b = _Builder()
+    _add_shell(b, (X, Y, Z), end_wall=Material.END_WALL)
+    x0, x1 = 1.5, X - 1.5
+    for z0 in (0.0, tier + slab):
+        for y, side in ((front_s, 1.0), (front_n, -1.0)):
+            _cell_front(b, x0, x1, y, side, z0, z0 + tier)
+    # partition walls between the cells (and at both ends of each block), full height
+    for px in np.arange(x0, x1 + 1e-9, 1.5):
+        # lines: where the partition meets the floor and the back wall, its top
+        for ya, yb, edges in ((0.0, front_s - 0.06, "023"), (front_n + 0.06, Y, "012")):
+            b.rect_lines((px, ya, 0.0), (0.0, yb - ya, 0.0), (0.0, 0.0, 2 * tier + slab),
+                         Material.WALL, "cell_wall", edges)
+    # the upper tiers' floor between the blocks' ends and the fronts is the gallery's slab
+    _gallery(b, x0, x1, front_s, front_s + 1.0, tier + slab)
+    _gallery(b, x0, x1, front_n, front_n - 1.0, tier + slab)
+    far0 = _Wall((0, Y, 0), (0, -1, 0), (1, 0, 0), Y)
+    far1 = _Wall((X, 0, 0), (0, 1, 0), (-1, 0, 0), Y)
+    for wall in (far0, far1):
+        wall.door(b, Y / 2 - 0.6, 1.2, height=2.3)
+    for cx in np.arange(2.0, X, 4.0):
+        _ceiling_light(b, float(cx), Y / 2, Z, 1.2, 0.6, 2.0)
+        b.light((float(cx) + 2.0, Y / 2, tier - 0.2), 1.2)
+    walkway = np.array([[2.0, Y / 2, 0.0], [X - 2.0, Y / 2, 0.0]])
+    return b.build("cellhouse", walkway, 0.7, Z)
+
+
+SCENES = {SceneName.CORRIDOR: corridor, SceneName.ROOM: room, SceneName.OFFICE: office,
+          SceneName.CELLHOUSE: cellhouse}
 
 
 def make_scene(name: str | SceneName) -> Scene:
