@@ -89,3 +89,20 @@ def test_a_weak_stretch_has_a_large_spread_and_is_flagged() -> None:
     assert len(posed) >= 10 and posed <= {int(k) for k in flags}
     flags = estimate_poses(tr, opts).report.frames_uncertain or {}
     assert not [k for k, v in flags.items() if SPREAD_REASON in v]
+
+
+def test_frames_that_see_one_direction_only_are_left_free() -> None:
+    """A walk whose frames see lines of one world direction only, but for frames 20-25 (the
+    cell house at 640x320, where only the railings along the walk are tracked): those frames'
+    turn about it and their motion along it are free, and although that freedom moves most
+    frames, their spread is infinite (not left out as a split into two parts would be)."""
+    sim = _walk(60, seed=3)
+    tr = sim.tracks
+    axis = np.argmax(np.abs(sim.line_directions), axis=1)
+    keep = (axis[tr.obs_track] == 0) | ((tr.obs_frame >= 20) & (tr.obs_frame <= 25))
+    one = replace(tr, obs_track=tr.obs_track[keep], obs_frame=tr.obs_frame[keep],
+                  obs_normal=tr.obs_normal[keep])
+    spread = _spread(sim, one, np.radians(0.1))
+    free = ~np.isfinite(spread.rotation_deg) | ~np.isfinite(spread.position)
+    assert free.sum() >= 50
+    assert not free[20:26].any()

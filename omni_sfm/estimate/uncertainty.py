@@ -15,8 +15,9 @@ the walk's speed or bend free ties it weakly to the rest).
 Long videos are taken in overlapping windows of ``window`` posed frames (each with its own
 similarity gauge): each frame's figures come from the window in which it lies farthest from
 the ends. Where the data leave a direction free that moves a few of a window's frames, their
-spread is infinite; a free direction that moves most of them (two parts whose relative pose
-nothing fixes) is left out.
+spread is infinite; free directions that move most of them (two parts whose relative pose
+nothing fixes) are left out, except from the frames they move by much (each frame's own
+parameters free: lines along the walk in most frames), whose spread is infinite too.
 """
 
 from __future__ import annotations
@@ -93,11 +94,19 @@ def _camera_information(tracks: LineTracks, R: FloatArray, c: FloatArray, d: Flo
     return idx, S.reshape(6 * n, 6 * n)
 
 
+_FREE_TRACE = 0.5
+"""A frame whose block of the free directions' projector has at least this trace is left free
+(one parameter of its own free gives 1; a split that leaves a part of 14 frames or more free as
+a whole gives less)."""
+
+
 def _inverse(A: FloatArray, G: FloatArray, Amap: FloatArray
              ) -> tuple[FloatArray, np.ndarray | None]:
     """``(C, moves)``: the inverse of the symmetric ``A`` (Cholesky), or, where ``A`` is not
     positive definite (a direction the data leave free), its inverse on the other directions
-    and ``(n,)`` which frames the free directions move (``G`` the similarities, ``Amap`` the
+    and ``(n,)`` how much the free directions move each frame (the trace of its block of their
+    projector: about 1 for each of its parameters that they leave free, about ``7 / m`` where
+    a split leaves a part of ``m`` frames free as a whole; ``G`` the similarities, ``Amap`` the
     alignment that removes them; None: no free direction)."""
     try:
         L = scipy.linalg.cholesky(A, lower=True, check_finite=False)
@@ -111,8 +120,7 @@ def _inverse(A: FloatArray, G: FloatArray, Amap: FloatArray
     keep = ~free
     C = (V[:, keep] / w[keep]) @ V[:, keep].T
     Vf = V[:, free] - G @ (Amap @ V[:, free])      # the free directions, the gauge removed
-    moves = (np.square(Vf).reshape(-1, 6, int(free.sum())).sum(axis=(1, 2)) > 1e-12)
-    return C, moves
+    return C, np.square(Vf).reshape(-1, 6, int(free.sum())).sum(axis=(1, 2))
 
 
 def _window_spread(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArray,
@@ -149,9 +157,14 @@ def _window_spread(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArr
     var = sigma**2 * np.stack([rot, pos], axis=1)
     # a free direction that moves a few frames leaves those free; one that moves most of
     # them is a split of the window into parts whose relative pose nothing fixes, which the
-    # spread cannot attribute to a part (the caller's ties between parts judge it)
-    if moves is not None and moves.sum() <= n // 2:
-        var[moves] = np.inf
+    # spread cannot attribute to a part (the caller's ties between parts judge it), unless it
+    # moves frames by much: then the frames' own parameters are free (lines along the walk
+    # that leave the motion along them free in most frames), whatever their number
+    if moves is not None:
+        moved = moves > 1e-12
+        if moved.sum() <= n // 2:
+            var[moved] = np.inf
+        var[moves >= _FREE_TRACE] = np.inf
     return idx, np.sqrt(np.maximum(var[:, 0], 0.0)), np.sqrt(np.maximum(var[:, 1], 0.0))
 
 
