@@ -246,6 +246,10 @@ def test_init_report_reads_what_its_readers_use(tmp_path: Path) -> None:
     text = summary(InitReport.from_json(_init_doc(frames_uncertain=flagged)), tmp_path, ["0"],
                    [], [])
     assert "uncertain: 6 frames the data do not fix (frames 0-2, 5, 7-8;" in text
+    every = {str(k): "position not fixed" for k in range(10)}
+    text = summary(InitReport.from_json(_init_doc(frames_uncertain=every)), tmp_path, ["0"],
+                   [], [])
+    assert "uncertain: every frame estimated (10): the data fix none of them, do not trust" in text
     with pytest.raises(OmniSfmError, match="no 'num_frames' key"):
         InitReport.from_json({"input": {}}, "init/report.json")
     with pytest.raises(OmniSfmError, match="not a JSON object"):

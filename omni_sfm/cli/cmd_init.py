@@ -179,8 +179,14 @@ def summary(rep: InitReport, output: Path, estimated: list[str],
         idx = sorted(int(k) for k in rep.frames_uncertain)
         where = (f"poses in {rep.uncertain_poses}, not in trajectory.tum" if rep.uncertain_poses
                  else "poses in trajectory.tum")
-        lines.append(f"uncertain: {len(idx)} frames the data do not fix (frames "
-                     f"{_index_runs(idx)}; {where}; reasons in report.json frames_uncertain)")
+        if len(idx) >= rep.num_frames_estimated:
+            lines.append(f"uncertain: every frame estimated ({len(idx)}): the data fix none of "
+                         f"them, do not trust this trajectory (frames {_index_runs(idx)}; "
+                         f"{where}; reasons in report.json frames_uncertain)")
+        else:
+            lines.append(f"uncertain: {len(idx)} frames the data do not fix (frames "
+                         f"{_index_runs(idx)}; {where}; reasons in report.json "
+                         f"frames_uncertain)")
     spread = _expected_error(rep)
     if spread:
         lines.append(spread)
