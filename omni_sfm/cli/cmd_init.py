@@ -179,7 +179,7 @@ def summary(rep: InitReport, output: Path, estimated: list[str],
         idx = sorted(int(k) for k in rep.frames_uncertain)
         where = (f"poses in {rep.uncertain_poses}, not in trajectory.tum" if rep.uncertain_poses
                  else "poses in trajectory.tum")
-        if len(idx) >= rep.num_frames_estimated:
+        if rep.num_frames_estimated is not None and len(idx) >= rep.num_frames_estimated:
             lines.append(f"uncertain: every frame estimated ({len(idx)}): the data fix none of "
                          f"them, do not trust this trajectory (frames {_index_runs(idx)}; "
                          f"{where}; reasons in report.json frames_uncertain)")
