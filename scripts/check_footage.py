@@ -372,7 +372,9 @@ def _record(args: argparse.Namespace, res: dict[str, Any]) -> None:
         "flagged, within 0.2 deg and 0.2 %", "off by > 1 deg or 2 %, not flagged",
         {"label": "rotation mean (deg)", "format": ".3f"},
         {"label": "rotation max (deg)", "format": ".3f"}, {"label": "ATE (%)", "format": ".2f"},
-        {"label": "time (s)", "format": ".1f"}], [row], merge=True)
+        {"label": "time (s)", "format": ".1f"}], [row], merge=True,
+        headline="{rows[0][0]}: {rows[0][2]} frames posed, {rows[0][3]} flagged, {rows[0][5]} "
+                 "off by more than 1 deg or 2 % and not flagged; ATE {rows[0][8]} %")
 
 
 def _fresh_output(out: Path, overwrite: bool) -> None:

@@ -72,6 +72,8 @@ SUMMARY = (
     SummaryRow("Long video (3,000 frames, 1920x960 H.264; windows estimator)",
                "bench_long_video", "docs/results.md"),
     SummaryRow("Short tracks against the oracle", "eval_sparse_global", "docs/estimator.md"),
+    SummaryRow("`init` on hand-held 640x320 H.264 along a cell house (not yet: the bars are "
+               "not tracked)", "eval_cellhouse", "docs/comparison.md"),
     SummaryRow("Global estimator (where lines come and go)", "eval_global_manhattan",
                "docs/estimator.md"),
     SummaryRow("`refine` (lines and points adjusted together)", "bench_refine_room",
