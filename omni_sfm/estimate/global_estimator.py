@@ -264,6 +264,26 @@ def _assign_lines(S: FloatArray, count: np.ndarray, line_world: np.ndarray,
     line_world[cand[hit]] = ok[best[hit]]
 
 
+def _anchored(Rk: FloatArray, vpv: FloatArray, normals: FloatArray, line_world: np.ndarray,
+              world: FloatArray, vpv_deg: float) -> FloatArray:
+    """A frame's start rotation ``Rk`` (the step from the previous frame) turned by the least
+    rotation that puts the largest family's ``vpv`` (camera frame) on its world direction
+    ``world[0]``, where it lies within ``vpv_deg`` of it, then about that direction so that its
+    lines of known world direction (``line_world`` ``(K,)``: the world direction of each of
+    the frame's ``normals`` ``(K, 3)``; -1: none, 0: the largest family's) are perpendicular to
+    it (:func:`_heading`)."""
+    u = Rk @ vpv
+    if u @ world[0] >= np.cos(np.radians(vpv_deg)):
+        # a VPV far from where the step from the previous frame puts it is wrong
+        # (a frame with two or three of the family's lines, nearly coplanar)
+        Rk = _turn_onto(u, world[0]) @ Rk
+    known = (line_world > 0) & np.isfinite(world[np.maximum(line_world, 0), 0])
+    if known.any():
+        a = normals[known] @ Rk.T
+        Rk = _heading(world[0], a, world[line_world[known]]) @ Rk
+    return Rk
+
+
 def anchored_start(tracks: LineTracks, frames: np.ndarray, families: list[ParallelFamily],
                    snap_deg: float = 20.0, min_views: int = 5, line_deg: float = 8.0,
                    min_family_size: int = 5, vpv_deg: float = 5.0
@@ -305,16 +325,8 @@ def anchored_start(tracks: LineTracks, frames: np.ndarray, families: list[Parall
         if np.isfinite(vpv[0][k]).all():
             if not np.isfinite(world[0]).all():
                 world[0] = Rk @ vpv[0][k]
-            u = Rk @ vpv[0][k]
-            if u @ world[0] >= np.cos(np.radians(vpv_deg)):
-                # a VPV far from where the step from the previous frame puts it is wrong
-                # (a frame with two or three of the family's lines, nearly coplanar)
-                Rk = _turn_onto(u, world[0]) @ Rk
-            j = line_world[t]
-            known = (j > 0) & np.isfinite(world[np.maximum(j, 0), 0])
-            if known.any():
-                a = tracks.obs_normal[obs[known]] @ Rk.T
-                Rk = _heading(world[0], a, world[j[known]]) @ Rk
+            Rk = _anchored(Rk, vpv[0][k], tracks.obs_normal[obs], line_world[t], world,
+                           vpv_deg)
         for j in big:
             if not np.isfinite(world[j]).all() and np.isfinite(vpv[j][k]).all():
                 known_rows = np.flatnonzero(np.isfinite(world[:, 0]))
@@ -870,6 +882,51 @@ def _adjusted(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArray, p
     return plain if cost[0] <= cost[1] else other
 
 
+def _positions_step(tracks: LineTracks, rot: GlobalRotations, frames: np.ndarray,
+                    lines: np.ndarray, options: GlobalOptions
+                    ) -> tuple[FloatArray, FloatArray, GlobalPositions, np.ndarray]:
+    """Step 2: ``(R, c, positions, dir_ok)``. The frames whose lines leave a turn free get it
+    interpolated (:func:`free_turns_interpolated`); the lines with a known direction
+    (``dir_ok``: their planes turn, their normals fit it) take part in the linear positions;
+    the free frames are then resected from those lines (:func:`_resected`)."""
+    free = _rotation_free(rot, frames, options)
+    R = free_turns_interpolated(rot, free)
+    dir_ok = lines & np.isfinite(rot.directions).all(axis=1) & \
+        (plane_spread_deg(tracks, R, frames) >= options.min_spread_deg) & \
+        (_direction_rms(tracks, R, rot.directions, frames) <=
+         options.outlier_sigmas * rot.sigma)
+    pos = solve_positions(tracks, R, rot.directions, frames & ~free, dir_ok, options.positions)
+    R, c = _resected(tracks, R, pos.positions, rot.directions, pos.points, frames, free,
+                     pos.residual_sigma)
+    return R, c, pos, dir_ok
+
+
+def _adjustment_step(tracks: LineTracks, R: FloatArray, c: FloatArray, rot: GlobalRotations,
+                     pos: GlobalPositions, dir_ok: np.ndarray, label: np.ndarray,
+                     frames: np.ndarray, options: GlobalOptions) -> BundleResult:
+    """Step 3: the robust adjustment from the positions' start (:func:`_adjusted`), the world
+    directions fitted again to it (:func:`_world_directions_refitted`)."""
+    d0 = np.where(dir_ok[:, None], rot.directions, np.nan)
+    # the lines of a world direction keep it: only their positions move (and with two world
+    # directions or more they hold the rotation gauge)
+    held = dir_ok & (label >= 0) if options.hold_world_directions else None
+    ba = _adjusted(tracks, R, c, d0, pos.points, frames, held, options)
+    if held is not None:
+        ba = _world_directions_refitted(tracks, ba, held, label, options)
+    return ba
+
+
+def _flags(tracks: LineTracks, rot: GlobalRotations, pos: GlobalPositions, ba: BundleResult,
+           options: GlobalOptions) -> tuple[dict[int, str], FloatArray, FloatArray]:
+    """Step 4: ``(uncertain, spread_deg, spread_path)``, the frames the data do not fix with the
+    reason (:func:`_uncertain`, then :func:`_spread_flags` on the covariance's spread)."""
+    uncertain = _uncertain(tracks, rot, pos, ba, options)
+    spread_deg, spread_path = _spread(tracks, ba, uncertain, options)
+    uncertain.update({k: v for k, v in _spread_flags(spread_deg, spread_path, options).items()
+                      if k not in uncertain})
+    return uncertain, spread_deg, spread_path
+
+
 def solve_global(tracks: LineTracks, options: GlobalOptions = GlobalOptions()
                  ) -> GlobalSolution:
     """Steps 1-4 of the module docstring.
@@ -893,26 +950,12 @@ def solve_global(tracks: LineTracks, options: GlobalOptions = GlobalOptions()
     rot, worlds, label = _rotations(tracks, frames, lines, families, options, steps)
     timings["rotations"] = (time.perf_counter() - t) * 1e3
     t = time.perf_counter()
-    free = _rotation_free(rot, frames, options)
-    R = free_turns_interpolated(rot, free)
-    dir_ok = lines & np.isfinite(rot.directions).all(axis=1) & \
-        (plane_spread_deg(tracks, R, frames) >= options.min_spread_deg) & \
-        (_direction_rms(tracks, R, rot.directions, frames) <=
-         options.outlier_sigmas * rot.sigma)
-    pos = solve_positions(tracks, R, rot.directions, frames & ~free, dir_ok, options.positions)
-    R, c = _resected(tracks, R, pos.positions, rot.directions, pos.points, frames, free,
-                     pos.residual_sigma)
+    R, c, pos, dir_ok = _positions_step(tracks, rot, frames, lines, options)
     steps.append(EstimatorStep(step="positions",
                                sigma_deg=float(np.degrees(pos.residual_sigma))))
     timings["positions"] = (time.perf_counter() - t) * 1e3
     t = time.perf_counter()
-    d0 = np.where(dir_ok[:, None], rot.directions, np.nan)
-    # the lines of a world direction keep it: only their positions move (and with two world
-    # directions or more they hold the rotation gauge)
-    held = dir_ok & (label >= 0) if options.hold_world_directions else None
-    ba = _adjusted(tracks, R, c, d0, pos.points, frames, held, options)
-    if held is not None:
-        ba = _world_directions_refitted(tracks, ba, held, label, options)
+    ba = _adjustment_step(tracks, R, c, rot, pos, dir_ok, label, frames, options)
     timings["bundle_adjustment"] = (time.perf_counter() - t) * 1e3
     steps.append(EstimatorStep(step="bundle adjustment", iterations=ba.iterations,
                                outlier_tracks=int(ba.outlier_tracks.sum()),
@@ -923,10 +966,7 @@ def solve_global(tracks: LineTracks, options: GlobalOptions = GlobalOptions()
     members = np.asarray(families[0].members, bool) if families else \
         np.zeros(tracks.num_tracks, bool)
     t = time.perf_counter()
-    uncertain = _uncertain(tracks, rot, pos, ba, options)
-    spread_deg, spread_path = _spread(tracks, ba, uncertain, options)
-    uncertain.update({k: v for k, v in _spread_flags(spread_deg, spread_path, options).items()
-                      if k not in uncertain})
+    uncertain, spread_deg, spread_path = _flags(tracks, rot, pos, ba, options)
     timings["pose_spread"] = (time.perf_counter() - t) * 1e3
     return GlobalSolution(
         rotations=ba.rotations, positions=ba.positions, frames=ba.frames,
