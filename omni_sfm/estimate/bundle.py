@@ -924,9 +924,8 @@ def bundle_adjust(tracks: LineTracks, rotations: FloatArray, positions: FloatArr
     if 2 * len(keep) < F or 2 * len(lines) < M:
         # a few frames of a long sequence (a new start, a join): the problem on those frames
         # and the tracks they see alone, so that its cost does not grow with the sequence
-        R, c, d, p = state
-        sub = bundle_adjust(tracks.subset(obs, lines, keep), R[keep], c[keep], d[lines],
-                            p[lines], scale_frames=_rows(scale_frames, keep),
+        sub = bundle_adjust(tracks.subset(obs, lines, keep), *_state_rows(state, keep, lines),
+                            scale_frames=_rows(scale_frames, keep),
                             held_frames=_rows(held_frames, keep),
                             held_directions=_rows(held_directions, lines),
                             held_rotations=_rows(held_rotations, keep), options=options)
@@ -940,6 +939,13 @@ def bundle_adjust(tracks: LineTracks, rotations: FloatArray, positions: FloatArr
     if options.final_loss is not None:
         adj.polish(options.final_loss)
     return adj.result(t0)
+
+
+def _state_rows(state: _State, frames: np.ndarray, lines: np.ndarray
+                ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """The poses of ``frames`` and the lines ``lines`` of ``state``."""
+    R, c, d, p = state
+    return R[frames], c[frames], d[lines], p[lines]
 
 
 def _rows(a: np.ndarray | None, idx: np.ndarray) -> np.ndarray | None:
