@@ -282,6 +282,34 @@ def keep_continuity(prob: RotationProblem, phi_c: float, phi: FloatArray, *,
     return out, e
 
 
+def _polish_step(W: FloatArray, m: FloatArray, dm: FloatArray, d: FloatArray, e1: FloatArray,
+                 e2: FloatArray, lam: float) -> tuple[FloatArray, FloatArray] | None:
+    """One damped Gauss-Newton step of :func:`polish_angles`: ``(step of the angles (F,),
+    step of the directions in their tangent bases (Q, 2))``, the angles eliminated by their
+    diagonal Schur complement; None where the reduced system is singular."""
+    F, Q = m.shape[:2]
+    r = np.einsum("fqi,qi->fq", m, d)
+    jp = np.einsum("fqi,qi->fq", dm, d)                                # d r / d phi_k
+    jd = np.stack([np.einsum("fqi,qi->fq", m, e1), np.einsum("fqi,qi->fq", m, e2)], -1)
+    jp[0] = 0.0                                                         # phi_0 is fixed
+    hpp = np.sum(W * jp * jp, 1)
+    hpd = W[None, :, None] * jp[..., None] * jd                        # (F, Q, 2)
+    hdd = np.einsum("q,fqa,fqb->qab", W, jd, jd)
+    gp = np.sum(W * jp * r, 1)
+    gd = np.einsum("q,fqa,fq->qa", W, jd, r)
+    inv_p = np.where(hpp > 0, 1.0 / (hpp * (1 + lam) + 1e-300), 0.0)
+    red = -((inv_p[:, None] * hpd.reshape(F, 2 * Q)).T @ hpd.reshape(F, 2 * Q)).reshape(
+        Q, 2, Q, 2)
+    idx = np.arange(Q)
+    red[idx, :, idx, :] += hdd * (1 + lam) + np.eye(2) * 1e-15
+    rhs = gd - np.einsum("f,fqa,f->qa", inv_p, hpd, gp)
+    try:
+        step_d = -np.linalg.solve(red.reshape(2 * Q, 2 * Q), rhs.reshape(2 * Q)).reshape(Q, 2)
+    except np.linalg.LinAlgError:
+        return None
+    return -inv_p * (gp + np.einsum("fqa,qa->f", hpd, step_d)), step_d
+
+
 def polish_angles(prob: RotationProblem, phi: FloatArray, *, max_iter: int = 30,
                   tol: float = 1e-13) -> tuple[FloatArray, FloatArray, float]:
     """Joint least squares over all views: the angles ``phi_k`` (``phi_0 = 0`` fixed) and every
@@ -307,26 +335,10 @@ def polish_angles(prob: RotationProblem, phi: FloatArray, *, max_iter: int = 30,
     lam = 1e-6
     for _ in range(max_iter):
         e1, e2 = orthonormal_completion(d)
-        r = np.einsum("fqi,qi->fq", m, d)
-        jp = np.einsum("fqi,qi->fq", dm, d)                                # d r / d phi_k
-        jd = np.stack([np.einsum("fqi,qi->fq", m, e1), np.einsum("fqi,qi->fq", m, e2)], -1)
-        jp[0] = 0.0                                                         # phi_0 is fixed
-        hpp = np.sum(W * jp * jp, 1)
-        hpd = W[None, :, None] * jp[..., None] * jd                        # (F, Q, 2)
-        hdd = np.einsum("q,fqa,fqb->qab", W, jd, jd)
-        gp = np.sum(W * jp * r, 1)
-        gd = np.einsum("q,fqa,fq->qa", W, jd, r)
-        inv_p = np.where(hpp > 0, 1.0 / (hpp * (1 + lam) + 1e-300), 0.0)
-        red = -((inv_p[:, None] * hpd.reshape(F, 2 * Q)).T @ hpd.reshape(F, 2 * Q)).reshape(
-            Q, 2, Q, 2)
-        idx = np.arange(Q)
-        red[idx, :, idx, :] += hdd * (1 + lam) + np.eye(2) * 1e-15
-        rhs = gd - np.einsum("f,fqa,f->qa", inv_p, hpd, gp)
-        try:
-            step_d = -np.linalg.solve(red.reshape(2 * Q, 2 * Q), rhs.reshape(2 * Q)).reshape(Q, 2)
-        except np.linalg.LinAlgError:
+        step = _polish_step(W, m, dm, d, e1, e2, lam)
+        if step is None:
             break
-        step_p = -inv_p * (gp + np.einsum("fqa,qa->f", hpd, step_d))
+        step_p, step_d = step
         phi_new = phi + step_p
         phi_new[0] = 0.0
         d_new = d + step_d[:, :1] * e1 + step_d[:, 1:] * e2
@@ -376,6 +388,32 @@ class RotationResult:
     other_costs: tuple[float, ...] = ()
 
 
+def _candidates(prob: RotationProblem, xs: list[float], continuity: bool
+                ) -> list[tuple[int, float, FloatArray, FloatArray]]:
+    """``(half turns, cost, angles, per-view costs)`` of every view's angles solved at each of
+    the second view's angles ``xs`` (the search's minima), the best first. With
+    ``continuity`` the half turn of each is tried too (wherever the lines perpendicular to
+    ``v`` dominate it is a minimum as well, and may be the one whose angles run continuously),
+    and where some candidates have no half turn between neighbouring views, only those are
+    kept, lowest cost first."""
+    if continuity:
+        xs = xs + [float(np.angle(np.exp(1j * (x + np.pi)))) for x in xs]
+    cands = []
+    for x in xs:
+        phi_x, e_x = prob.angles_at(x)
+        jumps = 0
+        if continuity:
+            phi_x, e_x = keep_continuity(prob, x, phi_x)
+            jumps = count_half_turns(phi_x)
+        cands.append((jumps, float(e_x.sum()), phi_x, e_x))
+    if continuity and any(j == 0 for j, *_ in cands):
+        # consecutive frames do not turn by more than 90 deg about v: among the minima, those
+        # without such jumps, lowest cost first
+        cands = [c for c in cands if c[0] == 0]
+        cands.sort(key=lambda c: c[1])
+    return cands
+
+
 def estimate_rotations(normals: FloatArray, vpv: FloatArray, weights: FloatArray,
                        second_view: int, *, num_grid: int = 64, num_starts: int = 3,
                        xtol: float = 1e-12, softening: float = 0.1,
@@ -415,24 +453,7 @@ def estimate_rotations(normals: FloatArray, vpv: FloatArray, weights: FloatArray
                                        int(np.searchsorted(idx, second_view)), softening)
     res = global_minimize_1d(search.cost, -np.pi, np.pi, num_grid=num_grid, periodic=True,
                              num_starts=num_starts, xtol=xtol)
-    xs = [res.x] + [x for x, _ in res.minima[1:]]
-    if continuity:
-        # the half turn of the second view is a minimum too wherever the lines perpendicular
-        # to v dominate; it may be the one whose angles run continuously
-        xs += [float(np.angle(np.exp(1j * (x + np.pi)))) for x in xs]
-    cands = []
-    for x in xs:
-        phi_x, e_x = prob.angles_at(x)
-        jumps = 0
-        if continuity:
-            phi_x, e_x = keep_continuity(prob, x, phi_x)
-            jumps = count_half_turns(phi_x)
-        cands.append((jumps, float(e_x.sum()), phi_x, e_x))
-    if continuity and any(j == 0 for j, *_ in cands):
-        # consecutive frames do not turn by more than 90 deg about v: among the minima, those
-        # without such jumps, lowest cost first
-        cands = [c for c in cands if c[0] == 0]
-        cands.sort(key=lambda c: c[1])
+    cands = _candidates(prob, [res.x] + [x for x, _ in res.minima[1:]], continuity)
     _, _, phi, e = cands[0]
     polished = float("nan")
     if polish:
