@@ -251,6 +251,31 @@ def _tangent_bases(d: FloatArray) -> FloatArray:
     return np.stack(orthonormal_completion(d), -1)
 
 
+def _weighted_solve(m: FloatArray, y: FloatArray, w: FloatArray
+                    ) -> tuple[FloatArray, float, FloatArray]:
+    """One weighted solve of :func:`translation_all_views`: ``(z (L, 2), cost, T (F, 3, 2L))``,
+    the lines' offsets (the eigenvector of the smallest eigenvalue of the reduced form), that
+    eigenvalue, and the map ``t_k = T_k z`` from them to each view's position (``t_0 = 0``).
+    ``m`` ``(F, L, 3)`` world normals, ``y`` ``(F, L, 2)`` their products with the lines'
+    tangent bases, ``w`` ``(F, L)`` weights."""
+    F, L = m.shape[:2]
+    H = (w[..., None] * m).transpose(0, 2, 1) @ m
+    G = (w[..., None, None] * y[..., :, None]) * m[..., None, :]    # (F, L, 2, 3)
+    ridge = 1e-12 * np.trace(H[1:], axis1=1, axis2=2)[:, None, None] * np.eye(3)
+    Hinv = np.linalg.inv(H[1:] + ridge)
+    GH = (G[1:].reshape(F - 1, 2 * L, 3) @ Hinv).reshape(F - 1, L, 2, 3)
+    Z = -(GH.transpose(1, 2, 0, 3).reshape(2 * L, -1)
+          @ G[1:].transpose(0, 3, 1, 2).reshape(-1, 2 * L)).reshape(L, 2, L, 2)
+    diag = np.einsum("fl,fla,flb->lab", w, y, y)
+    idx = np.arange(L)
+    Z[idx, :, idx, :] += diag
+    vals, vecs = np.linalg.eigh(Z.reshape(2 * L, 2 * L))
+    # t_k = H_k^-1 sum_l w m (m . B_l z_l)
+    T = np.zeros((F, 3, 2 * L))
+    T[1:] = Hinv @ G[1:].reshape(F - 1, 2 * L, 3).transpose(0, 2, 1)
+    return vecs[:, 0].reshape(L, 2), float(max(vals[0], 0.0)), T
+
+
 def translation_all_views(world_normals: FloatArray, directions: FloatArray,
                           weights: FloatArray, *, irls_iter: int = 3,
                           reference: FloatArray | None = None) -> tuple[FloatArray, FloatArray,
@@ -283,22 +308,7 @@ def translation_all_views(world_normals: FloatArray, directions: FloatArray,
     T = np.zeros((F, 3, 2 * L))
     cost = np.inf
     for it in range(irls_iter + 1):
-        H = (w[..., None] * m).transpose(0, 2, 1) @ m
-        G = (w[..., None, None] * y[..., :, None]) * m[..., None, :]    # (F, L, 2, 3)
-        ridge = 1e-12 * np.trace(H[1:], axis1=1, axis2=2)[:, None, None] * np.eye(3)
-        Hinv = np.linalg.inv(H[1:] + ridge)
-        GH = (G[1:].reshape(F - 1, 2 * L, 3) @ Hinv).reshape(F - 1, L, 2, 3)
-        Z = -(GH.transpose(1, 2, 0, 3).reshape(2 * L, -1)
-              @ G[1:].transpose(0, 3, 1, 2).reshape(-1, 2 * L)).reshape(L, 2, L, 2)
-        diag = np.einsum("fl,fla,flb->lab", w, y, y)
-        idx = np.arange(L)
-        Z[idx, :, idx, :] += diag
-        vals, vecs = np.linalg.eigh(Z.reshape(2 * L, 2 * L))
-        z = vecs[:, 0].reshape(L, 2)
-        cost = float(max(vals[0], 0.0))
-        # t_k = H_k^-1 sum_l w m (m . B_l z_l)
-        T = np.zeros((F, 3, 2 * L))
-        T[1:] = Hinv @ G[1:].reshape(F - 1, 2 * L, 3).transpose(0, 2, 1)
+        z, cost, T = _weighted_solve(m, y, w)
         if it == irls_iter:
             break
         pos = T @ z.reshape(-1)
