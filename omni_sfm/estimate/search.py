@@ -63,22 +63,7 @@ def global_minimize_1d(cost: VectorCost, lo: float, hi: float, *, num_grid: int 
     """
     if not hi > lo or num_grid < 3 or num_starts < 1:
         raise ValueError(f"bad search set-up: {lo=} {hi=} {num_grid=} {num_starts=}")
-    if periodic:
-        xs = lo + (hi - lo) * np.arange(num_grid) / num_grid
-    else:
-        xs = np.linspace(lo, hi, num_grid)
-    fs = np.asarray(cost(xs), dtype=np.float64)
-    if fs.shape != xs.shape:
-        raise ValueError(f"cost returned shape {fs.shape}, expected {xs.shape}")
-    fs = np.where(np.isfinite(fs), fs, np.inf)
-    if periodic:
-        prev, nxt = np.roll(fs, 1), np.roll(fs, -1)
-        is_min = (fs <= prev) & (fs <= nxt)
-    else:
-        prev = np.concatenate([[np.inf], fs[:-1]])
-        nxt = np.concatenate([fs[1:], [np.inf]])
-        is_min = (fs <= prev) & (fs <= nxt)
-    cand = np.flatnonzero(is_min & np.isfinite(fs))
+    xs, fs, cand = _grid(cost, lo, hi, num_grid, periodic)
     step = xs[1] - xs[0]
     best_x, best_f = float(xs[int(np.argmin(fs))]), float(np.min(fs))
     evals = num_grid
@@ -120,6 +105,28 @@ def global_minimize_1d(cost: VectorCost, lo: float, hi: float, *, num_grid: int 
         if all(_dist(x, y, lo, hi, periodic) > 0.5 * step for y, _ in minima):
             minima.append((x, f))
     return SearchResult(minima[0][0], minima[0][1], evals, xs, fs, tuple(minima))
+
+
+def _grid(cost: VectorCost, lo: float, hi: float, num_grid: int, periodic: bool
+          ) -> tuple[FloatArray, FloatArray, np.ndarray]:
+    """``(xs, fs, cand)``: the coarse grid of :func:`global_minimize_1d`, its costs
+    (non-finite ones as ``+inf``) and the indices of its local minima with a finite cost."""
+    if periodic:
+        xs = lo + (hi - lo) * np.arange(num_grid) / num_grid
+    else:
+        xs = np.linspace(lo, hi, num_grid)
+    fs = np.asarray(cost(xs), dtype=np.float64)
+    if fs.shape != xs.shape:
+        raise ValueError(f"cost returned shape {fs.shape}, expected {xs.shape}")
+    fs = np.where(np.isfinite(fs), fs, np.inf)
+    if periodic:
+        prev, nxt = np.roll(fs, 1), np.roll(fs, -1)
+        is_min = (fs <= prev) & (fs <= nxt)
+    else:
+        prev = np.concatenate([[np.inf], fs[:-1]])
+        nxt = np.concatenate([fs[1:], [np.inf]])
+        is_min = (fs <= prev) & (fs <= nxt)
+    return xs, fs, np.flatnonzero(is_min & np.isfinite(fs))
 
 
 def _dist(x: float, y: float, lo: float, hi: float, periodic: bool) -> float:
