@@ -229,6 +229,20 @@ def _check_inputs(tracks: LineTracks, family: ParallelFamily,
     return w
 
 
+def _cauchy_weights(sol: PaperSolution, normals: FloatArray, w_user: FloatArray,
+                    opts: PaperOptions) -> tuple[FloatArray, bool]:
+    """``(weights, fits)``: the user's track weights times Cauchy weights of each track's RMS
+    angle under ``sol`` (robust to tracks that switched to another line), and whether every
+    weighted track fits within ``opts.robust_trigger`` times the robust scale."""
+    m = np.einsum("fij,fmj->fmi", sol.rotations, normals)
+    ang = normal_residuals(m, sol.line_directions, sol.line_points, sol.positions)
+    rt = np.nan_to_num(np.sqrt(np.mean(ang ** 2, axis=0)), nan=np.pi / 2)
+    scale = max(1.4826 * float(np.median(rt[w_user > 0])),
+                np.radians(opts.robust_min_scale_deg))
+    fits = bool(np.all(rt[w_user > 0] <= opts.robust_trigger * scale))
+    return w_user / (1.0 + (rt / (opts.robust_factor * scale)) ** 2), fits
+
+
 def estimate_paper(tracks: LineTracks, family: ParallelFamily,
                    options: PaperOptions | None = None, *,
                    weights: FloatArray | None = None,
@@ -265,16 +279,10 @@ def estimate_paper(tracks: LineTracks, family: ParallelFamily,
     timings = dict(sol.timings_ms)
     rounds = 0
     for _ in range(opts.robust_rounds):
-        # per-track RMS angle under the current solution -> Cauchy weights (robust to tracks
-        # that switched to another line); skipped when every track fits (clean data)
-        m = np.einsum("fij,fmj->fmi", sol.rotations, normals)
-        ang = normal_residuals(m, sol.line_directions, sol.line_points, sol.positions)
-        rt = np.nan_to_num(np.sqrt(np.mean(ang ** 2, axis=0)), nan=np.pi / 2)
-        scale = max(1.4826 * float(np.median(rt[w_user > 0])),
-                    np.radians(opts.robust_min_scale_deg))
-        if rounds == 0 and np.all(rt[w_user > 0] <= opts.robust_trigger * scale):
+        # skipped when every track fits (clean data)
+        w_new, fits = _cauchy_weights(sol, normals, w_user, opts)
+        if rounds == 0 and fits:
             break
-        w_new = w_user / (1.0 + (rt / (opts.robust_factor * scale)) ** 2)
         if rounds > 0 and np.max(np.abs(w_new - w)) < 0.05:
             break
         try:
