@@ -231,6 +231,36 @@ class Chain(NamedTuple):
     """Solved windows left out of the chain, and why."""
 
 
+def _linked_runs(windows: list[Window],
+                 solutions: list[tuple[FloatArray, FloatArray] | None]) -> list[list[int]]:
+    """The runs of solved windows in which each shares at least 3 frames with the one before."""
+    runs: list[list[int]] = []
+    for w, sol in enumerate(solutions):
+        if sol is None:
+            continue
+        if runs and windows[runs[-1][-1]].stop - windows[w].start >= 3:
+            runs[-1].append(w)
+        else:
+            runs.append([w])
+    return runs
+
+
+def _refined_locally(refine: RefineFn, R: FloatArray, c: FloatArray, done: np.ndarray,
+                     new: np.ndarray, lo: int, hi: int) -> np.ndarray:
+    """:func:`chain_windows`' local refinement of frames ``lo:hi`` (those chained and the
+    ``new`` ones), in place in ``R``, ``c`` and ``done`` (frames it could not estimate are
+    dropped); returns the new frames it kept."""
+    local = np.zeros(len(done), bool)
+    local[lo:hi] = True
+    local &= done | np.isin(np.arange(len(done)), new)
+    R2, c2, ok = refine(R, c, local, done & local)
+    R[local], c[local] = R2[local], c2[local]
+    lost = local & ~ok
+    R[lost], c[lost] = np.nan, np.nan
+    done &= ~lost
+    return np.asarray(new[ok[new]])
+
+
 def chain_windows(num_frames: int, windows: list[Window],
                   solutions: list[tuple[FloatArray, FloatArray] | None],
                   refine: RefineFn | None = None,
@@ -260,14 +290,7 @@ def chain_windows(num_frames: int, windows: list[Window],
     kept; the other frames are NaN and not estimated. Where windows overlap, the earlier
     window's poses stand.
     """
-    runs: list[list[int]] = []
-    for w, sol in enumerate(solutions):
-        if sol is None:
-            continue
-        if runs and windows[runs[-1][-1]].stop - windows[w].start >= 3:
-            runs[-1].append(w)
-        else:
-            runs.append([w])
+    runs = _linked_runs(windows, solutions)
     R = np.full((num_frames, 3, 3), np.nan)
     c = np.full((num_frames, 3), np.nan)
     done = np.zeros(num_frames, bool)
@@ -311,15 +334,7 @@ def chain_windows(num_frames: int, windows: list[Window],
         R[new] = Rs @ rot_w[jdx]
         c[new] = s * pos_w[jdx] @ Rs.T + t
         if refine is not None:
-            local = np.zeros(num_frames, bool)
-            local[prev_start:windows[w].stop] = True
-            local &= done | np.isin(np.arange(num_frames), new)
-            R2, c2, ok = refine(R, c, local, done & local)
-            R[local], c[local] = R2[local], c2[local]
-            lost = local & ~ok
-            R[lost], c[lost] = np.nan, np.nan
-            done &= ~lost
-            new = new[ok[new]]
+            new = _refined_locally(refine, R, c, done, new, prev_start, windows[w].stop)
         done[new] = True
         prev_start = windows[w].start
         chained.append(w)
