@@ -1197,6 +1197,41 @@ def _readjusted(tracks: LineTracks, ba: BundleResult, options: EstimationOptions
     return ba
 
 
+def _off_camera_adjustment(tracks: LineTracks, sol: _Solved, bad: np.ndarray, d: FloatArray,
+                           p: FloatArray, left_out: bool, bo: BundleOptions) -> BundleResult:
+    """One way of :func:`_lines_off_cameras`: the piece adjusted with the ``bad`` lines (NaN
+    in ``d``, ``p``) triangulated again from its poses, or with them ``left_out`` of a first
+    adjustment and triangulated from the poses that the others give."""
+    R, c = sol.R, sol.c
+    if left_out:
+        keep = np.flatnonzero(~bad)
+        first = scattered(bundle_adjust(tracks.select_tracks(~bad), R, c, d[keep], p[keep],
+                                        frames=sol.frames, options=bo),
+                          None, keep, tracks.num_frames, tracks.num_tracks)
+        R, c = first.rotations, first.positions
+        d = np.where(first.used_tracks[:, None], first.line_directions, np.nan)
+        p = np.where(first.used_tracks[:, None], first.line_points, np.nan)
+    return bundle_adjust(tracks, R, c, d, p, frames=sol.frames, options=bo)
+
+
+def _longer_polish(tracks: LineTracks, ba: BundleResult, options: EstimationOptions,
+                   run: RunLog, span: tuple[int, int]) -> BundleResult:
+    """:func:`_lines_off_cameras`' polish of its kept adjustment: the frames around the lines
+    through cameras bent to fit them, and the way back is slow for LM, hence
+    ``options.line_camera_iterations`` of their own (``ba`` as it is where it fails)."""
+    try:
+        with run.timed("refinement"):
+            return bundle_adjust(tracks, ba.rotations, ba.positions,
+                                 np.where(ba.used_tracks[:, None], ba.line_directions, np.nan),
+                                 np.where(ba.used_tracks[:, None], ba.line_points, np.nan),
+                                 frames=ba.frames, options=replace(
+                                     options.bundle,
+                                     max_iterations=options.line_camera_iterations))
+    except OmniSfmError as exc:
+        run.record(failed("lines off the cameras", span, f"the longer polish: {exc}"))
+        return ba
+
+
 def _lines_off_cameras(tracks: LineTracks, sol: _Solved, options: EstimationOptions,
                        run: RunLog) -> _Solved:
     """Strategy "lines off the cameras": where lines of ``sol`` pass within
@@ -1230,18 +1265,8 @@ def _lines_off_cameras(tracks: LineTracks, sol: _Solved, options: EstimationOpti
     for how in ("triangulated again", "left out, then triangulated again"):
         try:
             with run.timed("refinement"):
-                R, c = sol.R, sol.c
-                if how.startswith("left out"):
-                    keep = np.flatnonzero(~bad)
-                    first = scattered(bundle_adjust(tracks.select_tracks(~bad), R, c, d[keep],
-                                                    p[keep], frames=sol.frames, options=bo),
-                                      None, keep, tracks.num_frames, M)
-                    R, c = first.rotations, first.positions
-                    d2 = np.where(first.used_tracks[:, None], first.line_directions, np.nan)
-                    p2 = np.where(first.used_tracks[:, None], first.line_points, np.nan)
-                else:
-                    d2, p2 = d, p
-                new = bundle_adjust(tracks, R, c, d2, p2, frames=sol.frames, options=bo)
+                new = _off_camera_adjustment(tracks, sol, bad, d, p, how.startswith("left out"),
+                                             bo)
         except OmniSfmError as exc:
             run.record(failed("lines off the cameras", span, f"{how}: {exc}"))
             continue
@@ -1259,18 +1284,7 @@ def _lines_off_cameras(tracks: LineTracks, sol: _Solved, options: EstimationOpti
         best = (cost, new, why)
     if best is None:
         return sol
-    ba = best[1]
-    # the frames around those lines bent to fit them: the way back is slow for LM, hence
-    # line_camera_iterations of their own
-    try:
-        with run.timed("refinement"):
-            ba = bundle_adjust(tracks, ba.rotations, ba.positions,
-                               np.where(ba.used_tracks[:, None], ba.line_directions, np.nan),
-                               np.where(ba.used_tracks[:, None], ba.line_points, np.nan),
-                               frames=ba.frames, options=replace(
-                                   options.bundle, max_iterations=options.line_camera_iterations))
-    except OmniSfmError as exc:
-        run.record(failed("lines off the cameras", span, f"the longer polish: {exc}"))
+    ba = _longer_polish(tracks, best[1], options, run, span)
     run.record(Attempt("lines off the cameras", span, ba, cost_deg=ba.rms_final_deg,
                        why=f"{best[2]}; polished for up to {options.line_camera_iterations} "
                            f"iterations: {ba.rms_final_deg:.4g} deg RMS"))
