@@ -98,13 +98,19 @@ def global_minimize_1d(cost: VectorCost, lo: float, hi: float, *, num_grid: int 
     evals += count[0]
     if periodic:
         found = [(lo + float(np.mod(x - lo, hi - lo)), f) for x, f in found]
-    found.sort(key=lambda xf: xf[1])
-    # drop the raw grid point if polishing found the same basin
-    minima: list[tuple[float, float]] = []
-    for x, f in found:
-        if all(_dist(x, y, lo, hi, periodic) > 0.5 * step for y, _ in minima):
-            minima.append((x, f))
+    minima = _distinct(found, lo, hi, periodic, 0.5 * step)
     return SearchResult(minima[0][0], minima[0][1], evals, xs, fs, tuple(minima))
+
+
+def _distinct(found: list[tuple[float, float]], lo: float, hi: float, periodic: bool,
+              min_dist: float) -> list[tuple[float, float]]:
+    """The ``(x, f)`` minima ``found``, lowest first, each at least ``min_dist`` from every
+    lower one (the raw grid point is dropped where polishing found the same basin)."""
+    minima: list[tuple[float, float]] = []
+    for x, f in sorted(found, key=lambda xf: xf[1]):
+        if all(_dist(x, y, lo, hi, periodic) > min_dist for y, _ in minima):
+            minima.append((x, f))
+    return minima
 
 
 def _grid(cost: VectorCost, lo: float, hi: float, num_grid: int, periodic: bool

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 from typing import NamedTuple
 
 import numpy as np
@@ -245,6 +246,18 @@ def _linked_runs(windows: list[Window],
     return runs
 
 
+def _longest_run(windows: list[Window], solutions: list[tuple[FloatArray, FloatArray] | None]
+                 ) -> tuple[list[int], dict[int, str]]:
+    """The longest run of :func:`_linked_runs` (empty where no window is solved) and the
+    windows of the others, each with why it is not chained."""
+    runs = _linked_runs(windows, solutions)
+    if not runs:
+        return [], {}
+    best = max(runs, key=lambda r: windows[r[-1]].stop - windows[r[0]].start)
+    return best, {w: "not in the longest run of windows linked by 3 shared frames (a gap)"
+                  for r in runs if r is not best for w in r}
+
+
 def _refined_locally(refine: RefineFn, R: FloatArray, c: FloatArray, done: np.ndarray,
                      new: np.ndarray, lo: int, hi: int) -> np.ndarray:
     """:func:`chain_windows`' local refinement of frames ``lo:hi`` (those chained and the
@@ -259,6 +272,58 @@ def _refined_locally(refine: RefineFn, R: FloatArray, c: FloatArray, done: np.nd
     R[lost], c[lost] = np.nan, np.nan
     done &= ~lost
     return np.asarray(new[ok[new]])
+
+
+def _fit_or_resolve(R: FloatArray, c: FloatArray, sol: tuple[FloatArray, FloatArray],
+                    idx: np.ndarray, max_disagreement_deg: float | None,
+                    other: Callable[[], tuple[FloatArray, FloatArray] | None] | None
+                    ) -> tuple[FloatArray, float, FloatArray, bool,
+                               tuple[FloatArray, FloatArray]]:
+    """:func:`_fit_overlap` of a window's solution ``sol`` (its rows ``idx`` on the chain's
+    shared poses ``R``, ``c``); where they disagree, of ``other()``'s solution instead, if it
+    agrees. Returns the fit, whether it agrees, and the solution it is of."""
+    Rs, s, t, agree = _fit_overlap(R, c, sol[0][idx], sol[1][idx], max_disagreement_deg)
+    if not agree and other is not None:
+        alt = other()
+        if alt is not None:
+            fit = _fit_overlap(R, c, alt[0][idx], alt[1][idx], max_disagreement_deg)
+            if fit[3]:
+                return (*fit, alt)
+    return Rs, s, t, agree, sol
+
+
+def _add_window(R: FloatArray, c: FloatArray, done: np.ndarray, window: Window,
+                solution: tuple[FloatArray, FloatArray], prev_start: int,
+                refine: RefineFn | None, max_disagreement_deg: float | None,
+                other: Callable[[], tuple[FloatArray, FloatArray] | None] | None
+                ) -> str | None:
+    """:func:`chain_windows`' step: ``window``'s ``solution`` turned and scaled onto the chain
+    by its shared frames and its new frames added to ``R``, ``c``, ``done`` (in place; the
+    first window as it is), then refined locally; None, or why the window is skipped."""
+    rot_w, pos_w = solution
+    fr = window.frames
+    if not done.any():
+        R[fr], c[fr] = rot_w, pos_w
+        done[fr] = True
+        return None
+    shared = fr[done[fr]]
+    if len(shared) < 3:
+        return f"shares {len(shared)} frames with the chain (a window before it was " \
+               f"skipped); need 3"
+    Rs, s, t, agree, (rot_w, pos_w) = _fit_or_resolve(
+        R[shared], c[shared], (rot_w, pos_w), shared - window.start, max_disagreement_deg,
+        other)
+    if not agree:
+        return (f"its rotations disagree with the chain's on the shared frames by more than "
+                f"{max_disagreement_deg} deg")
+    new = fr[~done[fr]]
+    jdx = new - window.start
+    R[new] = Rs @ rot_w[jdx]
+    c[new] = s * pos_w[jdx] @ Rs.T + t
+    if refine is not None:
+        new = _refined_locally(refine, R, c, done, new, prev_start, window.stop)
+    done[new] = True
+    return None
 
 
 def chain_windows(num_frames: int, windows: list[Window],
@@ -290,52 +355,22 @@ def chain_windows(num_frames: int, windows: list[Window],
     kept; the other frames are NaN and not estimated. Where windows overlap, the earlier
     window's poses stand.
     """
-    runs = _linked_runs(windows, solutions)
     R = np.full((num_frames, 3, 3), np.nan)
     c = np.full((num_frames, 3), np.nan)
     done = np.zeros(num_frames, bool)
-    if not runs:
+    best, skipped = _longest_run(windows, solutions)
+    if not best:
         return Chain(R, c, done, [], {})
-    best = max(runs, key=lambda r: windows[r[-1]].stop - windows[r[0]].start)
-    skipped = {w: "not in the longest run of windows linked by 3 shared frames (a gap)"
-               for r in runs if r is not best for w in r}
     prev_start = windows[best[0]].start
     chained: list[int] = []
     for w in best:
-        rot_w, pos_w = solutions[w]  # type: ignore[misc]
-        fr = windows[w].frames
-        if not done.any():
-            R[fr], c[fr] = rot_w, pos_w
-            done[fr] = True
-            chained.append(w)
+        sol = solutions[w]
+        assert sol is not None  # the runs hold solved windows only
+        why = _add_window(R, c, done, windows[w], sol, prev_start, refine, max_disagreement_deg,
+                          None if resolve is None else partial(resolve, w))
+        if why is not None:
+            skipped[w] = why
             continue
-        shared = fr[done[fr]]
-        if len(shared) < 3:
-            skipped[w] = f"shares {len(shared)} frames with the chain (a window before it " \
-                         f"was skipped); need 3"
-            continue
-        idx = shared - windows[w].start
-
-        Rs, s, t, agree = _fit_overlap(R[shared], c[shared], rot_w[idx], pos_w[idx],
-                                       max_disagreement_deg)
-        if not agree and resolve is not None:
-            other = resolve(w)
-            if other is not None:
-                Rs, s, t, agree = _fit_overlap(R[shared], c[shared], other[0][idx],
-                                               other[1][idx], max_disagreement_deg)
-                if agree:
-                    rot_w, pos_w = other
-        if not agree:
-            skipped[w] = (f"its rotations disagree with the chain's on the shared frames by "
-                          f"more than {max_disagreement_deg} deg")
-            continue
-        new = fr[~done[fr]]
-        jdx = new - windows[w].start
-        R[new] = Rs @ rot_w[jdx]
-        c[new] = s * pos_w[jdx] @ Rs.T + t
-        if refine is not None:
-            new = _refined_locally(refine, R, c, done, new, prev_start, windows[w].stop)
-        done[new] = True
         prev_start = windows[w].start
         chained.append(w)
     return Chain(R, c, done, chained, skipped)
