@@ -16,6 +16,7 @@ import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -386,24 +387,24 @@ def _initialise(tracks: LineTracks, options: EstimationOptions, run: RunLog) -> 
                        f"solution ({errors[0]})")
 
 
-def _initialise_all(tracks: LineTracks, options: EstimationOptions, run: RunLog) -> _Init:
-    """Family, windows, the paper's method per window, chaining (world/scale of the chain)."""
-    with run.timed("parallel_lines"):
-        family = detect_parallel_family(tracks, options.vanishing)
-        others = [f for f in detect_parallel_families(tracks, options.vanishing)[1:]
-                  if f.size >= 3]
-    members = np.asarray(family.members, bool)
-    _check_counts(tracks, members)
+def _window_plan(tracks: LineTracks, members: np.ndarray, frame_ok: np.ndarray,
+                 options: EstimationOptions) -> list[Window]:
+    """One window over the sequence where every frame has the family's VPV and enough of its
+    lines and others are seen in every frame; else :func:`plan_windows`."""
     F, M = tracks.num_frames, tracks.num_tracks
-    frame_ok: np.ndarray = np.asarray(np.isfinite(family.vpv).all(1))
     vis = tracks.visibility()
     full = vis[:, frame_ok].all(1) if frame_ok.any() else np.zeros(M, bool)
     if frame_ok.all() and (full & members).sum() >= options.windows.min_parallel and \
             (full & ~members).sum() >= options.windows.min_other:
-        windows = [Window(0, F, np.flatnonzero(full))]
-    else:
-        windows = plan_windows(tracks, members, frame_ok, options.windows)
-    # each window: the paper's method with the largest family, else with another one
+        return [Window(0, F, np.flatnonzero(full))]
+    return plan_windows(tracks, members, frame_ok, options.windows)
+
+
+def _solve_windows(tracks: LineTracks, family: ParallelFamily, others: list[ParallelFamily],
+                   windows: list[Window], options: EstimationOptions, run: RunLog
+                   ) -> tuple[list[Attempt[PaperSolution]], list[str], list[str]]:
+    """Each window by the paper's method with the largest family, else with another one:
+    ``(attempts, failures, windows solved with another family)``."""
     solved: list[Attempt[PaperSolution]] = []
     failures: list[str] = []
     switched: list[str] = []
@@ -423,6 +424,55 @@ def _initialise_all(tracks: LineTracks, options: EstimationOptions, run: RunLog)
         if att.solution is not None:
             run.add_times(att.solution.timings_ms)
         solved.append(att)
+    return solved, failures, switched
+
+
+def _local_refine(tracks: LineTracks, local_opts: BundleOptions, run: RunLog, R: FloatArray,
+                  c: FloatArray, local: np.ndarray, old: np.ndarray
+                  ) -> tuple[FloatArray, FloatArray, np.ndarray]:
+    """:func:`chain_windows`' refinement: the ``local`` frames adjusted, the ``old`` ones
+    holding the scale; where it fails, the chained poses stand (recorded)."""
+    M = tracks.num_tracks
+    try:
+        res = bundle_adjust(tracks, R, c, np.full((M, 3), np.nan), np.full((M, 3), np.nan),
+                            frames=local, scale_frames=old, options=local_opts)
+    except OmniSfmError as exc:
+        idx = np.flatnonzero(local)
+        run.record(failed("local adjustment", (int(idx[0]), int(idx[-1])),
+                          f"{exc}; the chained poses stand unadjusted"))
+        return R, c, local
+    return res.rotations, res.positions, res.frames
+
+
+def _unpolished(tracks: LineTracks, family: ParallelFamily, windows: list[Window],
+                options: EstimationOptions, run: RunLog, k: int
+                ) -> tuple[FloatArray, FloatArray] | None:
+    """:func:`chain_windows`' other solution of window ``k``, which disagrees with the chain:
+    the paper's method without the rotation polish (None where the polish is off or it
+    fails)."""
+    if not options.paper.polish_rotation:
+        return None
+    att = _paper(tracks, family, windows[k], replace(options.paper, polish_rotation=False),
+                 "paper window, unpolished")
+    if att.solution is None:
+        run.record(att)
+        return None
+    run.record(replace(att, why="the polished solution disagrees with the chain"))
+    return np.asarray(att.solution.rotations), np.asarray(att.solution.positions)
+
+
+def _initialise_all(tracks: LineTracks, options: EstimationOptions, run: RunLog) -> _Init:
+    """Family, windows, the paper's method per window, chaining (world/scale of the chain)."""
+    with run.timed("parallel_lines"):
+        family = detect_parallel_family(tracks, options.vanishing)
+        others = [f for f in detect_parallel_families(tracks, options.vanishing)[1:]
+                  if f.size >= 3]
+    members = np.asarray(family.members, bool)
+    _check_counts(tracks, members)
+    F = tracks.num_frames
+    frame_ok: np.ndarray = np.asarray(np.isfinite(family.vpv).all(1))
+    windows = _window_plan(tracks, members, frame_ok, options)
+    solved, failures, switched = _solve_windows(tracks, family, others, windows, options, run)
     solutions = [None if a.solution is None else
                  (np.asarray(a.solution.rotations), np.asarray(a.solution.positions))
                  for a in solved]
@@ -430,32 +480,8 @@ def _initialise_all(tracks: LineTracks, options: EstimationOptions, run: RunLog)
     local_opts = replace(options.bundle, max_rounds=2,
                          max_iterations=options.local_iterations,
                          final_loss=None)
-
-    def refine(R: FloatArray, c: FloatArray, local: np.ndarray,
-               old: np.ndarray) -> tuple[FloatArray, FloatArray, np.ndarray]:
-        try:
-            res = bundle_adjust(tracks, R, c, np.full((M, 3), np.nan), np.full((M, 3), np.nan),
-                                frames=local, scale_frames=old, options=local_opts)
-        except OmniSfmError as exc:
-            idx = np.flatnonzero(local)
-            run.record(failed("local adjustment", (int(idx[0]), int(idx[-1])),
-                              f"{exc}; the chained poses stand unadjusted"))
-            return R, c, local
-        return res.rotations, res.positions, res.frames
-
-    def resolve(k: int) -> tuple[FloatArray, FloatArray] | None:
-        # a window that disagrees with the chain: its solution without the rotation polish
-        if not options.paper.polish_rotation:
-            return None
-        w = windows[k]
-        att = _paper(tracks, family, w, replace(options.paper, polish_rotation=False),
-                     "paper window, unpolished")
-        if att.solution is None:
-            run.record(att)
-            return None
-        run.record(replace(att, why="the polished solution disagrees with the chain"))
-        return np.asarray(att.solution.rotations), np.asarray(att.solution.positions)
-
+    refine = partial(_local_refine, tracks, local_opts, run)
+    resolve = partial(_unpolished, tracks, family, windows, options, run)
     with run.timed("chaining"):
         chain = chain_windows(F, windows, solutions, refine if len(windows) > 1 else None,
                               options.windows.max_disagreement_deg, resolve)
