@@ -379,6 +379,17 @@ class OnlineEstimator:
             return self._rot_or(fr, status, why, rot)
         self._tried, self._since_try = True, 0
         frames = list(self._buffer)
+        got = self._start_solution(frames)
+        if isinstance(got, str):
+            return self._rot_or(fr, status, f"{head}{got}", rot)
+        return self._adopt_start(fr, frames, *got, lost)
+
+    def _start_solution(self, frames: list[_Frame]
+                        ) -> tuple[LineTracks, np.ndarray, EstimationResult] | str:
+        """The offline estimator on the buffered ``frames``: ``(tracks, their ids, result)``,
+        or why it gives no start (too few lines, a failure, a camera that only turns, the
+        newest frame not posed, too little parallax while the buffer can still grow)."""
+        o, n = self.options, len(frames)
         try:
             tracks, uniq = _window_tracks(frames, min_views=3)
             if tracks.num_tracks < 6:
@@ -386,19 +397,24 @@ class OnlineEstimator:
                                    f"{n} buffered frames; need 6")
             res = estimate_poses(tracks, o.start)
         except OmniSfmError as exc:
-            return self._rot_or(fr, status, f"{head}start on {n} frames failed: {exc}", rot)
+            return f"start on {n} frames failed: {exc}"
         if res.report.rotation_only:
-            return self._rot_or(fr, status, f"{head}start on {n} frames: the camera turns "
-                                            "without moving (no position to start from)", rot)
+            return (f"start on {n} frames: the camera turns without moving (no position to "
+                    "start from)")
         if not res.estimated[-1] or res.estimated.sum() < 3:
-            return self._rot_or(fr, status, f"{head}start on {n} frames did not pose the "
-                                            "newest frame", rot)
+            return f"start on {n} frames did not pose the newest frame"
         turn = _start_parallax(tracks, res)
         if turn < o.min_start_parallax_deg and n < o.max_start_frames:
-            return self._rot_or(fr, status, f"{head}start on {n} frames: its lines' planes "
-                                            f"turn by {turn:.1f} deg (90th percentile); need "
-                                            f"{o.min_start_parallax_deg:g}", rot)
-        # the start's poses and lines
+            return (f"start on {n} frames: its lines' planes turn by {turn:.1f} deg (90th "
+                    f"percentile); need {o.min_start_parallax_deg:g}")
+        return tracks, uniq, res
+
+    def _adopt_start(self, fr: _Frame, frames: list[_Frame], tracks: LineTracks,
+                     uniq: np.ndarray, res: EstimationResult, lost: bool) -> TrackedPose:
+        """The start's poses and lines taken as the tracker's state: a new world, the lines
+        of the window, their parallel families (fixed world directions from now on) and the
+        registration's threshold; the newest frame's pose, with the start's other poses."""
+        o = self.options
         traj = res.trajectory
         est = np.flatnonzero(res.estimated)
         for k, f in enumerate(frames):
