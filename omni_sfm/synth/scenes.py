@@ -632,6 +632,7 @@ def _office_clutter(b: _Builder, south: _Wall, east: _Wall, west_b: _Wall,
     _box_against(b, west_b, 4.3, (1.0, 0.35, 0.8), 10.0, wood, top_mat=dark)
     b.prism(west_b.point(7.6, 0.0, 0.24), 0.2, 0.6, Material.BIN)
 
+
 def _cell_front(b: _Builder, x0: float, x1: float, y: float, side: float, z0: float,
                 z1: float, cell: float = 1.5, bar: float = 0.025, spacing: float = 0.125) -> None:
     """A tier of cell fronts in the plane ``y`` from ``x0`` to ``x1`` and ``z0`` to ``z1``: a
@@ -673,13 +674,13 @@ def _gallery(b: _Builder, x0: float, x1: float, y_front: float, y_edge: float, z
 
 def cellhouse() -> Scene:
     """A prison cell house 24 m x 9 m x 6.5 m along ``+X``: a corridor 3 m wide between two
-    blocks of cells, each block two tiers high (2.5 m each; the upper tier reached by a gallery
-    1 m wide with a railing along it), every cell 1.5 m wide behind a front of vertical bars
-    (0.025 m every 0.125 m) with two cross bars, partition walls between the cells, a door in
-    each end wall, lights under the ceiling and along the corridor. Long lines along the walk
-    (galleries, railings, cross bars, where walls meet floor and ceiling) and dense short
-    verticals across it (bars, posts): the lines along the walk leave the motion along them
-    free, the verticals fix it."""
+    blocks of cells, each block two tiers high (2.5 m each, a 0.2 m floor between them; the
+    upper tier reached by a gallery 1 m wide with a railing along it), every cell 1.5 m wide
+    behind a front of vertical bars (0.025 m every 0.125 m) with two cross bars, partition walls
+    between the cells, a door in each end wall, lights under the ceiling and along the corridor.
+    Long lines along the walk (galleries, railings, cross bars, where walls meet floor and
+    ceiling) and dense short verticals across it (bars, posts): the lines along the walk leave
+    the motion along them free, the verticals fix it."""
     X, Y, Z = 24.0, 9.0, 6.5
     front_s, front_n = 3.0, 6.0  # the cell fronts: south block y < 3, north block y > 6
     tier, slab = 2.5, 0.2
@@ -695,7 +696,10 @@ def cellhouse() -> Scene:
         for ya, yb, edges in ((0.0, front_s - 0.06, "023"), (front_n + 0.06, Y, "012")):
             b.rect_lines((px, ya, 0.0), (0.0, yb - ya, 0.0), (0.0, 0.0, 2 * tier + slab),
                          Material.WALL, "cell_wall", edges)
-    # the upper tiers' floor between the blocks' ends and the fronts is the gallery's slab
+    # the upper cells' floor (the lower cells' ceiling), and the galleries in front of them
+    for ya, yb in ((0.0, front_s - 0.06), (front_n + 0.06, Y)):
+        b.box(((x0 + x1) / 2, (ya + yb) / 2, tier + slab / 2), (x1 - x0, yb - ya, slab),
+              Material.PILLAR, "cell_floor")
     _gallery(b, x0, x1, front_s, front_s + 1.0, tier + slab)
     _gallery(b, x0, x1, front_n, front_n - 1.0, tier + slab)
     far0 = _Wall((0, Y, 0), (0, -1, 0), (1, 0, 0), Y)
