@@ -91,6 +91,43 @@ def test_init_model_layout_round_trip(room, tmp_path):
     assert (mask[valid] > 0).mean() > 0.9
 
 
+def test_sift_is_colmaps_in_colmaps_form(room):
+    """refine's SIFT (OpenCV's, written as COLMAP stores it) finds COLMAP's own keypoints at
+    their positions and with their descriptors: COLMAP's matcher and mapper read them as
+    their own."""
+    from scipy.spatial import cKDTree
+
+    from omni_sfm.refine.database import colmap_sift
+
+    gray = cv2.imread(str(sorted((room / "images").iterdir())[5]), cv2.IMREAD_GRAYSCALE)
+    opts = pycolmap.FeatureExtractionOptions()
+    opts.num_threads = 1
+    ref = pycolmap.FeatureExtractor.create(opts, pycolmap.Device.cpu)
+    ref_kp, ref_desc = ref.extract(pycolmap.Bitmap.from_array(gray))
+    ref_kp = np.array([[k.x, k.y, k.a11, k.a12, k.a21, k.a22] for k in ref_kp])
+    ref_desc = np.asarray(ref_desc.data)
+    kp, desc = colmap_sift(gray, None, 8192)
+    assert kp.shape[1] == 6 and desc.dtype == np.uint8 and len(kp) == len(desc) > 200
+    dist, nearest = cKDTree(ref_kp[:, :2]).query(kp[:, :2])
+    near = dist < 0.05
+    assert near.mean() > 0.9                               # the same keypoints ...
+    assert np.median(dist[near]) < 0.01                    # ... at the same pixel (+0.5)
+    # ... with the same scale, orientation and descriptor (COLMAP may give a keypoint a second
+    # orientation: the closest of the two nearest)
+    scale = np.hypot(kp[:, 2], kp[:, 4])
+    ref_scale = np.hypot(ref_kp[:, 2], ref_kp[:, 4])
+    np.testing.assert_allclose(np.median(scale[near] / ref_scale[nearest[near]]), 1.0, atol=0.02)
+    two = cKDTree(ref_kp[:, :2]).query(kp[near, :2], k=2)[1]
+    turn = np.arctan2(kp[near, 4], kp[near, 2])[:, None] - np.arctan2(ref_kp[two, 4],
+                                                                      ref_kp[two, 2])
+    assert np.median(np.abs(np.angle(np.exp(1j * turn))).min(axis=1)) < np.deg2rad(5)
+    d = np.linalg.norm(desc[near].astype(float)[:, None] - ref_desc[two].astype(float),
+                       axis=2).min(axis=1)
+    random = np.linalg.norm(desc[near].astype(float) - ref_desc[::-1][:near.sum()].astype(float),
+                            axis=1)
+    assert np.median(d) < 0.1 * np.median(random)
+
+
 def test_refine_improves_a_perturbed_seed_on_a_textured_room(room_refined):
     work, gt, init, res = room_refined
     r = res.report

@@ -143,9 +143,11 @@ def _database_from_images(db_path: Path, work: Path, seq: SequenceInput, export:
         cv2.imwrite(str(img_dir / name), export.image_to_colmap(seq.read_image(k)))
     write_colmap_mask(work / "mask.png", seq.camera)
     threads = int(options.get("threads", 1))
-    # the same extraction and matching as omni-sfm refine, with a seeded verification
+    # COLMAP's own SIFT (COLMAP as its users run it) and refine's sequential matching, with a
+    # seeded verification
     extract_features(db_path, img_dir, work / "mask.png", names, export,
-                     max_features=int(options.get("max_features", 4000)), num_threads=threads)
+                     max_features=int(options.get("max_features", 4000)), num_threads=threads,
+                     extractor="colmap")
     match_sequential(db_path, overlap=int(options.get("overlap", 10)), num_threads=threads,
                      verification=_verification(options))
 
