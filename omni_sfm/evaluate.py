@@ -17,6 +17,11 @@ Definitions (used by tests, docs and ``omni-sfm compare`` alike):
 - reflection: from NVs alone the estimate is determined only up to a similarity and the point
   reflection of the camera centres through the first camera (:func:`reflect_positions`); the
   comparison is made on the branch nearer the ground truth (:func:`match_reflection`).
+- revisit errors (:func:`revisit_errors`): where the true camera comes back to where it was
+  (within ``radius``) after having gone at least ``min_gap`` of the path, the relative pose of
+  the two visits, estimated against true: position error over the path length (the estimate
+  scaled by the similarity alignment's scale) and rotation angle. A loop that does not close
+  shows here, whatever the alignment spreads over the rest.
 - step error after alignment (``step_error_after_alignment``; called RPE before): mean norm of
   the difference between aligned and true steps of consecutive frames after the similarity
   alignment, divided by the mean true step. Mixes global drift into a per-step figure.
@@ -34,7 +39,8 @@ from omni_sfm.poses import Trajectory
 from omni_sfm.transforms import Similarity, associate, paper_translation_errors, umeyama
 
 __all__ = [
-    "RelativePoseErrors", "Similarity", "TrajectoryErrors", "associate", "match_reflection",
+    "RelativePoseErrors", "RevisitErrors", "Similarity", "TrajectoryErrors", "associate",
+    "match_reflection", "revisit_errors",
     "paper_translation_errors", "reflect_positions", "relative_pose_errors",
     "relative_rotation_errors_deg", "trajectory_errors", "umeyama",
 ]
@@ -233,3 +239,56 @@ def match_reflection(est: Trajectory, gt: Trajectory) -> Trajectory:
     e0 = mean_error(est)
     e1 = mean_error(ref)
     return ref if e1 < e0 else est
+
+
+@dataclass(frozen=True)
+class RevisitErrors:
+    """Errors of the relative pose between two visits of the same place (:func:`revisit_errors`).
+
+    Attributes:
+        pairs: ``(M, 2)`` indices (into the common frames) of the first and the second visit.
+        pos_rel: ``(M,)`` position error of the second visit relative to the first, over the
+            true path length.
+        rot_deg: ``(M,)`` rotation error of the second visit relative to the first (deg).
+    """
+
+    pairs: np.ndarray
+    pos_rel: FloatArray
+    rot_deg: FloatArray
+
+    def as_dict(self) -> dict[str, float]:
+        return {"revisit_pairs": int(len(self.pairs)),
+                "revisit_pos_rel_max": float(self.pos_rel.max()) if len(self.pairs) else 0.0,
+                "revisit_rot_max_deg": float(self.rot_deg.max()) if len(self.pairs) else 0.0}
+
+
+def revisit_errors(est: Trajectory, gt: Trajectory, *, radius: float = 0.5,
+                   min_gap: float = 0.5) -> RevisitErrors:
+    """Relative pose errors between visits of the same place, on the frames ``est`` and ``gt``
+    share: for each frame of a later visit, the earlier frame nearest to it among those at
+    least ``min_gap`` of the path length before it along the true path, where that frame is
+    within ``radius`` (ground-truth units) of it. The estimate is brought onto the ground truth
+    by the similarity alignment first (its offsets compared in the true world and scale)."""
+    e, g = associate(est, gt)
+    if len(e) < 3:
+        raise OmniSfmError(f"only {len(e)} frames in common with the ground truth; need 3")
+    ea = umeyama(e.positions, g.positions).apply(e)
+    along = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(g.positions, axis=0), axis=1))]
+    length = float(along[-1])
+    if length <= 0:
+        raise OmniSfmError("ground-truth path has zero length")
+    pairs = []
+    for later in range(len(g)):
+        before = np.flatnonzero(along <= along[later] - min_gap * length)
+        if len(before) == 0:
+            continue
+        d = np.linalg.norm(g.positions[before] - g.positions[later], axis=1)
+        if d.min() <= radius:
+            pairs.append((int(before[np.argmin(d)]), later))
+    ij = np.asarray(pairs, np.int64).reshape(-1, 2)
+    i, j = ij[:, 0], ij[:, 1]
+    pos = np.linalg.norm((ea.positions[j] - ea.positions[i])
+                         - (g.positions[j] - g.positions[i]), axis=1) / length
+    rel_g = np.swapaxes(g.rotations[i], -1, -2) @ g.rotations[j]
+    rel_e = np.swapaxes(e.rotations[i], -1, -2) @ e.rotations[j]
+    return RevisitErrors(ij, pos, np.degrees(rotation_angle(np.swapaxes(rel_g, -1, -2) @ rel_e)))

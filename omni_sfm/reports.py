@@ -397,7 +397,8 @@ class EstimatorStep(JsonReport):
     ``step``; the sizes of the parallel families, the ``start`` the rotations were kept from
     (``anchored`` or ``windows``), the number of ``directions`` or ``world_directions`` shared;
     the solver's ``iterations``, the ``outlier_tracks`` it rejected, the robust noise estimate
-    ``sigma_deg`` and the final RMS residual ``rms_final_deg``."""
+    ``sigma_deg`` and the final RMS residual ``rms_final_deg``; the tracks ``joined`` to an
+    earlier track of their line on a revisit."""
 
     step: str
     families: list[int] | None = absent()
@@ -408,6 +409,7 @@ class EstimatorStep(JsonReport):
     outlier_tracks: int | None = absent()
     sigma_deg: float | None = absent()
     rms_final_deg: float | None = absent()
+    joined: int | None = absent()
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -161,3 +161,39 @@ def test_bad_arguments() -> None:
         relative_pose_errors(GT, GT, delta=4)
     with pytest.raises(ValueError):
         relative_pose_errors(GT.subset(np.arange(3)), GT)
+
+
+def _square_loop(laps: float = 1.25, n: int = 400) -> Trajectory:
+    """A camera walking around a 4 m square (16 m a lap), heading along its path."""
+    s = np.linspace(0.0, 16.0 * laps, n)
+    side, u = np.floor(s / 4.0) % 4, s % 4.0
+    corners = np.array([[0.0, 0.0], [4.0, 0.0], [4.0, 4.0], [0.0, 4.0]])
+    dirs = np.array([[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0]])
+    xy = corners[side.astype(int)] + u[:, None] * dirs[side.astype(int)]
+    rots = np.array([rz(90.0 * k) for k in side])
+    return Trajectory(np.arange(n, dtype=float), rots, np.column_stack([xy, np.zeros(n)]))
+
+
+def test_revisits_see_a_loop_that_does_not_close() -> None:
+    from omni_sfm.evaluate import revisit_errors
+
+    gt = _square_loop()
+    est = transformed(gt, rx(20.0) @ rz(30.0), np.array([1.0, 2.0, 3.0]), 0.5)
+    rev = revisit_errors(est, gt)
+    # the last quarter lap passes the first (and the lap's end nears the start): each frame of
+    # it with its nearest earlier one, within the radius
+    assert 80 <= len(rev.pairs) <= 110
+    gap = np.linalg.norm(np.diff(np.take(gt.positions, rev.pairs, axis=0), axis=1)[:, 0], axis=1)
+    assert gap.max() <= 0.5 and np.median(gap) < 0.05
+    assert rev.pos_rel.max() < 1e-9 and rev.rot_deg.max() < 1e-6   # a closed loop
+    # drift: the heading turns 1 deg and the walk stretches 2 % over the lap (the estimate no
+    # longer comes back to its start)
+    k = np.arange(len(gt)) / (len(gt) - 1)
+    drift = Trajectory(gt.timestamps, np.array([rz(1.0 * t) for t in k]) @ gt.rotations,
+                       (gt.positions - gt.positions[0]) * (1 + 0.02 * k[:, None]))
+    rev = revisit_errors(drift, gt)
+    assert 0.7 < rev.rot_deg.max() < 1.0
+    assert rev.pos_rel.max() > 0.001
+    with pytest.raises(Exception, match="zero length"):
+        still = Trajectory(gt.timestamps, gt.rotations, np.zeros_like(gt.positions))
+        revisit_errors(still, still)

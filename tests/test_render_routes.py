@@ -318,6 +318,31 @@ def test_cellhouse_scene_has_railings_along_the_walk_and_dense_bars_across_it(sc
         assert _distances(sc, a + t * (b - a) + [0, 0, z]).min() >= sc.walkway_halfwidth - 1e-6
 
 
+@pytest.mark.parametrize("route", [Route.OFFICE, Route.WALK])
+def test_block_routes_go_once_around_and_past_the_start(scenes, route):
+    """The block (the loop of issue #52): a 45 m walk goes around the block, turning 360 deg,
+    and comes back within 0.3 m of where it started, after more than 35 m, smoothly, never
+    nearer a surface than 0.3 m."""
+    sc = scenes["block"]
+    L = sc.lines
+    for a in (0.1, 0.5, 0.9):
+        assert _distances(sc, L.starts + a * (L.ends - L.starts)).max() < 2e-3
+    for seed in (0, 1, 2):
+        traj = camera_path(sc, PathOptions(route=route, path_length=45.0, seed=seed,
+                                           mount=Mount.ROBOT, num_frames=900))
+        assert abs(traj.path_length() - 45.0) <= 0.45
+        assert _distances(sc, traj.positions).min() >= 0.3
+        steps = np.diff(traj.positions, axis=0)
+        speed = np.linalg.norm(steps, axis=1)
+        assert np.linalg.norm(np.diff(steps, axis=0), axis=1).max() < 0.25 * speed.max()
+        heading = _heading_deg(traj, Mount.ROBOT)
+        assert abs(abs(heading[-1] - heading[0]) - 360.0) < 40.0
+        p = traj.positions
+        along = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))]
+        later = along > 35.0
+        assert np.linalg.norm(p[later] - p[0], axis=1).min() < 0.3
+
+
 def test_cellhouse_scene_renders(rendered):
     res = rendered(RenderOptions(scene=SceneName.CELLHOUSE, route=Route.WALK,
                                  camera="equirectangular", preset=Preset.SMALL, width=160,

@@ -22,6 +22,11 @@ Steps:
    the adjustment's covariance (:mod:`~omni_sfm.estimate.uncertainty`, ``pose_spread`` in the
    report), and those it leaves weak are listed too (:func:`_spread_flags`).
 
+5. **Revisits** (``revisits.enabled``, off by default): a line seen again after the camera
+   left it (a loop, a return) is joined to its earlier track (:mod:`~omni_sfm.estimate.
+   revisits`) and steps 1-4 run again on the joined tracks from the first solution's
+   rotations, so that the two visits share their lines in one solve.
+
 Only the start rotations follow the frame order (they chain neighbouring frames); the joint
 problems replace them by their own minimum wherever the start lies in its basin. Where one
 family is the only world direction and the other lines point anywhere (docs/estimator.md,
@@ -58,6 +63,12 @@ from omni_sfm.estimate.global_rotations import (
     rotation_cost,
     solve_rotations,
     world_normals,
+)
+from omni_sfm.estimate.revisits import (
+    RevisitOptions,
+    groups_of,
+    join_revisits,
+    revisit_pairs,
 )
 from omni_sfm.estimate.segments import runs
 from omni_sfm.estimate.uncertainty import pose_spread
@@ -141,6 +152,9 @@ class GlobalOptions:
     spread_window: int = 300
     """Posed frames a window of the covariance takes at most
     (:func:`~omni_sfm.estimate.uncertainty.pose_spread`)."""
+    revisits: RevisitOptions = field(default_factory=RevisitOptions)
+    """Step 5: lines seen again on a revisit joined, and the problem solved again
+    (:mod:`~omni_sfm.estimate.revisits`)."""
 
 
 @dataclass(frozen=True)
@@ -400,7 +414,7 @@ def _window_solution(tracks: LineTracks, sel: np.ndarray, options: GlobalOptions
     sub = tracks.subset(obs, np.unique(tracks.obs_track[obs]), sel)
     # a start needs the basin, not the last digit: two robust rounds, no polish
     local = replace(options, start_window=0, direction_rounds=0, settled_start=False,
-                    member_sigmas=0.0,
+                    member_sigmas=0.0, revisits=replace(options.revisits, enabled=False),
                     rotations=replace(options.rotations, max_iterations=20),
                     bundle=replace(options.bundle, max_rounds=2, final_loss=None))
     try:
@@ -590,12 +604,13 @@ def lowest_cost_rotations(tracks: LineTracks, frames: np.ndarray, lines: np.ndar
 
 def _rotations(tracks: LineTracks, frames: np.ndarray, lines: np.ndarray,
                families: list[ParallelFamily], options: GlobalOptions,
-               steps: list[EstimatorStep]
+               steps: list[EstimatorStep], previous: FloatArray | None = None
                ) -> tuple[GlobalRotations, FloatArray, np.ndarray]:
     """Step 1: the start, the solve with the families' world directions shared, the solve
     with the lines' world directions (clusters of their directions) shared.
 
-    The first solve runs from two starts, the chain anchored on the families' directions
+    The first solve runs from two starts (from ``previous`` alone where given: an earlier
+    solution's rotations), the chain anchored on the families' directions
     (:func:`anchored_start`) and the windows solved on their own (:func:`windows_start`),
     and keeps the rotations that fit every line best (:func:`lowest_cost_rotations`): where
     the families anchor every frame the chain is right to a fraction of a degree and a window
@@ -606,7 +621,9 @@ def _rotations(tracks: LineTracks, frames: np.ndarray, lines: np.ndarray,
     label = _family_labels(tracks, families, same, options.min_family_size)
     group = _groups(lines, label)
     starts = {"anchored": R0}
-    if options.start_window and frames.sum() > options.start_window:
+    if previous is not None:  # an earlier solution (the anchored chain where it posed none)
+        starts = {"previous": np.where(np.isfinite(previous), previous, R0)}
+    elif options.start_window and frames.sum() > options.start_window:
         starts["windows"] = windows_start(tracks, frames, R0, options)
     start, first = lowest_cost_rotations(tracks, frames, lines, starts, group,
                                          options.rotations)
@@ -969,7 +986,39 @@ def _flags(tracks: LineTracks, rot: GlobalRotations, pos: GlobalPositions, ba: B
 
 def solve_global(tracks: LineTracks, options: GlobalOptions = GlobalOptions()
                  ) -> GlobalSolution:
-    """Steps 1-4 of the module docstring.
+    """Steps 1-5 of the module docstring: the solution of :func:`_solve_once`, and where lines
+    seen on a revisit are joined (:func:`~omni_sfm.estimate.revisits.revisit_pairs`), the
+    solution of the joined tracks from the first one's rotations, every original track given its
+    group's line.
+
+    Raises:
+        OmniSfmError: as :func:`_solve_once`.
+    """
+    sol = _solve_once(tracks, options)
+    if not options.revisits.enabled:
+        return sol
+    t = time.perf_counter()
+    pairs = revisit_pairs(tracks, sol.rotations, sol.positions, sol.line_directions,
+                          sol.line_points, sol.used_tracks, options.revisits)
+    group = groups_of(tracks, pairs)
+    joins = tracks.num_tracks - len(np.unique(group))
+    if joins == 0:
+        return replace(sol, steps=[*sol.steps, EstimatorStep(step="revisits", joined=0)])
+    joined, merged_of = join_revisits(tracks, group)
+    again = _solve_once(joined, options, sol.rotations)
+    timings = {**again.timings_ms, "revisits": (time.perf_counter() - t) * 1e3}
+    return replace(
+        again, line_directions=again.line_directions[merged_of],
+        line_points=again.line_points[merged_of], used_tracks=again.used_tracks[merged_of],
+        outlier_tracks=again.outlier_tracks[merged_of], members=again.members[merged_of],
+        steps=[*again.steps, EstimatorStep(step="revisits", joined=joins)],
+        timings_ms=timings)
+
+
+def _solve_once(tracks: LineTracks, options: GlobalOptions,
+                start: FloatArray | None = None) -> GlobalSolution:
+    """Steps 1-4 of the module docstring; with ``start`` (``(F, 3, 3)``, NaN where none: an
+    earlier solution's rotations) the rotations are solved from it alone.
 
     Raises:
         OmniSfmError: fewer than 3 frames that see ``options.min_lines`` lines, or a step that
@@ -987,7 +1036,7 @@ def solve_global(tracks: LineTracks, options: GlobalOptions = GlobalOptions()
     families = detect_parallel_families(tracks, options.vanishing)
     timings["parallel_lines"] = (time.perf_counter() - t) * 1e3
     t = time.perf_counter()
-    rot, worlds, label = _rotations(tracks, frames, lines, families, options, steps)
+    rot, worlds, label = _rotations(tracks, frames, lines, families, options, steps, start)
     timings["rotations"] = (time.perf_counter() - t) * 1e3
     t = time.perf_counter()
     R, c, pos, dir_ok = _positions_step(tracks, rot, frames, lines, options)

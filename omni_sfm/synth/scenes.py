@@ -40,6 +40,7 @@ class SceneName(StrEnum):
     ROOM = "room"
     OFFICE = "office"
     CELLHOUSE = "cellhouse"
+    BLOCK = "block"
 
 
 class Material(IntEnum):
@@ -713,8 +714,104 @@ def cellhouse() -> Scene:
     return b.build("cellhouse", walkway, 0.7, Z)
 
 
+def _tiled_floor(b: _Builder, cells: set[tuple[int, int]], tile: float) -> None:
+    """Carpet tiles (two shades, a checkerboard) on the grid cells ``cells`` (``(i, j)``: the
+    square ``[i, i+1] x [j, j+1]`` times ``tile``); every seam between two tiles a line, each
+    straight run of seams one segment."""
+    for i, j in sorted(cells):
+        mat = Material.FLOOR_TILE if (i + j) % 2 == 0 else Material.FLOOR_TILE_DARK
+        b.rect((i * tile, j * tile, 0), (tile, 0, 0), (0, tile, 0), mat)
+    for axis in (0, 1):  # seams at x = i * tile (between cells i-1 and i), then at y = j * tile
+        step = (1, 0) if axis == 0 else (0, 1)
+        seams = sorted((c[axis], c[1 - axis]) for c in cells
+                       if (c[0] - step[0], c[1] - step[1]) in cells)
+        k = 0
+        while k < len(seams):
+            at, start = seams[k]
+            end = start + 1
+            while k + 1 < len(seams) and seams[k + 1] == (at, end):
+                k, end = k + 1, end + 1
+            k += 1
+            p, q = [at * tile, start * tile, 0.0], [at * tile, end * tile, 0.0]
+            if axis == 1:
+                p[:2], q[:2] = p[1::-1], q[1::-1]
+            b.line(p, q, "floor_tile")
+
+
+def block() -> Scene:
+    """An office floor 14.4 m x 9.6 m x 2.7 m whose corridor, 2.4 m wide, runs once around a
+    block of offices (9.6 m x 4.8 m) in the middle: the loop route of a camera that comes back
+    to where it started. Doors into the block's offices and in the outer walls, windows in
+    the outer walls, posters, baseboards, carpet tiles, clutter along the walls turned by
+    various angles and light panels along the corridor. The route runs along the corridor's
+    centre line once around (38.4 m as a polyline) and on along its first leg (50.4 m)."""
+    Z, tile = 2.7, 0.6
+    b = _Builder()
+    outer = np.array([[0.0, 0.0], [14.4, 0.0], [14.4, 9.6], [0.0, 9.6]])
+    inner = np.array([[2.4, 2.4], [2.4, 7.2], [12.0, 7.2], [12.0, 2.4]])  # clockwise: faces out
+    south, east, north, west = _add_walls(b, outer, Z, [Material.WALL, Material.END_WALL,
+                                                        Material.WALL, Material.END_WALL])
+    in_w, in_n, in_e, in_s = _add_walls(b, inner, Z, [Material.END_WALL, Material.WALL,
+                                                      Material.END_WALL, Material.WALL])
+    cells = {(i, j) for i in range(24) for j in range(16)
+             if not (4 <= i < 20 and 4 <= j < 12)}
+    _tiled_floor(b, cells, tile)
+    for i, j in sorted(cells):
+        b.rect((i * tile, j * tile, Z), (0, tile, 0), (tile, 0, 0), Material.CEILING)
+    doors = {south: ((0.7, 1.0),), east: ((4.3, 1.0),), north: ((12.7, 1.0),), west: (),
+             in_s: ((1.4, 0.9), (4.6, 0.9), (7.8, 0.9)), in_e: ((1.9, 0.9),),
+             in_n: ((0.9, 0.9), (4.2, 0.9), (7.3, 0.9)), in_w: ((2.6, 0.9),)}
+    for wall, ds in doors.items():
+        for s0, width in ds:
+            wall.door(b, s0, width)
+        wall.baseboard(b, [(s0, s0 + width) for s0, width in ds])
+    for wall, s0 in ((south, 2.6), (south, 6.4), (south, 10.2), (east, 1.2), (east, 6.6),
+                     (north, 1.8), (north, 5.6), (north, 9.4), (west, 2.2), (west, 6.2)):
+        wall.window(b, s0, 1.4, 0.9, 1.4)
+    red, blue = Material.POSTER_RED, Material.POSTER_BLUE
+    for wall, s0, w, h, ink, tilt in (
+            (in_s, 0.4, 0.6, 0.8, red, 0.0), (in_s, 3.0, 0.7, 0.5, blue, 0.0),
+            (in_s, 6.1, 0.6, 0.85, blue, 3.0), (in_s, 8.9, 0.5, 0.7, red, 0.0),
+            (in_e, 0.5, 0.6, 0.8, blue, 0.0), (in_e, 3.3, 0.7, 0.6, red, 0.0),
+            (in_n, 2.4, 0.8, 0.55, red, 0.0), (in_n, 5.7, 0.6, 0.85, blue, -4.0),
+            (in_n, 8.5, 0.6, 0.8, red, 0.0), (in_w, 0.6, 0.7, 0.9, blue, 0.0),
+            (south, 4.6, 0.6, 0.8, red, 0.0), (north, 3.9, 0.6, 0.8, blue, 0.0),
+            (east, 3.1, 0.5, 0.7, red, 0.0), (west, 4.4, 0.6, 0.9, blue, 0.0)):
+        wall.poster(b, s0, 1.2, w, h, ink, tilt)
+    _block_clutter(b, south, east, north, west, in_s, in_n)
+    for cx in (1.2, 4.6, 7.2, 9.8, 13.2):
+        for cy in (1.2, 8.4):
+            _ceiling_light(b, cx, cy, Z, 1.2 if 1.2 < cx < 13.2 else 0.6, 0.6, 1.6)
+    for cy in (3.6, 6.0):
+        for cx in (1.2, 13.2):
+            _ceiling_light(b, cx, cy, Z, 0.6, 1.2, 1.6)
+    route = np.array([[1.2, 1.2, 0.0], [13.2, 1.2, 0.0], [13.2, 8.4, 0.0], [1.2, 8.4, 0.0],
+                      [1.2, 1.2, 0.0], [13.2, 1.2, 0.0]])
+    return b.build("block", route[:2], 0.5, Z, route=route)
+
+
+def _block_clutter(b: _Builder, south: _Wall, east: _Wall, north: _Wall, west: _Wall,
+                   in_s: _Wall, in_n: _Wall) -> None:
+    """Boxes, cabinets, chairs and bins along the block's corridor walls, each turned by its
+    own angle from its wall (its own pair of horizontal line directions), within 0.7 m of it."""
+    box, dark, wood = Material.BOX, Material.FURNITURE_DARK, Material.FURNITURE
+    _box_against(b, south, 5.2, (0.5, 0.4, 0.4), 14.0, box)
+    c, _ = _box_against(b, south, 12.1, (0.6, 0.45, 0.5), -9.0, box)
+    b.box(c + [0, 0, 0.64], (0.34, 0.28, 0.28), box, "clutter", yaw_deg=27.0)
+    _chair(b, east, 2.6, -130.0)
+    _box_against(b, east, 6.1, (0.55, 0.45, 0.45), -19.0, box)
+    _box_against(b, north, 7.5, (0.5, 0.45, 1.15), 5.0, dark, top_mat=wood)
+    _chair(b, north, 11.2, 61.0)
+    b.prism(north.point(2.9, 0.0, 0.2), 0.16, 0.45, Material.BIN)
+    _box_against(b, west, 1.3, (0.5, 0.5, 0.35), 71.0, box)
+    _box_against(b, in_s, 5.7, (1.0, 0.35, 0.8), 8.0, wood, top_mat=dark)
+    b.prism(in_s.point(8.1, 0.0, 0.24), 0.2, 0.6, Material.BIN)
+    _chair(b, in_n, 3.5, 48.0)
+    _box_against(b, in_n, 6.6, (0.5, 0.4, 0.4), -24.0, box)
+
+
 SCENES = {SceneName.CORRIDOR: corridor, SceneName.ROOM: room, SceneName.OFFICE: office,
-          SceneName.CELLHOUSE: cellhouse}
+          SceneName.CELLHOUSE: cellhouse, SceneName.BLOCK: block}
 
 
 def make_scene(name: str | SceneName) -> Scene:
