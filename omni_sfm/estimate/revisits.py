@@ -17,8 +17,8 @@ of tracks that do not share a frame is a candidate when
 
 The joins are made only where the later track begins at least ``min_gap_frames`` after the
 earlier one ends (a revisit, not the front end losing a line for a moment), and never between
-two tracks that saw one frame. :func:`join_revisits` merges the tracks of each group into one;
-:func:`expand_lines` gives every original track its group's line again.
+two tracks that saw one frame. :func:`join_revisits` merges the tracks of each group into one
+and gives the merged track of each original one.
 """
 
 from __future__ import annotations
@@ -185,8 +185,3 @@ def join_revisits(tracks: LineTracks, group: np.ndarray) -> tuple[LineTracks, np
         obs_sigma=None if tracks.obs_sigma is None else tracks.obs_sigma[order])
     return joined, merged_of
 
-
-def expand_lines(values: np.ndarray, merged_of: np.ndarray) -> np.ndarray:
-    """A per-track array of the merged tracks, given back to every original track (each gets
-    its group's value)."""
-    return np.asarray(values)[merged_of]

@@ -570,6 +570,22 @@ def _chair(b: _Builder, wall: _Wall, s: float, yaw_deg: float) -> None:
           "chair", yaw_deg=yaw)
 
 
+def _dress(b: _Builder, *, doors: Sequence[tuple[_Wall, Sequence[tuple[float, float]]]],
+           windows: Sequence[tuple[_Wall, float]], window_width: float,
+           posters: Sequence[tuple[_Wall, float, float, float, Material, float]]) -> None:
+    """Doors ``(start, width)`` on each wall with the baseboard between them, windows ``(wall,
+    start)`` ``window_width`` wide from 0.9 to 2.3 m, posters ``(wall, start, width, height,
+    ink, tilt)`` 1.2 m up."""
+    for wall, ds in doors:
+        for s0, width in ds:
+            wall.door(b, s0, width)
+        wall.baseboard(b, [(s0, s0 + width) for s0, width in ds])
+    for wall, s0 in windows:
+        wall.window(b, s0, window_width, 0.9, 1.4)
+    for wall, s0, w, h, ink, tilt in posters:
+        wall.poster(b, s0, 1.2, w, h, ink, tilt)
+
+
 def office(tiled_floor: bool = True) -> Scene:
     """An L-shaped office corridor 2.4 m wide and 2.7 m high: leg A 15.6 m along +X, then a
     90 deg left turn into leg B, 14.4 m along +Y. Doors, windows, baseboards, nine light panels,
@@ -586,23 +602,18 @@ def office(tiled_floor: bool = True) -> Scene:
     south, east, end_b, west_b, north_a, end_a = _add_walls(b, _l_outline(), Z, wall_mats)
     _office_floor(b, Z, tiled_floor)
     # doors (start along the wall, width): one ends each leg, three on each inner wall
-    for wall, doors in ((south, ()), (east, ((0.7, 1.0),)), (end_b, ((0.7, 1.0),)),
-                        (west_b, ((1.8, 0.9), (5.8, 0.9), (9.0, 0.9))),
-                        (north_a, ((1.5, 0.9), (5.5, 0.9), (9.5, 0.9))), (end_a, ((0.7, 1.0),))):
-        for s0, width in doors:
-            wall.door(b, s0, width)
-        wall.baseboard(b, [(s0, s0 + width) for s0, width in doors])
-    for wall, s0 in ((south, 2.0), (south, 6.2), (south, 10.4), (east, 4.6), (east, 9.2)):
-        wall.window(b, s0, 1.6, 0.9, 1.4)
     red, blue = Material.POSTER_RED, Material.POSTER_BLUE
-    for wall, s0, w, h, ink, tilt in (
-            (south, 4.3, 0.6, 0.85, red, 0.0), (south, 8.7, 0.8, 0.55, blue, 0.0),
-            (south, 12.6, 0.5, 0.7, blue, 0.0), (east, 2.4, 0.6, 0.8, red, 0.0),
-            (east, 7.2, 0.6, 0.85, blue, 0.0), (east, 11.8, 0.7, 0.5, red, 0.0),
-            (west_b, 3.6, 0.6, 0.85, red, 0.0), (west_b, 7.3, 0.7, 0.9, blue, -5.0),
-            (north_a, 3.3, 0.7, 0.9, blue, 0.0), (north_a, 6.8, 0.6, 0.8, red, 4.0),
-            (north_a, 11.0, 0.9, 0.6, red, 0.0)):
-        wall.poster(b, s0, 1.2, w, h, ink, tilt)
+    _dress(b, doors=((south, ()), (east, ((0.7, 1.0),)), (end_b, ((0.7, 1.0),)),
+                     (west_b, ((1.8, 0.9), (5.8, 0.9), (9.0, 0.9))),
+                     (north_a, ((1.5, 0.9), (5.5, 0.9), (9.5, 0.9))), (end_a, ((0.7, 1.0),))),
+           windows=((south, 2.0), (south, 6.2), (south, 10.4), (east, 4.6), (east, 9.2)),
+           window_width=1.6,
+           posters=((south, 4.3, 0.6, 0.85, red, 0.0), (south, 8.7, 0.8, 0.55, blue, 0.0),
+                    (south, 12.6, 0.5, 0.7, blue, 0.0), (east, 2.4, 0.6, 0.8, red, 0.0),
+                    (east, 7.2, 0.6, 0.85, blue, 0.0), (east, 11.8, 0.7, 0.5, red, 0.0),
+                    (west_b, 3.6, 0.6, 0.85, red, 0.0), (west_b, 7.3, 0.7, 0.9, blue, -5.0),
+                    (north_a, 3.3, 0.7, 0.9, blue, 0.0), (north_a, 6.8, 0.6, 0.8, red, 4.0),
+                    (north_a, 11.0, 0.9, 0.6, red, 0.0)))
     _office_clutter(b, south, east, west_b, north_a)
     for cx in (1.8, 4.6, 7.4, 10.2):
         _ceiling_light(b, cx, 1.2, Z, 1.2, 0.6, 1.6)
@@ -758,26 +769,21 @@ def block() -> Scene:
     _tiled_floor(b, cells, tile)
     for i, j in sorted(cells):
         b.rect((i * tile, j * tile, Z), (0, tile, 0), (tile, 0, 0), Material.CEILING)
-    doors = {south: ((0.7, 1.0),), east: ((4.3, 1.0),), north: ((12.7, 1.0),), west: (),
-             in_s: ((1.4, 0.9), (4.6, 0.9), (7.8, 0.9)), in_e: ((1.9, 0.9),),
-             in_n: ((0.9, 0.9), (4.2, 0.9), (7.3, 0.9)), in_w: ((2.6, 0.9),)}
-    for wall, ds in doors.items():
-        for s0, width in ds:
-            wall.door(b, s0, width)
-        wall.baseboard(b, [(s0, s0 + width) for s0, width in ds])
-    for wall, s0 in ((south, 2.6), (south, 6.4), (south, 10.2), (east, 1.2), (east, 6.6),
-                     (north, 1.8), (north, 5.6), (north, 9.4), (west, 2.2), (west, 6.2)):
-        wall.window(b, s0, 1.4, 0.9, 1.4)
     red, blue = Material.POSTER_RED, Material.POSTER_BLUE
-    for wall, s0, w, h, ink, tilt in (
-            (in_s, 0.4, 0.6, 0.8, red, 0.0), (in_s, 3.0, 0.7, 0.5, blue, 0.0),
-            (in_s, 6.1, 0.6, 0.85, blue, 3.0), (in_s, 8.9, 0.5, 0.7, red, 0.0),
-            (in_e, 0.5, 0.6, 0.8, blue, 0.0), (in_e, 3.3, 0.7, 0.6, red, 0.0),
-            (in_n, 2.4, 0.8, 0.55, red, 0.0), (in_n, 5.7, 0.6, 0.85, blue, -4.0),
-            (in_n, 8.5, 0.6, 0.8, red, 0.0), (in_w, 0.6, 0.7, 0.9, blue, 0.0),
-            (south, 4.6, 0.6, 0.8, red, 0.0), (north, 3.9, 0.6, 0.8, blue, 0.0),
-            (east, 3.1, 0.5, 0.7, red, 0.0), (west, 4.4, 0.6, 0.9, blue, 0.0)):
-        wall.poster(b, s0, 1.2, w, h, ink, tilt)
+    _dress(b, doors=((south, ((0.7, 1.0),)), (east, ((4.3, 1.0),)), (north, ((12.7, 1.0),)),
+                     (west, ()), (in_s, ((1.4, 0.9), (4.6, 0.9), (7.8, 0.9))),
+                     (in_e, ((1.9, 0.9),)), (in_n, ((0.9, 0.9), (4.2, 0.9), (7.3, 0.9))),
+                     (in_w, ((2.6, 0.9),))),
+           windows=((south, 2.6), (south, 6.4), (south, 10.2), (east, 1.2), (east, 6.6),
+                    (north, 1.8), (north, 5.6), (north, 9.4), (west, 2.2), (west, 6.2)),
+           window_width=1.4,
+           posters=((in_s, 0.4, 0.6, 0.8, red, 0.0), (in_s, 3.0, 0.7, 0.5, blue, 0.0),
+                    (in_s, 6.1, 0.6, 0.85, blue, 3.0), (in_s, 8.9, 0.5, 0.7, red, 0.0),
+                    (in_e, 0.5, 0.6, 0.8, blue, 0.0), (in_e, 3.3, 0.7, 0.6, red, 0.0),
+                    (in_n, 2.4, 0.8, 0.55, red, 0.0), (in_n, 5.7, 0.6, 0.85, blue, -4.0),
+                    (in_n, 8.5, 0.6, 0.8, red, 0.0), (in_w, 0.6, 0.7, 0.9, blue, 0.0),
+                    (south, 4.6, 0.6, 0.8, red, 0.0), (north, 3.9, 0.6, 0.8, blue, 0.0),
+                    (east, 3.1, 0.5, 0.7, red, 0.0), (west, 4.4, 0.6, 0.9, blue, 0.0)))
     _block_clutter(b, south, east, north, west, in_s, in_n)
     for cx in (1.2, 4.6, 7.2, 9.8, 13.2):
         for cy in (1.2, 8.4):
