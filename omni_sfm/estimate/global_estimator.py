@@ -905,11 +905,22 @@ def _world_directions_refitted(tracks: LineTracks, ba: BundleResult, held: np.nd
         new *= np.sign(np.einsum("ij,ij->i", new, d[use]))[:, None]
         moved = float(np.max(np.linalg.norm(new - d[use], axis=1)))
         d[use] = new
-        ba = bundle_adjust(tracks, ba.rotations, ba.positions, d, ba.line_points,
-                           frames=ba.frames, held_directions=use, options=options.bundle)
+        again = bundle_adjust(tracks, ba.rotations, ba.positions, d, ba.line_points,
+                              frames=ba.frames, held_directions=use, options=options.bundle)
+        if not _poses_as_many(again, ba):
+            break
+        ba = again
         if moved < 1e-8:
             break
     return ba
+
+
+def _poses_as_many(new: BundleResult, old: BundleResult) -> bool:
+    """Whether the adjustment ``new`` poses every frame ``old`` posed: a round that rejects the
+    lines of a stretch that few lines tie to the rest (its start there a little off, the
+    rejection judged before the poses settle) leaves that stretch without a pose, and the
+    parts on either side with scales of their own."""
+    return not bool((old.frames & ~new.frames).any())
 
 
 def _adjusted(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArray, p: FloatArray,
