@@ -418,7 +418,7 @@ def _window_solution(tracks: LineTracks, sel: np.ndarray, options: GlobalOptions
                     rotations=replace(options.rotations, max_iterations=20),
                     bundle=replace(options.bundle, max_rounds=2, final_loss=None))
     try:
-        return solve_global(sub, local).rotations
+        return _solve_once(sub, local, flags=False).rotations
     except OmniSfmError:
         return None
 
@@ -1027,9 +1027,10 @@ def solve_global(tracks: LineTracks, options: GlobalOptions = GlobalOptions()
 
 
 def _solve_once(tracks: LineTracks, options: GlobalOptions,
-                start: FloatArray | None = None) -> GlobalSolution:
+                start: FloatArray | None = None, *, flags: bool = True) -> GlobalSolution:
     """Steps 1-4 of the module docstring; with ``start`` (``(F, 3, 3)``, NaN where none: an
-    earlier solution's rotations) the rotations are solved from it alone.
+    earlier solution's rotations) the rotations are solved from it alone; without ``flags``,
+    steps 1-3 only (no frame flagged, no spread: a window of :func:`windows_start`).
 
     Raises:
         OmniSfmError: fewer than 3 frames that see ``options.min_lines`` lines, or a step that
@@ -1066,7 +1067,8 @@ def _solve_once(tracks: LineTracks, options: GlobalOptions,
     members = np.asarray(families[0].members, bool) if families else \
         np.zeros(tracks.num_tracks, bool)
     t = time.perf_counter()
-    uncertain, spread_deg, spread_path = _flags(tracks, rot, pos, ba, options)
+    uncertain, spread_deg, spread_path = _flags(tracks, rot, pos, ba, options) if flags else \
+        ({}, np.full(tracks.num_frames, np.nan), np.full(tracks.num_frames, np.nan))
     timings["pose_spread"] = (time.perf_counter() - t) * 1e3
     return GlobalSolution(
         rotations=ba.rotations, positions=ba.positions, frames=ba.frames,

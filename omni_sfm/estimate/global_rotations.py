@@ -142,7 +142,16 @@ class _RotationProblem:
         pose_idx[posed[1:]] = np.arange(len(posed) - 1)  # the first posed frame is the gauge
         self.pose_idx = pose_idx
         self.num_pose, self.num_line = len(posed) - 1, int(group.max()) + 1
-        self.line_idx = np.arange(self.num_line)
+        # the directions' columns after the rotations', the shared ones (a world direction's
+        # many lines) last: eliminated in this order the rotations (independent 3x3 blocks given
+        # the directions) leave fill only among directions seen by one frame, and a shared
+        # direction fills nothing before it (:func:`_factor`)
+        size = np.bincount(self.t, minlength=self.num_line)
+        first = np.full(self.num_line, self.F)
+        np.minimum.at(first, self.t, self.f)
+        self.line_idx = np.empty(self.num_line, int)
+        self.line_idx[np.lexsort((first, size > 1 + 3 * np.median(size)))] = \
+            np.arange(self.num_line)
 
     def residuals(self, R: FloatArray, d: FloatArray) -> FloatArray:
         m = np.einsum("kij,kj->ki", R[self.f], self.n)
@@ -190,6 +199,16 @@ class _RotationProblem:
         return R2, d2
 
 
+def _factor(A: sp.spmatrix) -> spla.SuperLU:
+    """The LU factorisation of the damped normal equations ``A`` (symmetric positive definite)
+    in the order of their columns (:class:`_RotationProblem`: the rotations first, then the
+    directions, the shared ones last): the Schur complement on the directions, with no pivoting
+    (the diagonal is the pivot of a positive definite matrix). A fill-reducing reordering finds
+    nothing better, at three to ten times the cost on a 600-frame walk."""
+    return spla.splu(sp.csc_matrix(A), permc_spec="NATURAL", diag_pivot_thresh=0.0,
+                     options={"SymmetricMode": True})
+
+
 def _cauchy_weights(r: FloatArray, scale: float) -> FloatArray:
     return np.asarray(1.0 / (1.0 + (r / scale) ** 2))
 
@@ -222,7 +241,7 @@ def solve_rotations(tracks: LineTracks, frames: np.ndarray, R0: FloatArray,
         improved = False
         while lam < 1e12:
             A = H + sp.diags(lam * np.maximum(diag, 1e-12))
-            step = -spla.splu(A.tocsc()).solve(g)
+            step = -_factor(A).solve(g)
             R2, d2 = prob.retract(R, d, step)
             r2 = prob.residuals(R2, d2)
             cost2 = _cost(r2, scale)
