@@ -416,11 +416,9 @@ def _window_solution(tracks: LineTracks, sel: np.ndarray, options: GlobalOptions
     local = replace(options, start_window=0, direction_rounds=0, settled_start=False,
                     member_sigmas=0.0, revisits=replace(options.revisits, enabled=False),
                     rotations=replace(options.rotations, max_iterations=20),
-                    bundle=replace(options.bundle, max_rounds=2, final_loss=None,
-                                   robust_tolerance=_BASIN.robust_tolerance,
-                                   robust_iterations=_BASIN.robust_iterations))
+                    bundle=replace(options.bundle, max_rounds=2, final_loss=None))
     try:
-        return _solve_once(sub, local, flags=False).rotations
+        return _solve_once(sub, local, window=True).rotations
     except OmniSfmError:
         return None
 
@@ -997,16 +995,11 @@ def _flags(tracks: LineTracks, rot: GlobalRotations, pos: GlobalPositions, ba: B
     return uncertain, spread_deg, spread_path
 
 
-_BASIN = BundleOptions()
-"""The robust rounds of a window of the start (:func:`_window_solution`): a basin is enough."""
-
-
 def _decisive(options: BundleOptions) -> BundleOptions:
     """``options`` with each robust round run to a relative decrease of 1e-6 (60 iterations at
     most) before it judges the tracks: a track near the outlier limit judged before the poses
-    settle is kept or rejected by the path the solver took, which follows the frame order (on
-    the 600-frame mirror footage walk one track, and the poses of the two orders 0.016 deg
-    apart; judged at convergence, the same tracks and 0.004 deg)."""
+    settle would be kept or rejected by the path the solver took, which follows the frame
+    order; judged at convergence, both orders keep the same tracks."""
     return replace(options, robust_tolerance=min(options.robust_tolerance, 1e-6),
                    robust_iterations=max(options.robust_iterations, 60))
 
@@ -1021,7 +1014,6 @@ def solve_global(tracks: LineTracks, options: GlobalOptions = GlobalOptions()
     Raises:
         OmniSfmError: as :func:`_solve_once`.
     """
-    options = replace(options, bundle=_decisive(options.bundle))
     sol = _solve_once(tracks, options)
     if not options.revisits.enabled:
         return sol
@@ -1044,10 +1036,12 @@ def solve_global(tracks: LineTracks, options: GlobalOptions = GlobalOptions()
 
 
 def _solve_once(tracks: LineTracks, options: GlobalOptions,
-                start: FloatArray | None = None, *, flags: bool = True) -> GlobalSolution:
+                start: FloatArray | None = None, *, window: bool = False) -> GlobalSolution:
     """Steps 1-4 of the module docstring; with ``start`` (``(F, 3, 3)``, NaN where none: an
-    earlier solution's rotations) the rotations are solved from it alone; without ``flags``,
-    steps 1-3 only (no frame flagged, no spread: a window of :func:`windows_start`).
+    earlier solution's rotations) the rotations are solved from it alone. A ``window`` of
+    :func:`windows_start` needs only its basin: steps 1-3, the adjustment's robust rounds as
+    ``options.bundle`` has them (the whole video's run to convergence, :func:`_decisive`), no
+    frame flagged and no spread.
 
     Raises:
         OmniSfmError: fewer than 3 frames that see ``options.min_lines`` lines, or a step that
@@ -1073,7 +1067,8 @@ def _solve_once(tracks: LineTracks, options: GlobalOptions,
                                sigma_deg=float(np.degrees(pos.residual_sigma))))
     timings["positions"] = (time.perf_counter() - t) * 1e3
     t = time.perf_counter()
-    ba = _adjustment_step(tracks, R, c, rot, pos, dir_ok, label, frames, options)
+    ba = _adjustment_step(tracks, R, c, rot, pos, dir_ok, label, frames, options if window
+                          else replace(options, bundle=_decisive(options.bundle)))
     timings["bundle_adjustment"] = (time.perf_counter() - t) * 1e3
     steps.append(EstimatorStep(step="bundle adjustment", iterations=ba.iterations,
                                outlier_tracks=int(ba.outlier_tracks.sum()),
@@ -1084,8 +1079,9 @@ def _solve_once(tracks: LineTracks, options: GlobalOptions,
     members = np.asarray(families[0].members, bool) if families else \
         np.zeros(tracks.num_tracks, bool)
     t = time.perf_counter()
-    uncertain, spread_deg, spread_path = _flags(tracks, rot, pos, ba, options) if flags else \
-        ({}, np.full(tracks.num_frames, np.nan), np.full(tracks.num_frames, np.nan))
+    uncertain, spread_deg, spread_path = \
+        ({}, np.full(tracks.num_frames, np.nan), np.full(tracks.num_frames, np.nan)) if window \
+        else _flags(tracks, rot, pos, ba, options)
     timings["pose_spread"] = (time.perf_counter() - t) * 1e3
     return GlobalSolution(
         rotations=ba.rotations, positions=ba.positions, frames=ba.frames,

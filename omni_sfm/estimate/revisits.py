@@ -37,9 +37,7 @@ class RevisitOptions:
 
     enabled: bool = False
     """Join revisited lines and solve again (off, the default: the first solution stands).
-    Off by default for now: where it joins it solves the problem twice (the 1,200-frame loop
-    of ``scripts/eval/loop.py``: 427 s against 197 s) and it is not yet measured on the other
-    walks."""
+    Where it joins it solves the problem twice (docs/estimator.md, step 5)."""
     min_gap_frames: int = 30
     """The later track begins at least this many frames after the earlier one ends."""
     max_angle_deg: float = 1.0
