@@ -19,6 +19,7 @@ from omni_sfm.cameras.io import (
     write_camera_yaml,
 )
 from omni_sfm.cameras.ocam import OCamCamera
+from omni_sfm.cameras.rig import RigCamera, dual_fisheye
 from omni_sfm.cameras.unified import UnifiedCamera
 
 for _cls in (
@@ -29,6 +30,7 @@ for _cls in (
     EquirectangularCamera,
     OCamCamera,
     OpenCVFisheyeCamera,
+    RigCamera,
 ):
     register_model(_cls)
 
@@ -42,8 +44,10 @@ __all__ = [
     "HyperboloidCamera",
     "OCamCamera",
     "OpenCVFisheyeCamera",
+    "RigCamera",
     "UnifiedCamera",
     "camera_from_dict",
+    "dual_fisheye",
     "load_camera",
     "register_model",
     "write_camera_yaml",

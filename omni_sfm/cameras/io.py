@@ -98,6 +98,9 @@ def camera_from_dict(data: dict[str, Any], path: Path | str = "<camera>") -> Cam
     """Build a camera from the keys of an omni-sfm camera file (see docs/cameras.md)."""
     path = Path(path)
     name, cls = _model_class(data, path)
+    from_params = getattr(cls, "from_params", None)
+    if from_params is not None:  # a composite model (a rig of lenses) reads its own keys
+        return from_params(data, path)
     flat = _flat_keys(data, path)
     kwargs = _model_kwargs(cls, name, flat, path)
     if flat:

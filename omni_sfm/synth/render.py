@@ -20,6 +20,7 @@ Output of :func:`render_sequence` (documented in docs/rendering.md): ``images/NN
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field, fields
 from enum import StrEnum
@@ -32,6 +33,9 @@ from omni_sfm.cameras import (
     CameraModel,
     EquirectangularCamera,
     HyperboloidCamera,
+    OpenCVFisheyeCamera,
+    RigCamera,
+    dual_fisheye,
     load_camera,
     write_camera_yaml,
 )
@@ -75,6 +79,7 @@ from omni_sfm.synth.scenes import (
 class CameraKind(StrEnum):
     HYPERBOLOID = "hyperboloid"
     EQUIRECTANGULAR = "equirectangular"
+    DUAL_FISHEYE = "dual-fisheye"
 
 
 class Preset(StrEnum):
@@ -87,12 +92,16 @@ class PresetSize:
     frames: int
     hyperboloid: tuple[int, int]
     equirectangular: tuple[int, int]
+    dual_fisheye: tuple[int, int]
 
 
 PRESETS = {
-    Preset.SMALL: PresetSize(12, (320, 240), (320, 160)),
-    Preset.PAPER: PresetSize(200, (800, 600), (1600, 800)),
+    Preset.SMALL: PresetSize(12, (320, 240), (320, 160), (320, 160)),
+    Preset.PAPER: PresetSize(200, (800, 600), (1600, 800), (1920, 960)),
 }
+# the rendered dual-fisheye camera: two equidistant 200 deg lenses back to back, 4 cm apart
+DUAL_FISHEYE_FOV_DEG = 200.0
+DUAL_FISHEYE_BASELINE_M = 0.04
 
 
 def hyperboloid_camera(width: int = 800, height: int = 600) -> HyperboloidCamera:
@@ -104,6 +113,22 @@ def hyperboloid_camera(width: int = 800, height: int = 600) -> HyperboloidCamera
         width=width, height=height, cx=width / 2.0, cy=height / 2.0, px=0.01 / s, py=0.01 / s,
         f=8.0, alpha=14.0, beta=19.4, inner_radius=48.0 * s, outer_radius=290.0 * s,
     )
+
+
+def dual_fisheye_camera(width: int = 1920, height: int = 960) -> RigCamera:
+    """Raw dual-fisheye frames ``width x height`` (two square lenses side by side, so
+    ``width = 2 height``): equidistant ``DUAL_FISHEYE_FOV_DEG`` lenses whose image circle fills
+    98 % of their square, back to back ``DUAL_FISHEYE_BASELINE_M`` apart."""
+    _check_size(width, height)
+    if width != 2 * height:
+        raise OmniSfmError(f"dual-fisheye frames are two square lenses side by side: width must "
+                           f"be 2 x height, got {width} x {height}")
+    r = 0.49 * height
+    f = r / math.radians(DUAL_FISHEYE_FOV_DEG / 2)
+    c = (height - 1) / 2.0
+    lens = OpenCVFisheyeCamera(width=height, height=height, fx=f, fy=f, cx=c, cy=c,
+                               outer_radius=r)
+    return dual_fisheye(lens, baseline=DUAL_FISHEYE_BASELINE_M)
 
 
 def _check_size(width: int, height: int) -> None:
@@ -125,7 +150,7 @@ def make_camera(camera: str | Path | CameraModel = CameraKind.HYPERBOLOID, *,
     kinds = [k.value for k in CameraKind]
     if name in kinds:
         kind = CameraKind(name)
-        dw, dh = getattr(PRESETS[Preset(preset)], kind.value)
+        dw, dh = getattr(PRESETS[Preset(preset)], kind.value.replace("-", "_"))
         if width is None and height is None:
             width, height = dw, dh
         elif width is None or height is None:
@@ -140,6 +165,8 @@ def make_camera(camera: str | Path | CameraModel = CameraKind.HYPERBOLOID, *,
         _check_size(width, height)
         if kind == CameraKind.HYPERBOLOID:
             return hyperboloid_camera(width, height)
+        if kind == CameraKind.DUAL_FISHEYE:
+            return dual_fisheye_camera(width, height)
         return EquirectangularCamera(width=width, height=height)
     path = Path(name)
     if path.suffix.lower() not in (".yaml", ".yml") and not path.exists():
@@ -361,9 +388,13 @@ class Renderer:
     def cast(self, world_from_cam: FloatArray, position: FloatArray,
              rays_cam: FloatArray) -> dict[str, np.ndarray]:
         """Cast ``(..., 3)`` camera-frame rays from ``position``; Open3D's result as numpy."""
-        d = rays_cam.reshape(-1, 3) @ np.asarray(world_from_cam, dtype=np.float32).T
+        R = np.asarray(world_from_cam, dtype=np.float32)
+        d = rays_cam.reshape(-1, 3) @ R.T
         rays = np.empty((len(d), 6), dtype=np.float32)
         rays[:, :3] = np.asarray(position, dtype=np.float32)
+        if isinstance(self.camera, RigCamera):  # each ray leaves from its lens's centre
+            rays[:, :3] += self.camera.ray_origins(rays_cam.reshape(-1, 3)).astype(
+                np.float32) @ R.T
         rays[:, 3:] = d
         res = self.raycaster.cast_rays(self.o3d.core.Tensor.from_numpy(rays))
         return {
@@ -371,6 +402,7 @@ class Renderer:
             "primitive_ids": res["primitive_ids"].numpy(),
             "normals": res["primitive_normals"].numpy(),
             "dirs": d,
+            "origins": rays[:, :3],
         }
 
     def _shade(self, world_from_cam: FloatArray, position: FloatArray, rays_cam: FloatArray,
@@ -389,7 +421,7 @@ class Renderer:
         cos_view = np.einsum("ij,ij->i", n, d)
         n *= -np.sign(cos_view)[:, None]
         tt = np.where(ok, t, 0).astype(np.float32)
-        pts = np.asarray(position, dtype=np.float32) + tt[:, None] * d
+        pts = hit["origins"] + tt[:, None] * d
         irr = _AMBIENT + _AMBIENT_TILT * (n @ _AMBIENT_DIR.astype(np.float32))
         for lp, lw in zip(self.light_pos, self.light_power, strict=True):
             to_l = lp - pts
