@@ -425,6 +425,17 @@ class PoseSpreadRecord(JsonReport):
 
 
 @dataclass(frozen=True, kw_only=True)
+class RigScaleRecord(JsonReport):
+    """An init report's ``rig`` (a rig of lenses, docs/estimator.md "Rigs"): the metres that
+    one unit of the trajectory spans, from the lens centres' offsets (the metric scale the
+    baseline between the lenses gives), or null where the lines are too far for the baseline
+    to fix it (then the offsets are too small to matter either); ``note`` says which."""
+
+    metres_per_unit: float | None
+    note: str
+
+
+@dataclass(frozen=True, kw_only=True)
 class AttemptRecord(JsonReport):
     """One of an init report's ``attempts`` (docs/estimator.md, "Strategies and attempts"):
     the ``strategy``, the first and last frame it ran on (whole-sequence indices; absent for
@@ -531,6 +542,8 @@ class InitReport(_StageInput, JsonReport):
     """Frame index -> why the data do not fix its pose (the global estimator's flags)."""
     pose_spread: PoseSpreadRecord | None = absent()
     """How well the data fix each frame's pose (the global estimator's)."""
+    rig: RigScaleRecord | None = absent()
+    """The metric scale of a rig of lenses (their offsets): :class:`RigScaleRecord`."""
     joined_pieces: int | None = absent()
     attempts: list[AttemptRecord] | None = absent()
     """Every strategy tried, in the order it ran."""

@@ -58,6 +58,7 @@ from omni_sfm.geometry import (
     normalize,
     orthonormal_completion,
     predicted_normals,
+    ray_line_closest,
     rotvec_to_matrix,
     skew,
     unsigned_angle,
@@ -193,6 +194,18 @@ def _residual_basis(tracks: LineTracks) -> FloatArray:
     return np.stack([m * (ref / sig[:, :1]), t * (ref / sig[:, 1:])], axis=1)
 
 
+def observation_centres(tracks: LineTracks, rotations: FloatArray, positions: FloatArray,
+                        obs: np.ndarray | slice = slice(None)) -> FloatArray:
+    """``(K, 3)`` the centre (world) that took each observation ``obs`` (indices or a mask
+    over the tracks' observations): its frame's centre ``c_f``, or with lens offsets
+    (``tracks.obs_offset``, in the units of ``positions``) ``c_f + R_f o``."""
+    f = tracks.obs_frame[obs]
+    c = positions[f]
+    if tracks.obs_offset is None:
+        return np.asarray(c)
+    return np.asarray(c + np.einsum("kij,kj->ki", rotations[f], tracks.obs_offset[obs]))
+
+
 def weighted_residuals(tracks: LineTracks, rotations: FloatArray, positions: FloatArray,
                        line_directions: FloatArray, line_points: FloatArray) -> FloatArray:
     """``(K,)`` residual norm of each observation as the adjustment weighs it (radians).
@@ -202,7 +215,8 @@ def weighted_residuals(tracks: LineTracks, rotations: FloatArray, positions: Flo
     NaN where the frame's pose or the track's line is undefined.
     """
     f, t = tracks.obs_frame, tracks.obs_track
-    u = predicted_normals(rotations[f], positions[f], line_points[t], line_directions[t])
+    u = predicted_normals(rotations[f], observation_centres(tracks, rotations, positions),
+                          line_points[t], line_directions[t])
     e = np.einsum("kai,ki->ka", _residual_basis(tracks), normalize(u))
     return np.linalg.norm(e, axis=1)
 
@@ -234,7 +248,8 @@ def triangulate_lines(tracks: LineTracks, rotations: FloatArray, positions: Floa
     ok = (cnt >= max(2, min_observations)) & (evals[:, 1] > 1e-12 * np.maximum(evals[:, 2], 1e-300))
     # point: minimise sum (n.x - n.c)^2 subject to d.x = 0 via the normal equations + d d^T
     b = np.zeros((M, 3))
-    np.add.at(b, t, n_w * np.sum(n_w * positions[f], axis=1, keepdims=True))
+    centres = observation_centres(tracks, rotations, positions, sel)
+    np.add.at(b, t, n_w * np.sum(n_w * centres, axis=1, keepdims=True))
     N = A + d[:, :, None] * d[:, None, :] * np.maximum(evals[:, 2:3, None], 1.0)
     with np.errstate(all="ignore"):
         p = np.linalg.solve(N[ok], b[ok][..., None])[..., 0] if ok.any() else np.zeros((0, 3))
@@ -251,7 +266,8 @@ def observation_residuals(tracks: LineTracks, rotations: FloatArray, positions: 
     NaN where the frame's pose or the track's line is undefined.
     """
     f, t = tracks.obs_frame, tracks.obs_track
-    u = predicted_normals(rotations[f], positions[f], line_points[t], line_directions[t])
+    u = predicted_normals(rotations[f], observation_centres(tracks, rotations, positions),
+                          line_points[t], line_directions[t])
     return unsigned_angle(normalize(u), tracks.obs_normal)
 
 
@@ -444,6 +460,10 @@ class LineProblem:
         self.f = tracks.obs_frame[sel]
         self.t = tracks.obs_track[sel]
         self.B = _residual_basis(tracks)[sel]  # (K, 2, 3)
+        self.offset = None if tracks.obs_offset is None else tracks.obs_offset[sel]
+        """``(K, 3)`` lens offsets (camera frame, the problem's units) or None: with them each
+        observation is taken as a camera of its own, at its frame's rotation and at
+        :func:`observation_centres`, and the pose Jacobian follows by the chain rule."""
         pose_free = np.zeros((F, 6), bool)
         pose_free[frames] = True
         pose_free[fixed_frame, 3:] = False
@@ -466,7 +486,17 @@ class LineProblem:
             (R0, c0, d0, p0), e0, u0 = self._refit
             if R is R0 and c is c0 and d is d0 and p is p0:
                 return e0, u0
-        return kernels.residuals(R, c, d, p, self.f, self.t, self.B)
+        Rk, ck, fk = self._cameras(R, c)
+        return kernels.residuals(Rk, ck, d, p, fk, self.t, self.B)
+
+    def _cameras(self, R: FloatArray, c: FloatArray) -> tuple[FloatArray, FloatArray, np.ndarray]:
+        """The kernels' cameras: the frames ``(R, c, f)``, or with lens offsets one camera per
+        observation ``(R_f, c_f + R_f o, 0..K-1)``."""
+        if self.offset is None:
+            return R, c, self.f
+        Rk = R[self.f]
+        return Rk, c[self.f] + np.einsum("kij,kj->ki", Rk, self.offset), \
+            np.arange(len(self.f))
 
     def jacobian(self, R: FloatArray, c: FloatArray, d: FloatArray, p: FloatArray,
                  u: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -474,8 +504,18 @@ class LineProblem:
         (:func:`_pose_jacobian`'s formulas, and the line moved along its tangent basis:
         :func:`omni_sfm.estimate.kernels.jacobians`)."""
         b1, b2 = self._basis_of(d)
-        return kernels.jacobians(R, c, d, p, self.f, self.t, self.B, u, self.pose_free,
-                                 self.line_free, b1, b2)
+        if self.offset is None:
+            return kernels.jacobians(R, c, d, p, self.f, self.t, self.B, u, self.pose_free,
+                                     self.line_free, b1, b2)
+        # each observation's camera c_f + R_f o moves with the rotation increment w (R_f
+        # exp(w)) by R_f (w x o) = -R_f [o]x w: its centre columns carry that into the
+        # rotation's; held columns are zeroed after the chain rule
+        Rk, ck, fk = self._cameras(R, c)
+        Jp, Jl = kernels.jacobians(Rk, ck, d, p, fk, self.t, self.B, u,
+                                   np.ones((len(fk), 6), bool), self.line_free, b1, b2)
+        Jp[:, :, :3] -= np.einsum("kac,kcd->kad", Jp[:, :, 3:], Rk @ skew(self.offset))
+        Jp *= self.pose_free[self.f][:, None, :]
+        return Jp, Jl
 
     def normal_equations(self, J_pose: FloatArray, J_line: FloatArray, e: FloatArray,
                          w: FloatArray) -> _Blocks:
@@ -558,7 +598,8 @@ class LineProblem:
         more for the next; a singular system stops them all. Returns the lines ``d, p`` and
         the residuals and predicted normals there (:meth:`residuals`). One compiled loop over
         the observations (:func:`omni_sfm.estimate.kernels.refit_lines`)."""
-        return kernels.refit_lines(R, c, d, p, self.f, self.t, self.B, self.line_free,
+        Rk, ck, fk = self._cameras(R, c)
+        return kernels.refit_lines(Rk, ck, d, p, fk, self.t, self.B, self.line_free,
                                    str(self.loss), self.loss_scale, self.line_iterations)
 
 
@@ -1000,7 +1041,8 @@ def observation_distance_ratio(tracks: LineTracks, R: FloatArray, c: FloatArray,
     out = np.full(tracks.num_observations, np.nan)
     k = np.flatnonzero(obs)
     f, t = tracks.obs_frame[k], tracks.obs_track[k]
-    dist = np.linalg.norm(predicted_normals(R[f], c[f], p[t], d[t]), axis=1)
+    dist = np.linalg.norm(predicted_normals(R[f], observation_centres(tracks, R, c, k), p[t],
+                                            d[t]), axis=1)
     ok = np.isfinite(dist)
     if not ok.any():
         return out
@@ -1080,3 +1122,27 @@ def resect_pose(normals: FloatArray, line_directions: FloatArray, line_points: F
     if m is not None and len(m):
         ang = np.concatenate([ang, np.arcsin(np.clip(np.abs(e[len(d):, 0]), 0.0, 1.0))])
     return R, c, ang
+
+
+def side_votes(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArray, p: FloatArray,
+               frames: np.ndarray, used: np.ndarray) -> tuple[int, int]:
+    """How many observations see their 3D line in front of / behind the camera.
+
+    For each observation with a ray (``tracks.obs_ray``, from its lens's centre: see
+    :func:`observation_centres`) of an estimated frame and a used line: the sign of the depth
+    along the ray of its closest approach to the line. ``(0, 0)`` when the tracks carry no
+    rays. ``R (F,3,3)`` world_from_cam, ``c (F,3)`` centres, ``d, p (M,3)``
+    line directions and points (world).
+    """
+    if tracks.obs_ray is None:
+        return 0, 0
+    t, f = tracks.obs_track, tracks.obs_frame
+    ok = frames[f] & used[t]
+    if not ok.any():
+        return 0, 0
+    t, f = t[ok], f[ok]
+    w = np.einsum("kij,kj->ki", R[f], tracks.obs_ray[ok])
+    depth, _, den = ray_line_closest(observation_centres(tracks, R, c, np.flatnonzero(ok)), w,
+                                     p[t], d[t])
+    depth = depth[den > 1e-6]  # a ray along its own line says nothing
+    return int(np.sum(depth > 0)), int(np.sum(depth < 0))

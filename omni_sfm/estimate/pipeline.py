@@ -36,12 +36,13 @@ from omni_sfm.estimate.bundle import (
     resect_pose,
     scatter_rows,
     scattered,
+    side_votes,
     triangulate_lines,
     truncated_cost,
     weighted_residuals,
 )
 from omni_sfm.estimate.families import camera_anchors, line_families, snap_to_families
-from omni_sfm.estimate.global_estimator import GlobalOptions, solve_global
+from omni_sfm.estimate.global_estimator import GlobalOptions, GlobalSolution, solve_global
 from omni_sfm.estimate.incremental import (
     IncrementalOptions,
     obs_index,
@@ -65,7 +66,7 @@ from omni_sfm.estimate.windows import (
 )
 from omni_sfm.folders import REPORT_FILE, TRAJECTORY_FILE, UNCERTAIN_FILE
 from omni_sfm.forked import Deferred, SharedCounters
-from omni_sfm.geometry import FloatArray, ray_line_closest, rotation_angle
+from omni_sfm.geometry import FloatArray, rotation_angle
 from omni_sfm.lines.tracks import LineTracks, reversed_frames
 from omni_sfm.poses import Trajectory, write_tum
 from omni_sfm.reports import (
@@ -77,6 +78,7 @@ from omni_sfm.reports import (
     InitResiduals,
     InitSegment,
     PoseSpreadRecord,
+    RigScaleRecord,
 )
 from omni_sfm.transforms import similarity_from_poses
 from omni_sfm.vanishing import (
@@ -809,7 +811,8 @@ def _global_result(tracks: LineTracks, options: EstimationOptions,
         frames_uncertain={str(k): v for k, v in sol.uncertain.items()},
         pose_spread=PoseSpreadRecord(rotation_deg=_finite_or_none(sol.spread_deg),
                                      position_pct_of_path=_finite_or_none(
-                                         100.0 * sol.spread_path)))
+                                         100.0 * sol.spread_path)),
+        rig=_rig_record(sol, frames))
     return EstimationResult(
         trajectory=traj, estimated=frames, initial_trajectory=traj,
         track_ids=tracks.track_ids.copy(), parallel=members, parallel_direction=direction,
@@ -817,6 +820,25 @@ def _global_result(tracks: LineTracks, options: EstimationOptions,
         line_points=p_n, windows=[], timings_ms=timings,
         residual_rms_initial_deg=sol.rms_initial_deg, residual_rms_final_deg=sol.rms_final_deg,
         sigma_deg=sol.sigma_deg, scale_convention=SCALE_CONVENTION, report=report)
+
+
+def _rig_record(sol: GlobalSolution, frames: np.ndarray) -> RigScaleRecord | None:
+    """The report's ``rig``: the metres one unit of the normalised trajectory spans (the
+    solution's first-to-last distance over the offsets' units per metre)."""
+    scale = sol.offset_scale
+    if scale is None:
+        return None
+    idx = np.flatnonzero(frames)
+    span = float(np.linalg.norm(sol.positions[idx[-1]] - sol.positions[idx[0]]))
+    if not scale.scale > 0:
+        return RigScaleRecord(metres_per_unit=None, note=(
+            "the lines are too far for the lenses' baseline to give a metric scale (and for "
+            "their offsets to matter)"))
+    sd = f"+-{100 * scale.rel_sd:.1f} %" if np.isfinite(scale.rel_sd) else "unbounded"
+    return RigScaleRecord(metres_per_unit=span / scale.scale, note=(
+        f"metric scale from the lenses' baseline, {sd} (the cost's curvature at the adjusted "
+        "poses)" + ("" if scale.fixed else ": not fixed by the lines, their offsets barely "
+                    "matter")))
 
 
 def _capped_rms_deg(tracks: LineTracks, R: FloatArray, c: FloatArray, frames: np.ndarray,
@@ -2102,28 +2124,6 @@ def _rotation_only_result(tracks: LineTracks, res: RotationOnlyResult,
         line_points=nan3.copy(), windows=[], timings_ms=timings,
         residual_rms_initial_deg=res.rms_initial_deg, residual_rms_final_deg=res.rms_final_deg,
         sigma_deg=sigma, scale_convention=ROTATION_ONLY_CONVENTION, report=report)
-
-
-def side_votes(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArray, p: FloatArray,
-               frames: np.ndarray, used: np.ndarray) -> tuple[int, int]:
-    """How many observations see their 3D line in front of / behind the camera.
-
-    For each observation with a ray (``tracks.obs_ray``) of an estimated frame and a used line:
-    the sign of the depth along the ray of its closest approach to the line. ``(0, 0)`` when the
-    tracks carry no rays. ``R (F,3,3)`` world_from_cam, ``c (F,3)`` centres, ``d, p (M,3)``
-    line directions and points (world).
-    """
-    if tracks.obs_ray is None:
-        return 0, 0
-    t, f = tracks.obs_track, tracks.obs_frame
-    ok = frames[f] & used[t]
-    if not ok.any():
-        return 0, 0
-    t, f = t[ok], f[ok]
-    w = np.einsum("kij,kj->ki", R[f], tracks.obs_ray[ok])
-    depth, _, den = ray_line_closest(c[f], w, p[t], d[t])
-    depth = depth[den > 1e-6]  # a ray along its own line says nothing
-    return int(np.sum(depth > 0)), int(np.sum(depth < 0))
 
 
 def _expand(ba: BundleResult, idx: np.ndarray, M: int, first_outliers: np.ndarray) -> BundleResult:

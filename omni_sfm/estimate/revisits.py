@@ -180,6 +180,7 @@ def join_revisits(tracks: LineTracks, group: np.ndarray) -> tuple[LineTracks, np
         obs_track=t[order], obs_frame=tracks.obs_frame[order],
         obs_normal=tracks.obs_normal[order], timestamps=tracks.timestamps,
         obs_ray=None if tracks.obs_ray is None else tracks.obs_ray[order],
-        obs_sigma=None if tracks.obs_sigma is None else tracks.obs_sigma[order])
+        obs_sigma=None if tracks.obs_sigma is None else tracks.obs_sigma[order],
+        obs_offset=None if tracks.obs_offset is None else tracks.obs_offset[order])
     return joined, merged_of
 

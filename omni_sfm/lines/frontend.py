@@ -140,7 +140,7 @@ class FrontEndResult:
                        obs_arc_deg=self.obs_arc_deg[keep_obs],
                        obs_normal_sigma=self.obs_normal_sigma[keep_obs])
 
-    def estimator_tracks(self) -> LineTracks:
+    def estimator_tracks(self, camera: CameraModel | None = None) -> LineTracks:
         """The tracks as the estimator takes them: every caller of the estimator on images
         (``init``, the ``lines`` initializer of ``compare``) goes through this one conversion.
 
@@ -150,11 +150,17 @@ class FrontEndResult:
         (docs/formats.md), and the uncertainty of its NV along and across that ray, with which
         the bundle adjustment weighs a short segment's poorly fixed tilt less. The numbers are
         those ``tracks.json`` holds (:meth:`LineTracks.as_written`), so that the estimator
-        alone on that file (``init --tracks``) finds the same poses to the bit.
+        alone on that file (``init --tracks``) finds the same poses to the bit. With a rig of
+        lenses (``camera`` a :class:`~omni_sfm.cameras.RigCamera`) each observation also gets
+        the centre of the lens that took it (``obs_offset``, metres).
         """
+        from omni_sfm.cameras.rig import RigCamera
+
         tr = self.tracks
-        return replace(tr, obs_ray=middle_rays(self.obs_endpoint_rays, tr.obs_normal),
-                       obs_sigma=self.obs_normal_sigma).as_written()
+        rays = middle_rays(self.obs_endpoint_rays, tr.obs_normal)
+        offsets = camera.ray_origins(rays) if isinstance(camera, RigCamera) else None
+        return replace(tr, obs_ray=rays, obs_sigma=self.obs_normal_sigma,
+                       obs_offset=offsets).as_written()
 
     def track_lengths(self) -> IntArray:
         """``(M,)`` frames each track is seen in."""

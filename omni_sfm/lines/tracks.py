@@ -50,6 +50,11 @@ class LineTracks:
             line's plane), ``[1]`` along ``normal x ray``; or None (all observations alike).
             Needs ``obs_ray``. A short segment fixes its plane's tilt about its own ray
             poorly, so ``[1]`` is the larger; the bundle adjustment weights by them.
+        obs_offset: ``(K, 3)`` the centre of the lens that took each observation, in that
+            frame's camera frame (a rig of lenses, :class:`~omni_sfm.cameras.RigCamera`: the
+            frame's pose is the rig's), in metres as the front end and ``tracks.json`` give
+            them; or None (a central camera: every observation from the frame's centre). The
+            estimator takes them in its own length unit (:meth:`with_offset_scale`).
 
     Observations are sorted by (track, frame); a track sees a frame at most once.
     """
@@ -62,6 +67,7 @@ class LineTracks:
     timestamps: FloatArray
     obs_ray: FloatArray | None = None
     obs_sigma: FloatArray | None = None
+    obs_offset: FloatArray | None = None
 
     @property
     def num_tracks(self) -> int:
@@ -104,7 +110,8 @@ class LineTracks:
         return LineTracks(self.num_frames, self.track_ids[idx], remap[self.obs_track[sel]],
                           self.obs_frame[sel], self.obs_normal[sel], self.timestamps,
                           None if self.obs_ray is None else self.obs_ray[sel],
-                          None if self.obs_sigma is None else self.obs_sigma[sel])
+                          None if self.obs_sigma is None else self.obs_sigma[sel],
+                          None if self.obs_offset is None else self.obs_offset[sel])
 
     def subset(self, obs: np.ndarray, lines: np.ndarray,
                frames: np.ndarray | None = None) -> LineTracks:
@@ -121,15 +128,26 @@ class LineTracks:
             obs_track=np.searchsorted(lines, self.obs_track[obs]), obs_frame=f,
             obs_normal=self.obs_normal[obs], timestamps=ts,
             obs_ray=None if self.obs_ray is None else self.obs_ray[obs],
-            obs_sigma=None if self.obs_sigma is None else self.obs_sigma[obs])
+            obs_sigma=None if self.obs_sigma is None else self.obs_sigma[obs],
+            obs_offset=None if self.obs_offset is None else self.obs_offset[obs])
 
-    def _as_stored(self) -> tuple[FloatArray, FloatArray | None, FloatArray | None]:
+    def with_offset_scale(self, scale: float) -> LineTracks:
+        """These tracks with the lens offsets times ``scale`` (the estimator's length units
+        per metre); unchanged without offsets."""
+        if self.obs_offset is None:
+            return self
+        return replace(self, obs_offset=self.obs_offset * float(scale))
+
+    def _as_stored(self) -> tuple[FloatArray, FloatArray | None, FloatArray | None,
+                                  FloatArray | None]:
         """The numbers ``tracks.json`` stores: normals and rays rounded to 15 decimals, the
-        sigmas in degrees to 9 (JSON then holds each of these doubles exactly)."""
+        sigmas in degrees to 9, the lens offsets (metres) to 12 (JSON then holds each of these
+        doubles exactly)."""
         rays = None if self.obs_ray is None else np.round(self.obs_ray, 15)
         sig: FloatArray | None = None if self.obs_sigma is None else \
             np.asarray(np.round(np.degrees(self.obs_sigma), 9), dtype=np.float64)
-        return np.round(self.obs_normal, 15), rays, sig
+        off = None if self.obs_offset is None else np.round(self.obs_offset, 12)
+        return np.round(self.obs_normal, 15), rays, sig, off
 
     def as_written(self) -> LineTracks:
         """These tracks exactly as :func:`read_tracks` gives them back from the
@@ -138,14 +156,14 @@ class LineTracks:
         last bits of its input (docs/estimator.md, "Speed"): ``init`` on images estimates from
         these, so that ``init --tracks tracks.json`` gives its poses to the bit. (Written again,
         these numbers give the same file: each rounding is idempotent on its own result.)"""
-        normals, rays, sigmas_deg = self._as_stored()
+        normals, rays, sigmas_deg, offsets = self._as_stored()
         return make_tracks(self.num_frames, self.track_ids, self.obs_track, self.obs_frame,
                            normals, self.timestamps, obs_ray=rays,
                            obs_sigma=None if sigmas_deg is None else np.radians(sigmas_deg),
-                           as_stored=True)
+                           obs_offset=offsets, as_stored=True)
 
     def to_json_dict(self) -> dict[str, Any]:
-        normals, rays, sigmas_deg = self._as_stored()
+        normals, rays, sigmas_deg, offsets = self._as_stored()
         tracks = []
         # each track's observations in their order (one sort, not a mask per track, which would
         # be tracks x observations comparisons, seconds on a long video's tracks)
@@ -160,6 +178,8 @@ class LineTracks:
                 entry["rays"] = rays[sel].tolist()
             if sigmas_deg is not None:
                 entry["sigmas_deg"] = sigmas_deg[sel].tolist()
+            if offsets is not None:
+                entry["offsets_m"] = offsets[sel].tolist()
             tracks.append(entry)
         return {"num_frames": self.num_frames, "timestamps": self.timestamps.tolist(),
                 "tracks": tracks}
@@ -216,6 +236,20 @@ def _checked_sigmas(obs_sigma: FloatArray | None, rays: FloatArray | None, n: Fl
     return sig
 
 
+def _checked_offsets(obs_offset: FloatArray | None, n: FloatArray,
+                     source: str) -> FloatArray | None:
+    """The observations' lens offsets (metres) as ``(N, 3)``, checked finite."""
+    if obs_offset is None:
+        return None
+    off = np.asarray(obs_offset, dtype=np.float64).reshape(-1, 3)
+    if off.shape != n.shape:
+        raise OmniSfmError(f"{source}: need one lens offset per normal, got {off.shape[0]} "
+                           f"for {n.shape[0]} normals")
+    if not np.isfinite(off).all():
+        raise OmniSfmError(f"{source}: lens offsets must be finite")
+    return off
+
+
 def _unit(v: FloatArray, length: FloatArray, as_stored: bool) -> FloatArray:
     """``v / length`` row-wise; with ``as_stored``, lengths within 1e-12 of 1 count as 1."""
     if as_stored:
@@ -236,7 +270,8 @@ def _checked_timestamps(num_frames: int, timestamps: FloatArray | None,
 def make_tracks(num_frames: int, track_ids: IntArray, obs_track: IntArray, obs_frame: IntArray,
                 obs_normal: FloatArray, timestamps: FloatArray | None = None,
                 source: str = "tracks", obs_ray: FloatArray | None = None,
-                obs_sigma: FloatArray | None = None, *, as_stored: bool = False) -> LineTracks:
+                obs_sigma: FloatArray | None = None, *, obs_offset: FloatArray | None = None,
+                as_stored: bool = False) -> LineTracks:
     """Validate and sort observations into a :class:`LineTracks` (errors name ``source``).
 
     Normals and rays are normalised; with ``as_stored`` (the numbers of a ``tracks.json``),
@@ -252,19 +287,22 @@ def make_tracks(num_frames: int, track_ids: IntArray, obs_track: IntArray, obs_f
     norms = _checked_normals(num_frames, track_ids, t, f, n, source)
     rays = _checked_rays(obs_ray, n, norms, source)
     sig = _checked_sigmas(obs_sigma, rays, n, source)
+    off = _checked_offsets(obs_offset, n, source)
     order = np.lexsort((f, t))
     t, f, n = t[order], f[order], _unit(n[order], norms[order], as_stored)
     if rays is not None:
         rays = _unit(rays[order], np.linalg.norm(rays[order], axis=1), as_stored)
     if sig is not None:
         sig = sig[order]
+    if off is not None:
+        off = off[order]
     dup = np.flatnonzero((np.diff(t) == 0) & (np.diff(f) == 0))
     if dup.size:
         raise OmniSfmError(f"{source}: track {int(track_ids[t[dup[0]]])} lists frame "
                            f"{int(f[dup[0]])} twice")
     ts = _checked_timestamps(num_frames, timestamps, source)
     return LineTracks(int(num_frames), np.asarray(track_ids, dtype=np.int64), t, f, n, ts, rays,
-                      sig)
+                      sig, off)
 
 
 def _track_numbers(path: Path, k: int, tr: Any) -> tuple[Any, FloatArray, FloatArray]:
@@ -313,6 +351,18 @@ def _track_sigmas(path: Path, tid: int, tr: dict[str, Any], nv: FloatArray) -> F
     return sv
 
 
+def _track_offsets(path: Path, tid: int, tr: dict[str, Any], nv: FloatArray) -> FloatArray:
+    """A track's ``offsets_m``, one lens centre (metres) per normal."""
+    try:
+        ov = np.asarray(tr["offsets_m"], dtype=np.float64)
+    except (TypeError, ValueError):
+        raise OmniSfmError(f"{path}: track {tid}: 'offsets_m' must be numbers") from None
+    if ov.shape != nv.shape:
+        raise OmniSfmError(f"{path}: track {tid}: needs one [x, y, z] lens offset per normal, "
+                           f"got shape {ov.shape}")
+    return ov
+
+
 def read_tracks(path: Path | str) -> LineTracks:
     """Read and validate a ``tracks.json`` file; defects become one-line OmniSfmErrors."""
     path = Path(path)
@@ -322,13 +372,15 @@ def read_tracks(path: Path | str) -> LineTracks:
     tracks = data["tracks"]
     if not isinstance(tracks, list):
         raise OmniSfmError(f"{path}: 'tracks' must be a list")
-    ids, ot, of, on, orays, osig = [], [], [], [], [], []
+    ids, ot, of, on, orays, osig, ooff = [], [], [], [], [], [], []
     for k, tr in enumerate(tracks):
         tid, fr, nv = _track_numbers(path, k, tr)
         if "rays" in tr:
             orays.append(_track_rays(path, tid, tr, nv))
         if "sigmas_deg" in tr:
             osig.append(_track_sigmas(path, tid, tr, nv))
+        if "offsets_m" in tr:
+            ooff.append(_track_offsets(path, tid, tr, nv))
         ids.append(tid)
         ot.append(np.full(fr.shape[0], k))
         of.append(fr.astype(np.int64))
@@ -341,11 +393,14 @@ def read_tracks(path: Path | str) -> LineTracks:
         raise OmniSfmError(f"{path}: 'rays' must be given for all tracks or for none")
     if osig and len(osig) != len(ids):
         raise OmniSfmError(f"{path}: 'sigmas_deg' must be given for all tracks or for none")
+    if ooff and len(ooff) != len(ids):
+        raise OmniSfmError(f"{path}: 'offsets_m' must be given for all tracks or for none")
     return make_tracks(data["num_frames"], np.asarray(ids), np.concatenate(ot),
                        np.concatenate(of), np.concatenate(on, axis=0).reshape(-1, 3),
                        data.get("timestamps"), source=str(path),
                        obs_ray=np.concatenate(orays, axis=0) if orays else None,
                        obs_sigma=np.concatenate(osig, axis=0) if osig else None,
+                       obs_offset=np.concatenate(ooff, axis=0) if ooff else None,
                        as_stored=True)
 
 
@@ -365,4 +420,4 @@ def reversed_frames(tracks: LineTracks) -> LineTracks:
 
     return replace(tracks, obs_track=tracks.obs_track[order], obs_frame=f[order],
                    obs_normal=tracks.obs_normal[order], obs_ray=rows(tracks.obs_ray),
-                   obs_sigma=rows(tracks.obs_sigma))
+                   obs_sigma=rows(tracks.obs_sigma), obs_offset=rows(tracks.obs_offset))

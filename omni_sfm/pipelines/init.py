@@ -340,7 +340,7 @@ def init_from_images(images: Path | str, camera: Path | str | CameraModel | None
             colmap_images.close()
         fe, fixed_ids, auto_said = _without_camera_fixed(fe, o.auto_mask, checks.auto_mask)
         t1 = time.perf_counter()
-        tracks, result = _estimate(fe, o)
+        tracks, result = _estimate(fe, o, cam)
         t2 = time.perf_counter()
 
         names = _image_names(source, fe.frame_numbers)
@@ -397,12 +397,13 @@ def _without_camera_fixed(fe: FrontEndResult, auto_mask: bool,
     return fe, fixed_ids, auto_said
 
 
-def _estimate(fe: FrontEndResult, o: InitOptions) -> tuple[LineTracks, EstimationResult]:
+def _estimate(fe: FrontEndResult, o: InitOptions,
+              camera: CameraModel) -> tuple[LineTracks, EstimationResult]:
     """The estimator's tracks and poses; errors name the images' likely problem."""
     too_few = fe.why_too_few_lines()
     if too_few:
         raise OmniSfmError(too_few)
-    tracks = fe.estimator_tracks()
+    tracks = fe.estimator_tracks(camera)
     try:
         result = estimate_poses(tracks, replace(o.estimation, progress=o.progress))
     except OmniSfmError as exc:

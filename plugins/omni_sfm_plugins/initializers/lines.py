@@ -33,7 +33,7 @@ def lines(sequence: SequenceInput, options: Mapping[str, Any]) -> InitializerRes
         frames = ((k, float(sequence.timestamps[k]), sequence.read_gray(k))
                   for k in range(sequence.num_frames))
         fe = track_lines(frames, sequence.camera, FrontEndOptions(progress=False))
-        tracks = fe.estimator_tracks()
+        tracks = fe.estimator_tracks(sequence.camera)
     elif sequence.line_tracks is not None:
         tracks = sequence.line_tracks
     else:
