@@ -34,7 +34,7 @@ LAYOUTS = ("side_by_side", "stacked")
 def rigid_transform(path: Path | str, key: str, value: Any) -> FloatArray:
     """A ``(4, 4)`` rigid transform from a 4x4 (or 3x4) nested list, checked."""
     try:
-        T = np.asarray(value, dtype=np.float64)
+        T = np.array(value, dtype=np.float64)  # a copy: the rotation is made exact below
     except (TypeError, ValueError):
         raise OmniSfmError(f"{path}: key {key!r} must be a 4x4 matrix of numbers") from None
     if T.shape == (3, 4):
