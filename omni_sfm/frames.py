@@ -20,7 +20,7 @@ import os
 import re
 import sys
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -186,7 +186,9 @@ class FrameSource:
 
     ``size`` ``(width, height)``: the camera's image size. Frames of another size are skipped,
     unless none of the first :data:`SIZE_CHECK_FRAMES` readable frames has it: then the camera
-    file does not match the images (an OmniSfmError names both sizes). ``skipped`` lists the
+    file does not match the images (an OmniSfmError names both sizes, or says what
+    ``size_error(width, height)`` says, the camera's
+    :meth:`~omni_sfm.cameras.CameraModel.frame_size_mismatch`). ``skipped`` lists the
     source indices of the frames skipped (in the order met), ``skip_reasons`` why, by index.
     """
 
@@ -195,6 +197,7 @@ class FrameSource:
     end: int | None = None
     step: int = 1
     size: tuple[int, int] | None = None
+    size_error: Callable[[int, int], str | None] | None = None
     skipped: list[int] = field(default_factory=list)
     skip_reasons: dict[int, str] = field(default_factory=dict)
     is_video: bool = False
@@ -230,7 +233,8 @@ class FrameSource:
             return []
         picks = sorted({self.start + self.step * int(k)
                         for k in np.linspace(0, n - 1, min(count, n)).round()})
-        probe = FrameSource(path=self.path, size=self.size, is_video=self.is_video,
+        probe = FrameSource(path=self.path, size=self.size, size_error=self.size_error,
+                            is_video=self.is_video,
                             fps=self.fps, files=self.files, frame_count=self.frame_count)
         out: list[np.ndarray] = []
         if not self.is_video:
@@ -278,9 +282,10 @@ class FrameSource:
             self._size_seen = True
             return gray
         if not self._size_seen:
+            said = self.size_error(*got) if self.size_error is not None else None
             self._size_errors.append(
-                f"{where}: image is {got[0]}x{got[1]} px but the camera file says "
-                f"{self.size[0]}x{self.size[1]} px")
+                f"{where}: {said}" if said else f"{where}: image is {got[0]}x{got[1]} px but the "
+                f"camera file says {self.size[0]}x{self.size[1]} px")
             if len(self._size_errors) >= SIZE_CHECK_FRAMES:
                 raise OmniSfmError(self._size_errors[0])
         self._skip(number, f"{got[0]}x{got[1]} px, the camera's is {self.size[0]}x{self.size[1]}")
@@ -371,10 +376,12 @@ class FrameSource:
 
 
 def read_frames(path: Path | str, start: int = 0, end: int | None = None, step: int = 1,
-                size: tuple[int, int] | None = None) -> FrameSource:
+                size: tuple[int, int] | None = None,
+                size_error: Callable[[int, int], str | None] | None = None) -> FrameSource:
     """Frames ``start, start + step, ... < end`` of an image folder or a video file.
 
-    ``size`` ``(width, height)``: the camera's image size, checked on every frame.
+    ``size`` ``(width, height)``: the camera's image size, checked on every frame;
+    ``size_error``: the camera's ``frame_size_mismatch`` (:class:`FrameSource`).
     """
     path = Path(path)
     for name, val in (("start", start), ("step", step)):
@@ -397,7 +404,8 @@ def read_frames(path: Path | str, start: int = 0, end: int | None = None, step: 
         if start >= len(files):
             raise OmniSfmError(f"{path}: start {start} is beyond the last of {len(files)} "
                                "images")
-        return FrameSource(path=path, start=start, end=end, step=step, size=size, files=files)
+        return FrameSource(path=path, start=start, end=end, step=step, size=size,
+                           size_error=size_error, files=files)
     with captured_stderr() as log:
         cap = open_video(path)
     try:
@@ -412,7 +420,8 @@ def read_frames(path: Path | str, start: int = 0, end: int | None = None, step: 
         count = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
     finally:
         cap.release()
-    return FrameSource(path=path, start=start, end=end, step=step, size=size, is_video=True,
+    return FrameSource(path=path, start=start, end=end, step=step, size=size,
+                       size_error=size_error, is_video=True,
                        fps=fps if fps > 0 and np.isfinite(fps) else None,
                        frame_count=count if count > 0 else None)
 
@@ -431,7 +440,8 @@ def open_capture(spec: str) -> cv2.VideoCapture:
     return open_video(spec)
 
 
-def read_stream(spec: str, size: tuple[int, int] | None = None) -> FrameSource:
+def read_stream(spec: str, size: tuple[int, int] | None = None,
+                size_error: Callable[[int, int], str | None] | None = None) -> FrameSource:
     """Frames of a camera device (an integer index, ``"0"``) or a stream URL that OpenCV opens
     (``rtsp://...``, ``http://...``, ``file:///path/video.mp4``), until it ends: a
     :class:`FrameSource` read as a video file is (the same frame checks; timestamps: frame
@@ -448,7 +458,8 @@ def read_stream(spec: str, size: tuple[int, int] | None = None) -> FrameSource:
         fps = float(cap.get(cv2.CAP_PROP_FPS))
     finally:
         cap.release()
-    return FrameSource(path=Path("."), size=size, is_video=True, stream=spec,
+    return FrameSource(path=Path("."), size=size, size_error=size_error, is_video=True,
+                       stream=spec,
                        fps=fps if fps > 0 and np.isfinite(fps) else None)
 
 

@@ -108,9 +108,10 @@ class SequenceInput:
         name = self.images.names[k]
         img = self.images.read(name, gray=gray)
         if img.shape[:2] != (self.camera.height, self.camera.width):
-            raise OmniSfmError(f"{self.images.where(name)}: image is {img.shape[1]}x"
-                               f"{img.shape[0]} px, the camera is {self.camera.width}x"
-                               f"{self.camera.height} px")
+            said = self.camera.frame_size_mismatch(img.shape[1], img.shape[0])
+            raise OmniSfmError(f"{self.images.where(name)}: " + (
+                said or f"image is {img.shape[1]}x{img.shape[0]} px, the camera is "
+                f"{self.camera.width}x{self.camera.height} px"))
         return img
 
     def read_gray(self, k: int) -> np.ndarray:

@@ -127,8 +127,11 @@ def test_opencv_storage_without_xi_or_size_names_the_key(tmp_path: Path) -> None
 # ---------------------------------------------------------------- Kalibr, OCamCalib, COLMAP
 
 
-def test_kalibr_camchain_omni_radtan_reads_cam0() -> None:
-    cam = load_camera(DATA / "kalibr_camchain_omni.yaml")
+def test_kalibr_stereo_camchain_reads_one_camera_by_lens() -> None:
+    # two cameras looking the same way are no rig: the error says how to read one of them
+    with pytest.raises(OmniSfmError, match=r"cam0 and cam1 look the same way .*--lens 0'$"):
+        load_camera(DATA / "kalibr_camchain_omni.yaml")
+    cam = load_camera(DATA / "kalibr_camchain_omni.yaml", lens=0)
     assert cam == UnifiedCamera(width=1280, height=1024, xi=1.0385, fx=742.31, fy=741.86,
                                 cx=639.42, cy=511.07, k1=-0.0412, k2=0.0071, p1=0.00042,
                                 p2=-0.00031)
@@ -257,16 +260,17 @@ def test_unreadable_files(tmp_path: Path) -> None:
 
 def test_cli_show_and_convert(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     src = DATA / "kalibr_camchain_omni.yaml"
-    assert main(["camera", "show", str(src)]) == 0
+    assert main(["camera", "show", str(src), "--lens", "0"]) == 0
     out = capsys.readouterr().out
     assert "model: unified" in out and "xi: 1.0385" in out and "valid pixels" in out
     dst = tmp_path / "camera.yaml"
-    assert main(["camera", "convert", str(src), "-o", str(dst)]) == 0
-    assert load_camera(dst) == load_camera(src)
+    assert main(["camera", "convert", str(src), "--lens", "0", "-o", str(dst)]) == 0
+    assert load_camera(dst) == load_camera(src, lens=0)
     # no silent overwrite
-    assert main(["camera", "convert", str(src), "-o", str(dst)]) == 2
+    assert main(["camera", "convert", str(src), "--lens", "0", "-o", str(dst)]) == 2
     assert_one_line_error(capsys, "--overwrite")
-    assert main(["camera", "convert", str(src), "-o", str(dst), "--overwrite"]) == 0
+    assert main(["camera", "convert", str(src), "--lens", "0", "-o", str(dst),
+                 "--overwrite"]) == 0
 
 
 @pytest.mark.parametrize("case", ["unknown_model", "nan_param", "colmap_model"])

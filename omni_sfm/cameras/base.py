@@ -365,6 +365,11 @@ class CameraModel(ABC):
             out[f.name] = val
         return out
 
+    def frame_size_mismatch(self, width: int, height: int) -> str | None:
+        """This camera's own one-line account of frames of ``width x height`` px that do not
+        have its size, or None: the message of whoever checks the frames names both sizes."""
+        return None
+
     def _coarse_rays(self) -> FloatArray:
         step = max(1, min(self.width, self.height) // 200)
         v, u = np.mgrid[0 : self.height : step, 0 : self.width : step]

@@ -12,6 +12,8 @@ import re
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from omni_sfm.errors import OmniSfmError
 
 
@@ -125,26 +127,81 @@ def read_opencv_storage(path: Path) -> dict[str, Any]:
 
 # ---------------------------------------------------------------- Kalibr camchain
 
-def _kalibr_camera(path: Path, data: dict[str, Any]) -> tuple[str, dict[str, Any]]:
+def _kalibr_cameras(path: Path, data: dict[str, Any]) -> list[tuple[str, dict[str, Any]]]:
+    """``(key prefix, camera mapping)`` of each camera of a camchain, ``cam0`` first (a single
+    camera mapping: one, with no prefix)."""
     if "camera_model" in data:
-        return "", data
+        return [("", data)]
     cams = sorted(
         (k for k, v in data.items() if isinstance(v, dict) and "camera_model" in v),
         key=lambda k: (int(m.group(1)) if (m := re.search(r"(\d+)$", str(k))) else 1 << 30, k),
     )
     if not cams:
         raise OmniSfmError(f"{path}: no camera with key 'camera_model' (Kalibr camchain)")
-    return f"{cams[0]}.", data[cams[0]]
+    return [(f"{k}.", data[k]) for k in cams]
 
 
-def read_kalibr(path: Path, data: dict[str, Any]) -> dict[str, Any]:
+def read_kalibr(path: Path, data: dict[str, Any], lens: int | None = None) -> dict[str, Any]:
     """A Kalibr camchain (``cam0: {camera_model, intrinsics, distortion_model,
-    distortion_coeffs, resolution}``; the first camera, ``cam0``, is read) or a single camera
-    mapping with those keys. Models: ``omni`` (+ ``radtan``/``none``) -> ``unified``, ``eucm``,
-    ``ds`` -> ``double_sphere``, ``pinhole`` + ``equidistant`` -> ``opencv_fisheye``,
-    ``pinhole`` + ``radtan``/``none`` -> ``unified`` with ``xi = 0``. Kalibr's pixels are
-    OpenCV's (no shift)."""
-    pre, cam = _kalibr_camera(path, data)
+    distortion_coeffs, resolution}``, ``cam1: {..., T_cn_cnm1}``, ...) or a single camera
+    mapping with those keys. One camera becomes that camera; several become a ``rig`` (see
+    :func:`kalibr_rig`); ``lens``: only camera ``lens`` of the chain (``cam<lens>``)."""
+    cams = _kalibr_cameras(path, data)
+    if lens is not None:
+        if not 0 <= lens < len(cams):
+            names = ", ".join(pre[:-1] or "one camera mapping" for pre, _ in cams)
+            raise OmniSfmError(f"{path}: no camera {lens} (counted from 0): the file holds "
+                               f"{len(cams)} ({names})")
+        return kalibr_camera(path, *cams[lens])
+    if len(cams) == 1:
+        return kalibr_camera(path, *cams[0])
+    return kalibr_rig(path, cams)
+
+
+def kalibr_rig(path: Path, cams: list[tuple[str, dict[str, Any]]]) -> dict[str, Any]:
+    """The ``rig`` camera keys of a camchain's cameras chained by ``T_cn_cnm1`` (camera n-1's
+    points into camera n's frame, metres): rig frame = cam0's, ``rig_from_lens[0] = I``,
+    ``rig_from_lens[n] = rig_from_lens[n-1] @ inv(T_cn_cnm1)``; their images side by side,
+    cam0 leftmost."""
+    from omni_sfm.cameras.rig import rigid_transform
+
+    lenses: list[dict[str, Any]] = []
+    rig_from_lens = np.eye(4)
+    for n, (pre, cam) in enumerate(cams):
+        lens = kalibr_camera(path, pre, cam)
+        if n > 0:
+            key = pre + "T_cn_cnm1"
+            if "T_cn_cnm1" not in cam:
+                raise OmniSfmError(
+                    f"{path}: missing key {key!r} ({cams[n - 1][0][:-1]}'s frame into "
+                    f"{pre[:-1]}'s, which makes the camchain's cameras one rig; for one camera: "
+                    f"'omni-sfm camera convert {path} --lens 0')")
+            T = rigid_transform(path, key, cam["T_cn_cnm1"])
+            rig_from_lens = rig_from_lens @ np.linalg.inv(T)
+            axes = [np.asarray(p["rig_from_lens"])[:3, 2] for p in lenses]
+            for k, axis in enumerate(axes):
+                if np.linalg.norm(axis - rig_from_lens[:3, 2]) < 1e-6:
+                    raise OmniSfmError(
+                        f"{path}: {cams[k][0][:-1]} and {pre[:-1]} look the same way (a stereo "
+                        "pair?): a camchain is read as one rig of cameras that each image their "
+                        f"own directions; for one camera: 'omni-sfm camera convert {path} "
+                        f"--lens {k}'")
+        lens["rig_from_lens"] = [[float(x) for x in row] for row in rig_from_lens]
+        lenses.append(lens)
+    return {
+        "model": "rig",
+        "width": sum(p["width"] for p in lenses),
+        "height": max(p["height"] for p in lenses),
+        "layout": "side_by_side",
+        "lenses": lenses,
+    }
+
+
+def kalibr_camera(path: Path, pre: str, cam: dict[str, Any]) -> dict[str, Any]:
+    """One Kalibr camera mapping (its keys named ``pre + key`` in messages). Models: ``omni``
+    (+ ``radtan``/``none``) -> ``unified``, ``eucm``, ``ds`` -> ``double_sphere``, ``pinhole``
+    + ``equidistant`` -> ``opencv_fisheye``, ``pinhole`` + ``radtan``/``none`` -> ``unified``
+    with ``xi = 0``. Kalibr's pixels are OpenCV's (no shift)."""
 
     def get(key: str) -> Any:
         if key not in cam:

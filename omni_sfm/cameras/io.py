@@ -143,29 +143,42 @@ def read_camera_yaml(path: Path) -> CameraModel:
     return camera_from_dict(_parse_yaml(path, _read_text(path)), path)
 
 
-def camera_dict_from_file(path: Path | str) -> dict[str, Any]:
+def camera_dict_from_file(path: Path | str, lens: int | None = None) -> dict[str, Any]:
     """The omni-sfm camera keys of any supported camera file, format detected from content:
     OpenCV FileStorage (``%YAML:1.0`` or ``<opencv_storage>``), OCamCalib
-    ``calib_results.txt``, COLMAP ``cameras.txt``, Kalibr camchain YAML, omni-sfm YAML."""
-    path = Path(path)
+    ``calib_results.txt``, COLMAP ``cameras.txt``, Kalibr camchain YAML, omni-sfm YAML.
+
+    ``lens``: only that camera of a Kalibr camchain (``cam<lens>``) or lens of a ``rig``
+    camera file (counted from 0); of a file with one camera, 0 is that camera."""
+    return _camera_dict(Path(path), lens)[0]
+
+
+def _camera_dict(path: Path, lens: int | None) -> tuple[dict[str, Any], str]:
+    """:func:`camera_dict_from_file`'s keys and the format read (``kalibr`` or ``other``)."""
+    if lens is not None and (isinstance(lens, bool) or not isinstance(lens, int) or lens < 0):
+        raise OmniSfmError(f"lens must be an integer >= 0, got {lens!r}")
     text = _read_text(path)
     head = text.lstrip()[:200]
+    data: Any = None
     if head.startswith("%YAML:1") or "<opencv_storage>" in head or "!!opencv-matrix" in text:
-        return formats.read_opencv_storage(path)
-    if formats.OCAM_MARKER in text.lower():
-        return formats.read_ocamcalib(path, text)
-    if formats.looks_like_colmap(text):
-        return formats.read_colmap_cameras_txt(path, text)
-    data = _parse_yaml(path, text)
+        out = formats.read_opencv_storage(path)
+    elif formats.OCAM_MARKER in text.lower():
+        out = formats.read_ocamcalib(path, text)
+    elif formats.looks_like_colmap(text):
+        out = formats.read_colmap_cameras_txt(path, text)
+    else:
+        data = _parse_yaml(path, text)
+    if data is None:
+        return _one_lens(path, out, lens), "other"
     if isinstance(data, dict) and "model" in data:
-        return data
+        return _one_lens(path, data, lens), "other"
     if isinstance(data, dict) and ("K" in data or "camera_matrix" in data):
-        return formats.read_opencv_storage(path)
+        return _one_lens(path, formats.read_opencv_storage(path), lens), "other"
     if isinstance(data, dict) and (
         "camera_model" in data
         or any(isinstance(v, dict) and "camera_model" in v for v in data.values())
     ):
-        return formats.read_kalibr(path, data)
+        return formats.read_kalibr(path, data, lens), "kalibr"
     raise OmniSfmError(
         f"{path}: unrecognised camera file: expected an omni-sfm camera YAML (key 'model'), an "
         "OpenCV FileStorage file, a Kalibr camchain, OCamCalib calib_results.txt or COLMAP "
@@ -173,20 +186,55 @@ def camera_dict_from_file(path: Path | str) -> dict[str, Any]:
     )
 
 
+def _one_lens(path: Path, data: dict[str, Any], lens: int | None) -> dict[str, Any]:
+    """``data``, or with ``lens`` its lens ``lens`` (a ``rig``'s, without its placement)."""
+    if lens is None:
+        return data
+    lenses = data.get("lenses") if data.get("model") == "rig" else None
+    if not isinstance(lenses, list):
+        if lens == 0:
+            return data
+        raise OmniSfmError(f"{path}: no lens {lens}: the file holds one camera (model "
+                           f"{data.get('model')!r}); a lens is one camera of a Kalibr camchain "
+                           "or one of a 'rig' camera's lenses")
+    if lens >= len(lenses):
+        raise OmniSfmError(f"{path}: no lens {lens} (counted from 0): the rig has "
+                           f"{len(lenses)} lenses")
+    one = lenses[lens]
+    if not isinstance(one, dict):
+        raise OmniSfmError(f"{path}: key 'lenses[{lens}]' must be a mapping")
+    return {k: v for k, v in one.items() if k != "rig_from_lens"}
+
+
 def write_camera_yaml(path: Path, camera: CameraModel) -> None:
     """Write ``camera`` as an omni-sfm camera YAML file (atomically)."""
-    p = camera.params()
-    mask = {k: p.pop(k) for k in ("inner_radius", "outer_radius") if k in p}
-    mask = {k: v for k, v in mask.items() if v is not None}
-    if mask:
-        p["mask"] = mask
+
+    def nested_mask(p: dict[str, Any]) -> dict[str, Any]:
+        mask = {k: p.pop(k) for k in ("inner_radius", "outer_radius") if k in p}
+        mask = {k: v for k, v in mask.items() if v is not None}
+        if mask:
+            p["mask"] = mask
+        return p
+
+    p = nested_mask(camera.params())
+    if isinstance(p.get("lenses"), list):  # a rig: each lens's mask as its own
+        p["lenses"] = [nested_mask(lens) for lens in p["lenses"]]
     atomic_write_text(Path(path), yaml.safe_dump(p, sort_keys=False))
 
 
-def load_camera(path: Path | str) -> CameraModel:
+def load_camera(path: Path | str, lens: int | None = None) -> CameraModel:
     """Load any camera file omni-sfm reads, unchanged as the tools write it (format detected
-    from the content, see :func:`camera_dict_from_file` and docs/cameras.md).
+    from the content, see :func:`camera_dict_from_file` and docs/cameras.md). A Kalibr
+    camchain of several cameras is a ``rig``; ``lens``: only that camera of it (or lens of a
+    ``rig`` camera file).
 
     Raises OmniSfmError (one line naming the file and key) for unreadable or invalid files."""
+    from omni_sfm.cameras.rig import RigCamera
+
     path = Path(path)
-    return camera_from_dict(camera_dict_from_file(path), path)
+    data, kind = _camera_dict(path, lens)
+    cam = camera_from_dict(data, path)
+    if isinstance(cam, RigCamera):  # its messages name the file (and the camchain's cameras)
+        object.__setattr__(cam, "file", str(path))
+        object.__setattr__(cam, "camchain", kind == "kalibr")
+    return cam

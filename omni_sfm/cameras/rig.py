@@ -31,10 +31,10 @@ from omni_sfm.geometry import FloatArray
 LAYOUTS = ("side_by_side", "stacked")
 
 
-def _transform(path: Path | str, key: str, value: Any) -> FloatArray:
+def rigid_transform(path: Path | str, key: str, value: Any) -> FloatArray:
     """A ``(4, 4)`` rigid transform from a 4x4 (or 3x4) nested list, checked."""
     try:
-        T = np.asarray(value, dtype=np.float64)
+        T = np.array(value, dtype=np.float64)  # a copy: the rotation is made exact below
     except (TypeError, ValueError):
         raise OmniSfmError(f"{path}: key {key!r} must be a 4x4 matrix of numbers") from None
     if T.shape == (3, 4):
@@ -68,6 +68,10 @@ class RigCamera(CameraModel):
     lenses: tuple[CameraModel, ...]
     rig_from_lens: FloatArray = field(repr=False)
     layout: str = "side_by_side"
+    file: str = field(default="", repr=False)
+    """The camera file the rig was read from ('' when built in code), named in messages."""
+    camchain: bool = field(default=False, repr=False)
+    """Read from a Kalibr camchain: messages call its lenses the camchain's cameras."""
 
     def __post_init__(self) -> None:
         if self.layout not in LAYOUTS:
@@ -79,7 +83,7 @@ class RigCamera(CameraModel):
         T = np.asarray(self.rig_from_lens, dtype=np.float64)
         if T.shape != (len(self.lenses), 4, 4):
             raise ValueError(f"rig_from_lens must be ({len(self.lenses)}, 4, 4), got {T.shape}")
-        T = np.array([_transform("<rig>", f"lenses[{k}].rig_from_lens", t)
+        T = np.array([rigid_transform("<rig>", f"lenses[{k}].rig_from_lens", t)
                       for k, t in enumerate(T)])
         T.flags.writeable = False
         object.__setattr__(self, "rig_from_lens", T)
@@ -89,6 +93,18 @@ class RigCamera(CameraModel):
                              f"width {self.width}, height {self.height}")
         if np.linalg.norm(self.axes[0] - self.axes[1]) < 1e-6:
             raise ValueError("two lenses of a rig look the same way")
+
+    def __eq__(self, other: object) -> bool:
+        """The same lenses, placements and layout (the file read from aside)."""
+        if not isinstance(other, RigCamera):
+            return NotImplemented
+        return (self.width, self.height, self.layout, self.lenses) == \
+            (other.width, other.height, other.layout, other.lenses) and \
+            np.array_equal(self.rig_from_lens, other.rig_from_lens)
+
+    def __hash__(self) -> int:
+        return hash((self.width, self.height, self.layout, self.lenses,
+                     self.rig_from_lens.tobytes()))
 
     def _frame_size(self) -> tuple[int, int]:
         ws = [c.width for c in self.lenses]
@@ -171,6 +187,16 @@ class RigCamera(CameraModel):
                 out[idx] = cam.pixels_from_rays(rays[idx] @ self.rotations[k]) + self.corners[k]
         return out
 
+    def frame_size_mismatch(self, width: int, height: int) -> str:
+        """Frames of another size than the rig's: how to make them, or use one lens alone."""
+        whose, one, many = ("the camchain's", "camera", "cameras") if self.camchain else \
+            ("the rig's", "lens", "lenses")
+        where = "side by side" if self.layout == "side_by_side" else "one above the other"
+        return (f"frames are {width} x {height} but {whose} {self.num_lenses} {many} {where} "
+                f"are {self.width} x {self.height}: put the {many}' images {where}, or convert "
+                f"one {one} with 'omni-sfm camera convert {self.file or 'CAMERA_FILE'} "
+                "--lens 0'")
+
     def params(self) -> dict[str, Any]:
         lenses = []
         for cam, T in zip(self.lenses, self.rig_from_lens, strict=True):
@@ -199,7 +225,7 @@ class RigCamera(CameraModel):
             lens = dict(lens)
             if "rig_from_lens" not in lens:
                 raise OmniSfmError(f"{path}: missing key 'lenses[{k}].rig_from_lens'")
-            T.append(_transform(path, f"lenses[{k}].rig_from_lens", lens.pop("rig_from_lens")))
+            T.append(rigid_transform(path, f"lenses[{k}].rig_from_lens", lens.pop("rig_from_lens")))
             if lens.get("model") == cls.model:
                 raise OmniSfmError(f"{path}: key 'lenses[{k}]' must be a central lens model")
             lenses.append(camera_from_dict(lens, f"{path} lenses[{k}]"))

@@ -37,18 +37,27 @@ def _camera_args(p: argparse.ArgumentParser) -> None:
                         "size); omitted: the camera --images' spherical-video metadata gives")
     p.add_argument("--images", type=Path, default=None, metavar="PATH",
                    help="the frames (folder or video) the camera is for, as init reads them")
+    p.add_argument("--lens", type=int, default=None, metavar="N",
+                   help="only camera N (from 0) of a Kalibr camchain of several cameras, or "
+                        "lens N of a 'rig' camera file (read whole: one rig camera)")
 
 
 def _camera(args: argparse.Namespace) -> Any:
     """The camera of ``file`` (and ``--images``), as init would read it."""
+    from omni_sfm.cameras import load_camera
     from omni_sfm.errors import OmniSfmError
-    from omni_sfm.lines.source_camera import camera_for_frames
+    from omni_sfm.lines.source_camera import camera_for_frames, is_keyword
 
     if args.file is None and args.images is None:
         raise OmniSfmError("give a camera file, or --images PATH (with 'equirectangular' or a "
                            "video with spherical-video metadata)")
+    camera = args.file
+    if args.lens is not None:
+        if camera is None or is_keyword(camera):
+            raise OmniSfmError("--lens selects one camera of a camera file: give the file")
+        camera = load_camera(camera, lens=args.lens)
     return camera_for_frames(
-        args.file, args.images,
+        camera, args.images,
         note=lambda text: print(f"omni-sfm: note: {text}", file=sys.stderr, flush=True))
 
 

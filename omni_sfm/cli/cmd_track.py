@@ -75,7 +75,9 @@ def run(args: argparse.Namespace) -> int:
     mask = read_mask(args.mask, size) if args.mask is not None else None
     check_output_dir(args.output, overwrite=args.overwrite,
                      inputs=() if stream else (Path(spec),))
-    source = read_stream(spec, size) if stream else read_frames(Path(spec), size=size)
+    said = camera.frame_size_mismatch
+    source = read_stream(spec, size, said) if stream else \
+        read_frames(Path(spec), size=size, size_error=said)
     tracker = Tracker(camera, mask=mask)
     counts = {s: 0 for s in Status}
     latency: list[float] = []

@@ -235,9 +235,10 @@ class _Frames:
             name = self.inp.image_names[k]
             img = self.inp.frames.read(name)
             if img.shape[:2] != (self.camera.height, self.camera.width):
-                raise OmniSfmError(
-                    f"{self.inp.frames.where(name)}: image is {img.shape[1]}x{img.shape[0]} px, "
-                    f"the camera is {self.camera.width}x{self.camera.height}")
+                said = self.camera.frame_size_mismatch(img.shape[1], img.shape[0])
+                raise OmniSfmError(f"{self.inp.frames.where(name)}: " + (
+                    said or f"image is {img.shape[1]}x{img.shape[0]} px, the camera is "
+                    f"{self.camera.width}x{self.camera.height}"))
             if len(self._cache) > 24:
                 self._cache.pop(next(iter(self._cache)))
             self._cache[k] = np.ascontiguousarray(img[:, :, ::-1])

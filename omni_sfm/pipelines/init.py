@@ -248,8 +248,8 @@ def _check_frames(images: Path | str, cam: CameraModel, o: InitOptions,
 
     if not (o.auto_mask or o.camera_check):
         return _Checks(user_mask, None, None, (), "")
-    sample = read_frames(images, o.start, o.end, o.step, size=(cam.width, cam.height)
-                         ).sample(SAMPLE_FRAMES)
+    sample = read_frames(images, o.start, o.end, o.step, size=(cam.width, cam.height),
+                         size_error=cam.frame_size_mismatch).sample(SAMPLE_FRAMES)
     camera_check, auto_mask = None, None
     warnings: list[str] = []
     if o.camera_check and sample:
@@ -313,7 +313,8 @@ def init_from_images(images: Path | str, camera: Path | str | CameraModel | None
     cam = camera_for_frames(camera, images, note=note)
     size = (cam.width, cam.height)
     user_mask = read_mask(mask, size) if mask is not None else None
-    source = read_frames(images, o.start, o.end, o.step, size=size)
+    source = read_frames(images, o.start, o.end, o.step, size=size,
+                         size_error=cam.frame_size_mismatch)
     fe_opts = replace(o.frontend, progress=o.progress and o.frontend.progress)
     with atomic_output_dir(output, overwrite=overwrite, inputs=(Path(images),)) as tmp, \
             contextlib.ExitStack() as stop:  # (the writing threads stop before tmp goes)
@@ -455,7 +456,8 @@ def _write_debug(tmp: Path, images: Path | str, cam: CameraModel, o: InitOptions
     # a video whose container gives no frame count (n = 0) is read again
     from_pass = n > 0 and (len(kept.numbers) >= n or o.debug_view == "auto")
     frames = kept if from_pass else read_frames(images, o.start, o.end, o.step,
-                                                size=(cam.width, cam.height))
+                                                size=(cam.width, cam.height),
+                                                size_error=cam.frame_size_mismatch)
     write_debug_view(frames, cam, fe, target, groups=groups, progress=o.progress)
 
 

@@ -45,8 +45,9 @@ class Tracker:
         t0 = time.perf_counter()
         gray = to_gray(image)
         if (gray.shape[1], gray.shape[0]) != (self.camera.width, self.camera.height):
-            raise OmniSfmError(f"frame is {gray.shape[1]}x{gray.shape[0]} px but the camera is "
-                               f"{self.camera.width}x{self.camera.height} px")
+            raise OmniSfmError(self.camera.frame_size_mismatch(gray.shape[1], gray.shape[0])
+                               or f"frame is {gray.shape[1]}x{gray.shape[0]} px but the camera "
+                               f"is {self.camera.width}x{self.camera.height} px")
         lines = self.extractor.extract(gray)
         ids = self.lines.add_frame(gray, lines)
         # pieces of one line in one frame (one track): the best supported observation
