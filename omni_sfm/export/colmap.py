@@ -40,23 +40,40 @@ class ColmapSeed:
     image_names: tuple[str, ...]
 
 
+def sensor_from_world(sensor_from_body: FloatArray, traj: Trajectory
+                      ) -> tuple[FloatArray, FloatArray]:
+    """``sensor_from_world`` rotation ``(N,3,3)`` and translation ``(N,3)`` of a sensor fixed to
+    the body whose poses are ``traj`` (world_from_body): ``sensor_from_body`` is a ``(3, 3)``
+    rotation (the sensor at the body's centre) or a ``(4, 4)`` rigid transform whose
+    translation is in the trajectory's units."""
+    T = np.asarray(sensor_from_body, dtype=np.float64)
+    A, a = (T, np.zeros(3)) if T.shape == (3, 3) else (T[:3, :3], T[:3, 3])
+    R_sw = A[None] @ traj.cam_from_world_rotations
+    t_sw = a[None] - np.einsum("nij,nj->ni", R_sw, traj.positions)
+    return R_sw, t_sw
+
+
+def rigid3d(R: FloatArray, t: FloatArray) -> Any:
+    """The ``pycolmap.Rigid3d`` of rotation ``R (3, 3)`` and translation ``t (3,)``."""
+    import pycolmap
+
+    return pycolmap.Rigid3d(np.hstack([np.asarray(R, np.float64),
+                                       np.asarray(t, np.float64).reshape(3, 1)]))
+
+
 def colmap_cam_from_world(export: ColmapExport, traj: Trajectory) -> tuple[FloatArray, FloatArray]:
     """COLMAP's ``cam_from_world`` rotation ``(N,3,3)`` and translation ``(N,3)`` of ``traj``."""
-    R_cw = export.colmap_cam_from_cam[None] @ traj.cam_from_world_rotations
-    t_cw = -np.einsum("nij,nj->ni", R_cw, traj.positions)
-    return R_cw, t_cw
+    return sensor_from_world(export.colmap_cam_from_cam, traj)
 
 
 def set_colmap_poses(rec: Any, export: ColmapExport, image_ids: Sequence[int],
                      traj: Trajectory) -> None:
     """Set the COLMAP poses of the images ``image_ids`` of ``rec`` (their frames, trivial
     rigs) to ``traj`` (ours, world_from_cam), the ``k``-th image to the ``k``-th pose."""
-    import pycolmap
-
     R_cw, t_cw = colmap_cam_from_world(export, traj)
     for k, image_id in enumerate(image_ids):
         frame = rec.frame(rec.images[image_id].frame_id)
-        frame.rig_from_world = pycolmap.Rigid3d(np.hstack([R_cw[k], t_cw[k, :, None]]))
+        frame.rig_from_world = rigid3d(R_cw[k], t_cw[k])
 
 
 def build_reconstruction(camera: CameraModel, traj: Trajectory,
@@ -76,8 +93,7 @@ def build_reconstruction(camera: CameraModel, traj: Trajectory,
     R_cw, t_cw = colmap_cam_from_world(export, traj)
     for k, name in enumerate(image_names):
         image = pycolmap.Image(name=str(name), camera_id=1, image_id=k + 1)
-        pose = pycolmap.Rigid3d(np.hstack([R_cw[k], t_cw[k, :, None]]))
-        rec.add_image_with_trivial_frame(image, pose)
+        rec.add_image_with_trivial_frame(image, rigid3d(R_cw[k], t_cw[k]))
     return ColmapSeed(rec, export, tuple(str(n) for n in image_names))
 
 
@@ -378,7 +394,7 @@ def seed_for_database(camera: CameraModel, traj: Trajectory, image_names: Sequen
         if frame.rig_id not in used_rigs:
             rec.add_rig(rigs[frame.rig_id])
             used_rigs.add(frame.rig_id)
-        frame.rig_from_world = pycolmap.Rigid3d(np.hstack([R_cw[k], t_cw[k, :, None]]))
+        frame.rig_from_world = rigid3d(R_cw[k], t_cw[k])
         rec.add_frame(frame)
         image = pycolmap.Image(name=name, camera_id=cam_id, image_id=db_im.image_id)
         image.frame_id = db_im.frame_id
