@@ -47,7 +47,7 @@ def lens_mask_name(lens: int) -> str:
     return f"camera_mask_lens{lens}.png"
 
 
-def rig_metres_per_unit(folder: Path | str) -> float:
+def rig_metres_per_unit(folder: Path | str, *, shown_as: Path | str | None = None) -> float:
     """The metres of one unit of the folder's poses, for the rig's lens offsets.
 
     Contract: the line estimator (``omni-sfm init``) finds the metric scale of its trajectory
@@ -55,7 +55,8 @@ def rig_metres_per_unit(folder: Path | str) -> float:
     lines) and records it in the init folder's ``report.json`` as
     ``"rig": {"metres_per_unit": <float>}``. Nothing else guesses it: without the key (an
     initializer plugin's folder, an estimator that did not find it) this is a one-line
-    OmniSfmError."""
+    OmniSfmError, naming the folder ``shown_as`` (the output a temporary folder becomes) when
+    given."""
     path = Path(folder) / REPORT_FILE
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
@@ -63,6 +64,8 @@ def rig_metres_per_unit(folder: Path | str) -> float:
         data = None
     except (OSError, ValueError) as exc:
         raise OmniSfmError(f"{path}: cannot read the report: {exc}") from None
+    if shown_as is not None:
+        path = Path(shown_as) / REPORT_FILE
     rig = data.get("rig") if isinstance(data, dict) else None
     value = rig.get("metres_per_unit") if isinstance(rig, dict) else None
     if value is None:
