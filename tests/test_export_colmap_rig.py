@@ -111,6 +111,16 @@ def test_the_init_model_of_a_rig_is_a_colmap_rig(name: str, tmp_path: Path) -> N
     assert manifest["image_names"] == names and manifest["metres_per_unit"] == METRES_PER_UNIT
     assert [m["images"] for m in manifest["lenses"]] == ["lens0/", "lens1/"]
     assert (init / "camera_mask_lens0.png").is_file() and (init / "camera_mask_lens1.png").is_file()
+    # COLMAP's rig_configurator reads the same rig: prefixes, exact cameras, sensor poses
+    config = pycolmap.read_rig_config(str(init / "rig_config.json"))
+    assert len(config) == 1 and [c.image_prefix for c in config[0].cameras] == ["lens0/", "lens1/"]
+    assert config[0].cameras[0].ref_sensor and not config[0].cameras[1].ref_sensor
+    sensor = pycolmap.sensor_t(type=pycolmap.SensorType.CAMERA, id=2)
+    assert np.allclose(_matrix(config[0].cameras[1].cam_from_rig),
+                       _matrix(rig.sensor_from_rig(sensor)), atol=1e-12)
+    for lens in range(2):
+        assert config[0].cameras[lens].camera.model_name == rec.cameras[lens + 1].model_name
+        assert np.allclose(config[0].cameras[lens].camera.params, rec.cameras[lens + 1].params)
 
 
 def test_colmap_projects_world_points_where_the_lens_sees_them(tmp_path: Path) -> None:
@@ -194,6 +204,7 @@ def test_export_colmap_writes_the_rig_and_other_commands_refuse_it(
     assert rec.num_rigs() == 1 and rec.num_frames() == 3 and rec.num_images() == 6
     assert np.array_equal(cv2.imread(str(out / "images" / "lens1" / names[2])),
                           frames[2][:, 96:])
+    assert (out / "rig_config.json").is_file() and (out / "camera_mask_lens1.png").is_file()
     report = json.loads((out / "report.json").read_text())
     assert report["camera_model"] == "rig"
     assert report["rig"]["metres_per_unit"] == METRES_PER_UNIT

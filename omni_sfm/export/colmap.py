@@ -279,10 +279,10 @@ def write_init_model(directory: Path, camera: CameraModel, traj: Trajectory,
 
     A rig camera (:class:`~omni_sfm.cameras.rig.RigCamera`) is written as a COLMAP rig
     (:mod:`omni_sfm.export.colmap_lenses`): camera ``k + 1`` per lens, frame ``k + 1`` per pose,
-    images ``lens{k}/<name>``, a camera mask per lens (``camera_mask_lens{k}.png``) and the
-    lenses in ``colmap.json``. Its lens offsets go in the poses' units: ``metres_per_unit``,
-    else the scale the folder's ``report.json`` records (:func:`~omni_sfm.export.colmap_lenses.
-    rig_metres_per_unit`; written before this).
+    images ``lens{k}/<name>``, a camera mask per lens (``camera_mask_lens{k}.png``), COLMAP's
+    rig configuration (``rig_config.json``) and the lenses in ``colmap.json``. Its lens offsets
+    go in the poses' units: ``metres_per_unit``, else the scale the folder's ``report.json``
+    records (:func:`~omni_sfm.export.colmap_lenses.rig_metres_per_unit`; written before this).
 
     Use inside :func:`omni_sfm.fileio.atomic_output_dir` so the directory appears complete or not
     at all. Returns the seeded model.
@@ -290,7 +290,12 @@ def write_init_model(directory: Path, camera: CameraModel, traj: Trajectory,
 
     from omni_sfm.cameras import write_camera_yaml
     from omni_sfm.cameras.rig import RigCamera
-    from omni_sfm.export.colmap_lenses import build_lens_rig, rig_metres_per_unit, write_lens_masks
+    from omni_sfm.export.colmap_lenses import (
+        build_lens_rig,
+        rig_metres_per_unit,
+        write_lens_masks,
+        write_rig_config,
+    )
     from omni_sfm.fileio import atomic_write_text, dumps_json
     from omni_sfm.poses import write_tum
 
@@ -304,6 +309,7 @@ def write_init_model(directory: Path, camera: CameraModel, traj: Trajectory,
         scale = rig_metres_per_unit(directory) if metres_per_unit is None else metres_per_unit
         seed = build_lens_rig(camera, traj, names, scale)
         write_lens_masks(directory, seed.lenses)
+        write_rig_config(directory, seed.reconstruction)
         manifest: dict[str, Any] = {
             "image_names": names,
             "timestamps": traj.timestamps,

@@ -187,6 +187,39 @@ def build_lens_rig(camera: RigCamera, traj: Trajectory, frame_names: Sequence[st
     return LensRigSeed(rec, lenses, float(metres_per_unit), tuple(str(n) for n in frame_names))
 
 
+RIG_CONFIG_FILE = "rig_config.json"
+"""COLMAP's rig configuration of the lens rig (``colmap rig_configurator --rig_config_path``)."""
+
+
+def rig_config(reconstruction: Any) -> list[dict[str, Any]]:
+    """COLMAP's rig configuration (``rig_config.json``) of a lens rig's model: each lens's
+    image prefix, exact camera (model and parameters) and ``cam_from_rig`` (rotation
+    ``[w, x, y, z]``, translation in the model's units), lens 0 the reference sensor."""
+    rig = next(iter(reconstruction.rigs.values()))
+    cameras = []
+    for s in sorted(rig.sensor_ids(), key=lambda sensor: sensor.id):
+        cam = reconstruction.cameras[s.id]
+        entry: dict[str, Any] = {"image_prefix": lens_image_name(s.id - 1, ""),
+                                 "camera_model_name": cam.model_name,
+                                 "camera_params": [float(x) for x in cam.params]}
+        if rig.is_ref_sensor(s):
+            entry["ref_sensor"] = True
+        else:
+            T = rig.sensor_from_rig(s)
+            x, y, z, w = (float(v) for v in T.rotation.quat)
+            entry["cam_from_rig_rotation"] = [w, x, y, z]
+            entry["cam_from_rig_translation"] = [float(v) for v in T.translation]
+        cameras.append(entry)
+    return [{"cameras": cameras}]
+
+
+def write_rig_config(directory: Path, reconstruction: Any) -> None:
+    """``directory/rig_config.json``: :func:`rig_config` of the model."""
+    from omni_sfm.fileio import atomic_write_text, dumps_json
+
+    atomic_write_text(Path(directory) / RIG_CONFIG_FILE, dumps_json(rig_config(reconstruction)))
+
+
 def write_lens_masks(directory: Path, lenses: LensExports) -> None:
     """Each lens's COLMAP camera mask (:func:`~omni_sfm.export.colmap.write_colmap_mask` of
     the lens) in ``directory`` (:func:`lens_mask_name`)."""

@@ -271,7 +271,12 @@ def _colmap_lens_rig(src: _Source, out: Path, camera: Any
     scale the folder's ``report.json`` records; written to ``out/sparse``. The names are the
     frames the model poses."""
     from omni_sfm.export.colmap import projection_centres
-    from omni_sfm.export.colmap_lenses import build_lens_rig, lens_image_name, rig_metres_per_unit
+    from omni_sfm.export.colmap_lenses import (
+        build_lens_rig,
+        lens_image_name,
+        rig_metres_per_unit,
+        write_rig_config,
+    )
 
     frames = src.frames(required=False)
     all_names = frames[1] if frames is not None else src.default_names()
@@ -292,6 +297,7 @@ def _colmap_lens_rig(src: _Source, out: Path, camera: Any
     names = [n for n in all_names if lens_image_name(0, n) in posed]
     (out / SPARSE_DIR).mkdir(parents=True, exist_ok=True)
     rec.write_binary(str(out / SPARSE_DIR))
+    write_rig_config(out, rec)
     write_camera_yaml(out / ExportFolder.CAMERA, camera)
     return rec, names, ColmapWritten(
         model=model, num_images=rec.num_images(), num_points3D=rec.num_points3D(),
