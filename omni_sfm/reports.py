@@ -1097,7 +1097,7 @@ class ColmapWritten(ExportWritten):
     then COLMAP's camera model), the image mirroring (``flip_u``) and rotation
     (``colmap_cam_from_cam``, 3 x 3) it needs, the model's images and points; ``colmap``: the
     ``images`` written; ``limap``: the counts of the LIMAP tracks (``tracks``, ``supported``,
-    ``families``)."""
+    ``families``); ``rig``: a rig camera's lenses."""
 
     model: str = field(default="", kw_only=True)
     flip_u: bool = field(default=False, kw_only=True)
@@ -1106,6 +1106,11 @@ class ColmapWritten(ExportWritten):
     num_points3D: int = field(default=0, kw_only=True)
     images: str | None = field(default=None, metadata={_OMIT: True}, kw_only=True)
     limap: dict[str, int] | None = field(default=None, metadata={_OMIT: True}, kw_only=True)
+    rig: dict[str, Any] | None = field(default=None, metadata={_OMIT: True}, kw_only=True)
+    """A rig camera's COLMAP rig (``colmap`` of a rig camera): ``metres_per_unit`` (the scale
+    of the sensors' translations) and ``lenses`` (each lens's images, COLMAP model,
+    ``colmap_cam_from_cam``, ``flip_u`` and camera mask); ``flip_u`` and
+    ``colmap_cam_from_cam`` above are then unset (false, empty)."""
 
     @property
     def images_written(self) -> int | None:

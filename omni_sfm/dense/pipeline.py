@@ -45,6 +45,7 @@ from omni_sfm.dense.views import (
     view_geometry,
 )
 from omni_sfm.errors import OmniSfmError
+from omni_sfm.export.colmap_lenses import refuse_rig
 from omni_sfm.fileio import (
     atomic_output_dir,
     check_output_dir,
@@ -206,12 +207,15 @@ def read_dense_input(poses_dir: Path, images: Path | None = None,
     if not tum.is_file():
         raise OmniSfmError(f"{tum}: no trajectory (need the output folder of init or refine)")
     art = StageFolder(poses_dir).load_stage(camera=camera_file is None)
+    if art.camera is not None:
+        refuse_rig(art.camera, "dense", art.folder / art.folder.CAMERA)
     traj = art.trajectory
     if len(traj) < 3:
         raise OmniSfmError(f"{tum}: {len(traj)} poses, dense mapping needs at least 3")
     source = images_for(poses_dir, images)
     if camera_file is not None:  # a file, or equirectangular from the frame size
         camera = camera_for_frames(camera_file, source)
+        refuse_rig(camera, "dense", camera_file)
     elif art.camera is None:
         raise OmniSfmError(f"{art.folder / art.folder.CAMERA}: camera file not found (give "
                            "--camera FILE)")

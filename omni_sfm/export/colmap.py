@@ -12,7 +12,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -22,6 +22,9 @@ from omni_sfm.fileio import BackgroundWrites
 from omni_sfm.folders import InitArtifacts, InitFolder, read_manifest_names
 from omni_sfm.geometry import FloatArray
 from omni_sfm.poses import Trajectory
+
+if TYPE_CHECKING:
+    from omni_sfm.export.colmap_lenses import LensRigSeed
 
 
 @dataclass(frozen=True)
@@ -40,23 +43,40 @@ class ColmapSeed:
     image_names: tuple[str, ...]
 
 
+def sensor_from_world(sensor_from_body: FloatArray, traj: Trajectory
+                      ) -> tuple[FloatArray, FloatArray]:
+    """``sensor_from_world`` rotation ``(N,3,3)`` and translation ``(N,3)`` of a sensor fixed to
+    the body whose poses are ``traj`` (world_from_body): ``sensor_from_body`` is a ``(3, 3)``
+    rotation (the sensor at the body's centre) or a ``(4, 4)`` rigid transform whose
+    translation is in the trajectory's units."""
+    T = np.asarray(sensor_from_body, dtype=np.float64)
+    A, a = (T, np.zeros(3)) if T.shape == (3, 3) else (T[:3, :3], T[:3, 3])
+    R_sw = A[None] @ traj.cam_from_world_rotations
+    t_sw = a[None] - np.einsum("nij,nj->ni", R_sw, traj.positions)
+    return R_sw, t_sw
+
+
+def rigid3d(R: FloatArray, t: FloatArray) -> Any:
+    """The ``pycolmap.Rigid3d`` of rotation ``R (3, 3)`` and translation ``t (3,)``."""
+    import pycolmap
+
+    return pycolmap.Rigid3d(np.hstack([np.asarray(R, np.float64),
+                                       np.asarray(t, np.float64).reshape(3, 1)]))
+
+
 def colmap_cam_from_world(export: ColmapExport, traj: Trajectory) -> tuple[FloatArray, FloatArray]:
     """COLMAP's ``cam_from_world`` rotation ``(N,3,3)`` and translation ``(N,3)`` of ``traj``."""
-    R_cw = export.colmap_cam_from_cam[None] @ traj.cam_from_world_rotations
-    t_cw = -np.einsum("nij,nj->ni", R_cw, traj.positions)
-    return R_cw, t_cw
+    return sensor_from_world(export.colmap_cam_from_cam, traj)
 
 
 def set_colmap_poses(rec: Any, export: ColmapExport, image_ids: Sequence[int],
                      traj: Trajectory) -> None:
     """Set the COLMAP poses of the images ``image_ids`` of ``rec`` (their frames, trivial
     rigs) to ``traj`` (ours, world_from_cam), the ``k``-th image to the ``k``-th pose."""
-    import pycolmap
-
     R_cw, t_cw = colmap_cam_from_world(export, traj)
     for k, image_id in enumerate(image_ids):
         frame = rec.frame(rec.images[image_id].frame_id)
-        frame.rig_from_world = pycolmap.Rigid3d(np.hstack([R_cw[k], t_cw[k, :, None]]))
+        frame.rig_from_world = rigid3d(R_cw[k], t_cw[k])
 
 
 def build_reconstruction(camera: CameraModel, traj: Trajectory,
@@ -76,12 +96,12 @@ def build_reconstruction(camera: CameraModel, traj: Trajectory,
     R_cw, t_cw = colmap_cam_from_world(export, traj)
     for k, name in enumerate(image_names):
         image = pycolmap.Image(name=str(name), camera_id=1, image_id=k + 1)
-        pose = pycolmap.Rigid3d(np.hstack([R_cw[k], t_cw[k, :, None]]))
-        rec.add_image_with_trivial_frame(image, pose)
+        rec.add_image_with_trivial_frame(image, rigid3d(R_cw[k], t_cw[k]))
     return ColmapSeed(rec, export, tuple(str(n) for n in image_names))
 
 
-def write_reconstruction(seed: ColmapSeed, sparse_dir: Path, *, text: bool = False) -> None:
+def write_reconstruction(seed: ColmapSeed | LensRigSeed, sparse_dir: Path, *,
+                         text: bool = False) -> None:
     """Write the model to ``sparse_dir`` in COLMAP's binary format (and text with ``text``)."""
     sparse_dir = Path(sparse_dir)
     sparse_dir.mkdir(parents=True, exist_ok=True)
@@ -155,7 +175,8 @@ class InitModel:
 
 class ColmapImages:
     """Writes ``DIR/images_colmap/<name>``: each frame as COLMAP must see it (mirrored where the
-    camera's export says so), as the front end reads it (a
+    camera's export says so; a rig camera's: each lens's part, ``lens{k}/<name>``,
+    :mod:`omni_sfm.export.colmap_lenses`), as the front end reads it (a
     :data:`~omni_sfm.lines.frontend.FrameTap` through :meth:`tap`); :meth:`keep` then deletes
     the frames that got no pose, so that the folder holds the model's images.
 
@@ -166,23 +187,40 @@ class ColmapImages:
 
     def __init__(self, directory: Path, camera: CameraModel,
                  name_of: Callable[[int], str], *, background: bool = False) -> None:
+        from omni_sfm.cameras.rig import RigCamera
+        from omni_sfm.export.colmap_lenses import LensExports
+
         self.directory = Path(directory) / InitFolder.COLMAP_IMAGES
-        self.export = camera.colmap_export()
+        # a rig camera: each lens's part of the frame, images_colmap/lens{k}/<name>
+        self.lenses = LensExports.of(camera) if isinstance(camera, RigCamera) else None
+        self.export = None if self.lenses is not None else camera.colmap_export()
         self.name_of = name_of
         self.written: list[str] = []
         self._writes = BackgroundWrites(1, pending=8) if background else None
 
-    def write(self, name: str, image: np.ndarray) -> None:
-        """One image ``(H, W[, 3])`` (RGB if 3 channels) under ``name``."""
+    def _parts(self, name: str, image: np.ndarray | None) -> list[tuple[str, np.ndarray | None]]:
+        """The files of frame ``name`` and, given the frame, their images as COLMAP sees them."""
+        if self.lenses is None:
+            assert self.export is not None
+            return [(name, None if image is None else self.export.image_to_colmap(image))]
+        names = self.lenses.image_names(name)
+        if image is None:
+            return [(n, None) for n in names]
+        return list(zip(names, self.lenses.images(image), strict=True))
 
-        out = self.export.image_to_colmap(image)
-        if out.ndim == 3 and out.shape[2] == 3:
-            out = np.ascontiguousarray(out[:, :, ::-1])
-        path = self.directory / name
-        if self._writes is not None:
-            self._writes.submit(_write_png, path, out)
-        else:
-            _write_png(path, out)
+    def write(self, name: str, image: np.ndarray) -> None:
+        """One frame ``(H, W[, 3])`` (RGB if 3 channels) under ``name`` (a rig's: each lens's
+        part under ``lens{k}/name``)."""
+
+        for rel, out in self._parts(name, image):
+            assert out is not None
+            if out.ndim == 3 and out.shape[2] == 3:
+                out = np.ascontiguousarray(out[:, :, ::-1])
+            path = self.directory / rel
+            if self._writes is not None:
+                self._writes.submit(_write_png, path, out)
+            else:
+                _write_png(path, out)
         self.written.append(name)
 
     def tap(self, number: int, _stamp: float, gray: np.ndarray) -> None:
@@ -208,7 +246,8 @@ class ColmapImages:
                              f"{sorted(missing)[0]}")
         for name in self.written:
             if name not in wanted:
-                (self.directory / name).unlink(missing_ok=True)
+                for rel, _ in self._parts(name, None):
+                    (self.directory / rel).unlink(missing_ok=True)
         self.written = [n for n in self.written if n in wanted]
 
 
@@ -223,7 +262,8 @@ def _write_png(path: Path, image: np.ndarray) -> None:
 
 def write_init_model(directory: Path, camera: CameraModel, traj: Trajectory,
                      image_names: Sequence[str], images: Iterable[np.ndarray] | None = None,
-                     *, text: bool = False) -> ColmapSeed:
+                     *, text: bool = False, metres_per_unit: float | None = None
+                     ) -> ColmapSeed | LensRigSeed:
     """Write the COLMAP side of an init directory (docs/colmap.md, "Init directory").
 
     Writes ``DIR/sparse/`` (COLMAP binary model; also text with ``text``): the camera in its exact
@@ -237,11 +277,25 @@ def write_init_model(directory: Path, camera: CameraModel, traj: Trajectory,
     see it, mirrored where the camera export says so. ``images`` yields one array per name, in
     order.
 
+    A rig camera (:class:`~omni_sfm.cameras.rig.RigCamera`) is written as a COLMAP rig
+    (:mod:`omni_sfm.export.colmap_lenses`): camera ``k + 1`` per lens, frame ``k + 1`` per pose,
+    images ``lens{k}/<name>``, a camera mask per lens (``camera_mask_lens{k}.png``), COLMAP's
+    rig configuration (``rig_config.json``) and the lenses in ``colmap.json``. Its lens offsets
+    go in the poses' units: ``metres_per_unit``, else the scale the folder's ``report.json``
+    records (:func:`~omni_sfm.export.colmap_lenses.rig_metres_per_unit`; written before this).
+
     Use inside :func:`omni_sfm.fileio.atomic_output_dir` so the directory appears complete or not
     at all. Returns the seeded model.
     """
 
     from omni_sfm.cameras import write_camera_yaml
+    from omni_sfm.cameras.rig import RigCamera
+    from omni_sfm.export.colmap_lenses import (
+        build_lens_rig,
+        rig_metres_per_unit,
+        write_lens_masks,
+        write_rig_config,
+    )
     from omni_sfm.fileio import atomic_write_text, dumps_json
     from omni_sfm.poses import write_tum
 
@@ -250,20 +304,37 @@ def write_init_model(directory: Path, camera: CameraModel, traj: Trajectory,
     for n in names:
         if not n or Path(n).is_absolute() or ".." in Path(n).parts:
             raise OmniSfmError(f"image name {n!r} must be a relative path inside the folder")
-    seed = build_reconstruction(camera, traj, names)
+    seed: ColmapSeed | LensRigSeed
+    if isinstance(camera, RigCamera):
+        scale = rig_metres_per_unit(directory) if metres_per_unit is None else metres_per_unit
+        seed = build_lens_rig(camera, traj, names, scale)
+        write_lens_masks(directory, seed.lenses)
+        write_rig_config(directory, seed.reconstruction)
+        manifest: dict[str, Any] = {
+            "image_names": names,
+            "timestamps": traj.timestamps,
+            "camera_model": camera.model,
+            "lenses": seed.lenses.manifest(),
+            "metres_per_unit": seed.metres_per_unit,
+            "note": "frame k+1 in sparse/ is row k of trajectory.tum, its image of lens L "
+                    "images_colmap/lensL/<name> (image id k*lenses+L+1)",
+        }
+    else:
+        seed = build_reconstruction(camera, traj, names)
+        write_colmap_mask(directory / InitFolder.COLMAP_MASK, camera)
+        manifest = {
+            "image_names": names,
+            "timestamps": traj.timestamps,
+            "camera_model": seed.export.camera.model_name,
+            "colmap_cam_from_cam": seed.export.colmap_cam_from_cam,
+            "flip_u": seed.export.flip_u,
+            "note": "image id k+1 in sparse/ is row k of trajectory.tum; COLMAP sees "
+                    "images_colmap/",
+        }
     write_reconstruction(seed, directory / InitFolder.SPARSE, text=text)
     write_camera_yaml(directory / InitFolder.CAMERA, camera)
-    write_colmap_mask(directory / InitFolder.COLMAP_MASK, camera)
     if not (directory / InitFolder.TRAJECTORY).exists():
         write_tum(directory / InitFolder.TRAJECTORY, traj)
-    manifest = {
-        "image_names": names,
-        "timestamps": traj.timestamps,
-        "camera_model": seed.export.camera.model_name,
-        "colmap_cam_from_cam": seed.export.colmap_cam_from_cam,
-        "flip_u": seed.export.flip_u,
-        "note": "image id k+1 in sparse/ is row k of trajectory.tum; COLMAP sees images_colmap/",
-    }
     atomic_write_text(directory / InitFolder.MANIFEST, dumps_json(manifest))
     if images is not None:
         writer = ColmapImages(directory, camera, str)
@@ -378,7 +449,7 @@ def seed_for_database(camera: CameraModel, traj: Trajectory, image_names: Sequen
         if frame.rig_id not in used_rigs:
             rec.add_rig(rigs[frame.rig_id])
             used_rigs.add(frame.rig_id)
-        frame.rig_from_world = pycolmap.Rigid3d(np.hstack([R_cw[k], t_cw[k, :, None]]))
+        frame.rig_from_world = rigid3d(R_cw[k], t_cw[k])
         rec.add_frame(frame)
         image = pycolmap.Image(name=name, camera_id=cam_id, image_id=db_im.image_id)
         image.frame_id = db_im.frame_id

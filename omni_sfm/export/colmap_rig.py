@@ -15,7 +15,9 @@ from typing import Any
 
 import numpy as np
 
+from omni_sfm.export.colmap import rigid3d, sensor_from_world
 from omni_sfm.export.perspective import ViewLayout
+from omni_sfm.geometry import FloatArray
 from omni_sfm.poses import Trajectory
 
 
@@ -26,36 +28,63 @@ def view_image_name(view: str, frame_name: str) -> str:
     return f"{view}/{PurePosixPath(frame_name).with_suffix('.png').as_posix()}"
 
 
-def build_rig_reconstruction(layout: ViewLayout, traj: Trajectory,
-                             frame_names: Sequence[str]) -> Any:
-    """The ``pycolmap.Reconstruction`` of the rig: cameras, rig, frames and posed images (image
-    id ``k * V + v + 1`` is view ``v`` of pose ``k``), no points."""
+def sensor_rig_reconstruction(cameras: Sequence[Any], sensor_from_rig: FloatArray,
+                              rig_from_world: tuple[FloatArray, FloatArray],
+                              image_names: Sequence[Sequence[str]]) -> Any:
+    """A ``pycolmap.Reconstruction`` of one rig (id 1) of ``S`` sensors, one frame per pose:
+    cameras, rig, frames and posed images, no points.
+
+    ``cameras``: the ``S`` ``pycolmap.Camera`` (given ids ``1..S``), sensor 0 the reference;
+    ``sensor_from_rig``: ``(S, 4, 4)``, ``[0]`` the identity (COLMAP's rig frame is the
+    reference sensor's); ``rig_from_world``: rotations ``(N, 3, 3)`` and translations
+    ``(N, 3)``, frame ``k + 1`` at row ``k``; ``image_names[k][s]``: the image of sensor ``s``
+    in frame ``k + 1``, image id ``k * S + s + 1``."""
     import pycolmap
 
-    views = len(layout.names)
+    T = np.asarray(sensor_from_rig, dtype=np.float64)
+    S = len(cameras)
+    if T.shape != (S, 4, 4) or not np.allclose(T[0], np.eye(4), atol=1e-12):
+        raise ValueError(f"sensor_from_rig must be ({S}, 4, 4) with [0] the identity")
+    R_rw, t_rw = rig_from_world
+    if len(image_names) != len(R_rw):
+        raise ValueError(f"{len(image_names)=} differs from the {len(R_rw)} poses")
     rec = pycolmap.Reconstruction()
     rig = pycolmap.Rig(rig_id=1)
-    sensors = [pycolmap.sensor_t(type=pycolmap.SensorType.CAMERA, id=v + 1) for v in range(views)]
-    view0_from_cam = layout.cam_from_views[0].T
-    for v in range(views):
-        rec.add_camera(layout.pycolmap_camera(v + 1))
-        if v == 0:
+    sensors = [pycolmap.sensor_t(type=pycolmap.SensorType.CAMERA, id=s + 1) for s in range(S)]
+    for s, cam in enumerate(cameras):
+        cam.camera_id = s + 1
+        rec.add_camera(cam)
+        if s == 0:
             rig.add_ref_sensor(sensors[0])
         else:
-            R = layout.cam_from_views[v].T @ layout.cam_from_views[0]   # view_v_from_view_0
-            rig.add_sensor(sensors[v], pycolmap.Rigid3d(pycolmap.Rotation3d(R), np.zeros(3)))
+            rig.add_sensor(sensors[s], rigid3d(T[s, :3, :3], T[s, :3, 3]))
     rec.add_rig(rig)
-    for k, name in enumerate(frame_names):
-        R_vw = view0_from_cam @ traj.rotations[k].T
-        t_vw = -R_vw @ traj.positions[k]
+    for k, names in enumerate(image_names):
+        if len(names) != S:
+            raise ValueError(f"frame {k}: {len(names)} image names for {S} sensors")
         frame = pycolmap.Frame(frame_id=k + 1, rig_id=1)
-        frame.rig_from_world = pycolmap.Rigid3d(np.hstack([R_vw, t_vw[:, None]]))
-        for v in range(views):
-            frame.add_data_id(pycolmap.data_t(sensor_id=sensors[v], id=k * views + v + 1))
+        frame.rig_from_world = rigid3d(R_rw[k], t_rw[k])
+        for s in range(S):
+            frame.add_data_id(pycolmap.data_t(sensor_id=sensors[s], id=k * S + s + 1))
         rec.add_frame(frame)
-        for v in range(views):
-            image = pycolmap.Image(name=view_image_name(layout.names[v], name), camera_id=v + 1,
-                                   image_id=k * views + v + 1)
+        for s in range(S):
+            image = pycolmap.Image(name=str(names[s]), camera_id=s + 1, image_id=k * S + s + 1)
             image.frame_id = k + 1
             rec.add_image(image)
     return rec
+
+
+def build_rig_reconstruction(layout: ViewLayout, traj: Trajectory,
+                             frame_names: Sequence[str]) -> Any:
+    """The ``pycolmap.Reconstruction`` of the views' rig (:func:`sensor_rig_reconstruction`):
+    image id ``k * V + v + 1`` is view ``v`` of pose ``k``."""
+    views = len(layout.names)
+    sensor_from_rig = np.repeat(np.eye(4)[None], views, axis=0)
+    # view_v_from_view_0 (the views share the camera's centre)
+    sensor_from_rig[:, :3, :3] = np.swapaxes(layout.cam_from_views, 1, 2) @ \
+        layout.cam_from_views[0]
+    sensor_from_rig[0] = np.eye(4)
+    names = [[view_image_name(view, name) for view in layout.names] for name in frame_names]
+    return sensor_rig_reconstruction(
+        [layout.pycolmap_camera(v + 1) for v in range(views)], sensor_from_rig,
+        sensor_from_world(layout.cam_from_views[0].T, traj), names)

@@ -50,6 +50,10 @@ FORMATS: dict[str, bool] = {
 }
 """Every format, and whether it turns the world gravity-up by default (``--up``)."""
 
+RIG_FORMATS = ("tum", "kitti", "colmap")
+"""The formats that take a rig camera (``colmap`` writes it as a COLMAP rig,
+:mod:`omni_sfm.export.colmap_lenses`); the others refuse it with one line."""
+
 SPARSE_DIR = ExportFolder.SPARSE
 IMAGES_DIR = ExportFolder.IMAGES
 MASKS_DIR = ExportFolder.MASKS
@@ -93,6 +97,10 @@ class _Source:
         art = owner.load_stage()
         if art.camera is None:
             raise OmniSfmError(f"{owner / owner.CAMERA}: camera file not found")
+        if opts.fmt not in RIG_FORMATS:
+            from omni_sfm.export.colmap_lenses import refuse_rig
+
+            refuse_rig(art.camera, f"export --format {opts.fmt}", owner / owner.CAMERA)
         self.traj, self.camera, self.lines, self.report = (art.trajectory, art.camera,
                                                            art.lines3d, art.report)
         self.images_arg = images
@@ -206,21 +214,14 @@ def _export_trajectory(src: _Source, out: Path, opts: ExportOptions, progress: b
 def _colmap_model(src: _Source, out: Path) -> tuple[Any, list[str], ColmapWritten]:
     """The folder's COLMAP model (``sparse/``, with its points) moved to the export's world, or
     one built from the poses; written to ``out/sparse``."""
-    import pycolmap
-
+    from omni_sfm.cameras import RigCamera
     from omni_sfm.export.colmap import build_reconstruction
 
+    if isinstance(src.camera, RigCamera):
+        return _colmap_lens_rig(src, out, src.camera)
     export = src.camera.colmap_export()
     sparse = src.owner / SPARSE_DIR
-    rec, model = None, ""
-    if (sparse / "cameras.bin").is_file() or (sparse / "cameras.txt").is_file():
-        try:
-            rec = pycolmap.Reconstruction(str(sparse))
-        except Exception as exc:  # pycolmap raises plain RuntimeError/ValueError on bad files
-            raise OmniSfmError(f"{sparse}: cannot read the COLMAP model: {exc}") from None
-        R, t = src.up.up_from_world, -src.up.up_from_world @ src.up.origin
-        rec.transform(pycolmap.Sim3d(1.0, pycolmap.Rotation3d(R), t[:, None]))
-        model = f"the folder's {SPARSE_DIR}/ ({rec.num_points3D()} points), turned"
+    rec, model = _folder_model(src)
     frames = src.frames(required=False)
     if rec is None:
         names = frames[1] if frames is not None else src.default_names()
@@ -246,16 +247,84 @@ def _colmap_model(src: _Source, out: Path) -> tuple[Any, list[str], ColmapWritte
         num_points3D=rec.num_points3D())
 
 
+def _folder_model(src: _Source) -> tuple[Any, str]:
+    """The folder's COLMAP model (``sparse/``, with its points) moved to the export's world and
+    what it is; ``(None, "")`` when the folder has none."""
+    import pycolmap
+
+    sparse = src.owner / SPARSE_DIR
+    if not (sparse / "cameras.bin").is_file() and not (sparse / "cameras.txt").is_file():
+        return None, ""
+    try:
+        rec = pycolmap.Reconstruction(str(sparse))
+    except Exception as exc:  # pycolmap raises plain RuntimeError/ValueError on bad files
+        raise OmniSfmError(f"{sparse}: cannot read the COLMAP model: {exc}") from None
+    R, t = src.up.up_from_world, -src.up.up_from_world @ src.up.origin
+    rec.transform(pycolmap.Sim3d(1.0, pycolmap.Rotation3d(R), t[:, None]))
+    return rec, f"the folder's {SPARSE_DIR}/ ({rec.num_points3D()} points), turned"
+
+
+def _colmap_lens_rig(src: _Source, out: Path, camera: Any
+                     ) -> tuple[Any, list[str], ColmapWritten]:
+    """A rig camera's COLMAP rig (:mod:`omni_sfm.export.colmap_lenses`): the folder's model
+    (checked against the one the poses give) or the one the poses give, its lens offsets at the
+    scale the folder's ``report.json`` records; written to ``out/sparse``. The names are the
+    frames the model poses."""
+    from omni_sfm.export.colmap import projection_centres
+    from omni_sfm.export.colmap_lenses import (
+        build_lens_rig,
+        lens_image_name,
+        rig_metres_per_unit,
+        write_rig_config,
+    )
+
+    frames = src.frames(required=False)
+    all_names = frames[1] if frames is not None else src.default_names()
+    built = build_lens_rig(camera, src.traj_out, all_names, rig_metres_per_unit(src.path))
+    rec, model = _folder_model(src)
+    if rec is None:
+        rec, model = built.reconstruction, "built from the poses (no points)"
+    else:
+        want = projection_centres(built.reconstruction)
+        got = projection_centres(rec)
+        common = sorted(set(want) & set(got))
+        tol = 1e-6 * max(1.0, float(np.abs(src.traj_out.positions).max()))
+        if common and not np.allclose([got[n] for n in common], [want[n] for n in common],
+                                      atol=tol):
+            raise OmniSfmError(f"{src.owner / SPARSE_DIR}: the model's camera centres differ "
+                               f"from {src.owner / src.owner.TRAJECTORY} and the rig's lenses")
+    posed = {im.name for im in rec.images.values() if im.has_pose}
+    names = [n for n in all_names if lens_image_name(0, n) in posed]
+    (out / SPARSE_DIR).mkdir(parents=True, exist_ok=True)
+    rec.write_binary(str(out / SPARSE_DIR))
+    write_rig_config(out, rec)
+    write_camera_yaml(out / ExportFolder.CAMERA, camera)
+    return rec, names, ColmapWritten(
+        model=model, num_images=rec.num_images(), num_points3D=rec.num_points3D(),
+        rig={"metres_per_unit": built.metres_per_unit, "lenses": built.lenses.manifest()})
+
+
 def _export_colmap(src: _Source, out: Path, opts: ExportOptions, progress: bool
                    ) -> ColmapWritten:
+    from omni_sfm.cameras import RigCamera
     from omni_sfm.export.colmap import write_colmap_mask
 
-    export = src.camera.colmap_export()
     rec, names, info = _colmap_model(src, out)
     frames = src.frames(required=False)
     if frames is None:
         return replace(info, images="none: the folder records no frames (give --images)")
     store, _ = frames
+    if isinstance(src.camera, RigCamera):
+        from omni_sfm.export.colmap_lenses import LensExports, lens_image_name, write_lens_masks
+
+        lenses = LensExports.of(src.camera)
+        for name in _progress(names, "export", progress):
+            for k, img in enumerate(lenses.images(src.read(store, name))):
+                _write_png(out / IMAGES_DIR / lens_image_name(k, name), img)
+        write_lens_masks(out, lenses)
+        return replace(info, images=f"{IMAGES_DIR}/lensK/ ({len(names)} frames, each lens's "
+                                    "part as COLMAP sees it)")
+    export = src.camera.colmap_export()
     for name in _progress(names, "export", progress):
         _write_png(out / IMAGES_DIR / name, export.image_to_colmap(src.read(store, name)))
     write_colmap_mask(out / ExportFolder.COLMAP_MASK, src.camera)
@@ -421,7 +490,8 @@ def run_export(input_dir: Path, output_dir: Path, options: ExportOptions, *,
             input=stored_path(input_dir, output_dir), num_poses=len(src.traj),
             world=src.up.report(),
             camera_model=src.camera.colmap_export().camera.model_name
-            if isinstance(written, ColmapWritten) else src.camera.model,
+            if isinstance(written, ColmapWritten) and written.rig is None
+            else src.camera.model,
             written=written,
             seconds=round(time.perf_counter() - t0, 3))
         report.write(ExportFolder(tmp) / ExportFolder.REPORT)

@@ -363,7 +363,7 @@ def init_from_images(images: Path | str, camera: Path | str | CameraModel | None
             keep = np.ones(len(est_names), bool) if o.keep_uncertain else trusted(result)
             model_names = [n for n, k in zip(est_names, keep, strict=True) if k]
             write_init_model(tmp, cam, result.trajectory.subset(keep), model_names,
-                             text=o.colmap_text)
+                             text=o.colmap_text, metres_per_unit=_rig_scale(tmp, cam, output))
             if colmap_images is not None:
                 colmap_images.keep(model_names)
     return InitResult(output=output, camera=cam, frontend=fe, estimation=result,
@@ -371,6 +371,16 @@ def init_from_images(images: Path | str, camera: Path | str | CameraModel | None
                       unreadable=tuple(unreadable),
                       unreadable_reasons=fe.frames_skipped_reasons,
                       warnings=checks.warnings, auto_mask=auto_said)
+
+
+def _rig_scale(tmp: Path, cam: CameraModel, output: Path) -> float | None:
+    """A rig camera's metric scale, from the ``report.json`` written in ``tmp`` (the output
+    ``output`` becomes; :func:`~omni_sfm.export.colmap_lenses.rig_metres_per_unit`); None for
+    any other camera."""
+    from omni_sfm.cameras import RigCamera
+    from omni_sfm.export.colmap_lenses import rig_metres_per_unit
+
+    return rig_metres_per_unit(tmp, shown_as=output) if isinstance(cam, RigCamera) else None
 
 
 def _colmap_images(tmp: Path, cam: CameraModel, source: FrameSource, o: InitOptions,
@@ -551,8 +561,8 @@ def init_with_initializer(images: Path | str, camera: Path | str | CameraModel |
         wall_time_s={"initializer": seconds},
         scale_convention="world = first estimated camera, first-to-last distance = 1")
     with atomic_output_dir(output, overwrite=overwrite, inputs=(Path(images),)) as tmp:
-        write_init_model(tmp, cam, traj, names)
         report.write(tmp / InitFolder.REPORT)
+        write_init_model(tmp, cam, traj, names, metres_per_unit=_rig_scale(tmp, cam, output))
     return PluginInitResult(output=output, trajectory=traj, image_names=tuple(names),
                             not_estimated=tuple(seq.images.names[k] for k in missing),
                             report=report)

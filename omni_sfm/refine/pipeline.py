@@ -372,6 +372,16 @@ def _frame_timestamps(all_names: list[str], init: InitModel) -> tuple[FloatArray
     return ts, "affine in the frame index"
 
 
+def _refuse_rig(init_dir: Path) -> None:
+    """A one-line OmniSfmError when the init folder's camera is a rig (not refined yet)."""
+    from omni_sfm.cameras import load_camera
+    from omni_sfm.export.colmap_lenses import refuse_rig
+
+    path = init_dir / InitFolder.CAMERA
+    if path.is_file():
+        refuse_rig(load_camera(path), "refine", path)
+
+
 def refine(init_dir: Path, images: Path | None, output: Path,
            options: RefineOptions | None = None, *, database: Path | None = None,
            overwrite: bool = False, progress: bool = True, verbose: bool = False
@@ -402,6 +412,7 @@ def refine(init_dir: Path, images: Path | None, output: Path,
                            f"{', '.join(FEATURE_SOURCES)})")
     init_dir, output = Path(init_dir), Path(output)
     check_output_dir(output, overwrite=overwrite, inputs=(init_dir, images, database))
+    _refuse_rig(init_dir)
     images_dir = images_for(init_dir, images)
     check_output_dir(output, overwrite=overwrite, inputs=(images_dir,))
     init = read_init_model(init_dir)

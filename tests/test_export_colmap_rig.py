@@ -1,0 +1,230 @@
+"""A rig camera (raw dual-fisheye frames) goes to COLMAP as a COLMAP 4.2 rig: one camera per
+lens, one rig, one frame per pose, one image per lens and frame, the lens offsets in the poses'
+units (docs/colmap.md, "A rig camera in COLMAP")."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pycolmap
+import pytest
+
+from omni_sfm.cameras import RigCamera
+from omni_sfm.cli import main
+from omni_sfm.errors import OmniSfmError
+from omni_sfm.export.colmap import write_init_model
+from omni_sfm.export.colmap_lenses import rig_metres_per_unit
+from omni_sfm.geometry import rotvec_to_matrix
+from omni_sfm.poses import Trajectory
+from omni_sfm.synth.render import dual_fisheye_camera
+
+METRES_PER_UNIT = 0.37
+
+
+def _tilted_rig() -> RigCamera:
+    """Two fisheye lenses neither of whose frames is the rig's: lens 0 turned 10 deg and off
+    the origin, lens 1 looking back and sideways."""
+    base = dual_fisheye_camera(192, 96)
+    T = np.repeat(np.eye(4)[None], 2, axis=0)
+    T[0, :3, :3] = rotvec_to_matrix(np.radians([3.0, 10.0, -2.0]))
+    T[0, :3, 3] = [0.01, -0.005, 0.02]
+    T[1, :3, :3] = rotvec_to_matrix(np.radians([0.0, 170.0, 5.0]))
+    T[1, :3, 3] = [-0.004, 0.003, -0.021]
+    return RigCamera(width=base.width, height=base.height, lenses=base.lenses, rig_from_lens=T)
+
+
+RIGS = {"dual_fisheye": lambda: dual_fisheye_camera(192, 96), "tilted": _tilted_rig}
+
+
+def _trajectory(n: int, seed: int) -> Trajectory:
+    rng = np.random.default_rng(seed)
+    return Trajectory(np.arange(n, dtype=float), rotvec_to_matrix(0.4 * rng.normal(size=(n, 3))),
+                      rng.normal(size=(n, 3)))
+
+
+def _init_folder(path: Path, camera: RigCamera, traj: Trajectory, names: list[str],
+                 images: list[np.ndarray] | None = None) -> Path:
+    """An init folder's COLMAP side, written as ``omni-sfm init`` writes it: the report (the
+    estimator's metric scale) first, then :func:`write_init_model`."""
+    path.mkdir(parents=True)
+    (path / "report.json").write_text(json.dumps({"rig": {"metres_per_unit": METRES_PER_UNIT}}))
+    write_init_model(path, camera, traj, names, images)
+    return path
+
+
+def _inverse(T: np.ndarray) -> np.ndarray:
+    out = np.eye(4)
+    out[:3, :3] = T[:3, :3].T
+    out[:3, 3] = -T[:3, :3].T @ T[:3, 3]
+    return out
+
+
+def _lens_from_world(camera: RigCamera, traj: Trajectory, k: int, lens: int) -> np.ndarray:
+    """COLMAP's cam_from_world of ``lens`` at pose ``k``: its COLMAP frame from ours, ours from
+    the rig (the centre in the poses' units), the rig from the world."""
+    world_from_rig = np.eye(4)
+    world_from_rig[:3, :3], world_from_rig[:3, 3] = traj.rotations[k], traj.positions[k]
+    rig_from_lens = camera.rig_from_lens[lens].copy()
+    rig_from_lens[:3, 3] /= METRES_PER_UNIT
+    colmap_from_lens = np.eye(4)
+    colmap_from_lens[:3, :3] = camera.lenses[lens].colmap_export().colmap_cam_from_cam
+    return colmap_from_lens @ _inverse(rig_from_lens) @ _inverse(world_from_rig)
+
+
+def _matrix(rigid: pycolmap.Rigid3d) -> np.ndarray:
+    out = np.eye(4)
+    out[:3] = np.asarray(rigid.matrix())
+    return out
+
+
+@pytest.mark.parametrize("name", sorted(RIGS))
+def test_the_init_model_of_a_rig_is_a_colmap_rig(name: str, tmp_path: Path) -> None:
+    camera = RIGS[name]()
+    traj = _trajectory(4, 0)
+    names = [f"{k:06d}.png" for k in range(len(traj))]
+    init = _init_folder(tmp_path / "init", camera, traj, names)
+    rec = pycolmap.Reconstruction(str(init / "sparse"))
+    assert rec.num_cameras() == 2 and rec.num_rigs() == 1 and rec.num_frames() == len(traj)
+    assert rec.num_images() == 2 * len(traj)
+    rig = next(iter(rec.rigs.values()))
+    assert rig.num_sensors() == 2
+    for lens in range(2):
+        assert rec.cameras[lens + 1].model_name == \
+            camera.lenses[lens].colmap_export().camera.model_name
+    by_name = {im.name: im for im in rec.images.values()}
+    assert sorted(by_name) == sorted(f"lens{k}/{n}" for k in range(2) for n in names)
+    for k, n in enumerate(names):
+        frame = rec.frame(by_name[f"lens0/{n}"].frame_id)
+        # COLMAP's rig frame is lens 0's COLMAP camera frame
+        assert np.allclose(_matrix(frame.rig_from_world), _lens_from_world(camera, traj, k, 0),
+                           atol=1e-9)
+        for lens in range(2):
+            im = by_name[f"lens{lens}/{n}"]
+            assert im.frame_id == frame.frame_id and im.camera_id == lens + 1
+            assert np.allclose(_matrix(im.cam_from_world()),
+                               _lens_from_world(camera, traj, k, lens), atol=1e-9)
+    manifest = json.loads((init / "colmap.json").read_text())
+    assert manifest["image_names"] == names and manifest["metres_per_unit"] == METRES_PER_UNIT
+    assert [m["images"] for m in manifest["lenses"]] == ["lens0/", "lens1/"]
+    assert (init / "camera_mask_lens0.png").is_file() and (init / "camera_mask_lens1.png").is_file()
+    # COLMAP's rig_configurator reads the same rig: prefixes, exact cameras, sensor poses
+    config = pycolmap.read_rig_config(str(init / "rig_config.json"))
+    assert len(config) == 1 and [c.image_prefix for c in config[0].cameras] == ["lens0/", "lens1/"]
+    assert config[0].cameras[0].ref_sensor and not config[0].cameras[1].ref_sensor
+    sensor = pycolmap.sensor_t(type=pycolmap.SensorType.CAMERA, id=2)
+    assert np.allclose(_matrix(config[0].cameras[1].cam_from_rig),
+                       _matrix(rig.sensor_from_rig(sensor)), atol=1e-12)
+    for lens in range(2):
+        assert config[0].cameras[lens].camera.model_name == rec.cameras[lens + 1].model_name
+        assert np.allclose(config[0].cameras[lens].camera.params, rec.cameras[lens + 1].params)
+
+
+def test_colmap_projects_world_points_where_the_lens_sees_them(tmp_path: Path) -> None:
+    camera = _tilted_rig()
+    traj = _trajectory(3, 1)
+    names = ["a.png", "b.png", "c.png"]
+    rec = pycolmap.Reconstruction(str(_init_folder(tmp_path / "i", camera, traj, names)
+                                      / "sparse"))
+    rng = np.random.default_rng(2)
+    checked = 0
+    for k, n in enumerate(names):
+        x_world = traj.positions[k] + rng.normal(size=(300, 3))
+        x_rig = (x_world - traj.positions[k]) @ traj.rotations[k]
+        for lens, cam in enumerate(camera.lenses):
+            T = camera.rig_from_lens[lens]
+            x_lens = (x_rig - T[:3, 3] / METRES_PER_UNIT) @ T[:3, :3]
+            uv = cam.pixels_from_rays(x_lens / np.linalg.norm(x_lens, axis=1, keepdims=True))
+            # (COLMAP projects no point behind the lens, ours up to 100 deg off its axis)
+            ok = np.isfinite(uv).all(axis=1) & (x_lens[:, 2] > 0.05)
+            im = rec.find_image_with_name(f"lens{lens}/{n}")
+            x_cam = np.asarray([im.cam_from_world() * p for p in x_world[ok]])
+            uv_colmap = np.asarray(rec.cameras[im.camera_id].img_from_cam(x_cam))
+            expected = cam.colmap_export().pixels_to_colmap(uv[ok])
+            assert np.abs(uv_colmap - expected).max() < 1e-6
+            checked += int(ok.sum())
+    assert checked > 500
+
+
+def test_images_colmap_hold_each_lens_part_of_the_frame(tmp_path: Path) -> None:
+    camera = dual_fisheye_camera(192, 96)
+    traj = _trajectory(2, 3)
+    names = ["f0.png", "f1.png"]
+    rng = np.random.default_rng(4)
+    frames = [rng.integers(0, 256, size=(96, 192, 3), dtype=np.uint8) for _ in names]
+    init = _init_folder(tmp_path / "init", camera, traj, names, frames)
+    for frame, n in zip(frames, names, strict=True):
+        left = cv2.imread(str(init / "images_colmap" / "lens0" / n))[:, :, ::-1]
+        right = cv2.imread(str(init / "images_colmap" / "lens1" / n))[:, :, ::-1]
+        assert np.array_equal(left, frame[:, :96]) and np.array_equal(right, frame[:, 96:])
+
+
+def test_the_rig_needs_the_estimators_metric_scale(tmp_path: Path) -> None:
+    camera = dual_fisheye_camera(192, 96)
+    traj = _trajectory(3, 5)
+    (tmp_path / "report.json").write_text(json.dumps({"num_frames": 3}))
+    with pytest.raises(OmniSfmError, match="no metric scale for the rig's lens offsets"):
+        write_init_model(tmp_path, camera, traj, ["a", "b", "c"])
+    with pytest.raises(OmniSfmError, match="no metric scale"):
+        rig_metres_per_unit(tmp_path / "elsewhere")
+    (tmp_path / "report.json").write_text(json.dumps({"rig": {"metres_per_unit": -1}}))
+    with pytest.raises(OmniSfmError, match="positive"):
+        rig_metres_per_unit(tmp_path)
+
+
+def _one_line_error(capsys: pytest.CaptureFixture[str], *words: str) -> None:
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "Traceback" not in err, err
+    for w in words:
+        assert w in err, err
+
+
+def test_export_colmap_writes_the_rig_and_other_commands_refuse_it(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    camera = dual_fisheye_camera(192, 96)
+    traj = _trajectory(3, 6)
+    names = ["000000.png", "000001.png", "000002.png"]
+    frames_dir = tmp_path / "frames"
+    frames_dir.mkdir()
+    rng = np.random.default_rng(7)
+    frames = [rng.integers(0, 256, size=(96, 192, 3), dtype=np.uint8) for _ in names]
+    for n, f in zip(names, frames, strict=True):
+        cv2.imwrite(str(frames_dir / n), f)
+    init = _init_folder(tmp_path / "init", camera, traj, names)
+    from omni_sfm.poses import write_tum
+
+    write_tum(init / "trajectory.tum", traj)
+    out = tmp_path / "export"
+    assert main(["export", "--input", str(init), "--images", str(frames_dir), "--format",
+                 "colmap", "--output", str(out)]) == 0
+    rec = pycolmap.Reconstruction(str(out / "sparse"))
+    assert rec.num_rigs() == 1 and rec.num_frames() == 3 and rec.num_images() == 6
+    assert np.array_equal(cv2.imread(str(out / "images" / "lens1" / names[2])),
+                          frames[2][:, 96:])
+    assert (out / "rig_config.json").is_file() and (out / "camera_mask_lens1.png").is_file()
+    report = json.loads((out / "report.json").read_text())
+    assert report["camera_model"] == "rig"
+    assert report["rig"]["metres_per_unit"] == METRES_PER_UNIT
+    # an init folder without its COLMAP side (init --no-colmap): the rig built from the poses
+    shutil.rmtree(init / "sparse")
+    assert main(["export", "--input", str(init), "--images", str(frames_dir), "--format",
+                 "colmap", "--output", str(tmp_path / "built")]) == 0
+    built = pycolmap.Reconstruction(str(tmp_path / "built" / "sparse"))
+    for im in rec.images.values():
+        assert np.allclose(_matrix(built.find_image_with_name(im.name).cam_from_world()),
+                           _matrix(im.cam_from_world()), atol=1e-12)
+    for fmt in ("nerfstudio", "limap", "colmap-rig"):
+        assert main(["export", "--input", str(init), "--images", str(frames_dir), "--format",
+                     fmt, "--output", str(tmp_path / fmt)]) == 2
+        _one_line_error(capsys, "does not take rig cameras", "omni-sfm export colmap")
+    assert main(["refine", "--input", str(init), "--images", str(frames_dir), "--output",
+                 str(tmp_path / "refined")]) == 2
+    _one_line_error(capsys, "omni-sfm refine does not take rig cameras",
+                    "omni-sfm export colmap")
+    assert main(["dense", "--input", str(init), "--images", str(frames_dir), "--output",
+                 str(tmp_path / "dense")]) == 2
+    _one_line_error(capsys, "omni-sfm dense does not take rig cameras")
+    assert not (tmp_path / "refined").exists() and not (tmp_path / "dense").exists()
