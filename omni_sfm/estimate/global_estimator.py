@@ -70,7 +70,7 @@ from omni_sfm.estimate.revisits import (
     join_revisits,
     revisit_pairs,
 )
-from omni_sfm.estimate.rig_scale import OffsetScale, facing_lines, offset_scale, scale_spread
+from omni_sfm.estimate.rig_scale import OffsetScale, facing_lines, offset_scale
 from omni_sfm.estimate.segments import runs
 from omni_sfm.estimate.uncertainty import pose_spread
 from omni_sfm.geometry import (
@@ -999,45 +999,34 @@ def _flags(tracks: LineTracks, rot: GlobalRotations, pos: GlobalPositions, ba: B
     return uncertain, spread_deg, spread_path
 
 
-RIG_SCALE_STEPS = 6
-"""Adjustments at scales 1, 2, 4, ... times the held-pose estimate (:func:`_rig_adjusted`)."""
+def _rig_start(tracks: LineTracks, R: FloatArray, c: FloatArray, pos: GlobalPositions,
+               frames: np.ndarray, options: GlobalOptions
+               ) -> tuple[OffsetScale, FloatArray, GlobalPositions]:
+    """Step 2 for a rig (``tracks`` with lens offsets in metres): the linear positions'
+    reflection settled by the observations' rays (the offsets do not mirror with it) and the
+    offsets' scale, units per metre, where the robust cost at these poses is least
+    (:func:`~omni_sfm.estimate.rig_scale.offset_scale`)."""
+    c, points = facing_lines(tracks, R, c, frames, pos.points)
+    scale = offset_scale(tracks, R, c, frames, outlier_limit(pos.residual_sigma, options.bundle))
+    return scale, c, replace(pos, positions=c, points=points)
 
 
-def _rig_adjusted(tracks: LineTracks, ba: BundleResult, held: np.ndarray | None,
-                  options: GlobalOptions) -> tuple[LineTracks, BundleResult, OffsetScale]:
-    """Step 3 for a rig (``tracks`` with lens offsets in metres, ``ba`` the adjustment with
-    them left out): the offsets' scale (units per metre) where the adjustment's own cost is
-    least. The adjustment's poses absorb part of the offsets, so the cost at its poses held
-    (:func:`~omni_sfm.estimate.rig_scale.offset_scale`) puts the scale low; from there the
-    adjustment is run again at ``RIG_SCALE_STEPS`` scales, each from ``ba``, and a parabola in
-    the log of the scale through the three lowest truncated costs gives the scale of the last
-    one. Returns the tracks with their offsets in the solution's unit, that adjustment and the
-    scale."""
+def _rig_adjusted(tracks: LineTracks, ba: BundleResult, scale: OffsetScale,
+                  held: np.ndarray | None, options: GlobalOptions
+                  ) -> tuple[LineTracks, BundleResult, OffsetScale]:
+    """Step 3 for a rig: the offsets' scale found again at the adjusted poses and, where it
+    moved by more than 1 %, the adjustment run again from its own result with it. Returns the
+    tracks with their offsets in the solution's unit, the adjustment and the scale."""
+    if not scale.scale > 0:
+        return tracks.with_offset_scale(0.0), ba, scale
     limit = outlier_limit(float(np.radians(ba.sigma_deg)), options.bundle)
-    low = offset_scale(tracks, ba.rotations, ba.positions, ba.frames, limit)
-    if not low.scale > 0:
-        return tracks.with_offset_scale(0.0), ba, low
-
-    def run(scale: float) -> tuple[float, BundleResult]:
-        again = bundle_adjust(tracks.with_offset_scale(scale), ba.rotations, ba.positions,
-                              ba.line_directions, ba.line_points, frames=ba.frames,
-                              held_directions=held, options=options.bundle)
-        return truncated_cost(tracks.with_offset_scale(scale), again.rotations,
-                              again.positions, again.frames, limit), again
-
-    logs = np.log(low.scale) + np.log(2.0) * np.arange(RIG_SCALE_STEPS)
-    runs = [run(float(np.exp(x))) for x in logs]
-    costs = np.array([r[0] for r in runs])
-    i = int(np.clip(np.argmin(costs), 1, len(logs) - 2))
-    x0, x1, x2 = logs[i - 1:i + 2]
-    y0, y1, y2 = costs[i - 1:i + 2]
-    den = y0 - 2.0 * y1 + y2
-    x = float(np.clip(x1 + 0.5 * (x2 - x1) * (y0 - y2) / den, x0, x2)) if den > 0 else \
-        float(logs[int(np.argmin(costs))])
-    _, final = run(float(np.exp(x)))
-    scale = scale_spread(tracks, final.rotations, final.positions, final.frames, limit,
-                         float(np.exp(x)))
-    return tracks.with_offset_scale(scale.scale), final, scale
+    again = offset_scale(tracks, ba.rotations, ba.positions, ba.frames, limit)
+    if again.scale > 0 and abs(np.log(again.scale / scale.scale)) > 0.01:
+        ba = bundle_adjust(tracks.with_offset_scale(again.scale), ba.rotations, ba.positions,
+                           ba.line_directions, ba.line_points, frames=ba.frames,
+                           held_directions=held, options=options.bundle)
+        scale = again
+    return tracks.with_offset_scale(scale.scale), ba, scale
 
 
 def _decisive(options: BundleOptions) -> BundleOptions:
@@ -1114,13 +1103,12 @@ def _solve_once(tracks: LineTracks, options: GlobalOptions,
     t = time.perf_counter()
     opts = options if window else replace(options, bundle=_decisive(options.bundle))
     scale: OffsetScale | None = None
-    if tracks.obs_offset is not None:  # the reflection first: the offsets do not mirror
-        c, points = facing_lines(tracks, R, c, frames, pos.points)
-        pos = replace(pos, positions=c, points=points)
-    ba = _adjustment_step(tracks.with_offset_scale(0.0), R, c, rot, pos, dir_ok, label, frames,
-                          opts)
     if tracks.obs_offset is not None:
-        tracks, ba, scale = _rig_adjusted(tracks, ba, dir_ok & (label >= 0)
+        scale, c, pos = _rig_start(tracks, R, c, pos, frames, opts)
+    ba = _adjustment_step(tracks.with_offset_scale(scale.scale) if scale else tracks, R, c, rot,
+                          pos, dir_ok, label, frames, opts)
+    if scale is not None:
+        tracks, ba, scale = _rig_adjusted(tracks, ba, scale, dir_ok & (label >= 0)
                                           if options.hold_world_directions else None, opts)
     timings["bundle_adjustment"] = (time.perf_counter() - t) * 1e3
     steps.append(EstimatorStep(step="bundle adjustment", iterations=ba.iterations,

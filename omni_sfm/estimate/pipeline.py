@@ -703,11 +703,19 @@ def chosen_estimator(tracks: LineTracks, options: EstimationOptions) -> tuple[st
         OmniSfmError: an unknown name; for ``auto``, lines seen throughout of which fewer than
             3 are parallel or fewer than 3 are not (the windows' own error).
     """
-    if options.estimator in ("windows", "global"):
-        return options.estimator, "asked for"
-    if options.estimator != "auto":
+    if options.estimator not in ("auto", "windows", "global"):
         raise OmniSfmError(f"unknown estimator {options.estimator!r}: 'auto', 'windows' or "
                            f"'global'")
+    if tracks.obs_offset is not None:  # a rig of lenses
+        if options.estimator == "windows":
+            raise OmniSfmError("the windows estimator takes a central camera; a rig's tracks "
+                               "(lens offsets) need the global estimator (--estimator global "
+                               "or auto)")
+        return "global", ("asked for" if options.estimator == "global" else
+                          "auto: a rig of lenses (the global estimator takes each observation "
+                          "from its lens)")
+    if options.estimator in ("windows", "global"):
+        return options.estimator, "asked for"
     if tracks.num_frames > options.auto_global_max_frames:
         return "windows", (f"auto: {tracks.num_frames} frames, more than the global estimator "
                            f"takes ({options.auto_global_max_frames})")
@@ -834,11 +842,9 @@ def _rig_record(sol: GlobalSolution, frames: np.ndarray) -> RigScaleRecord | Non
         return RigScaleRecord(metres_per_unit=None, note=(
             "the lines are too far for the lenses' baseline to give a metric scale (and for "
             "their offsets to matter)"))
-    sd = f"+-{100 * scale.rel_sd:.1f} %" if np.isfinite(scale.rel_sd) else "unbounded"
     return RigScaleRecord(metres_per_unit=span / scale.scale, note=(
-        f"metric scale from the lenses' baseline, {sd} (the cost's curvature at the adjusted "
-        "poses)" + ("" if scale.fixed else ": not fixed by the lines, their offsets barely "
-                    "matter")))
+        "the scale at which the lens offsets were taken, from the lenses' baseline: a rough "
+        "metric scale, not a measurement (docs/estimator.md, \"Rigs\")"))
 
 
 def _capped_rms_deg(tracks: LineTracks, R: FloatArray, c: FloatArray, frames: np.ndarray,
