@@ -206,6 +206,14 @@ def observation_centres(tracks: LineTracks, rotations: FloatArray, positions: Fl
     return np.asarray(c + np.einsum("kij,kj->ki", rotations[f], tracks.obs_offset[obs]))
 
 
+def metric_offsets(tracks: LineTracks) -> bool:
+    """Whether the tracks carry lens offsets that differ (a rig of lenses, in metres): the
+    adjustment then holds no coordinate for the scale, which the baseline between the lenses
+    fixes, and works in metres."""
+    off = tracks.obs_offset
+    return off is not None and len(off) > 0 and bool(np.any(off != off[0]))
+
+
 def weighted_residuals(tracks: LineTracks, rotations: FloatArray, positions: FloatArray,
                        line_directions: FloatArray, line_points: FloatArray) -> FloatArray:
     """``(K,)`` residual norm of each observation as the adjustment weighs it (radians).
@@ -443,7 +451,7 @@ class LineProblem:
                  held_directions: np.ndarray | None = None, hold_rotation: bool = True,
                  observations: np.ndarray | None = None, *, line_iterations: int = 0,
                  loss: RobustLoss = RobustLoss.LINEAR, loss_scale: float = 1.0,
-                 held_rotations: np.ndarray | None = None) -> None:
+                 held_rotations: np.ndarray | None = None, hold_scale: bool = True) -> None:
         self.line_iterations, self.loss, self.loss_scale = line_iterations, loss, loss_scale
         self._basis: tuple[FloatArray, FloatArray, FloatArray] | None = None
         self._reduced: tuple[np.ndarray, _ReducedSystem] | None = None
@@ -469,7 +477,8 @@ class LineProblem:
         pose_free[fixed_frame, 3:] = False
         if hold_rotation:
             pose_free[fixed_frame, :3] = False
-        pose_free[scale_frame, 3 + scale_axis] = False
+        if hold_scale:  # (a rig's lens offsets in metres fix it otherwise)
+            pose_free[scale_frame, 3 + scale_axis] = False
         if held is not None:
             pose_free[held] = False
         if held_rotations is not None:
@@ -799,6 +808,8 @@ class _Adjustment:
             int(np.flatnonzero(self.held)[0])
         self.fixed, self.scale_frame, self.scale_axis = gauge(self.c, self.frames, scale_frames,
                                                                first_held)
+        self.metric = metric_offsets(tracks)
+        """The tracks' lens offsets (metres) fix the scale: no coordinate is held for it."""
         self.obs_in = self.frames[tracks.obs_frame]
         self.ang0 = self.angles()
         self.sigma = np.radians(options.noise_deg) if options.noise_deg else \
@@ -829,7 +840,8 @@ class _Adjustment:
                            self.scale_axis, self.held, self.held_directions,
                            not _directions_fix_rotation(self.d, self.held_directions, active),
                            line_iterations=self.options.line_iterations, loss=loss,
-                           loss_scale=scale, held_rotations=self.held_rotations)
+                           loss_scale=scale, held_rotations=self.held_rotations,
+                           hold_scale=not self.metric)
         (self.R, self.c, self.d, self.p), it = levenberg_marquardt(
             prob, (self.R, self.c, self.d, self.p), loss, scale, max_iterations, tolerance)
         self.iterations += it

@@ -179,8 +179,9 @@ class GlobalSolution:
         not_posed: ``{frame: reason}``.
         steps: what each step did (for the report).
         timings_ms: wall time per step.
-        offset_scale: a rig's lens offsets' scale (units of ``positions`` per metre), or None
-            for a central camera (:mod:`~omni_sfm.estimate.rig_scale`).
+        offset_scale: for a rig of lenses, the scale its start was found at
+            (:func:`_rig_start`): where its lens offsets fix it, ``positions`` are in metres;
+            None for a central camera.
     """
 
     rotations: FloatArray
@@ -1001,32 +1002,23 @@ def _flags(tracks: LineTracks, rot: GlobalRotations, pos: GlobalPositions, ba: B
 
 def _rig_start(tracks: LineTracks, R: FloatArray, c: FloatArray, pos: GlobalPositions,
                frames: np.ndarray, options: GlobalOptions
-               ) -> tuple[OffsetScale, FloatArray, GlobalPositions]:
+               ) -> tuple[LineTracks, OffsetScale, FloatArray, GlobalPositions]:
     """Step 2 for a rig (``tracks`` with lens offsets in metres): the linear positions'
-    reflection settled by the observations' rays (the offsets do not mirror with it) and the
-    offsets' scale, units per metre, where the robust cost at these poses is least
-    (:func:`~omni_sfm.estimate.rig_scale.offset_scale`)."""
+    reflection settled by the observations' rays (the offsets do not mirror with it), then the
+    start in metres: divided by the offsets' units per metre where the robust cost at these
+    poses is least (:func:`~omni_sfm.estimate.rig_scale.offset_scale`). The adjustment then
+    holds no coordinate for the scale: the lens offsets fix it
+    (:func:`~omni_sfm.estimate.bundle.metric_offsets`). Where the lines are too far for the
+    baseline to fix it, the tracks go on without their offsets (too small to matter) and the
+    scale is held as for one centre. Returns the tracks for the adjustment, the scale found and
+    the start."""
     c, points = facing_lines(tracks, R, c, frames, pos.points)
     scale = offset_scale(tracks, R, c, frames, outlier_limit(pos.residual_sigma, options.bundle))
-    return scale, c, replace(pos, positions=c, points=points)
-
-
-def _rig_adjusted(tracks: LineTracks, ba: BundleResult, scale: OffsetScale,
-                  held: np.ndarray | None, options: GlobalOptions
-                  ) -> tuple[LineTracks, BundleResult, OffsetScale]:
-    """Step 3 for a rig: the offsets' scale found again at the adjusted poses and, where it
-    moved by more than 1 %, the adjustment run again from its own result with it. Returns the
-    tracks with their offsets in the solution's unit, the adjustment and the scale."""
-    if not scale.scale > 0:
-        return tracks.with_offset_scale(0.0), ba, scale
-    limit = outlier_limit(float(np.radians(ba.sigma_deg)), options.bundle)
-    again = offset_scale(tracks, ba.rotations, ba.positions, ba.frames, limit)
-    if again.scale > 0 and abs(np.log(again.scale / scale.scale)) > 0.01:
-        ba = bundle_adjust(tracks.with_offset_scale(again.scale), ba.rotations, ba.positions,
-                           ba.line_directions, ba.line_points, frames=ba.frames,
-                           held_directions=held, options=options.bundle)
-        scale = again
-    return tracks.with_offset_scale(scale.scale), ba, scale
+    if not scale.fixed:
+        return replace(tracks, obs_offset=None), scale, c, replace(pos, positions=c,
+                                                                   points=points)
+    c, points = c / scale.scale, points / scale.scale
+    return tracks, scale, c, replace(pos, positions=c, points=points)
 
 
 def _decisive(options: BundleOptions) -> BundleOptions:
@@ -1104,12 +1096,8 @@ def _solve_once(tracks: LineTracks, options: GlobalOptions,
     opts = options if window else replace(options, bundle=_decisive(options.bundle))
     scale: OffsetScale | None = None
     if tracks.obs_offset is not None:
-        scale, c, pos = _rig_start(tracks, R, c, pos, frames, opts)
-    ba = _adjustment_step(tracks.with_offset_scale(scale.scale) if scale else tracks, R, c, rot,
-                          pos, dir_ok, label, frames, opts)
-    if scale is not None:
-        tracks, ba, scale = _rig_adjusted(tracks, ba, scale, dir_ok & (label >= 0)
-                                          if options.hold_world_directions else None, opts)
+        tracks, scale, c, pos = _rig_start(tracks, R, c, pos, frames, opts)
+    ba = _adjustment_step(tracks, R, c, rot, pos, dir_ok, label, frames, opts)
     timings["bundle_adjustment"] = (time.perf_counter() - t) * 1e3
     steps.append(EstimatorStep(step="bundle adjustment", iterations=ba.iterations,
                                outlier_tracks=int(ba.outlier_tracks.sum()),

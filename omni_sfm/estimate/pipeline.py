@@ -832,19 +832,24 @@ def _global_result(tracks: LineTracks, options: EstimationOptions,
 
 def _rig_record(sol: GlobalSolution, frames: np.ndarray) -> RigScaleRecord | None:
     """The report's ``rig``: the metres one unit of the normalised trajectory spans (the
-    solution's first-to-last distance over the offsets' units per metre)."""
+    solution's first-to-last distance, in metres where the lens offsets fix the scale, else
+    over the rough units per metre of the start)."""
     scale = sol.offset_scale
     if scale is None:
         return None
-    idx = np.flatnonzero(frames)
-    span = float(np.linalg.norm(sol.positions[idx[-1]] - sol.positions[idx[0]]))
     if not scale.scale > 0:
         return RigScaleRecord(metres_per_unit=None, note=(
             "the lines are too far for the lenses' baseline to give a metric scale (and for "
-            "their offsets to matter)"))
-    return RigScaleRecord(metres_per_unit=span / scale.scale, note=(
-        "the scale at which the lens offsets were taken, from the lenses' baseline: a rough "
-        "metric scale, not a measurement (docs/estimator.md, \"Rigs\")"))
+            "their offsets to matter): the lenses taken as one centre"))
+    idx = np.flatnonzero(frames)
+    span = float(np.linalg.norm(sol.positions[idx[-1]] - sol.positions[idx[0]]))
+    if not scale.fixed:
+        return RigScaleRecord(metres_per_unit=span / scale.scale, note=(
+            "a rough metric scale: the lines are too far for the lenses' baseline to fix it "
+            "(or for their offsets to matter), the lenses taken as one centre"))
+    return RigScaleRecord(metres_per_unit=span, note=(
+        "metric scale from the baseline between the lenses (the adjustment in metres, docs/"
+        "estimator.md \"Rigs\")"))
 
 
 def _capped_rms_deg(tracks: LineTracks, R: FloatArray, c: FloatArray, frames: np.ndarray,
