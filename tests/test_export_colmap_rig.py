@@ -51,7 +51,8 @@ def _init_folder(path: Path, camera: RigCamera, traj: Trajectory, names: list[st
     """An init folder's COLMAP side, written as ``omni-sfm init`` writes it: the report (the
     estimator's metric scale) first, then :func:`write_init_model`."""
     path.mkdir(parents=True)
-    (path / "report.json").write_text(json.dumps({"rig": {"metres_per_unit": METRES_PER_UNIT}}))
+    (path / "report.json").write_text(json.dumps({
+        "num_frames": 3, "rig": {"metres_per_unit": METRES_PER_UNIT, "note": "test"}}))
     write_init_model(path, camera, traj, names, images)
     return path
 
@@ -168,9 +169,10 @@ def test_the_rig_needs_the_estimators_metric_scale(tmp_path: Path) -> None:
     (tmp_path / "report.json").write_text(json.dumps({"num_frames": 3}))
     with pytest.raises(OmniSfmError, match="no metric scale for the rig's lens offsets"):
         write_init_model(tmp_path, camera, traj, ["a", "b", "c"])
-    with pytest.raises(OmniSfmError, match="no metric scale"):
+    with pytest.raises(OmniSfmError, match="report not found"):
         rig_metres_per_unit(tmp_path / "elsewhere")
-    (tmp_path / "report.json").write_text(json.dumps({"rig": {"metres_per_unit": -1}}))
+    (tmp_path / "report.json").write_text(json.dumps({
+        "num_frames": 3, "rig": {"metres_per_unit": -1, "note": "test"}}))
     with pytest.raises(OmniSfmError, match="positive"):
         rig_metres_per_unit(tmp_path)
 

@@ -291,7 +291,7 @@ def test_ctrl_c_ends_cleanly_with_the_poses_so_far(corridor, corridor_poses, tmp
     n = START + 1
     files = sorted((corridor / "images").glob("*.png"))
 
-    def frames(path, size=None) -> Iterator[Frame]:
+    def frames(path, size=None, **_: object) -> Iterator[Frame]:
         for k, f in enumerate(files[:n]):
             yield Frame(k, float(k), cv2.imread(str(f), cv2.IMREAD_UNCHANGED))
         raise KeyboardInterrupt

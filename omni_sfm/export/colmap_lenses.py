@@ -17,7 +17,6 @@ Units: the poses (``trajectory.tum``) are in the trajectory's arbitrary units, t
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -33,8 +32,6 @@ from omni_sfm.export.colmap import sensor_from_world, write_colmap_mask
 from omni_sfm.export.colmap_rig import sensor_rig_reconstruction
 from omni_sfm.geometry import FloatArray
 from omni_sfm.poses import Trajectory
-
-REPORT_FILE = "report.json"
 
 
 def lens_image_name(lens: int, frame_name: str) -> str:
@@ -53,26 +50,19 @@ def rig_metres_per_unit(folder: Path | str, *, shown_as: Path | str | None = Non
     Contract: the line estimator (``omni-sfm init``) finds the metric scale of its trajectory
     from the lens baseline (the lens centres of ``camera.yaml``, metres, are observed in the
     lines) and records it in the init folder's ``report.json`` as
-    ``"rig": {"metres_per_unit": <float>}``. Nothing else guesses it: without the key (an
-    initializer plugin's folder, an estimator that did not find it) this is a one-line
-    OmniSfmError, naming the folder ``shown_as`` (the output a temporary folder becomes) when
-    given."""
-    path = Path(folder) / REPORT_FILE
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        data = None
-    except (OSError, ValueError) as exc:
-        raise OmniSfmError(f"{path}: cannot read the report: {exc}") from None
-    if shown_as is not None:
-        path = Path(shown_as) / REPORT_FILE
-    rig = data.get("rig") if isinstance(data, dict) else None
-    value = rig.get("metres_per_unit") if isinstance(rig, dict) else None
+    ``"rig": {"metres_per_unit": <float>}`` (:class:`~omni_sfm.reports.RigScaleRecord`).
+    Nothing else guesses it: without it (an initializer plugin's folder, lines too far for the
+    baseline to fix it) this is a one-line OmniSfmError, naming the folder ``shown_as`` (the
+    output a temporary folder becomes) when given."""
+    from omni_sfm.folders import InitFolder
+
+    report = InitFolder(Path(folder)).read_report()
+    path = Path(shown_as if shown_as is not None else folder) / InitFolder.REPORT
+    value = None if report.rig is None else report.rig.metres_per_unit
     if value is None:
-        raise OmniSfmError(f"{path}: no metric scale for the rig's lens offsets in report.json "
-                           "(key rig.metres_per_unit)")
-    if isinstance(value, bool) or not isinstance(value, int | float) or \
-            not math.isfinite(value) or value <= 0:
+        raise OmniSfmError(f"{path}: no metric scale for the rig's lens offsets (key "
+                           "rig.metres_per_unit)")
+    if not math.isfinite(value) or value <= 0:
         raise OmniSfmError(f"{path}: rig.metres_per_unit must be a positive number, got "
                            f"{value!r}")
     return float(value)
