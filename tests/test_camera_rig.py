@@ -59,3 +59,20 @@ def test_camera_file_round_trip_and_errors(tmp_path) -> None:  # type: ignore[no
     del p["lenses"][0]["rig_from_lens"]
     with pytest.raises(OmniSfmError, match=r"missing key 'lenses\[0\].rig_from_lens'"):
         camera_from_dict(p, "cam.yaml")
+
+
+def test_pieces_of_one_great_circle_seen_by_two_lenses_stay_two_lines() -> None:
+    """Two pieces of a great circle, one in each lens's half of the sphere, 10 deg apart: one
+    line for a central camera, two observations for a rig (each lens sees the line from its
+    own centre)."""
+    from omni_sfm.lines.extract import LineExtractor
+
+    a = np.radians(np.r_[np.linspace(30, 85, 40), np.linspace(95, 150, 40)])
+    rays = np.stack([np.sin(a), np.zeros_like(a), np.cos(a)], axis=1)
+    idx, lab = np.arange(80), np.repeat([0, 1], 40)
+    normals = np.array([[0.0, 1.0, 0.0], [0.0, 1.0, 0.0]])
+    rig = dual_fisheye(_lens())
+    central = LineExtractor(_lens())._merge(idx, lab, normals, rays)
+    split = LineExtractor(rig)._merge(idx, lab, normals, rays)
+    assert len(set(central.tolist())) == 1
+    assert len(set(split.tolist())) == 2

@@ -81,6 +81,7 @@ from omni_sfm.geometry import (
 )
 from omni_sfm.lines.tracks import LineTracks
 from omni_sfm.reports import EstimatorStep
+from omni_sfm.solver import RobustLoss
 from omni_sfm.vanishing import ParallelFamily, VanishingOptions, detect_parallel_families
 
 
@@ -930,29 +931,44 @@ def _poses_as_many(new: BundleResult, old: BundleResult) -> bool:
 
 def _adjusted(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArray, p: FloatArray,
               frames: np.ndarray, held: np.ndarray | None, options: GlobalOptions
-              ) -> BundleResult:
+              ) -> tuple[BundleResult, RobustLoss]:
     """Step 3: the robust adjustment of all cameras and lines from the start as it is and, with
     ``options.settled_start``, from the start with the positions and lines first settled on the
-    rotations held (one robust round, no track rejected); the one with the lower truncated cost
-    (:func:`~omni_sfm.estimate.bundle.truncated_cost`, every observation) is kept. Where the
-    parallax is low the linear positions can be off by many times the noise: from them the
-    rotations turn to absorb the error and can settle in another minimum, and from the settled
-    start too at times; which of the two does depends on the data, not on the frame order."""
-    bo = options.bundle
-    plain = bundle_adjust(tracks, R, c, d, p, frames=frames, held_directions=held, options=bo)
-    if not options.settled_start:
-        return plain
-    settled = bundle_adjust(tracks, R, c, d, p, frames=frames, held_directions=held,
-                            held_rotations=frames,
-                            options=replace(bo, reject_outliers=False, max_rounds=1,
-                                            final_loss=None))
-    other = bundle_adjust(tracks, settled.rotations, settled.positions,
-                          settled.line_directions, settled.line_points, frames=settled.frames,
-                          held_directions=held, options=bo)
-    limit = outlier_limit(float(np.radians(max(plain.sigma_deg, other.sigma_deg))), bo)
+    rotations held (one robust round, no track rejected), each under the adjustment's loss and
+    under the Cauchy loss; the one with the lowest truncated cost
+    (:func:`~omni_sfm.estimate.bundle.truncated_cost`, every observation) is kept.
+
+    Where the parallax is low the linear positions can be off by many times the noise: from
+    them the rotations turn to absorb the error and can settle in another minimum, and from the
+    settled start too at times. Gross outlier tracks (a tracker that jumped between two
+    parallel lines) pull a Huber adjustment off a good start before its rounds reject them, and
+    a stretch then collapses onto the lines that agree with the pull; the Cauchy loss gives them
+    no weight, but on its own it rejects more of the weakly tied lines elsewhere. Which of them
+    holds depends on the data, not on the frame order. Returns the adjustment kept and its
+    loss."""
+    candidates, losses = [], []
+    for loss in dict.fromkeys((options.bundle.loss, RobustLoss.CAUCHY)):
+        bo = replace(options.bundle, loss=loss)
+        candidates.append(bundle_adjust(tracks, R, c, d, p, frames=frames, held_directions=held,
+                                        options=bo))
+        losses.append(loss)
+        if not options.settled_start:
+            continue
+        settled = bundle_adjust(tracks, R, c, d, p, frames=frames, held_directions=held,
+                                held_rotations=frames,
+                                options=replace(bo, reject_outliers=False, max_rounds=1,
+                                                final_loss=None))
+        candidates.append(bundle_adjust(tracks, settled.rotations, settled.positions,
+                                        settled.line_directions, settled.line_points,
+                                        frames=settled.frames, held_directions=held,
+                                        options=bo))
+        losses.append(loss)
+    limit = outlier_limit(float(np.radians(max(x.sigma_deg for x in candidates))),
+                          options.bundle)
     cost = [truncated_cost(tracks, x.rotations, x.positions, x.frames, limit, everywhere=True)
-            for x in (plain, other)]
-    return plain if cost[0] <= cost[1] else other
+            for x in candidates]
+    best = int(np.argmin(cost))
+    return candidates[best], losses[best]
 
 
 def _positions_step(tracks: LineTracks, rot: GlobalRotations, frames: np.ndarray,
@@ -983,9 +999,10 @@ def _adjustment_step(tracks: LineTracks, R: FloatArray, c: FloatArray, rot: Glob
     # the lines of a world direction keep it: only their positions move (and with two world
     # directions or more they hold the rotation gauge)
     held = dir_ok & (label >= 0) if options.hold_world_directions else None
-    ba = _adjusted(tracks, R, c, d0, pos.points, frames, held, options)
-    if held is not None:
-        ba = _world_directions_refitted(tracks, ba, held, label, options)
+    ba, loss = _adjusted(tracks, R, c, d0, pos.points, frames, held, options)
+    if held is not None:  # under the loss of the adjustment kept
+        ba = _world_directions_refitted(tracks, ba, held, label, replace(
+            options, bundle=replace(options.bundle, loss=loss)))
     return ba
 
 

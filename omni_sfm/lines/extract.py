@@ -31,6 +31,7 @@ import cv2
 import numpy as np
 
 from omni_sfm.cameras.base import CameraModel
+from omni_sfm.cameras.rig import RigCamera
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.geometry import FloatArray
 from omni_sfm.lines import edge_kernels
@@ -583,6 +584,13 @@ class LineExtractor:
         normals = normals[used]
         cosang = np.abs(normals @ normals.T)
         cand = np.argwhere(np.triu(cosang > np.cos(np.radians(o.merge_angle_deg)), 1))
+        if isinstance(self.camera, RigCamera) and len(cand):
+            # pieces seen by different lenses of a rig are not one observation: each lens sees
+            # the line from its own centre
+            some = np.zeros(nl, np.int64)
+            some[lab] = idx
+            lens = self.camera.lens_of_rays(_rows(rays, some))
+            cand = cand[lens[cand[:, 0]] == lens[cand[:, 1]]]
         if len(cand) == 0:
             return lab
         # the gap of every candidate pair: the points of both pieces by their angle along the
