@@ -934,8 +934,8 @@ def _adjusted(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArray, p
               ) -> tuple[BundleResult, RobustLoss]:
     """Step 3: the robust adjustment of all cameras and lines from the start as it is and, with
     ``options.settled_start``, from the start with the positions and lines first settled on the
-    rotations held (one robust round, no track rejected), each under the adjustment's loss and
-    under the Cauchy loss; the one with the lowest truncated cost
+    rotations held (one robust round, no track rejected), under the adjustment's loss, and from
+    the start as it is under the Cauchy loss; the one with the lowest truncated cost
     (:func:`~omni_sfm.estimate.bundle.truncated_cost`, every observation) is kept.
 
     Where the parallax is low the linear positions can be off by many times the noise: from
@@ -952,7 +952,7 @@ def _adjusted(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArray, p
         candidates.append(bundle_adjust(tracks, R, c, d, p, frames=frames, held_directions=held,
                                         options=bo))
         losses.append(loss)
-        if not options.settled_start:
+        if not options.settled_start or loss != options.bundle.loss:
             continue
         settled = bundle_adjust(tracks, R, c, d, p, frames=frames, held_directions=held,
                                 held_rotations=frames,
