@@ -103,3 +103,38 @@ def test_offsets_survive_the_tracks_file_and_the_windows_refuse_them(tmp_path: P
     assert np.allclose(back.obs_offset, tracks.obs_offset, atol=1e-12)
     with pytest.raises(OmniSfmError, match="windows estimator takes a central camera"):
         estimate_poses(tracks, EstimationOptions(estimator="windows", progress=False))
+
+
+def test_a_rendered_dual_fisheye_walk_end_to_end(tmp_path: Path) -> None:
+    """Rendered raw dual-fisheye frames (two 200 deg lenses of 480 x 480 side by side, 4 cm
+    apart, a 1.5 m corridor walk): ``init`` poses every frame within 0.5 deg and 1 % ATE, its
+    metric scale within 5 %, and the COLMAP rig it writes reads back in pycolmap with the
+    same poses (COLMAP's rig frame is lens 0's)."""
+    import pycolmap
+
+    from omni_sfm.cli import main
+    from omni_sfm.folders import InitFolder
+    from omni_sfm.poses import read_tum
+
+    render, init = tmp_path / "r", tmp_path / "init"
+    assert main(["render", "-o", str(render), "--scene", "corridor", "--camera", "dual-fisheye",
+                 "--width", "960", "--height", "480", "--frames", "30"]) == 0
+    assert main(["init", "--lines", "--images", str(render / "images"), "--camera",
+                 str(render / "camera.yaml"), "-o", str(init), "--quiet"]) == 0
+    traj, gt = read_tum(init / "trajectory.tum"), read_tum(render / "groundtruth.tum")
+    assert len(traj) == 30  # every frame trusted
+    e = trajectory_errors(traj, gt)
+    assert e.rot_deg.max() < 0.5 and e.ate_rel < 0.01
+    report = InitFolder(init).read_report()
+    assert report.rig is not None and report.rig.metres_per_unit is not None
+    span = float(np.linalg.norm(gt.positions[-1] - gt.positions[0]))
+    assert abs(report.rig.metres_per_unit / span - 1.0) < 0.05
+    # COLMAP: frame k's rig (lens 0) centre is the rig's centre plus lens 0's offset
+    rec = pycolmap.Reconstruction(str(init / "sparse"))
+    assert len(rec.rigs) == 1 and len(rec.cameras) == 2 and len(rec.images) == 60
+    lens0 = np.array([0.0, 0.0, 0.02]) / report.rig.metres_per_unit
+    frames = sorted(rec.frames.values(), key=lambda fr: fr.frame_id)
+    for k, fr in enumerate(frames):
+        pose = fr.rig_from_world
+        centre = -pose.rotation.matrix().T @ pose.translation
+        assert np.allclose(centre, traj.positions[k] + traj.rotations[k] @ lens0, atol=1e-9)
