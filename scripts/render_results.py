@@ -76,6 +76,8 @@ SUMMARY = (
                "not tracked)", "eval_cellhouse", "docs/comparison.md"),
     SummaryRow("Global estimator (where lines come and go)", "eval_global_manhattan",
                "docs/estimator.md"),
+    SummaryRow("`init` on raw dual-fisheye frames (rendered, 1920x960, a rig of two lenses)",
+               "eval_rig", "docs/estimator.md"),
     SummaryRow("`refine` (lines and points adjusted together)", "bench_refine_room",
                "docs/colmap.md"),
     SummaryRow("`refine` on the office walk", "bench_refine_office", "docs/colmap.md"),
