@@ -427,9 +427,9 @@ class PoseSpreadRecord(JsonReport):
 @dataclass(frozen=True, kw_only=True)
 class RigScaleRecord(JsonReport):
     """An init report's ``rig`` (a rig of lenses, docs/estimator.md "Rigs"): the metres that
-    one unit of the trajectory spans, from the lens centres' offsets (the metric scale the
-    baseline between the lenses gives), or null where the lines are too far for the baseline
-    to fix it (then the offsets are too small to matter either); ``note`` says which."""
+    one unit of the trajectory spans, the metric scale the baseline between the lenses fixes;
+    where the lines are too far for it, a rough one (the offsets too small to matter either),
+    or null; ``note`` says which."""
 
     metres_per_unit: float | None
     note: str

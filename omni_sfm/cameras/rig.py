@@ -17,6 +17,7 @@ handles (``LineTracks.obs_offset``).
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -53,6 +54,13 @@ def rigid_transform(path: Path | str, key: str, value: Any) -> FloatArray:
     return T
 
 
+def frame_size(lenses: Sequence[CameraModel], layout: str) -> tuple[int, int]:
+    """``(width, height)`` of the frame that holds ``lenses`` in ``layout``: side by side, the
+    widths summed and the largest height; stacked, the largest width and the heights summed."""
+    ws, hs = [c.width for c in lenses], [c.height for c in lenses]
+    return (sum(ws), max(hs)) if layout == "side_by_side" else (max(ws), sum(hs))
+
+
 @dataclass(frozen=True, kw_only=True, eq=False)
 class RigCamera(CameraModel):
     """Two or more central lenses in one frame (module docstring).
@@ -87,7 +95,7 @@ class RigCamera(CameraModel):
                       for k, t in enumerate(T)])
         T.flags.writeable = False
         object.__setattr__(self, "rig_from_lens", T)
-        w, h = self._frame_size()
+        w, h = frame_size(self.lenses, self.layout)
         if (self.width, self.height) != (w, h):
             raise ValueError(f"a {self.layout} rig of these lenses is {w} x {h} px, got "
                              f"width {self.width}, height {self.height}")
@@ -105,13 +113,6 @@ class RigCamera(CameraModel):
     def __hash__(self) -> int:
         return hash((self.width, self.height, self.layout, self.lenses,
                      self.rig_from_lens.tobytes()))
-
-    def _frame_size(self) -> tuple[int, int]:
-        ws = [c.width for c in self.lenses]
-        hs = [c.height for c in self.lenses]
-        if self.layout == "side_by_side":
-            return sum(ws), max(hs)
-        return max(ws), sum(hs)
 
     @property
     def num_lenses(self) -> int:
@@ -230,10 +231,7 @@ class RigCamera(CameraModel):
                 raise OmniSfmError(f"{path}: key 'lenses[{k}]' must be a central lens model")
             lenses.append(camera_from_dict(lens, f"{path} lenses[{k}]"))
         layout = data.get("layout", "side_by_side")
-        probe = RigCamera.__new__(RigCamera)
-        object.__setattr__(probe, "lenses", tuple(lenses))
-        object.__setattr__(probe, "layout", layout if layout in LAYOUTS else LAYOUTS[0])
-        w, h = RigCamera._frame_size(probe)
+        w, h = frame_size(lenses, layout if layout in LAYOUTS else LAYOUTS[0])
         width, height = data.get("width", w), data.get("height", h)
         try:
             return cls(width=width, height=height, lenses=tuple(lenses),

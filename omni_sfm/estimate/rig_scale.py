@@ -1,16 +1,16 @@
-"""The scale of a rig's lens offsets in the estimator's length unit.
+"""The metric scale of a rig's start: its lens offsets in the linear positions' unit.
 
 A rig of lenses (:class:`~omni_sfm.cameras.RigCamera`, raw dual-fisheye frames) takes each
 observation from its lens's centre, ``c_f + R_f o`` with ``o`` in metres
-(``LineTracks.obs_offset``). The estimator's positions have a length unit of their own (the
-linear positions' ``sum |c|^2 = 1``), so the offsets enter as ``lam o``, ``lam`` the units per
-metre: the metric scale that the baseline between the lenses fixes. :func:`offset_scale` finds
-``lam`` at given poses as the minimum of the robust cost over ``lam`` (every line triangulated
-again from the lens centres), on a log grid then by golden section; the estimator takes it at
-the linear positions and again after the adjustment (docs/estimator.md, "Rigs").
+(``LineTracks.obs_offset``). The linear positions have a length unit of their own (``sum |c|^2
+= 1``); against them the offsets enter as ``lam o``, ``lam`` the units per metre.
+:func:`offset_scale` finds ``lam`` at given poses as the minimum of the robust cost over
+``lam`` (every line triangulated again from the lens centres), on a log grid then by golden
+section; the global estimator divides the linear positions by it, and its adjustment goes on
+in metres with the scale free (docs/estimator.md, "Rigs").
 
-Lines much farther than the baseline hardly see it: the cost is then flat in ``lam``, the
-offsets too small to matter, and no metric scale is claimed.
+Lines much farther than the baseline hardly see it: the cost is then flat in ``lam``
+(:attr:`OffsetScale.fixed` False), the offsets too small to matter.
 """
 
 from __future__ import annotations

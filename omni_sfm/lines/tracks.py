@@ -54,7 +54,7 @@ class LineTracks:
             frame's camera frame (a rig of lenses, :class:`~omni_sfm.cameras.RigCamera`: the
             frame's pose is the rig's), in metres as the front end and ``tracks.json`` give
             them; or None (a central camera: every observation from the frame's centre). The
-            estimator takes them in its own length unit (:meth:`with_offset_scale`).
+            global estimator adjusts a rig in metres (docs/estimator.md, "Rigs").
 
     Observations are sorted by (track, frame); a track sees a frame at most once.
     """
@@ -326,16 +326,17 @@ def _track_numbers(path: Path, k: int, tr: Any) -> tuple[Any, FloatArray, FloatA
     return tid, fr, nv
 
 
-def _track_rays(path: Path, tid: int, tr: dict[str, Any], nv: FloatArray) -> FloatArray:
-    """A track's ``rays``, one per normal."""
+def _track_vectors(path: Path, tid: int, tr: dict[str, Any], key: str, what: str,
+                   nv: FloatArray) -> FloatArray:
+    """A track's ``key`` (``rays``, ``offsets_m``): one ``[x, y, z]`` ``what`` per normal."""
     try:
-        rv = np.asarray(tr["rays"], dtype=np.float64)
+        v = np.asarray(tr[key], dtype=np.float64)
     except (TypeError, ValueError):
-        raise OmniSfmError(f"{path}: track {tid}: 'rays' must be numbers") from None
-    if rv.shape != nv.shape:
-        raise OmniSfmError(f"{path}: track {tid}: needs one ray per normal, got rays "
-                           f"of shape {rv.shape}")
-    return rv
+        raise OmniSfmError(f"{path}: track {tid}: '{key}' must be numbers") from None
+    if v.shape != nv.shape:
+        raise OmniSfmError(f"{path}: track {tid}: needs one {what} per normal, got '{key}' "
+                           f"of shape {v.shape}")
+    return v
 
 
 def _track_sigmas(path: Path, tid: int, tr: dict[str, Any], nv: FloatArray) -> FloatArray:
@@ -351,18 +352,6 @@ def _track_sigmas(path: Path, tid: int, tr: dict[str, Any], nv: FloatArray) -> F
     return sv
 
 
-def _track_offsets(path: Path, tid: int, tr: dict[str, Any], nv: FloatArray) -> FloatArray:
-    """A track's ``offsets_m``, one lens centre (metres) per normal."""
-    try:
-        ov = np.asarray(tr["offsets_m"], dtype=np.float64)
-    except (TypeError, ValueError):
-        raise OmniSfmError(f"{path}: track {tid}: 'offsets_m' must be numbers") from None
-    if ov.shape != nv.shape:
-        raise OmniSfmError(f"{path}: track {tid}: needs one [x, y, z] lens offset per normal, "
-                           f"got shape {ov.shape}")
-    return ov
-
-
 def read_tracks(path: Path | str) -> LineTracks:
     """Read and validate a ``tracks.json`` file; defects become one-line OmniSfmErrors."""
     path = Path(path)
@@ -376,11 +365,11 @@ def read_tracks(path: Path | str) -> LineTracks:
     for k, tr in enumerate(tracks):
         tid, fr, nv = _track_numbers(path, k, tr)
         if "rays" in tr:
-            orays.append(_track_rays(path, tid, tr, nv))
+            orays.append(_track_vectors(path, tid, tr, "rays", "ray", nv))
         if "sigmas_deg" in tr:
             osig.append(_track_sigmas(path, tid, tr, nv))
         if "offsets_m" in tr:
-            ooff.append(_track_offsets(path, tid, tr, nv))
+            ooff.append(_track_vectors(path, tid, tr, "offsets_m", "lens offset", nv))
         ids.append(tid)
         ot.append(np.full(fr.shape[0], k))
         of.append(fr.astype(np.int64))
