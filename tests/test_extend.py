@@ -18,8 +18,7 @@ def test_frames_without_a_window_are_registered_from_known_lines() -> None:
                                      noise_deg=0.05, seed=4))
     tr = sim.tracks
     keep = ~(sim.parallel[tr.obs_track] & (tr.obs_frame >= 45))
-    tracks = replace(tr, obs_track=tr.obs_track[keep], obs_frame=tr.obs_frame[keep],
-                     obs_normal=tr.obs_normal[keep])
+    tracks = tr.keep_observations(keep)
     chain_only = estimate_poses(tracks, replace(WINDOWS, extend=None))
     assert chain_only.estimated.sum() == 45
     res = estimate_poses(tracks, WINDOWS)

@@ -75,7 +75,7 @@ def _with_walker(sim, frames: range, speed: float) -> LineTracks:
     side = np.cross(up, fwd)
     mid = (frames[0] + frames[-1]) / 2
     rng = np.random.default_rng(0)
-    obs_track, obs_frame, obs_normal = [], [], []
+    obs_track, obs_frame, obs_normal, obs_ray = [], [], [], []
     for j, along in enumerate((-0.25, 0.25)):
         for k in frames:
             p = gt.positions[int(mid)] + 0.75 * side + ((mid - k) * speed + along) * fwd
@@ -83,12 +83,16 @@ def _with_walker(sim, frames: range, speed: float) -> LineTracks:
             obs_track.append(tr.num_tracks + j)
             obs_frame.append(k)
             obs_normal.append(normalize(n + np.radians(0.1) * rng.normal(size=3)))
+            ray = gt.rotations[k].T @ (p - gt.positions[k])  # to the walker, the side seen
+            obs_ray.append(normalize(ray - (ray @ obs_normal[-1]) * obs_normal[-1]))
     track = np.append(tr.obs_track, obs_track)
     frame = np.append(tr.obs_frame, obs_frame)
     order = np.lexsort((frame, track))
     return replace(tr, track_ids=np.append(tr.track_ids, [9000, 9001]),
                    obs_track=track[order], obs_frame=frame[order],
-                   obs_normal=np.vstack([tr.obs_normal, obs_normal])[order])
+                   obs_normal=np.vstack([tr.obs_normal, obs_normal])[order],
+                   obs_ray=None if tr.obs_ray is None else
+                   np.vstack([tr.obs_ray, obs_ray])[order])
 
 
 @pytest.mark.parametrize("estimator", ["global", "windows"])

@@ -102,8 +102,7 @@ def test_reasons_name_every_frame_not_registered() -> None:
     # cut every line out of the last 15 frames but 2: nothing can pose them
     last = tracks.obs_frame >= len(gt) - 15
     keep = ~last | (tracks.obs_track < 2)
-    t2 = replace(tracks, obs_track=tracks.obs_track[keep], obs_frame=tracks.obs_frame[keep],
-                 obs_normal=tracks.obs_normal[keep])
+    t2 = tracks.keep_observations(keep)
     res = estimate_poses(t2, WINDOWS)
     assert res.estimated[:len(gt) - 15].all() and not res.estimated[len(gt) - 15:].any()
     reasons = (res.report.frames_not_estimated_reasons or {})

@@ -123,7 +123,12 @@ def _with_fixed_track(tracks, frames: range):
         tracks, track_ids=np.append(tracks.track_ids, 999),
         obs_track=np.append(tracks.obs_track, np.full(k, tracks.num_tracks)),
         obs_frame=np.append(tracks.obs_frame, np.asarray(frames)),
-        obs_normal=np.vstack([tracks.obs_normal, np.tile(n, (k, 1))]))
+        obs_normal=np.vstack([tracks.obs_normal, np.tile(n, (k, 1))]),
+        obs_ray=None if tracks.obs_ray is None else
+        np.vstack([tracks.obs_ray, np.tile(np.cross(n, [1.0, 0.0, 0.0]) / np.linalg.norm(np.cross(n, [1.0, 0.0, 0.0])),
+                                   (k, 1))]),
+        obs_sigma=None if tracks.obs_sigma is None else
+        np.vstack([tracks.obs_sigma, np.tile(tracks.obs_sigma[0], (k, 1))]))
 
 
 def test_camera_fixed_tracks_are_found_only_when_the_camera_moves() -> None:

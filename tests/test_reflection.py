@@ -40,5 +40,5 @@ def test_rays_choose_the_true_branch(seed):
 
 def test_without_rays_the_report_says_unresolved():
     sim = simulate(SimulationOptions(num_views=8, num_parallel=4, num_other=4, seed=3))
-    res = estimate_poses(sim.tracks, EstimationOptions())
+    res = estimate_poses(replace(sim.tracks, obs_ray=None), EstimationOptions())
     assert (res.report.reflection or "").startswith("unresolved")

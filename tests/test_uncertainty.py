@@ -76,8 +76,7 @@ def test_a_weak_stretch_has_a_large_spread_and_is_flagged() -> None:
     tr = sim.tracks
     axis = np.argmax(np.abs(sim.line_directions), axis=1)
     cut = (tr.obs_frame >= 50) & (tr.obs_frame < 75) & (axis[tr.obs_track] != 0)
-    one = replace(tr, obs_track=tr.obs_track[~cut], obs_frame=tr.obs_frame[~cut],
-                  obs_normal=tr.obs_normal[~cut])
+    one = tr.keep_observations(~cut)
     sigma = np.radians(0.1)
     whole, weak = _spread(sim, tr, sigma), _spread(sim, one, sigma)
     inside = np.arange(55, 70)
@@ -100,8 +99,7 @@ def test_frames_that_see_one_direction_only_are_left_free() -> None:
     tr = sim.tracks
     axis = np.argmax(np.abs(sim.line_directions), axis=1)
     keep = (axis[tr.obs_track] == 0) | ((tr.obs_frame >= 20) & (tr.obs_frame <= 25))
-    one = replace(tr, obs_track=tr.obs_track[keep], obs_frame=tr.obs_frame[keep],
-                  obs_normal=tr.obs_normal[keep])
+    one = tr.keep_observations(keep)
     spread = _spread(sim, one, np.radians(0.1))
     free = ~np.isfinite(spread.rotation_deg) | ~np.isfinite(spread.position)
     assert free.sum() >= 50

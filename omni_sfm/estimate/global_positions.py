@@ -45,7 +45,11 @@ class GlobalPositionOptions:
     loss_scale: float = 3.0
     """Cauchy loss scale in units of the residuals' robust spread (angles)."""
     inverse_iterations: int = 30
-    """Inverse iterations of each solve at most."""
+    """Inverse iterations of each solve at most (tracks without rays)."""
+    depth_iterations: int = 60
+    """Solves at most of the problem with the depths held at 1 or more (tracks with rays):
+    each re-weights the rows and updates which depths are held; it stops earlier when the
+    centres move by less than 1e-6 of their spread."""
 
 
 @dataclass(frozen=True)
@@ -111,25 +115,15 @@ def solve_positions(tracks: LineTracks, rotations: FloatArray, directions: Float
     # rows: m . (a e1 + b e2) - m . c = 0
     pc = pose_idx[f]
     li = line_idx[t]
-    vals = np.concatenate([-m, np.stack([np.einsum("ki,ki->k", m, e1[li]),
-                                         np.einsum("ki,ki->k", m, e2[li])], axis=1)], axis=1)
-    cols = np.concatenate([np.where(pc[:, None] >= 0, 3 * pc[:, None] + np.arange(3), -1),
-                           P + 2 * li[:, None] + np.arange(2)], axis=1)
-    keep = cols >= 0
-    rows = np.broadcast_to(np.arange(len(f))[:, None], cols.shape)
-    A = sp.csr_matrix((vals[keep], (rows[keep], cols[keep])), shape=(len(f), P + L))
+    A = _rows(m, e1, e2, pc, li, P, L)
     D = _second_differences(frames, pose_idx)
-    w = np.ones(len(f))
-    x = _initial_vector(P, L, posed, pose_idx)
-    sigma = np.inf
-    for _ in range(max(1, options.reweight_rounds)):
-        x = _smallest(A, w, D, options, P, L, x)
-        c, q = x[:P].reshape(-1, 3), x[P:].reshape(-1, 2)
-        r_dist = A @ x
-        depth = _depths(c, q, e1, e2, directions[used], pc, li)
-        ang = r_dist / depth
-        sigma = max(float(1.4826 * np.median(np.abs(ang))), 1e-12)
-        w = 1.0 / depth**2 / (1.0 + (ang / (options.loss_scale * sigma)) ** 2)
+    geometry = _Geometry(A, D, e1, e2, directions[used], pc, li, P, L)
+    sides = _sides(tracks, rotations, directions, obs, m)
+    if sides is None:
+        x, w, sigma = _homogeneous(geometry, posed, pose_idx, options)
+    else:
+        x, w, sigma = _with_depths(geometry, _rows(sides, e1, e2, pc, li, P, L), options)
+    x = x / max(float(np.linalg.norm(x[:P])), 1e-300)
     c_all = np.full((F, 3), np.nan)
     c_all[posed] = 0.0
     c_all[posed[1:]] = x[:P].reshape(-1, 3)
@@ -140,6 +134,117 @@ def solve_positions(tracks: LineTracks, rotations: FloatArray, directions: Float
     return GlobalPositions(positions=c_all, points=pts, frame_information=info,
                            free_direction=free,
                            residual_sigma=sigma)
+
+
+@dataclass(frozen=True)
+class _Geometry:
+    """The linear problem: ``A`` (one row ``m . (p - c)`` per observation), ``D`` (second
+    differences of the centres), the lines' bases and directions, and each observation's
+    centre (``pc``, -1: the gauge frame) and line (``li``) columns."""
+
+    A: sp.csr_matrix
+    D: sp.csr_matrix
+    e1: FloatArray
+    e2: FloatArray
+    d: FloatArray
+    pc: np.ndarray
+    li: np.ndarray
+    P: int
+    L: int
+
+    def depths(self, x: FloatArray) -> FloatArray:
+        return _depths(x[:self.P].reshape(-1, 3), x[self.P:].reshape(-1, 2), self.e1, self.e2,
+                       self.d, self.pc, self.li)
+
+    def prior(self, H: sp.csc_matrix, smoothness: float) -> sp.csc_matrix:
+        """``H`` plus the second-difference prior, weighted by ``smoothness`` times the median
+        frame's diagonal, and a ridge of 1e-12 of the largest diagonal entry."""
+        diag = H.diagonal()
+        lam = smoothness * (float(np.median(diag[:self.P])) if self.P else 1.0)
+        K = H
+        if self.D.shape[0]:
+            DD = (self.D.T @ self.D).tocoo()
+            K = H + lam * sp.csc_matrix((DD.data, (DD.row, DD.col)), shape=H.shape)
+        eps = 1e-12 * max(float(np.max(diag)), 1e-300)
+        return (K + sp.diags(np.full(H.shape[0], eps))).tocsc()
+
+
+def _rows(v: FloatArray, e1: FloatArray, e2: FloatArray, pc: np.ndarray, li: np.ndarray, P: int,
+          L: int) -> sp.csr_matrix:
+    """One row ``v . (a e1 + b e2) - v . c`` per observation (``v`` ``(K, 3)`` world vectors;
+    columns: the centres, then each line's ``(a, b)``; the gauge frame's centre has none)."""
+    vals = np.concatenate([-v, np.stack([np.einsum("ki,ki->k", v, e1[li]),
+                                         np.einsum("ki,ki->k", v, e2[li])], axis=1)], axis=1)
+    cols = np.concatenate([np.where(pc[:, None] >= 0, 3 * pc[:, None] + np.arange(3), -1),
+                           P + 2 * li[:, None] + np.arange(2)], axis=1)
+    keep = cols >= 0
+    rows = np.broadcast_to(np.arange(len(v))[:, None], cols.shape)
+    return sp.csr_matrix((vals[keep], (rows[keep], cols[keep])), shape=(len(v), P + L))
+
+
+def _sides(tracks: LineTracks, rotations: FloatArray, directions: FloatArray, obs: np.ndarray,
+           m: FloatArray) -> FloatArray | None:
+    """``(K, 3)``: for each observation the unit direction, perpendicular to its line and in
+    its plane, from the camera towards the line, as its ray says (zero where the ray runs
+    within 5 deg of the line: it says nothing); None when the tracks carry no rays."""
+    if tracks.obs_ray is None:
+        return None
+    d = directions[tracks.obs_track[obs]]
+    ray = np.einsum("kij,kj->ki", rotations[tracks.obs_frame[obs]], tracks.obs_ray[obs])
+    u = np.cross(d, m)
+    size = np.linalg.norm(u, axis=1)
+    u /= np.maximum(size, 1e-300)[:, None]
+    along = np.einsum("ki,ki->k", u, ray)
+    ok = (np.abs(along) > np.sin(np.radians(5.0))) & (size > 0.5)
+    return np.where(ok[:, None], u * np.sign(along)[:, None], 0.0)
+
+
+def _with_depths(g: _Geometry, U: sp.csr_matrix, options: GlobalPositionOptions
+                 ) -> tuple[FloatArray, FloatArray, float]:
+    """``(x, w, sigma)``: the least squares of the plane rows (weighted by the inverse depth and
+    a Cauchy loss) with each observation's depth along its side ``U x`` held at 1 or more (a
+    squared hinge, solved by its active set). Each line then lies on the side of the camera its
+    rays see it on, and no part of the walk can shrink to a point: the scale is the nearest
+    line's distance, where the normalised eigenvector of the homogeneous problem puts its
+    whole norm on the stretch its lines fix least (a walk of a few lines a metre comes out
+    tens of per cent off). The problem is convex for given weights; its start is every depth
+    at 1."""
+    K = g.A.shape[0]
+    x = np.zeros(g.P + g.L)
+    w = np.ones(K)
+    sigma = np.inf
+    held = np.ones(K, bool)
+    for _ in range(max(1, options.depth_iterations)):
+        Wu = sp.diags(w * held)
+        H = (g.A.T @ sp.diags(w) @ g.A + U.T @ Wu @ U).tocsc()
+        y = spla.splu(g.prior(H, options.smoothness)).solve(U.T @ (w * held))
+        depth = g.depths(y)
+        ang = (g.A @ y) / depth
+        sigma = max(float(1.4826 * np.median(np.abs(ang))), 1e-12)
+        w = 1.0 / depth**2 / (1.0 + (ang / (options.loss_scale * sigma)) ** 2)
+        now = U @ y < 1.0
+        spread = max(float(np.sqrt(np.mean(y[:g.P] ** 2))), 1e-300)
+        moved = float(np.max(np.abs(y[:g.P] - x[:g.P]), initial=0.0)) / spread
+        x, done, held = y, bool(np.array_equal(now, held)) and moved < 1e-6, now
+        if done:
+            break
+    return x, w, sigma
+
+
+def _homogeneous(g: _Geometry, posed: np.ndarray, pose_idx: np.ndarray,
+                 options: GlobalPositionOptions) -> tuple[FloatArray, FloatArray, float]:
+    """``(x, w, sigma)`` without rays: the smallest generalised eigenvector of the plane rows
+    (:func:`_smallest`), re-weighted by the inverse depth and a Cauchy loss."""
+    w = np.ones(g.A.shape[0])
+    x = _initial_vector(g.P, g.L, posed, pose_idx)
+    sigma = np.inf
+    for _ in range(max(1, options.reweight_rounds)):
+        x = _smallest(g, w, options, x)
+        depth = g.depths(x)
+        ang = (g.A @ x) / depth
+        sigma = max(float(1.4826 * np.median(np.abs(ang))), 1e-12)
+        w = 1.0 / depth**2 / (1.0 + (ang / (options.loss_scale * sigma)) ** 2)
+    return x, w, sigma
 
 
 def _initial_vector(P: int, L: int, posed: np.ndarray, pose_idx: np.ndarray) -> FloatArray:
@@ -163,21 +268,13 @@ def _depths(c: FloatArray, q: FloatArray, e1: FloatArray, e2: FloatArray, d: Flo
     return np.maximum(dist, 0.05 * med)
 
 
-def _smallest(A: sp.csr_matrix, w: FloatArray, D: sp.csr_matrix, options: GlobalPositionOptions,
-              P: int, L: int, x0: FloatArray) -> FloatArray:
+def _smallest(g: _Geometry, w: FloatArray, options: GlobalPositionOptions, x0: FloatArray
+              ) -> FloatArray:
     """The generalised eigenvector of the smallest eigenvalue of ``(A^T W A + lam D^T D) x =
     mu N x`` with ``N`` the identity on the centres and 0 on the lines, normalised so that
     ``|x_c| = 1``, by inverse iteration."""
-    H = (A.T @ sp.diags(w) @ A).tocsc()
-    diag = H.diagonal()
-    frame_scale = float(np.median(diag[:P])) if P else 1.0
-    lam = options.smoothness * frame_scale
-    K = H
-    if D.shape[0]:
-        DD = (D.T @ D).tocoo()
-        K = H + lam * sp.csc_matrix((DD.data, (DD.row, DD.col)), shape=H.shape)
-    eps = 1e-12 * max(float(np.max(diag)), 1e-300)
-    lu = spla.splu((K + sp.diags(np.full(P + L, eps))).tocsc())
+    P, L = g.P, g.L
+    lu = spla.splu(g.prior((g.A.T @ sp.diags(w) @ g.A).tocsc(), options.smoothness))
     x = x0 / np.linalg.norm(x0[:P])
     for _ in range(options.inverse_iterations):
         rhs = np.zeros(P + L)

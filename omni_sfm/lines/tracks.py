@@ -113,6 +113,12 @@ class LineTracks:
                           None if self.obs_sigma is None else self.obs_sigma[sel],
                           None if self.obs_offset is None else self.obs_offset[sel])
 
+    def keep_observations(self, keep: np.ndarray) -> LineTracks:
+        """These tracks with only the observations ``keep`` (``(K,)`` bool, or indices in
+        order); tracks and frames keep their numbers."""
+        obs = np.flatnonzero(keep) if np.asarray(keep).dtype == bool else np.asarray(keep)
+        return self.subset(obs, np.arange(self.num_tracks))
+
     def subset(self, obs: np.ndarray, lines: np.ndarray,
                frames: np.ndarray | None = None) -> LineTracks:
         """The observations ``obs`` (indices, in order) as tracks ``0..len(lines)-1`` (``lines``

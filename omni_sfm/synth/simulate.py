@@ -130,17 +130,29 @@ def _lines_near_path(n: int, centres: FloatArray, dirs: FloatArray, dist: tuple[
 
 
 def _observe(gt: Trajectory, frames: np.ndarray, points: FloatArray, directions: FloatArray,
-             noise_deg: float, rng: np.random.Generator) -> FloatArray:
+             noise_deg: float, rng: np.random.Generator) -> tuple[FloatArray, FloatArray]:
     """``(K, 3)`` NVs of the lines through ``points`` along ``directions`` seen from
-    ``frames`` (camera frame), with angular noise and a random sign each (sparse)."""
+    ``frames`` (camera frame), with angular noise and a random sign each (sparse), and the
+    ``(K, 3)`` ray from the camera to the line's point closest to it (camera frame, unit; as
+    the front end's ray to a point of the segment it saw, it tells on which side of the camera
+    the line lies)."""
     n_world = normalize(line_plane_normals(gt.positions[frames], points, directions))
     n_cam = np.einsum("kji,kj->ki", gt.rotations[frames], n_world)
+    off = points - gt.positions[frames]
+    off -= np.einsum("ki,ki->k", off, directions)[:, None] * directions
+    rays = normalize(np.einsum("kji,kj->ki", gt.rotations[frames], off))
     if noise_deg > 0:
         axis = normalize(np.cross(n_cam, rng.normal(size=n_cam.shape)))
         ang = np.radians(noise_deg) * rng.normal(size=(n_cam.shape[0], 1))
         n_cam = n_cam * np.cos(ang) + np.cross(axis, n_cam) * np.sin(ang)
     n_cam *= rng.choice([-1.0, 1.0], size=(n_cam.shape[0], 1))
-    return n_cam
+    return n_cam, _in_plane(rays, n_cam)
+
+
+def _in_plane(rays: FloatArray, normals: FloatArray) -> FloatArray:
+    """The ``rays`` projected into the planes of the (noisy) ``normals``, as a front end's ray
+    lies in the plane it fitted."""
+    return normalize(rays - np.einsum("ki,ki->k", rays, normals)[:, None] * normals)
 
 
 def _check_options(opts: SimulationOptions) -> None:
@@ -247,8 +259,8 @@ def _sparse_tracks(opts: SimulationOptions, gt: Trajectory, pts: FloatArray, dir
         o_dirs[sel] = other
         o_pts[sel] = _lines_near_path(1, gt.positions[[switch]], other[None],
                                       (0.8 * scale, 2.0 * scale), rng)[0]
-    n_obs = _observe(gt, ff, o_pts, o_dirs, opts.noise_deg, rng)
-    return make_tracks(F, np.arange(M), mm, ff, n_obs, source="simulation")
+    n_obs, rays = _observe(gt, ff, o_pts, o_dirs, opts.noise_deg, rng)
+    return make_tracks(F, np.arange(M), mm, ff, n_obs, source="simulation", obs_ray=rays)
 
 
 def _dense_tracks(opts: SimulationOptions, gt: Trajectory, pts: FloatArray, dirs: FloatArray,
@@ -277,7 +289,12 @@ def _dense_tracks(opts: SimulationOptions, gt: Trajectory, pts: FloatArray, dirs
         n_cam = n_cam * np.cos(ang) + np.cross(axis, n_cam) * np.sin(ang)
     n_cam *= rng.choice([-1.0, 1.0], size=(M, F, 1))
     mm, ff = np.nonzero(vis)
-    return make_tracks(F, np.arange(M), mm, ff, n_cam[mm, ff], source="simulation")
+    # the ray to the line's point nearest the camera (the side of the camera the line is on)
+    off = obs_pts[mm, ff] - gt.positions[ff]
+    off -= np.einsum("ki,ki->k", off, obs_dirs[mm, ff])[:, None] * obs_dirs[mm, ff]
+    rays = _in_plane(normalize(np.einsum("kji,kj->ki", gt.rotations[ff], off)), n_cam[mm, ff])
+    return make_tracks(F, np.arange(M), mm, ff, n_cam[mm, ff], source="simulation",
+                       obs_ray=rays)
 
 
 # --- the Manhattan world: a walk through office corridors ---------------------------------------
@@ -656,8 +673,8 @@ def simulate_manhattan(opts: SimulationOptions) -> Simulation:
     gt = Trajectory(gt.timestamps, R0.T @ gt.rotations, (gt.positions - p0) @ R0)
     pts, o_pts = (pts - p0) @ R0, (o_pts - p0) @ R0
     dirs, o_dirs = dirs @ R0, o_dirs @ R0
-    n_obs = _observe(gt, ff, o_pts, o_dirs, opts.noise_deg, rng)
-    tracks = make_tracks(F, np.arange(M), mm, ff, n_obs, source="simulation")
+    n_obs, rays = _observe(gt, ff, o_pts, o_dirs, opts.noise_deg, rng)
+    tracks = make_tracks(F, np.arange(M), mm, ff, n_obs, source="simulation", obs_ray=rays)
     return Simulation(tracks, gt, pts, dirs, fam == 0, outlier, R0.T @ np.array([0.0, 0.0, 1.0]))
 
 
