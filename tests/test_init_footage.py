@@ -119,14 +119,14 @@ def _with_fixed_track(tracks, frames: range):
 
     n = np.array([0.3, -0.2, 0.93]) / np.linalg.norm([0.3, -0.2, 0.93])
     k = len(frames)
+    side = np.cross(n, [1.0, 0.0, 0.0])  # a ray in its plane
     return dc_replace(
         tracks, track_ids=np.append(tracks.track_ids, 999),
         obs_track=np.append(tracks.obs_track, np.full(k, tracks.num_tracks)),
         obs_frame=np.append(tracks.obs_frame, np.asarray(frames)),
         obs_normal=np.vstack([tracks.obs_normal, np.tile(n, (k, 1))]),
         obs_ray=None if tracks.obs_ray is None else
-        np.vstack([tracks.obs_ray, np.tile(np.cross(n, [1.0, 0.0, 0.0]) / np.linalg.norm(np.cross(n, [1.0, 0.0, 0.0])),
-                                   (k, 1))]),
+        np.vstack([tracks.obs_ray, np.tile(side / np.linalg.norm(side), (k, 1))]),
         obs_sigma=None if tracks.obs_sigma is None else
         np.vstack([tracks.obs_sigma, np.tile(tracks.obs_sigma[0], (k, 1))]))
 

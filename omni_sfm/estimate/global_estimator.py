@@ -60,7 +60,6 @@ from omni_sfm.estimate.global_rotations import (
     GlobalRotations,
     chained_start,
     group_directions,
-    rotation_cost,
     solve_rotations,
     world_normals,
 )
@@ -585,27 +584,40 @@ def _horizontal_directions(rot: GlobalRotations, families: list[ParallelFamily],
     return np.asarray(out).reshape(-1, 3)
 
 
-def lowest_cost_rotations(tracks: LineTracks, frames: np.ndarray, lines: np.ndarray,
-                          starts: dict[str, FloatArray], group: np.ndarray,
-                          options: GlobalRotationOptions) -> tuple[str, GlobalRotations]:
+def kept_start(tracks: LineTracks, frames: np.ndarray, lines: np.ndarray,
+               starts: dict[str, FloatArray], group: np.ndarray, options: GlobalOptions
+               ) -> tuple[str, GlobalRotations]:
     """The joint rotation problem (the tracks of ``group`` sharing its directions) solved
     from each of the ``starts`` (name: ``(F, 3, 3)`` rotations): the name and the solution
-    whose rotations fit every line of ``lines`` ``(M,)`` best, each line its own direction
-    (:func:`rotation_cost` at one loss scale, the smallest noise estimate of the solutions;
-    ties go to the later start). A frame that sees none of the groups' lines is held by its
-    other lines only here, so a start that turned a stretch of such frames the wrong way
-    shows in this cost and not in the solve's own."""
-    solved = {name: solve_rotations(tracks, frames, R, group, options)
+    whose positions (step 2 on its rotations, :func:`_positions_cost`) fit every observation
+    best (ties go to the later start). The directions alone can fit a wrong turn better
+    than the right one: where one family is the only shared direction, the turn about it
+    rests on the other lines' positions, and a stretch turned by a start whose chain carried
+    the lines' parallax fits their directions as well; its positions do not fit."""
+    solved = {name: solve_rotations(tracks, frames, R, group, options.rotations)
               for name, R in starts.items()}
     if len(solved) == 1:
         name = next(iter(solved))
         return name, solved[name]
-    own = np.where(lines, np.cumsum(lines) - 1, -1)
     sigma = min(x.sigma for x in solved.values())
-    cost = {name: rotation_cost(tracks, frames, x.rotations, own, sigma, options)
+    cost = {name: _positions_cost(tracks, x, frames, lines, sigma, options)
             for name, x in solved.items()}
     best = min(reversed(list(cost)), key=lambda name: cost[name])
     return best, solved[best]
+
+
+def _positions_cost(tracks: LineTracks, rot: GlobalRotations, frames: np.ndarray,
+                    lines: np.ndarray, sigma: float, options: GlobalOptions) -> float:
+    """The truncated cost (:func:`~omni_sfm.estimate.bundle.truncated_cost`, every
+    observation, the limit of noise ``sigma``) of the positions :func:`_positions_step` finds
+    from ``rot``; inf where it finds none."""
+    try:
+        R, c, _, _ = _positions_step(tracks, rot, frames, lines, options)
+    except OmniSfmError:
+        return np.inf
+    posed = frames & np.isfinite(c).all(axis=1)
+    return truncated_cost(tracks, R, c, posed, outlier_limit(sigma, options.bundle),
+                          everywhere=True)
 
 
 def _rotations(tracks: LineTracks, frames: np.ndarray, lines: np.ndarray,
@@ -618,7 +630,7 @@ def _rotations(tracks: LineTracks, frames: np.ndarray, lines: np.ndarray,
     The first solve runs from two starts (from ``previous`` alone where given: an earlier
     solution's rotations), the chain anchored on the families' directions
     (:func:`anchored_start`) and the windows solved on their own (:func:`windows_start`),
-    and keeps the rotations that fit every line best (:func:`lowest_cost_rotations`): where
+    and keeps the rotations whose positions fit every line best (:func:`kept_start`): where
     the families anchor every frame the chain is right to a fraction of a degree and a window
     solved in a stretch of few lines can be off by tens of degrees; where one family anchors a
     random world the chain drifts about it and the windows do not."""
@@ -631,8 +643,7 @@ def _rotations(tracks: LineTracks, frames: np.ndarray, lines: np.ndarray,
         starts = {"previous": np.where(np.isfinite(previous), previous, R0)}
     elif options.start_window and frames.sum() > options.start_window:
         starts["windows"] = windows_start(tracks, frames, R0, options)
-    start, first = lowest_cost_rotations(tracks, frames, lines, starts, group,
-                                         options.rotations)
+    start, first = kept_start(tracks, frames, lines, starts, group, options)
     steps.append(EstimatorStep(step="rotations, the families' world directions shared",
                                families=[f.size for f in families], start=start,
                                iterations=first.iterations,

@@ -27,7 +27,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from omni_sfm.errors import OmniSfmError
-from omni_sfm.geometry import FloatArray, orthonormal_completion
+from omni_sfm.geometry import FloatArray, normalize, orthonormal_completion
 from omni_sfm.lines.tracks import LineTracks
 
 
@@ -101,7 +101,12 @@ def solve_positions(tracks: LineTracks, rotations: FloatArray, directions: Float
     F, M = tracks.num_frames, tracks.num_tracks
     obs = frames[tracks.obs_frame] & lines[tracks.obs_track]
     f, t = tracks.obs_frame[obs], tracks.obs_track[obs]
+    # the world normals made perpendicular to their line's direction: the residual
+    # m . (p - c) is then the same for every point p of the line, so the solution does not
+    # depend on where the gauge puts the origin (the first frame: which one follows the order)
     m = np.einsum("kij,kj->ki", rotations[f], tracks.obs_normal[obs])
+    dl = directions[t]
+    m = normalize(m - np.einsum("ki,ki->k", m, dl)[:, None] * dl)
     posed = np.flatnonzero(frames)
     if len(posed) < 3:
         raise OmniSfmError("fewer than 3 frames with a rotation; positions need 3")
@@ -117,12 +122,13 @@ def solve_positions(tracks: LineTracks, rotations: FloatArray, directions: Float
     li = line_idx[t]
     A = _rows(m, e1, e2, pc, li, P, L)
     D = _second_differences(frames, pose_idx)
-    geometry = _Geometry(A, D, e1, e2, directions[used], pc, li, P, L)
+    geometry = _Geometry(A, D, e1, e2, directions[used], pc, li, P, L, m,
+                         np.searchsorted(posed, f))
     sides = _sides(tracks, rotations, directions, obs, m)
     if sides is None:
         x, w, sigma = _homogeneous(geometry, posed, pose_idx, options)
     else:
-        x, w, sigma = _with_depths(geometry, _rows(sides, e1, e2, pc, li, P, L), options)
+        x, w, sigma = _with_depths(geometry, sides, options)
     x = x / max(float(np.linalg.norm(x[:P])), 1e-300)
     c_all = np.full((F, 3), np.nan)
     c_all[posed] = 0.0
@@ -151,21 +157,33 @@ class _Geometry:
     li: np.ndarray
     P: int
     L: int
+    m: FloatArray
+    frame: np.ndarray
+    """Each observation's world plane normal and its frame among the posed ones (the gauge
+    frame included)."""
 
     def depths(self, x: FloatArray) -> FloatArray:
         return _depths(x[:self.P].reshape(-1, 3), x[self.P:].reshape(-1, 2), self.e1, self.e2,
                        self.d, self.pc, self.li)
 
-    def prior(self, H: sp.csc_matrix, smoothness: float) -> sp.csc_matrix:
+    def prior(self, H: sp.csc_matrix, smoothness: float, w: FloatArray,
+              sides: FloatArray | None = None, held: FloatArray | None = None
+              ) -> sp.csc_matrix:
         """``H`` plus the second-difference prior, weighted by ``smoothness`` times the median
-        frame's diagonal, and a ridge of 1e-12 of the largest diagonal entry."""
-        diag = H.diagonal()
-        lam = smoothness * (float(np.median(diag[:self.P])) if self.P else 1.0)
+        diagonal entry of a frame's information (the plane rows weighted by ``w`` and, where
+        given, the depth rows ``sides`` weighted by ``w * held``; over every posed frame, the
+        gauge frame included, so that the weight does not depend on which frame is first),
+        and a ridge of 1e-12 of the largest diagonal entry."""
+        info = np.zeros((int(self.frame.max(initial=-1)) + 1, 3))
+        np.add.at(info, self.frame, w[:, None] * self.m**2)
+        if sides is not None and held is not None:
+            np.add.at(info, self.frame, (w * held)[:, None] * sides**2)
+        lam = smoothness * (float(np.median(info)) if info.size else 1.0)
         K = H
         if self.D.shape[0]:
             DD = (self.D.T @ self.D).tocoo()
             K = H + lam * sp.csc_matrix((DD.data, (DD.row, DD.col)), shape=H.shape)
-        eps = 1e-12 * max(float(np.max(diag)), 1e-300)
+        eps = 1e-12 * max(float(np.max(H.diagonal())), 1e-300)
         return (K + sp.diags(np.full(H.shape[0], eps))).tocsc()
 
 
@@ -199,7 +217,7 @@ def _sides(tracks: LineTracks, rotations: FloatArray, directions: FloatArray, ob
     return np.where(ok[:, None], u * np.sign(along)[:, None], 0.0)
 
 
-def _with_depths(g: _Geometry, U: sp.csr_matrix, options: GlobalPositionOptions
+def _with_depths(g: _Geometry, sides: FloatArray, options: GlobalPositionOptions
                  ) -> tuple[FloatArray, FloatArray, float]:
     """``(x, w, sigma)``: the least squares of the plane rows (weighted by the inverse depth and
     a Cauchy loss) with each observation's depth along its side ``U x`` held at 1 or more (a
@@ -210,6 +228,7 @@ def _with_depths(g: _Geometry, U: sp.csr_matrix, options: GlobalPositionOptions
     tens of per cent off). The problem is convex for given weights; its start is every depth
     at 1."""
     K = g.A.shape[0]
+    U = _rows(sides, g.e1, g.e2, g.pc, g.li, g.P, g.L)
     x = np.zeros(g.P + g.L)
     w = np.ones(K)
     sigma = np.inf
@@ -217,7 +236,8 @@ def _with_depths(g: _Geometry, U: sp.csr_matrix, options: GlobalPositionOptions
     for _ in range(max(1, options.depth_iterations)):
         Wu = sp.diags(w * held)
         H = (g.A.T @ sp.diags(w) @ g.A + U.T @ Wu @ U).tocsc()
-        y = spla.splu(g.prior(H, options.smoothness)).solve(U.T @ (w * held))
+        K_ = g.prior(H, options.smoothness, w, sides, held.astype(float))
+        y = spla.splu(K_).solve(U.T @ (w * held))
         depth = g.depths(y)
         ang = (g.A @ y) / depth
         sigma = max(float(1.4826 * np.median(np.abs(ang))), 1e-12)
@@ -274,7 +294,7 @@ def _smallest(g: _Geometry, w: FloatArray, options: GlobalPositionOptions, x0: F
     mu N x`` with ``N`` the identity on the centres and 0 on the lines, normalised so that
     ``|x_c| = 1``, by inverse iteration."""
     P, L = g.P, g.L
-    lu = spla.splu(g.prior((g.A.T @ sp.diags(w) @ g.A).tocsc(), options.smoothness))
+    lu = spla.splu(g.prior((g.A.T @ sp.diags(w) @ g.A).tocsc(), options.smoothness, w))
     x = x0 / np.linalg.norm(x0[:P])
     for _ in range(options.inverse_iterations):
         rhs = np.zeros(P + L)

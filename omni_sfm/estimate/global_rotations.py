@@ -270,17 +270,6 @@ def solve_rotations(tracks: LineTracks, frames: np.ndarray, R0: FloatArray,
                            iterations=it)
 
 
-def rotation_cost(tracks: LineTracks, frames: np.ndarray, R: FloatArray, group: np.ndarray,
-                  sigma: float, options: GlobalRotationOptions = GlobalRotationOptions()
-                  ) -> float:
-    """The joint problem's robust cost at the rotations ``R`` ``(F, 3, 3)`` of ``frames``, each
-    ``group``'s direction fitted to them, under the Cauchy loss at ``options.loss_scale`` times
-    ``sigma`` (radians): one scale for every solution compared."""
-    prob = _RotationProblem(tracks, frames, group)
-    d = group_directions(tracks, R, frames, group)
-    return _cost(prob.residuals(R, d), options.loss_scale * sigma)
-
-
 def _frame_information(H: sp.csc_matrix, prob: _RotationProblem, F: int
                        ) -> tuple[FloatArray, FloatArray]:
     """The smallest eigenvalue of each posed frame's 3x3 diagonal block of ``H`` (the gauge
