@@ -9,8 +9,9 @@ Steps:
    directions are then clustered into world directions (:func:`~omni_sfm.estimate.families.
    world_families`) and the problem solved again with each world direction shared by its lines,
    so that rotation error does not accumulate along the video.
-2. **Positions** of all frames and lines at once, the rotations given: one sparse homogeneous
-   linear problem (:mod:`~omni_sfm.estimate.global_positions`).
+2. **Positions** of all frames and lines at once, the rotations given: one sparse linear
+   problem with every line's depth held positive on the side its rays see it
+   (:mod:`~omni_sfm.estimate.global_positions`).
 3. **One robust bundle adjustment** of all cameras and lines from that start
    (:func:`~omni_sfm.estimate.bundle.bundle_adjust`, outlier tracks rejected), and one from
    the start with the positions settled on the rotations first; the lower cost is kept
@@ -942,7 +943,7 @@ def _poses_as_many(new: BundleResult, old: BundleResult) -> bool:
 
 def _adjusted(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArray, p: FloatArray,
               frames: np.ndarray, held: np.ndarray | None, options: GlobalOptions
-              ) -> tuple[BundleResult, RobustLoss]:
+              ) -> BundleResult:
     """Step 3: the robust adjustment of all cameras and lines from the start as it is and, with
     ``options.settled_start``, from the start with the positions and lines first settled on the
     rotations held (one robust round, no track rejected), under the adjustment's loss, and from
@@ -955,14 +956,12 @@ def _adjusted(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArray, p
     parallel lines) pull a Huber adjustment off a good start before its rounds reject them, and
     a stretch then collapses onto the lines that agree with the pull; the Cauchy loss gives them
     no weight, but on its own it rejects more of the weakly tied lines elsewhere. Which of them
-    holds depends on the data, not on the frame order. Returns the adjustment kept and its
-    loss."""
-    candidates, losses = [], []
+    holds depends on the data, not on the frame order. Returns the adjustment kept."""
+    candidates = []
     for loss in dict.fromkeys((options.bundle.loss, RobustLoss.CAUCHY)):
         bo = replace(options.bundle, loss=loss)
         candidates.append(bundle_adjust(tracks, R, c, d, p, frames=frames, held_directions=held,
                                         options=bo))
-        losses.append(loss)
         if not options.settled_start or loss != options.bundle.loss:
             continue
         settled = bundle_adjust(tracks, R, c, d, p, frames=frames, held_directions=held,
@@ -973,13 +972,12 @@ def _adjusted(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArray, p
                                         settled.line_directions, settled.line_points,
                                         frames=settled.frames, held_directions=held,
                                         options=bo))
-        losses.append(loss)
     limit = outlier_limit(float(np.radians(max(x.sigma_deg for x in candidates))),
                           options.bundle)
     cost = [truncated_cost(tracks, x.rotations, x.positions, x.frames, limit, everywhere=True)
             for x in candidates]
     best = int(np.argmin(cost))
-    return candidates[best], losses[best]
+    return candidates[best]
 
 
 def _positions_step(tracks: LineTracks, rot: GlobalRotations, frames: np.ndarray,
@@ -1010,10 +1008,11 @@ def _adjustment_step(tracks: LineTracks, R: FloatArray, c: FloatArray, rot: Glob
     # the lines of a world direction keep it: only their positions move (and with two world
     # directions or more they hold the rotation gauge)
     held = dir_ok & (label >= 0) if options.hold_world_directions else None
-    ba, loss = _adjusted(tracks, R, c, d0, pos.points, frames, held, options)
-    if held is not None:  # under the loss of the adjustment kept
-        ba = _world_directions_refitted(tracks, ba, held, label, replace(
-            options, bundle=replace(options.bundle, loss=loss)))
+    ba = _adjusted(tracks, R, c, d0, pos.points, frames, held, options)
+    if held is not None:
+        # under the adjustment's own loss whichever start won: refits under the Cauchy loss
+        # re-decide which tracks are outliers along paths that 1e-9 on the normals changes
+        ba = _world_directions_refitted(tracks, ba, held, label, options)
     return ba
 
 

@@ -3,19 +3,28 @@ estimator", step 2).
 
 With the rotations known, an observation of line ``i`` (a point ``p_i``, direction ``d_i``) in
 frame ``k`` (centre ``c_k``) says that the line lies in the plane through ``c_k`` with world
-normal ``m = R_k n``: ``m . (p_i - c_k) = 0``. That is linear in the centres and in the lines'
-offsets ``p_i = a_i e1_i + b_i e2_i`` (``e1, e2`` perpendicular to ``d_i``), and homogeneous: the
-whole solution is fixed up to its scale. The first posed frame's centre is the origin and the
-scale is set by ``sum |c_k|^2 = 1``, so the centres are the generalised eigenvector of the
-smallest eigenvalue of the normal equations (lines included), found by inverse iteration on one
-sparse factorisation. Each row is weighted by the inverse distance between camera and line (its
-residual is then the observation's angle) and by a Cauchy loss, re-weighted a few times.
+normal ``m = R_k n``: ``m . (p_i - c_k) = 0``, with ``m`` made perpendicular to ``d_i`` so that
+the residual is the same for every point of the line. That is linear in the centres and in the
+lines' offsets ``p_i = a_i e1_i + b_i e2_i`` (``e1, e2`` perpendicular to ``d_i``), and
+homogeneous: it fixes the solution up to its scale. The first posed frame's centre is the
+origin. Each row is weighted by the inverse distance between camera and line (its residual is
+then the observation's angle) and by a Cauchy loss, re-weighted as the solution moves.
+
+The observation's ray (``LineTracks.obs_ray``) says on which side of the camera the line lies:
+its depth ``u . (p_i - c_k)`` along ``u``, the unit vector in the plane across the line towards
+the ray, is positive. Every depth is held at 1 or more (a squared hinge, solved by its active
+set), which sets the scale (the nearest line's distance) and keeps every stretch of the walk
+from shrinking to a point. Without rays the scale is set by ``sum |c_k|^2 = 1`` and the centres
+are the generalised eigenvector of the smallest eigenvalue of the normal equations (lines
+included), found by inverse iteration; on long walks of few lines it is several times further
+off than the depths (docs/estimator.md).
 
 A second-difference prior on the centres (in frame order) makes every frame's position
 defined: a frame that its lines do not fix (a stop with the lines along the motion, a stretch
 with two lines) takes its position from its neighbours instead of a free direction, and its
 information (:attr:`GlobalPositions.frame_information`) says that the data did not fix it. The
-prior is the same read forwards or backwards.
+prior is the same read forwards or backwards. Either way the centres are returned scaled to
+``sum |c_k|^2 = 1``.
 """
 
 from __future__ import annotations
