@@ -56,3 +56,25 @@ def test_reversed_order_gives_the_same_positions(walk) -> None:
     ref = Trajectory(t, walk.groundtruth.rotations, a)
     rev = Trajectory(t, walk.groundtruth.rotations, b[::-1].copy())
     assert trajectory_errors(rev, ref).ate_rel < 1e-5
+
+
+def test_frames_the_adjustment_moves_far_from_the_linear_positions_are_flagged() -> None:
+    """Where the adjustment ends far from the linear positions (after the similarity that best
+    aligns them) the tracks disagree with one another, and those frames are flagged; a small
+    disagreement everywhere (the two estimators' noise) flags nothing."""
+    from types import SimpleNamespace
+
+    from omni_sfm.estimate.global_estimator import GlobalOptions, _moved_far
+
+    t = np.linspace(0.0, 1.0, 50)
+    c = np.stack([t, 0.1 * np.sin(3 * t), np.zeros_like(t)], axis=1)
+    rng = np.random.default_rng(0)
+    ba = SimpleNamespace(frames=np.ones(50, bool), positions=3.0 * c + 0.001 * rng.normal(
+        size=c.shape))
+    assert _moved_far(c, ba, GlobalOptions()) == {}
+    bent = ba.positions.copy()
+    bent[40:, 1] += 0.6  # the last ten frames 20 % of the path off
+    flagged = _moved_far(c, SimpleNamespace(frames=ba.frames, positions=bent), GlobalOptions())
+    # the alignment spreads the bend over the other frames: its far end stands out most
+    assert 49 in flagged and len(flagged) >= 10
+    assert all("moved it" in v for v in flagged.values())
