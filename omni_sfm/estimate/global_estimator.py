@@ -1044,9 +1044,7 @@ def _moved_far(c: FloatArray, ba: BundleResult, options: GlobalOptions) -> dict[
     two), with the reason. Both estimate the same poses from the same tracks; where they
     disagree by that much, the tracks disagree with one another (a tracker that matched the
     wrong line through a fast turn) and the adjustment's least squares, however well its
-    covariance says the data fix it, need not be the truth: on a 60-frame dual-fisheye walk
-    whose turn takes 3 frames the adjustment ends 18 % of the path off, and started from the
-    truth it ends 15 % off, where the linear positions are 0.4 % off."""
+    covariance says the data fix it, need not be the truth (docs/estimator.md, "Rigs")."""
     both = ba.frames & np.isfinite(c).all(axis=1)
     if both.sum() < 3:
         return {}

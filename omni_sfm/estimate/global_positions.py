@@ -232,10 +232,8 @@ def _with_depths(g: _Geometry, sides: FloatArray, options: GlobalPositionOptions
     a Cauchy loss) with each observation's depth along its side ``U x`` held at 1 or more (a
     squared hinge, solved by its active set). Each line then lies on the side of the camera its
     rays see it on, and no part of the walk can shrink to a point: the scale is the nearest
-    line's distance, where the normalised eigenvector of the homogeneous problem puts its
-    whole norm on the stretch its lines fix least (a walk of a few lines a metre comes out
-    tens of per cent off). The problem is convex for given weights; its start is every depth
-    at 1."""
+    line's distance. The problem is convex for given weights; its start is every depth at
+    1."""
     K = g.A.shape[0]
     U = _rows(sides, g.e1, g.e2, g.pc, g.li, g.P, g.L)
     x = np.zeros(g.P + g.L)
@@ -245,12 +243,9 @@ def _with_depths(g: _Geometry, sides: FloatArray, options: GlobalPositionOptions
     for _ in range(max(1, options.depth_iterations)):
         Wu = sp.diags(w * held)
         H = (g.A.T @ sp.diags(w) @ g.A + U.T @ Wu @ U).tocsc()
-        K_ = g.prior(H, options.smoothness, w, sides, held.astype(float))
-        y = spla.splu(K_).solve(U.T @ (w * held))
-        depth = g.depths(y)
-        ang = (g.A @ y) / depth
-        sigma = max(float(1.4826 * np.median(np.abs(ang))), 1e-12)
-        w = 1.0 / depth**2 / (1.0 + (ang / (options.loss_scale * sigma)) ** 2)
+        normal = g.prior(H, options.smoothness, w, sides, held.astype(float))
+        y = spla.splu(normal).solve(U.T @ (w * held))
+        w, sigma = _reweighted(g, y, options)
         now = U @ y < 1.0
         spread = max(float(np.sqrt(np.mean(y[:g.P] ** 2))), 1e-300)
         moved = float(np.max(np.abs(y[:g.P] - x[:g.P]), initial=0.0)) / spread
@@ -269,11 +264,19 @@ def _homogeneous(g: _Geometry, posed: np.ndarray, pose_idx: np.ndarray,
     sigma = np.inf
     for _ in range(max(1, options.reweight_rounds)):
         x = _smallest(g, w, options, x)
-        depth = g.depths(x)
-        ang = (g.A @ x) / depth
-        sigma = max(float(1.4826 * np.median(np.abs(ang))), 1e-12)
-        w = 1.0 / depth**2 / (1.0 + (ang / (options.loss_scale * sigma)) ** 2)
+        w, sigma = _reweighted(g, x, options)
     return x, w, sigma
+
+
+def _reweighted(g: _Geometry, x: FloatArray, options: GlobalPositionOptions
+                ) -> tuple[FloatArray, float]:
+    """``(w, sigma)``: each plane row's weight at the solution ``x`` (the inverse squared depth,
+    so that its residual is the observation's angle, times a Cauchy loss at
+    ``options.loss_scale`` times the angles' robust spread) and that spread (radians)."""
+    depth = g.depths(x)
+    ang = (g.A @ x) / depth
+    sigma = max(float(1.4826 * np.median(np.abs(ang))), 1e-12)
+    return 1.0 / depth**2 / (1.0 + (ang / (options.loss_scale * sigma)) ** 2), sigma
 
 
 def _initial_vector(P: int, L: int, posed: np.ndarray, pose_idx: np.ndarray) -> FloatArray:

@@ -138,20 +138,22 @@ def _observe(gt: Trajectory, frames: np.ndarray, points: FloatArray, directions:
     the line lies)."""
     n_world = normalize(line_plane_normals(gt.positions[frames], points, directions))
     n_cam = np.einsum("kji,kj->ki", gt.rotations[frames], n_world)
-    off = points - gt.positions[frames]
-    off -= np.einsum("ki,ki->k", off, directions)[:, None] * directions
-    rays = normalize(np.einsum("kji,kj->ki", gt.rotations[frames], off))
     if noise_deg > 0:
         axis = normalize(np.cross(n_cam, rng.normal(size=n_cam.shape)))
         ang = np.radians(noise_deg) * rng.normal(size=(n_cam.shape[0], 1))
         n_cam = n_cam * np.cos(ang) + np.cross(axis, n_cam) * np.sin(ang)
     n_cam *= rng.choice([-1.0, 1.0], size=(n_cam.shape[0], 1))
-    return n_cam, _in_plane(rays, n_cam)
+    return n_cam, _side_rays(gt, frames, points, directions, n_cam)
 
 
-def _in_plane(rays: FloatArray, normals: FloatArray) -> FloatArray:
-    """The ``rays`` projected into the planes of the (noisy) ``normals``, as a front end's ray
-    lies in the plane it fitted."""
+def _side_rays(gt: Trajectory, frames: np.ndarray, points: FloatArray, directions: FloatArray,
+               normals: FloatArray) -> FloatArray:
+    """``(K, 3)`` the ray from each camera of ``frames`` to its line's point nearest it (camera
+    frame, unit), projected into the plane of its (noisy) normal, as a front end's ray lies in
+    the plane it fitted: it tells on which side of the camera the line lies."""
+    off = points - gt.positions[frames]
+    off -= np.einsum("ki,ki->k", off, directions)[:, None] * directions
+    rays = np.einsum("kji,kj->ki", gt.rotations[frames], off)
     return normalize(rays - np.einsum("ki,ki->k", rays, normals)[:, None] * normals)
 
 
@@ -289,10 +291,7 @@ def _dense_tracks(opts: SimulationOptions, gt: Trajectory, pts: FloatArray, dirs
         n_cam = n_cam * np.cos(ang) + np.cross(axis, n_cam) * np.sin(ang)
     n_cam *= rng.choice([-1.0, 1.0], size=(M, F, 1))
     mm, ff = np.nonzero(vis)
-    # the ray to the line's point nearest the camera (the side of the camera the line is on)
-    off = obs_pts[mm, ff] - gt.positions[ff]
-    off -= np.einsum("ki,ki->k", off, obs_dirs[mm, ff])[:, None] * obs_dirs[mm, ff]
-    rays = _in_plane(normalize(np.einsum("kji,kj->ki", gt.rotations[ff], off)), n_cam[mm, ff])
+    rays = _side_rays(gt, ff, obs_pts[mm, ff], obs_dirs[mm, ff], n_cam[mm, ff])
     return make_tracks(F, np.arange(M), mm, ff, n_cam[mm, ff], source="simulation",
                        obs_ray=rays)
 
