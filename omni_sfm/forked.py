@@ -14,7 +14,7 @@ from __future__ import annotations
 import multiprocessing as mp
 import pickle
 import traceback
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from multiprocessing.connection import Connection
 from typing import Any, Generic, TypeVar
 
@@ -109,6 +109,29 @@ class Deferred(Generic[T]):
             self._proc = None
             if self._conn is not None:
                 self._conn.close()
+
+
+def run_all(fns: Sequence[Callable[[], T]], workers: int) -> list[T]:
+    """``[fn() for fn in fns]``, up to ``workers`` of them at once: the calls are dealt to
+    ``workers`` groups in turn (call ``k`` to group ``k mod workers``), each group but the first
+    run in a forked child (:class:`Deferred`), the first in this process. Every call is the
+    same function wherever it runs, so the results are the same to the bit whatever
+    ``workers``; an exception is raised here, after the children are stopped."""
+    w = max(1, min(workers, len(fns))) if can_fork() else 1
+    groups = [range(g, len(fns), w) for g in range(w)]
+    children = [Deferred(lambda idx=idx: [fns[i]() for i in idx], fork=True)  # type: ignore[misc]
+                for idx in groups[1:]]
+    out: list[Any] = [None] * len(fns)
+    try:
+        for i in groups[0]:
+            out[i] = fns[i]()
+        for idx, child in zip(groups[1:], children, strict=True):
+            for i, value in zip(idx, child.result(), strict=True):
+                out[i] = value
+    finally:
+        for child in children:
+            child.cancel()
+    return out
 
 
 class SharedCounters:

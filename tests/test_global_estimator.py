@@ -95,6 +95,18 @@ def test_same_answer_reversed_and_perturbed() -> None:
     assert rot < 0.01 and pos < 0.01
 
 
+def test_same_answer_with_one_and_two_workers() -> None:
+    # the windows of the start, the two starts and the adjustment's starts run in a child
+    # process beside this one with two workers: the same poses and flags to the bit
+    tr = _walk(seed=7, views=150).tracks
+    one = estimate_poses(tr, replace(GLOBAL, workers=1))
+    two = estimate_poses(tr, replace(GLOBAL, workers=2))
+    assert np.array_equal(one.estimated, two.estimated)
+    assert np.array_equal(one.trajectory.rotations, two.trajectory.rotations)
+    assert np.array_equal(one.trajectory.positions, two.trajectory.positions)
+    assert one.report.frames_uncertain == two.report.frames_uncertain
+
+
 def test_report_lists_every_frame_it_does_not_pose() -> None:
     sim = _walk(seed=6, views=120)
     tr = sim.tracks

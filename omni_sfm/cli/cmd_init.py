@@ -92,7 +92,8 @@ def add_parser(subparsers: Any) -> None:
                         "of at most 1000 frames")
     p.add_argument("--workers", type=int, default=None, metavar="N",
                    help="processes extracting lines while this one decodes and tracks, "
-                        "and running the estimator's other starts beside its first "
+                        "and running the estimator's independent solves at once (its "
+                        "windows, starts and adjustments) "
                         "(default: one per CPU core; 1: all in this process); the result is "
                         "the same for any N")
     p.add_argument("--text", action="store_true", help="also write the COLMAP model as text")

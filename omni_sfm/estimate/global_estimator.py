@@ -37,7 +37,9 @@ known limits) the start can drift out of it, and the answer then follows the ord
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from functools import partial
 
 import numpy as np
 
@@ -74,6 +76,7 @@ from omni_sfm.estimate.revisits import (
 from omni_sfm.estimate.rig_scale import OffsetScale, facing_lines, offset_scale
 from omni_sfm.estimate.segments import runs
 from omni_sfm.estimate.uncertainty import pose_spread
+from omni_sfm.forked import run_all
 from omni_sfm.geometry import (
     FloatArray,
     matrix_to_rotvec,
@@ -162,6 +165,10 @@ class GlobalOptions:
     revisits: RevisitOptions = field(default_factory=RevisitOptions)
     """Step 5: lines seen again on a revisit joined, and the problem solved again
     (:mod:`~omni_sfm.estimate.revisits`)."""
+    workers: int = 1
+    """Processes at most that run the independent solves at once (the windows of the start,
+    the two starts, the adjustment's starts; :func:`~omni_sfm.forked.run_all`): the result is
+    the same to the bit whatever their number."""
 
 
 @dataclass(frozen=True)
@@ -424,7 +431,7 @@ def _window_solution(tracks: LineTracks, sel: np.ndarray, options: GlobalOptions
     obs = np.flatnonzero(np.isin(tracks.obs_frame, sel))
     sub = tracks.subset(obs, np.unique(tracks.obs_track[obs]), sel)
     # a start needs the basin, not the last digit: two robust rounds, no polish
-    local = replace(options, start_window=0, direction_rounds=0, settled_start=False,
+    local = replace(options, start_window=0, direction_rounds=0, settled_start=False, workers=1,
                     member_sigmas=0.0, revisits=replace(options.revisits, enabled=False),
                     rotations=replace(options.rotations, max_iterations=20),
                     bundle=replace(options.bundle, max_rounds=2, final_loss=None))
@@ -446,12 +453,10 @@ def windows_start(tracks: LineTracks, frames: np.ndarray, R0: FloatArray,
     step of ``R0`` from the nearest frame that is."""
     idx = np.flatnonzero(frames)
     window = options.start_window
-    kept: list[tuple[np.ndarray, FloatArray]] = []
-    for a in window_starts(len(idx), window):
-        sel = idx[a:a + window]
-        got = _window_solution(tracks, sel, options)
-        if got is not None:
-            kept.append((sel, got))
+    sels = [idx[a:a + window] for a in window_starts(len(idx), window)]
+    solved = run_all([partial(_window_solution, tracks, sel, options) for sel in sels],
+                     options.workers)
+    kept = [(sel, got) for sel, got in zip(sels, solved, strict=True) if got is not None]
     if not kept:
         return R0
     acc = np.zeros((len(frames), 3, 3))
@@ -600,15 +605,17 @@ def kept_start(tracks: LineTracks, frames: np.ndarray, lines: np.ndarray,
     than the right one: where one family is the only shared direction, the turn about it
     rests on the other lines' positions, and a stretch turned by a start whose chain carried
     the lines' parallax fits their directions as well; its positions do not fit."""
-    solved = {name: solve_rotations(tracks, frames, R, group, options.rotations)
-              for name, R in starts.items()}
+    names = list(starts)
+    solved = dict(zip(names, run_all([partial(solve_rotations, tracks, frames, starts[name],
+                                              group, options.rotations) for name in names],
+                                     options.workers), strict=True))
     if len(solved) == 1:
-        name = next(iter(solved))
-        return name, solved[name]
+        return names[0], solved[names[0]]
     sigma = min(x.sigma for x in solved.values())
-    cost = {name: _positions_cost(tracks, x, frames, lines, sigma, options)
-            for name, x in solved.items()}
-    best = min(reversed(list(cost)), key=lambda name: cost[name])
+    cost = dict(zip(names, run_all([partial(_positions_cost, tracks, solved[name], frames,
+                                            lines, sigma, options) for name in names],
+                                   options.workers), strict=True))
+    best = min(reversed(names), key=lambda name: cost[name])
     return best, solved[best]
 
 
@@ -969,21 +976,23 @@ def _adjusted(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArray, p
     a stretch then collapses onto the lines that agree with the pull; the Cauchy loss gives them
     no weight, but on its own it rejects more of the weakly tied lines elsewhere. Which of them
     holds depends on the data, not on the frame order. Returns the adjustment kept."""
-    candidates = []
-    for loss in dict.fromkeys((options.bundle.loss, RobustLoss.CAUCHY)):
-        bo = replace(options.bundle, loss=loss)
-        candidates.append(bundle_adjust(tracks, R, c, d, p, frames=frames, held_directions=held,
-                                        options=bo))
-        if not options.settled_start or loss != options.bundle.loss:
-            continue
+    def settled_first(bo: BundleOptions) -> BundleResult:
         settled = bundle_adjust(tracks, R, c, d, p, frames=frames, held_directions=held,
                                 held_rotations=frames,
                                 options=replace(bo, reject_outliers=False, max_rounds=1,
                                                 final_loss=None))
-        candidates.append(bundle_adjust(tracks, settled.rotations, settled.positions,
-                                        settled.line_directions, settled.line_points,
-                                        frames=settled.frames, held_directions=held,
-                                        options=bo))
+        return bundle_adjust(tracks, settled.rotations, settled.positions,
+                             settled.line_directions, settled.line_points,
+                             frames=settled.frames, held_directions=held, options=bo)
+
+    solves: list[Callable[[], BundleResult]] = []
+    for loss in dict.fromkeys((options.bundle.loss, RobustLoss.CAUCHY)):
+        bo = replace(options.bundle, loss=loss)
+        solves.append(partial(bundle_adjust, tracks, R, c, d, p, frames=frames,
+                             held_directions=held, options=bo))
+        if options.settled_start and loss == options.bundle.loss:
+            solves.append(partial(settled_first, bo))
+    candidates = run_all(solves, options.workers)
     limit = outlier_limit(float(np.radians(max(x.sigma_deg for x in candidates))),
                           options.bundle)
     cost = [truncated_cost(tracks, x.rotations, x.positions, x.frames, limit, everywhere=True)

@@ -39,6 +39,11 @@ from omni_sfm.errors import OmniSfmError
 from omni_sfm.geometry import FloatArray, normalize, orthonormal_completion
 from omni_sfm.lines.tracks import LineTracks
 
+_SETTLED = 1e-4
+"""The depth solves stop when the held depths stay the same and the centres move by less than
+this fraction of their spread: the re-weighting then converges linearly (by about a third each
+solve), and the adjustment that follows takes the positions from there."""
+
 
 @dataclass(frozen=True, kw_only=True)
 class GlobalPositionOptions:
@@ -58,7 +63,7 @@ class GlobalPositionOptions:
     depth_iterations: int = 60
     """Solves at most of the problem with the depths held at 1 or more (tracks with rays):
     each re-weights the rows and updates which depths are held; it stops earlier when the
-    centres move by less than 1e-6 of their spread."""
+    centres move by less than 1e-4 of their spread."""
 
 
 @dataclass(frozen=True)
@@ -244,15 +249,23 @@ def _with_depths(g: _Geometry, sides: FloatArray, options: GlobalPositionOptions
         Wu = sp.diags(w * held)
         H = (g.A.T @ sp.diags(w) @ g.A + U.T @ Wu @ U).tocsc()
         normal = g.prior(H, options.smoothness, w, sides, held.astype(float))
-        y = spla.splu(normal).solve(U.T @ (w * held))
+        y = _factor(normal).solve(U.T @ (w * held))
         w, sigma = _reweighted(g, y, options)
         now = U @ y < 1.0
         spread = max(float(np.sqrt(np.mean(y[:g.P] ** 2))), 1e-300)
         moved = float(np.max(np.abs(y[:g.P] - x[:g.P]), initial=0.0)) / spread
-        x, done, held = y, bool(np.array_equal(now, held)) and moved < 1e-6, now
+        x, done, held = y, bool(np.array_equal(now, held)) and moved < _SETTLED, now
         if done:
             break
     return x, w, sigma
+
+
+def _factor(M: sp.csc_matrix) -> spla.SuperLU:
+    """The factorisation of the symmetric positive definite normal equations ``M`` (a ridge
+    keeps them so): a minimum-degree order of ``M``'s own pattern and no pivoting, twice as fast
+    as SuperLU's default on a 600-frame walk, with the same solution to round-off."""
+    return spla.splu(M, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                     options={"SymmetricMode": True})
 
 
 def _homogeneous(g: _Geometry, posed: np.ndarray, pose_idx: np.ndarray,
@@ -306,7 +319,7 @@ def _smallest(g: _Geometry, w: FloatArray, options: GlobalPositionOptions, x0: F
     mu N x`` with ``N`` the identity on the centres and 0 on the lines, normalised so that
     ``|x_c| = 1``, by inverse iteration."""
     P, L = g.P, g.L
-    lu = spla.splu(g.prior((g.A.T @ sp.diags(w) @ g.A).tocsc(), options.smoothness, w))
+    lu = _factor(g.prior((g.A.T @ sp.diags(w) @ g.A).tocsc(), options.smoothness, w))
     x = x0 / np.linalg.norm(x0[:P])
     for _ in range(options.inverse_iterations):
         rhs = np.zeros(P + L)

@@ -224,10 +224,12 @@ class EstimationOptions:
     """The global estimator's options (``estimator="global"``); its parallel-family detection
     and bundle adjustment are ``vanishing`` and ``bundle`` above."""
     workers: int | None = None
-    """Processes that run the starts of :func:`_better_start` at once (docs/estimator.md stage
-    9): 1, one after the other in this process; 2 or more, the short bootstrap and the reversed
-    start each in a child process of its own beside the first start; None: 2 where the machine
-    has more than one core. The result is the same whatever the number."""
+    """Processes that run independent solves at once: the global estimator's windows, starts
+    and adjustments (``GlobalOptions.workers``), the windows estimator's starts of
+    :func:`_better_start` (docs/estimator.md stage 9: the short bootstrap and the reversed
+    start each in a child process of its own beside the first start); 1: one after the other
+    in this process; None: 2 where the machine has more than one core. The result is the same
+    whatever the number."""
     multistart_min_difference: float = 0.05
     """An alternative start is refined only if its camera centres differ from every start
     already refined by more than this fraction (RMS, after least-squares scaling) of the RMS
@@ -778,7 +780,8 @@ def _global_result(tracks: LineTracks, options: EstimationOptions,
     scale, reflection) and the report of every estimate; a camera that only turned gets the
     rotation-only fit, as with the windows."""
     run = RunLog(progress=None)
-    gopts = replace(options.global_, vanishing=options.vanishing, bundle=options.bundle)
+    gopts = replace(options.global_, vanishing=options.vanishing, bundle=options.bundle,
+                    workers=start_workers(options))
     try:
         sol = solve_global(tracks, gopts)
     except OmniSfmError as exc:
