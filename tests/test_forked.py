@@ -5,13 +5,14 @@ from __future__ import annotations
 import os
 import signal
 import time
+from functools import partial
 
 import numpy as np
 import pytest
 
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.estimate.attempts import CountedProgress, RunLog
-from omni_sfm.forked import Deferred, SharedCounters, can_fork
+from omni_sfm.forked import Deferred, SharedCounters, can_fork, run_all
 
 needs_fork = pytest.mark.skipif(not can_fork(), reason="the platform does not fork")
 
@@ -86,3 +87,28 @@ def test_a_run_in_a_child_shows_its_progress_through_shared_counters():
     assert seen == []  # the refresh belongs to this process: not called from the child
     bar.update(5)  # here it is
     assert seen == [15]
+
+
+@pytest.mark.parametrize("workers", [1, 2, 3, 7])
+def test_run_all_gives_every_result_in_order_whatever_the_workers(workers: int):
+    # calls dealt to the workers in turn, all but the first group in children: the values
+    # come back in the calls' order, the same as one after the other here
+    fns = [partial(_square_pid, k) for k in range(5)]
+    got = run_all(fns, workers)
+    assert [v for v, _ in got] == [k * k for k in range(5)]
+    here = os.getpid()
+    ran_here = [pid == here for _, pid in got]
+    assert ran_here == [k % min(workers, 5) == 0 for k in range(5)] or not can_fork()
+
+
+def test_run_all_raises_the_error_of_a_call_in_a_child():
+    with pytest.raises(ValueError, match="bad call"):
+        run_all([partial(_square_pid, 1), partial(_bad_call)], 2)
+
+
+def _square_pid(k: int) -> tuple[int, int]:
+    return k * k, os.getpid()
+
+
+def _bad_call() -> None:
+    raise ValueError("bad call")

@@ -266,3 +266,15 @@ def test_reports_are_written_by_their_classes():
                         "REPORT_MD" not in target:
                     bad.append(f"{rel}:{node.lineno} writes {target}")
     assert not bad, "\n".join(bad)
+
+
+def test_no_function_of_the_estimator_is_longer_than_60_lines():
+    # the estimator reads as its steps: each function one idea (the global-estimator issue)
+    long = []
+    for path in sorted((PACKAGE / "estimate").glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
+                size = node.end_lineno - node.lineno + 1  # type: ignore[operator]
+                if size > 60:
+                    long.append(f"{path.name}:{node.name} ({size} lines)")
+    assert not long, long

@@ -634,6 +634,31 @@ def _positions_cost(tracks: LineTracks, rot: GlobalRotations, frames: np.ndarray
                           everywhere=True)
 
 
+def _snapped(tracks: LineTracks, frames: np.ndarray, lines: np.ndarray, first: GlobalRotations,
+             families: list[ParallelFamily], options: GlobalOptions,
+             steps: list[EstimatorStep]) -> GlobalRotations:
+    """Step 1's second solve, where the families give horizontal directions: a line across the
+    largest family whose planes contain one of the other families' directions up to a few
+    degrees is of that direction (a stretch whose start turned before that family was seen is
+    pulled back by its lines). ``first``: the first solve's rotations, returned where there is
+    no such direction."""
+    horizontal = _horizontal_directions(first, families, options)
+    if not len(horizontal):
+        return first
+    v0 = _family_direction(first.directions, families[0])
+    own = np.abs(np.nan_to_num(first.directions) @ v0) < np.sin(
+        np.radians(options.world_direction_deg))
+    label = _labels(tracks, first.rotations, frames, lines & own, horizontal, options.snap_deg)
+    label[lines & np.asarray(families[0].members, bool)] = len(horizontal)
+    rot = solve_rotations(tracks, frames, first.rotations, _groups(lines, label),
+                          options.rotations)
+    steps.append(EstimatorStep(step="rotations, lines across the largest family snapped to the "
+                                    "other families' directions",
+                               directions=len(horizontal), iterations=rot.iterations,
+                               sigma_deg=float(np.degrees(rot.sigma))))
+    return rot
+
+
 def _rotations(tracks: LineTracks, frames: np.ndarray, lines: np.ndarray,
                families: list[ParallelFamily], options: GlobalOptions,
                steps: list[EstimatorStep], previous: FloatArray | None = None
@@ -662,24 +687,7 @@ def _rotations(tracks: LineTracks, frames: np.ndarray, lines: np.ndarray,
                                families=[f.size for f in families], start=start,
                                iterations=first.iterations,
                                sigma_deg=float(np.degrees(first.sigma))))
-    rot = first
-    horizontal = _horizontal_directions(first, families, options)
-    if len(horizontal):
-        # a line across the largest family whose planes contain one of the other families'
-        # directions up to a few degrees is of that direction: a stretch whose start turned
-        # before that family was seen is pulled back by its lines
-        v0 = _family_direction(first.directions, families[0])
-        own = np.abs(np.nan_to_num(first.directions) @ v0) < np.sin(
-            np.radians(options.world_direction_deg))
-        label = _labels(tracks, first.rotations, frames, lines & own, horizontal,
-                        options.snap_deg)
-        label[lines & np.asarray(families[0].members, bool)] = len(horizontal)
-        rot = solve_rotations(tracks, frames, rot.rotations, _groups(lines, label),
-                              options.rotations)
-        steps.append(EstimatorStep(step="rotations, lines across the largest family snapped "
-                                        "to the other families' directions",
-                                   directions=len(horizontal), iterations=rot.iterations,
-                                   sigma_deg=float(np.degrees(rot.sigma))))
+    rot = _snapped(tracks, frames, lines, first, families, options, steps)
     used = np.flatnonzero(lines)
     angle = options.world_direction_deg
     worlds = world_families(rot.directions[used], max_angle_deg=angle)
@@ -1041,14 +1049,17 @@ def _adjustment_step(tracks: LineTracks, R: FloatArray, c: FloatArray, rot: Glob
     return ba, rivals
 
 
-def _flags(tracks: LineTracks, rot: GlobalRotations, pos: GlobalPositions, ba: BundleResult,
-           options: GlobalOptions) -> tuple[dict[int, str], FloatArray, FloatArray]:
+def _flags(tracks: LineTracks, rot: GlobalRotations, pos: GlobalPositions, c: FloatArray,
+           ba: BundleResult, rivals: list[BundleResult], options: GlobalOptions
+           ) -> tuple[dict[int, str], FloatArray, FloatArray]:
     """Step 4: ``(uncertain, spread_deg, spread_path)``, the frames the data do not fix with the
-    reason (:func:`_uncertain`, then :func:`_spread_flags` on the covariance's spread)."""
+    reason (:func:`_uncertain`, then :func:`_spread_flags` on the covariance's spread, then
+    :func:`_ambiguous` on the linear positions ``c`` and the adjustment's ``rivals``)."""
     uncertain = _uncertain(tracks, rot, pos, ba, options)
     spread_deg, spread_path = _spread(tracks, ba, uncertain, options)
-    uncertain.update({k: v for k, v in _spread_flags(spread_deg, spread_path, options).items()
-                      if k not in uncertain})
+    for more in (_spread_flags(spread_deg, spread_path, options),
+                 _ambiguous(c, ba, rivals, options)):
+        uncertain.update({k: v for k, v in more.items() if k not in uncertain})
     return uncertain, spread_deg, spread_path
 
 
@@ -1210,12 +1221,9 @@ def _solve_once(tracks: LineTracks, options: GlobalOptions,
     members = np.asarray(families[0].members, bool) if families else \
         np.zeros(tracks.num_tracks, bool)
     t = time.perf_counter()
-    uncertain, spread_deg, spread_path = \
-        ({}, np.full(tracks.num_frames, np.nan), np.full(tracks.num_frames, np.nan)) if window \
-        else _flags(tracks, rot, pos, ba, options)
-    if not window:
-        uncertain.update({k: v for k, v in _ambiguous(c, ba, rivals, options).items()
-                          if k not in uncertain})
+    nan = np.full(tracks.num_frames, np.nan)
+    uncertain, spread_deg, spread_path = ({}, nan, nan.copy()) if window else \
+        _flags(tracks, rot, pos, c, ba, rivals, options)
     timings["pose_spread"] = (time.perf_counter() - t) * 1e3
     return GlobalSolution(
         rotations=ba.rotations, positions=ba.positions, frames=ba.frames,

@@ -689,6 +689,19 @@ def estimate_poses(tracks: LineTracks,
     return replace(res, report=replace(res.report, estimator="windows", estimator_choice=why))
 
 
+def _first_cut(tracks: LineTracks) -> int | None:
+    """The first frame that no line is seen on both sides of (parts with nothing in common;
+    frames that see nothing at the ends cut nothing); None where there is none."""
+    first, last = tracks.frame_spans()
+    seen = last >= 0
+    spanning = np.zeros(tracks.num_frames + 1, np.int64)  # lines seen on both sides of a cut
+    np.add.at(spanning, first[seen] + 1, 1)
+    np.add.at(spanning, last[seen] + 1, -1)
+    lo, hi = int(first[seen].min()), int(last[seen].max())
+    cuts = lo + np.flatnonzero(np.cumsum(spanning)[lo + 1:hi + 1] == 0)
+    return int(cuts[0]) + 1 if len(cuts) else None
+
+
 def chosen_estimator(tracks: LineTracks, options: EstimationOptions) -> tuple[str, str]:
     """The estimator that ``options.estimator`` names (``windows`` or ``global``) and why.
 
@@ -722,17 +735,10 @@ def chosen_estimator(tracks: LineTracks, options: EstimationOptions) -> tuple[st
         return "windows", (f"auto: {tracks.num_frames} frames, more than the global estimator "
                            f"takes ({options.auto_global_max_frames})")
     w = options.windows
-    first, last = tracks.frame_spans()
-    seen = last >= 0
-    spanning = np.zeros(tracks.num_frames + 1, np.int64)  # lines seen on both sides of a cut
-    np.add.at(spanning, first[seen] + 1, 1)
-    np.add.at(spanning, last[seen] + 1, -1)
-    lo, hi = int(first[seen].min()), int(last[seen].max())  # frames that see nothing at the
-    cuts = lo + np.flatnonzero(np.cumsum(spanning)[lo + 1:hi + 1] == 0)  # ends cut nothing
-    if len(cuts):
-        return "windows", (f"auto: no line is seen on both sides of frame {int(cuts[0]) + 1} "
-                           f"(parts with nothing in common: the windows pose each in a world "
-                           f"of its own)")
+    cut = _first_cut(tracks)
+    if cut is not None:
+        return "windows", (f"auto: no line is seen on both sides of frame {cut} (parts with "
+                           f"nothing in common: the windows pose each in a world of its own)")
     full = tracks.visibility().all(1)
     if int(full.sum()) < w.min_parallel + w.min_other:
         return "global", (f"auto: {int(full.sum())} lines seen in every frame, fewer than one "
