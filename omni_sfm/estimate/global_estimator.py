@@ -157,9 +157,8 @@ class GlobalOptions:
     is then off by more than 1 deg or 2 % of the path only beyond three times that error,
     and a flagged one is rarely within 0.2 deg and 0.2 %."""
     moved_path: float = 0.02
-    """Where a rival adjustment (another start, nearly as good a fit) puts a frame more than
-    this fraction of the path from the kept one, the frames it or the linear positions put that
-    far are flagged (:func:`_ambiguous`)."""
+    """A frame that the adjustment moves by more than this fraction of the path from the
+    linear positions is flagged (:func:`_moved_far`)."""
     spread_window: int = 300
     """Posed frames a window of the covariance takes at most
     (:func:`~omni_sfm.estimate.uncertainty.pose_spread`)."""
@@ -971,7 +970,7 @@ def _poses_as_many(new: BundleResult, old: BundleResult) -> bool:
 
 def _adjusted(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArray, p: FloatArray,
               frames: np.ndarray, held: np.ndarray | None, options: GlobalOptions
-              ) -> tuple[BundleResult, list[BundleResult]]:
+              ) -> BundleResult:
     """Step 3: the robust adjustment of all cameras and lines from the start as it is and, with
     ``options.settled_start``, from the start with the positions and lines first settled on the
     rotations held (one robust round, no track rejected), under the adjustment's loss, and from
@@ -984,9 +983,7 @@ def _adjusted(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArray, p
     parallel lines) pull a Huber adjustment off a good start before its rounds reject them, and
     a stretch then collapses onto the lines that agree with the pull; the Cauchy loss gives them
     no weight, but on its own it rejects more of the weakly tied lines elsewhere. Which of them
-    holds depends on the data, not on the frame order. Returns the adjustment kept and its
-    rivals: the others whose truncated cost is within :data:`_RIVAL` of its own
-    (:func:`_ambiguous`)."""
+    holds depends on the data, not on the frame order. Returns the adjustment kept."""
     def settled_first(bo: BundleOptions) -> BundleResult:
         settled = bundle_adjust(tracks, R, c, d, p, frames=frames, held_directions=held,
                                 held_rotations=frames,
@@ -1009,8 +1006,7 @@ def _adjusted(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArray, p
     cost = [truncated_cost(tracks, x.rotations, x.positions, x.frames, limit, everywhere=True)
             for x in candidates]
     best = int(np.argmin(cost))
-    rivals = [x for i, x in enumerate(candidates) if i != best and cost[i] <= _RIVAL * cost[best]]
-    return candidates[best], rivals
+    return candidates[best]
 
 
 def _positions_step(tracks: LineTracks, rot: GlobalRotations, frames: np.ndarray,
@@ -1034,83 +1030,54 @@ def _positions_step(tracks: LineTracks, rot: GlobalRotations, frames: np.ndarray
 
 def _adjustment_step(tracks: LineTracks, R: FloatArray, c: FloatArray, rot: GlobalRotations,
                      pos: GlobalPositions, dir_ok: np.ndarray, label: np.ndarray,
-                     frames: np.ndarray, options: GlobalOptions
-                     ) -> tuple[BundleResult, list[BundleResult]]:
+                     frames: np.ndarray, options: GlobalOptions) -> BundleResult:
     """Step 3: the robust adjustment from the positions' start (:func:`_adjusted`), the world
-    directions fitted again to it (:func:`_world_directions_refitted`), and its rivals."""
+    directions fitted again to it (:func:`_world_directions_refitted`)."""
     d0 = np.where(dir_ok[:, None], rot.directions, np.nan)
     # the lines of a world direction keep it: only their positions move (and with two world
     # directions or more they hold the rotation gauge)
     held = dir_ok & (label >= 0) if options.hold_world_directions else None
-    ba, rivals = _adjusted(tracks, R, c, d0, pos.points, frames, held, options)
+    ba = _adjusted(tracks, R, c, d0, pos.points, frames, held, options)
     if held is not None:
         # under the adjustment's own loss whichever start won, on the tracks it kept
         ba = _world_directions_refitted(tracks, ba, held, label, options)
-    return ba, rivals
+    return ba
 
 
 def _flags(tracks: LineTracks, rot: GlobalRotations, pos: GlobalPositions, c: FloatArray,
-           ba: BundleResult, rivals: list[BundleResult], options: GlobalOptions
+           ba: BundleResult, options: GlobalOptions
            ) -> tuple[dict[int, str], FloatArray, FloatArray]:
     """Step 4: ``(uncertain, spread_deg, spread_path)``, the frames the data do not fix with the
     reason (:func:`_uncertain`, then :func:`_spread_flags` on the covariance's spread, then
-    :func:`_ambiguous` on the linear positions ``c`` and the adjustment's ``rivals``)."""
+    :func:`_moved_far` from the linear positions ``c``)."""
     uncertain = _uncertain(tracks, rot, pos, ba, options)
     spread_deg, spread_path = _spread(tracks, ba, uncertain, options)
     for more in (_spread_flags(spread_deg, spread_path, options),
-                 _ambiguous(c, ba, rivals, options)):
+                 _moved_far(c, ba, options)):
         uncertain.update({k: v for k, v in more.items() if k not in uncertain})
     return uncertain, spread_deg, spread_path
 
 
-_RIVAL = 1.1
-"""An adjustment from another start whose truncated cost is within this factor of the kept
-one's is a rival (:func:`_ambiguous`): on the 60-frame dual-fisheye walks whose fast turn
-leaves few lines tracked, the starts end 6-19 % of the path apart within 0.1-6 % of one
-another's cost; where the data decide, they end at the same poses (the simulated sparse
-walks, the footage walks)."""
-
-
-def _apart(a: FloatArray, b: FloatArray, frames: np.ndarray) -> FloatArray:
-    """``(F,)`` how far the centres ``a`` lie from ``b`` after the similarity that best aligns
-    them, over the length of ``b``'s path (the ``frames`` where both are finite; 0 elsewhere)."""
-    both = frames & np.isfinite(a).all(axis=1) & np.isfinite(b).all(axis=1)
-    out = np.zeros(len(frames))
+def _moved_far(c: FloatArray, ba: BundleResult, options: GlobalOptions) -> dict[int, str]:
+    """The posed frames that the adjustment moved by more than ``options.moved_path`` of the
+    path from the linear positions ``c`` (step 2; after the similarity that best aligns the
+    two), with the reason. Both estimate the same poses from the same tracks; where they
+    disagree by that much, the tracks disagree with one another (a tracker that matched the
+    wrong line through a fast turn) and the adjustment's least squares, however well its
+    covariance says the data fix it, need not be the truth (docs/estimator.md, "Rigs")."""
+    both = ba.frames & np.isfinite(c).all(axis=1)
     if both.sum() < 3:
-        return out
-    x, y = a[both], b[both]
-    path = float(np.sum(np.linalg.norm(np.diff(y, axis=0), axis=1)))
-    if path > 0.0:
-        out[both] = np.linalg.norm(umeyama(x, y).apply_points(x) - y, axis=1) / path
-    return out
-
-
-def _ambiguous(c: FloatArray, ba: BundleResult, rivals: list[BundleResult],
-               options: GlobalOptions) -> dict[int, str]:
-    """The posed frames the tracks leave ambiguous, with the reason: where both a rival
-    adjustment (:func:`_adjusted`, nearly as good a fit) and the linear positions ``c`` (step
-    2) put frames more than ``options.moved_path`` of the path from the kept one (after the
-    similarity that best aligns each with it), the tracks disagree with one another (a tracker
-    that matched the wrong line through a fast turn) and their least squares, however well its
-    covariance says they fix it, need not be the truth: every frame that either puts that far
-    is listed. Where the rivals agree with the kept one, the linear positions' distance says
-    nothing (with few lines of known direction they lie a few per cent off the truth, and the
-    adjustment corrects them); where the linear positions do, a rival that stays far is a
-    worse minimum."""
-    far = np.zeros(len(ba.frames), bool)
-    for rival in rivals:
-        far |= _apart(rival.positions, ba.positions, ba.frames) > options.moved_path
-    moved = _apart(c, ba.positions, ba.frames)
-    if not far.any() or not (moved > options.moved_path).any():
         return {}
-    out = {}
-    for k in np.flatnonzero(ba.frames & (far | (moved > options.moved_path))):
-        out[int(k)] = (f"another adjustment from another start fits the tracks nearly as well "
-                       f"and puts frames more than {100 * options.moved_path:.0f} % of the "
-                       f"path away (this one: the linear positions {100 * moved[k]:.1f} % "
-                       f"away): its tracks disagree with one another (a wrong match), and the "
-                       f"least squares of them need not be the truth")
-    return out
+    a, b = c[both], ba.positions[both]
+    path = float(np.sum(np.linalg.norm(np.diff(b, axis=0), axis=1)))
+    if path <= 0.0:
+        return {}
+    moved = np.linalg.norm(umeyama(a, b).apply_points(a) - b, axis=1) / path
+    return {int(k): (f"the adjustment moved it {100 * m:.1f} % of the path from the linear "
+                     f"positions: its tracks disagree with one another (a wrong match), and the "
+                     f"least squares of them need not be the truth")
+            for k, m in zip(np.flatnonzero(both), moved, strict=True)
+            if m > options.moved_path}
 
 
 def _rig_start(tracks: LineTracks, R: FloatArray, c: FloatArray, pos: GlobalPositions,
@@ -1210,7 +1177,7 @@ def _solve_once(tracks: LineTracks, options: GlobalOptions,
     scale: OffsetScale | None = None
     if tracks.obs_offset is not None:
         tracks, scale, c, pos = _rig_start(tracks, R, c, pos, frames, opts)
-    ba, rivals = _adjustment_step(tracks, R, c, rot, pos, dir_ok, label, frames, opts)
+    ba = _adjustment_step(tracks, R, c, rot, pos, dir_ok, label, frames, opts)
     timings["bundle_adjustment"] = (time.perf_counter() - t) * 1e3
     steps.append(EstimatorStep(step="bundle adjustment", iterations=ba.iterations,
                                outlier_tracks=int(ba.outlier_tracks.sum()),
@@ -1223,7 +1190,7 @@ def _solve_once(tracks: LineTracks, options: GlobalOptions,
     t = time.perf_counter()
     nan = np.full(tracks.num_frames, np.nan)
     uncertain, spread_deg, spread_path = ({}, nan, nan.copy()) if window else \
-        _flags(tracks, rot, pos, c, ba, rivals, options)
+        _flags(tracks, rot, pos, c, ba, options)
     timings["pose_spread"] = (time.perf_counter() - t) * 1e3
     return GlobalSolution(
         rotations=ba.rotations, positions=ba.positions, frames=ba.frames,
