@@ -392,7 +392,7 @@ def test_embedded_line_iterations_bring_far_lines_back() -> None:
     # three of them put 15 times farther from their cameras (as the sparse seeds' lines
     # triangulated from drifted poses were, 25-35 m away): the adjustment with each line's own
     # Gauss-Newton iterations after every step reaches the oracle's minimum; without them the
-    # LM crawls and stops 1.5x above it after its 100 iterations
+    # LM crawls and stops 1.6x above it after its 100 iterations
     sim = simulate(SimulationOptions(num_views=300, num_parallel=20, num_other=20,
                                      noise_deg=0.1, visible_frames=60, seed=0))
     g, tr = sim.groundtruth, sim.tracks
@@ -418,7 +418,7 @@ def test_embedded_line_iterations_bring_far_lines_back() -> None:
     assert e.rot_mean_deg <= 1.05 * eo.rot_mean_deg
     plain = bundle_adjust(tr, R0, c0, d0, p0,
                           options=dataclasses.replace(opts, line_iterations=0))
-    assert plain.rms_final_deg > 1.4 * o.rms_final_deg
+    assert plain.rms_final_deg > 1.5 * o.rms_final_deg
 
 
 def test_held_rotations_stay_as_given_and_the_positions_move():

@@ -63,7 +63,7 @@ from omni_sfm.geometry import (
     skew,
     unsigned_angle,
 )
-from omni_sfm.lines.tracks import LineTracks, root_frame
+from omni_sfm.lines.tracks import LineTracks
 from omni_sfm.solver import (
     RobustLoss,
     damped,
@@ -804,13 +804,10 @@ class _Adjustment:
             np.asarray(held_directions, bool)
         self.held_rotations = None if held_rotations is None else \
             np.asarray(held_rotations, bool)
-        # the gauge: the first held frame, else the root frame (the same frame whichever way
-        # the video runs: an adjustment stopped before convergence, or a robust round that
-        # judges tracks on its way, then ends at the same poses)
-        fixed = root_frame(tracks, self.frames) if self.held is None or not self.held.any() \
-            else int(np.flatnonzero(self.held)[0])
+        first_held = None if self.held is None or not self.held.any() else \
+            int(np.flatnonzero(self.held)[0])
         self.fixed, self.scale_frame, self.scale_axis = gauge(self.c, self.frames, scale_frames,
-                                                               fixed)
+                                                               first_held)
         self.metric = metric_offsets(tracks)
         """The tracks' lens offsets (metres) fix the scale: no coordinate is held for it."""
         self.obs_in = self.frames[tracks.obs_frame]

@@ -65,6 +65,7 @@ from omni_sfm.estimate.global_rotations import (
     chained_start,
     group_directions,
     outward_order,
+    root_frame,
     solve_rotations,
     world_normals,
 )
@@ -84,7 +85,7 @@ from omni_sfm.geometry import (
     nearest_rotation,
     rotation_about_axis,
 )
-from omni_sfm.lines.tracks import LineTracks, root_frame
+from omni_sfm.lines.tracks import LineTracks
 from omni_sfm.reports import EstimatorStep
 from omni_sfm.solver import RobustLoss
 from omni_sfm.transforms import umeyama
@@ -501,8 +502,8 @@ def windows_start(tracks: LineTracks, frames: np.ndarray, R0: FloatArray,
     for k in np.flatnonzero(frames & ~covered):
         n = fixed[np.argmin(np.abs(fixed - k))]
         R[k] = R[n] @ R0[n].T @ R0[k]
-    root = root_frame(tracks, frames)
-    return np.asarray(np.einsum("ij,kjl->kil", R[root].T, R))
+    first = idx[0]
+    return np.asarray(np.einsum("ij,kjl->kil", R[first].T, R))
 
 
 def _groups(lines: np.ndarray, label: np.ndarray) -> np.ndarray:

@@ -37,7 +37,7 @@ from omni_sfm.geometry import (
     rotvec_to_matrix,
     smallest_eigenvector,
 )
-from omni_sfm.lines.tracks import LineTracks, root_frame
+from omni_sfm.lines.tracks import LineTracks
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -84,6 +84,15 @@ def _sign_aligned(a: FloatArray, b: FloatArray) -> FloatArray:
     return a * s[:, None]
 
 
+def root_frame(tracks: LineTracks, frames: np.ndarray) -> int:
+    """The posed frame (``frames`` ``(F,)`` bool) that sees the most observations, of those the
+    earliest in time: what the frames see and when decide it, not their order in the file."""
+    idx = np.flatnonzero(frames)
+    seen = np.bincount(tracks.obs_frame, minlength=tracks.num_frames)[idx]
+    best = idx[seen == seen.max()]
+    return int(best[np.argmin(tracks.timestamps[best])])
+
+
 def outward_order(tracks: LineTracks, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``(order, towards)``: the posed frames from the :func:`root_frame` outward, one step to
     each side in turn (the later frames' side first), and each one's neighbour towards the root
@@ -105,16 +114,15 @@ def outward_order(tracks: LineTracks, frames: np.ndarray) -> tuple[np.ndarray, n
 
 
 def chained_start(tracks: LineTracks, frames: np.ndarray) -> FloatArray:
-    """Start rotations ``(F, 3, 3)``, the root frame's the identity (:func:`outward_order`):
-    each frame turned from its neighbour towards the root by the Procrustes rotation of the
-    normals the two share (identity where they share fewer than 2 non-parallel ones). The
-    world is then the root camera's whichever way the video runs."""
+    """Start rotations ``(F, 3, 3)``: each frame turned from the previous posed one by the
+    Procrustes rotation of the normals the two share (identity where they share fewer than 2
+    non-parallel ones)."""
     F, M = tracks.num_frames, tracks.num_tracks
     slot = np.full((M, F), -1)
     slot[tracks.obs_track, tracks.obs_frame] = np.arange(tracks.num_observations)
     R = np.tile(np.eye(3), (F, 1, 1))
-    order, towards = outward_order(tracks, frames)
-    for a, b in zip(towards[1:], order[1:], strict=True):
+    idx = np.flatnonzero(frames)
+    for a, b in zip(idx[:-1], idx[1:], strict=True):
         both = (slot[:, a] >= 0) & (slot[:, b] >= 0)
         na = tracks.obs_normal[slot[both, a]]
         nb = _sign_aligned(tracks.obs_normal[slot[both, b]], na)

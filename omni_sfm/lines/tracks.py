@@ -404,16 +404,6 @@ def write_tracks(path: Path | str, tracks: LineTracks) -> None:
     atomic_write_text(Path(path), dumps_json(tracks.to_json_dict()))
 
 
-def root_frame(tracks: LineTracks, frames: np.ndarray) -> int:
-    """The frame of ``frames`` ``(F,)`` bool that sees the most observations, of those the
-    earliest in time: what the frames see and when decide it, not their order in the file (a
-    solution's gauge and the start of its chains, the same whichever way the video runs)."""
-    idx = np.flatnonzero(frames)
-    seen = np.bincount(tracks.obs_frame, minlength=tracks.num_frames)[idx]
-    best = idx[seen == seen.max()]
-    return int(best[np.argmin(tracks.timestamps[best])])
-
-
 def reversed_frames(tracks: LineTracks) -> LineTracks:
     """``tracks`` with frame ``k`` as frame ``F - 1 - k`` (the timestamps stay in order: the
     estimator does not use them)."""
