@@ -64,8 +64,6 @@ from omni_sfm.estimate.global_rotations import (
     GlobalRotations,
     chained_start,
     group_directions,
-    outward_order,
-    root_frame,
     solve_rotations,
     world_normals,
 )
@@ -330,20 +328,19 @@ def anchored_start(tracks: LineTracks, frames: np.ndarray, families: list[Parall
                    snap_deg: float = 20.0, min_views: int = 5, line_deg: float = 8.0,
                    min_family_size: int = 5, vpv_deg: float = 5.0
                    ) -> tuple[FloatArray, np.ndarray]:
-    """Start rotations ``(F, 3, 3)``, frame after frame from the root frame outward
-    (:func:`~omni_sfm.estimate.global_rotations.outward_order`): the step from the neighbour
-    towards the root (:func:`chained_start`), then the smallest turn that puts the largest
-    family's VPV on its world direction (the paper's step V-a), then the turn about it that
-    makes the frame's lines of known world direction perpendicular to it. A family's world
-    direction is taken where its VPV is first seen (snapped to a known one within ``snap_deg``);
-    a line joins a world direction once all its planes so far contain it
-    (:func:`_assign_lines`). The chain's parallax and drift are left only where a frame sees no
-    line of known direction but the largest family's. Families of fewer than ``min_family_size``
-    tracks but the largest give no world direction (a few lines that look parallel for a while
-    need not be); a VPV more than ``vpv_deg`` from where the step from the previous frame puts
-    it is not used (two or three of the family's lines seen nearly in one plane give a wrong
-    one, and a step is right to a fraction of a degree). Returns the rotations and, per family,
-    the family whose world direction it shares."""
+    """Start rotations ``(F, 3, 3)``, frame after frame: the step from the previous frame
+    (:func:`chained_start`), then the smallest turn that puts the largest family's VPV on its
+    world direction (the paper's step V-a), then the turn about it that makes the frame's lines
+    of known world direction perpendicular to it. A family's world direction is taken where
+    its VPV is first seen (snapped to a known one within ``snap_deg``); a line joins a world
+    direction once all its planes so far contain it (:func:`_assign_lines`). The chain's
+    parallax and drift are left only where a frame sees no line of known direction but the
+    largest family's. Families of fewer than ``min_family_size`` tracks but the largest give no
+    world direction (a few lines that look parallel for a while need not be); a VPV more than
+    ``vpv_deg`` from where the step from the previous frame puts it is not used (two or three
+    of the family's lines seen nearly in one plane give a wrong one, and a step is right to a
+    fraction of a degree). Returns the rotations and, per family, the family whose world
+    direction it shares."""
     R_chain = chained_start(tracks, frames)
     if not families:
         return R_chain, np.zeros(0, int)
@@ -360,8 +357,9 @@ def anchored_start(tracks: LineTracks, frames: np.ndarray, families: list[Parall
     S = np.zeros((M, 3, 3))
     count = np.zeros(M, int)
     R = R_chain.copy()
-    for k, prev in zip(*outward_order(tracks, frames), strict=True):
-        Rk = R_chain[k] if prev < 0 else R[prev] @ (R_chain[prev].T @ R_chain[k])
+    prev = None
+    for k in np.flatnonzero(frames):
+        Rk = R_chain[k] if prev is None else R[prev] @ (R_chain[prev].T @ R_chain[k])
         obs = order[starts[k]:starts[k + 1]]
         t = tracks.obs_track[obs]
         if np.isfinite(vpv[0][k]).all():
@@ -380,6 +378,7 @@ def anchored_start(tracks: LineTracks, frames: np.ndarray, families: list[Parall
         S[t] += m[:, :, None] * m[:, None, :]
         count[t] += 1
         _assign_lines(S, count, line_world, world, t, min_views, line_deg)
+        prev = k
     return R, same
 
 
@@ -442,36 +441,15 @@ def _window_solution(tracks: LineTracks, sel: np.ndarray, options: GlobalOptions
         return None
 
 
-def _turned_onto(psel: np.ndarray, pR: FloatArray, sel: np.ndarray, R: FloatArray,
-                 R0: FloatArray) -> FloatArray:
-    """A window's rotations ``R`` (of the frames ``sel``) turned onto its neighbour's ``pR``
-    (frames ``psel``, already in the common world) by the rotation that best aligns their
-    shared frames; with fewer than 3 in common, by the step of ``R0`` between the nearest
-    frames."""
-    good = np.asarray(np.isfinite(R).all(axis=(1, 2)))
-    _, i, j = np.intersect1d(psel, sel, return_indices=True)
-    both = np.isfinite(pR[i]).all(axis=(1, 2)) & good[j]
-    if both.sum() >= 3:
-        A = nearest_rotation(np.einsum("kij,klj->il", pR[i][both], R[j][both]))
-    else:
-        pk = np.flatnonzero(np.isfinite(pR).all(axis=(1, 2)))
-        qk = np.flatnonzero(good)
-        # the nearest pair of posed frames of the two windows
-        p_, q_ = (pk[-1], qk[0]) if psel[0] <= sel[0] else (pk[0], qk[-1])
-        A = pR[p_] @ R0[psel[p_]].T @ R0[sel[q_]] @ R[q_].T
-    return np.asarray(np.einsum("ij,kjl->kil", A, R))
-
-
 def windows_start(tracks: LineTracks, frames: np.ndarray, R0: FloatArray,
                   options: GlobalOptions) -> FloatArray:
     """Start rotations ``(F, 3, 3)`` from windows of ``options.start_window`` posed frames,
     overlapping by half, each solved on its own (rotations, positions, adjustment: within a
     window the chain of :func:`anchored_start` drifts little and the lines' positions fix the
     turns that their directions alone leave weak; :func:`_window_solution`). Each window's
-    solution is turned onto its neighbour's towards the window nearest the root frame by the
-    rotation that best aligns their shared frames (:func:`_turned_onto`; from that window
-    outward, whichever way the video runs), and each frame takes the mean of its windows'
-    rotations. Frames in no window that is kept take the
+    solution is turned onto its predecessor's by the rotation that best aligns their shared
+    frames (a step that depends on the two windows alone, whichever way the video runs), and
+    each frame takes the mean of its windows' rotations. Frames in no window that is kept take the
     step of ``R0`` from the nearest frame that is."""
     idx = np.flatnonzero(frames)
     window = options.start_window
@@ -481,20 +459,26 @@ def windows_start(tracks: LineTracks, frames: np.ndarray, R0: FloatArray,
     kept = [(sel, got) for sel, got in zip(sels, solved, strict=True) if got is not None]
     if not kept:
         return R0
-    # from the window nearest the root frame outward, each turned onto its neighbour towards it
-    ts = tracks.timestamps
-    t0 = ts[root_frame(tracks, frames)]
-    near = [(abs(float(np.mean(ts[sel])) - t0), -float(np.mean(ts[sel]))) for sel, _ in kept]
-    r = min(range(len(kept)), key=lambda i: near[i])
-    turned: dict[int, FloatArray] = {r: kept[r][1]}
-    for side in (range(r + 1, len(kept)), range(r - 1, -1, -1)):
-        for i in side:
-            j = i - 1 if i > r else i + 1
-            turned[i] = _turned_onto(kept[j][0], turned[j], kept[i][0], kept[i][1], R0)
     acc = np.zeros((len(frames), 3, 3))
-    for i, (sel, _) in enumerate(kept):
-        good = np.isfinite(turned[i]).all(axis=(1, 2))
-        acc[sel[good]] += turned[i][good]
+    prev: tuple[np.ndarray, FloatArray] | None = None
+    for sel, R in kept:
+        good = np.asarray(np.isfinite(R).all(axis=(1, 2)))
+        if prev is None:
+            A = np.eye(3)
+        else:
+            psel, pR = prev  # pR already turned into the common world
+            _, i, j = np.intersect1d(psel, sel, return_indices=True)
+            both = np.isfinite(pR[i]).all(axis=(1, 2)) & good[j]
+            if both.sum() >= 3:
+                A = nearest_rotation(np.einsum("kij,klj->il", pR[i][both], R[j][both]))
+            else:  # no frames in common: the step of R0 between the nearest frames
+                p = psel[np.flatnonzero(np.isfinite(pR).all(axis=(1, 2)))[-1]]
+                q = int(np.flatnonzero(good)[0])
+                target = pR[np.searchsorted(psel, p)] @ R0[p].T @ R0[sel[q]]
+                A = target @ R[q].T
+        R = np.einsum("ij,kjl->kil", A, R)
+        acc[sel[good]] += R[good]
+        prev = (sel, R)
     covered = np.abs(acc).sum(axis=(1, 2)) > 0
     R = R0.copy()
     R[covered] = nearest_rotation(acc[covered])

@@ -84,35 +84,6 @@ def _sign_aligned(a: FloatArray, b: FloatArray) -> FloatArray:
     return a * s[:, None]
 
 
-def root_frame(tracks: LineTracks, frames: np.ndarray) -> int:
-    """The posed frame (``frames`` ``(F,)`` bool) that sees the most observations, of those the
-    earliest in time: what the frames see and when decide it, not their order in the file."""
-    idx = np.flatnonzero(frames)
-    seen = np.bincount(tracks.obs_frame, minlength=tracks.num_frames)[idx]
-    best = idx[seen == seen.max()]
-    return int(best[np.argmin(tracks.timestamps[best])])
-
-
-def outward_order(tracks: LineTracks, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``(order, towards)``: the posed frames from the :func:`root_frame` outward, one step to
-    each side in turn (the later frames' side first), and each one's neighbour towards the root
-    (-1 for the root). A chain built in this order is the same whichever way the video runs."""
-    idx = np.flatnonzero(frames)
-    i = int(np.searchsorted(idx, root_frame(tracks, frames)))
-    up, down = idx[i + 1:], idx[:i][::-1]
-    ts = tracks.timestamps
-    sides = (up, down) if ts[idx[-1]] >= ts[idx[0]] else (down, up)
-    order, towards = [int(idx[i])], [-1]
-    last = [int(idx[i]), int(idx[i])]
-    for j in range(max(len(up), len(down))):
-        for s, side in enumerate(sides):
-            if j < len(side):
-                order.append(int(side[j]))
-                towards.append(last[s])
-                last[s] = int(side[j])
-    return np.asarray(order), np.asarray(towards)
-
-
 def chained_start(tracks: LineTracks, frames: np.ndarray) -> FloatArray:
     """Start rotations ``(F, 3, 3)``: each frame turned from the previous posed one by the
     Procrustes rotation of the normals the two share (identity where they share fewer than 2
@@ -167,12 +138,10 @@ class _RotationProblem:
         self.t = group[tracks.obs_track[obs]]
         self.F = tracks.num_frames
         pose_idx = np.full(self.F, -1)
-        # the gauge: the root frame (the same frame whichever way the video runs, so that a
-        # solve stopped before convergence stops at the same poses)
-        posed = np.flatnonzero(frames & (np.arange(self.F) != root_frame(tracks, frames)))
-        pose_idx[posed] = np.arange(len(posed))
+        posed = np.flatnonzero(frames)
+        pose_idx[posed[1:]] = np.arange(len(posed) - 1)  # the first posed frame is the gauge
         self.pose_idx = pose_idx
-        self.num_pose, self.num_line = len(posed), int(group.max()) + 1
+        self.num_pose, self.num_line = len(posed) - 1, int(group.max()) + 1
         # the directions' columns after the rotations', the shared ones (a world direction's
         # many lines) last: eliminated in this order the rotations (independent 3x3 blocks given
         # the directions) leave fill only among directions seen by one frame, and a shared
@@ -212,13 +181,7 @@ class _RotationProblem:
         Wm = sp.diags(w)
         H = (Jm.T @ Wm @ Jm).tocsc()
         g = Jm.T @ (w * r)
-        # the damping of a direction's two parameters: their mean, so that it does not depend
-        # on the basis of its tangent plane (orthonormal_completion's, which turns with the
-        # world frame): with each one's own, a start turned as a whole settled 11 deg away
-        damp = np.asarray(H.diagonal()).copy()
-        pairs = damp[P:].reshape(-1, 2)
-        pairs[:] = pairs.mean(axis=1, keepdims=True)
-        return H, np.asarray(g), r, damp
+        return H, np.asarray(g), r, np.asarray(H.diagonal())
 
     def retract(self, R: FloatArray, d: FloatArray, step: FloatArray) -> tuple[FloatArray,
                                                                               FloatArray]:
