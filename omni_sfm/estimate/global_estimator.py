@@ -50,7 +50,6 @@ from omni_sfm.estimate.bundle import (
     bundle_adjust,
     outlier_limit,
     resect_pose,
-    scattered,
     truncated_cost,
 )
 from omni_sfm.estimate.families import world_families
@@ -63,7 +62,6 @@ from omni_sfm.estimate.global_rotations import (
     GlobalRotationOptions,
     GlobalRotations,
     chained_start,
-    group_directions,
     solve_rotations,
     world_normals,
 )
@@ -136,11 +134,7 @@ class GlobalOptions:
     hold_world_directions: bool = True
     """The adjustment holds the direction of every line of a world direction (the directions
     man-made places repeat are exact: their lines' noise then moves no rotation, and a frame
-    whose other lines leave a turn weak keeps it); the world directions are then fitted again
-    to the adjustment's rotations (``direction_rounds``)."""
-    direction_rounds: int = 4
-    """Rounds at most of the world directions fitted again to the adjustment's rotations and
-    the adjustment run again (:func:`_world_directions_refitted`)."""
+    whose other lines leave a turn weak keeps it)."""
     uncertain_information: float = 1e-3
     """A frame's own lines leave its position free where the smallest eigenvalue of its
     position information (its observations, the lines held) is below this fraction of the
@@ -431,7 +425,7 @@ def _window_solution(tracks: LineTracks, sel: np.ndarray, options: GlobalOptions
     obs = np.flatnonzero(np.isin(tracks.obs_frame, sel))
     sub = tracks.subset(obs, np.unique(tracks.obs_track[obs]), sel)
     # a start needs the basin, not the last digit: two robust rounds, no polish
-    local = replace(options, start_window=0, direction_rounds=0, settled_start=False, workers=1,
+    local = replace(options, start_window=0, settled_start=False, workers=1,
                     member_sigmas=0.0, revisits=replace(options.revisits, enabled=False),
                     rotations=replace(options.rotations, max_iterations=20),
                     bundle=replace(options.bundle, max_rounds=2, final_loss=None))
@@ -923,51 +917,6 @@ def _spread_flags(rotation_deg: FloatArray, path: FloatArray, options: GlobalOpt
     return out
 
 
-def _world_directions_refitted(tracks: LineTracks, ba: BundleResult, held: np.ndarray,
-                               label: np.ndarray, options: GlobalOptions) -> BundleResult:
-    """The adjustment with the ``held`` lines' world directions (``label``) fitted again to its
-    rotations and the adjustment run again, until they move by less than 1e-8 rad (at most
-    ``options.direction_rounds`` times): the world directions and the poses then reach their
-    joint minimum, not the one step 1's directions (which follow its start) pin."""
-    for _ in range(options.direction_rounds):
-        use = held & ba.used_tracks
-        if not use.any():
-            break
-        group = np.where(use, label, -1)
-        _, inv = np.unique(group[use], return_inverse=True)
-        compact = np.full(len(group), -1)
-        compact[use] = inv
-        world = group_directions(tracks, ba.rotations, ba.frames, compact)
-        d = ba.line_directions.copy()
-        new = world[compact[use]]
-        new *= np.sign(np.einsum("ij,ij->i", new, d[use]))[:, None]
-        moved = float(np.max(np.linalg.norm(new - d[use], axis=1)))
-        d[use] = new
-        # the tracks the adjustment kept, none judged again: rounds that re-decide outliers
-        # follow paths that 1e-9 on the normals changes, and gross outliers let back in pull
-        # a stretch off before they are rejected again
-        kept = np.flatnonzero(ba.used_tracks)
-        sub = bundle_adjust(tracks.select_tracks(kept), ba.rotations, ba.positions, d[kept],
-                            ba.line_points[kept], frames=ba.frames, held_directions=use[kept],
-                            options=replace(options.bundle, reject_outliers=False))
-        again = scattered(sub, None, kept, tracks.num_frames, tracks.num_tracks)
-        again = replace(again, outlier_tracks=again.outlier_tracks | ba.outlier_tracks)
-        if not _poses_as_many(again, ba):
-            break
-        ba = again
-        if moved < 1e-8:
-            break
-    return ba
-
-
-def _poses_as_many(new: BundleResult, old: BundleResult) -> bool:
-    """Whether the adjustment ``new`` poses every frame ``old`` posed: a round that rejects the
-    lines of a stretch that few lines tie to the rest (its start there a little off, the
-    rejection judged before the poses settle) leaves that stretch without a pose, and the
-    parts on either side with scales of their own."""
-    return not bool((old.frames & ~new.frames).any())
-
-
 def _adjusted(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArray, p: FloatArray,
               frames: np.ndarray, held: np.ndarray | None, options: GlobalOptions
               ) -> BundleResult:
@@ -1031,17 +980,13 @@ def _positions_step(tracks: LineTracks, rot: GlobalRotations, frames: np.ndarray
 def _adjustment_step(tracks: LineTracks, R: FloatArray, c: FloatArray, rot: GlobalRotations,
                      pos: GlobalPositions, dir_ok: np.ndarray, label: np.ndarray,
                      frames: np.ndarray, options: GlobalOptions) -> BundleResult:
-    """Step 3: the robust adjustment from the positions' start (:func:`_adjusted`), the world
-    directions fitted again to it (:func:`_world_directions_refitted`)."""
+    """Step 3: the robust adjustment from the positions' start (:func:`_adjusted`), the lines
+    of a world direction (``label``) held to step 1's."""
     d0 = np.where(dir_ok[:, None], rot.directions, np.nan)
     # the lines of a world direction keep it: only their positions move (and with two world
     # directions or more they hold the rotation gauge)
     held = dir_ok & (label >= 0) if options.hold_world_directions else None
-    ba = _adjusted(tracks, R, c, d0, pos.points, frames, held, options)
-    if held is not None:
-        # under the adjustment's own loss whichever start won, on the tracks it kept
-        ba = _world_directions_refitted(tracks, ba, held, label, options)
-    return ba
+    return _adjusted(tracks, R, c, d0, pos.points, frames, held, options)
 
 
 def _flags(tracks: LineTracks, rot: GlobalRotations, pos: GlobalPositions, c: FloatArray,
