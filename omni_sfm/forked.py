@@ -15,6 +15,7 @@ import multiprocessing as mp
 import pickle
 import traceback
 from collections.abc import Callable, Sequence
+from functools import partial
 from multiprocessing.connection import Connection
 from typing import Any, Generic, TypeVar
 
@@ -111,6 +112,10 @@ class Deferred(Generic[T]):
                 self._conn.close()
 
 
+def _run_group(fns: Sequence[Callable[[], T]], idx: range) -> list[T]:
+    return [fns[i]() for i in idx]
+
+
 def run_all(fns: Sequence[Callable[[], T]], workers: int) -> list[T]:
     """``[fn() for fn in fns]``, up to ``workers`` of them at once: the calls are dealt to
     ``workers`` groups in turn (call ``k`` to group ``k mod workers``), each group but the first
@@ -119,8 +124,7 @@ def run_all(fns: Sequence[Callable[[], T]], workers: int) -> list[T]:
     ``workers``; an exception is raised here, after the children are stopped."""
     w = max(1, min(workers, len(fns))) if can_fork() else 1
     groups = [range(g, len(fns), w) for g in range(w)]
-    children = [Deferred(lambda idx=idx: [fns[i]() for i in idx], fork=True)  # type: ignore[misc]
-                for idx in groups[1:]]
+    children = [Deferred(partial(_run_group, fns, idx), fork=True) for idx in groups[1:]]
     out: list[Any] = [None] * len(fns)
     try:
         for i in groups[0]:
