@@ -136,20 +136,3 @@ def run_all(fns: Sequence[Callable[[], T]], workers: int) -> list[T]:
         for child in children:
             child.cancel()
     return out
-
-
-class SharedCounters:
-    """``n`` integers that forked children write and this process reads (shared memory where
-    the platform forks; a list otherwise, for work done in this process)."""
-
-    def __init__(self, n: int) -> None:
-        self._values: Any = mp.get_context("fork").RawArray("q", n) if can_fork() else [0] * n
-
-    def __getitem__(self, k: int) -> int:
-        return int(self._values[k])
-
-    def __setitem__(self, k: int, value: int) -> None:
-        self._values[k] = value
-
-    def total(self) -> int:
-        return int(sum(self._values))

@@ -440,17 +440,14 @@ class AttemptRecord(JsonReport):
     """One of an init report's ``attempts`` (docs/estimator.md, "Strategies and attempts"):
     the ``strategy``, the first and last frame it ran on (whole-sequence indices; absent for
     the whole input), its ``result`` (``kept``, ``rejected``, ``failed``, ``skipped``), the RMS
-    angle between observed and predicted normals at its solution, ``why``; ``reversed`` for an
-    attempt of the run on the frames in reverse order, ``to_frames`` for a ``join`` (the piece
-    it was joined to), ``family`` for a window solved with another family."""
+    angle between observed and predicted normals at its solution, ``why``; ``family`` for the
+    paper's window solved with another family."""
 
     strategy: str
     frames: list[int] | None = absent()
     result: str
     cost_rms_deg: float | None = absent()
     why: str | None = absent()
-    reversed: bool | None = absent()
-    to_frames: list[int] | None = absent()
     family: int | None = absent()
 
 
@@ -519,21 +516,19 @@ class InitReport(_StageInput, JsonReport):
     unused_tracks: list[int] | None = absent()
     windows: list[list[int]] | None = absent()
     """First and last frame of each window of the paper's method."""
-    window_failures: list[str] | None = absent()
     world: str | None = absent()
     scale_convention: str | None = absent()
     reflection_ambiguity: str | None = absent()
     timings_ms: dict[str, float] | None = absent()
     residuals: InitResiduals | None = absent()
     estimator: str | None = absent()
-    """The estimator that ran: ``windows`` or ``global``."""
+    """The estimator that ran: ``paper`` or ``global``."""
     estimator_choice: str | None = absent()
-    """Why that one: ``asked for`` (``--estimator windows|global``) or what ``auto`` saw."""
+    """Why that one: ``asked for`` (``--estimator paper|global``) or what ``auto`` saw."""
     reflection: str | None = absent()
     steps: list[EstimatorStep] | None = absent()
     """The global estimator's steps (docs/estimator.md)."""
     world_directions: list[list[float]] | None = absent()
-    half_turns_repaired: int | None = absent()
     parallel_families: FamiliesFound | None = absent()
     motion: InitMotion | None = absent()
     """Only for a camera that only turned (docs/method.md §13)."""
@@ -544,7 +539,6 @@ class InitReport(_StageInput, JsonReport):
     """How well the data fix each frame's pose (the global estimator's)."""
     rig: RigScaleRecord | None = absent()
     """The metric scale of a rig of lenses (their offsets): :class:`RigScaleRecord`."""
-    joined_pieces: int | None = absent()
     attempts: list[AttemptRecord] | None = absent()
     """Every strategy tried, in the order it ran."""
     segments: list[InitSegment] | None = absent()

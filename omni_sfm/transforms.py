@@ -6,9 +6,8 @@ Two fits, on purpose different:
   estimate with ground truth (:mod:`omni_sfm.evaluate`);
 - :func:`similarity_from_poses`: the rotation from the cameras' rotations (their chordal mean,
   well defined even for a straight path, where centres alone leave a rotation free), then the
-  scale and translation by least squares on the centres; used to chain windows
-  (:mod:`omni_sfm.estimate.windows`) and to map a refined model back onto its input
-  (:mod:`omni_sfm.refine.pipeline`).
+  scale and translation by least squares on the centres; used to map a refined model back onto
+  its input (:mod:`omni_sfm.refine.pipeline`).
 
 Also the frame matching of two trajectories by timestamp (:func:`associate`) and the paper's
 normalised frame with the position error in it (:func:`paper_translation_errors`; the other
@@ -77,7 +76,7 @@ def similarity_from_poses(rot_dst: FloatArray, pos_dst: FloatArray, rot_src: Flo
     mean centres.
 
     Args:
-        allow_reflection: True (chaining windows): ``s`` may come out negative, a point
+        allow_reflection: True (two estimates of one walk): ``s`` may come out negative, a point
             reflection of the source centres (line normals have no sign, so a solution is
             determined only up to it); centres that do not spread in either solution raise
             :class:`OmniSfmError`. False (aligning a refined model onto its input): ``s`` is 1

@@ -16,15 +16,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from omni_sfm.estimate.pipeline import EstimationOptions
 from omni_sfm.reports import JsonReport
 from omni_sfm.synth.render import RenderOptions
 
 ERROR_PREFIX = "omni-sfm: error: "
-
-# The windows estimator asked for by name: the tests of its windows, chaining and strategies
-# (``auto``, the default, takes it only where one window covers the sequence).
-WINDOWS = EstimationOptions(estimator="windows")
 
 # The 360 corridor that test_track.py, test_export_formats.py and test_init_images.py share (the
 # ``rendered`` fixture renders equal options once a run): 40 frames, 800 x 400.

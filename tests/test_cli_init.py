@@ -31,10 +31,10 @@ def test_simulate_then_init_end_to_end(tmp_path, capsys):
     refl = trajectory_errors(type(est)(est.timestamps, est.rotations, -est.positions), gt)
     assert err.rot_max_deg < 1e-6
     assert min(err.paper_trans.max(), refl.paper_trans.max()) < 1e-6
-    assert "estimator: windows (auto: one window covers every frame" in capsys.readouterr().out
+    assert "estimator: paper (auto: one window covers every frame" in capsys.readouterr().out
     rep = json.loads((out / "report.json").read_text())
     assert rep["num_frames"] == 12 and rep["num_frames_estimated"] == 12
-    assert rep["estimator"] == "windows" and rep["estimator_choice"].startswith("auto: ")
+    assert rep["estimator"] == "paper" and rep["estimator_choice"].startswith("auto: ")
     assert rep["num_tracks"] == 10 and rep["frames_not_estimated"] == []
     typed = InitFolder(out).read_report()
     assert typed.to_json() == rep  # every key read back, sections typed
@@ -82,14 +82,14 @@ def _bad_cases(good):
     cases["frame_out_of_range"] = (x, "outside")
     two_par = simulate(SimulationOptions(num_views=20, num_parallel=2, num_other=6, seed=1))
     cases["two_parallel"] = (_tracks_json(two_par), "parallel")
-    x = json.loads(json.dumps(d))
-    x["tracks"] = x["tracks"][:6]
-    cases["two_other"] = (x, "not parallel")
+    # every line of one direction: nothing fixes the turn about it
+    one = simulate(SimulationOptions(num_views=8, num_parallel=8, num_other=0, seed=1))
+    cases["one_direction"] = (_tracks_json(one), "too few frames or lines for the rotations")
     return cases
 
 
 @pytest.mark.parametrize("case", ["malformed", "non_unit", "non_finite", "two_frames",
-                                  "frame_out_of_range", "two_parallel", "two_other"])
+                                  "frame_out_of_range", "two_parallel", "one_direction"])
 def test_bad_input_one_line_exit_2_no_output(tmp_path, capsys, good, case):
     content, msg = _bad_cases(good)[case]
     path = tmp_path / "tracks.json"

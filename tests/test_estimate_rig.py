@@ -101,8 +101,8 @@ def test_offsets_survive_the_tracks_file_and_the_windows_refuse_them(tmp_path: P
     assert back.obs_offset is not None
     assert np.array_equal(back.obs_offset, tracks.as_written().obs_offset)
     assert np.allclose(back.obs_offset, tracks.obs_offset, atol=1e-12)
-    with pytest.raises(OmniSfmError, match="windows estimator takes a central camera"):
-        estimate_poses(tracks, EstimationOptions(estimator="windows", progress=False))
+    with pytest.raises(OmniSfmError, match="the paper's method takes a central camera"):
+        estimate_poses(tracks, EstimationOptions(estimator="paper", progress=False))
 
 
 def test_a_rendered_dual_fisheye_walk_end_to_end(tmp_path: Path) -> None:

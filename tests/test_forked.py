@@ -11,8 +11,7 @@ import numpy as np
 import pytest
 
 from omni_sfm.errors import OmniSfmError
-from omni_sfm.estimate.attempts import CountedProgress, RunLog
-from omni_sfm.forked import Deferred, SharedCounters, can_fork, run_all
+from omni_sfm.forked import Deferred, can_fork, run_all
 
 needs_fork = pytest.mark.skipif(not can_fork(), reason="the platform does not fork")
 
@@ -66,27 +65,6 @@ def test_start_later_and_cancel():
     assert done.result() == 3
     done.start()  # already computed here: nothing is started
     assert not done.forked and done.result() == 3
-
-
-@needs_fork
-def test_a_run_in_a_child_shows_its_progress_through_shared_counters():
-    counters = SharedCounters(2)
-    seen: list[int] = []
-    bar = CountedProgress(counters, 1, lambda: seen.append(counters.total()))
-
-    def run() -> int:
-        log = RunLog(progress=bar)
-        for frame in (4, 9, 2):
-            log.reached(frame)  # the furthest frame reached: 10
-        return os.getpid()
-
-    job = Deferred(run, fork=True)
-    waits: list[int] = []
-    assert job.result(lambda: waits.append(counters.total()), interval=0.01) != os.getpid()
-    assert counters[1] == 10 and counters[0] == 0 and counters.total() == 10
-    assert seen == []  # the refresh belongs to this process: not called from the child
-    bar.update(5)  # here it is
-    assert seen == [15]
 
 
 @pytest.mark.parametrize("workers", [1, 2, 3, 7])

@@ -25,11 +25,10 @@ from omni_sfm.estimate.pipeline import (
     EstimationOptions,
     EstimationResult,
     estimate_poses,
-    reversed_frames,
 )
 from omni_sfm.evaluate import match_reflection, trajectory_errors
 from omni_sfm.geometry import rotation_angle, rotvec_to_matrix
-from omni_sfm.lines.tracks import LineTracks
+from omni_sfm.lines.tracks import LineTracks, reversed_frames
 from omni_sfm.poses import Trajectory
 from omni_sfm.reports import InitReport
 from omni_sfm.synth.simulate import Simulation, SimulationOptions, simulate

@@ -95,14 +95,13 @@ def _with_walker(sim, frames: range, speed: float) -> LineTracks:
                    np.vstack([tr.obs_ray, obs_ray])[order])
 
 
-@pytest.mark.parametrize("estimator", ["global", "windows"])
-def test_walker_tracks_are_rejected(estimator):
+def test_walker_tracks_are_rejected():
     """People walking past (item 3 of the issue): their silhouette edges are vertical lines,
     parallel to the scene's verticals, whose motion disagrees with the scene's; the
     estimator's outlier rejection drops them and the poses stay those without them."""
     sim = simulate(SimulationOptions(num_views=60, world="manhattan", path_length=4.0,
                                      noise_deg=0.1, seed=3))
-    opts = EstimationOptions(estimator=estimator)
+    opts = EstimationOptions(estimator="global")
     clean = estimate_poses(sim.tracks, opts)
     for frames, speed in ((range(20, 41), 1.3 / 15), (range(10, 51), -1.2 * 4.0 / 60)):
         res = estimate_poses(_with_walker(sim, frames, speed), opts)

@@ -12,7 +12,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from helpers import WINDOWS, assert_every_key_declared
+from helpers import assert_every_key_declared
 
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.estimate.bundle import oracle
@@ -128,18 +128,24 @@ def test_outlier_tracks_rejected_and_named():
     assert ref_m[0] <= 1.5 * orc_m[0] and ref_m[1] <= 1.5 * orc_m[1]
 
 
-def test_too_few_other_lines():
+def test_too_few_other_lines_for_the_paper():
+    # the paper's method needs 3 lines of another direction; the global estimator poses the
+    # frames from 5 parallel lines and 2 others
     sim = simulate(SimulationOptions(num_views=10, num_parallel=5, num_other=2, seed=4))
     with pytest.raises(OmniSfmError, match="at least 3 lines not parallel"):
-        estimate_poses(sim.tracks)
+        estimate_poses(sim.tracks, EstimationOptions(estimator="paper"))
+    res = estimate_poses(sim.tracks)
+    assert res.report.estimator == "global" and res.estimated.all()
+    e = trajectory_errors(match_reflection(res.trajectory, sim.groundtruth), sim.groundtruth)
+    assert e.rot_max_deg < 1e-6 and e.ate_rel < 1e-6
 
 
-def test_auto_takes_the_windows_where_one_window_covers_the_sequence():
+def test_auto_takes_the_paper_where_one_window_covers_the_sequence():
     """``estimator="auto"`` (the default): the paper's data (every line in every frame) go to
-    the windows, a walk whose lines come and go to the global estimator, two walks with no line
-    in common to the windows (each part in a world of its own), and so does a sequence longer
-    than the global estimator takes; the same choice in reversed frame order; the report says
-    which ran and why."""
+    the paper's method, a walk whose lines come and go to the global estimator, and so do two
+    walks with no line in common (each part in a world of its own); the same choice in reversed
+    frame order; the report says which ran and why; the paper's method asked for where no
+    window covers the sequence is a clear error."""
     paper = simulate(SimulationOptions(num_views=12, num_parallel=5, num_other=5, seed=1))
     walk = simulate(SimulationOptions(num_views=120, num_parallel=12, num_other=12,
                                       visible_frames=40, seed=1))
@@ -149,21 +155,24 @@ def test_auto_takes_the_windows_where_one_window_covers_the_sequence():
                         np.concatenate([a.obs_track, b.obs_track + a.num_tracks]),
                         np.concatenate([a.obs_frame, b.obs_frame + 30]),
                         np.concatenate([a.obs_normal, b.obs_normal]), source="test")
-    for tracks, want, why in ((paper.tracks, "windows", "one window covers every frame"),
+    for tracks, want, why in ((paper.tracks, "paper", "one window covers every frame"),
                               (walk.tracks, "global", "lines seen in every frame"),
-                              (apart, "windows", "no line is seen on both sides of frame")):
+                              (apart, "global", "no line is seen on both sides of frame")):
         for t in (tracks, reversed_frames(tracks)):
             got, reason = chosen_estimator(t, EstimationOptions())
             assert got == want and why in reason, (got, reason)
-    got, reason = chosen_estimator(walk.tracks, EstimationOptions(auto_global_max_frames=100))
-    assert got == "windows" and "120 frames, more than the global estimator takes" in reason
     res = estimate_poses(paper.tracks)
-    assert res.report.estimator == "windows" and "auto: one window" in \
+    assert res.report.estimator == "paper" and "auto: one window" in \
         (res.report.estimator_choice or "")
     res = estimate_poses(paper.tracks, EstimationOptions(estimator="global"))
     assert (res.report.estimator, res.report.estimator_choice) == ("global", "asked for")
     with pytest.raises(OmniSfmError, match="unknown estimator 'best'"):
         estimate_poses(paper.tracks, EstimationOptions(estimator="best"))
+    with pytest.raises(OmniSfmError, match="the paper's method needs one window over the whole "
+                                           "sequence"):
+        estimate_poses(walk.tracks, EstimationOptions(estimator="paper"))
+    with pytest.raises(OmniSfmError, match="workers must be at least 1"):
+        estimate_poses(paper.tracks, EstimationOptions(workers=0))
 
 
 def test_too_few_frames():
@@ -188,59 +197,18 @@ def test_paper_alone_option_and_outputs(tmp_path):
     assert len((tmp_path / "trajectory.tum").read_text().splitlines()) == 13
 
 
-def test_window_flipped_by_a_half_turn_is_not_chained():
-    # on this corridor walk the paper's rotation search turns frames 402-435 of one window by
-    # a half turn (fitting its lines as well); chained, the flip spread to the frames after it
-    # (180 deg rotation error, 24 % ATE): the window is now solved with another family
+def test_a_corridor_stretch_with_a_half_turn_ambiguity_comes_out_right():
+    # on this corridor walk the paper's rotation search turned frames 402-435 of a window by a
+    # half turn (fitting its lines as well); the global estimator's rotations of all frames at
+    # once leave no window to flip
     sim = simulate(SimulationOptions(world="manhattan", num_views=1000, path_length=0.05 * 999,
                                      noise_deg=0.1, visible_frames=60, seed=0,
                                      line_density=7.0))
     sub, _ = frame_range(sim.tracks, 300, 520)
     g = sim.groundtruth
     gt = Trajectory(g.timestamps[300:520], g.rotations[300:520], g.positions[300:520])
-    res = estimate_poses(sub, WINDOWS)
-    assert res.estimated.all()
-    fam = res.report.parallel_families
-    assert fam is not None
-    assert any("turns by 180 deg" in s for s in fam.windows_with_another_family)
+    res = estimate_poses(sub)
+    assert res.estimated.all() and res.report.estimator == "global"
     e = trajectory_errors(match_reflection(res.trajectory, gt), gt)
     assert e.rot_max_deg < 0.5 and e.ate_rel < 0.005
 
-
-def test_a_tie_between_starts_is_decided_by_the_least_squares_cost():
-    # the capped score triangulates lines and caps misfits: between two starts that explain
-    # the same observations it can rank two minima the wrong way round (sparse seed 5: 4e-4
-    # apart in the score, 2e-6 the other way in the adjustment's cost, 2.4x against 1.0x the
-    # oracle's translation error); such a tie is decided by the adjustment's own cost
-    from dataclasses import replace
-
-    from omni_sfm.estimate.pipeline import _least_squares_among_ties
-
-    sim = simulate(SimulationOptions(num_views=10, num_parallel=4, num_other=4, noise_deg=0.05,
-                                     seed=1))
-    a = estimate_poses(sim.tracks)
-    b = replace(a, residual_rms_final_deg=a.residual_rms_final_deg * (1 - 1e-6))
-    pick = _least_squares_among_ties
-    assert pick([("a", a), ("b", b)], [1.0, 1.0004], 0.001) == (1, [0, 1])  # a tie
-    assert pick([("a", a), ("b", b)], [1.0, 1.002], 0.001) == (0, [0])  # no tie: the score
-    fewer = replace(b, used_tracks=np.r_[False, b.used_tracks[1:]])
-    assert pick([("a", a), ("b", fewer)], [1.0, 1.0004], 0.001) == (0, [0])  # other tracks
-    assert pick([("a", b), ("b", a)], [1.0004, 1.0], 0.001) == (0, [0, 1])
-
-
-def test_same_result_with_one_and_two_workers():
-    # the other starts (docs/estimator.md stage 9) run in child processes beside the first
-    # with two workers, one after the other in this process with one: the same poses to the
-    # bit and the same attempts, in the same order
-    sim = simulate(SimulationOptions(num_views=200, num_parallel=20, num_other=20,
-                                     noise_deg=0.1, visible_frames=80, seed=3))
-    one = estimate_poses(sim.tracks, replace(WINDOWS, workers=1))
-    two = estimate_poses(sim.tracks, replace(WINDOWS, workers=2, progress=True))
-    strategies = {a.strategy for a in one.report.attempts or []}
-    assert {"short bootstrap", "merged starts", "reversed start"} <= strategies
-    assert np.array_equal(one.estimated, two.estimated)
-    assert np.array_equal(one.trajectory.rotations, two.trajectory.rotations)
-    assert np.array_equal(one.trajectory.positions, two.trajectory.positions)
-    assert one.report.attempts == two.report.attempts
-    with pytest.raises(OmniSfmError, match="workers must be at least 1"):
-        estimate_poses(sim.tracks, EstimationOptions(workers=0))

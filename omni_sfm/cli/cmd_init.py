@@ -101,13 +101,12 @@ def add_parser(subparsers: Any) -> None:
     p.add_argument("--overwrite", action="store_true", help="replace a non-empty OUTPUT")
     p.add_argument("--no-refine", action="store_true",
                    help="skip the bundle adjustment (the paper's method alone)")
-    p.add_argument("--estimator", choices=["auto", "windows", "global"], default="auto",
-                   help="auto (default): windows where lines seen in every frame make one "
-                        "window (the paper's setting), where parts share no line and beyond "
-                        "2,000 frames, else global; windows: the paper's "
-                        "method on windows, chained and adjusted; global: rotations of all "
-                        "frames at once, positions of all frames at once, one bundle "
-                        "adjustment (docs/estimator.md, \"Which estimator runs\")")
+    p.add_argument("--estimator", choices=["auto", "paper", "global"], default="auto",
+                   help="auto (default): the paper's method where lines seen in every frame "
+                        "make one window (the paper's setting), else global; paper: the "
+                        "paper's method on that window, then the bundle adjustment; global: "
+                        "rotations of all frames at once, positions of all frames at once, one "
+                        "bundle adjustment (docs/estimator.md, \"Which estimator runs\")")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=run)
 

@@ -1,11 +1,9 @@
-"""Every frame that sees lines already fixed in 3D: incremental registration beyond the windows
-(docs/method.md §14, docs/estimator.md stage 5b).
+"""Every frame that sees lines already fixed in 3D: incremental registration, as the online
+tracker poses each new frame (docs/method.md §14, docs/track.md).
 
-The paper's method needs a window of frames in which 3 parallel and 3 other lines are seen
-throughout. Where tracks are short (a turn, a doorway, a 360 camera carried by a person) no
-such window forms and the chain of windows ends, although each frame there sees lines that its
-neighbours have already fixed in 3D. :func:`register_frames` grows the estimated frames frame by
-frame, forwards then backwards, as incremental structure from motion does with points:
+A frame that sees lines its predecessors have already fixed in 3D is posed from them, as
+incremental structure from motion does with points (:class:`Growth`; :func:`register_frames`
+grows a set of posed frames forwards then backwards):
 
 1. **Resection.** The new frame's pose is the absolute pose from the known 3D lines it sees
    (:func:`omni_sfm.estimate.bundle.resect_pose`: the bundle adjustment's residual over the 6

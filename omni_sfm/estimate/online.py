@@ -7,10 +7,10 @@ frames so far give it; the pose returned for frame ``k`` depends on frames ``0..
 wires the estimator's own pieces, nothing new:
 
 1. **Start.** The first frames are buffered (status ``initialising``, no pose) until the
-   offline estimator (:func:`~omni_sfm.estimate.pipeline.estimate_poses`: the paper's windows,
-   the line bundle adjustment) solves the buffered frames and poses the newest of them: the
-   first try after ``start_frames`` frames, again every ``start_retry`` frames, the oldest
-   frames dropped beyond ``max_start_frames``; a start is taken once its lines' planes turn
+   offline estimator (:func:`~omni_sfm.estimate.pipeline.estimate_poses`: the paper's method
+   where one window covers the buffered frames, else the global estimator) solves the buffered
+   frames and poses the newest of them: the first try after ``start_frames`` frames, again
+   every ``start_retry`` frames, the oldest frames dropped beyond ``max_start_frames``; a start is taken once its lines' planes turn
    by ``min_start_parallax_deg`` across the buffered frames (or the buffer is full): its
    baseline fixes the scale that the tracking carries on. The frame where the start succeeds
    gets its pose (status ``tracking``) and, in :attr:`TrackedPose.start_poses`, the poses of
@@ -110,10 +110,9 @@ class Status(StrEnum):
 
 
 def _default_start() -> EstimationOptions:
-    # the buffered frames are few: the paper's method on them, in one window where the lines
-    # seen throughout allow it, a few chained where some lines come or go
-    return EstimationOptions(progress=False, bootstrap_frames=None, short_bootstrap_frames=None,
-                             min_segment_frames=0, estimator="windows")
+    # the buffered frames are few: the paper's method on them where one window covers them,
+    # the global estimator where some lines come or go
+    return EstimationOptions(progress=False)
 
 
 @dataclass(frozen=True, kw_only=True)

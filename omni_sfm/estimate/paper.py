@@ -215,7 +215,7 @@ def _check_inputs(tracks: LineTracks, family: ParallelFamily,
         raise OmniSfmError(
             f"the paper's method needs every track in every frame of the window; track "
             f"{int(tracks.track_ids[m])} is missing in {int((~vis[m]).sum())} of {F} frames "
-            f"({missing.size} tracks incomplete): estimate windows of fully seen tracks")
+            f"({missing.size} tracks incomplete): the global estimator takes such tracks")
     w = np.ones(M) if weights is None else np.asarray(weights, dtype=np.float64)
     if w.shape != (M,) or not np.isfinite(w).all() or (w < 0).any():
         raise OmniSfmError(f"weights must be {M} finite non-negative numbers, got shape {w.shape}")

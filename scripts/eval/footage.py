@@ -104,7 +104,7 @@ def slug(name: str) -> str:
     return "".join(ch if ch.isalnum() else "-" for ch in name).strip("-").replace("--", "-")
 
 
-def run_case(case: Case, work: Path, estimator: str = "windows") -> dict[str, Any]:
+def run_case(case: Case, work: Path, estimator: str = "auto") -> dict[str, Any]:
     seq = work / slug(case.name)
     if not (seq / "groundtruth.tum").is_file():
         render_sequence(seq, case.render, overwrite=True)
@@ -170,8 +170,8 @@ def main() -> int:
     p.add_argument("--work", type=Path, required=True, help="folder for renders and results")
     p.add_argument("--frames", type=int, default=600, help="frames of the walk (default 600)")
     p.add_argument("--only", nargs="*", help="run only cases whose name contains one of these")
-    p.add_argument("--estimator", choices=["windows", "global"], default="windows",
-                   help="init's estimator (default windows); global writes its own record, "
+    p.add_argument("--estimator", choices=["auto", "paper", "global"], default="auto",
+                   help="init's estimator (default auto); global writes its own record, "
                         "eval_footage_global")
     add_log_arguments(p)
     args = p.parse_args()
@@ -186,7 +186,7 @@ def main() -> int:
     every = [k for k, r in enumerate(cells) if str(r[1]).startswith("all:")]
     headline = "; ".join(f"{{rows[{k}][0]}}: {{rows[{k}][2]}} frames, {{rows[{k}][3]}} deg, "
                          f"{{rows[{k}][5]}} % ATE" for k in every)
-    name = "eval_footage" if args.estimator == "windows" else "eval_footage_global"
+    name = "eval_footage" if args.estimator == "auto" else f"eval_footage_{args.estimator}"
     write_log(args, name, "The office walk, effect by effect", COLUMNS, cells,
               headline=f"{args.frames}-frame 23 m office walk with a 90 deg turn, every effect "
                        f"of real footage at once: {headline}")

@@ -1,12 +1,12 @@
 #!/usr/bin/env python
-"""The global estimator against the windows estimator on simulated walks, and its answer on the
-same tracks in reversed frame order.
+"""The global estimator on simulated walks, and its answer on the same tracks in reversed frame
+order.
 
 For each seed it simulates a 600-frame walk (``--world manhattan``: a corridor route with three
 world directions; ``random``: the paper's random world, one parallel family, each line seen in
-about 60 frames) with 0.1 deg noise, runs ``estimate_poses`` with ``estimator="windows"`` and
-``"global"``, and prints frames posed, mean / max rotation error, ATE (% of the path), time, and
-for the global estimator the largest difference between its forward and reversed-order poses.
+about 60 frames) with 0.1 deg noise, runs ``estimate_poses`` with ``estimator="global"``, and
+prints frames posed, mean / max rotation error, ATE (% of the path), time, and the largest
+difference between its forward and reversed-order poses.
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python -m scripts.eval.global_walks --world manhattan \
         --seeds 20 21 22
@@ -20,14 +20,9 @@ from dataclasses import replace
 from typing import Any
 
 from omni_sfm.errors import OmniSfmError
-from omni_sfm.estimate.pipeline import (
-    EstimationOptions,
-    EstimationResult,
-    estimate_poses,
-    reversed_frames,
-)
+from omni_sfm.estimate.pipeline import EstimationOptions, EstimationResult, estimate_poses
 from omni_sfm.evaluate import match_reflection, trajectory_errors
-from omni_sfm.lines.tracks import LineTracks
+from omni_sfm.lines.tracks import LineTracks, reversed_frames
 from omni_sfm.poses import Trajectory
 from omni_sfm.synth.simulate import SimulationOptions, simulate
 from scripts.benchlib import add_log_arguments, write_log
@@ -70,14 +65,13 @@ def main() -> None:
     ap.add_argument("--world", choices=["manhattan", "random"], default="manhattan")
     ap.add_argument("--seeds", type=int, nargs="+", default=[20, 21, 22])
     ap.add_argument("--views", type=int, default=600)
-    ap.add_argument("--no-windows", action="store_true", help="the global estimator only")
     add_log_arguments(ap)
     args = ap.parse_args()
     rows: list[list[Any]] = []
     for seed in args.seeds:
         sim = simulate(_sim(args.world, seed, args.views))
         tr, gt = sim.tracks, sim.groundtruth
-        for name in (["global"] if args.no_windows else ["windows", "global"]):
+        for name in ["global"]:
             try:
                 res, dt = _run(tr, name)
             except OmniSfmError as exc:
@@ -93,7 +87,7 @@ def main() -> None:
             print(" | ".join(f"{v:.4g}" if isinstance(v, float) else str(v) for v in row),
                   flush=True)
             rows.append(row)
-    write_log(args, f"eval_global_{args.world}", f"Global and windows estimators, {args.world} "
+    write_log(args, f"eval_global_{args.world}", f"The global estimator, {args.world} "
               f"walks of {args.views} frames", [
                   "walk, seed", "estimator", "posed", {"label": "rotation mean (deg)",
                                                       "format": ".3f"},

@@ -47,9 +47,6 @@ def _fmt(e: tuple[float, float, float, float]) -> str:
     return f"rotation {e[0]:.3f} / {e[1]:.3f} deg, translation {e[2]:.4f}, ATE {e[3]:.3f} %"
 
 
-STARTS = ("short bootstrap", "merged starts", "reversed start")
-
-
 def _run(seed: int, args: argparse.Namespace) -> tuple[list[object], float, bool] | None:
     """Print the seed's figures; its row of the record, its larger ratio to the oracle and
     whether every frame is in the main trajectory (None when the estimator raised)."""
@@ -62,10 +59,7 @@ def _run(seed: int, args: argparse.Namespace) -> tuple[list[object], float, bool
           f"{np.median(per):.0f}), {(per >= 4).sum()} frames see 4 or more")
     t0 = time.perf_counter()
     try:
-        res = estimate_poses(tr, EstimationOptions(
-            estimator=args.estimator, bootstrap_frames=args.bootstrap,
-            short_bootstrap_frames=None if args.no_second_start
-            else EstimationOptions().short_bootstrap_frames, start_margin=args.start_margin))
+        res = estimate_poses(tr, EstimationOptions(estimator=args.estimator))
     except OmniSfmError as exc:
         print(f"  error: {exc}")
         return None
@@ -82,18 +76,11 @@ def _run(seed: int, args: argparse.Namespace) -> tuple[list[object], float, bool
     print(f"  main:   {_fmt(e)}, RMS residual {res.residual_rms_final_deg:.4f} deg")
     print(f"  oracle: {_fmt(eo)}, RMS residual {o.rms_final_deg:.4f} deg (same frames)")
     print(f"  ratio:  rotation {e[0] / eo[0]:.1f}x, translation {e[2] / eo[2]:.1f}x")
-    # the global estimator has one start (no attempts to choose between)
-    kept = "the first start" if res.report.attempts is not None else "-"
-    for a in res.report.attempts or []:
-        if a.strategy in STARTS:
-            print(f"  {a.strategy}: {a.result}: {a.why or ''}")
-            if a.result == "kept":
-                kept = a.strategy
     row: list[object] = [
         seed, f"{int(est.sum())}" + (f" + {in_segs} in segments" if in_segs else ""),
         f"{e[0]:.3f} / {e[1]:.3f}", f"{eo[0]:.3f} / {eo[1]:.3f}",
         f"{e[0] / eo[0]:.1f}x, {e[2] / eo[2]:.1f}x",
-        f"{res.residual_rms_final_deg:.4f} / {o.rms_final_deg:.4f}", kept, wall]
+        f"{res.residual_rms_final_deg:.4f} / {o.rms_final_deg:.4f}", wall]
     ratio = max(e[0] / eo[0], e[2] / eo[2])
     if args.polish:
         F = tr.num_frames
@@ -119,15 +106,9 @@ def main() -> int:
     ap.add_argument("--other", type=int, default=40)
     ap.add_argument("--visible", type=int, default=60)
     ap.add_argument("--noise-deg", type=float, default=0.1)
-    ap.add_argument("--start-margin", type=float, default=EstimationOptions().start_margin,
-                    help="another start than the first is kept where its score is lower by "
-                         "more than this fraction (EstimationOptions.start_margin)")
-    ap.add_argument("--bootstrap", type=int, default=EstimationOptions().bootstrap_frames,
-                    help="EstimationOptions.bootstrap_frames (default: the estimator's)")
-    ap.add_argument("--no-second-start", action="store_true",
-                    help="without the second start (short_bootstrap_frames=None)")
-    ap.add_argument("--estimator", choices=["windows", "global"], default="windows",
-                    help="EstimationOptions.estimator")
+    ap.add_argument("--estimator", choices=["auto", "paper", "global"], default="global",
+                    help="EstimationOptions.estimator (default global: no window covers these "
+                         "tracks)")
     ap.add_argument("--polish", type=int, default=0,
                     help="also adjust again from the estimate for this many LM iterations")
     add_log_arguments(ap)
@@ -138,11 +119,11 @@ def main() -> int:
     within = sum(r[1] <= 2 for r in runs)
     worst = max((r[1] for r in runs), default=float("nan"))
     every = sum(r[2] for r in runs)
-    name = "eval_sparse" if args.estimator == "windows" else f"eval_sparse_{args.estimator}"
+    name = f"eval_sparse_{args.estimator}"
     write_log(args, name, f"Sparse tracks against the oracle ({args.estimator} estimator)", [
         "seed", "frames in the main trajectory", "main: rotation mean / max (deg)",
         "oracle, same frames (deg)", "ratio: rotation, translation",
-        "RMS residual: main / oracle (deg)", "start kept", {"label": "time (s)", "format": ".1f"}],
+        "RMS residual: main / oracle (deg)", {"label": "time (s)", "format": ".1f"}],
         [r[0] for r in runs],
         headline=f"{args.views} simulated frames, 4-13 lines a frame: {every} of "
                  f"{len(args.seeds)} seeds pose every frame in one trajectory, {within} within "

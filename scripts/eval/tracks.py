@@ -6,16 +6,13 @@ Re-running only the estimator separates what it does from the front end (the tra
 so a change of the estimator is measured on exactly the same input. For each pair it prints the
 frames of the main trajectory and their errors (maximum and mean rotation error relative to the
 first frame, ATE as a per cent of the path after similarity alignment), then each segment
-(pieces in their own world, docs/estimator.md stage 8) the same way, and the wall time.
+(parts with nothing in common, in their own world) the same way, and the wall time.
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python -m scripts.eval.tracks \\
         /tmp/f600/hyperboloid-800x600--clean-init:/tmp/f600/hyperboloid-800x600--clean ...
 
 ``--frames START STOP`` runs the estimator on those frames only (``STOP`` excluded), e.g. the
-turn of a long walk. The second start (docs/estimator.md stage 9) prints its verdict and
-scores; ``--no-second-start`` runs the estimator without it
-(``EstimationOptions.short_bootstrap_frames=None``) and ``--bootstrap 100`` with the second
-start's chain alone, to measure each on the same input.
+turn of a long walk.
 
 ``--blocks N`` also prints the mean rotation error of each block of N frames. ``--perturb N``
 also runs the estimator N more times on each input with its normals turned by about
@@ -26,7 +23,7 @@ also runs it on the frames in reversed order (the same observations, timestamps 
 prints how far the two trajectories differ: the largest rotation difference and the RMS
 position difference in per cent of the path, after a similarity alignment.
 ``--estimator`` picks the estimator (``EstimationOptions.estimator``: ``auto``, the default,
-``windows`` or ``global``).
+``paper`` or ``global``).
 
 Each argument is ``INIT_DIR:RENDER_DIR`` (``RENDER_DIR`` holds ``groundtruth.tum``); a bare
 ``INIT_DIR`` ending in ``-init`` pairs with the folder of the same name without it, as
@@ -105,19 +102,12 @@ def main() -> int:
                          "turned against the rest shows as a step)")
     ap.add_argument("--reversed", action="store_true",
                     help="also the frames in reversed order, and how far the two differ")
-    ap.add_argument("--estimator", choices=["auto", "windows", "global"], default="auto",
+    ap.add_argument("--estimator", choices=["auto", "paper", "global"], default="auto",
                     help="EstimationOptions.estimator (default auto)")
-    ap.add_argument("--no-second-start", action="store_true",
-                    help="without the second start (short_bootstrap_frames=None)")
-    ap.add_argument("--bootstrap", type=int, default=EstimationOptions().bootstrap_frames,
-                    help="EstimationOptions.bootstrap_frames (default: the estimator's; at "
-                         "most short_bootstrap_frames: the second start alone)")
     add_log_arguments(ap)
     args = ap.parse_args()
     rows: list[list[object]] = []
-    options = EstimationOptions(bootstrap_frames=args.bootstrap, estimator=args.estimator)
-    if args.no_second_start:
-        options = replace(options, short_bootstrap_frames=None)
+    options = EstimationOptions(estimator=args.estimator)
     print(f"# estimator alone on saved tracks; {os.cpu_count()} CPUs, "
           f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}")
     for arg in args.pairs:
@@ -144,9 +134,6 @@ def main() -> int:
                      wall])
         if args.blocks > 0:
             print(f"  per {args.blocks} frames: {_blocks(res.trajectory, gt, args.blocks)}")
-        for a in res.report.attempts or []:
-            if a.strategy in ("short bootstrap", "merged starts"):
-                print(f"  {a.strategy}: {a.result}: {a.why or ''}")
         for seg in res.segments:
             first, last = np.flatnonzero(seg.frames)[[0, -1]]
             print(f"  segment {seg.number} (frames {first}-{last}): "
