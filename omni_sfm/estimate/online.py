@@ -10,8 +10,9 @@ wires the estimator's own pieces, nothing new:
    offline estimator (:func:`~omni_sfm.estimate.pipeline.estimate_poses`: the paper's method
    where one window covers the buffered frames, else the global estimator) solves the buffered
    frames and poses the newest of them: the first try after ``start_frames`` frames, again
-   every ``start_retry`` frames, the oldest frames dropped beyond ``max_start_frames``; a start is taken once its lines' planes turn
-   by ``min_start_parallax_deg`` across the buffered frames (or the buffer is full): its
+   every ``start_retry`` frames, the oldest frames dropped beyond ``max_start_frames``; a start
+   is taken once its lines' planes turn by ``min_start_parallax_deg`` across the buffered
+   frames (or the buffer is full): its
    baseline fixes the scale that the tracking carries on. The frame where the start succeeds
    gets its pose (status ``tracking``) and, in :attr:`TrackedPose.start_poses`, the poses of
    the buffered frames that the start solved (computed from the frames up to this one).
