@@ -17,6 +17,7 @@ from omni_sfm.estimate.global_estimator import (
     _gap_errors,
     _posable,
     kept_start,
+    settings,
     solve_global,
     window_starts,
 )
@@ -317,7 +318,7 @@ def test_of_two_rotation_starts_the_one_whose_positions_fit_is_kept() -> None:
     turn = rotvec_to_matrix(np.radians(90.0) * good[100] @ np.array([0.0, 0.0, 1.0]))
     bad = good.copy()
     bad[100:] = turn @ good[100:]
-    opts = GlobalOptions(rotations=GlobalRotationOptions(max_iterations=3))
+    opts = settings(GlobalOptions(), rotations=GlobalRotationOptions(max_iterations=3))
     for starts in ({"good": good, "bad": bad}, {"bad": bad, "good": good}):
         name, rot = kept_start(tr, frames, lines, starts, group, opts)
         assert name == "good"

@@ -64,17 +64,18 @@ def test_frames_the_adjustment_moves_far_from_the_linear_positions_are_flagged()
     disagreement everywhere (the two estimators' noise) flags nothing."""
     from types import SimpleNamespace
 
-    from omni_sfm.estimate.global_estimator import GlobalOptions, _moved_far
+    from omni_sfm.estimate.global_estimator import GlobalOptions, _moved_far, settings
 
     t = np.linspace(0.0, 1.0, 50)
     c = np.stack([t, 0.1 * np.sin(3 * t), np.zeros_like(t)], axis=1)
     rng = np.random.default_rng(0)
     ba = SimpleNamespace(frames=np.ones(50, bool), positions=3.0 * c + 0.001 * rng.normal(
         size=c.shape))
-    assert _moved_far(c, ba, GlobalOptions()) == {}
+    assert _moved_far(c, ba, settings(GlobalOptions())) == {}
     bent = ba.positions.copy()
     bent[40:, 1] += 0.6  # the last ten frames 20 % of the path off
-    flagged = _moved_far(c, SimpleNamespace(frames=ba.frames, positions=bent), GlobalOptions())
+    flagged = _moved_far(c, SimpleNamespace(frames=ba.frames, positions=bent),
+                         settings(GlobalOptions()))
     # the alignment spreads the bend over the other frames: its far end stands out most
     assert 49 in flagged and len(flagged) >= 10
     assert all("moved it" in v for v in flagged.values())

@@ -38,10 +38,12 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 from functools import partial
+from typing import Any
 
 import numpy as np
+from tqdm import tqdm
 
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.estimate.bundle import (
@@ -90,6 +92,46 @@ from omni_sfm.vanishing import ParallelFamily, VanishingOptions, detect_parallel
 
 @dataclass(frozen=True, kw_only=True)
 class GlobalOptions:
+    """What a user of the global estimator may choose: which frames count as posed and how
+    strict the flags are, the revisits, the workers. The values the design fixes are
+    :class:`Settings`."""
+
+    min_lines: int = 3
+    """A frame is posed when it sees at least this many lines (of tracks seen twice or more)."""
+    uncertain_deg: float = 0.5
+    uncertain_path: float = 0.005
+    """A frame that its own lines leave free is flagged where its interpolation between the
+    frames that fix it can be off by more than this (degrees; fraction of the path length;
+    :func:`_uncertain`)."""
+    spread_deg: float = 0.6
+    spread_path: float = 0.01
+    """A frame is flagged where twice the error the adjustment's covariance expects exceeds
+    this (degrees; fraction of the path length; :func:`_spread_flags`): a frame left unflagged
+    is then off by more than 1 deg or 2 % of the path only beyond three times that error,
+    and a flagged one is rarely within 0.2 deg and 0.2 %."""
+    moved_path: float = 0.02
+    """A frame that the adjustment moves by more than this fraction of the path from the
+    linear positions is flagged (:func:`_moved_far`)."""
+    revisits: RevisitOptions = field(default_factory=RevisitOptions)
+    """Step 5: lines seen again on a revisit joined, and the problem solved again
+    (:mod:`~omni_sfm.estimate.revisits`)."""
+    progress: bool = False
+    """A progress bar on stderr: the step running (the start windows show none)."""
+    workers: int = 1
+    """Processes at most that run the independent solves at once (the windows of the start,
+    the two starts, the adjustment's starts; :func:`~omni_sfm.forked.run_all`): the result is
+    the same to the bit whatever their number."""
+
+
+
+
+@dataclass(frozen=True, kw_only=True)
+class Settings(GlobalOptions):
+    """The options and the values the design fixes (docs/estimator.md, "The global
+    estimator"): the parallel-family detection and the adjustment as the caller runs them, and
+    the steps' own thresholds. Studies and tests vary them; :func:`solve_global` takes the
+    defaults."""
+
     vanishing: VanishingOptions = field(default_factory=VanishingOptions)
     """Parallel-family detection (the largest family anchors the start)."""
     rotations: GlobalRotationOptions = field(default_factory=GlobalRotationOptions)
@@ -98,8 +140,6 @@ class GlobalOptions:
     """Step 2, the linear position problem."""
     bundle: BundleOptions = field(default_factory=BundleOptions)
     """Step 3, the bundle adjustment."""
-    min_lines: int = 3
-    """A frame is posed when it sees at least this many lines (of tracks seen twice or more)."""
     world_direction_deg: float = 2.0
     """Lines whose directions (step 1, each line its own) agree within this share one world
     direction in the second solve."""
@@ -139,30 +179,17 @@ class GlobalOptions:
     """A frame's own lines leave its position free where the smallest eigenvalue of its
     position information (its observations, the lines held) is below this fraction of the
     median frame's largest (its rotation: the same with its rotation information)."""
-    uncertain_deg: float = 0.5
-    uncertain_path: float = 0.005
-    """A frame that its own lines leave free is flagged where its interpolation between the
-    frames that fix it can be off by more than this (degrees; fraction of the path length;
-    :func:`_uncertain`)."""
-    spread_deg: float = 0.6
-    spread_path: float = 0.01
-    """A frame is flagged where twice the error the adjustment's covariance expects exceeds
-    this (degrees; fraction of the path length; :func:`_spread_flags`): a frame left unflagged
-    is then off by more than 1 deg or 2 % of the path only beyond three times that error,
-    and a flagged one is rarely within 0.2 deg and 0.2 %."""
-    moved_path: float = 0.02
-    """A frame that the adjustment moves by more than this fraction of the path from the
-    linear positions is flagged (:func:`_moved_far`)."""
     spread_window: int = 300
     """Posed frames a window of the covariance takes at most
     (:func:`~omni_sfm.estimate.uncertainty.pose_spread`)."""
-    revisits: RevisitOptions = field(default_factory=RevisitOptions)
-    """Step 5: lines seen again on a revisit joined, and the problem solved again
-    (:mod:`~omni_sfm.estimate.revisits`)."""
-    workers: int = 1
-    """Processes at most that run the independent solves at once (the windows of the start,
-    the two starts, the adjustment's starts; :func:`~omni_sfm.forked.run_all`): the result is
-    the same to the bit whatever their number."""
+
+
+def settings(options: GlobalOptions, **fixed: Any) -> Settings:
+    """``options`` with the fixed values (their defaults, or those given in ``fixed``)."""
+    if isinstance(options, Settings):
+        return replace(options, **fixed)
+    return Settings(**{f.name: getattr(options, f.name) for f in fields(GlobalOptions)},
+                    **fixed)
 
 
 @dataclass(frozen=True)
@@ -418,7 +445,7 @@ def window_starts(count: int, window: int) -> list[int]:
             for i in range(n)]
 
 
-def _window_solution(tracks: LineTracks, sel: np.ndarray, options: GlobalOptions
+def _window_solution(tracks: LineTracks, sel: np.ndarray, options: Settings
                      ) -> FloatArray | None:
     """The rotations ``(len(sel), 3, 3)`` (NaN: not posed) of the frames ``sel`` solved on their
     own (steps 1-3 from :func:`anchored_start`); None where they determine nothing."""
@@ -436,7 +463,7 @@ def _window_solution(tracks: LineTracks, sel: np.ndarray, options: GlobalOptions
 
 
 def windows_start(tracks: LineTracks, frames: np.ndarray, R0: FloatArray,
-                  options: GlobalOptions) -> FloatArray:
+                  options: Settings) -> FloatArray:
     """Start rotations ``(F, 3, 3)`` from windows of ``options.start_window`` posed frames,
     overlapping by half, each solved on its own (rotations, positions, adjustment: within a
     window the chain of :func:`anchored_start` drifts little and the lines' positions fix the
@@ -566,7 +593,7 @@ def _family_direction(directions: FloatArray, family: ParallelFamily) -> FloatAr
 
 
 def _horizontal_directions(rot: GlobalRotations, families: list[ParallelFamily],
-                           options: GlobalOptions) -> FloatArray:
+                           options: Settings) -> FloatArray:
     """``(K, 3)`` the directions of the families (of ``options.min_family_size`` or more)
     perpendicular to the largest one's within ``snap_deg``, and the axis completing the first
     of them with the largest's: the world directions across the largest family."""
@@ -590,7 +617,7 @@ def _horizontal_directions(rot: GlobalRotations, families: list[ParallelFamily],
 
 
 def kept_start(tracks: LineTracks, frames: np.ndarray, lines: np.ndarray,
-               starts: dict[str, FloatArray], group: np.ndarray, options: GlobalOptions
+               starts: dict[str, FloatArray], group: np.ndarray, options: Settings
                ) -> tuple[str, GlobalRotations]:
     """The joint rotation problem (the tracks of ``group`` sharing its directions) solved
     from each of the ``starts`` (name: ``(F, 3, 3)`` rotations): the name and the solution
@@ -614,7 +641,7 @@ def kept_start(tracks: LineTracks, frames: np.ndarray, lines: np.ndarray,
 
 
 def _positions_cost(tracks: LineTracks, rot: GlobalRotations, frames: np.ndarray,
-                    lines: np.ndarray, sigma: float, options: GlobalOptions) -> float:
+                    lines: np.ndarray, sigma: float, options: Settings) -> float:
     """The truncated cost (:func:`~omni_sfm.estimate.bundle.truncated_cost`, every
     observation, the limit of noise ``sigma``) of the positions :func:`_positions_step` finds
     from ``rot``; inf where it finds none."""
@@ -628,7 +655,7 @@ def _positions_cost(tracks: LineTracks, rot: GlobalRotations, frames: np.ndarray
 
 
 def _snapped(tracks: LineTracks, frames: np.ndarray, lines: np.ndarray, first: GlobalRotations,
-             families: list[ParallelFamily], options: GlobalOptions,
+             families: list[ParallelFamily], options: Settings,
              steps: list[EstimatorStep]) -> GlobalRotations:
     """Step 1's second solve, where the families give horizontal directions: a line across the
     largest family whose planes contain one of the other families' directions up to a few
@@ -653,7 +680,7 @@ def _snapped(tracks: LineTracks, frames: np.ndarray, lines: np.ndarray, first: G
 
 
 def _rotations(tracks: LineTracks, frames: np.ndarray, lines: np.ndarray,
-               families: list[ParallelFamily], options: GlobalOptions,
+               families: list[ParallelFamily], options: Settings,
                steps: list[EstimatorStep], previous: FloatArray | None = None
                ) -> tuple[GlobalRotations, FloatArray, np.ndarray]:
     """Step 1: the start, the solve with the families' world directions shared, the solve
@@ -753,7 +780,7 @@ def plane_spread_deg(tracks: LineTracks, R: FloatArray, frames: np.ndarray) -> F
     return np.asarray(np.degrees(np.sqrt(np.maximum(ev[:, 1], 0.0))))
 
 
-def _rotation_free(rot: GlobalRotations, frames: np.ndarray, options: GlobalOptions
+def _rotation_free(rot: GlobalRotations, frames: np.ndarray, options: Settings
                    ) -> np.ndarray:
     """``(F,)`` posed frames whose lines leave a turn free (their rotation information below
     ``options.uncertain_information`` times the median frame's)."""
@@ -832,7 +859,7 @@ def _weak_ties(tracks: LineTracks, ba: BundleResult, used: np.ndarray, seen: np.
 
 
 def _uncertain(tracks: LineTracks, rot: GlobalRotations, pos: GlobalPositions,
-               ba: BundleResult, options: GlobalOptions) -> dict[int, str]:
+               ba: BundleResult, options: Settings) -> dict[int, str]:
     """Frames that see 3 lines only (they fit several poses exactly: nothing checks the one
     found), and frames whose rotation or position the data leave (nearly) free and whose
     interpolation between the frames that fix them can be off by more than
@@ -876,7 +903,7 @@ def _uncertain(tracks: LineTracks, rot: GlobalRotations, pos: GlobalPositions,
 
 
 def _spread(tracks: LineTracks, ba: BundleResult, flagged: dict[int, str],
-            options: GlobalOptions) -> tuple[FloatArray, FloatArray]:
+            options: Settings) -> tuple[FloatArray, FloatArray]:
     """``(rotation_deg, path)`` ``(F,)`` the RMS error the adjustment's covariance expects of
     each posed frame (degrees; fraction of the path length of the frames not ``flagged``), the
     frames not ``flagged`` aligned to the truth (:func:`~omni_sfm.estimate.uncertainty.
@@ -895,7 +922,7 @@ def _spread(tracks: LineTracks, ba: BundleResult, flagged: dict[int, str],
     return spread.rotation_deg, spread.position / path
 
 
-def _spread_flags(rotation_deg: FloatArray, path: FloatArray, options: GlobalOptions
+def _spread_flags(rotation_deg: FloatArray, path: FloatArray, options: Settings
                   ) -> dict[int, str]:
     """The frames whose pose the whole of the data fix to no better than
     ``options.spread_deg`` or ``options.spread_path`` of their path (twice the error
@@ -918,7 +945,7 @@ def _spread_flags(rotation_deg: FloatArray, path: FloatArray, options: GlobalOpt
 
 
 def _adjusted(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArray, p: FloatArray,
-              frames: np.ndarray, held: np.ndarray | None, options: GlobalOptions
+              frames: np.ndarray, held: np.ndarray | None, options: Settings
               ) -> BundleResult:
     """Step 3: the robust adjustment of all cameras and lines from the start as it is and, with
     ``options.settled_start``, from the start with the positions and lines first settled on the
@@ -959,7 +986,7 @@ def _adjusted(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArray, p
 
 
 def _positions_step(tracks: LineTracks, rot: GlobalRotations, frames: np.ndarray,
-                    lines: np.ndarray, options: GlobalOptions
+                    lines: np.ndarray, options: Settings
                     ) -> tuple[FloatArray, FloatArray, GlobalPositions, np.ndarray]:
     """Step 2: ``(R, c, positions, dir_ok)``. The frames whose lines leave a turn free get it
     interpolated (:func:`free_turns_interpolated`); the lines with a known direction
@@ -979,7 +1006,7 @@ def _positions_step(tracks: LineTracks, rot: GlobalRotations, frames: np.ndarray
 
 def _adjustment_step(tracks: LineTracks, R: FloatArray, c: FloatArray, rot: GlobalRotations,
                      pos: GlobalPositions, dir_ok: np.ndarray, label: np.ndarray,
-                     frames: np.ndarray, options: GlobalOptions) -> BundleResult:
+                     frames: np.ndarray, options: Settings) -> BundleResult:
     """Step 3: the robust adjustment from the positions' start (:func:`_adjusted`), the lines
     of a world direction (``label``) held to step 1's."""
     d0 = np.where(dir_ok[:, None], rot.directions, np.nan)
@@ -990,7 +1017,7 @@ def _adjustment_step(tracks: LineTracks, R: FloatArray, c: FloatArray, rot: Glob
 
 
 def _flags(tracks: LineTracks, rot: GlobalRotations, pos: GlobalPositions, c: FloatArray,
-           ba: BundleResult, options: GlobalOptions
+           ba: BundleResult, options: Settings
            ) -> tuple[dict[int, str], FloatArray, FloatArray]:
     """Step 4: ``(uncertain, spread_deg, spread_path)``, the frames the data do not fix with the
     reason (:func:`_uncertain`, then :func:`_spread_flags` on the covariance's spread, then
@@ -1003,7 +1030,7 @@ def _flags(tracks: LineTracks, rot: GlobalRotations, pos: GlobalPositions, c: Fl
     return uncertain, spread_deg, spread_path
 
 
-def _moved_far(c: FloatArray, ba: BundleResult, options: GlobalOptions) -> dict[int, str]:
+def _moved_far(c: FloatArray, ba: BundleResult, options: Settings) -> dict[int, str]:
     """The posed frames that the adjustment moved by more than ``options.moved_path`` of the
     path from the linear positions ``c`` (step 2; after the similarity that best aligns the
     two), with the reason. Both estimate the same poses from the same tracks; where they
@@ -1026,7 +1053,7 @@ def _moved_far(c: FloatArray, ba: BundleResult, options: GlobalOptions) -> dict[
 
 
 def _rig_start(tracks: LineTracks, R: FloatArray, c: FloatArray, pos: GlobalPositions,
-               frames: np.ndarray, options: GlobalOptions
+               frames: np.ndarray, options: Settings
                ) -> tuple[LineTracks, OffsetScale, FloatArray, GlobalPositions]:
     """Step 2 for a rig (``tracks`` with lens offsets in metres): the linear positions'
     reflection settled by the observations' rays (the offsets do not mirror with it), then the
@@ -1062,9 +1089,13 @@ def solve_global(tracks: LineTracks, options: GlobalOptions = GlobalOptions()
     solution of the joined tracks from the first one's rotations, every original track given its
     group's line.
 
+    ``options``: the user's (:class:`GlobalOptions`), or :class:`Settings` (the fixed values
+    other than their defaults).
+
     Raises:
         OmniSfmError: as :func:`_solve_once`.
     """
+    options = settings(options)
     sol = _solve_once(tracks, options)
     if not options.revisits.enabled:
         return sol
@@ -1086,7 +1117,13 @@ def solve_global(tracks: LineTracks, options: GlobalOptions = GlobalOptions()
         timings_ms=timings)
 
 
-def _solve_once(tracks: LineTracks, options: GlobalOptions,
+def _advance(bar: tqdm[Any], step: str) -> None:
+    """The progress bar one step on, showing the ``step`` now running."""
+    bar.set_postfix_str(step, refresh=False)
+    bar.update(1)
+
+
+def _solve_once(tracks: LineTracks, options: Settings,
                 start: FloatArray | None = None, *, window: bool = False) -> GlobalSolution:
     """Steps 1-4 of the module docstring; with ``start`` (``(F, 3, 3)``, NaN where none: an
     earlier solution's rotations) the rotations are solved from it alone. A ``window`` of
@@ -1099,6 +1136,9 @@ def _solve_once(tracks: LineTracks, options: GlobalOptions,
             finds the data do not determine it.
     """
     timings: dict[str, float] = {}
+    bar = tqdm(total=5, desc="global estimator", unit="step", leave=False,
+               disable=None if options.progress and not window else True)
+    bar.set_postfix_str("parallel lines", refresh=False)
     steps: list[EstimatorStep] = []
     t = time.perf_counter()
     frames, lines = _posable(tracks, options.min_lines)
@@ -1109,14 +1149,17 @@ def _solve_once(tracks: LineTracks, options: GlobalOptions,
                            f"tracked lines; need 3")
     families = detect_parallel_families(tracks, options.vanishing)
     timings["parallel_lines"] = (time.perf_counter() - t) * 1e3
+    _advance(bar, 'rotations')
     t = time.perf_counter()
     rot, worlds, label = _rotations(tracks, frames, lines, families, options, steps, start)
     timings["rotations"] = (time.perf_counter() - t) * 1e3
+    _advance(bar, 'positions')
     t = time.perf_counter()
     R, c, pos, dir_ok = _positions_step(tracks, rot, frames, lines, options)
     steps.append(EstimatorStep(step="positions",
                                sigma_deg=float(np.degrees(pos.residual_sigma))))
     timings["positions"] = (time.perf_counter() - t) * 1e3
+    _advance(bar, 'adjustment')
     t = time.perf_counter()
     opts = options if window else replace(options, bundle=_decisive(options.bundle))
     scale: OffsetScale | None = None
@@ -1124,6 +1167,7 @@ def _solve_once(tracks: LineTracks, options: GlobalOptions,
         tracks, scale, c, pos = _rig_start(tracks, R, c, pos, frames, opts)
     ba = _adjustment_step(tracks, R, c, rot, pos, dir_ok, label, frames, opts)
     timings["bundle_adjustment"] = (time.perf_counter() - t) * 1e3
+    _advance(bar, 'flags')
     steps.append(EstimatorStep(step="bundle adjustment", iterations=ba.iterations,
                                outlier_tracks=int(ba.outlier_tracks.sum()),
                                rms_final_deg=float(ba.rms_final_deg)))
@@ -1137,6 +1181,7 @@ def _solve_once(tracks: LineTracks, options: GlobalOptions,
     uncertain, spread_deg, spread_path = ({}, nan, nan.copy()) if window else \
         _flags(tracks, rot, pos, c, ba, options)
     timings["pose_spread"] = (time.perf_counter() - t) * 1e3
+    bar.close()
     return GlobalSolution(
         rotations=ba.rotations, positions=ba.positions, frames=ba.frames,
         line_directions=ba.line_directions, line_points=ba.line_points,

@@ -87,7 +87,7 @@ from omni_sfm.lines.track import TrackingOptions
 from omni_sfm.lines.tracks import LineTracks
 from omni_sfm.poses import Trajectory
 from omni_sfm.reports import TrackFrame, TrackPose
-from omni_sfm.vanishing import detect_parallel_families
+from omni_sfm.vanishing import VanishingOptions, detect_parallel_families
 
 _SAME_DIRECTION_DEG = 15.0
 _SAME_DIRECTION = math.cos(math.radians(_SAME_DIRECTION_DEG))
@@ -472,7 +472,7 @@ class OnlineEstimator:
         family is near it: the corridor round the next corner). Without parallel families,
         the families of the start's lines (``d``, of the window's tracks ``wids``)."""
         ro = self.options.registration
-        fams = detect_parallel_families(tracks, self.options.start.vanishing)
+        fams = detect_parallel_families(tracks, VanishingOptions())
         posed = np.array([f.registered for f in frames])
         if not fams:
             D, fam = line_families(d, max_angle_deg=ro.family_angle_deg,

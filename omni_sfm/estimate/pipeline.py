@@ -46,7 +46,12 @@ from omni_sfm.estimate.bundle import (
     side_votes,
     triangulate_lines,
 )
-from omni_sfm.estimate.global_estimator import GlobalOptions, GlobalSolution, solve_global
+from omni_sfm.estimate.global_estimator import (
+    GlobalOptions,
+    GlobalSolution,
+    settings,
+    solve_global,
+)
 from omni_sfm.estimate.paper import PaperOptions, PaperSolution, estimate_paper
 from omni_sfm.estimate.rotation_only import (
     RotationOnlyOptions,
@@ -94,6 +99,19 @@ _MAX_STEP_DEG = 45.0
 a per-frame flip of its rotation search: the window is solved again without the rotation polish
 (:attr:`PaperOptions.polish_rotation`), and that solution is kept if its steps stay below this."""
 _HALF_TURN_DEG = 90.0
+_VANISHING = VanishingOptions()
+"""The parallel-family detection both estimators run (docs/method.md §3)."""
+_PAPER = PaperOptions()
+"""The paper's rotation and translation searches (docs/method.md §4-§5)."""
+_BUNDLE = BundleOptions()
+"""The line bundle adjustment both estimators run (docs/estimator.md)."""
+_ROTATION_ONLY = RotationOnlyOptions()
+"""The rotation-only fit, for a camera that turns without moving (docs/method.md §13)."""
+_ROTATION_ONLY_MAX_MEDIAN_DEG = 0.2
+"""Where the estimators find no motion, the rotation-only fit is the result if it explains the
+NVs this well (median angle, degrees); otherwise their error stands. Translation changes the
+NVs by the parallax the paper's method needs (at least ``PaperOptions.min_parallax_deg``),
+which no rotation can explain."""
 _ALTERNATIVE_MIN_DIFFERENCE = 0.05
 """An alternative start of the paper's method is adjusted only if its camera centres differ from
 every start already adjusted by more than this fraction (RMS, after least-squares scaling) of the
@@ -118,27 +136,14 @@ class EstimationOptions:
     """The paper's estimator: run the bundle adjustment after the paper's method (False: the
     paper's method alone)."""
     progress: bool = False
-    """A progress bar on stderr."""
+    """A progress bar on stderr: the global estimator's steps."""
     workers: int | None = None
     """Processes that run independent solves at once (the global estimator's windows, starts
     and adjustments); 1: one after the other in this process; None: 2 where the machine has
     more than one core. The result is the same whatever the number."""
-    vanishing: VanishingOptions = field(default_factory=VanishingOptions)
-    """Parallel-family detection and VPVs (docs/method.md §3)."""
-    paper: PaperOptions = field(default_factory=PaperOptions)
-    """The paper's rotation and translation searches (docs/method.md §4-§5)."""
-    bundle: BundleOptions = field(default_factory=BundleOptions)
-    """The line bundle adjustment (both estimators)."""
     global_: GlobalOptions = field(default_factory=GlobalOptions)
-    """The global estimator's own options; its parallel-family detection and bundle adjustment
-    are ``vanishing`` and ``bundle`` above."""
-    rotation_only: RotationOnlyOptions = field(default_factory=RotationOnlyOptions)
-    """The rotation-only fit, for a camera that turns without moving (docs/method.md §13)."""
-    rotation_only_max_median_deg: float = 0.2
-    """Where the estimators find no motion, the rotation-only fit is the result if it explains
-    the NVs this well (median angle, degrees); otherwise their error stands. Translation changes
-    the NVs by the parallax the paper's method needs (at least ``paper.min_parallax_deg``),
-    which no rotation can explain."""
+    """The global estimator's options: the frames it poses, how strict its flags are, the
+    revisits (its ``workers`` are set from ``workers`` above)."""
 
 
 SEGMENT_FILE = "trajectory_segment_{}.tum"
@@ -307,7 +312,7 @@ def chosen_estimator(tracks: LineTracks, options: EstimationOptions) -> tuple[st
     if int(full.sum()) < MIN_PARALLEL + MIN_OTHER:
         return "global", (f"auto: {int(full.sum())} lines seen in every frame, fewer than the "
                           f"paper's window needs ({MIN_PARALLEL} parallel + {MIN_OTHER} others)")
-    family = detect_parallel_family(tracks, options.vanishing)
+    family = detect_parallel_family(tracks, _VANISHING)
     members = np.asarray(family.members, bool)
     if bool(np.isfinite(family.vpv).all()) and int((full & members).sum()) >= MIN_PARALLEL \
             and int((full & ~members).sum()) >= MIN_OTHER:
@@ -370,8 +375,8 @@ def _paper_solved(tracks: LineTracks, options: EstimationOptions, run: RunLog) -
     """The paper's method on the window that covers the sequence (with another family where
     the largest one is degenerate for the motion), then the adjustment (``options.refine``)."""
     with run.timed("parallel_lines"):
-        family = detect_parallel_family(tracks, options.vanishing)
-        others = [f for f in detect_parallel_families(tracks, options.vanishing)[1:]
+        family = detect_parallel_family(tracks, _VANISHING)
+        others = [f for f in detect_parallel_families(tracks, _VANISHING)[1:]
                   if f.size >= 3]
     members = np.asarray(family.members, bool)
     _check_counts(tracks, members)
@@ -431,12 +436,12 @@ def _solve_window(tracks: LineTracks, family: ParallelFamily, w: Window,
     recorded). Fails where the paper's method fails, or (frames consecutive:
     ``PaperOptions.rotation_continuity``) its solution still turns by a half turn between two
     consecutive frames."""
-    att = _paper(tracks, family, w, options.paper, strategy)
+    att = _paper(tracks, family, w, _PAPER, strategy)
     if att.solution is None:
         return att
-    if options.paper.polish_rotation and \
+    if _PAPER.polish_rotation and \
             max_rotation_step_deg(np.asarray(att.solution.rotations)) > _MAX_STEP_DEG:
-        alt = _paper(tracks, family, w, replace(options.paper, polish_rotation=False),
+        alt = _paper(tracks, family, w, replace(_PAPER, polish_rotation=False),
                      "paper window, unpolished")
         jump = f"the polished rotations jump by more than {_MAX_STEP_DEG} deg between frames"
         if alt.solution is not None and \
@@ -450,7 +455,7 @@ def _solve_window(tracks: LineTracks, family: ParallelFamily, w: Window,
     # a half turn between two video frames is a flip of the rotation search, not motion
     assert att.solution is not None
     step = max_rotation_step_deg(np.asarray(att.solution.rotations))
-    if options.paper.rotation_continuity and step > _HALF_TURN_DEG:
+    if _PAPER.rotation_continuity and step > _HALF_TURN_DEG:
         return failed(att.strategy, att.frames, f"its solution turns by {step:.0f} deg between "
                                                 f"two consecutive frames (a flip of the "
                                                 f"rotation search)")
@@ -528,8 +533,8 @@ def _global_result(tracks: LineTracks, options: EstimationOptions,
     is the main trajectory, the others segments; a camera that only turned gets the
     rotation-only fit."""
     run = RunLog()
-    gopts = replace(options.global_, vanishing=options.vanishing, bundle=options.bundle,
-                    workers=start_workers(options))
+    gopts = settings(replace(options.global_, workers=start_workers(options),
+                             progress=options.progress), vanishing=_VANISHING, bundle=_BUNDLE)
     parts = _parts(tracks)
     solved: list[tuple[int, int, LineTracks, np.ndarray, GlobalSolution | OmniSfmError]] = []
     for a, b in parts:
@@ -725,7 +730,7 @@ def _bundle(tracks: LineTracks, R: FloatArray, c: FloatArray, frames: np.ndarray
     span = (int(idx[0]), int(idx[-1]))
     try:
         d, p, _ = triangulate_lines(tracks, R, c, frames)
-        ba = bundle_adjust(tracks, R, c, d, p, frames=frames, options=options.bundle)
+        ba = bundle_adjust(tracks, R, c, d, p, frames=frames, options=_BUNDLE)
     except OmniSfmError as exc:
         return failed(strategy, span, str(exc))
     return Attempt(strategy, span, ba, cost_deg=ba.rms_final_deg,
@@ -838,14 +843,14 @@ def _try_rotation_only(tracks: LineTracks, options: EstimationOptions, run: RunL
     span = (0, tracks.num_frames - 1)
     with run.timed("rotation_only"):
         try:
-            res = estimate_rotation_only(tracks, options.rotation_only)
+            res = estimate_rotation_only(tracks, _ROTATION_ONLY)
         except OmniSfmError as exc:
             run.record(failed("rotation only", span, f"{why}; {exc}"))
             return None
     att = Attempt("rotation only", span, res, cost_deg=res.rms_final_deg,
                   why=f"{why}; {int(res.estimated.sum())} frames, median "
                       f"{res.median_deg:.3g} deg")
-    limit = options.rotation_only_max_median_deg
+    limit = _ROTATION_ONLY_MAX_MEDIAN_DEG
     if res.estimated.sum() < 3 or not res.median_deg <= limit:
         run.record(att.judged(Outcome.REJECTED, f"{att.why}: the rotations alone do not explain "
                                                 f"the lines (median over {limit} deg)"))
@@ -870,7 +875,7 @@ def _rotation_only_result(tracks: LineTracks, res: RotationOnlyResult,
     no_family = ""
     with run.timed("parallel_lines"):
         try:
-            family = detect_parallel_family(tracks, options.vanishing)
+            family = detect_parallel_family(tracks, _VANISHING)
             members = np.asarray(family.members, bool)
             vpv = np.asarray(family.vpv)[idx]
             ok = np.isfinite(vpv).all(axis=1)
