@@ -2,8 +2,7 @@
 tracker poses each new frame (docs/method.md §14, docs/track.md).
 
 A frame that sees lines its predecessors have already fixed in 3D is posed from them, as
-incremental structure from motion does with points (:class:`Growth`; :func:`register_frames`
-grows a set of posed frames forwards then backwards):
+incremental structure from motion does with points (:class:`Growth`):
 
 1. **Resection.** The new frame's pose is the absolute pose from the known 3D lines it sees
    (:func:`omni_sfm.estimate.bundle.resect_pose`: the bundle adjustment's residual over the 6
@@ -31,17 +30,15 @@ planes all contain one family's direction counts in the resection with that dire
 (its normal is orthogonal to it: a constraint on the rotation) and is triangulated with the
 direction given. A frame still needs 3 reconstructed lines in two directions (its position).
 
-A frame that fails is listed with the reason and the growth goes on from the last registered
-frame; after ``max_misses`` failures in a row the growth in that direction stops (the caller
-restarts there). Cost per frame is bounded by the window: observations are reached through
+A frame that fails is reported with the reason; after ``max_misses`` failures in a row the
+caller starts again. Cost per frame is bounded by the window: observations are reached through
 per-frame and per-track indices, and the local problems are built on the window's observations
 only.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -67,7 +64,8 @@ from omni_sfm.lines.tracks import LineTracks
 
 @dataclass(frozen=True, kw_only=True)
 class IncrementalOptions:
-    """Options of :func:`register_frames`."""
+    """Options of the registration (:class:`Growth`; the online tracker's
+    ``OnlineOptions.registration``)."""
 
     min_lines: int = 4
     """Known 3D lines a frame must see and fit (inliers) to be registered (3 lines in two
@@ -95,63 +93,16 @@ class IncrementalOptions:
     """Registered frames adjusted by each local adjustment (the latest ones)."""
     local_iterations: int = 10
     """Levenberg-Marquardt iterations of each local adjustment."""
-    wide_every: int = 50
-    """A wider adjustment after every this many registered frames (0: none) ..."""
-    wide_frames: int = 200
-    """... of the last this many registered frames ..."""
-    wide_iterations: int = 20
-    """... with this many Levenberg-Marquardt iterations: the local adjustments alone let the
-    rotation drift slowly along a long sparse stretch (the turn about the one parallel family's
-    direction), beyond what the data allow, and the adjustment of all frames at the end
-    starts too far from the solution to remove it."""
     families: bool = True
     """Use the parallel families that the starting lines show as fixed world directions
     (:mod:`omni_sfm.estimate.families`): their lines constrain a frame's rotation before they
-    are triangulated, are triangulated with their direction given and keep it in the
-    adjustments (this one's, the adjustment of all frames after it, and those of pieces joined
-    later in :func:`omni_sfm.estimate.pipeline.estimate_poses`), so the rotation does not
-    drift."""
+    are triangulated, are triangulated with their direction given and keep it in the local
+    adjustments, so the rotation does not drift."""
     family_angle_deg: float = 2.0
     """A line belongs to a family when its direction is within this angle of it."""
     min_family_lines: int = 4
     """A family needs this many starting lines."""
-    max_family_misfit: float = 1.2
-    """The adjustment of all frames with the families' lines held at their directions is kept
-    only if those lines fit (median RMS residual) at most this many times as badly as they did
-    with their directions free; else the families do not describe the scene, and the
-    registration and the adjustment run again without them (the adjustment of a joined piece
-    with every direction free). Simulated Manhattan walks: 1.02-1.03; a rendered 600-frame room
-    with a robot in it: 1.55, and held, its rotation jumped by 6 deg."""
 
-
-@dataclass(frozen=True)
-class Registration:
-    """The result of :func:`register_frames`.
-
-    Attributes:
-        rotations, positions: ``(F, 3, 3)`` world_from_cam and ``(F, 3)`` centres (NaN where not
-            estimated).
-        estimated: ``(F,)`` bool.
-        line_directions, line_points: ``(M, 3)`` the known lines (NaN where unknown).
-        families: ``(K, 3)`` the parallel families' world directions (fixed).
-        family: ``(M,)`` each line's family (index into ``families``), -1 for none; the known
-            lines of a family have exactly its direction.
-        reasons: frame -> why it was not registered (frames the growth reached).
-        stops: ``[(frame, direction)]`` where the growth stopped after ``max_misses`` failures
-            (``direction`` +1 forwards, -1 backwards): the first frame of the failed run.
-        added: number of frames registered.
-    """
-
-    rotations: FloatArray
-    positions: FloatArray
-    estimated: np.ndarray
-    line_directions: FloatArray
-    line_points: FloatArray
-    families: FloatArray
-    family: np.ndarray
-    reasons: dict[int, str] = field(default_factory=dict)
-    stops: list[tuple[int, int]] = field(default_factory=list)
-    added: int = 0
 
 
 def obs_index(keys: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -251,12 +202,6 @@ class Growth:
             self.snap(np.flatnonzero(self.fam >= 0))
         self.local = replace(bundle, max_rounds=2, max_iterations=options.local_iterations,
                              final_loss=None)
-        self.wide = replace(bundle, max_rounds=2, max_iterations=options.wide_iterations,
-                            final_loss=None)
-        self.reasons: dict[int, str] = {}
-        self.stops: list[tuple[int, int]] = []
-        self.added = 0
-        self.on_frame: Callable[[int], None] | None = None
 
     def snap(self, lines: np.ndarray) -> None:
         """Give the known ``lines`` of a family exactly its direction, turning each about its
@@ -445,73 +390,3 @@ class Growth:
         self.known[bad] = False
         self.d[bad], self.p[bad] = np.nan, np.nan
         self.fam[bad] = -1
-
-    # -- the growth ----------------------------------------------------------------------------
-    def grow(self, forward: bool) -> None:
-        o, F = self.o, self.tracks.num_frames
-        order = [int(k) for k in np.flatnonzero(self.est)]
-        if len(order) < 2:
-            return
-        if not forward:
-            order = order[::-1]
-        step = 1 if forward else -1
-        f = order[-1] + step
-        misses, first_miss, since, wide = 0, -1, 0, 0
-        while 0 <= f < F:
-            if self.est[f]:
-                f += step
-                continue
-            why = self.register(f, order[-1], order[-2] if len(order) > 1 else None)
-            if why is None:
-                order.append(f)
-                self.added += 1
-                if self.on_frame is not None:
-                    self.on_frame(f)
-                self.reasons.pop(f, None)
-                misses = 0
-                self.triangulate(f)
-                since += 1
-                if (since >= o.local_every or self.refit) and len(order) > o.local_frames:
-                    since = 0
-                    self.adjust(np.asarray(order[-o.local_frames:]))
-                wide += 1
-                if o.wide_every and wide >= o.wide_every and len(order) > o.wide_frames:
-                    wide = 0
-                    self.adjust(np.asarray(order[-o.wide_frames:]), self.wide)
-            else:
-                self.reasons[f] = why
-                if misses == 0:
-                    first_miss = f
-                misses += 1
-                if misses >= o.max_misses:
-                    self.stops.append((first_miss, step))
-                    return
-            f += step
-
-
-def register_frames(tracks: LineTracks, rotations: FloatArray, positions: FloatArray,
-                    estimated: np.ndarray, line_directions: FloatArray, line_points: FloatArray,
-                    sigma_deg: float, bundle: BundleOptions,
-                    options: IncrementalOptions | None = None,
-                    on_frame: Callable[[int], None] | None = None) -> Registration:
-    """Grow the ``estimated`` frames (``(F,)`` bool, at least 2, with their poses and the known
-    lines ``(M, 3)``, NaN where unknown) forwards and backwards by resection (module docstring).
-
-    ``sigma_deg``: the NV noise (per axis) at the starting solution, which scales the inlier
-    test. Returns the grown poses and lines; the starting poses are adjusted along by the local
-    adjustments next to them. ``on_frame`` is called with each frame registered (progress).
-    """
-    o = options or IncrementalOptions()
-    g = Growth(tracks, rotations, positions, estimated, line_directions, line_points,
-                float(np.radians(sigma_deg)), o, bundle)
-    g.on_frame = on_frame
-    g.grow(True)
-    g.grow(False)
-    R = np.where(g.est[:, None, None], g.R, np.nan)
-    c = np.where(g.est[:, None], g.c, np.nan)
-    d = np.where(g.known[:, None], g.d, np.nan)
-    p = np.where(g.known[:, None], g.p, np.nan)
-    return Registration(R, c, g.est, d, p, g.D, np.where(g.known, g.fam, -1), g.reasons,
-                        g.stops, g.added)
-
-

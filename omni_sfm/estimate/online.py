@@ -139,7 +139,7 @@ class OnlineOptions:
     short a baseline leaves them out of proportion, which the tracking then relaxes as a scale
     drift (docs/track.md)."""
     registration: IncrementalOptions = field(
-        default_factory=lambda: IncrementalOptions(wide_every=0, families=False))
+        default_factory=lambda: IncrementalOptions(families=False))
     """Registration, triangulation and local adjustment (``local_every``, ``local_frames``,
     ``max_misses``: failures in a row before a new start). ``families`` is off: the lines
     keep their own directions; the world directions enter through the rotations (module
