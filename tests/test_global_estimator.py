@@ -325,3 +325,21 @@ def test_of_two_rotation_starts_the_one_whose_positions_fit_is_kept() -> None:
         err = [rotation_angle(good[k].T @ rot.rotations[k]) for k in range(tr.num_frames)]
         assert np.degrees(max(err)) < 0.5
     assert kept_start(tr, frames, lines, {"a": good, "b": good.copy()}, group, opts)[0] == "b"
+
+
+def test_starts_are_compared_on_the_lines_seen_where_they_disagree() -> None:
+    """A long video's start turned by 90 deg after its turn fits its own stretch as well as
+    the right one; only the lines seen where the two starts disagree tell them apart, so
+    those are the observations compared (every line where the starts agree)."""
+    from omni_sfm.estimate.global_estimator import _disagreeing_tracks
+
+    sim = _walk(seed=3)
+    tr, g = sim.tracks, sim.groundtruth.rotations
+    frames = np.ones(tr.num_frames, bool)
+    assert _disagreeing_tracks(tr, [g, g.copy()], frames).all()
+    turned = g.copy()
+    turned[100:150] = rotvec_to_matrix(np.array([0.0, 0.0, np.pi / 2])) @ g[100:150]
+    seen = _disagreeing_tracks(tr, [g, turned], frames)
+    vis = tr.visibility()
+    assert np.array_equal(seen, vis[:, 100:150].any(axis=1))
+    assert 0 < seen.sum() < tr.num_tracks

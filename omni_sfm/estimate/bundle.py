@@ -289,13 +289,20 @@ def truncated_cost(tracks: LineTracks, rotations: FloatArray, positions: FloatAr
     ``everywhere``: the mean over every observation of the sequence, those of the frames
     without a pose (not in ``frames``) at ``limit``: a score of solutions that pose different
     frames (a frame left out costs as much as a frame that fits none of its lines)."""
+    cost = truncated_costs(tracks, rotations, positions, frames, limit)
+    if not everywhere:
+        cost = cost[frames[tracks.obs_frame]]
+    return float(np.mean(cost))
+
+
+def truncated_costs(tracks: LineTracks, rotations: FloatArray, positions: FloatArray,
+                    frames: np.ndarray, limit: float) -> FloatArray:
+    """``(K,)`` each observation's ``min(angle, limit)^2`` (:func:`truncated_cost`), those of
+    the frames not in ``frames`` and of the tracks without a line at ``limit^2``."""
     d, p, ok = triangulate_lines(tracks, rotations, positions, frames, min_observations=3)
     ang = observation_residuals(tracks, rotations, positions, d, p)
-    posed = frames[tracks.obs_frame]
-    ang = np.where(ok[tracks.obs_track] & posed, ang, limit)
-    if not everywhere:
-        ang = ang[posed]
-    return float(np.mean(np.minimum(np.nan_to_num(ang, nan=limit), limit) ** 2))
+    ang = np.where(ok[tracks.obs_track] & frames[tracks.obs_frame], ang, limit)
+    return np.asarray(np.minimum(np.nan_to_num(ang, nan=limit), limit) ** 2)
 
 
 _State = tuple[FloatArray, FloatArray, FloatArray, FloatArray]

@@ -53,6 +53,7 @@ from omni_sfm.estimate.bundle import (
     outlier_limit,
     resect_pose,
     truncated_cost,
+    truncated_costs,
 )
 from omni_sfm.estimate.families import world_families
 from omni_sfm.estimate.global_positions import (
@@ -82,6 +83,7 @@ from omni_sfm.geometry import (
     matrix_to_rotvec,
     nearest_rotation,
     rotation_about_axis,
+    rotation_angle,
 )
 from omni_sfm.lines.tracks import LineTracks
 from omni_sfm.reports import EstimatorStep
@@ -621,11 +623,15 @@ def kept_start(tracks: LineTracks, frames: np.ndarray, lines: np.ndarray,
                ) -> tuple[str, GlobalRotations]:
     """The joint rotation problem (the tracks of ``group`` sharing its directions) solved
     from each of the ``starts`` (name: ``(F, 3, 3)`` rotations): the name and the solution
-    whose positions (step 2 on its rotations, :func:`_positions_cost`) fit every observation
-    best (ties go to the later start). The directions alone can fit a wrong turn better
-    than the right one: where one family is the only shared direction, the turn about it
-    rests on the other lines' positions, and a stretch turned by a start whose chain carried
-    the lines' parallax fits their directions as well; its positions do not fit."""
+    whose positions (step 2 on its rotations, :func:`_positions_costs`) fit best the
+    observations of the lines seen where the solutions disagree (ties go to the later start).
+    The directions alone can fit a wrong turn better than the right one: where one family is
+    the only shared direction, the turn about it rests on the other lines' positions, and a
+    stretch turned by a start whose chain carried the lines' parallax fits their directions as
+    well; its positions do not fit. A stretch turned by 90 deg in a Manhattan world fits its
+    own lines as well as the right one: only the lines seen on both sides of where it turns
+    tell them apart, and over every observation of a long video their misfit weighs less than
+    the two solutions' small differences elsewhere (:func:`_disagreeing_tracks`)."""
     names = list(starts)
     solved = dict(zip(names, run_all([partial(solve_rotations, tracks, frames, starts[name],
                                               group, options.rotations) for name in names],
@@ -633,25 +639,50 @@ def kept_start(tracks: LineTracks, frames: np.ndarray, lines: np.ndarray,
     if len(solved) == 1:
         return names[0], solved[names[0]]
     sigma = min(x.sigma for x in solved.values())
-    cost = dict(zip(names, run_all([partial(_positions_cost, tracks, solved[name], frames,
-                                            lines, sigma, options) for name in names],
-                                   options.workers), strict=True))
+    costs = dict(zip(names, run_all([partial(_positions_costs, tracks, solved[name], frames,
+                                             lines, sigma, options) for name in names],
+                                    options.workers), strict=True))
+    seen = _disagreeing_tracks(tracks, [solved[name].rotations for name in names], frames)
+    where = seen[tracks.obs_track]
+    cost = {name: float(np.mean(costs[name][where])) for name in names}
     best = min(reversed(names), key=lambda name: cost[name])
     return best, solved[best]
 
 
-def _positions_cost(tracks: LineTracks, rot: GlobalRotations, frames: np.ndarray,
-                    lines: np.ndarray, sigma: float, options: Settings) -> float:
-    """The truncated cost (:func:`~omni_sfm.estimate.bundle.truncated_cost`, every
-    observation, the limit of noise ``sigma``) of the positions :func:`_positions_step` finds
-    from ``rot``; inf where it finds none."""
+_DISAGREE_DEG = 2.0
+"""Two start solutions disagree on a frame whose rotations differ by more than this
+(:func:`_disagreeing_tracks`; where both are right they agree to a few tenths of a degree)."""
+
+
+def _disagreeing_tracks(tracks: LineTracks, rotations: list[FloatArray], frames: np.ndarray
+                        ) -> np.ndarray:
+    """``(M,)`` the tracks seen in a frame where two of the ``rotations`` (each ``(F, 3, 3)``,
+    the same gauge) differ by more than :data:`_DISAGREE_DEG`; every track where they agree
+    on every frame."""
+    idx = np.flatnonzero(frames)
+    apart = np.zeros(tracks.num_frames, bool)
+    for k, a in enumerate(rotations):
+        for b in rotations[k + 1:]:
+            rel = np.einsum("fji,fjk->fik", a[idx], b[idx])
+            apart[idx] |= np.degrees(rotation_angle(rel)) > _DISAGREE_DEG
+    if not apart.any():
+        return np.ones(tracks.num_tracks, bool)
+    seen = np.zeros(tracks.num_tracks, bool)
+    seen[tracks.obs_track[apart[tracks.obs_frame]]] = True
+    return seen
+
+
+def _positions_costs(tracks: LineTracks, rot: GlobalRotations, frames: np.ndarray,
+                     lines: np.ndarray, sigma: float, options: Settings) -> FloatArray:
+    """``(K,)`` each observation's truncated cost (:func:`~omni_sfm.estimate.bundle.
+    truncated_costs`, the limit of noise ``sigma``) at the positions :func:`_positions_step`
+    finds from ``rot``; inf where it finds none."""
     try:
         R, c, _, _ = _positions_step(tracks, rot, frames, lines, options)
     except OmniSfmError:
-        return np.inf
+        return np.full(tracks.num_observations, np.inf)
     posed = frames & np.isfinite(c).all(axis=1)
-    return truncated_cost(tracks, R, c, posed, outlier_limit(sigma, options.bundle),
-                          everywhere=True)
+    return truncated_costs(tracks, R, c, posed, outlier_limit(sigma, options.bundle))
 
 
 def _snapped(tracks: LineTracks, frames: np.ndarray, lines: np.ndarray, first: GlobalRotations,
