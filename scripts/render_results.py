@@ -67,9 +67,9 @@ SUMMARY = (
     SummaryRow("`init` on rendered sequences", "eval_init", "docs/results.md"),
     SummaryRow("`init` on footage-like video (office walk)", "eval_footage_global",
                "docs/estimator.md"),
-    SummaryRow("`init` against COLMAP's mapper (windows estimator)", "bench_init",
+    SummaryRow("`init` against COLMAP's mapper", "bench_init",
                "docs/results.md"),
-    SummaryRow("Long video (3,000 frames, 1920x960 H.264; windows estimator)",
+    SummaryRow("Long video (3,000 frames, 1920x960 H.264)",
                "bench_long_video", "docs/results.md"),
     SummaryRow("Short tracks against the oracle", "eval_sparse_global", "docs/estimator.md"),
     SummaryRow("`init` on hand-held 640x320 H.264 along a cell house (not yet: the bars are "
