@@ -37,7 +37,8 @@ known limits) the start can drift out of it, and the answer then follows the ord
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field, fields, replace
 from functools import partial
 from typing import Any
@@ -1148,10 +1149,24 @@ def solve_global(tracks: LineTracks, options: GlobalOptions = GlobalOptions()
         timings_ms=timings)
 
 
-def _advance(bar: tqdm[Any], step: str) -> None:
-    """The progress bar one step on, showing the ``step`` now running."""
-    bar.set_postfix_str(step, refresh=False)
-    bar.update(1)
+class _Steps:
+    """The steps' wall times (milliseconds) and, where shown, a progress bar of them."""
+
+    def __init__(self, show: bool) -> None:
+        self.timings: dict[str, float] = {}
+        self.bar = tqdm(total=5, desc="global estimator", unit="step", leave=False,
+                        disable=None if show else True)
+
+    @contextmanager
+    def step(self, name: str) -> Iterator[None]:
+        """Time the ``with`` block as step ``name``, shown on the bar while it runs."""
+        self.bar.set_postfix_str(name.replace("_", " "), refresh=False)
+        t = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.timings[name] = (time.perf_counter() - t) * 1e3
+            self.bar.update(1)
 
 
 def _solve_once(tracks: LineTracks, options: Settings,
@@ -1166,53 +1181,45 @@ def _solve_once(tracks: LineTracks, options: Settings,
         OmniSfmError: fewer than 3 frames that see ``options.min_lines`` lines, or a step that
             finds the data do not determine it.
     """
-    timings: dict[str, float] = {}
-    bar = tqdm(total=5, desc="global estimator", unit="step", leave=False,
-               disable=None if options.progress and not window else True)
-    bar.set_postfix_str("parallel lines", refresh=False)
+    prog = _Steps(options.progress and not window)
     steps: list[EstimatorStep] = []
-    t = time.perf_counter()
-    frames, lines = _posable(tracks, options.min_lines)
+    try:
+        with prog.step("parallel_lines"):
+            frames, lines = _posable(tracks, options.min_lines)
+            if frames.sum() < 3:
+                raise OmniSfmError(f"only {int(frames.sum())} frames see {options.min_lines} "
+                                   f"or more tracked lines; need 3")
+            families = detect_parallel_families(tracks, options.vanishing)
+        with prog.step("rotations"):
+            rot, worlds, label = _rotations(tracks, frames, lines, families, options, steps,
+                                            start)
+        with prog.step("positions"):
+            R, c, pos, dir_ok = _positions_step(tracks, rot, frames, lines, options)
+        steps.append(EstimatorStep(step="positions",
+                                   sigma_deg=float(np.degrees(pos.residual_sigma))))
+        with prog.step("bundle_adjustment"):
+            opts = options if window else replace(options, bundle=_decisive(options.bundle))
+            scale: OffsetScale | None = None
+            if tracks.obs_offset is not None:
+                tracks, scale, c, pos = _rig_start(tracks, R, c, pos, frames, opts)
+            ba = _adjustment_step(tracks, R, c, rot, pos, dir_ok, label, frames, opts)
+        steps.append(EstimatorStep(step="bundle adjustment", iterations=ba.iterations,
+                                   outlier_tracks=int(ba.outlier_tracks.sum()),
+                                   rms_final_deg=float(ba.rms_final_deg)))
+        with prog.step("pose_spread"):
+            nan = np.full(tracks.num_frames, np.nan)
+            uncertain, spread_deg, spread_path = ({}, nan, nan.copy()) if window else \
+                _flags(tracks, rot, pos, c, ba, options)
+    finally:
+        prog.bar.close()
+    timings = prog.timings
     not_posed = {int(k): f"sees fewer than {options.min_lines} lines that are tracked"
                  for k in np.flatnonzero(~frames)}
-    if frames.sum() < 3:
-        raise OmniSfmError(f"only {int(frames.sum())} frames see {options.min_lines} or more "
-                           f"tracked lines; need 3")
-    families = detect_parallel_families(tracks, options.vanishing)
-    timings["parallel_lines"] = (time.perf_counter() - t) * 1e3
-    _advance(bar, 'rotations')
-    t = time.perf_counter()
-    rot, worlds, label = _rotations(tracks, frames, lines, families, options, steps, start)
-    timings["rotations"] = (time.perf_counter() - t) * 1e3
-    _advance(bar, 'positions')
-    t = time.perf_counter()
-    R, c, pos, dir_ok = _positions_step(tracks, rot, frames, lines, options)
-    steps.append(EstimatorStep(step="positions",
-                               sigma_deg=float(np.degrees(pos.residual_sigma))))
-    timings["positions"] = (time.perf_counter() - t) * 1e3
-    _advance(bar, 'adjustment')
-    t = time.perf_counter()
-    opts = options if window else replace(options, bundle=_decisive(options.bundle))
-    scale: OffsetScale | None = None
-    if tracks.obs_offset is not None:
-        tracks, scale, c, pos = _rig_start(tracks, R, c, pos, frames, opts)
-    ba = _adjustment_step(tracks, R, c, rot, pos, dir_ok, label, frames, opts)
-    timings["bundle_adjustment"] = (time.perf_counter() - t) * 1e3
-    _advance(bar, 'flags')
-    steps.append(EstimatorStep(step="bundle adjustment", iterations=ba.iterations,
-                               outlier_tracks=int(ba.outlier_tracks.sum()),
-                               rms_final_deg=float(ba.rms_final_deg)))
     for k in np.flatnonzero(frames & ~ba.frames):
         not_posed[int(k)] = ("fewer than 3 of its lines are left after the adjustment rejected "
                              "outlier tracks")
     members = np.asarray(families[0].members, bool) if families else \
         np.zeros(tracks.num_tracks, bool)
-    t = time.perf_counter()
-    nan = np.full(tracks.num_frames, np.nan)
-    uncertain, spread_deg, spread_path = ({}, nan, nan.copy()) if window else \
-        _flags(tracks, rot, pos, c, ba, options)
-    timings["pose_spread"] = (time.perf_counter() - t) * 1e3
-    bar.close()
     return GlobalSolution(
         rotations=ba.rotations, positions=ba.positions, frames=ba.frames,
         line_directions=ba.line_directions, line_points=ba.line_points,
