@@ -117,9 +117,7 @@ class BundleOptions:
     median camera-line distance, are left out of the final polish (0, the default: keep all).
     The camera then (nearly) lies on the line: the line's plane through it is undefined there
     and the residuals are so far from linear that the adjustment of a long chain crawls. Off
-    by default: it costs a Fig. 12 trial from a wrong start lines it needs; the estimator
-    triangulates such lines again instead, every track taking part (strategy "lines off the
-    cameras", docs/estimator.md stage 8)."""
+    by default: it costs a Fig. 12 trial from a wrong start lines it needs."""
     min_observations: int = 3
     """Tracks with fewer observations in the estimated frames take no part."""
     line_iterations: int = 2

@@ -1,4 +1,5 @@
-"""Parallel families as fixed world directions (docs/method.md §14, docs/estimator.md stage 5b).
+"""Parallel families as fixed world directions (docs/method.md §14; the global estimator's world
+directions, docs/estimator.md).
 
 Man-made places have a few dominant directions (the verticals, a corridor's own direction, the
 cross direction). Once a piece of the sequence is reconstructed, its 3D lines show them:
