@@ -126,8 +126,6 @@ class GlobalOptions:
     the same to the bit whatever their number."""
 
 
-
-
 @dataclass(frozen=True, kw_only=True)
 class Settings(GlobalOptions):
     """The options and the values the design fixes (docs/estimator.md, "The global

@@ -113,9 +113,10 @@ NVs this well (median angle, degrees); otherwise their error stands. Translation
 NVs by the parallax the paper's method needs (at least ``PaperOptions.min_parallax_deg``),
 which no rotation can explain."""
 _ALTERNATIVE_MIN_DIFFERENCE = 0.05
-"""An alternative start of the paper's method is adjusted only if its camera centres differ from
-every start already adjusted by more than this fraction (RMS, after least-squares scaling) of the
-RMS distance of the cameras from the first: nearby starts fall into the same basin."""
+"""An alternative start of the paper's method (scaled onto its solution by
+:func:`~omni_sfm.estimate.paper.estimate_paper`) is adjusted only if its camera centres differ
+from every start already adjusted by more than this fraction (RMS over the frames) of the RMS
+distance of the cameras from the first: nearby starts fall into the same basin."""
 
 
 def _finite_or_none(values: np.ndarray) -> list[float | None]:
@@ -526,6 +527,30 @@ def _family_direction(d: FloatArray, lines: np.ndarray) -> FloatArray:
 
 # -- the global estimator ---------------------------------------------------------------------
 
+@dataclass(frozen=True)
+class _Part:
+    """A part of the sequence with nothing in common with the rest (:func:`_parts`): frames
+    ``start..stop-1`` as tracks of their own (``index``: each track's index in the whole
+    tracks) and the global estimator's solution of them, or why it failed."""
+
+    start: int
+    stop: int
+    tracks: LineTracks
+    index: np.ndarray
+    solution: GlobalSolution | None
+    error: OmniSfmError | None
+
+
+def _solved_part(tracks: LineTracks, a: int, b: int, options: GlobalOptions,
+                 whole: bool) -> _Part:
+    """Frames ``a..b-1`` (all of ``tracks`` where ``whole``) solved by the global estimator."""
+    sub, idx = (tracks, np.arange(tracks.num_tracks)) if whole else frame_range(tracks, a, b)
+    try:
+        return _Part(a, b, sub, idx, solve_global(sub, options), None)
+    except OmniSfmError as exc:
+        return _Part(a, b, sub, idx, None, exc)
+
+
 def _global_result(tracks: LineTracks, options: EstimationOptions,
                    t_all: float) -> EstimationResult:
     """The global estimator's result: each part of the sequence with nothing in common
@@ -535,19 +560,12 @@ def _global_result(tracks: LineTracks, options: EstimationOptions,
     run = RunLog()
     gopts = settings(replace(options.global_, workers=start_workers(options),
                              progress=options.progress), vanishing=_VANISHING, bundle=_BUNDLE)
-    parts = _parts(tracks)
-    solved: list[tuple[int, int, LineTracks, np.ndarray, GlobalSolution | OmniSfmError]] = []
-    for a, b in parts:
-        sub, idx = (tracks, np.arange(tracks.num_tracks)) if len(parts) == 1 else \
-            frame_range(tracks, a, b)
-        try:
-            solved.append((a, b, sub, idx, solve_global(sub, gopts)))
-        except OmniSfmError as exc:
-            solved.append((a, b, sub, idx, exc))
-    ok = [s for s in solved if isinstance(s[4], GlobalSolution)]
+    spans = _parts(tracks)
+    parts = [_solved_part(tracks, a, b, gopts, len(spans) == 1) for a, b in spans]
+    ok = [q for q in parts if q.solution is not None]
     if not ok:
-        error = solved[0][4]
-        assert isinstance(error, OmniSfmError)
+        error = parts[0].error
+        assert error is not None
         why = str(error) if len(parts) == 1 else \
             f"no part of the sequence could be posed ({error})"
         rot_only = _try_rotation_only(tracks, options, run, f"the global estimator failed: "
@@ -555,14 +573,19 @@ def _global_result(tracks: LineTracks, options: EstimationOptions,
         if rot_only is None:
             raise OmniSfmError(why) from error
         return _rotation_only_result(tracks, rot_only, options, run, why, t_all)
-    main = max(ok, key=lambda s: (int(s[4].frames.sum()), -s[0]))  # type: ignore[union-attr]
-    a, _, sub, idx, sol = main
-    assert isinstance(sol, GlobalSolution)
-    whole = _lifted(sol, a, idx, tracks.num_frames, tracks.num_tracks)
+    main = max(ok, key=lambda q: (int(_solution(q).frames.sum()), -q.start))
+    whole = _lifted(_solution(main), main.start, main.index, tracks.num_frames,
+                    tracks.num_tracks)
     result = _global_assembled(tracks, whole, t_all)
     if len(parts) == 1:
         return result
-    return _with_segments(tracks, result, [s for s in solved if s is not main], t_all)
+    return _with_segments(tracks, result, [q for q in parts if q is not main], t_all)
+
+
+def _solution(part: _Part) -> GlobalSolution:
+    """The solution of a part that has one."""
+    assert part.solution is not None
+    return part.solution
 
 
 def _lifted(sol: GlobalSolution, start: int, idx: np.ndarray, F: int, M: int) -> GlobalSolution:
@@ -592,20 +615,21 @@ def _lifted(sol: GlobalSolution, start: int, idx: np.ndarray, F: int, M: int) ->
         not_posed={start + k: v for k, v in sol.not_posed.items()})
 
 
-def _with_segments(tracks: LineTracks, main: EstimationResult,
-                   rest: list[tuple[int, int, LineTracks, np.ndarray,
-                                    GlobalSolution | OmniSfmError]],
+def _with_segments(tracks: LineTracks, main: EstimationResult, rest: list[_Part],
                    t_all: float) -> EstimationResult:
     """The ``main`` result with the other parts as segments (in the order of their first
     frame), each in its own world and scale, and why their frames are not in the main
     trajectory."""
     reasons = dict(main.report.frames_not_estimated_reasons or {})
     segments: list[Segment] = []
-    for a, b, sub, _, sol in rest:
-        why = ""
-        if isinstance(sol, GlobalSolution):
+    for part in rest:
+        a, b, sol = part.start, part.stop, part.solution
+        if sol is None:
+            why = f"its part (frames {a}-{b - 1}, no line in common with the rest) failed: " \
+                  f"{part.error}"
+        else:
             try:
-                r = _global_assembled(sub, sol, t_all)
+                r = _global_assembled(part.tracks, sol, t_all)
             except OmniSfmError as exc:
                 why = f"its part (frames {a}-{b - 1}) has no world and scale: {exc}"
             else:
@@ -620,8 +644,6 @@ def _with_segments(tracks: LineTracks, main: EstimationResult,
                 for k, v in sol.not_posed.items():
                     reasons[str(a + k)] = v
                 continue
-        else:
-            why = f"its part (frames {a}-{b - 1}, no line in common with the rest) failed: {sol}"
         for g in range(a, b):
             reasons[str(g)] = why
     report = replace(
