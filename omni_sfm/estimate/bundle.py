@@ -435,7 +435,8 @@ class LineProblem:
     """The LM problem on the active frames and tracks (everything else stays as given).
 
     Free parameters: 6 per estimated frame except the fixed one (whose 6 are held; its centre
-    only when ``hold_rotation`` is False), minus the one held coordinate of the scale frame; 4
+    only when ``hold_rotation`` is False; its centre and its turn about the world direction
+    ``turn_axis`` when that is given), minus the one held coordinate of the scale frame; 4
     per active track (2 for a line whose direction is held). Held parameters keep zero
     Jacobian columns and an identity block in the normal equations.
 
@@ -456,8 +457,19 @@ class LineProblem:
                  held_directions: np.ndarray | None = None, hold_rotation: bool = True,
                  observations: np.ndarray | None = None, *, line_iterations: int = 0,
                  loss: RobustLoss = RobustLoss.LINEAR, loss_scale: float = 1.0,
-                 held_rotations: np.ndarray | None = None, hold_scale: bool = True) -> None:
+                 held_rotations: np.ndarray | None = None, hold_scale: bool = True,
+                 turn_axis: FloatArray | None = None) -> None:
         self.line_iterations, self.loss, self.loss_scale = line_iterations, loss, loss_scale
+        self.fixed_frame = fixed_frame
+        self.turn_axis = None if turn_axis is None or hold_rotation else \
+            normalize(np.asarray(turn_axis, np.float64))
+        """The world direction about which the fixed frame's turn is held (lines of one held
+        direction fix the world's rotation but for the turn about it: holding the fixed
+        frame's whole rotation as well would tie that direction to the frame, which frame
+        is first then deciding the result)."""
+        self._turn_basis: FloatArray | None = None
+        """The fixed frame's rotation parameters' axes (camera frame, columns; the third along
+        ``turn_axis``, held) at the last Jacobian."""
         self._basis: tuple[FloatArray, FloatArray, FloatArray] | None = None
         self._reduced: tuple[np.ndarray, _ReducedSystem] | None = None
         """The active lines and the reduced system's structure (:meth:`solve`)."""
@@ -482,6 +494,8 @@ class LineProblem:
         pose_free[fixed_frame, 3:] = False
         if hold_rotation:
             pose_free[fixed_frame, :3] = False
+        elif self.turn_axis is not None:
+            pose_free[fixed_frame, 2] = False  # in the axes of _turn_basis
         if hold_scale:  # (a rig's lens offsets in metres fix it otherwise)
             pose_free[scale_frame, 3 + scale_axis] = False
         if held is not None:
@@ -518,17 +532,39 @@ class LineProblem:
         (:func:`_pose_jacobian`'s formulas, and the line moved along its tangent basis:
         :func:`omni_sfm.estimate.kernels.jacobians`)."""
         b1, b2 = self._basis_of(d)
+        free = self.pose_free
+        if self.turn_axis is not None:
+            # the fixed frame's rotation moves along the axes of a basis whose third is the
+            # held turn about the world direction (camera frame), by the columns' chain rule
+            k = self.fixed_frame
+            n = normalize(R[k].T @ self.turn_axis)
+            self._turn_basis = np.stack([*orthonormal_completion(n), n], axis=1)
+            free = free.copy()
+            free[k, :3] = True
         if self.offset is None:
-            return kernels.jacobians(R, c, d, p, self.f, self.t, self.B, u, self.pose_free,
-                                     self.line_free, b1, b2)
+            Jp, Jl = kernels.jacobians(R, c, d, p, self.f, self.t, self.B, u, free,
+                                       self.line_free, b1, b2)
+        else:
+            Jp, Jl = self._offset_jacobians(R, c, d, p, u, b1, b2)
+        if self._turn_basis is not None:
+            at = self.f == self.fixed_frame
+            Jp[at, :, :3] = Jp[at, :, :3] @ self._turn_basis
+        if self.offset is not None or self._turn_basis is not None:
+            Jp *= self.pose_free[self.f][:, None, :]
+        return Jp, Jl
+
+    def _offset_jacobians(self, R: FloatArray, c: FloatArray, d: FloatArray, p: FloatArray,
+                          u: FloatArray, b1: FloatArray, b2: FloatArray
+                          ) -> tuple[FloatArray, FloatArray]:
+        """:meth:`jacobian` with lens offsets, every pose column kept."""
         # each observation's camera c_f + R_f o moves with the rotation increment w (R_f
         # exp(w)) by R_f (w x o) = -R_f [o]x w: its centre columns carry that into the
         # rotation's; held columns are zeroed after the chain rule
+        assert self.offset is not None
         Rk, ck, fk = self._cameras(R, c)
         Jp, Jl = kernels.jacobians(Rk, ck, d, p, fk, self.t, self.B, u,
                                    np.ones((len(fk), 6), bool), self.line_free, b1, b2)
         Jp[:, :, :3] -= np.einsum("kac,kcd->kad", Jp[:, :, 3:], Rk @ skew(self.offset))
-        Jp *= self.pose_free[self.f][:, None, :]
         return Jp, Jl
 
     def normal_equations(self, J_pose: FloatArray, J_line: FloatArray, e: FloatArray,
@@ -578,6 +614,9 @@ class LineProblem:
         """The state moved by the step ``dpose`` ``(F, 6)``, ``dline`` ``(M, 4)``."""
         R2 = R.copy()
         moved = self._moved_frames
+        if self._turn_basis is not None:
+            dpose = dpose.copy()
+            dpose[self.fixed_frame, :3] = self._turn_basis @ dpose[self.fixed_frame, :3]
         R2[moved] = R[moved] @ rotvec_to_matrix(dpose[moved, :3])
         c2 = c + dpose[:, 3:]
         d2, p2 = self._moved_lines(d, p, dline)
@@ -736,6 +775,17 @@ def _directions_fix_rotation(d: FloatArray, held_directions: np.ndarray | None,
     return bool(sines.max() >= np.sin(np.radians(_MIN_GAUGE_ANGLE_DEG)))
 
 
+def _held_axis(d: FloatArray, held_directions: np.ndarray | None, active: np.ndarray
+               ) -> FloatArray | None:
+    """The direction of the first active ``(M,)`` line whose direction ``d`` ``(M, 3)`` is held
+    (``held_directions`` ``(M,)`` bool), or None: held in one direction only, they fix the
+    world's rotation but for the turn about it (:class:`LineProblem`'s ``turn_axis``)."""
+    if held_directions is None:
+        return None
+    h = np.flatnonzero(np.asarray(held_directions, bool) & active)
+    return d[h[0]] if len(h) else None
+
+
 def _new_outliers(active: np.ndarray, rms: FloatArray, sigma: float,
                   options: BundleOptions) -> np.ndarray:
     """``(M,)`` bool: the active tracks to reject in this round (none unless
@@ -841,12 +891,14 @@ class _Adjustment:
         """Run LM on the ``active`` ``(M,)`` tracks with the loss scaled to the current noise;
         returns the iterations it took."""
         scale = self.options.loss_scale * self.sigma
+        fixes = _directions_fix_rotation(self.d, self.held_directions, active)
+        axis = None if fixes else _held_axis(self.d, self.held_directions, active)
         prob = LineProblem(self.tracks, self.frames, active, self.fixed, self.scale_frame,
                            self.scale_axis, self.held, self.held_directions,
-                           not _directions_fix_rotation(self.d, self.held_directions, active),
+                           not fixes and axis is None,
                            line_iterations=self.options.line_iterations, loss=loss,
                            loss_scale=scale, held_rotations=self.held_rotations,
-                           hold_scale=not self.metric)
+                           hold_scale=not self.metric, turn_axis=axis)
         (self.R, self.c, self.d, self.p), it = levenberg_marquardt(
             prob, (self.R, self.c, self.d, self.p), loss, scale, max_iterations, tolerance)
         self.iterations += it

@@ -86,7 +86,7 @@ from omni_sfm.geometry import (
     rotation_about_axis,
     rotation_angle,
 )
-from omni_sfm.lines.tracks import LineTracks
+from omni_sfm.lines.tracks import LineTracks, reversed_frames
 from omni_sfm.reports import EstimatorStep
 from omni_sfm.solver import RobustLoss
 from omni_sfm.transforms import umeyama
@@ -617,6 +617,21 @@ def _horizontal_directions(rot: GlobalRotations, families: list[ParallelFamily],
     return np.asarray(out).reshape(-1, 3)
 
 
+def _backward_start(tracks: LineTracks, frames: np.ndarray, families: list[ParallelFamily],
+                    R0: FloatArray, options: Settings) -> FloatArray:
+    """The anchored chain (:func:`anchored_start`) run from the last frame to the first, in
+    the gauge of ``R0`` (the forward chain's: the first posed frame's rotation the same). With
+    both chains among the starts, the same tracks in the other frame order start from the same
+    two, and the solution kept (:func:`kept_start`) does not follow the order."""
+    back = [replace(f, vpv=f.vpv[::-1], frame_residual=f.frame_residual[::-1],
+                    frame_members=f.frame_members[::-1]) for f in families]
+    Rb, _ = anchored_start(reversed_frames(tracks), frames[::-1], back, options.snap_deg,
+                           min_family_size=options.min_family_size)
+    Rb = Rb[::-1]
+    k = int(np.flatnonzero(frames)[0])
+    return np.einsum("ij,fjk->fik", R0[k] @ Rb[k].T, Rb)
+
+
 def kept_start(tracks: LineTracks, frames: np.ndarray, lines: np.ndarray,
                starts: dict[str, FloatArray], group: np.ndarray, options: Settings
                ) -> tuple[str, GlobalRotations]:
@@ -730,8 +745,10 @@ def _rotations(tracks: LineTracks, frames: np.ndarray, lines: np.ndarray,
     starts = {"anchored": R0}
     if previous is not None:  # an earlier solution (the anchored chain where it posed none)
         starts = {"previous": np.where(np.isfinite(previous), previous, R0)}
-    elif options.start_window and frames.sum() > options.start_window:
-        starts["windows"] = windows_start(tracks, frames, R0, options)
+    else:
+        starts["anchored backwards"] = _backward_start(tracks, frames, families, R0, options)
+        if options.start_window and frames.sum() > options.start_window:
+            starts["windows"] = windows_start(tracks, frames, R0, options)
     start, first = kept_start(tracks, frames, lines, starts, group, options)
     steps.append(EstimatorStep(step="rotations, the families' world directions shared",
                                families=[f.size for f in families], start=start,

@@ -235,29 +235,59 @@ def _with_depths(g: _Geometry, sides: FloatArray, options: GlobalPositionOptions
                  ) -> tuple[FloatArray, FloatArray, float]:
     """``(x, w, sigma)``: the least squares of the plane rows (weighted by the inverse depth and
     a Cauchy loss) with each observation's depth along its side ``U x`` held at 1 or more (a
-    squared hinge, solved by its active set). Each line then lies on the side of the camera its
-    rays see it on, and no part of the walk can shrink to a point: the scale is the nearest
-    line's distance. The problem is convex for given weights; its start is every depth at
-    1."""
+    squared hinge). Each line then lies on the side of the camera its rays see it on, and no
+    part of the walk can shrink to a point: the scale is the nearest line's distance.
+
+    ``options.reweight_rounds`` rounds, each with the weights of the last (every row's 1 in the
+    first): for given weights the problem is convex and its minimum unique, found by its active
+    set (the depths below 1 held at 1, until they are the same ones twice; at most
+    ``options.depth_iterations`` solves). Re-weighting and active set in one loop cycle
+    through thousands of active sets on a sparse walk, and where they stop follows the last
+    bits of the input; this way each round's minimum is a continuous function of the input."""
     K = g.A.shape[0]
     U = _rows(sides, g.e1, g.e2, g.pc, g.li, g.P, g.L)
     x = np.zeros(g.P + g.L)
     w = np.ones(K)
     sigma = np.inf
-    held = np.ones(K, bool)
+    for _ in range(max(1, options.reweight_rounds)):
+        x = _hinge_minimum(g, U, sides, w, x, options)
+        w, sigma = _reweighted(g, x, options)
+    return x, w, sigma
+
+
+def _hinge_minimum(g: _Geometry, U: sp.csr_matrix, sides: FloatArray, w: FloatArray,
+                   x: FloatArray, options: GlobalPositionOptions) -> FloatArray:
+    """The minimum of ``1/2 |A x|_w^2 + prior + 1/2 sum w max(0, 1 - U x)^2`` for the weights
+    ``w`` (:func:`_with_depths`), by Newton's method on its active sets from ``x`` (all depths
+    held where ``x`` is 0), each step shortened until the cost falls: without that the
+    active sets cycle."""
+    K = g.A.shape[0]
+
+    def normal(held: np.ndarray) -> sp.csc_matrix:
+        H = (g.A.T @ sp.diags(w) @ g.A + U.T @ sp.diags(w * held) @ U).tocsc()
+        return g.prior(H, options.smoothness, w, sides, held.astype(float))
+
+    prior = normal(np.zeros(K, bool))  # the quadratic part without the hinge
+
+    def cost(y: FloatArray) -> float:
+        gap = np.maximum(1.0 - U @ y, 0.0)
+        return 0.5 * float(y @ (prior @ y)) + 0.5 * float(np.sum(w * gap**2))
+
+    held = np.ones(K, bool) if not x.any() else U @ x < 1.0
+    now_cost = cost(x) if x.any() else np.inf
     for _ in range(max(1, options.depth_iterations)):
-        Wu = sp.diags(w * held)
-        H = (g.A.T @ sp.diags(w) @ g.A + U.T @ Wu @ U).tocsc()
-        normal = g.prior(H, options.smoothness, w, sides, held.astype(float))
-        y = _factor(normal).solve(U.T @ (w * held))
-        w, sigma = _reweighted(g, y, options)
-        now = U @ y < 1.0
-        spread = max(float(np.sqrt(np.mean(y[:g.P] ** 2))), 1e-300)
-        moved = float(np.max(np.abs(y[:g.P] - x[:g.P]), initial=0.0)) / spread
-        x, done, held = y, bool(np.array_equal(now, held)) and moved < _SETTLED, now
+        y = _factor(normal(held)).solve(U.T @ (w * held))
+        step, new_cost = 1.0, cost(y)
+        while np.isfinite(now_cost) and new_cost > now_cost and step > 1e-6:
+            step *= 0.5
+            new_cost = cost(x + step * (y - x))
+        x = x + step * (y - x) if step < 1.0 else y
+        now = U @ x < 1.0
+        done = np.array_equal(now, held) and step == 1.0
+        held, now_cost = now, new_cost
         if done:
             break
-    return x, w, sigma
+    return x
 
 
 def _factor(M: sp.csc_matrix) -> spla.SuperLU:

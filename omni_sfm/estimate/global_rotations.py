@@ -42,7 +42,7 @@ from omni_sfm.lines.tracks import LineTracks
 
 @dataclass(frozen=True, kw_only=True)
 class GlobalRotationOptions:
-    max_iterations: int = 50
+    max_iterations: int = 300
     """Gauss-Newton (Levenberg-Marquardt) iterations of the joint problem at most."""
     tolerance: float = 1e-12
     """Stop when the relative decrease of the cost falls below this."""
@@ -55,8 +55,8 @@ class GlobalRotations:
     """The rotations of all frames and the directions of all lines.
 
     Attributes:
-        rotations: ``(F, 3, 3)`` world_from_cam (world = the first posed frame's camera); NaN
-            for frames without a rotation.
+        rotations: ``(F, 3, 3)`` world_from_cam (the start's world: the gauge frame keeps its
+            start's rotation); NaN for frames without a rotation.
         directions: ``(M, 3)`` unit line directions in the world (one per group), NaN for
             lines not used.
         frames: ``(F,)`` bool, frames with a rotation.
@@ -126,10 +126,22 @@ def _robust_sigma(r: FloatArray) -> float:
     return float(1.4826 * np.median(np.abs(r))) if len(r) else 0.0
 
 
+def _gauge_frame(n: FloatArray, f: np.ndarray, posed: np.ndarray) -> int:
+    """The posed frame whose rotation is held (the gauge): the one whose normals ``n`` ``(K, 3)``
+    (of frames ``f``) fix its rotation best (the largest smallest eigenvalue of their scatter),
+    which does not depend on the frames' order (the first frame would: from a start far from
+    the minimum, which one the solver reaches can follow the gauge)."""
+    S = np.zeros((int(posed.max()) + 1, 3, 3))
+    np.add.at(S, f, n[:, :, None] * n[:, None, :])
+    low = np.linalg.eigvalsh(S[posed])[:, 0]
+    return int(posed[int(np.argmax(low))])
+
+
 class _RotationProblem:
     """The joint problem's residuals, Jacobian and normal equations (sparse). The unknowns are
-    the posed frames' rotations but the first's and one direction per group of lines
-    (``group`` ``(M,)``: the direction variable of each track, -1 for tracks left out)."""
+    the posed frames' rotations but the gauge frame's (:func:`_gauge_frame`) and one direction
+    per group of lines (``group`` ``(M,)``: the direction variable of each track, -1 for tracks
+    left out)."""
 
     def __init__(self, tracks: LineTracks, frames: np.ndarray, group: np.ndarray) -> None:
         obs = frames[tracks.obs_frame] & (group[tracks.obs_track] >= 0)
@@ -139,7 +151,9 @@ class _RotationProblem:
         self.F = tracks.num_frames
         pose_idx = np.full(self.F, -1)
         posed = np.flatnonzero(frames)
-        pose_idx[posed[1:]] = np.arange(len(posed) - 1)  # the first posed frame is the gauge
+        self.gauge = _gauge_frame(self.n, self.f, posed)
+        free = posed[posed != self.gauge]
+        pose_idx[free] = np.arange(len(free))
         self.pose_idx = pose_idx
         self.num_pose, self.num_line = len(posed) - 1, int(group.max()) + 1
         # the directions' columns after the rotations', the shared ones (a world direction's
@@ -254,7 +268,7 @@ def solve_rotations(tracks: LineTracks, frames: np.ndarray, R0: FloatArray,
             lam *= 10
         # the loss follows the residuals' spread: a new scale, a new cost to compare against
         sigma_new = max(_robust_sigma(r), 1e-12)
-        if improved and abs(sigma_new - sigma) > 0.01 * sigma:
+        if improved and abs(sigma_new - sigma) > 1e-6 * sigma:
             sigma, scale = sigma_new, options.loss_scale * sigma_new
             cost = _cost(r, scale)
             continue
