@@ -650,17 +650,40 @@ def kept_start(tracks: LineTracks, frames: np.ndarray, lines: np.ndarray,
     solved = dict(zip(names, run_all([partial(solve_rotations, tracks, frames, starts[name],
                                               group, options.rotations) for name in names],
                                      options.workers), strict=True))
-    if len(solved) == 1:
+    # starts that reach the same minimum need no positions to tell them apart
+    names = [name for k, name in enumerate(names)
+             if not any(_same_rotations(solved[name], solved[other]) for other in names[:k])]
+    if len(names) == 1:
         return names[0], solved[names[0]]
-    sigma = min(x.sigma for x in solved.values())
+    sigma = min(solved[name].sigma for name in names)
     costs = dict(zip(names, run_all([partial(_positions_costs, tracks, solved[name], frames,
                                              lines, sigma, options) for name in names],
                                     options.workers), strict=True))
     seen = _disagreeing_tracks(tracks, [solved[name].rotations for name in names], frames)
     where = seen[tracks.obs_track]
     cost = {name: float(np.mean(costs[name][where])) for name in names}
-    best = min(reversed(names), key=lambda name: cost[name])
+    # costs this close do not tell the solutions apart (the linear positions of a sparse walk
+    # move by more under the round-off of another frame order): the better fit of the
+    # directions does
+    least = min(cost.values())
+    close = [name for name in names if cost[name] <= (1.0 + _COST_TIE) * least]
+    best = min(reversed(close), key=lambda name: solved[name].sigma)
     return best, solved[best]
+
+
+_COST_TIE = 0.02
+"""Starts whose positions' costs are within this fraction of the least are kept by the fit of
+their directions (:func:`kept_start`)."""
+
+
+def _same_rotations(a: GlobalRotations, b: GlobalRotations, tolerance_deg: float = 1e-3
+                    ) -> bool:
+    """Whether two solutions of the joint rotation problem (the same gauge) are one minimum:
+    every frame's rotations within ``tolerance_deg``."""
+    if not np.array_equal(a.frames, b.frames):
+        return False
+    rel = np.einsum("fji,fjk->fik", a.rotations[a.frames], b.rotations[b.frames])
+    return bool(np.degrees(rotation_angle(rel)).max(initial=0.0) <= tolerance_deg)
 
 
 _DISAGREE_DEG = 2.0
@@ -745,9 +768,9 @@ def _rotations(tracks: LineTracks, frames: np.ndarray, lines: np.ndarray,
     starts = {"anchored": R0}
     if previous is not None:  # an earlier solution (the anchored chain where it posed none)
         starts = {"previous": np.where(np.isfinite(previous), previous, R0)}
-    else:
+    elif options.start_window:  # (not inside a window of the windows' start: 0 there)
         starts["anchored backwards"] = _backward_start(tracks, frames, families, R0, options)
-        if options.start_window and frames.sum() > options.start_window:
+        if frames.sum() > options.start_window:
             starts["windows"] = windows_start(tracks, frames, R0, options)
     start, first = kept_start(tracks, frames, lines, starts, group, options)
     steps.append(EstimatorStep(step="rotations, the families' world directions shared",
@@ -1028,8 +1051,7 @@ def _adjusted(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArray, p
                           options.bundle)
     cost = [truncated_cost(tracks, x.rotations, x.positions, x.frames, limit, everywhere=True)
             for x in candidates]
-    best = int(np.argmin(cost))
-    return candidates[best]
+    return candidates[int(np.argmin(cost))]
 
 
 def _positions_step(tracks: LineTracks, rot: GlobalRotations, frames: np.ndarray,

@@ -6,9 +6,11 @@ frame ``k`` (centre ``c_k``) says that the line lies in the plane through ``c_k`
 normal ``m = R_k n``: ``m . (p_i - c_k) = 0``, with ``m`` made perpendicular to ``d_i`` so that
 the residual is the same for every point of the line. That is linear in the centres and in the
 lines' offsets ``p_i = a_i e1_i + b_i e2_i`` (``e1, e2`` perpendicular to ``d_i``), and
-homogeneous: it fixes the solution up to its scale. The first posed frame's centre is the
-origin. Each row is weighted by the inverse distance between camera and line (its residual is
-then the observation's angle) and by a Cauchy loss, re-weighted as the solution moves.
+homogeneous: it fixes the solution up to its scale. The centre of the frame whose lines fix
+its rotation best (:func:`~omni_sfm.estimate.global_rotations.gauge_frame`, whatever the
+frames' order) is the origin. Each row is weighted by the inverse distance between camera and
+line (its residual is then the observation's angle) and by a Cauchy loss, re-weighted as the
+solution moves.
 
 The observation's ray (``LineTracks.obs_ray``) says on which side of the camera the line lies:
 its depth ``u . (p_i - c_k)`` along ``u``, the unit vector in the plane across the line towards
@@ -36,6 +38,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from omni_sfm.errors import OmniSfmError
+from omni_sfm.estimate.global_rotations import gauge_frame
 from omni_sfm.geometry import FloatArray, normalize, orthonormal_completion
 from omni_sfm.lines.tracks import LineTracks
 
@@ -71,7 +74,7 @@ class GlobalPositions:
     """Centres of all frames and a point of every line.
 
     Attributes:
-        positions: ``(F, 3)`` camera centres (world; the first posed frame at the origin;
+        positions: ``(F, 3)`` camera centres (world; the gauge frame at the origin;
             ``sum |c|^2 = 1``); NaN where not posed.
         points: ``(M, 3)`` the point of each line closest to the origin; NaN for lines not used.
         frame_information: ``(F,)`` smallest eigenvalue of each frame's 3x3 information block
@@ -125,7 +128,10 @@ def solve_positions(tracks: LineTracks, rotations: FloatArray, directions: Float
     if len(posed) < 3:
         raise OmniSfmError("fewer than 3 frames with a rotation; positions need 3")
     pose_idx = np.full(F, -1)
-    pose_idx[posed[1:]] = np.arange(len(posed) - 1)
+    # the origin: a frame chosen whatever the frames' order (the ridge that keeps the normal
+    # equations definite pulls directions the data barely fix towards it)
+    free = posed[posed != gauge_frame(tracks, frames, lines)]
+    pose_idx[free] = np.arange(len(free))
     used = np.flatnonzero(lines)
     line_idx = np.full(M, -1)
     line_idx[used] = np.arange(len(used))
@@ -146,7 +152,7 @@ def solve_positions(tracks: LineTracks, rotations: FloatArray, directions: Float
     x = x / max(float(np.linalg.norm(x[:P])), 1e-300)
     c_all = np.full((F, 3), np.nan)
     c_all[posed] = 0.0
-    c_all[posed[1:]] = x[:P].reshape(-1, 3)
+    c_all[free] = x[:P].reshape(-1, 3)
     q = x[P:].reshape(-1, 2)
     pts = np.full((M, 3), np.nan)
     pts[used] = q[:, :1] * e1 + q[:, 1:] * e2
@@ -180,18 +186,13 @@ class _Geometry:
         return _depths(x[:self.P].reshape(-1, 3), x[self.P:].reshape(-1, 2), self.e1, self.e2,
                        self.d, self.pc, self.li)
 
-    def prior(self, H: sp.csc_matrix, smoothness: float, w: FloatArray,
-              sides: FloatArray | None = None, held: FloatArray | None = None
-              ) -> sp.csc_matrix:
+    def prior(self, H: sp.csc_matrix, smoothness: float, w: FloatArray) -> sp.csc_matrix:
         """``H`` plus the second-difference prior, weighted by ``smoothness`` times the median
-        diagonal entry of a frame's information (the plane rows weighted by ``w`` and, where
-        given, the depth rows ``sides`` weighted by ``w * held``; over every posed frame, the
-        gauge frame included, so that the weight does not depend on which frame is first),
-        and a ridge of 1e-12 of the largest diagonal entry."""
+        diagonal entry of a frame's information (the plane rows weighted by ``w``; over every
+        posed frame, the gauge frame included, so that the weight does not depend on which
+        frame is first), and a ridge of 1e-12 of the largest diagonal entry."""
         info = np.zeros((int(self.frame.max(initial=-1)) + 1, 3))
         np.add.at(info, self.frame, w[:, None] * self.m**2)
-        if sides is not None and held is not None:
-            np.add.at(info, self.frame, (w * held)[:, None] * sides**2)
         lam = smoothness * (float(np.median(info)) if info.size else 1.0)
         K = H
         if self.D.shape[0]:
@@ -250,28 +251,28 @@ def _with_depths(g: _Geometry, sides: FloatArray, options: GlobalPositionOptions
     w = np.ones(K)
     sigma = np.inf
     for _ in range(max(1, options.reweight_rounds)):
-        x = _hinge_minimum(g, U, sides, w, x, options)
+        x = _hinge_minimum(g, U, w, x, options)
         w, sigma = _reweighted(g, x, options)
     return x, w, sigma
 
 
-def _hinge_minimum(g: _Geometry, U: sp.csr_matrix, sides: FloatArray, w: FloatArray,
-                   x: FloatArray, options: GlobalPositionOptions) -> FloatArray:
+def _hinge_minimum(g: _Geometry, U: sp.csr_matrix, w: FloatArray, x: FloatArray,
+                   options: GlobalPositionOptions) -> FloatArray:
     """The minimum of ``1/2 |A x|_w^2 + prior + 1/2 sum w max(0, 1 - U x)^2`` for the weights
     ``w`` (:func:`_with_depths`), by Newton's method on its active sets from ``x`` (all depths
     held where ``x`` is 0), each step shortened until the cost falls: without that the
     active sets cycle."""
     K = g.A.shape[0]
+    # the quadratic part: the plane rows, the prior (weighted against the plane rows' own
+    # information) and the ridge
+    quad = g.prior((g.A.T @ sp.diags(w) @ g.A).tocsc(), options.smoothness, w)
 
     def normal(held: np.ndarray) -> sp.csc_matrix:
-        H = (g.A.T @ sp.diags(w) @ g.A + U.T @ sp.diags(w * held) @ U).tocsc()
-        return g.prior(H, options.smoothness, w, sides, held.astype(float))
-
-    prior = normal(np.zeros(K, bool))  # the quadratic part without the hinge
+        return (quad + U.T @ sp.diags(w * held) @ U).tocsc()
 
     def cost(y: FloatArray) -> float:
         gap = np.maximum(1.0 - U @ y, 0.0)
-        return 0.5 * float(y @ (prior @ y)) + 0.5 * float(np.sum(w * gap**2))
+        return 0.5 * float(y @ (quad @ y)) + 0.5 * float(np.sum(w * gap**2))
 
     held = np.ones(K, bool) if not x.any() else U @ x < 1.0
     now_cost = cost(x) if x.any() else np.inf

@@ -126,20 +126,23 @@ def _robust_sigma(r: FloatArray) -> float:
     return float(1.4826 * np.median(np.abs(r))) if len(r) else 0.0
 
 
-def _gauge_frame(n: FloatArray, f: np.ndarray, posed: np.ndarray) -> int:
-    """The posed frame whose rotation is held (the gauge): the one whose normals ``n`` ``(K, 3)``
-    (of frames ``f``) fix its rotation best (the largest smallest eigenvalue of their scatter),
-    which does not depend on the frames' order (the first frame would: from a start far from
-    the minimum, which one the solver reaches can follow the gauge)."""
-    S = np.zeros((int(posed.max()) + 1, 3, 3))
+def gauge_frame(tracks: LineTracks, frames: np.ndarray, lines: np.ndarray) -> int:
+    """The frame to hold as a joint problem's gauge: of the ``frames`` ``(F,)``, the one whose
+    normals of the ``lines`` ``(M,)`` fix its rotation best (the largest smallest eigenvalue of
+    their scatter), which does not depend on the frames' order (the first frame would: from a
+    start far from the minimum, which minimum the solver reaches can follow the gauge)."""
+    obs = frames[tracks.obs_frame] & lines[tracks.obs_track]
+    n, f = tracks.obs_normal[obs], tracks.obs_frame[obs]
+    S = np.zeros((tracks.num_frames, 3, 3))
     np.add.at(S, f, n[:, :, None] * n[:, None, :])
+    posed = np.flatnonzero(frames)
     low = np.linalg.eigvalsh(S[posed])[:, 0]
     return int(posed[int(np.argmax(low))])
 
 
 class _RotationProblem:
     """The joint problem's residuals, Jacobian and normal equations (sparse). The unknowns are
-    the posed frames' rotations but the gauge frame's (:func:`_gauge_frame`) and one direction
+    the posed frames' rotations but the gauge frame's (:func:`gauge_frame`) and one direction
     per group of lines (``group`` ``(M,)``: the direction variable of each track, -1 for tracks
     left out)."""
 
@@ -151,7 +154,7 @@ class _RotationProblem:
         self.F = tracks.num_frames
         pose_idx = np.full(self.F, -1)
         posed = np.flatnonzero(frames)
-        self.gauge = _gauge_frame(self.n, self.f, posed)
+        self.gauge = gauge_frame(tracks, frames, group >= 0)
         free = posed[posed != self.gauge]
         pose_idx[free] = np.arange(len(free))
         self.pose_idx = pose_idx
@@ -241,7 +244,11 @@ def solve_rotations(tracks: LineTracks, frames: np.ndarray, R0: FloatArray,
     if frames.sum() < 2 or group.max() < 1:
         raise OmniSfmError("too few frames or lines for the rotations")
     prob = _RotationProblem(tracks, frames, group)
-    R = R0.copy()
+    # solved in the world of the gauge frame's camera, turned back at the end: the directions'
+    # parameters (and so the solver's path) depend on the world's orientation, and the same
+    # start in another world (another frame first) could reach another minimum
+    world = R0[prob.gauge].copy()
+    R = np.einsum("ji,fjk->fik", world, R0)
     d = group_directions(tracks, R, frames, group)
     r = prob.residuals(R, d)
     sigma = max(_robust_sigma(r), 1e-9)
@@ -276,6 +283,7 @@ def solve_rotations(tracks: LineTracks, frames: np.ndarray, R0: FloatArray,
             break
     H, _, _, _ = prob.normal_equations(R, d, _cauchy_weights(r, scale))
     info, axis = _frame_information(H, prob, tracks.num_frames)
+    R, d = np.einsum("ij,fjk->fik", world, R), d @ world.T
     Rout = np.where(frames[:, None, None], R, np.nan)
     d_tracks = np.where((group >= 0)[:, None], d[np.maximum(group, 0)], np.nan)
     free_axis = np.einsum("fij,fj->fi", Rout, axis)
