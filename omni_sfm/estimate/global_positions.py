@@ -42,11 +42,6 @@ from omni_sfm.estimate.global_rotations import gauge_frame
 from omni_sfm.geometry import FloatArray, normalize, orthonormal_completion
 from omni_sfm.lines.tracks import LineTracks
 
-_SETTLED = 1e-4
-"""The depth solves stop when the held depths stay the same and the centres move by less than
-this fraction of their spread: the re-weighting then converges linearly (by about a third each
-solve), and the adjustment that follows takes the positions from there."""
-
 
 @dataclass(frozen=True, kw_only=True)
 class GlobalPositionOptions:
@@ -64,9 +59,9 @@ class GlobalPositionOptions:
     inverse_iterations: int = 30
     """Inverse iterations of each solve at most (tracks without rays)."""
     depth_iterations: int = 60
-    """Solves at most of the problem with the depths held at 1 or more (tracks with rays):
-    each re-weights the rows and updates which depths are held; it stops earlier when the
-    centres move by less than 1e-4 of their spread."""
+    """Newton steps at most of each re-weighting's problem with the depths held at 1 or more
+    (tracks with rays; :func:`_hinge_minimum`): each solves with the depths below 1 held and
+    stops when those are the same after a full step."""
 
 
 @dataclass(frozen=True)
@@ -240,11 +235,10 @@ def _with_depths(g: _Geometry, sides: FloatArray, options: GlobalPositionOptions
     part of the walk can shrink to a point: the scale is the nearest line's distance.
 
     ``options.reweight_rounds`` rounds, each with the weights of the last (every row's 1 in the
-    first): for given weights the problem is convex and its minimum unique, found by its active
-    set (the depths below 1 held at 1, until they are the same ones twice; at most
-    ``options.depth_iterations`` solves). Re-weighting and active set in one loop cycle
-    through thousands of active sets on a sparse walk, and where they stop follows the last
-    bits of the input; this way each round's minimum is a continuous function of the input."""
+    first): for given weights the problem is convex and its minimum unique
+    (:func:`_hinge_minimum`), a continuous function of the input. Re-weighting and active set
+    in one loop cycle through thousands of active sets on a sparse walk, and where they stop
+    follows the last bits of the input."""
     K = g.A.shape[0]
     U = _rows(sides, g.e1, g.e2, g.pc, g.li, g.P, g.L)
     x = np.zeros(g.P + g.L)
