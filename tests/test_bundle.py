@@ -391,8 +391,10 @@ def test_embedded_line_iterations_bring_far_lines_back() -> None:
     # a chain bent by 5 deg over 300 frames, its lines triangulated from the bent poses and
     # three of them put 15 times farther from their cameras (as the sparse seeds' lines
     # triangulated from drifted poses were, 25-35 m away): the adjustment with each line's own
-    # Gauss-Newton iterations after every step reaches the oracle's minimum; without them the
-    # LM crawls and stops 1.6x above it after its 100 iterations
+    # Gauss-Newton iterations after every step reaches the oracle's minimum; without them it
+    # reaches it too (the damping of a line's point is the same along both its axes: damped by
+    # the diagonal itself, the LM crawled and stopped 1.6x above it after its 100 iterations)
+    # but in more iterations
     sim = simulate(SimulationOptions(num_views=300, num_parallel=20, num_other=20,
                                      noise_deg=0.1, visible_frames=60, seed=0))
     g, tr = sim.groundtruth, sim.tracks
@@ -418,7 +420,8 @@ def test_embedded_line_iterations_bring_far_lines_back() -> None:
     assert e.rot_mean_deg <= 1.05 * eo.rot_mean_deg
     plain = bundle_adjust(tr, R0, c0, d0, p0,
                           options=dataclasses.replace(opts, line_iterations=0))
-    assert plain.rms_final_deg > 1.5 * o.rms_final_deg
+    assert plain.rms_final_deg == pytest.approx(o.rms_final_deg, rel=1e-4)
+    assert plain.iterations > b.iterations
 
 
 def test_held_rotations_stay_as_given_and_the_positions_move():

@@ -8,6 +8,7 @@ import pytest
 
 from omni_sfm.estimate import kernels
 from omni_sfm.estimate.bundle import (
+    _LINE_PARTS,
     LineProblem,
     _normal_derivative,
     _pose_jacobian,
@@ -74,7 +75,7 @@ def _refit(prob, R, c, d, p):
         wJ = J * w[:, None, None]
         H = _by(t, np.swapaxes(wJ, 1, 2) @ J, M)
         g = _by(t, np.einsum("kai,ka->ki", wJ, e), M)
-        step = -np.linalg.solve(damped(H, mu, lf), g[:, :, None])[:, :, 0] * lf
+        step = -np.linalg.solve(damped(H, mu, lf, _LINE_PARTS), g[:, :, None])[:, :, 0] * lf
         d3, p3 = prob._moved_lines(d, p, step)
         e3, u3 = _residuals(prob, R, c, d3, p3)
         cost3, w3 = costs(e3)

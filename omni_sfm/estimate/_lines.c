@@ -201,6 +201,18 @@ fail:
 
 /* Solve the 4x4 system A x = b by Gaussian elimination with partial pivoting (A, b
  * overwritten); 0 where a pivot is exactly zero (numpy.linalg.solve raises there). */
+/* The diagonal of a line's 4x4 block ``Hm`` with the direction's two entries and the point's
+   two each their mean over the free ones (``fr``; 0 where neither is): the damping of
+   omni_sfm.solver.isotropic_diagonal, which does not depend on the line's tangent basis. */
+static void pair_means(const double *Hm, const uint8_t *fr, double iso[4])
+{
+    for (int h = 0; h < 4; h += 2) {
+        int nf = (fr[h] ? 1 : 0) + (fr[h + 1] ? 1 : 0);
+        double sum = (fr[h] ? Hm[5 * h] : 0.0) + (fr[h + 1] ? Hm[5 * (h + 1)] : 0.0);
+        iso[h] = iso[h + 1] = nf ? sum / nf : 0.0;
+    }
+}
+
 static int solve4(double A[16], double b[4], double x[4])
 {
     for (int col = 0; col < 4; col++) {
@@ -299,21 +311,28 @@ WIDE_LOOPS static int refit(const Refit *q)
                 gm[a] += wa0 * ek[0] + wa1 * ek[1];
             }
         }
-        /* damped: H + mu diag(H), tiny diagonals floored at 1e-12 of the largest */
+        /* damped: H + mu diag(H), the diagonal of the direction's two parameters and of the
+           point's two each their mean over the free ones (the damping then does not depend on
+           the line's tangent basis), tiny diagonals floored at 1e-12 of the largest */
         double top = 0.0;
-        for (Py_ssize_t m = 0; m < M; m++)
+        for (Py_ssize_t m = 0; m < M; m++) {
+            double iso[4];
+            pair_means(H + 16 * m, q->free + 4 * m, iso);
             for (int a = 0; a < 4; a++)
-                if (H[16 * m + 5 * a] > top)
-                    top = H[16 * m + 5 * a];
+                if (iso[a] > top)
+                    top = iso[a];
+        }
         double floor_ = 1e-12 * (top > 1e-30 ? top : 1e-30);
         int singular = 0;
         for (Py_ssize_t m = 0; m < M && !singular; m++) {
             const uint8_t *fr = q->free + 4 * m;
             double Am[16], bm[4], x[4];
+            double iso[4];
+            pair_means(H + 16 * m, fr, iso);
             for (int a = 0; a < 4; a++) {
                 for (int bb = 0; bb < 4; bb++)
                     Am[4 * a + bb] = fr[a] && fr[bb] ? H[16 * m + 4 * a + bb] : 0.0;
-                double dg = H[16 * m + 5 * a];
+                double dg = iso[a];
                 Am[5 * a] = fr[a] ? Am[5 * a] + mu[m] * (dg > floor_ ? dg : floor_) : 1.0;
                 bm[a] = g[4 * m + a];
             }

@@ -68,9 +68,15 @@ from omni_sfm.solver import (
     RobustLoss,
     damped,
     gauge,
+    isotropic_diagonal,
     levenberg_marquardt,
     robust_sigma,
 )
+
+_POSE_PARTS = (3, 3)
+_LINE_PARTS = (2, 2)
+"""A pose's parameters (rotation, centre) and a line's (direction, point in its tangent basis)
+as vectors: each damped by its mean diagonal (:func:`~omni_sfm.solver.isotropic_diagonal`)."""
 
 # held line directions this far apart fix the rotation gauge (bundle_adjust(held_directions=))
 _MIN_GAUGE_ANGLE_DEG = 10.0
@@ -585,7 +591,7 @@ class LineProblem:
         F, M, f, t = self.F, self.M, self.f, self.t
         pf, lf = self.pose_free, self.line_free
         # held parameters: identity rows/columns, so they stay at zero
-        Hpp, Hll = damped(Hpp, lam, pf), damped(Hll, lam, lf)
+        Hpp, Hll = damped(Hpp, lam, pf, _POSE_PARTS), damped(Hll, lam, lf, _LINE_PARTS)
         # Hpp = L L^T per frame; G = L_f^-1 Hpl (K, 6, 4), gpt = L^-1 g_p
         Linv, G, gpt = kernels.eliminate_poses(Hpp, Hpl, gp, f)
         # only the lines with observations enter the reduced system
@@ -711,7 +717,8 @@ class _PoseProblem:
     def solve(self, blocks: tuple[FloatArray, FloatArray],
               lam: float) -> tuple[FloatArray, FloatArray]:
         H, g = blocks
-        damped = H + lam * np.diag(np.maximum(np.diag(H), 1e-12))
+        dg = isotropic_diagonal(H[None], _POSE_PARTS)[0]
+        damped = H + lam * np.diag(np.maximum(dg, 1e-12))
         return np.asarray(-np.linalg.solve(damped, g), np.float64), np.zeros(0)
 
     def retract(self, R: FloatArray, c: FloatArray, d: FloatArray, p: FloatArray,

@@ -186,9 +186,8 @@ class _Geometry:
         diagonal entry of a frame's information (the plane rows weighted by ``w``; over every
         posed frame, the gauge frame included, so that the weight does not depend on which
         frame is first), and a ridge of 1e-12 of the largest diagonal entry."""
-        info = np.zeros((int(self.frame.max(initial=-1)) + 1, 3))
-        np.add.at(info, self.frame, w[:, None] * self.m**2)
-        lam = smoothness * (float(np.median(info)) if info.size else 1.0)
+        info = np.bincount(self.frame, weights=w, minlength=int(self.frame.max(initial=-1)) + 1)
+        lam = smoothness * (float(np.median(info)) / 3.0 if info.size else 1.0)
         K = H
         if self.D.shape[0]:
             DD = (self.D.T @ self.D).tocoo()
