@@ -19,7 +19,6 @@ from omni_sfm.estimate.global_estimator import (
     kept_start,
     settings,
     solve_global,
-    window_starts,
 )
 from omni_sfm.estimate.global_rotations import GlobalRotationOptions
 from omni_sfm.estimate.pipeline import (
@@ -27,6 +26,7 @@ from omni_sfm.estimate.pipeline import (
     EstimationResult,
     estimate_poses,
 )
+from omni_sfm.estimate.windows import window_starts
 from omni_sfm.evaluate import match_reflection, trajectory_errors
 from omni_sfm.geometry import rotation_angle, rotvec_to_matrix
 from omni_sfm.lines.tracks import LineTracks, reversed_frames

@@ -986,11 +986,15 @@ class _Adjustment:
         fr = self.frames & ((seen >= 3) if self.held is None else ((seen >= 3) | self.held))
         rms_final = float(np.degrees(np.sqrt(np.mean(ang[used_obs] ** 2))))
         rms_initial = float(np.degrees(np.sqrt(np.nanmean(self.ang0[used_obs] ** 2))))
+        # the noise at the solution (the last robust round's estimate is of its own state,
+        # which the rounds' stopping leaves wherever their path put it)
+        sigma = self.sigma if self.options.noise_deg or not act.any() else \
+            robust_sigma(ang[act[tracks.obs_track]])
         R_out = np.where(fr[:, None, None], self.R, np.nan)
         c_out = np.where(fr[:, None], self.c, np.nan)
         return BundleResult(R_out, c_out, np.where(act[:, None], self.d, np.nan),
                             np.where(act[:, None], self.p, np.nan), fr, act, self.outlier,
-                            float(np.degrees(self.sigma)),
+                            float(np.degrees(sigma)),
                             np.degrees(_track_rms(tracks, ang, tracks.num_tracks)),
                             rms_initial, rms_final, self.iterations,
                             (time.perf_counter() - t0) * 1e3, self.history)

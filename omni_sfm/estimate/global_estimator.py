@@ -78,6 +78,7 @@ from omni_sfm.estimate.revisits import (
 from omni_sfm.estimate.rig_scale import OffsetScale, facing_lines, offset_scale
 from omni_sfm.estimate.segments import runs
 from omni_sfm.estimate.uncertainty import pose_spread
+from omni_sfm.estimate.windows import window_starts
 from omni_sfm.forked import run_all
 from omni_sfm.geometry import (
     FloatArray,
@@ -432,18 +433,6 @@ def free_turns_interpolated(rot: GlobalRotations, free: np.ndarray) -> FloatArra
         if np.isfinite(rot.free_axis[k]).all():
             R[k] = _closest_turn(rot.free_axis[k], R[k], target)
     return R
-
-
-def window_starts(count: int, window: int) -> list[int]:
-    """The first positions of windows of ``window`` among ``count`` items, overlapping by about
-    half, spread evenly from 0 to ``count - window``; the layout of ``count`` items in reverse
-    order is its mirror image (the same windows)."""
-    if count <= window:
-        return [0]
-    span = count - window
-    n = -(-span // (window // 2)) + 1
-    return [(i * span) // (n - 1) if 2 * i <= n - 1 else span - ((n - 1 - i) * span) // (n - 1)
-            for i in range(n)]
 
 
 def _window_solution(tracks: LineTracks, sel: np.ndarray, options: Settings

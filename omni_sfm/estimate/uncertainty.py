@@ -13,11 +13,12 @@ is one whose pose the data do not fix, whatever its own lines say (a stretch who
 the walk's speed or bend free ties it weakly to the rest).
 
 Long videos are taken in overlapping windows of ``window`` posed frames (each with its own
-similarity gauge): each frame's figures come from the window in which it lies farthest from
-the ends. Where the data leave a direction free that moves a few of a window's frames, their
-spread is infinite; free directions that move most of them (two parts whose relative pose
-nothing fixes) are left out, except from the frames they move by much (each frame's own
-parameters free: lines along the walk in most frames), whose spread is infinite too.
+similarity gauge; laid out the same in either frame order): each frame's figures come from the
+window in which it lies farthest from the ends (the larger figures of two such windows). Where
+the data leave a direction free that moves a few of a window's frames, their spread is
+infinite; free directions that move most of them (two parts whose relative pose nothing fixes)
+are left out, except from the frames they move by much (each frame's own parameters free:
+lines along the walk in most frames), whose spread is infinite too.
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ import numpy as np
 import scipy.linalg
 
 from omni_sfm.estimate.bundle import LineProblem
+from omni_sfm.estimate.windows import window_starts
 from omni_sfm.geometry import FloatArray, skew
 from omni_sfm.lines.tracks import LineTracks
 
@@ -191,12 +193,8 @@ def pose_spread(tracks: LineTracks, rotations: FloatArray, positions: FloatArray
         unit = 1.0
     positions, line_points = positions / unit, line_points / unit
     aligned = frames if aligned is None else aligned & frames
-    step = max(window // 2, 1)
-    starts = list(range(0, max(len(posed) - window, 0) + 1, step))
-    if starts[-1] + window < len(posed):
-        starts.append(len(posed) - window)
     centrality = np.full(F, -1.0)
-    for a in starts:
+    for a in window_starts(len(posed), max(window, 2)):
         members = posed[a:a + window]
         sel = np.zeros(F, bool)
         sel[members] = True
@@ -207,7 +205,11 @@ def pose_spread(tracks: LineTracks, rotations: FloatArray, positions: FloatArray
         left = k if a > 0 else np.full(len(k), len(k))
         right = len(k) - 1 - k if a + window < len(posed) else np.full(len(k), len(k))
         central = np.minimum(left, right).astype(float)
+        # as central in two windows (the same layout in either frame order): the larger
         better = central > centrality[idx]
+        tie = central == centrality[idx]
+        rot[idx[tie]] = np.maximum(rot[idx[tie]], r[tie])
+        pos[idx[tie]] = np.maximum(pos[idx[tie]], q[tie])
         rot[idx[better]], pos[idx[better]] = r[better], q[better]
         centrality[idx[better]] = central[better]
     return PoseSpread(np.degrees(rot), pos * unit)

@@ -1,8 +1,10 @@
-"""The paper's window: frames and the tracks seen in every one of them.
+"""Windows of frames: the paper's, and the layout of overlapping ones along a video.
 
 The paper's method (:func:`omni_sfm.estimate.paper.estimate_paper`) needs every line in every
 frame: its window is the stretch of frames and the tracks seen throughout it. The estimator
 (:mod:`omni_sfm.estimate.pipeline`) runs it where one window covers the whole sequence.
+:func:`window_starts` lays overlapping windows along a long video the same way in either
+direction (the global estimator's windows start, the pose spread's windows).
 """
 
 from __future__ import annotations
@@ -49,3 +51,15 @@ def max_rotation_step_deg(rotations: FloatArray) -> float:
         return 0.0
     rel = np.einsum("kji,kjl->kil", rotations[:-1], rotations[1:])
     return float(np.degrees(rotation_angle(rel)).max())
+
+
+def window_starts(count: int, window: int) -> list[int]:
+    """The first positions of windows of ``window`` among ``count`` items, overlapping by about
+    half, spread evenly from 0 to ``count - window``; the layout of ``count`` items in reverse
+    order is its mirror image (the same windows)."""
+    if count <= window:
+        return [0]
+    span = count - window
+    n = -(-span // (window // 2)) + 1
+    return [(i * span) // (n - 1) if 2 * i <= n - 1 else span - ((n - 1 - i) * span) // (n - 1)
+            for i in range(n)]
