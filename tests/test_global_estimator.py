@@ -100,7 +100,8 @@ def test_same_answer_on_a_sparse_walk_of_one_family() -> None:
     60 frames: the adjustment holds the family's direction, which leaves the turn about it to
     the gauge, and its rotations' start has several minima. Forwards, backwards and with 1e-9
     noise: the same poses (0.06-0.10 deg apart with the first frame's whole rotation held and
-    the rotations' gauge at the first frame); with 1e-9 noise the same frames flagged."""
+    the rotations' gauge at the first frame) and the same frames flagged (11 frames apart
+    backwards with the adjustment's noise taken from its last robust round)."""
     sim = simulate(SimulationOptions(num_views=300, num_parallel=20, num_other=20,
                                      noise_deg=0.1, visible_frames=60, seed=0))
     tr = sim.tracks
@@ -117,6 +118,7 @@ def test_same_answer_on_a_sparse_walk_of_one_family() -> None:
         rot, pos = _agree(a.trajectory, other.trajectory)
         assert rot < 0.01 and pos < 0.01
     assert flagged(c) == flagged(a)
+    assert sorted(tr.num_frames - 1 - k for k in flagged(b)) == flagged(a)
 
 
 def test_same_answer_with_one_and_two_workers() -> None:
