@@ -52,7 +52,6 @@ from omni_sfm.estimate.bundle import (
     BundleResult,
     bundle_adjust,
     outlier_limit,
-    resect_pose,
     truncated_cost,
     truncated_costs,
 )
@@ -651,18 +650,8 @@ def kept_start(tracks: LineTracks, frames: np.ndarray, lines: np.ndarray,
     seen = _disagreeing_tracks(tracks, [solved[name].rotations for name in names], frames)
     where = seen[tracks.obs_track]
     cost = {name: float(np.mean(costs[name][where])) for name in names}
-    # costs this close do not tell the solutions apart (the linear positions of a sparse walk
-    # move by more under the round-off of another frame order): the better fit of the
-    # directions does
-    least = min(cost.values())
-    close = [name for name in names if cost[name] <= (1.0 + _COST_TIE) * least]
-    best = min(reversed(close), key=lambda name: solved[name].sigma)
+    best = min(reversed(names), key=lambda name: cost[name])
     return best, solved[best]
-
-
-_COST_TIE = 0.02
-"""Starts whose positions' costs are within this fraction of the least are kept by the fit of
-their directions (:func:`kept_start`)."""
 
 
 def _same_rotations(a: GlobalRotations, b: GlobalRotations, tolerance_deg: float = 1e-3
@@ -787,31 +776,37 @@ def _rotations(tracks: LineTracks, frames: np.ndarray, lines: np.ndarray,
 
 
 def _resected(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArray, p: FloatArray,
-              frames: np.ndarray, free: np.ndarray, sigma: float
-              ) -> tuple[FloatArray, FloatArray]:
-    """The poses with each ``free`` frame (its rotation's turn and so its position left out of
-    the linear steps) resected from the lines with a position that it sees
-    (:func:`~omni_sfm.estimate.bundle.resect_pose`), from its interpolated rotation and the
-    position interpolated between its neighbours."""
-    R, c = R.copy(), c.copy()
+              frames: np.ndarray, free: np.ndarray) -> FloatArray:
+    """``(F, 3)`` the centres with each ``free`` frame's (its rotation's turn and so its
+    position left out of the linear steps) interpolated between its neighbours and moved, its
+    rotation held, to the lines with a position that it sees: the smallest move that puts
+    each line in its observed plane (least squares, minimum norm), so that the directions its
+    lines leave free (along them, where they all have one direction) keep the interpolation.
+    Resected with its rotation, from a few lines of one direction whose positions the linear
+    step gives roughly, a frame turned by up to 30 deg about that direction."""
+    c = c.copy()
     fixed = np.flatnonzero(frames & ~free)
     todo = np.flatnonzero(frames & free)
-    if len(todo) == 0:
-        return R, c
+    if len(todo) == 0 or len(fixed) == 0:
+        return c
     for a in range(3):
         c[todo, a] = np.interp(todo, fixed, c[fixed, a])
-    known = np.asarray(np.isfinite(p).all(axis=1))
+    known = np.asarray(np.isfinite(p).all(axis=1) & np.isfinite(d).all(axis=1))
     usable = np.flatnonzero(known[tracks.obs_track])
     usable = usable[np.argsort(tracks.obs_frame[usable], kind="stable")]
     bounds = np.searchsorted(tracks.obs_frame[usable], np.arange(len(frames) + 1))
     for k in todo:
         obs = usable[bounds[k]:bounds[k + 1]]
-        if len(obs) < 3:
+        if len(obs) < 2:
             continue
         t = tracks.obs_track[obs]
-        R[k], c[k], _ = resect_pose(tracks.obs_normal[obs], d[t], p[t], R[k], c[k],
-                                    scale=3.0 * max(sigma, 1e-6))
-    return R, c
+        m = tracks.obs_normal[obs] @ R[k].T
+        m = m - np.einsum("ki,ki->k", m, d[t])[:, None] * d[t]
+        m /= np.maximum(np.linalg.norm(m, axis=1, keepdims=True), 1e-300)
+        # m . (p - c) = 0 for each line: the move of c that satisfies them best
+        move = np.linalg.lstsq(m, np.einsum("ki,ki->k", m, p[t] - c[k]), rcond=1e-6)[0]
+        c[k] = c[k] + move
+    return c
 
 
 def _direction_rms(tracks: LineTracks, R: FloatArray, d: FloatArray, frames: np.ndarray
@@ -1049,7 +1044,8 @@ def _positions_step(tracks: LineTracks, rot: GlobalRotations, frames: np.ndarray
     """Step 2: ``(R, c, positions, dir_ok)``. The frames whose lines leave a turn free get it
     interpolated (:func:`free_turns_interpolated`); the lines with a known direction
     (``dir_ok``: their planes turn, their normals fit it) take part in the linear positions;
-    the free frames are then resected from those lines (:func:`_resected`)."""
+    the free frames' centres are then moved onto those lines, their rotations held
+    (:func:`_resected`)."""
     free = _rotation_free(rot, frames, options)
     R = free_turns_interpolated(rot, free)
     dir_ok = lines & np.isfinite(rot.directions).all(axis=1) & \
@@ -1057,8 +1053,7 @@ def _positions_step(tracks: LineTracks, rot: GlobalRotations, frames: np.ndarray
         (_direction_rms(tracks, R, rot.directions, frames) <=
          options.outlier_sigmas * rot.sigma)
     pos = solve_positions(tracks, R, rot.directions, frames & ~free, dir_ok, options.positions)
-    R, c = _resected(tracks, R, pos.positions, rot.directions, pos.points, frames, free,
-                     pos.residual_sigma)
+    c = _resected(tracks, R, pos.positions, rot.directions, pos.points, frames, free)
     return R, c, pos, dir_ok
 
 

@@ -58,6 +58,13 @@ class GlobalPositionOptions:
     """Cauchy loss scale in units of the residuals' robust spread (angles)."""
     inverse_iterations: int = 30
     """Inverse iterations of each solve at most (tracks without rays)."""
+    depth_floor: float = 0.1
+    """The depth every observation's line is held at or beyond (a squared hinge), in units of
+    the mean depth (:func:`_hinge_minimum`): far below it, so that it holds only where a
+    stretch would shrink to a point or turn its lines behind the cameras, and the scale is the
+    mean depth's. Held at the nearest line's distance, the scale shrank every other depth
+    with it: the positions of a sparse walk from its true rotations came out 2.6-4.3 % of the
+    path off, 0.17 % with the mean."""
     depth_iterations: int = 60
     """Newton steps at most of each re-weighting's problem with the depths held at 1 or more
     (tracks with rays; :func:`_hinge_minimum`): each solves with the depths below 1 held and
@@ -229,54 +236,75 @@ def _sides(tracks: LineTracks, rotations: FloatArray, directions: FloatArray, ob
 def _with_depths(g: _Geometry, sides: FloatArray, options: GlobalPositionOptions
                  ) -> tuple[FloatArray, FloatArray, float]:
     """``(x, w, sigma)``: the least squares of the plane rows (weighted by the inverse depth and
-    a Cauchy loss) with each observation's depth along its side ``U x`` held at 1 or more (a
-    squared hinge). Each line then lies on the side of the camera its rays see it on, and no
-    part of the walk can shrink to a point: the scale is the nearest line's distance.
+    a Cauchy loss) with each observation's depth along its side ``U x`` held at a floor or
+    more (a squared hinge). Each line then lies on the side of the camera its rays see it on,
+    and no part of the walk can shrink to a point.
 
     ``options.reweight_rounds`` rounds, each with the weights of the last (every row's 1 in the
     first): for given weights the problem is convex and its minimum unique
     (:func:`_hinge_minimum`), a continuous function of the input. Re-weighting and active set
     in one loop cycle through thousands of active sets on a sparse walk, and where they stop
-    follows the last bits of the input."""
+    follows the last bits of the input. The first half of the rounds hold every depth at 1 or
+    more (the scale the nearest line's distance): every line then holds the walk's shape,
+    and lines that move with the camera (a walker beside it) find no shape to pull it into
+    before their weights fall. The second half hold the mean depth at 1 and every depth at
+    ``options.depth_floor`` or more: held at the nearest line's distance, the scale shrinks
+    every other depth with it, and a sparse walk's positions from its true rotations come out
+    2.6-4.3 % of the path off (0.12-0.24 % on the mean)."""
     K = g.A.shape[0]
     U = _rows(sides, g.e1, g.e2, g.pc, g.li, g.P, g.L)
     x = np.zeros(g.P + g.L)
     w = np.ones(K)
     sigma = np.inf
-    for _ in range(max(1, options.reweight_rounds)):
-        x = _hinge_minimum(g, U, w, x, options)
+    rounds = max(1, options.reweight_rounds)
+    for r in range(rounds):
+        x = _hinge_minimum(g, U, w, x, options, on_mean=2 * r >= rounds)
         w, sigma = _reweighted(g, x, options)
     return x, w, sigma
 
 
 def _hinge_minimum(g: _Geometry, U: sp.csr_matrix, w: FloatArray, x: FloatArray,
-                   options: GlobalPositionOptions) -> FloatArray:
-    """The minimum of ``1/2 |A x|_w^2 + prior + 1/2 sum w max(0, 1 - U x)^2`` for the weights
-    ``w`` (:func:`_with_depths`), by Newton's method on its active sets from ``x`` (all depths
-    held where ``x`` is 0), each step shortened until the cost falls: without that the
-    active sets cycle."""
+                   options: GlobalPositionOptions, on_mean: bool = True) -> FloatArray:
+    """The minimum of ``1/2 |A x|_w^2 + prior + 1/2 sum w max(0, f - U x)^2`` for the weights
+    ``w`` (:func:`_with_depths`), ``on_mean``: on the plane ``s . x = S`` (the depths'
+    weighted sum ``sum w U x`` equal to the weights' sum: a mean depth of one) with ``f`` =
+    ``options.depth_floor``, else with ``f`` = 1 (the scale the nearest line's distance), by
+    Newton's method on the hinge's active sets from ``x`` (every depth held where ``x`` is 0),
+    each step shortened until the cost falls: without that the active sets cycle."""
     K = g.A.shape[0]
     # the quadratic part: the plane rows, the prior (weighted against the plane rows' own
     # information) and the ridge
     quad = g.prior((g.A.T @ sp.diags(w) @ g.A).tocsc(), options.smoothness, w)
+    sides = np.asarray(abs(U).sum(axis=1)).ravel() > 0
+    s_vec = np.asarray(U.T @ (w * sides))
+    total = float(np.sum(w * sides)) if on_mean else 0.0
+    floor = options.depth_floor if on_mean else 1.0
 
-    def normal(held: np.ndarray) -> sp.csc_matrix:
-        return (quad + U.T @ sp.diags(w * held) @ U).tocsc()
+    def solve(held: np.ndarray) -> FloatArray:
+        # the minimum on the plane: x = M^-1 (b + lam s), lam from s . x = total
+        lu = _factor((quad + U.T @ sp.diags(w * held) @ U).tocsc())
+        xb, xs = lu.solve(np.asarray(U.T @ (w * held * floor))), lu.solve(s_vec)
+        across = float(s_vec @ xs)
+        if total <= 0.0 or across <= 0.0:  # the scale from the floor alone
+            return np.asarray(xb)
+        return np.asarray(xb + (total - float(s_vec @ xb)) / across * xs)
 
     def cost(y: FloatArray) -> float:
-        gap = np.maximum(1.0 - U @ y, 0.0)
+        gap = np.maximum(floor - U @ y, 0.0)
         return 0.5 * float(y @ (quad @ y)) + 0.5 * float(np.sum(w * gap**2))
 
-    held = np.ones(K, bool) if not x.any() else U @ x < 1.0
+    if on_mean and x.any() and float(s_vec @ x) > 0.0:
+        x = x * (total / float(s_vec @ x))  # on the plane: the line search stays on it
+    held = np.ones(K, bool) & sides if not x.any() else (U @ x < floor) & sides
     now_cost = cost(x) if x.any() else np.inf
     for _ in range(max(1, options.depth_iterations)):
-        y = _factor(normal(held)).solve(U.T @ (w * held))
+        y = solve(held)
         step, new_cost = 1.0, cost(y)
         while np.isfinite(now_cost) and new_cost > now_cost and step > 1e-6:
             step *= 0.5
             new_cost = cost(x + step * (y - x))
         x = x + step * (y - x) if step < 1.0 else y
-        now = U @ x < 1.0
+        now = (U @ x < floor) & sides
         done = np.array_equal(now, held) and step == 1.0
         held, now_cost = now, new_cost
         if done:
