@@ -305,6 +305,32 @@ def test_frames_with_three_lines_are_flagged() -> None:
     assert not any("sees 3 lines" in v for k, v in flagged.items() if int(k) not in range(50, 55))
 
 
+def test_a_part_tied_to_the_rest_through_three_lines_is_flagged() -> None:
+    """Every line seen on both sides of frames 119-120 but three is cut there into two tracks
+    (a tracker that lost them in a fast turn), every frame still seeing many lines: the pose
+    of the part before relative to the part after rests on those three lines, and the smaller
+    part is flagged with the reason."""
+    from dataclasses import replace as dc_replace
+
+    sim = _walk(seed=2)
+    tr = sim.tracks
+    first, last = tr.frame_spans(np.ones(tr.num_observations, bool))
+    across = np.flatnonzero((first <= 119) & (last >= 120))
+    assert len(across) > 10
+    cut = across[3:]
+    later = np.isin(tr.obs_track, cut) & (tr.obs_frame >= 120)
+    new_id = np.full(tr.num_tracks, -1)
+    new_id[cut] = tr.num_tracks + np.arange(len(cut))
+    obs_track = np.where(later, new_id[tr.obs_track], tr.obs_track)
+    ids = np.concatenate([tr.track_ids, tr.track_ids.max() + 1 + np.arange(len(cut))])
+    split = dc_replace(tr, obs_track=obs_track, track_ids=ids)
+    res = _run(split)
+    flagged = res.report.frames_uncertain or {}
+    tied = sorted(int(k) for k, v in flagged.items() if "3 lines seen on both sides" in v)
+    assert tied == list(range(120, 200))
+    assert all(str(k) not in flagged for k in range(10, 110))
+
+
 def test_a_part_tied_to_the_rest_through_frames_of_three_lines_is_flagged() -> None:
     """Frames 80-130 of a walk keep 2 or 3 of their lines, and fewer than 4 lines are seen on
     both sides of that stretch: the part after it is posed in the same world but flagged (its

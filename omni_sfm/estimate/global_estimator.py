@@ -879,18 +879,21 @@ def _gap_errors(free: np.ndarray, values: FloatArray, direction: FloatArray | No
 
 def _weak_ties(tracks: LineTracks, ba: BundleResult, used: np.ndarray, seen: np.ndarray,
                min_ties: int = 4) -> dict[int, str]:
-    """Frames in another part of the video than the largest, where the parts are cut at a
-    stretch of frames that see 3 lines or fewer (or are not posed) across which fewer than
-    ``min_ties`` lines are seen on both sides: the pose of one part relative to the other then
-    rests on frames whose lines fix them with nothing to spare, and nothing checks it (a turn
-    of 90 deg or a wrong scale fits as well). ``used``: ``(K,)`` the observations the adjustment
-    used; ``seen``: ``(F,)`` their count in each frame."""
+    """Frames in another part of the video than the largest, where the parts are cut between
+    two frames that see more than 3 lines (with a stretch of frames that see 3 lines or fewer,
+    or are not posed, between them, or none) across which fewer than ``min_ties`` lines are
+    seen on both sides: the pose of one part relative to the other then rests on those few
+    lines (or frames whose lines fix them with nothing to spare), and nothing checks it (a turn
+    of 90 deg or a wrong scale fits as well: through a 90 deg turn in 3 frames of a rendered
+    dual-fisheye walk, 3 lines tied the two legs, and their scales came out 40 % apart).
+    ``used``: ``(K,)`` the observations the adjustment used; ``seen``: ``(F,)`` their count in
+    each frame."""
     strong = np.flatnonzero(ba.frames & (seen > 3))
     if len(strong) < 2:
         return {}
     first, last = tracks.frame_spans(used)
     cuts = [(int(a), int(b), int(np.sum((first <= a) & (last >= b))))
-            for a, b in zip(strong[:-1], strong[1:], strict=True) if b - a > 1]
+            for a, b in zip(strong[:-1], strong[1:], strict=True)]
     cuts = [c for c in cuts if c[2] < min_ties]
     if not cuts:
         return {}
@@ -905,10 +908,12 @@ def _weak_ties(tracks: LineTracks, ba: BundleResult, used: np.ndarray, seen: np.
             continue
         # the cut between this part and the main one, on the main one's side
         a, b, n = next(c for c in cuts if c[1] == (main[0] if hi <= main[0] else main[1]))
+        through = f"frames {a + 1}-{b - 1}, which see 3 lines or fewer, and " if b - a > 1 \
+            else ""
         for k in np.flatnonzero(ba.frames[lo:hi]) + lo:
-            out[int(k)] = (f"tied to frames {fixed[0]}-{fixed[-1]} only through frames {a + 1}-"
-                           f"{b - 1}, which see 3 lines or fewer, and {n} lines seen on both "
-                           "sides: its pose relative to them is not checked by the data")
+            out[int(k)] = (f"tied to frames {fixed[0]}-{fixed[-1]} only through {through}{n} "
+                           f"lines seen on both sides of frames {a}-{b}: its pose relative to "
+                           "them is not checked by the data")
     return out
 
 
