@@ -38,13 +38,23 @@ def _solve(tracks, sim, rotations=None):
 
 def test_the_depths_keep_a_long_walk_whole(walk) -> None:
     """From the true rotations, the depths held on the side the rays see each line give the
-    positions of a long walk of few lines to about the noise (0.12 % of the path); without
-    rays the normalised eigenvector is several times further off."""
+    positions of a long walk of few lines to about the noise (0.07 % of the path); without
+    rays the normalised eigenvector is several times further off (0.47 %)."""
     with_rays = _ate(walk, _solve(walk.tracks, walk).positions)
     assert with_rays < 0.003
     without = _solve(replace(walk.tracks, obs_ray=None), walk)
     assert np.isclose(np.sum(without.positions**2), 1.0)
     assert 2 * with_rays < _ate(walk, without.positions) < 0.01
+
+
+def test_a_sparse_walk_keeps_its_shape() -> None:
+    """A walk of one parallel family and lines of random directions, each seen in 60 frames
+    (2-13 lines a frame): from its true rotations the positions are within a few times the
+    noise. Held at the nearest line's distance, the scale shrank every other depth with it,
+    and they came out 2.6 % of the path off (the depths' mean held instead)."""
+    sim = simulate(SimulationOptions(num_views=600, num_parallel=40, num_other=40,
+                                     noise_deg=0.1, visible_frames=60, seed=2))
+    assert _ate(sim, _solve(sim.tracks, sim).positions) < 0.005
 
 
 def test_reversed_order_gives_the_same_positions(walk) -> None:

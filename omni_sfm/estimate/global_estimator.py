@@ -443,7 +443,7 @@ def _window_solution(tracks: LineTracks, sel: np.ndarray, options: Settings
     # a start needs the basin, not the last digit: two robust rounds, no polish
     local = replace(options, start_window=0, settled_start=False, workers=1,
                     member_sigmas=0.0, revisits=replace(options.revisits, enabled=False),
-                    rotations=replace(options.rotations, max_iterations=20),
+                    rotations=replace(options.rotations, max_iterations=20, every_line=True),
                     bundle=replace(options.bundle, max_rounds=2, final_loss=None))
     try:
         return _solve_once(sub, local, window=True).rotations

@@ -50,6 +50,11 @@ class GlobalRotationOptions:
     """Stop when the relative decrease of the cost falls below this."""
     loss_scale: float = 3.0
     """Cauchy loss scale, in units of the robust noise estimate of the residuals."""
+    every_line: bool = False
+    """Every line of a direction of its own in the problem, not only those a frame needs
+    (:func:`_needed_groups`): a start solved from scratch (a window of the windows' start)
+    has to come through turns that the shared directions cannot tell apart (180 deg about one
+    of them fits them as well), and those lines carry the frames' continuity through them."""
 
 
 @dataclass(frozen=True)
@@ -284,7 +289,7 @@ def solve_rotations(tracks: LineTracks, frames: np.ndarray, R0: FloatArray,
     from the solved rotations."""
     if frames.sum() < 2 or group.max() < 1:
         raise OmniSfmError("too few frames or lines for the rotations")
-    solved = _needed_groups(tracks, frames, group)
+    solved = group if options.every_line else _needed_groups(tracks, frames, group)
     if solved.max() < 1:
         solved = group
     prob = _RotationProblem(tracks, frames, solved)
