@@ -54,15 +54,14 @@ def loss_weights(s: FloatArray, loss: RobustLoss, scale: float) -> tuple[FloatAr
     return f2 * np.log1p(s / f2), 1.0 / (1.0 + s / f2)
 
 
-def isotropic_diagonal(H: FloatArray, parts: tuple[int, ...],
+def isotropic_diagonal(dg: FloatArray, parts: tuple[int, ...],
                        free: np.ndarray | None = None) -> FloatArray:
-    """``(N, n)`` the diagonals of the blocks ``H`` ``(N, n, n)``, each of the consecutive
+    """``(N, n)`` the diagonals ``dg`` ``(N, n)`` of ``N`` blocks, each of the consecutive
     ``parts`` (sizes summing to ``n``: a 3-vector, a 2-vector in a tangent basis) replaced by
     the mean of its ``free`` entries (``(N, n)`` bool; all where None). Damping by it does not
     depend on the axes a vector is written in (the world's orientation, a line's tangent
     basis), where damping by the diagonal itself does: along a direction the data leave free,
     which coordinate carries it decides how far a step goes."""
-    dg = H.diagonal(0, 1, 2)
     ok = np.ones(dg.shape, bool) if free is None else free
     out = np.empty(dg.shape)
     a = 0
@@ -81,7 +80,9 @@ def damped(H: FloatArray, lam: float | FloatArray, free: np.ndarray,
     replaced by the identity so that they stay at zero. With ``parts``, the diagonal of each
     part is its mean (:func:`isotropic_diagonal`)."""
     i = np.arange(H.shape[1])
-    dg = H.diagonal(0, 1, 2) if parts is None else isotropic_diagonal(H, parts, free)
+    dg = H.diagonal(0, 1, 2)
+    if parts is not None:
+        dg = isotropic_diagonal(dg, parts, free)
     lam_k = np.asarray(lam, float)
     add = (lam_k[:, None] if lam_k.ndim else lam_k) * \
         np.maximum(dg, 1e-12 * max(float(dg.max(initial=0.0)), 1e-30))

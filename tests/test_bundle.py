@@ -393,7 +393,7 @@ def test_embedded_line_iterations_bring_far_lines_back() -> None:
     # triangulated from drifted poses were, 25-35 m away): the adjustment with each line's own
     # Gauss-Newton iterations after every step reaches the oracle's minimum; without them it
     # reaches it too (the damping of a line's point is the same along both its axes: damped by
-    # the diagonal itself, the LM crawled and stopped 1.6x above it after its 100 iterations)
+    # each axis's own diagonal, the LM crawls and stops 1.6x above it after 100 iterations)
     # but in more iterations
     sim = simulate(SimulationOptions(num_views=300, num_parallel=20, num_other=20,
                                      noise_deg=0.1, visible_frames=60, seed=0))

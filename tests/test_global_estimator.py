@@ -101,7 +101,7 @@ def test_same_answer_on_a_sparse_walk_of_one_family() -> None:
     the gauge, and its rotations' start has several minima. Forwards, backwards and with 1e-9
     noise: the same poses (0.06-0.10 deg apart with the first frame's whole rotation held and
     the rotations' gauge at the first frame) and the same frames flagged (11 frames apart
-    backwards with the adjustment's noise taken from its last robust round)."""
+    backwards where the flags take the adjustment's noise from its last robust round)."""
     sim = simulate(SimulationOptions(num_views=300, num_parallel=20, num_other=20,
                                      noise_deg=0.1, visible_frames=60, seed=0))
     tr = sim.tracks

@@ -50,8 +50,8 @@ def test_the_depths_keep_a_long_walk_whole(walk) -> None:
 def test_a_sparse_walk_keeps_its_shape() -> None:
     """A walk of one parallel family and lines of random directions, each seen in 60 frames
     (2-13 lines a frame): from its true rotations the positions are within a few times the
-    noise. Held at the nearest line's distance, the scale shrank every other depth with it,
-    and they came out 2.6 % of the path off (the depths' mean held instead)."""
+    noise (the mean depth holds the scale: held by the nearest line's distance, the scale
+    shrinks every other depth with it, 2.6 % of the path off)."""
     sim = simulate(SimulationOptions(num_views=600, num_parallel=40, num_other=40,
                                      noise_deg=0.1, visible_frames=60, seed=2))
     assert _ate(sim, _solve(sim.tracks, sim).positions) < 0.005

@@ -199,8 +199,6 @@ fail:
 
 /* ---- the lines' own iterations ------------------------------------------------------------ */
 
-/* Solve the 4x4 system A x = b by Gaussian elimination with partial pivoting (A, b
- * overwritten); 0 where a pivot is exactly zero (numpy.linalg.solve raises there). */
 /* The diagonal of a line's 4x4 block ``Hm`` with the direction's two entries and the point's
    two each their mean over the free ones (``fr``; 0 where neither is): the damping of
    omni_sfm.solver.isotropic_diagonal, which does not depend on the line's tangent basis. */
@@ -213,6 +211,8 @@ static void pair_means(const double *Hm, const uint8_t *fr, double iso[4])
     }
 }
 
+/* Solve the 4x4 system A x = b by Gaussian elimination with partial pivoting (A, b
+ * overwritten); 0 where a pivot is exactly zero (numpy.linalg.solve raises there). */
 static int solve4(double A[16], double b[4], double x[4])
 {
     for (int col = 0; col < 4; col++) {

@@ -717,7 +717,7 @@ class _PoseProblem:
     def solve(self, blocks: tuple[FloatArray, FloatArray],
               lam: float) -> tuple[FloatArray, FloatArray]:
         H, g = blocks
-        dg = isotropic_diagonal(H[None], _POSE_PARTS)[0]
+        dg = isotropic_diagonal(np.diag(H)[None], _POSE_PARTS)[0]
         damped = H + lam * np.diag(np.maximum(dg, 1e-12))
         return np.asarray(-np.linalg.solve(damped, g), np.float64), np.zeros(0)
 

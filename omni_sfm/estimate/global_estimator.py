@@ -781,9 +781,9 @@ def _resected(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArray, p
     position left out of the linear steps) interpolated between its neighbours and moved, its
     rotation held, to the lines with a position that it sees: the smallest move that puts
     each line in its observed plane (least squares, minimum norm), so that the directions its
-    lines leave free (along them, where they all have one direction) keep the interpolation.
-    Resected with its rotation, from a few lines of one direction whose positions the linear
-    step gives roughly, a frame turned by up to 30 deg about that direction."""
+    lines leave free (along them, where they all have one direction) keep the interpolation,
+    and its rotation is not turned by a few lines whose positions the linear step gives
+    roughly."""
     c = c.copy()
     fixed = np.flatnonzero(frames & ~free)
     todo = np.flatnonzero(frames & free)
@@ -884,8 +884,8 @@ def _weak_ties(tracks: LineTracks, ba: BundleResult, used: np.ndarray, seen: np.
     or are not posed, between them, or none) across which fewer than ``min_ties`` lines are
     seen on both sides: the pose of one part relative to the other then rests on those few
     lines (or frames whose lines fix them with nothing to spare), and nothing checks it (a turn
-    of 90 deg or a wrong scale fits as well: through a 90 deg turn in 3 frames of a rendered
-    dual-fisheye walk, 3 lines tied the two legs, and their scales came out 40 % apart).
+    of 90 deg or a wrong scale fits as well: a fast turn that the tracker loses most lines
+    through).
     ``used``: ``(K,)`` the observations the adjustment used; ``seen``: ``(F,)`` their count in
     each frame."""
     strong = np.flatnonzero(ba.frames & (seen > 3))

@@ -14,9 +14,11 @@ solution moves.
 
 The observation's ray (``LineTracks.obs_ray``) says on which side of the camera the line lies:
 its depth ``u . (p_i - c_k)`` along ``u``, the unit vector in the plane across the line towards
-the ray, is positive. Every depth is held at 1 or more (a squared hinge, solved by its active
-set), which sets the scale (the nearest line's distance) and keeps every stretch of the walk
-from shrinking to a point. Without rays the scale is set by ``sum |c_k|^2 = 1`` and the centres
+the ray, is positive. A squared hinge on the depths (solved by its active sets) keeps every
+stretch of the walk from shrinking to a point and every line on its side: first every depth at
+1 or more (the scale the nearest line's distance), then, once the weights have settled on
+the lines that agree, the mean depth at 1 and every depth at a tenth of it or more
+(:func:`_with_depths`). Without rays the scale is set by ``sum |c_k|^2 = 1`` and the centres
 are the generalised eigenvector of the smallest eigenvalue of the normal equations (lines
 included), found by inverse iteration; on long walks of few lines it is several times further
 off than the depths (docs/estimator.md).
@@ -59,16 +61,15 @@ class GlobalPositionOptions:
     inverse_iterations: int = 30
     """Inverse iterations of each solve at most (tracks without rays)."""
     depth_floor: float = 0.1
-    """The depth every observation's line is held at or beyond (a squared hinge), in units of
-    the mean depth (:func:`_hinge_minimum`): far below it, so that it holds only where a
-    stretch would shrink to a point or turn its lines behind the cameras, and the scale is the
-    mean depth's. Held at the nearest line's distance, the scale shrank every other depth
-    with it: the positions of a sparse walk from its true rotations came out 2.6-4.3 % of the
-    path off, 0.17 % with the mean."""
+    """The depth every observation's line is held at or beyond (a squared hinge) in the last
+    re-weightings, in units of the mean depth (:func:`_with_depths`): far below it, so that it
+    holds only where a stretch would shrink to a point or turn its lines behind the cameras,
+    and the scale is the mean depth's, which does not shrink the other depths with the
+    nearest line's."""
     depth_iterations: int = 60
-    """Newton steps at most of each re-weighting's problem with the depths held at 1 or more
-    (tracks with rays; :func:`_hinge_minimum`): each solves with the depths below 1 held and
-    stops when those are the same after a full step."""
+    """Newton steps at most of each re-weighting's problem (tracks with rays;
+    :func:`_hinge_minimum`): each solves with the depths below the floor held and stops when
+    those are the same after a full step."""
 
 
 @dataclass(frozen=True)
@@ -190,9 +191,10 @@ class _Geometry:
 
     def prior(self, H: sp.csc_matrix, smoothness: float, w: FloatArray) -> sp.csc_matrix:
         """``H`` plus the second-difference prior, weighted by ``smoothness`` times the median
-        diagonal entry of a frame's information (the plane rows weighted by ``w``; over every
-        posed frame, the gauge frame included, so that the weight does not depend on which
-        frame is first), and a ridge of 1e-12 of the largest diagonal entry."""
+        over the posed frames (the gauge frame included, so that the weight does not depend on
+        which frame is first) of the mean diagonal entry of a frame's information (a third of
+        its plane rows' weights ``w``: unit normals, whatever the world's orientation), and a
+        ridge of 1e-12 of the largest diagonal entry."""
         info = np.bincount(self.frame, weights=w, minlength=int(self.frame.max(initial=-1)) + 1)
         lam = smoothness * (float(np.median(info)) / 3.0 if info.size else 1.0)
         K = H
@@ -248,9 +250,9 @@ def _with_depths(g: _Geometry, sides: FloatArray, options: GlobalPositionOptions
     more (the scale the nearest line's distance): every line then holds the walk's shape,
     and lines that move with the camera (a walker beside it) find no shape to pull it into
     before their weights fall. The second half hold the mean depth at 1 and every depth at
-    ``options.depth_floor`` or more: held at the nearest line's distance, the scale shrinks
-    every other depth with it, and a sparse walk's positions from its true rotations come out
-    2.6-4.3 % of the path off (0.12-0.24 % on the mean)."""
+    ``options.depth_floor`` or more: held at the nearest line's distance, the scale would
+    shrink every other depth with it and bend a sparse walk's shape (docs/estimator.md,
+    step 2)."""
     K = g.A.shape[0]
     U = _rows(sides, g.e1, g.e2, g.pc, g.li, g.P, g.L)
     x = np.zeros(g.P + g.L)
