@@ -102,27 +102,49 @@ _FREE_TRACE = 0.5
 a whole gives less)."""
 
 
-def _inverse(A: FloatArray, G: FloatArray, Amap: FloatArray
-             ) -> tuple[FloatArray, np.ndarray | None]:
-    """``(C, moves)``: the inverse of the symmetric ``A`` (Cholesky), or, where ``A`` is not
-    positive definite (a direction the data leave free), its inverse on the other directions
-    and ``(n,)`` how much the free directions move each frame (the trace of its block of their
-    projector: about 1 for each of its parameters that they leave free, about ``7 / m`` where
-    a split leaves a part of ``m`` frames free as a whole; ``G`` the similarities, ``Amap`` the
-    alignment that removes them; None: no free direction)."""
+_WEAK_SPREAD = 0.1
+"""A direction of the poses whose RMS error would exceed this (radians; the path's length) and
+that moves a few frames (:data:`_LOCAL_FRAMES`) leaves those frames free (:func:`_inverse`):
+the data do not fix them. Counted in the covariance, its spread would reach every frame of the
+window through the alignment's similarity (a camera that sees only vertical lines through a
+few frames, its height nearly free, gave every frame of its window a spread of the path's
+length)."""
+
+_LOCAL_FRAMES = 0.25
+"""A weak direction moves a few frames where its participation (the number of frames it moves,
+``1 / sum m_k^2`` of its frames' shares ``m_k``) is at most this fraction of the window's."""
+
+
+def _inverse(A: FloatArray, floor: float = 0.0) -> tuple[FloatArray, np.ndarray | None]:
+    """``(C, moves)``: the inverse of the symmetric ``A`` (Cholesky), or, where ``A`` has
+    eigenvalues at round-off (a direction the data leave free) or at most ``floor`` in a
+    direction that moves a few frames (:data:`_WEAK_SPREAD`), its inverse on the other
+    directions and ``(n,)`` how much the free directions move each frame (the trace of its
+    block of their projector: about 1 for each of its parameters that they leave free, about
+    ``7 / m`` where a split leaves a part of ``m`` frames free as a whole; None: no free
+    direction). The free directions are taken as they are, orthogonal to the similarities
+    (which ``A`` lifts): each moves the frames it frees and next to nothing elsewhere (the
+    alignment's similarity would spread them over every frame, and where the aligned frames
+    lie on a straight line, whose turn about it only their rotations' small weight fixes, by
+    many times their size)."""
     try:
         L = scipy.linalg.cholesky(A, lower=True, check_finite=False)
         inv, info = scipy.linalg.lapack.dpotri(L, lower=1)
-        if info == 0:
+        # no eigenvalue of the inverse exceeds its trace: below 1 / floor, none is weak
+        if info == 0 and float(np.trace(inv)) * floor < 1.0:
             return np.tril(inv) + np.tril(inv, -1).T, None
     except np.linalg.LinAlgError:
         pass
     w, V = np.linalg.eigh(A)
-    free = w <= 1e-13 * float(w[-1])
+    n = len(A) // 6
+    share = np.square(V).reshape(n, 6, -1).sum(axis=1)
+    frames_moved = 1.0 / np.maximum(np.square(share).sum(axis=0), 1e-300)
+    free = (w <= 1e-13 * float(w[-1])) | ((w <= floor) & (frames_moved <= _LOCAL_FRAMES * n))
+    if not free.any():
+        return (V / w) @ V.T, None
     keep = ~free
     C = (V[:, keep] / w[keep]) @ V[:, keep].T
-    Vf = V[:, free] - G @ (Amap @ V[:, free])      # the free directions, the gauge removed
-    return C, np.square(Vf).reshape(-1, 6, int(free.sum())).sum(axis=(1, 2))
+    return C, share[:, free].sum(axis=1)
 
 
 def _window_spread(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArray,
@@ -147,7 +169,7 @@ def _window_spread(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArr
     Amap = np.linalg.lstsq(GW @ G, GW, rcond=None)[0]  # (7, 6n); a stop: rank < 7
     # the similarities' directions have eigenvalue ~scale after this, and no part in the
     # covariance once the alignment removes them
-    C, moves = _inverse(S + scale * (Q @ Q.T), G, Amap)
+    C, moves = _inverse(S + scale * (Q @ Q.T), (sigma / _WEAK_SPREAD) ** 2)
     CA = C @ Amap.T
     Y = (C - G @ CA.T - CA @ G.T + G @ (Amap @ CA) @ G.T).reshape(n, 6, n, 6)
     pos = np.einsum("kiki->k", Y[:, 3:, :, 3:])
