@@ -1062,6 +1062,34 @@ def bundle_adjust(tracks: LineTracks, rotations: FloatArray, positions: FloatArr
     return adj.result(t0)
 
 
+def polished(tracks: LineTracks, res: BundleResult, *,
+             held_directions: np.ndarray | None = None,
+             options: BundleOptions = BundleOptions()) -> BundleResult:
+    """``res``, an adjustment run without a polish (``final_loss=None``: its robust rounds'
+    result), polished with ``options.final_loss`` on the tracks it used (the others, its
+    outliers among them, take no part; their lines are triangulated from its poses for their
+    residuals). An adjustment started several ways (:func:`~omni_sfm.estimate.
+    global_estimator._adjusted`) compares its candidates after their robust rounds, which find
+    the basin and the outliers, and polishes the one it keeps: the polish runs once.
+    No subset of the sequence is taken (its cost follows the whole of ``tracks``)."""
+    if options.final_loss is None:
+        return res
+    t0 = time.perf_counter()
+    used = res.used_tracks
+    d2, p2, _ = triangulate_lines(tracks, res.rotations, res.positions, res.frames)
+    d = np.where(used[:, None], res.line_directions, d2)
+    p = np.where(used[:, None], res.line_points, p2)
+    adj = _Adjustment(tracks, (res.rotations.copy(), res.positions.copy(), d, p),
+                      res.frames.copy(), None, options, held_directions=held_directions)
+    adj.outlier = res.outlier_tracks.copy()
+    adj.weak = ~used & ~res.outlier_tracks
+    adj.polish(options.final_loss)
+    out = adj.result(t0)
+    return replace(out, rms_initial_deg=res.rms_initial_deg,
+                   iterations=res.iterations + out.iterations,
+                   time_ms=res.time_ms + out.time_ms, history=[*res.history, *out.history])
+
+
 def _state_rows(state: _State, frames: np.ndarray, lines: np.ndarray
                 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
     """The poses of ``frames`` and the lines ``lines`` of ``state``."""

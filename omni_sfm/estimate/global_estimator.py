@@ -52,6 +52,7 @@ from omni_sfm.estimate.bundle import (
     BundleResult,
     bundle_adjust,
     outlier_limit,
+    polished,
     truncated_cost,
     truncated_costs,
 )
@@ -1018,7 +1019,10 @@ def _adjusted(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArray, p
     parallel lines) pull a Huber adjustment off a good start before its rounds reject them, and
     a stretch then collapses onto the lines that agree with the pull; the Cauchy loss gives them
     no weight, but on its own it rejects more of the weakly tied lines elsewhere. Which of them
-    holds depends on the data, not on the frame order. Returns the adjustment kept."""
+    holds depends on the data, not on the frame order. Candidates whose robust rounds kept the
+    same tracks polish to one minimum: of those only the one of lowest cost is polished
+    (:func:`~omni_sfm.estimate.bundle.polished`; the polish is the adjustment's longest
+    solve). Returns the adjustment kept."""
     def settled_first(bo: BundleOptions) -> BundleResult:
         settled = bundle_adjust(tracks, R, c, d, p, frames=frames, held_directions=held,
                                 held_rotations=frames,
@@ -1030,7 +1034,8 @@ def _adjusted(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArray, p
 
     solves: list[Callable[[], BundleResult]] = []
     for loss in dict.fromkeys((options.bundle.loss, RobustLoss.CAUCHY)):
-        bo = replace(options.bundle, loss=loss)
+        # the robust rounds find the basin and the outliers; the one kept is polished
+        bo = replace(options.bundle, loss=loss, final_loss=None)
         solves.append(partial(bundle_adjust, tracks, R, c, d, p, frames=frames,
                              held_directions=held, options=bo))
         if options.settled_start and loss == options.bundle.loss:
@@ -1038,9 +1043,20 @@ def _adjusted(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArray, p
     candidates = run_all(solves, options.workers)
     limit = outlier_limit(float(np.radians(max(x.sigma_deg for x in candidates))),
                           options.bundle)
-    cost = [truncated_cost(tracks, x.rotations, x.positions, x.frames, limit, everywhere=True)
-            for x in candidates]
-    return candidates[int(np.argmin(cost))]
+
+    def cost(x: BundleResult) -> float:
+        return truncated_cost(tracks, x.rotations, x.positions, x.frames, limit,
+                              everywhere=True)
+
+    # candidates that kept the same tracks polish to one minimum: the lowest of each set
+    best: dict[bytes, BundleResult] = {}
+    for x in candidates:
+        key = np.packbits(x.used_tracks).tobytes()
+        if key not in best or cost(x) < cost(best[key]):
+            best[key] = x
+    kept = run_all([partial(polished, tracks, x, held_directions=held, options=options.bundle)
+                    for x in best.values()], options.workers)
+    return kept[int(np.argmin([cost(x) for x in kept]))]
 
 
 def _positions_step(tracks: LineTracks, rot: GlobalRotations, frames: np.ndarray,

