@@ -47,8 +47,11 @@ from omni_sfm.solver import isotropic_diagonal
 class GlobalRotationOptions:
     max_iterations: int = 300
     """Gauss-Newton (Levenberg-Marquardt) iterations of the joint problem at most."""
-    tolerance: float = 1e-12
-    """Stop when the relative decrease of the cost falls below this."""
+    tolerance: float = 1e-9
+    """Stop when the relative decrease of the cost falls below this. The re-weighted solve
+    converges linearly (its cost's decrease halves every few iterations, each a full sparse
+    factorisation): from 1e-9 to 1e-12 took 40-200 of a 5,000-frame walk's iterations and
+    moved no frame that the data fix by more than 0.00001 deg."""
     loss_scale: float = 3.0
     """Cauchy loss scale, in units of the robust noise estimate of the residuals."""
     every_line: bool = False
