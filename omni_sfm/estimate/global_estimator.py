@@ -1099,19 +1099,23 @@ def _flags(tracks: LineTracks, rot: GlobalRotations, pos: GlobalPositions, c: Fl
     uncertain = _uncertain(tracks, rot, pos, ba, options)
     spread_deg, spread_path = _spread(tracks, ba, uncertain, options)
     for more in (_spread_flags(spread_deg, spread_path, options),
-                 _moved_far(c, ba, options)):
+                 _moved_far(c, ba, options, uncertain)):
         uncertain.update({k: v for k, v in more.items() if k not in uncertain})
     return uncertain, spread_deg, spread_path
 
 
-def _moved_far(c: FloatArray, ba: BundleResult, options: Settings) -> dict[int, str]:
-    """The posed frames that the adjustment moved by more than ``options.moved_path`` of the
-    path from the linear positions ``c`` (step 2; after the similarity that best aligns the
-    two), with the reason. Both estimate the same poses from the same tracks; where they
+def _moved_far(c: FloatArray, ba: BundleResult, options: Settings,
+               flagged: dict[int, str]) -> dict[int, str]:
+    """The posed frames not already ``flagged`` that the adjustment moved by more than
+    ``options.moved_path`` of the path from the linear positions ``c`` (step 2; after the
+    similarity that best aligns the two on those frames: a part of the walk flagged for its
+    weak ties lies in a world of its own, and aligned with the rest it would make every frame
+    look moved), with the reason. Both estimate the same poses from the same tracks; where they
     disagree by that much, the tracks disagree with one another (a tracker that matched the
     wrong line through a fast turn) and the adjustment's least squares, however well its
     covariance says the data fix it, need not be the truth (docs/estimator.md, "Rigs")."""
     both = ba.frames & np.isfinite(c).all(axis=1)
+    both[list(flagged)] = False
     if both.sum() < 3:
         return {}
     a, b = c[both], ba.positions[both]
