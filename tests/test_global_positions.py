@@ -81,11 +81,19 @@ def test_frames_the_adjustment_moves_far_from_the_linear_positions_are_flagged()
     rng = np.random.default_rng(0)
     ba = SimpleNamespace(frames=np.ones(50, bool), positions=3.0 * c + 0.001 * rng.normal(
         size=c.shape))
-    assert _moved_far(c, ba, settings(GlobalOptions())) == {}
+    assert _moved_far(c, ba, settings(GlobalOptions()), {}) == {}
     bent = ba.positions.copy()
     bent[40:, 1] += 0.6  # the last ten frames 20 % of the path off
     flagged = _moved_far(c, SimpleNamespace(frames=ba.frames, positions=bent),
-                         settings(GlobalOptions()))
+                         settings(GlobalOptions()), {})
     # the alignment spreads the bend over the other frames: its far end stands out most
     assert 49 in flagged and len(flagged) >= 10
+    # a part already flagged (tied to the rest by a few lines) lies in a world of its own:
+    # the others are aligned without it, and none of them looks moved
+    apart = ba.positions.copy()
+    apart[25:] = 4.0 * apart[25:] + np.array([1.0, -2.0, 0.5])
+    tied = {k: "weak ties" for k in range(25, 50)}
+    moved = SimpleNamespace(frames=ba.frames, positions=apart)
+    assert len(_moved_far(c, moved, settings(GlobalOptions()), {})) >= 10
+    assert _moved_far(c, moved, settings(GlobalOptions()), tied) == {}
     assert all("moved it" in v for v in flagged.values())
