@@ -1069,9 +1069,9 @@ def polished(tracks: LineTracks, res: BundleResult, *,
     result), polished with ``options.final_loss`` on the tracks it used (the others, its
     outliers among them, take no part; their lines are triangulated from its poses for their
     residuals). An adjustment started several ways (:func:`~omni_sfm.estimate.
-    global_estimator._adjusted`) compares its candidates after their robust rounds, which find
-    the basin and the outliers, and polishes the one it keeps: the polish runs once.
-    No subset of the sequence is taken (its cost follows the whole of ``tracks``)."""
+    global_estimator._adjusted`) runs each start's robust rounds, which find the basin and the
+    outliers, and polishes one start per set of tracks kept. No subset of the sequence is
+    taken (its cost follows the whole of ``tracks``)."""
     if options.final_loss is None:
         return res
     t0 = time.perf_counter()

@@ -1034,7 +1034,7 @@ def _adjusted(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArray, p
 
     solves: list[Callable[[], BundleResult]] = []
     for loss in dict.fromkeys((options.bundle.loss, RobustLoss.CAUCHY)):
-        # the robust rounds find the basin and the outliers; the one kept is polished
+        # the robust rounds find the basin and the outliers; the polish comes after the choice
         bo = replace(options.bundle, loss=loss, final_loss=None)
         solves.append(partial(bundle_adjust, tracks, R, c, d, p, frames=frames,
                              held_directions=held, options=bo))

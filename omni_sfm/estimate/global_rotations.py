@@ -50,8 +50,8 @@ class GlobalRotationOptions:
     tolerance: float = 1e-9
     """Stop when the relative decrease of the cost falls below this. The re-weighted solve
     converges linearly (its cost's decrease halves every few iterations, each a full sparse
-    factorisation): from 1e-9 to 1e-12 took 40-200 of a 5,000-frame walk's iterations and
-    moved no frame that the data fix by more than 0.00001 deg."""
+    factorisation): going on from 1e-9 to 1e-12 costs 40-200 iterations on a 5,000-frame walk
+    and moves no frame that the data fix by more than 0.00001 deg."""
     loss_scale: float = 3.0
     """Cauchy loss scale, in units of the robust noise estimate of the residuals."""
     every_line: bool = False

@@ -107,8 +107,8 @@ _WEAK_SPREAD = 0.1
 that moves a few frames (:data:`_LOCAL_FRAMES`) leaves those frames free (:func:`_inverse`):
 the data do not fix them. Counted in the covariance, its spread would reach every frame of the
 window through the alignment's similarity (a camera that sees only vertical lines through a
-few frames, its height nearly free, gave every frame of its window a spread of the path's
-length)."""
+few frames, its height nearly free, would give every frame of its window a spread of the
+path's length)."""
 
 _LOCAL_FRAMES = 0.25
 """A weak direction moves a few frames where its participation (the number of frames it moves,
