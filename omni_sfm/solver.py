@@ -157,10 +157,13 @@ def levenberg_marquardt(prob: LMProblem, state: S, loss: RobustLoss, scale: floa
                         max_iterations: int, tolerance: float,
                         pose_tolerance: tuple[float, float] | None = None,
                         step_tolerance: float | None = None,
-                        damping: float = 1e-4) -> tuple[S, int]:
+                        damping: float = 1e-4, decrease_tolerance: float = 0.0
+                        ) -> tuple[S, int]:
     """Levenberg-Marquardt on ``prob`` from ``state`` with robust ``loss`` at ``scale``
     (residual units), IRLS weights from the current residuals; stops after ``max_iterations``,
-    when the relative decrease of the cost falls below ``tolerance``, when a step with almost
+    when the relative decrease of the cost falls below ``tolerance`` or its decrease below
+    ``decrease_tolerance`` (the cost's units: a fraction of the noise variance says that the
+    parameters moved by a small fraction of their standard deviations), when a step with almost
     no damping (at most 1e-8: soft modes, such as a long walk's drift, are not held back) moves
     no camera by more than ``pose_tolerance`` (radians, units of length: that step is about
     the distance left to the minimum), when a step damped by at most 1e-7 moves the cameras
@@ -202,7 +205,8 @@ def levenberg_marquardt(prob: LMProblem, state: S, loss: RobustLoss, scale: floa
                 lam *= 10.0
         if not improved:
             break
-        rel = (cost - new_cost) / max(cost, 1e-300)
+        drop = cost - new_cost
+        rel = drop / max(cost, 1e-300)
         state, e, u, cost, w, rho = new_state, e_new, u_new, new_cost, w_new, rho_new
         step_lam, lam = lam, max(lam / 10.0, 1e-12)
         if local is not None:
@@ -215,7 +219,7 @@ def levenberg_marquardt(prob: LMProblem, state: S, loss: RobustLoss, scale: floa
             float(np.abs(dpose[:, 3:]).max(initial=0.0)) <= pose_tolerance[1]
         still |= step_lam <= 1.5e-7 and step_tolerance is not None and \
             isinstance(prob, StepDistance) and prob.step_distance() <= step_tolerance
-        if rel < tolerance or cost <= 1e-300 or still:
+        if rel < tolerance or drop < decrease_tolerance or cost <= 1e-300 or still:
             break
     return state, it
 

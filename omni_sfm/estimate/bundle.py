@@ -98,6 +98,11 @@ class BundleOptions:
     robust_tolerance: float = 1e-4
     """The same for the robust rounds (reweighting converges slowly; they only need to find
     the outliers and the basin)."""
+    settled_decrease: float = 1e-2
+    """Stop a solve when a step lowers the cost (half the sum of squared residuals, radians)
+    by less than this many times the noise variance: the parameters then move by about a
+    tenth of their standard deviations a step, and what is left is the crawl of lines and
+    drift modes that the data barely fix (0: only the relative decrease stops it)."""
     robust_iterations: int = 30
     """LM iterations per robust round at most."""
     final_loss: RobustLoss | None = RobustLoss.LINEAR
@@ -907,7 +912,8 @@ class _Adjustment:
                            loss_scale=scale, held_rotations=self.held_rotations,
                            hold_scale=not self.metric, turn_axis=axis)
         (self.R, self.c, self.d, self.p), it = levenberg_marquardt(
-            prob, (self.R, self.c, self.d, self.p), loss, scale, max_iterations, tolerance)
+            prob, (self.R, self.c, self.d, self.p), loss, scale, max_iterations, tolerance,
+            decrease_tolerance=self.options.settled_decrease * self.sigma ** 2)
         self.iterations += it
         return it
 
