@@ -21,7 +21,12 @@ from omni_sfm.estimate.bundle import (
     triangulate_lines,
 )
 from omni_sfm.evaluate import trajectory_errors
-from omni_sfm.geometry import normalize, predicted_normals, rotvec_to_matrix
+from omni_sfm.geometry import (
+    normalize,
+    predicted_normals,
+    rotation_angle,
+    rotvec_to_matrix,
+)
 from omni_sfm.poses import Trajectory
 from omni_sfm.synth.simulate import SimulationOptions, simulate
 
@@ -422,6 +427,33 @@ def test_embedded_line_iterations_bring_far_lines_back() -> None:
                           options=dataclasses.replace(opts, line_iterations=0))
     assert plain.rms_final_deg == pytest.approx(o.rms_final_deg, rel=1e-4)
     assert plain.iterations > b.iterations
+
+
+def test_a_solve_stops_where_a_step_gains_less_than_a_thousandth_of_the_noise() -> None:
+    # the bent chain of the test above: run on until the relative decrease falls below 1e-10,
+    # the adjustment crawls through steps that each gain less than a thousandth of the noise
+    # variance; stopped there it takes fewer iterations, to the same cost and nearly the same
+    # poses
+    sim = simulate(SimulationOptions(num_views=300, num_parallel=20, num_other=20,
+                                     noise_deg=0.1, visible_frames=60, seed=0))
+    g, tr = sim.groundtruth, sim.tracks
+    F = tr.num_frames
+    bend = rotvec_to_matrix(np.stack([np.zeros(F), np.zeros(F),
+                                      np.radians(5.0) * np.arange(F) / F], 1))
+    R0 = bend @ g.rotations
+    c0 = np.einsum("fij,fj->fi", bend, g.positions - g.positions[0]) + g.positions[0]
+    d0, p0, _ = triangulate_lines(tr, R0, c0, np.ones(F, bool), 3)
+    opts = BundleOptions(reject_outliers=False)
+    assert opts.settled_decrease == 1e-3
+    stopped = bundle_adjust(tr, R0, c0, d0, p0, options=opts)
+    full = bundle_adjust(tr, R0, c0, d0, p0,
+                         options=dataclasses.replace(opts, settled_decrease=0.0))
+    assert stopped.iterations < full.iterations
+    assert stopped.rms_final_deg == pytest.approx(full.rms_final_deg, rel=1e-6)
+    turn = np.einsum("kji,kjl->kil", stopped.rotations, full.rotations)
+    assert np.degrees(rotation_angle(turn)).max() < 0.005
+    path = np.sum(np.linalg.norm(np.diff(full.positions, axis=0), axis=1))
+    assert np.abs(stopped.positions - full.positions).max() < 2e-4 * path
 
 
 def test_held_rotations_stay_as_given_and_the_positions_move():

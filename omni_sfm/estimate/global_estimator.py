@@ -1049,13 +1049,13 @@ def _adjusted(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArray, p
                               everywhere=True)
 
     # candidates that kept the same tracks polish to one minimum: the lowest of each set
-    best: dict[bytes, BundleResult] = {}
+    best: dict[bytes, tuple[float, BundleResult]] = {}
     for x in candidates:
-        key = np.packbits(x.used_tracks).tobytes()
-        if key not in best or cost(x) < cost(best[key]):
-            best[key] = x
+        key, cx = np.packbits(x.used_tracks).tobytes(), cost(x)
+        if key not in best or cx < best[key][0]:
+            best[key] = (cx, x)
     kept = run_all([partial(polished, tracks, x, held_directions=held, options=options.bundle)
-                    for x in best.values()], options.workers)
+                    for _, x in best.values()], options.workers)
     return kept[int(np.argmin([cost(x) for x in kept]))]
 
 
