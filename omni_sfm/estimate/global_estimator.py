@@ -37,7 +37,7 @@ known limits) the start can drift out of it, and the answer then follows the ord
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Collection, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field, fields, replace
 from functools import partial
@@ -879,17 +879,19 @@ def _gap_errors(free: np.ndarray, values: FloatArray, direction: FloatArray | No
 
 
 def _weak_ties(tracks: LineTracks, ba: BundleResult, used: np.ndarray, seen: np.ndarray,
-               min_ties: int = 4) -> dict[int, str]:
+               flagged: Collection[int] = (), min_ties: int = 4) -> dict[int, str]:
     """Frames in another part of the video than the largest, where the parts are cut between
-    two frames that see more than 3 lines (with a stretch of frames that see 3 lines or fewer,
-    or are not posed, between them, or none) across which fewer than ``min_ties`` lines are
-    seen on both sides: the pose of one part relative to the other then rests on those few
-    lines (or frames whose lines fix them with nothing to spare), and nothing checks it (a turn
-    of 90 deg or a wrong scale fits as well: a fast turn that the tracker loses most lines
-    through).
+    two frames that see more than 3 lines and are not ``flagged`` (with a stretch of frames
+    that see 3 lines or fewer, are flagged or are not posed, between them, or none) across
+    which fewer than ``min_ties`` lines are seen on both sides: the pose of one part relative
+    to the other then rests on those few lines (or frames whose lines fix them with nothing to
+    spare, or not at all), and nothing checks it (a turn of 90 deg or a wrong scale fits as
+    well: a fast turn that the tracker loses most lines through).
     ``used``: ``(K,)`` the observations the adjustment used; ``seen``: ``(F,)`` their count in
     each frame."""
-    strong = np.flatnonzero(ba.frames & (seen > 3))
+    tying = ba.frames & (seen > 3)
+    tying[list(flagged)] = False
+    strong = np.flatnonzero(tying)
     if len(strong) < 2:
         return {}
     first, last = tracks.frame_spans(used)
@@ -909,8 +911,8 @@ def _weak_ties(tracks: LineTracks, ba: BundleResult, used: np.ndarray, seen: np.
             continue
         # the cut between this part and the main one, on the main one's side
         a, b, n = next(c for c in cuts if c[1] == (main[0] if hi <= main[0] else main[1]))
-        through = f"frames {a + 1}-{b - 1}, which see 3 lines or fewer, and " if b - a > 1 \
-            else ""
+        through = f"frames {a + 1}-{b - 1}, which see 3 lines or fewer or are flagged, and " \
+            if b - a > 1 else ""
         for k in np.flatnonzero(ba.frames[lo:hi]) + lo:
             out[int(k)] = (f"tied to frames {fixed[0]}-{fixed[-1]} only through {through}{n} "
                            f"lines seen on both sides of frames {a}-{b}: its pose relative to "
@@ -1095,13 +1097,27 @@ def _flags(tracks: LineTracks, rot: GlobalRotations, pos: GlobalPositions, c: Fl
            ) -> tuple[dict[int, str], FloatArray, FloatArray]:
     """Step 4: ``(uncertain, spread_deg, spread_path)``, the frames the data do not fix with the
     reason (:func:`_uncertain`, then :func:`_spread_flags` on the covariance's spread, then
-    :func:`_moved_far` from the linear positions ``c``)."""
+    :func:`_moved_far` from the linear positions ``c``, then :func:`_weak_ties` with the
+    frames whose pose the data leave free tying nothing; again on the frames left while that
+    cuts off more: the spread of a part is measured against its own path, and a part that
+    shrank to a point while the rest of the walk moved has none)."""
     uncertain = _uncertain(tracks, rot, pos, ba, options)
-    spread_deg, spread_path = _spread(tracks, ba, uncertain, options)
-    for more in (_spread_flags(spread_deg, spread_path, options),
-                 _moved_far(c, ba, options, uncertain)):
-        uncertain.update({k: v for k, v in more.items() if k not in uncertain})
-    return uncertain, spread_deg, spread_path
+    used = ba.frames[tracks.obs_frame] & ba.used_tracks[tracks.obs_track]
+    seen = np.bincount(tracks.obs_frame[used], minlength=tracks.num_frames)
+    free: set[int] = set()
+    while True:
+        spread_deg, spread_path = _spread(tracks, ba, uncertain, options)
+        for more in (_spread_flags(spread_deg, spread_path, options),
+                     _moved_far(c, ba, options, uncertain)):
+            uncertain.update({k: v for k, v in more.items() if k not in uncertain})
+        with np.errstate(invalid="ignore"):
+            free |= {int(k) for k in np.flatnonzero(ba.frames & ~np.isfinite(
+                spread_deg + spread_path)) if int(k) in uncertain}
+        cut = {k: v for k, v in _weak_ties(tracks, ba, used, seen, free).items()
+               if k not in uncertain}
+        if not cut:
+            return uncertain, spread_deg, spread_path
+        uncertain.update(cut)
 
 
 def _moved_far(c: FloatArray, ba: BundleResult, options: Settings,
