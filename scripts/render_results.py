@@ -78,6 +78,8 @@ SUMMARY = (
                "docs/estimator.md"),
     SummaryRow("`init` on raw dual-fisheye frames (rendered, 1920x960, a rig of two lenses)",
                "eval_rig", "docs/estimator.md"),
+    SummaryRow("A loop around an office block (45 m, both cameras)", "eval_loop",
+               "docs/estimator.md"),
     SummaryRow("`refine` (lines and points adjusted together)", "bench_refine_room",
                "docs/colmap.md"),
     SummaryRow("`refine` on the office walk", "bench_refine_office", "docs/colmap.md"),
