@@ -38,6 +38,7 @@ only.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -116,16 +117,26 @@ def rotation_from_directions(normals: FloatArray, directions: FloatArray, R0: Fl
     """world_from_cam rotation that makes camera-frame normals ``(K, 3)`` orthogonal to their
     lines' world directions ``(K, 3)`` (``n . R^T d = 0``), by Gauss-Newton from ``R0``."""
     R = np.array(R0, np.float64)
+    n0, n1, n2 = np.asarray(normals, np.float64).T
+    J = np.empty((len(normals), 3))
     for _ in range(iterations):
         a = directions @ R  # R^T d, (K, 3)
         r = np.sum(normals * a, axis=1)
-        J = np.cross(normals, a)  # d r / d w for R <- R exp([w]x)
-        H = J.T @ J + 1e-9 * np.eye(3)
-        w = -np.linalg.solve(H, J.T @ r)
+        # J = n x a, d r / d w for R <- R exp([w]x) (numpy's cross product, term for term:
+        # the tracker runs this on every frame, and np.cross costs more than the rest)
+        a0, a1, a2 = a.T
+        J[:, 0] = n1 * a2 - n2 * a1
+        J[:, 1] = n2 * a0 - n0 * a2
+        J[:, 2] = n0 * a1 - n1 * a0
+        w = -np.linalg.solve(J.T @ J + _TINY_EYE, J.T @ r)
         R = R @ rotvec_to_matrix(w)
-        if float(np.linalg.norm(w)) < 1e-12:
+        x, y, z = w.tolist()
+        if math.sqrt(x * x + y * y + z * z) < 1e-12:
             break
     return R
+
+
+_TINY_EYE = 1e-9 * np.eye(3)
 
 
 def centre_given_rotation(normals: FloatArray, directions: FloatArray, points: FloatArray,
