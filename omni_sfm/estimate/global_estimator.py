@@ -111,8 +111,11 @@ class GlobalOptions:
     spread_path: float = 0.01
     """A frame is flagged where twice the error the adjustment's covariance expects exceeds
     this (degrees; fraction of the path length; :func:`_spread_flags`): a frame left unflagged
-    is then off by more than 1 deg or 2 % of the path only beyond three times that error,
-    and a flagged one is rarely within 0.2 deg and 0.2 %."""
+    is then off by more than 1 deg or 2 % of the path only beyond three times that error. A
+    flagged one can still be as good as the rest: the covariance aligns the rotations to the
+    truth by their mean turn, and a walk's first and last frames (fixed by lines seen on one
+    side only) get the largest spread, where errors counted from the first frame are
+    smallest at the start (docs/estimator.md, step 4)."""
     moved_path: float = 0.02
     """A frame that the adjustment moves by more than this fraction of the path from the
     linear positions is flagged (:func:`_moved_far`)."""
