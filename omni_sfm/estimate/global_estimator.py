@@ -458,7 +458,7 @@ def _window_solution(tracks: LineTracks, sel: np.ndarray, options: Settings
 def windows_start(tracks: LineTracks, frames: np.ndarray, R0: FloatArray,
                   options: Settings) -> FloatArray:
     """Start rotations ``(F, 3, 3)`` from windows of ``options.start_window`` posed frames,
-    overlapping by half, each solved on its own (rotations, positions, adjustment: within a
+    overlapping by a sixth, each solved on its own (rotations, positions, adjustment: within a
     window the chain of :func:`anchored_start` drifts little and the lines' positions fix the
     turns that their directions alone leave weak; :func:`_window_solution`). Each window's
     solution is turned onto its predecessor's by the rotation that best aligns their shared
@@ -467,7 +467,8 @@ def windows_start(tracks: LineTracks, frames: np.ndarray, R0: FloatArray,
     step of ``R0`` from the nearest frame that is."""
     idx = np.flatnonzero(frames)
     window = options.start_window
-    sels = [idx[a:a + window] for a in window_starts(len(idx), window)]
+    # consecutive windows share a sixth of their frames: enough to turn one onto the other
+    sels = [idx[a:a + window] for a in window_starts(len(idx), window, window - window // 6)]
     solved = run_all([partial(_window_solution, tracks, sel, options) for sel in sels],
                      options.workers)
     kept = [(sel, got) for sel, got in zip(sels, solved, strict=True) if got is not None]

@@ -53,13 +53,14 @@ def max_rotation_step_deg(rotations: FloatArray) -> float:
     return float(np.degrees(rotation_angle(rel)).max())
 
 
-def window_starts(count: int, window: int) -> list[int]:
-    """The first positions of windows of ``window`` among ``count`` items, overlapping by about
-    half, spread evenly from 0 to ``count - window``; the layout of ``count`` items in reverse
-    order is its mirror image (the same windows)."""
+def window_starts(count: int, window: int, step: int | None = None) -> list[int]:
+    """The first positions of windows of ``window`` among ``count`` items, each at most
+    ``step`` after the one before (default ``window // 2``: overlapping by about half), spread
+    evenly from 0 to ``count - window``; the layout of ``count`` items in reverse order is its
+    mirror image (the same windows)."""
     if count <= window:
         return [0]
     span = count - window
-    n = -(-span // (window // 2)) + 1
+    n = -(-span // max(1, window // 2 if step is None else step)) + 1
     return [(i * span) // (n - 1) if 2 * i <= n - 1 else span - ((n - 1 - i) * span) // (n - 1)
             for i in range(n)]
