@@ -882,6 +882,13 @@ def _gap_errors(free: np.ndarray, values: FloatArray, direction: FloatArray | No
     return out
 
 
+def _used_observations(tracks: LineTracks, ba: BundleResult) -> tuple[np.ndarray, np.ndarray]:
+    """``(used, seen)``: ``(K,)`` the observations the adjustment used (its tracks in its posed
+    frames) and ``(F,)`` their count in each frame."""
+    used = ba.frames[tracks.obs_frame] & ba.used_tracks[tracks.obs_track]
+    return used, np.bincount(tracks.obs_frame[used], minlength=tracks.num_frames)
+
+
 def _weak_ties(tracks: LineTracks, ba: BundleResult, used: np.ndarray, seen: np.ndarray,
                flagged: Collection[int] = (), min_ties: int = 4) -> dict[int, str]:
     """Frames in another part of the video than the largest, where the parts are cut between
@@ -946,8 +953,7 @@ def _uncertain(tracks: LineTracks, rot: GlobalRotations, pos: GlobalPositions,
     # the motion along the direction the frame's lines fix least (a frame whose lines all run
     # along the walk is free along the walk, where walking is smooth)
     pos_err = 100.0 * _gap_errors(rfree | pfree, c, np.nan_to_num(pos.free_direction[idx])) / path
-    used = ba.frames[tracks.obs_frame] & ba.used_tracks[tracks.obs_track]
-    seen_all = np.bincount(tracks.obs_frame[used], minlength=tracks.num_frames)
+    used, seen_all = _used_observations(tracks, ba)
     seen = seen_all[idx]
     out = _weak_ties(tracks, ba, used, seen_all)
     for j, k in enumerate(idx):
@@ -1106,8 +1112,7 @@ def _flags(tracks: LineTracks, rot: GlobalRotations, pos: GlobalPositions, c: Fl
     cuts off more: the spread of a part is measured against its own path, and a part that
     shrank to a point while the rest of the walk moved has none)."""
     uncertain = _uncertain(tracks, rot, pos, ba, options)
-    used = ba.frames[tracks.obs_frame] & ba.used_tracks[tracks.obs_track]
-    seen = np.bincount(tracks.obs_frame[used], minlength=tracks.num_frames)
+    used, seen = _used_observations(tracks, ba)
     free: set[int] = set()
     while True:
         spread_deg, spread_path = _spread(tracks, ba, uncertain, options)
