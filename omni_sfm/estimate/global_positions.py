@@ -97,13 +97,18 @@ class GlobalPositions:
 
 
 def _second_differences(frames: np.ndarray, pose_idx: np.ndarray) -> sp.csr_matrix:
-    """``D`` with ``(D c)_j = c_{j-1} - 2 c_j + c_{j+1}`` over consecutive posed frames (the
-    gauge frame's centre, fixed at 0, has no column)."""
+    """``D`` with ``(D c)_j`` the second difference of the centres at each posed frame but the
+    first and the last, per frame squared: ``c_{j-1} - 2 c_j + c_{j+1}`` between consecutive
+    frames, ``2 / (a + b) (c_{j-1} / a - (1 / a + 1 / b) c_j + c_{j+1} / b)`` where its posed
+    neighbours are ``a`` and ``b`` frames away (a stretch of frames not posed between them is
+    not a step of one frame). The gauge frame's centre, fixed at 0, has no column."""
     posed = np.flatnonzero(frames)
     j = np.arange(1, len(posed) - 1)
     # one row per (second difference, neighbour, axis); the gauge frame's entries dropped
     f = np.stack([posed[j - 1], posed[j], posed[j + 1]], axis=1)  # (J, 3)
-    v = np.broadcast_to(np.array([1.0, -2.0, 1.0]), f.shape)
+    a = (f[:, 1] - f[:, 0]).astype(np.float64)
+    b = (f[:, 2] - f[:, 1]).astype(np.float64)
+    v = (2.0 / (a + b))[:, None] * np.stack([1.0 / a, -(1.0 / a + 1.0 / b), 1.0 / b], axis=1)
     rows = 3 * (j - 1)[:, None, None] + np.arange(3)  # (J, 1, 3)
     cols = 3 * pose_idx[f][:, :, None] + np.arange(3)  # (J, 3, 3)
     rows = np.broadcast_to(rows, cols.shape)
