@@ -22,6 +22,11 @@ Definitions (used by tests, docs and ``omni-sfm compare`` alike):
   the two visits, estimated against true: position error over the path length (the estimate
   scaled by the similarity alignment's scale) and rotation angle. A loop that does not close
   shows here, whatever the alignment spreads over the rest.
+- flag honesty (:func:`flag_honesty`): the frames not flagged (those ``trajectory.tum`` keeps)
+  aligned on themselves, as a user reads them, their rotations counted from the first of them;
+  the flagged frames measured in the same alignment. A trusted frame more than 1 deg or 2 % of
+  the path off is a wrong pose reported as fine; a flagged frame within 0.2 deg and 0.2 % is a
+  good pose flagged.
 - step error after alignment (``step_error_after_alignment``; called RPE before): mean norm of
   the difference between aligned and true steps of consecutive frames after the similarity
   alignment, divided by the mean true step. Mixes global drift into a per-step figure.
@@ -29,6 +34,7 @@ Definitions (used by tests, docs and ``omni-sfm compare`` alike):
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -39,8 +45,8 @@ from omni_sfm.poses import Trajectory
 from omni_sfm.transforms import Similarity, associate, paper_translation_errors, umeyama
 
 __all__ = [
-    "RelativePoseErrors", "RevisitErrors", "Similarity", "TrajectoryErrors", "associate",
-    "match_reflection", "revisit_errors",
+    "FlagHonesty", "RelativePoseErrors", "RevisitErrors", "Similarity", "TrajectoryErrors",
+    "associate", "flag_honesty", "match_reflection", "revisit_errors",
     "paper_translation_errors", "reflect_positions", "relative_pose_errors",
     "relative_rotation_errors_deg", "trajectory_errors", "umeyama",
 ]
@@ -292,3 +298,66 @@ def revisit_errors(est: Trajectory, gt: Trajectory, *, radius: float = 0.5,
     rel_g = np.swapaxes(g.rotations[i], -1, -2) @ g.rotations[j]
     rel_e = np.swapaxes(e.rotations[i], -1, -2) @ e.rotations[j]
     return RevisitErrors(ij, pos, np.degrees(rotation_angle(np.swapaxes(rel_g, -1, -2) @ rel_e)))
+
+
+@dataclass(frozen=True)
+class FlagHonesty:
+    """The flags of an estimate against ground truth (:func:`flag_honesty`).
+
+    Attributes:
+        trusted, flagged: the common frames not flagged, and flagged.
+        trusted_off: trusted frames more than ``off_deg`` or ``off_path`` of the path off.
+        flagged_fine: flagged frames within ``fine_deg`` and ``fine_path``.
+        rot_deg, pos_rel: ``(N,)`` each common frame's rotation error (deg, counted from the
+            first trusted frame) and position error (over the true path length), the trusted
+            frames aligned on themselves.
+        is_flagged: ``(N,)`` bool.
+    """
+
+    trusted: int
+    flagged: int
+    trusted_off: int
+    flagged_fine: int
+    rot_deg: FloatArray
+    pos_rel: FloatArray
+    is_flagged: np.ndarray
+
+    def as_dict(self) -> dict[str, float]:
+        return {"trusted": self.trusted, "flagged": self.flagged,
+                "trusted_off": self.trusted_off, "flagged_fine": self.flagged_fine}
+
+
+def flag_honesty(est: Trajectory, gt: Trajectory, flagged: Sequence[float] | FloatArray, *,
+                 off_deg: float = 1.0, off_path: float = 0.02, fine_deg: float = 0.2,
+                 fine_path: float = 0.002) -> FlagHonesty:
+    """How honest the flags of ``est`` are: ``flagged`` holds the timestamps of its flagged
+    frames. The frames not flagged are aligned on themselves (the similarity of their centres,
+    the reflection nearer the truth on them; all frames where fewer than 3 are trusted), their
+    rotations counted from the first of them; the flagged frames are measured in the same
+    alignment (module docstring).
+
+    Raises:
+        OmniSfmError: fewer than 3 frames in common with ``gt``.
+    """
+    e, g = associate(est, gt)  # in the estimate's order
+    if len(e) < 3:
+        raise OmniSfmError(f"only {len(e)} frames in common with the ground truth; need 3")
+    is_flagged = np.isin(e.timestamps, np.asarray(flagged, dtype=np.float64))
+    on = ~is_flagged if np.count_nonzero(~is_flagged) >= 3 else np.ones(len(e), bool)
+    sub = e.subset(on)
+    if match_reflection(sub, gt) is not sub:
+        e = reflect_positions(e)
+    sim = umeyama(e.positions[on], g.positions[on])
+    length = g.path_length()
+    if length <= 0:
+        raise OmniSfmError("ground-truth path has zero length")
+    pos = np.linalg.norm(sim.apply(e).positions - g.positions, axis=1) / length
+    ref = int(np.flatnonzero(on)[0])
+    rel_e = np.swapaxes(e.rotations[ref], -1, -2) @ e.rotations
+    rel_g = np.swapaxes(g.rotations[ref], -1, -2) @ g.rotations
+    rot = np.degrees(rotation_angle(np.swapaxes(rel_g, -1, -2) @ rel_e))
+    trusted = ~is_flagged
+    off = (rot > off_deg) | (pos > off_path)
+    fine = (rot <= fine_deg) & (pos <= fine_path)
+    return FlagHonesty(int(trusted.sum()), int(is_flagged.sum()), int(np.sum(trusted & off)),
+                       int(np.sum(is_flagged & fine)), rot, pos, is_flagged)

@@ -77,7 +77,7 @@ from omni_sfm.estimate.revisits import (
 )
 from omni_sfm.estimate.rig_scale import OffsetScale, facing_lines, offset_scale
 from omni_sfm.estimate.segments import runs
-from omni_sfm.estimate.uncertainty import pose_spread
+from omni_sfm.estimate.uncertainty import observation_noise, pose_spread
 from omni_sfm.estimate.windows import window_starts
 from omni_sfm.forked import run_all
 from omni_sfm.geometry import (
@@ -890,14 +890,17 @@ def _used_observations(tracks: LineTracks, ba: BundleResult) -> tuple[np.ndarray
 
 
 def _weak_ties(tracks: LineTracks, ba: BundleResult, used: np.ndarray, seen: np.ndarray,
-               flagged: Collection[int] = (), min_ties: int = 4) -> dict[int, str]:
+               flagged: Collection[int] = (), min_ties: int = 4,
+               listed: Collection[int] = ()) -> dict[int, str]:
     """Frames in another part of the video than the largest, where the parts are cut between
     two frames that see more than 3 lines and are not ``flagged`` (with a stretch of frames
     that see 3 lines or fewer, are flagged or are not posed, between them, or none) across
     which fewer than ``min_ties`` lines are seen on both sides: the pose of one part relative
     to the other then rests on those few lines (or frames whose lines fix them with nothing to
     spare, or not at all), and nothing checks it (a turn of 90 deg or a wrong scale fits as
-    well: a fast turn that the tracker loses most lines through).
+    well: a fast turn that the tracker loses most lines through). The largest part is the one
+    with the most tying frames not ``listed`` already (a part flagged before is not the one the
+    others are measured against).
     ``used``: ``(K,)`` the observations the adjustment used; ``seen``: ``(F,)`` their count in
     each frame."""
     tying = ba.frames & (seen > 3)
@@ -913,8 +916,10 @@ def _weak_ties(tracks: LineTracks, ba: BundleResult, used: np.ndarray, seen: np.
         return {}
     edges = [0, *[b for _, b, _ in cuts], tracks.num_frames]
     parts = [(lo, hi) for lo, hi in zip(edges[:-1], edges[1:], strict=True)]
-    size = [int(np.sum((strong >= lo) & (strong < hi))) for lo, hi in parts]
-    main = parts[int(np.argmax(size))]
+    counted = strong[~np.isin(strong, list(listed))]
+    size = [(int(np.sum((counted >= lo) & (counted < hi))),
+             int(np.sum((strong >= lo) & (strong < hi)))) for lo, hi in parts]
+    main = parts[max(range(len(parts)), key=size.__getitem__)]
     fixed = strong[(strong >= main[0]) & (strong < main[1])]
     out: dict[int, str] = {}
     for lo, hi in parts:
@@ -975,12 +980,14 @@ def _uncertain(tracks: LineTracks, rot: GlobalRotations, pos: GlobalPositions,
 
 
 def _spread(tracks: LineTracks, ba: BundleResult, flagged: dict[int, str],
-            options: Settings) -> tuple[FloatArray, FloatArray]:
+            options: Settings, held: np.ndarray | None = None) -> tuple[FloatArray, FloatArray]:
     """``(rotation_deg, path)`` ``(F,)`` the RMS error the adjustment's covariance expects of
     each posed frame (degrees; fraction of the path length of the frames not ``flagged``), the
     frames not ``flagged`` aligned to the truth (:func:`~omni_sfm.estimate.uncertainty.
     pose_spread`, over every posed frame: the flagged ones tie the others together; inf where
-    the data leave the pose free)."""
+    the data leave the pose free; the lines ``held`` keep their direction, as the adjustment
+    held them; the noise its residuals show scaled up for the parameters they fit:
+    :func:`~omni_sfm.estimate.uncertainty.observation_noise`)."""
     nan = np.full(tracks.num_frames, np.nan)
     trusted = ba.frames.copy()
     trusted[list(flagged)] = False
@@ -988,21 +995,37 @@ def _spread(tracks: LineTracks, ba: BundleResult, flagged: dict[int, str],
         return nan, nan.copy()
     c = ba.positions[trusted]
     path = max(float(np.sum(np.linalg.norm(np.diff(c, axis=0), axis=1))), 1e-300)
+    sigma = observation_noise(float(np.radians(ba.sigma_deg)), tracks, ba.frames,
+                              ba.used_tracks, held)
     spread = pose_spread(tracks, ba.rotations, ba.positions, ba.line_directions,
-                         ba.line_points, ba.frames, ba.used_tracks, np.radians(ba.sigma_deg),
-                         window=options.spread_window, aligned=trusted)
+                         ba.line_points, ba.frames, ba.used_tracks, sigma,
+                         window=options.spread_window, aligned=trusted,
+                         held_directions=held)
     return spread.rotation_deg, spread.position / path
 
 
-def _spread_flags(rotation_deg: FloatArray, path: FloatArray, options: Settings
-                  ) -> dict[int, str]:
+_PEEL = 10.0
+"""The frames the covariance leaves weak are flagged in rounds (:func:`_spread_flags`): each
+round those within this factor of the weakest."""
+
+
+def _spread_flags(rotation_deg: FloatArray, path: FloatArray, options: Settings,
+                  listed: Collection[int] = ()) -> dict[int, str]:
     """The frames whose pose the whole of the data fix to no better than
     ``options.spread_deg`` or ``options.spread_path`` of their path (twice the error
     :func:`_spread` expects): a stretch whose lines leave the walk's speed or bend nearly
-    free, although each frame's own lines look enough."""
+    free, although each frame's own lines look enough. The weakest first: of the frames not
+    ``listed`` already, only those within ``_PEEL`` of the weakest (relative to the limits)
+    are listed; the caller measures the spread of the rest again without them (a stretch
+    whose pose nothing fixes would otherwise spread its error, through the alignment, over the
+    frames the data do fix)."""
     rot, pos = 2.0 * rotation_deg, 2.0 * path
-    with np.errstate(invalid="ignore"):
-        weak = (rot > options.spread_deg) | (pos > options.spread_path)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ratio = np.fmax(rot / options.spread_deg, pos / options.spread_path)
+        ratio[list(listed)] = np.nan
+        weak = ratio > 1.0
+        if weak.any():
+            weak &= ratio >= np.nanmax(ratio[weak]) / _PEEL
     out = {}
     for k in np.flatnonzero(weak):
         if not np.isfinite(rot[k] + pos[k]):
@@ -1098,33 +1121,41 @@ def _adjustment_step(tracks: LineTracks, R: FloatArray, c: FloatArray, rot: Glob
     d0 = np.where(dir_ok[:, None], rot.directions, np.nan)
     # the lines of a world direction keep it: only their positions move (and with two world
     # directions or more they hold the rotation gauge)
-    held = dir_ok & (label >= 0) if options.hold_world_directions else None
-    return _adjusted(tracks, R, c, d0, pos.points, frames, held, options)
+    return _adjusted(tracks, R, c, d0, pos.points, frames, _held(dir_ok, label, options),
+                     options)
+
+
+def _held(dir_ok: np.ndarray, label: np.ndarray, options: Settings) -> np.ndarray | None:
+    """The lines whose world direction (``label``) the adjustment holds to step 1's."""
+    return dir_ok & (label >= 0) if options.hold_world_directions else None
 
 
 def _flags(tracks: LineTracks, rot: GlobalRotations, pos: GlobalPositions, c: FloatArray,
-           ba: BundleResult, options: Settings
+           ba: BundleResult, options: Settings, held: np.ndarray | None = None
            ) -> tuple[dict[int, str], FloatArray, FloatArray]:
     """Step 4: ``(uncertain, spread_deg, spread_path)``, the frames the data do not fix with the
     reason (:func:`_uncertain`, then :func:`_spread_flags` on the covariance's spread, then
     :func:`_moved_far` from the linear positions ``c``, then :func:`_weak_ties` with the
     frames whose pose the data leave free tying nothing; again on the frames left while that
     cuts off more: the spread of a part is measured against its own path, and a part that
-    shrank to a point while the rest of the walk moved has none)."""
+    shrank to a point while the rest of the walk moved has none). The lines ``held`` keep
+    their direction in the covariance, as the adjustment held them."""
     uncertain = _uncertain(tracks, rot, pos, ba, options)
     used, seen = _used_observations(tracks, ba)
     free: set[int] = set()
     while True:
-        spread_deg, spread_path = _spread(tracks, ba, uncertain, options)
-        for more in (_spread_flags(spread_deg, spread_path, options),
-                     _moved_far(c, ba, options, uncertain)):
-            uncertain.update({k: v for k, v in more.items() if k not in uncertain})
+        spread_deg, spread_path = _spread(tracks, ba, uncertain, options, held)
+        weak = _spread_flags(spread_deg, spread_path, options, listed=list(uncertain))
+        uncertain.update(weak)
+        uncertain.update({k: v for k, v in _moved_far(c, ba, options, uncertain).items()
+                          if k not in uncertain})
         with np.errstate(invalid="ignore"):
             free |= {int(k) for k in np.flatnonzero(ba.frames & ~np.isfinite(
                 spread_deg + spread_path)) if int(k) in uncertain}
-        cut = {k: v for k, v in _weak_ties(tracks, ba, used, seen, free).items()
+        cut = {k: v for k, v in _weak_ties(tracks, ba, used, seen, free,
+                                           listed=list(uncertain)).items()
                if k not in uncertain}
-        if not cut:
+        if not cut and not weak:
             return uncertain, spread_deg, spread_path
         uncertain.update(cut)
 
@@ -1280,7 +1311,7 @@ def _solve_once(tracks: LineTracks, options: Settings,
         with prog.step("pose_spread"):
             nan = np.full(tracks.num_frames, np.nan)
             uncertain, spread_deg, spread_path = ({}, nan, nan.copy()) if window else \
-                _flags(tracks, rot, pos, c, ba, options)
+                _flags(tracks, rot, pos, c, ba, options, _held(dir_ok, label, options))
     finally:
         prog.bar.close()
     timings = prog.timings

@@ -1,14 +1,20 @@
 """How well the data fix each frame's pose: the covariance of the line adjustment's solution.
 
 At the solution, the adjustment's information ``J^T J`` over the used lines' observations (each
-weighted as the adjustment weighs it, robust loss aside), every line free (4 parameters), with
-the lines eliminated (Schur complement), leaves the cameras' ``6n x 6n`` information ``S``
+weighted as the adjustment weighs it, robust loss aside), every line free (4 parameters; 2
+where the adjustment held its direction), with the lines eliminated (Schur complement),
+leaves the cameras' ``6n x 6n`` information ``S``
 (each frame's camera-frame rotation increment, then its centre, as
 :class:`~omni_sfm.estimate.bundle.LineProblem` moves them). Lines fix the poses only up to a
 similarity of the world (its rotation, translation and scale: 7 degrees of freedom, ``S``'s
 null space), so the covariance ``sigma^2 S^+`` is taken with the whole aligned to the truth as
-the trajectory's error is measured: the centres (of the frames given as aligned) by the
-similarity that fits them best, the rotations by their mean turn. A frame with a large spread
+the trajectory's error is measured (:func:`omni_sfm.evaluate.flag_honesty`): the centres (of
+the frames given as aligned) by the similarity that fits them best, each rotation counted
+from the first aligned frame's. A window's rotations are counted from its frame whose own
+error the windows before it fix best, and that error is added (the windows from the one that
+holds the first aligned frame on to the end, then back to the start): the drift of the turn
+that only the lines shared from frame to frame fix builds up along a walk. A frame with a
+large spread
 is one whose pose the data do not fix, whatever its own lines say (a stretch whose lines leave
 the walk's speed or bend free ties it weakly to the rest).
 
@@ -38,7 +44,7 @@ from omni_sfm.lines.tracks import LineTracks
 class PoseSpread:
     """Each frame's pose spread: the RMS error to expect of its rotation (the angle) and of its
     centre (the distance), after the whole is aligned to the truth: the centres by the
-    similarity that fits them best, the rotations by the turn that fits them best.
+    similarity that fits them best, each rotation counted from the first aligned frame's.
 
     Attributes:
         rotation_deg: ``(F,)`` degrees (NaN: frame not posed; inf: the data leave it free).
@@ -63,16 +69,17 @@ def _similarity_motions(R: FloatArray, c: FloatArray) -> FloatArray:
 
 
 def _camera_information(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArray,
-                        p: FloatArray, frames: np.ndarray, used: np.ndarray
-                        ) -> tuple[np.ndarray, FloatArray]:
+                        p: FloatArray, frames: np.ndarray, used: np.ndarray,
+                        held: np.ndarray | None = None) -> tuple[np.ndarray, FloatArray]:
     """``(idx, S)``: the posed frames of ``frames`` and their ``6n x 6n`` information with the
-    ``used`` lines (those seen twice or more among ``frames``) eliminated."""
+    ``used`` lines (those seen twice or more among ``frames``) eliminated: their positions,
+    and their directions but where ``held`` (the adjustment held them: a world direction)."""
     F = tracks.num_frames
     idx = np.flatnonzero(frames)
     seen = np.bincount(tracks.obs_track[frames[tracks.obs_frame]], minlength=tracks.num_tracks)
     active = used & (seen >= 2)
     prob = LineProblem(tracks, frames, active, fixed_frame=int(idx[0]),
-                       scale_frame=int(idx[-1]), scale_axis=0)
+                       scale_frame=int(idx[-1]), scale_axis=0, held_directions=held)
     prob.pose_free[:] = False
     prob.pose_free[frames] = True  # every pose free: the gauge is handled by the caller
     e, u = prob.residuals(R, c, d, p)
@@ -149,12 +156,13 @@ def _inverse(A: FloatArray, floor: float = 0.0) -> tuple[FloatArray, np.ndarray 
 
 def _window_spread(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArray,
                    p: FloatArray, frames: np.ndarray, used: np.ndarray, sigma: float,
-                   aligned: np.ndarray) -> tuple[np.ndarray, FloatArray, FloatArray]:
+                   aligned: np.ndarray, carried: FloatArray, origin: bool,
+                   held: np.ndarray | None = None) -> tuple[np.ndarray, FloatArray, FloatArray]:
     """``(idx, rotation (n,) rad, position (n,))`` the RMS error to expect of each posed frame of
     ``frames`` (the root of its covariance block's trace), the ``aligned`` frames (``(F,)``; all
     where fewer than 3 of them are posed) aligned as the trajectory's error is measured
     (module docstring)."""
-    idx, S = _camera_information(tracks, R, c, d, p, frames, used)
+    idx, S = _camera_information(tracks, R, c, d, p, frames, used, held)
     n = len(idx)
     if not np.isfinite(S).all() or np.trace(S) <= 0.0:
         return idx, np.full(n, np.inf), np.full(n, np.inf)
@@ -173,34 +181,61 @@ def _window_spread(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArr
     CA = C @ Amap.T
     Y = (C - G @ CA.T - CA @ G.T + G @ (Amap @ CA) @ G.T).reshape(n, 6, n, 6)
     pos = np.einsum("kiki->k", Y[:, 3:, :, 3:])
-    # the rotations' errors in the world, less the aligned frames' mean (the common turn that
-    # best aligns them): the traces of the world-frame blocks R_k Y_kj R_j^T
-    tr = np.einsum("kab,kbjc,jac->kj", R[idx], Y[:, :3, :, :3], R[idx], optimize=True)
-    m = int(on.sum())
-    rot = np.diag(tr) - 2.0 / m * tr[:, on].sum(axis=1) + tr[np.ix_(on, on)].sum() / m**2
-    var = sigma**2 * np.stack([rot, pos], axis=1)
+    pos = sigma**2 * pos
     # a free direction that moves a few frames leaves those free; one that moves most of
     # them is a split of the window into parts whose relative pose nothing fixes, which the
     # spread cannot attribute to a part (the caller's ties between parts judge it), unless it
     # moves frames by much: then the frames' own parameters are free (lines along the walk
     # that leave the motion along them free in most frames), whatever their number
+    free = np.zeros(n, bool)
     if moves is not None:
         moved = moves > 1e-12
-        if moved.sum() <= n // 2:
-            var[moved] = np.inf
-        var[moves >= _FREE_TRACE] = np.inf
-    return idx, np.sqrt(np.maximum(var[:, 0], 0.0)), np.sqrt(np.maximum(var[:, 1], 0.0))
+        free = (moved if moved.sum() <= n // 2 else False) | (moves >= _FREE_TRACE)
+    # the rotations' errors in the world counted from those of the reference frame (the one
+    # whose own error from the gauge, ``carried``, is the least known: the traces of the
+    # world-frame blocks R_k Y_kj R_j^T), plus the reference's own
+    known = np.flatnonzero(np.isfinite(carried[idx]) & ~free)
+    if origin and len(known) == 0:
+        # the first aligned frame's pose is free: the errors are counted from the next one
+        known = np.flatnonzero(on & ~free)[:1]
+    if len(known) == 0:
+        return idx, np.full(n, np.inf), np.where(free, np.inf, np.sqrt(np.maximum(pos, 0.0)))
+    ref = int(known[np.argmin(np.nan_to_num(carried[idx][known]))])
+    Yr = Y[:, :3, ref, :3]
+    tr = np.einsum("kab,kbc,ac->k", R[idx], Yr, R[idx[ref]])
+    diag = np.einsum("kab,kbc,kac->k", R[idx], Y[np.arange(n), :3, np.arange(n), :3], R[idx])
+    rot = sigma**2 * (diag - 2.0 * tr + diag[ref]) + np.nan_to_num(carried[idx[ref]])
+    rot[free], pos[free] = np.inf, np.inf
+    return idx, np.sqrt(np.maximum(rot, 0.0)), np.sqrt(np.maximum(pos, 0.0))
+
+
+def observation_noise(residual_sigma: float, tracks: LineTracks, frames: np.ndarray,
+                      used: np.ndarray, held: np.ndarray | None) -> float:
+    """The observations' noise (radians, per axis) from the noise ``residual_sigma`` that the
+    adjustment's residuals show: ``sqrt(n / (n - p))`` times it, the residuals' ``n``
+    components left by ``p`` fitted parameters (6 per posed frame of ``frames`` less the
+    similarity's 7, 4 per ``used`` line or 2 where its direction is ``held``; on a walk of few
+    lines a frame, each seen in few frames, the residuals are about a quarter below the
+    noise)."""
+    n = 2 * int(np.count_nonzero(frames[tracks.obs_frame] & used[tracks.obs_track]))
+    lines = 4 * int(np.count_nonzero(used))
+    if held is not None:
+        lines -= 2 * int(np.count_nonzero(used & held))
+    p = 6 * int(np.count_nonzero(frames)) - 7 + lines
+    return residual_sigma * (float(np.sqrt(n / (n - p))) if n > 2 * p else float(np.sqrt(2.0)))
 
 
 def pose_spread(tracks: LineTracks, rotations: FloatArray, positions: FloatArray,
                 line_directions: FloatArray, line_points: FloatArray, frames: np.ndarray,
                 used_tracks: np.ndarray, sigma_rad: float, window: int = 300,
-                aligned: np.ndarray | None = None) -> PoseSpread:
+                aligned: np.ndarray | None = None,
+                held_directions: np.ndarray | None = None) -> PoseSpread:
     """Each posed frame's pose spread (module docstring) at the adjustment's solution
     (``rotations``, ``positions`` world_from_cam; the lines; ``frames`` posed; the
     ``used_tracks``), the observations' noise ``sigma_rad`` (radians, per axis), with the
     ``aligned`` frames (default: every posed frame) aligned to the truth: the others' poses
-    still tie the lines together, but their errors do not count in the alignment."""
+    still tie the lines together, but their errors do not count in the alignment. The lines
+    of ``held_directions`` keep their direction, as the adjustment held it."""
     F = tracks.num_frames
     rot, pos = np.full(F, np.nan), np.full(F, np.nan)
     posed = np.flatnonzero(frames)
@@ -216,12 +251,23 @@ def pose_spread(tracks: LineTracks, rotations: FloatArray, positions: FloatArray
     positions, line_points = positions / unit, line_points / unit
     aligned = frames if aligned is None else aligned & frames
     centrality = np.full(F, -1.0)
-    for a in window_starts(len(posed), max(window, 2)):
+    # each rotation's variance counted from the first aligned frame's (the frame the errors
+    # are counted from), known so far: the windows from the one that holds it on to the end,
+    # then back to the start
+    first = int(np.flatnonzero(aligned)[0]) if aligned.any() else int(posed[0])
+    carried = np.full(F, np.nan)
+    carried[first] = 0.0
+    starts = window_starts(len(posed), max(window, 2))
+    at = next(i for i, a in enumerate(starts) if first in posed[a:a + window])
+    for a in starts[at:] + starts[:at][::-1]:
         members = posed[a:a + window]
         sel = np.zeros(F, bool)
         sel[members] = True
         idx, r, q = _window_spread(tracks, rotations, positions, line_directions, line_points,
-                                   sel, used_tracks, sigma_rad, aligned)
+                                   sel, used_tracks, sigma_rad, aligned, carried,
+                                   a == starts[at], held_directions)
+        new = np.isnan(carried[idx])
+        carried[idx[new]] = np.square(r[new])
         k = np.arange(len(idx))
         # a window at the video's end is as good as a central one there
         left = k if a > 0 else np.full(len(k), len(k))

@@ -677,6 +677,22 @@ def simulate_manhattan(opts: SimulationOptions) -> Simulation:
     return Simulation(tracks, gt, pts, dirs, fam == 0, outlier, R0.T @ np.array([0.0, 0.0, 1.0]))
 
 
+def weak_stretches(sim: Simulation, along: tuple[int, int], two: tuple[int, int]
+                   ) -> LineTracks:
+    """``sim``'s tracks with stretches the data do not fix: in frames ``along`` (first, stop)
+    only the lines that run along the camera's motion (within 26 deg: pure translation along
+    the only family seen, which leaves the motion along it free), in frames ``two`` only the
+    two lines seen in most of them."""
+    tr, c = sim.tracks, sim.groundtruth.positions
+    motion = normalize(np.gradient(c, axis=0))
+    f, t = tr.obs_frame, tr.obs_track
+    in_along = (f >= along[0]) & (f < along[1])
+    keep = ~in_along | (np.abs(np.sum(sim.line_directions[t] * motion[f], axis=1)) > 0.9)
+    in_two = (f >= two[0]) & (f < two[1])
+    longest = np.argsort(-np.bincount(t[in_two], minlength=tr.num_tracks), kind="stable")[:2]
+    return tr.keep_observations(keep & (~in_two | np.isin(t, longest)))
+
+
 def write_simulation(directory: Path, sim: Simulation, opts: SimulationOptions) -> list[Path]:
     """Write ``tracks.json``, ``groundtruth.tum`` and ``lines.json`` into ``directory``.
 

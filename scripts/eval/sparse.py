@@ -32,7 +32,7 @@ import numpy as np
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.estimate.bundle import BundleOptions, bundle_adjust, oracle
 from omni_sfm.estimate.pipeline import EstimationOptions, EstimationResult, estimate_poses
-from omni_sfm.evaluate import match_reflection, trajectory_errors
+from omni_sfm.evaluate import flag_honesty, match_reflection, trajectory_errors
 from omni_sfm.poses import Trajectory
 from omni_sfm.synth.simulate import Simulation, SimulationOptions, simulate
 from scripts.benchlib import add_log_arguments, write_log
@@ -47,16 +47,12 @@ def _errors(traj: Trajectory, sim: Simulation) -> tuple[float, float, float, flo
 
 def _flag_counts(res: EstimationResult, sim: Simulation) -> tuple[int, int, int]:
     """(frames flagged, of them within 0.2 deg and 0.2 % of the path, frames off by more than
-    1 deg or 2 % not flagged): each frame's rotation error counted from the first frame, its
-    position after the similarity alignment of every posed frame."""
+    1 deg or 2 % not flagged), as :func:`omni_sfm.evaluate.flag_honesty` counts them: the
+    frames not flagged aligned on themselves as a user reads ``trajectory.tum``."""
     g = sim.groundtruth
-    e = trajectory_errors(match_reflection(res.trajectory, g), g)
-    posed = np.flatnonzero(res.estimated)
-    flagged = np.isin(posed, [int(k) for k in res.report.frames_uncertain or {}])
-    flagged = flagged[np.isin(res.trajectory.timestamps, e.timestamps)]
-    good = (e.rot_deg <= 0.2) & (e.pos_rel <= 0.002)
-    off = (e.rot_deg > 1.0) | (e.pos_rel > 0.02)
-    return int(flagged.sum()), int((flagged & good).sum()), int((~flagged & off).sum())
+    flagged = [g.timestamps[int(k)] for k in res.report.frames_uncertain or {}]
+    h = flag_honesty(res.trajectory, g, flagged)
+    return h.flagged, h.flagged_fine, h.trusted_off
 
 
 def _fmt(e: tuple[float, float, float, float]) -> str:
