@@ -980,14 +980,16 @@ def _uncertain(tracks: LineTracks, rot: GlobalRotations, pos: GlobalPositions,
 
 
 def _spread(tracks: LineTracks, ba: BundleResult, flagged: dict[int, str],
-            options: Settings, held: np.ndarray | None = None) -> tuple[FloatArray, FloatArray]:
+            options: Settings, held: np.ndarray | None = None,
+            cache: dict[int, object] | None = None) -> tuple[FloatArray, FloatArray]:
     """``(rotation_deg, path)`` ``(F,)`` the RMS error the adjustment's covariance expects of
     each posed frame (degrees; fraction of the path length of the frames not ``flagged``), the
     frames not ``flagged`` aligned to the truth (:func:`~omni_sfm.estimate.uncertainty.
     pose_spread`, over every posed frame: the flagged ones tie the others together; inf where
     the data leave the pose free; the lines ``held`` keep their direction, as the adjustment
     held them; the noise its residuals show scaled up for the parameters they fit:
-    :func:`~omni_sfm.estimate.uncertainty.observation_noise`)."""
+    :func:`~omni_sfm.estimate.uncertainty.observation_noise`; ``cache``: the windows' inverses
+    kept between the flags' rounds)."""
     nan = np.full(tracks.num_frames, np.nan)
     trusted = ba.frames.copy()
     trusted[list(flagged)] = False
@@ -1000,7 +1002,7 @@ def _spread(tracks: LineTracks, ba: BundleResult, flagged: dict[int, str],
     spread = pose_spread(tracks, ba.rotations, ba.positions, ba.line_directions,
                          ba.line_points, ba.frames, ba.used_tracks, sigma,
                          window=options.spread_window, aligned=trusted,
-                         held_directions=held)
+                         held_directions=held, cache=cache)
     return spread.rotation_deg, spread.position / path
 
 
@@ -1143,8 +1145,9 @@ def _flags(tracks: LineTracks, rot: GlobalRotations, pos: GlobalPositions, c: Fl
     uncertain = _uncertain(tracks, rot, pos, ba, options)
     used, seen = _used_observations(tracks, ba)
     free: set[int] = set()
+    cache: dict[int, object] = {}
     while True:
-        spread_deg, spread_path = _spread(tracks, ba, uncertain, options, held)
+        spread_deg, spread_path = _spread(tracks, ba, uncertain, options, held, cache)
         weak = _spread_flags(spread_deg, spread_path, options, listed=list(uncertain))
         uncertain.update(weak)
         uncertain.update({k: v for k, v in _moved_far(c, ba, options, uncertain).items()

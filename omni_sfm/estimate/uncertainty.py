@@ -154,30 +154,51 @@ def _inverse(A: FloatArray, floor: float = 0.0) -> tuple[FloatArray, np.ndarray 
     return C, share[:, free].sum(axis=1)
 
 
-def _window_spread(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArray,
-                   p: FloatArray, frames: np.ndarray, used: np.ndarray, sigma: float,
-                   aligned: np.ndarray, carried: FloatArray, origin: bool,
-                   held: np.ndarray | None = None) -> tuple[np.ndarray, FloatArray, FloatArray]:
-    """``(idx, rotation (n,) rad, position (n,))`` the RMS error to expect of each posed frame of
-    ``frames`` (the root of its covariance block's trace), the ``aligned`` frames (``(F,)``; all
-    where fewer than 3 of them are posed) aligned as the trajectory's error is measured
-    (module docstring)."""
+@dataclass(frozen=True)
+class _WindowInverse:
+    """A window's posed frames ``idx``, their similarity motions ``G`` and the inverse ``C``
+    of their information (the similarities lifted), with how much the free directions move
+    each frame (``moves``; None: none); ``C`` None where the information is not finite."""
+
+    idx: np.ndarray
+    G: FloatArray
+    C: FloatArray | None
+    moves: FloatArray | None
+
+
+def _window_inverse(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArray,
+                    p: FloatArray, frames: np.ndarray, used: np.ndarray, sigma: float,
+                    held: np.ndarray | None) -> _WindowInverse:
+    """The part of a window's spread that does not depend on which frames are aligned."""
     idx, S = _camera_information(tracks, R, c, d, p, frames, used, held)
-    n = len(idx)
-    if not np.isfinite(S).all() or np.trace(S) <= 0.0:
-        return idx, np.full(n, np.inf), np.full(n, np.inf)
-    on = aligned[idx] if aligned[idx].sum() >= 3 else np.ones(n, bool)
     G = _similarity_motions(R[idx], c[idx])
+    if not np.isfinite(S).all() or np.trace(S) <= 0.0:
+        return _WindowInverse(idx, G, None, None)
     Q, _ = np.linalg.qr(G)
     scale = max(float(np.trace(S)) / len(S), 1e-300)
+    # the similarities' directions have eigenvalue ~scale after this, and no part in the
+    # covariance once the alignment removes them
+    C, moves = _inverse(S + scale * (Q @ Q.T), (sigma / _WEAK_SPREAD) ** 2)
+    return _WindowInverse(idx, G, C, moves)
+
+
+def _window_spread(R: FloatArray, inv: _WindowInverse, sigma: float, aligned: np.ndarray,
+                   carried: FloatArray, origin: bool
+                   ) -> tuple[np.ndarray, FloatArray, FloatArray]:
+    """``(idx, rotation (n,) rad, position (n,))`` the RMS error to expect of each posed frame of
+    a window (``inv``: :func:`_window_inverse`; the root of its covariance block's trace), the
+    ``aligned`` frames (``(F,)``; all where fewer than 3 of them are posed) aligned as the
+    trajectory's error is measured (module docstring)."""
+    idx, G, C, moves = inv.idx, inv.G, inv.C, inv.moves
+    n = len(idx)
+    if C is None:
+        return idx, np.full(n, np.inf), np.full(n, np.inf)
+    on = aligned[idx] if aligned[idx].sum() >= 3 else np.ones(n, bool)
     # the alignment: the similarity that best fits the aligned frames' centres (their
     # rotations, weighted 1e-6, only settle the turn about a straight walk)
     weight = (on[:, None] * np.r_[np.full(3, 1e-6), np.ones(3)]).ravel()
     GW = G.T * weight
     Amap = np.linalg.lstsq(GW @ G, GW, rcond=None)[0]  # (7, 6n); a stop: rank < 7
-    # the similarities' directions have eigenvalue ~scale after this, and no part in the
-    # covariance once the alignment removes them
-    C, moves = _inverse(S + scale * (Q @ Q.T), (sigma / _WEAK_SPREAD) ** 2)
     CA = C @ Amap.T
     Y = (C - G @ CA.T - CA @ G.T + G @ (Amap @ CA) @ G.T).reshape(n, 6, n, 6)
     pos = np.einsum("kiki->k", Y[:, 3:, :, 3:])
@@ -225,29 +246,36 @@ def observation_noise(residual_sigma: float, tracks: LineTracks, frames: np.ndar
     return residual_sigma * (float(np.sqrt(n / (n - p))) if n > 2 * p else float(np.sqrt(2.0)))
 
 
+def _path_unit(c: FloatArray) -> float:
+    """The length of the path through the centres ``c`` ``(n, 3)``, steps of more than 10
+    times the median (a frame posed far off) counted as 10: the spread is computed in units of
+    it (the rotations' and the centres' information then have comparable sizes, and a
+    direction left free stands out against both)."""
+    steps = np.linalg.norm(np.diff(c, axis=0), axis=1)
+    unit = float(np.sum(np.minimum(steps, 10.0 * np.median(steps))))
+    return unit if np.isfinite(unit) and unit > 0.0 else 1.0
+
+
 def pose_spread(tracks: LineTracks, rotations: FloatArray, positions: FloatArray,
                 line_directions: FloatArray, line_points: FloatArray, frames: np.ndarray,
                 used_tracks: np.ndarray, sigma_rad: float, window: int = 300,
                 aligned: np.ndarray | None = None,
-                held_directions: np.ndarray | None = None) -> PoseSpread:
+                held_directions: np.ndarray | None = None,
+                cache: dict[int, object] | None = None) -> PoseSpread:
     """Each posed frame's pose spread (module docstring) at the adjustment's solution
     (``rotations``, ``positions`` world_from_cam; the lines; ``frames`` posed; the
     ``used_tracks``), the observations' noise ``sigma_rad`` (radians, per axis), with the
     ``aligned`` frames (default: every posed frame) aligned to the truth: the others' poses
     still tie the lines together, but their errors do not count in the alignment. The lines
-    of ``held_directions`` keep their direction, as the adjustment held it."""
+    of ``held_directions`` keep their direction, as the adjustment held it. ``cache`` keeps
+    each window's inverse between calls with the same solution and noise whose ``aligned``
+    frames differ (the flags' rounds)."""
     F = tracks.num_frames
     rot, pos = np.full(F, np.nan), np.full(F, np.nan)
     posed = np.flatnonzero(frames)
     if len(posed) < 3:
         return PoseSpread(rot, pos)
-    # in units of the path's length (the rotations' and the centres' information then have
-    # comparable sizes, and a direction left free stands out against both); steps of more
-    # than 10 times the median (a frame posed far off) count as 10
-    steps = np.linalg.norm(np.diff(positions[posed], axis=0), axis=1)
-    unit = float(np.sum(np.minimum(steps, 10.0 * np.median(steps))))
-    if not np.isfinite(unit) or unit <= 0.0:
-        unit = 1.0
+    unit = _path_unit(positions[posed])
     positions, line_points = positions / unit, line_points / unit
     aligned = frames if aligned is None else aligned & frames
     centrality = np.full(F, -1.0)
@@ -263,9 +291,14 @@ def pose_spread(tracks: LineTracks, rotations: FloatArray, positions: FloatArray
         members = posed[a:a + window]
         sel = np.zeros(F, bool)
         sel[members] = True
-        idx, r, q = _window_spread(tracks, rotations, positions, line_directions, line_points,
-                                   sel, used_tracks, sigma_rad, aligned, carried,
-                                   a == starts[at], held_directions)
+        inv = cache.get(a) if cache is not None else None
+        if not isinstance(inv, _WindowInverse):
+            inv = _window_inverse(tracks, rotations, positions, line_directions, line_points,
+                                  sel, used_tracks, sigma_rad, held_directions)
+            if cache is not None:
+                cache[a] = inv
+        idx, r, q = _window_spread(rotations, inv, sigma_rad, aligned, carried,
+                                   a == starts[at])
         new = np.isnan(carried[idx])
         carried[idx[new]] = np.square(r[new])
         k = np.arange(len(idx))
