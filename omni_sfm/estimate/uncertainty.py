@@ -268,8 +268,9 @@ def pose_spread(tracks: LineTracks, rotations: FloatArray, positions: FloatArray
     ``aligned`` frames (default: every posed frame) aligned to the truth: the others' poses
     still tie the lines together, but their errors do not count in the alignment. The lines
     of ``held_directions`` keep their direction, as the adjustment held it. ``cache`` keeps
-    each window's inverse between calls with the same solution and noise whose ``aligned``
-    frames differ (the flags' rounds)."""
+    each window's figures between calls with the same solution and noise (the flags'
+    rounds): a window whose aligned frames and reference errors have not changed is not
+    computed again."""
     F = tracks.num_frames
     rot, pos = np.full(F, np.nan), np.full(F, np.nan)
     posed = np.flatnonzero(frames)
@@ -283,22 +284,23 @@ def pose_spread(tracks: LineTracks, rotations: FloatArray, positions: FloatArray
     # are counted from), known so far: the windows from the one that holds it on to the end,
     # then back to the start
     first = int(np.flatnonzero(aligned)[0]) if aligned.any() else int(posed[0])
-    carried = np.full(F, np.nan)
-    carried[first] = 0.0
+    carried = np.where(np.arange(F) == first, 0.0, np.nan)
     starts = window_starts(len(posed), max(window, 2))
     at = next(i for i, a in enumerate(starts) if first in posed[a:a + window])
     for a in starts[at:] + starts[:at][::-1]:
         members = posed[a:a + window]
         sel = np.zeros(F, bool)
         sel[members] = True
-        inv = cache.get(a) if cache is not None else None
-        if not isinstance(inv, _WindowInverse):
-            inv = _window_inverse(tracks, rotations, positions, line_directions, line_points,
-                                  sel, used_tracks, sigma_rad, held_directions)
+        key = (aligned[members].tobytes(), carried[members].tobytes(), a == starts[at])
+        kept = cache.get(a) if cache is not None else None
+        if isinstance(kept, tuple) and kept[0] == key:
+            idx, r, q = kept[1]
+        else:
+            idx, r, q = _window_spread(rotations, _window_inverse(
+                tracks, rotations, positions, line_directions, line_points, sel, used_tracks,
+                sigma_rad, held_directions), sigma_rad, aligned, carried, a == starts[at])
             if cache is not None:
-                cache[a] = inv
-        idx, r, q = _window_spread(rotations, inv, sigma_rad, aligned, carried,
-                                   a == starts[at])
+                cache[a] = (key, (idx, r, q))
         new = np.isnan(carried[idx])
         carried[idx[new]] = np.square(r[new])
         k = np.arange(len(idx))
