@@ -52,10 +52,10 @@ __all__ = [
 ]
 
 
-def relative_rotation_errors_deg(est: Trajectory, gt: Trajectory) -> FloatArray:
-    """Per-frame rotation error (deg) of the rotation relative to the first frame."""
-    rel_e = np.swapaxes(est.rotations[:1], -1, -2) @ est.rotations
-    rel_g = np.swapaxes(gt.rotations[:1], -1, -2) @ gt.rotations
+def relative_rotation_errors_deg(est: Trajectory, gt: Trajectory, ref: int = 0) -> FloatArray:
+    """Per-frame rotation error (deg) of the rotation relative to frame ``ref`` (the first)."""
+    rel_e = np.swapaxes(est.rotations[ref], -1, -2) @ est.rotations
+    rel_g = np.swapaxes(gt.rotations[ref], -1, -2) @ gt.rotations
     return np.degrees(rotation_angle(np.swapaxes(rel_g, -1, -2) @ rel_e))
 
 
@@ -352,10 +352,7 @@ def flag_honesty(est: Trajectory, gt: Trajectory, flagged: Sequence[float] | Flo
     if length <= 0:
         raise OmniSfmError("ground-truth path has zero length")
     pos = np.linalg.norm(sim.apply(e).positions - g.positions, axis=1) / length
-    ref = int(np.flatnonzero(on)[0])
-    rel_e = np.swapaxes(e.rotations[ref], -1, -2) @ e.rotations
-    rel_g = np.swapaxes(g.rotations[ref], -1, -2) @ g.rotations
-    rot = np.degrees(rotation_angle(np.swapaxes(rel_g, -1, -2) @ rel_e))
+    rot = relative_rotation_errors_deg(e, g, int(np.flatnonzero(on)[0]))
     trusted = ~is_flagged
     off = (rot > off_deg) | (pos > off_path)
     fine = (rot <= fine_deg) & (pos <= fine_path)

@@ -111,11 +111,9 @@ class GlobalOptions:
     spread_path: float = 0.01
     """A frame is flagged where twice the error the adjustment's covariance expects exceeds
     this (degrees; fraction of the path length; :func:`_spread_flags`): a frame left unflagged
-    is then off by more than 1 deg or 2 % of the path only beyond three times that error. A
-    flagged one can still be as good as the rest: the covariance aligns the rotations to the
-    truth by their mean turn, and a walk's first and last frames (fixed by lines seen on one
-    side only) get the largest spread, where errors counted from the first frame are
-    smallest at the start (docs/estimator.md, step 4)."""
+    is then off by more than 1 deg or 2 % of the path only beyond three times that error
+    (rotations counted from the first trusted frame, as the errors are; docs/estimator.md,
+    step 4)."""
     moved_path: float = 0.02
     """A frame that the adjustment moves by more than this fraction of the path from the
     linear positions is flagged (:func:`_moved_far`)."""
@@ -988,7 +986,7 @@ def _spread(tracks: LineTracks, ba: BundleResult, flagged: dict[int, str],
     pose_spread`, over every posed frame: the flagged ones tie the others together; inf where
     the data leave the pose free; the lines ``held`` keep their direction, as the adjustment
     held them; the noise its residuals show scaled up for the parameters they fit:
-    :func:`~omni_sfm.estimate.uncertainty.observation_noise`; ``cache``: the windows' inverses
+    :func:`~omni_sfm.estimate.uncertainty.observation_noise`; ``cache``: the windows' figures
     kept between the flags' rounds)."""
     nan = np.full(tracks.num_frames, np.nan)
     trusted = ba.frames.copy()

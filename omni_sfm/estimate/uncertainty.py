@@ -201,8 +201,7 @@ def _window_spread(R: FloatArray, inv: _WindowInverse, sigma: float, aligned: np
     Amap = np.linalg.lstsq(GW @ G, GW, rcond=None)[0]  # (7, 6n); a stop: rank < 7
     CA = C @ Amap.T
     Y = (C - G @ CA.T - CA @ G.T + G @ (Amap @ CA) @ G.T).reshape(n, 6, n, 6)
-    pos = np.einsum("kiki->k", Y[:, 3:, :, 3:])
-    pos = sigma**2 * pos
+    pos = sigma**2 * np.einsum("kiki->k", Y[:, 3:, :, 3:])
     # a free direction that moves a few frames leaves those free; one that moves most of
     # them is a split of the window into parts whose relative pose nothing fixes, which the
     # spread cannot attribute to a part (the caller's ties between parts judge it), unless it
@@ -237,7 +236,8 @@ def observation_noise(residual_sigma: float, tracks: LineTracks, frames: np.ndar
     components left by ``p`` fitted parameters (6 per posed frame of ``frames`` less the
     similarity's 7, 4 per ``used`` line or 2 where its direction is ``held``; on a walk of few
     lines a frame, each seen in few frames, the residuals are about a quarter below the
-    noise)."""
+    noise), at most ``sqrt(2)`` times it (parameters as many as half the components or more:
+    a count that says little)."""
     n = 2 * int(np.count_nonzero(frames[tracks.obs_frame] & used[tracks.obs_track]))
     lines = 4 * int(np.count_nonzero(used))
     if held is not None:
