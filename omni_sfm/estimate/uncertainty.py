@@ -33,6 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg
+import scipy.sparse.linalg
 
 from omni_sfm.estimate.bundle import LineProblem
 from omni_sfm.estimate.windows import window_starts
@@ -133,7 +134,11 @@ def _inverse(A: FloatArray, floor: float = 0.0) -> tuple[FloatArray, np.ndarray 
     (which ``A`` lifts): each moves the frames it frees and next to nothing elsewhere (the
     alignment's similarity would spread them over every frame, and where the aligned frames
     lie on a straight line, whose turn about it only their rotations' small weight fixes, by
-    many times their size)."""
+    many times their size).
+
+    Only the eigenvalues at most ``floor`` are computed, with their vectors (the free ones
+    among them then lifted to the matrix's mean eigenvalue and taken out of its inverse):
+    half the time of the whole decomposition."""
     try:
         L = scipy.linalg.cholesky(A, lower=True, check_finite=False)
         inv, info = scipy.linalg.lapack.dpotri(L, lower=1)
@@ -142,16 +147,24 @@ def _inverse(A: FloatArray, floor: float = 0.0) -> tuple[FloatArray, np.ndarray 
             return np.tril(inv) + np.tril(inv, -1).T, None
     except np.linalg.LinAlgError:
         pass
-    w, V = np.linalg.eigh(A)
+    scale = max(float(np.trace(A)) / len(A), 1e-300)  # at least the largest eigenvalue / n
+    # the largest eigenvalue (Lanczos, from a start vector the same in any frame order)
+    top = scipy.sparse.linalg.eigsh(A, k=1, which="LA", v0=np.ones(len(A)),
+                                    return_eigenvectors=False)
+    w, V = scipy.linalg.eigh(A, subset_by_value=(-np.inf, max(floor, 1e-13 * float(top[0]))),
+                             driver="evr", check_finite=False)
     n = len(A) // 6
     share = np.square(V).reshape(n, 6, -1).sum(axis=1)
     frames_moved = 1.0 / np.maximum(np.square(share).sum(axis=0), 1e-300)
-    free = (w <= 1e-13 * float(w[-1])) | ((w <= floor) & (frames_moved <= _LOCAL_FRAMES * n))
-    if not free.any():
-        return (V / w) @ V.T, None
-    keep = ~free
-    C = (V[:, keep] / w[keep]) @ V[:, keep].T
-    return C, share[:, free].sum(axis=1)
+    free = (w <= 1e-13 * float(top[0])) | ((w <= floor) & (frames_moved <= _LOCAL_FRAMES * n))
+    Vf = V[:, free]
+    # the free directions' eigenvalues lifted to ``scale`` (a definite matrix), their part
+    # of its inverse taken out again: the inverse on the other directions
+    L = scipy.linalg.cholesky(A + (Vf * (scale - w[free])) @ Vf.T, lower=True,
+                              check_finite=False)
+    inv, _ = scipy.linalg.lapack.dpotri(L, lower=1)
+    C = np.tril(inv) + np.tril(inv, -1).T - (Vf / scale) @ Vf.T
+    return C, (share[:, free].sum(axis=1) if free.any() else None)
 
 
 @dataclass(frozen=True)
