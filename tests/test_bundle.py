@@ -12,9 +12,6 @@ from omni_sfm.errors import OmniSfmError
 from omni_sfm.estimate.bundle import (
     BundleOptions,
     LineProblem,
-    _pose_jacobian,
-    _PoseProblem,
-    _tangent_basis,
     bundle_adjust,
     observation_residuals,
     oracle,
@@ -23,7 +20,6 @@ from omni_sfm.estimate.bundle import (
 from omni_sfm.evaluate import trajectory_errors
 from omni_sfm.geometry import (
     normalize,
-    predicted_normals,
     rotation_angle,
     rotvec_to_matrix,
 )
@@ -70,40 +66,6 @@ def test_jacobian_matches_finite_differences():
                 own = (prob.f if kind == "p" else prob.t) == i
                 ana = np.where(own[:, None], (Jp if kind == "p" else Jl)[:, :, j], 0.0)
                 assert np.abs(num - ana).max() < 1e-5
-
-
-def test_pose_problem_matches_the_general_formulas_and_finite_differences():
-    """:func:`resect_pose`'s problem: its residuals and Jacobian (one rotation, the lines'
-    ``[d]x`` formed once, the norms taken from the residuals) the same bit for bit as the
-    adjustment's formulas with the rotation broadcast to every line, and the Jacobian (lines
-    and direction-only normals) against finite differences through its retraction."""
-    rng = np.random.default_rng(7)
-    K = 9
-    R, c = rotvec_to_matrix(rng.normal(size=3)), rng.normal(size=3)
-    d = normalize(rng.normal(size=(K, 3)))
-    p = rng.normal(size=(K, 3)) * 3.0
-    B = np.stack(_tangent_basis(normalize(rng.normal(size=(K, 3)))), axis=1)
-    D = normalize(rng.normal(size=(2, 3)))
-    m = np.cross(D @ R, rng.normal(size=(2, 3))) + 0.05 * rng.normal(size=(2, 3))
-    prob = _PoseProblem(B, d, m, D)
-    st = (R, c, d, p)
-    e, u = prob.residuals(*st)
-    assert e.shape == (K + 2, 2) and (e[K:, 1] == 0).all()
-    np.testing.assert_array_equal(u, predicted_normals(R[None], c[None], p, d))
-    np.testing.assert_array_equal(e[:K], np.einsum("kai,ki->ka", B, normalize(u)))
-    J, J_line = prob.jacobian(*st, u)
-    assert J.shape == (K + 2, 2, 6) and J_line.shape == (K + 2, 2, 0)
-    _, J_rot, J_c = _pose_jacobian(np.broadcast_to(R, (K, 3, 3)), d, u, B)
-    np.testing.assert_array_equal(J[:K], np.concatenate([J_rot, J_c], axis=2))
-    h = 1e-7
-    for j in range(6):
-        step = np.zeros(6)
-        step[j] = h
-        e2, _ = prob.residuals(*prob.retract(*st, step, np.zeros(0)))
-        np.testing.assert_allclose((e2 - e) / h, J[:, :, j], atol=1e-5)
-    # the Jacobian at the point of an earlier residual call: the norms are computed again
-    prob.residuals(R @ rotvec_to_matrix(np.array([0.01, 0.0, 0.0])), c, d, p)
-    np.testing.assert_array_equal(prob.jacobian(*st, u)[0], J)
 
 
 def test_residual_ignores_normal_sign():
@@ -192,7 +154,6 @@ def _anisotropic(sim, seed: int):
     about that ray has std-dev ``sqrt(12) / arc`` times its offset's (0.01 deg)."""
     from dataclasses import replace
 
-    from omni_sfm.geometry import normalize
 
     rng = np.random.default_rng(seed)
     tr, gt = sim.tracks, sim.groundtruth
@@ -251,7 +212,6 @@ def test_precise_tracks_with_a_heavy_tail_are_not_outliers():
     # on the stop-and-go walk: rejecting every track above 3 sqrt(2) times the (median-based)
     # noise kept 20 of 136 tracks in some runs (12 % ATE); the floor of outlier_min_deg keeps
     # the good tracks and still rejects a wrong one.
-    from omni_sfm.geometry import normalize
 
     sim = simulate(SimulationOptions(num_views=20, num_parallel=10, num_other=10,
                                      noise_deg=0.002, seed=4))

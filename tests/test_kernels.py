@@ -9,14 +9,29 @@ import pytest
 from omni_sfm.estimate import kernels
 from omni_sfm.estimate.bundle import (
     _LINE_PARTS,
+    _POSE_PARTS,
     LineProblem,
     _normal_derivative,
     _pose_jacobian,
     _tangent_basis,
+    resect_pose,
     triangulate_lines,
 )
-from omni_sfm.geometry import cross3, normalize, predicted_normals, rotvec_to_matrix
-from omni_sfm.solver import RobustLoss, damped, loss_weights
+from omni_sfm.geometry import (
+    FloatArray,
+    cross3,
+    normalize,
+    predicted_normals,
+    rotvec_to_matrix,
+    skew,
+)
+from omni_sfm.solver import (
+    RobustLoss,
+    damped,
+    isotropic_diagonal,
+    levenberg_marquardt,
+    loss_weights,
+)
 from omni_sfm.synth.simulate import SimulationOptions, simulate
 
 
@@ -223,3 +238,130 @@ def test_block_cholesky_solves_the_reduced_system(F: int, M: int, seen: int) -> 
     assert not chol.factor(-S)
     with pytest.raises(ValueError, match="permutation"):
         kernels.BlockCholesky(pattern, np.zeros(M, np.int64))
+
+
+class _PoseProblem:
+    """:func:`resect_pose`'s problem as bundle.py wrote it in numpy before it was compiled
+    (``kernels.resect``): state ``(R, c, d, p)``, one observation of each line with residual
+    basis ``B``, and direction-only normals ``m`` of world directions ``D`` (residual
+    ``m . R^T D``)."""
+
+    def __init__(self, B: FloatArray, d: FloatArray, dir_normals: FloatArray | None = None,
+                 dir_world: FloatArray | None = None) -> None:
+        self.B = B
+        self.skew_d = skew(d)
+        self.m = np.zeros((0, 3)) if dir_normals is None else dir_normals
+        self.D = np.zeros((0, 3)) if dir_world is None else dir_world
+        self._norms: tuple[FloatArray, FloatArray, FloatArray] | None = None
+
+    def residuals(self, R: FloatArray, c: FloatArray, d: FloatArray,
+                  p: FloatArray) -> tuple[FloatArray, FloatArray]:
+        u = predicted_normals(R[None], c[None], p, d)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            nu = np.sqrt(np.add.reduce(u * u, axis=1, keepdims=True))  # np.linalg.norm's sum
+            n = u / nu
+        self._norms = (u, nu[:, 0], n)
+        e = np.einsum("kai,ki->ka", self.B, np.where(nu > 0, n, np.nan))  # normalize(u)
+        if len(self.m):
+            r = np.sum(self.m * (self.D @ R), axis=1)
+            e = np.concatenate([e, np.stack([r, np.zeros_like(r)], axis=1)])
+        return e, u
+
+    def jacobian(self, R: FloatArray, c: FloatArray, d: FloatArray, p: FloatArray,
+                 u: FloatArray) -> tuple[FloatArray, FloatArray]:
+        last = self._norms
+        norms = (last[1], last[2]) if last is not None and last[0] is u else None
+        # R^T broadcast against the K [d]x: numpy multiplies each pair, as with K copies of R
+        _, J_rot, J_c = _pose_jacobian(R, d, u, self.B, rt_skew_d=R.T @ self.skew_d,
+                                       norms=norms)
+        J = np.concatenate([J_rot, J_c], axis=2)
+        if len(self.m):
+            Jd = np.zeros((len(self.m), 2, 6))
+            Jd[:, 0, :3] = cross3(self.m, self.D @ R)  # d (m . R^T D) / d w, R <- R exp([w]x)
+            J = np.concatenate([J, Jd])
+        return J, np.zeros((len(J), 2, 0))
+
+    def normal_equations(self, J: FloatArray, _J_line: FloatArray, e: FloatArray,
+                         w: FloatArray) -> tuple[FloatArray, FloatArray]:
+        return np.einsum("kai,k,kaj->ij", J, w, J), np.einsum("kai,k,ka->i", J, w, e)
+
+    def solve(self, blocks: tuple[FloatArray, FloatArray],
+              lam: float) -> tuple[FloatArray, FloatArray]:
+        H, g = blocks
+        dg = isotropic_diagonal(np.diag(H)[None], _POSE_PARTS)[0]
+        damped = H + lam * np.diag(np.maximum(dg, 1e-12))
+        return np.asarray(-np.linalg.solve(damped, g), np.float64), np.zeros(0)
+
+    def retract(self, R: FloatArray, c: FloatArray, d: FloatArray, p: FloatArray,
+                step: FloatArray, _dline: FloatArray) -> tuple[FloatArray, ...]:
+        return R @ rotvec_to_matrix(step[:3]), c + step[3:], d, p
+
+
+def test_pose_problem_matches_the_general_formulas_and_finite_differences():
+    """:func:`resect_pose`'s problem: its residuals and Jacobian (one rotation, the lines'
+    ``[d]x`` formed once, the norms taken from the residuals) the same bit for bit as the
+    adjustment's formulas with the rotation broadcast to every line, and the Jacobian (lines
+    and direction-only normals) against finite differences through its retraction."""
+    rng = np.random.default_rng(7)
+    K = 9
+    R, c = rotvec_to_matrix(rng.normal(size=3)), rng.normal(size=3)
+    d = normalize(rng.normal(size=(K, 3)))
+    p = rng.normal(size=(K, 3)) * 3.0
+    B = np.stack(_tangent_basis(normalize(rng.normal(size=(K, 3)))), axis=1)
+    D = normalize(rng.normal(size=(2, 3)))
+    m = np.cross(D @ R, rng.normal(size=(2, 3))) + 0.05 * rng.normal(size=(2, 3))
+    prob = _PoseProblem(B, d, m, D)
+    st = (R, c, d, p)
+    e, u = prob.residuals(*st)
+    assert e.shape == (K + 2, 2) and (e[K:, 1] == 0).all()
+    np.testing.assert_array_equal(u, predicted_normals(R[None], c[None], p, d))
+    np.testing.assert_array_equal(e[:K], np.einsum("kai,ki->ka", B, normalize(u)))
+    J, J_line = prob.jacobian(*st, u)
+    assert J.shape == (K + 2, 2, 6) and J_line.shape == (K + 2, 2, 0)
+    _, J_rot, J_c = _pose_jacobian(np.broadcast_to(R, (K, 3, 3)), d, u, B)
+    np.testing.assert_array_equal(J[:K], np.concatenate([J_rot, J_c], axis=2))
+    h = 1e-7
+    for j in range(6):
+        step = np.zeros(6)
+        step[j] = h
+        e2, _ = prob.residuals(*prob.retract(*st, step, np.zeros(0)))
+        np.testing.assert_allclose((e2 - e) / h, J[:, :, j], atol=1e-5)
+    # the Jacobian at the point of an earlier residual call: the norms are computed again
+    prob.residuals(R @ rotvec_to_matrix(np.array([0.01, 0.0, 0.0])), c, d, p)
+    np.testing.assert_array_equal(prob.jacobian(*st, u)[0], J)
+
+
+def _resection(seed: int):
+    """A camera, its lines (some of them outliers) and direction-only normals, a start off."""
+    rng = np.random.default_rng(seed)
+    K, J = int(rng.integers(4, 30)), int(rng.integers(0, 4))
+    R, c = rotvec_to_matrix(rng.normal(size=3)), rng.normal(size=3)
+    d = normalize(rng.normal(size=(K, 3)))
+    p = rng.normal(size=(K, 3)) * 3.0
+    n = normalize(predicted_normals(R[None], c[None], p, d) + rng.normal(size=(K, 3)) * 0.002)
+    n[:seed % 3] = normalize(rng.normal(size=(seed % 3, 3)))
+    D = normalize(rng.normal(size=(J, 3)))
+    m = normalize(np.cross(D @ R, rng.normal(size=(J, 3))) + 0.002 * rng.normal(size=(J, 3)))
+    R0 = R @ rotvec_to_matrix(rng.normal(size=3) * 0.02)
+    return n, d, p, m, D, R0, c + rng.normal(size=3) * 0.05
+
+
+@pytest.mark.parametrize("scale", [np.inf, 0.004])
+def test_resection_is_numpys_levenberg_marquardt(scale: float) -> None:
+    """The compiled resection (``kernels.resect`` through :func:`resect_pose`) against
+    :func:`levenberg_marquardt` on the numpy problem: the same pose to the solver's tolerance,
+    and the same angles at it."""
+    loss = RobustLoss.HUBER if np.isfinite(scale) else RobustLoss.LINEAR
+    for seed in range(40):
+        n, d, p, m, D, R0, c0 = _resection(seed)
+        R, c, ang = resect_pose(n, d, p, R0, c0, scale=scale, direction_normals=m,
+                                directions=D)
+        prob = _PoseProblem(np.stack(_tangent_basis(n), axis=1), d, m, D)
+        (R_np, c_np, _, _), _ = levenberg_marquardt(prob, (R0.copy(), c0.copy(), d, p), loss,
+                                                    scale, 10, 1e-10)
+        assert np.abs(R - R_np).max() < 1e-8 and np.abs(c - c_np).max() < 1e-8
+        e, u = prob.residuals(R, c, d, p)
+        assert ang.shape == (len(d) + len(m),)
+        np.testing.assert_allclose(ang[:len(d)], np.arctan2(
+            np.linalg.norm(np.cross(normalize(u), n), axis=1),
+            np.abs(np.sum(normalize(u) * n, axis=1))), atol=1e-12)

@@ -1373,6 +1373,249 @@ static PyObject *py_chol_solve(PyObject *Py_UNUSED(self), PyObject *args)
     Py_RETURN_NONE;
 }
 
+/* ---- one camera's pose from lines held (bundle.resect_pose) -------------------------------- */
+
+/* x = A^-1 b for a 6x6 A (Gaussian elimination, partial pivoting: numpy.linalg.solve's LU);
+   0 where a pivot is exactly zero (numpy's LinAlgError) */
+static int solve6(double A[36], double b[6], double x[6])
+{
+    for (int col = 0; col < 6; col++) {
+        int piv = col;
+        double best = fabs(A[6 * col + col]);
+        for (int r = col + 1; r < 6; r++)
+            if (fabs(A[6 * r + col]) > best) {
+                best = fabs(A[6 * r + col]);
+                piv = r;
+            }
+        if (A[6 * piv + col] == 0.0)
+            return 0;
+        if (piv != col) {
+            for (int j = 0; j < 6; j++) {
+                double tmp = A[6 * col + j];
+                A[6 * col + j] = A[6 * piv + j];
+                A[6 * piv + j] = tmp;
+            }
+            double tmp = b[col];
+            b[col] = b[piv];
+            b[piv] = tmp;
+        }
+        for (int r = col + 1; r < 6; r++) {
+            double m = A[6 * r + col] / A[6 * col + col];
+            for (int j = col; j < 6; j++)
+                A[6 * r + j] -= m * A[6 * col + j];
+            b[r] -= m * b[col];
+        }
+    }
+    for (int r = 5; r >= 0; r--) {
+        double s = b[r];
+        for (int j = r + 1; j < 6; j++)
+            s -= A[6 * r + j] * x[j];
+        x[r] = s / A[6 * r + r];
+    }
+    return 1;
+}
+
+/* R <- R exp([w]x) (geometry.rotvec_to_matrix: the unit axis, normalised twice, and
+   I + sin(t) K + (1 - cos(t)) K^2) */
+static void rotate_by(const double R[9], const double w[3], double out[9])
+{
+    double t = sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]);
+    double x = 0.0, y = 0.0, z = 1.0;
+    if (t > 0) {
+        x = w[0] / t;
+        y = w[1] / t;
+        z = w[2] / t;
+    }
+    double n = sqrt(x * x + y * y + z * z);
+    x /= n;
+    y /= n;
+    z /= n;
+    double K[9] = {0.0, -z, y, z, 0.0, -x, -y, x, 0.0};
+    double s = sin(t), v = 1.0 - cos(t), E[9];
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++) {
+            double kk = K[3 * i] * K[j] + K[3 * i + 1] * K[3 + j] + K[3 * i + 2] * K[6 + j];
+            E[3 * i + j] = (i == j ? 1.0 : 0.0) + s * K[3 * i + j] + v * kk;
+        }
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++)
+            out[3 * i + j] = R[3 * i] * E[j] + R[3 * i + 1] * E[3 + j] + R[3 * i + 2] * E[6 + j];
+}
+
+typedef struct {
+    Py_ssize_t K, J;
+    const double *B, *d, *p, *m, *D;
+    int kind;
+    double scale;
+} Pose;
+
+/* the residuals e ((K + J) x 2), the predicted normals u (K x 3), each residual's IRLS weight w
+   and the cost (half the sum of the robust costs) at the pose R, c */
+static double pose_cost(const Pose *q, const double R[9], const double c[3], double *e,
+                        double *u, double *w)
+{
+    double n[3], total = 0.0, rho;
+    for (Py_ssize_t k = 0; k < q->K; k++) {
+        predict(R, c, q->d + 3 * k, q->p + 3 * k, u + 3 * k);
+        residual(q->B + 6 * k, u + 3 * k, n, e + 2 * k);
+        loss(e[2 * k] * e[2 * k] + e[2 * k + 1] * e[2 * k + 1], q->kind, q->scale, &rho, w + k);
+        total += rho;
+    }
+    for (Py_ssize_t j = 0; j < q->J; j++) {
+        const double *m = q->m + 3 * j, *D = q->D + 3 * j;
+        double r = 0.0;
+        for (int i = 0; i < 3; i++)  /* m . R^T D */
+            r += m[i] * (D[0] * R[i] + D[1] * R[3 + i] + D[2] * R[6 + i]);
+        e[2 * (q->K + j)] = r;
+        e[2 * (q->K + j) + 1] = 0.0;
+        loss(r * r, q->kind, q->scale, &rho, w + q->K + j);
+        total += rho;
+    }
+    return 0.5 * total;
+}
+
+/* the normal equations H (6x6), g (6) of the residuals e with weights w at R, u:
+   d e / d w = A [u]x, d e / d c = A R^T [d]x (bundle._pose_jacobian), and for a direction-only
+   normal d (m . R^T D) / d w = m x R^T D */
+static void pose_normal_equations(const Pose *q, const double R[9], const double *e,
+                                  const double *u, const double *w, double H[36], double g[6])
+{
+    memset(H, 0, 36 * sizeof(double));
+    memset(g, 0, 6 * sizeof(double));
+    double Jr[2][6];
+    for (Py_ssize_t k = 0; k < q->K + q->J; k++) {
+        int rows = 2;
+        if (k < q->K) {
+            double A[2][3];
+            normal_derivative(q->B + 6 * k, u + 3 * k, A);
+            const double *d = q->d + 3 * k;
+            for (int r = 0; r < 2; r++) {
+                cross(A[r], u + 3 * k, Jr[r]);  /* a^T [u]x = (a x u)^T */
+                double Ra[3];
+                for (int i = 0; i < 3; i++)
+                    Ra[i] = R[3 * i] * A[r][0] + R[3 * i + 1] * A[r][1] + R[3 * i + 2] * A[r][2];
+                cross(Ra, d, Jr[r] + 3);  /* a^T R^T [d]x = ((R a) x d)^T */
+            }
+        } else {
+            const double *m = q->m + 3 * (k - q->K), *D = q->D + 3 * (k - q->K);
+            double RtD[3];
+            for (int i = 0; i < 3; i++)
+                RtD[i] = D[0] * R[i] + D[1] * R[3 + i] + D[2] * R[6 + i];
+            cross(m, RtD, Jr[0]);
+            Jr[0][3] = Jr[0][4] = Jr[0][5] = 0.0;
+            rows = 1;  /* the second component is 0, with a zero row */
+        }
+        for (int r = 0; r < rows; r++)
+            for (int a = 0; a < 6; a++) {
+                g[a] += w[k] * Jr[r][a] * e[2 * k + r];
+                for (int b = 0; b < 6; b++)
+                    H[6 * a + b] += w[k] * Jr[r][a] * Jr[r][b];
+            }
+    }
+}
+
+/* Levenberg-Marquardt over the pose (solver.levenberg_marquardt with _PoseProblem: the first
+   damping 1e-4, the diagonal of each 3-vector its mean, twelve tries a step each ten times
+   more damped, the damping a tenth after an accepted step, stops on a relative decrease below
+   ``tolerance``); R, c updated in place, e, u at the result; returns the iterations run, -1
+   where memory runs out */
+static int resect(const Pose *q, double R[9], double c[3], int iterations, double tolerance,
+                  double *e, double *u)
+{
+    Py_ssize_t n = q->K + q->J;
+    double *buf = malloc((size_t)(n > 0 ? n : 1) * 7 * sizeof(double));
+    if (!buf)
+        return -1;
+    double *e2 = buf, *u2 = buf + 2 * n, *w2 = buf + 5 * n, *w = buf + 6 * n;
+    double cost = pose_cost(q, R, c, e, u, w), lam = 1e-4;
+    int it = 0;
+    for (it = 1; it <= iterations; it++) {
+        double H[36], g[6], R2[9], c2[3], new_cost = 0.0;
+        pose_normal_equations(q, R, e, u, w, H, g);
+        double dg[2];
+        for (int part = 0; part < 2; part++) {
+            double s = H[6 * (3 * part) + 3 * part] + H[6 * (3 * part + 1) + 3 * part + 1];
+            s += H[6 * (3 * part + 2) + 3 * part + 2];
+            dg[part] = s / 3.0;
+            if (dg[part] < 1e-12)  /* numpy.maximum: NaN stays NaN */
+                dg[part] = 1e-12;
+        }
+        int improved = 0;
+        for (int attempt = 0; attempt < 12; attempt++) {
+            double A[36], b[6], x[6];
+            memcpy(A, H, sizeof A);
+            for (int i = 0; i < 6; i++) {
+                A[7 * i] = H[7 * i] + lam * dg[i / 3];
+                b[i] = g[i];
+            }
+            if (!solve6(A, b, x)) {
+                lam *= 10.0;
+                continue;
+            }
+            double wstep[3] = {-x[0], -x[1], -x[2]};
+            rotate_by(R, wstep, R2);
+            for (int i = 0; i < 3; i++)
+                c2[i] = c[i] + -x[3 + i];
+            new_cost = pose_cost(q, R2, c2, e2, u2, w2);
+            if (isfinite(new_cost) && new_cost <= cost) {
+                improved = 1;
+                break;
+            }
+            lam *= 10.0;
+        }
+        if (!improved)
+            break;
+        double rel = (cost - new_cost) / (cost > 1e-300 ? cost : 1e-300);
+        memcpy(R, R2, 9 * sizeof(double));
+        memcpy(c, c2, 3 * sizeof(double));
+        memcpy(e, e2, 2 * n * sizeof(double));
+        memcpy(u, u2, 3 * q->K * sizeof(double));
+        memcpy(w, w2, n * sizeof(double));
+        cost = new_cost;
+        lam = lam / 10.0 > 1e-12 ? lam / 10.0 : 1e-12;
+        if (rel < tolerance || cost <= 1e-300)
+            break;
+    }
+    free(buf);
+    return it;
+}
+
+static PyObject *py_resect(PyObject *Py_UNUSED(self), PyObject *args)
+{
+    PyObject *o[9];
+    Pose q;
+    int iterations;
+    double tolerance;
+    if (!PyArg_ParseTuple(args, "nnOOOOOidOOidOO", &q.K, &q.J, &o[0], &o[1], &o[2], &o[3], &o[4],
+                          &q.kind, &q.scale, &o[5], &o[6], &iterations, &tolerance, &o[7],
+                          &o[8]))
+        return NULL;
+    Py_buffer b[9];
+    const Spec spec[9] = {
+        {"B", 8, 6 * q.K, 0},
+        {"d", 8, 3 * q.K, 0},
+        {"p", 8, 3 * q.K, 0},
+        {"m", 8, 3 * q.J, 0},
+        {"D", 8, 3 * q.J, 0},
+        {"R", 8, 9, 1},
+        {"c", 8, 3, 1},
+        {"e", 8, 2 * (q.K + q.J), 1},
+        {"u", 8, 3 * q.K, 1},
+    };
+    if (take_all(9, o, spec, b) < 0)
+        return NULL;
+    q.B = b[0].buf;
+    q.d = b[1].buf;
+    q.p = b[2].buf;
+    q.m = b[3].buf;
+    q.D = b[4].buf;
+    int it = resect(&q, b[5].buf, b[6].buf, iterations, tolerance, b[7].buf, b[8].buf);
+    release_all(9, b);
+    if (it < 0)
+        return PyErr_NoMemory();
+    return PyLong_FromLong(it);
+}
+
 static PyMethodDef methods[] = {
     {"residuals", py_residuals, METH_VARARGS,
      "residuals(F, M, K, R, c, d, p, f, t, B, e, u): e (K, 2) and u (K, 3) written"},
@@ -1407,6 +1650,9 @@ static PyMethodDef methods[] = {
      "factor's values written; False where S is not positive definite"},
     {"chol_solve", py_chol_solve, METH_VARARGS,
      "chol_solve(Ma, nnzL, perm, Lp, Li, Lx, b, x, y): x = S^-1 b written"},
+    {"resect", py_resect, METH_VARARGS,
+     "resect(K, J, B, d, p, m, D, loss, scale, R, c, iterations, tolerance, e, u): one "
+     "camera's pose from lines held (R, c updated, e, u at it); the iterations run"},
     {NULL, NULL, 0, NULL},
 };
 

@@ -54,7 +54,6 @@ from omni_sfm.estimate import kernels
 from omni_sfm.geometry import (
     FloatArray,
     completion_towards,
-    cross3,
     normalize,
     orthonormal_completion,
     predicted_normals,
@@ -68,7 +67,6 @@ from omni_sfm.solver import (
     RobustLoss,
     damped,
     gauge,
-    isotropic_diagonal,
     levenberg_marquardt,
     robust_sigma,
 )
@@ -669,70 +667,6 @@ class LineProblem:
                                    str(self.loss), self.loss_scale, self.line_iterations)
 
 
-class _PoseProblem:
-    """The LM problem of one camera's 6 pose parameters with its lines held
-    (:func:`resect_pose`): state ``(R (3, 3), c (3,), d (K, 3), p (K, 3))``, one observation
-    of each line, residual bases ``B`` ``(K, 2, 3)``; and ``(J, 3)`` normals ``m`` of lines of
-    which only the world direction ``D`` is known, each with the one residual ``m . R^T D``
-    (the normal lies in the plane orthogonal to its line's direction; second component 0).
-
-    Solved for every frame on a few dozen lines, where numpy's per-call overhead is the cost:
-    what does not change between evaluations is formed once (``[d]x`` of the held lines ``d``,
-    which must be the state's), and the Jacobian takes the norms of ``u`` from the residuals
-    at the same point. The operations are otherwise those of the adjustment's residuals and
-    :func:`_pose_jacobian`, so that the results are the same bit for bit."""
-
-    def __init__(self, B: FloatArray, d: FloatArray, dir_normals: FloatArray | None = None,
-                 dir_world: FloatArray | None = None) -> None:
-        self.B = B
-        self.skew_d = skew(d)
-        self.m = np.zeros((0, 3)) if dir_normals is None else dir_normals
-        self.D = np.zeros((0, 3)) if dir_world is None else dir_world
-        self._norms: tuple[FloatArray, FloatArray, FloatArray] | None = None
-
-    def residuals(self, R: FloatArray, c: FloatArray, d: FloatArray,
-                  p: FloatArray) -> tuple[FloatArray, FloatArray]:
-        u = predicted_normals(R[None], c[None], p, d)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            nu = np.sqrt(np.add.reduce(u * u, axis=1, keepdims=True))  # np.linalg.norm's sum
-            n = u / nu
-        self._norms = (u, nu[:, 0], n)
-        e = np.einsum("kai,ki->ka", self.B, np.where(nu > 0, n, np.nan))  # normalize(u)
-        if len(self.m):
-            r = np.sum(self.m * (self.D @ R), axis=1)
-            e = np.concatenate([e, np.stack([r, np.zeros_like(r)], axis=1)])
-        return e, u
-
-    def jacobian(self, R: FloatArray, c: FloatArray, d: FloatArray, p: FloatArray,
-                 u: FloatArray) -> tuple[FloatArray, FloatArray]:
-        last = self._norms
-        norms = (last[1], last[2]) if last is not None and last[0] is u else None
-        # R^T broadcast against the K [d]x: numpy multiplies each pair, as with K copies of R
-        _, J_rot, J_c = _pose_jacobian(R, d, u, self.B, rt_skew_d=R.T @ self.skew_d,
-                                       norms=norms)
-        J = np.concatenate([J_rot, J_c], axis=2)
-        if len(self.m):
-            Jd = np.zeros((len(self.m), 2, 6))
-            Jd[:, 0, :3] = cross3(self.m, self.D @ R)  # d (m . R^T D) / d w, R <- R exp([w]x)
-            J = np.concatenate([J, Jd])
-        return J, np.zeros((len(J), 2, 0))
-
-    def normal_equations(self, J: FloatArray, _J_line: FloatArray, e: FloatArray,
-                         w: FloatArray) -> tuple[FloatArray, FloatArray]:
-        return np.einsum("kai,k,kaj->ij", J, w, J), np.einsum("kai,k,ka->i", J, w, e)
-
-    def solve(self, blocks: tuple[FloatArray, FloatArray],
-              lam: float) -> tuple[FloatArray, FloatArray]:
-        H, g = blocks
-        dg = isotropic_diagonal(np.diag(H)[None], _POSE_PARTS)[0]
-        damped = H + lam * np.diag(np.maximum(dg, 1e-12))
-        return np.asarray(-np.linalg.solve(damped, g), np.float64), np.zeros(0)
-
-    def retract(self, R: FloatArray, c: FloatArray, d: FloatArray, p: FloatArray,
-                step: FloatArray, _dline: FloatArray) -> _State:
-        return R @ rotvec_to_matrix(step[:3]), c + step[3:], d, p
-
-
 def _initial_state(tracks: LineTracks, rotations: FloatArray, positions: FloatArray,
                    line_directions: FloatArray, line_points: FloatArray,
                    frames: np.ndarray | None) -> tuple[_State, np.ndarray]:
@@ -1215,7 +1149,9 @@ def resect_pose(normals: FloatArray, line_directions: FloatArray, line_points: F
 
     Minimises the adjustment's residual (module docstring) over the 6 pose parameters with the
     lines held, from ``rotation`` (world_from_cam) and ``position``, by Levenberg-Marquardt with
-    a Huber loss of ``scale`` (radians; ``inf``: plain least squares). ``normals`` ``(K, 3)``
+    a Huber loss of ``scale`` (radians; ``inf``: plain least squares), as
+    :func:`~omni_sfm.solver.levenberg_marquardt` runs it (compiled: :func:`~omni_sfm.estimate.
+    kernels.resect`). ``normals`` ``(K, 3)``
     are the camera's observed NVs of the lines ``line_directions``, ``line_points`` ``(K, 3)``
     (world). ``direction_normals`` ``(J, 3)``: observed NVs of lines of which only the world
     direction ``directions`` ``(J, 3)`` is known (a parallel family's): they constrain the
@@ -1227,15 +1163,16 @@ def resect_pose(normals: FloatArray, line_directions: FloatArray, line_points: F
     """
     n_obs = normalize(np.asarray(normals, np.float64))
     d, p = np.asarray(line_directions, np.float64), np.asarray(line_points, np.float64)
-    m = None if direction_normals is None else normalize(np.asarray(direction_normals, float))
-    prob = _PoseProblem(np.stack(_tangent_basis(n_obs), axis=1), d, m,
-                        None if directions is None else np.asarray(directions, np.float64))
+    m = np.zeros((0, 3)) if direction_normals is None else \
+        normalize(np.asarray(direction_normals, np.float64))
+    D = np.zeros((0, 3)) if directions is None else np.asarray(directions, np.float64)
     loss = RobustLoss.HUBER if np.isfinite(scale) else RobustLoss.LINEAR
-    state: _State = (np.array(rotation, np.float64), np.array(position, np.float64), d, p)
-    (R, c, _, _), _ = levenberg_marquardt(prob, state, loss, scale, iterations, 1e-10)
-    e, u = prob.residuals(R, c, d, p)
+    # one compiled loop (kernels.resect): in numpy, the per-call overhead on a few dozen lines
+    # was most of the online tracker's time a frame
+    R, c, e, u = kernels.resect(np.stack(_tangent_basis(n_obs), axis=1), d, p, m, D,
+                                rotation, position, str(loss), scale, iterations, 1e-10)
     ang = unsigned_angle(normalize(u), n_obs)
-    if m is not None and len(m):
+    if len(m):
         ang = np.concatenate([ang, np.arcsin(np.clip(np.abs(e[len(d):, 0]), 0.0, 1.0))])
     return R, c, ang
 

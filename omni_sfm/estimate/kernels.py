@@ -233,3 +233,23 @@ class BlockCholesky:
         x, y = np.empty(4 * self.Ma), np.empty(4 * self.Ma)
         _lines.chol_solve(self.Ma, self.nnz, self.perm, self.Lp, self.Li, self.Lx, _f64(b), x, y)
         return x
+
+
+def resect(B: FloatArray, d: FloatArray, p: FloatArray, m: FloatArray, D: FloatArray,
+           R: FloatArray, c: FloatArray, loss: str, scale: float, iterations: int,
+           tolerance: float) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """One camera's pose from lines held (:func:`omni_sfm.estimate.bundle.resect_pose`):
+    Levenberg-Marquardt over the camera-frame rotation increment and the centre from ``R``
+    ``(3, 3)`` world_from_cam, ``c`` ``(3,)``, as :func:`omni_sfm.solver.levenberg_marquardt`
+    runs it (first damping 1e-4, each 3-vector's diagonal its mean, at most ``iterations``,
+    stops on a relative decrease below ``tolerance``) on the residuals ``B normalise(u)`` of
+    the lines ``d, p`` ``(K, 3)`` (residual bases ``B`` ``(K, 2, 3)``) and ``m . R^T D`` of the
+    direction-only normals ``m`` of world directions ``D`` ``(J, 3)``, under ``loss`` at
+    ``scale``. Returns ``(R, c, e, u)``: the pose, the residuals ``(K + J, 2)`` and the
+    predicted normals ``(K, 3)`` at it."""
+    K, J = len(d), len(m)
+    R_out, c_out = _f64(R).copy(), _f64(c).copy()
+    e, u = np.empty((K + J, 2)), np.empty((K, 3))
+    _lines.resect(K, J, _f64(B), _f64(d), _f64(p), _f64(m), _f64(D), LOSS_CODES[loss],
+                  float(scale), R_out, c_out, int(iterations), float(tolerance), e, u)
+    return R_out, c_out, e, u
