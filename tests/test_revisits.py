@@ -11,6 +11,7 @@ from omni_sfm.estimate.revisits import (
     groups_of,
     join_revisits,
     line_extents,
+    revisit_groups,
     revisit_pairs,
 )
 from omni_sfm.lines.tracks import LineTracks
@@ -148,8 +149,33 @@ def test_tracks_that_saw_one_frame_are_not_joined():
 
 
 def test_options_are_checked():
-    assert not RevisitOptions().enabled        # off by default (docs/estimator.md)
+    assert RevisitOptions().enabled        # on by default (docs/estimator.md)
     with pytest.raises(ValueError, match="min_gap_frames"):
         RevisitOptions(min_gap_frames=0)
+    with pytest.raises(ValueError, match="min_joins"):
+        RevisitOptions(min_joins=0)
     with pytest.raises(ValueError, match="ambiguity"):
         RevisitOptions(ambiguity=0.5)
+
+
+
+def test_a_place_seen_again_is_joined_a_line_found_again_is_not() -> None:
+    """The estimator solves again (``revisit_groups`` not None) only where at least
+    ``min_joins`` tracks are joined: the loop's revisited lines (29) are; a walk that never
+    comes back except for one line is left as it is."""
+    R, c = _loop()
+    d, p = _vertical_lines()
+    tracks, line_of = _tracks(R, c, d, p)
+    dt, pt = _true_lines(d, p, line_of)
+    used = np.ones(tracks.num_tracks, bool)
+    group = revisit_groups(tracks, R, c, dt, pt, used, RevisitOptions())
+    assert group is not None
+    assert tracks.num_tracks - len(np.unique(group)) >= RevisitOptions().min_joins
+    np.testing.assert_array_equal(
+        group, groups_of(tracks, revisit_pairs(tracks, R, c, dt, pt, used, RevisitOptions())))
+    # only the first revisited line's tracks left: one join, under the default's 8
+    again = np.r_[False, line_of[1:] == line_of[:-1]]  # a line's second track and on
+    keep = ~again | (line_of == line_of[np.flatnonzero(again)[0]])
+    one = tracks.keep_observations(keep[tracks.obs_track])
+    assert revisit_groups(one, R, c, dt, pt, used, RevisitOptions()) is None
+    assert revisit_groups(one, R, c, dt, pt, used, RevisitOptions(min_joins=1)) is not None

@@ -23,10 +23,10 @@ Steps:
    the adjustment's covariance (:mod:`~omni_sfm.estimate.uncertainty`, ``pose_spread`` in the
    report), and those it leaves weak are listed too (:func:`_spread_flags`).
 
-5. **Revisits** (``revisits.enabled``, off by default): a line seen again after the camera
-   left it (a loop, a return) is joined to its earlier track (:mod:`~omni_sfm.estimate.
-   revisits`) and steps 1-4 run again on the joined tracks from the first solution's
-   rotations, so that the two visits share their lines in one solve.
+5. **Revisits** (``revisits``): a line seen again after the camera left it (a loop, a
+   return) is joined to its earlier track (:mod:`~omni_sfm.estimate.revisits`) and, where
+   ``revisits.min_joins`` or more are joined, steps 1-4 run again on the joined tracks from
+   the first solution's rotations, so that the two visits share their lines in one solve.
 
 Only the start rotations follow the frame order (they chain neighbouring frames); the joint
 problems replace them by their own minimum wherever the start lies in its basin. Where one
@@ -71,9 +71,8 @@ from omni_sfm.estimate.global_rotations import (
 )
 from omni_sfm.estimate.revisits import (
     RevisitOptions,
-    groups_of,
     join_revisits,
-    revisit_pairs,
+    revisit_groups,
 )
 from omni_sfm.estimate.rig_scale import OffsetScale, facing_lines, offset_scale
 from omni_sfm.estimate.segments import runs
@@ -1219,10 +1218,10 @@ def _decisive(options: BundleOptions) -> BundleOptions:
 
 def solve_global(tracks: LineTracks, options: GlobalOptions = GlobalOptions()
                  ) -> GlobalSolution:
-    """Steps 1-5 of the module docstring: the solution of :func:`_solve_once`, and where lines
-    seen on a revisit are joined (:func:`~omni_sfm.estimate.revisits.revisit_pairs`), the
-    solution of the joined tracks from the first one's rotations, every original track given its
-    group's line.
+    """Steps 1-5 of the module docstring: the solution of :func:`_solve_once`, and where a place
+    is seen again (:func:`~omni_sfm.estimate.revisits.revisit_groups`: enough of its lines
+    joined), the solution of the joined tracks from the first one's rotations, every original
+    track given its group's line.
 
     ``options``: the user's (:class:`GlobalOptions`), or :class:`Settings` (the fixed values
     other than their defaults).
@@ -1235,12 +1234,11 @@ def solve_global(tracks: LineTracks, options: GlobalOptions = GlobalOptions()
     if not options.revisits.enabled:
         return sol
     t = time.perf_counter()
-    pairs = revisit_pairs(tracks, sol.rotations, sol.positions, sol.line_directions,
-                          sol.line_points, sol.used_tracks, options.revisits)
-    group = groups_of(tracks, pairs)
-    joins = tracks.num_tracks - len(np.unique(group))
-    if joins == 0:
+    group = revisit_groups(tracks, sol.rotations, sol.positions, sol.line_directions,
+                           sol.line_points, sol.used_tracks, options.revisits)
+    if group is None:  # no place seen again: the solution stands
         return replace(sol, steps=[*sol.steps, EstimatorStep(step="revisits", joined=0)])
+    joins = tracks.num_tracks - len(np.unique(group))
     joined, merged_of = join_revisits(tracks, group)
     again = _solve_once(joined, options, sol.rotations)
     timings = {**again.timings_ms, "revisits": (time.perf_counter() - t) * 1e3}

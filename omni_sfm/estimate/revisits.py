@@ -17,8 +17,10 @@ of tracks that do not share a frame is a candidate when
 
 The joins are made only where the later track begins at least ``min_gap_frames`` after the
 earlier one ends (a revisit, not the front end losing a line for a moment), and never between
-two tracks that saw one frame. :func:`join_revisits` merges the tracks of each group into one
-and gives the merged track of each original one.
+two tracks that saw one frame; the estimator solves again only where at least ``min_joins``
+tracks are joined (a place seen again, not a line found again: :func:`revisit_groups`).
+:func:`join_revisits` merges the tracks of each group into one and gives the merged track of
+each original one.
 """
 
 from __future__ import annotations
@@ -35,9 +37,13 @@ from omni_sfm.lines.tracks import LineTracks
 class RevisitOptions:
     """When two tracks are one line seen on two visits (module docstring)."""
 
-    enabled: bool = False
-    """Join revisited lines and solve again (off, the default: the first solution stands).
-    Where it joins it solves the problem twice (docs/estimator.md, step 5)."""
+    enabled: bool = True
+    """Join revisited lines and solve again (where at least ``min_joins`` are joined: the
+    problem is then solved twice; docs/estimator.md, step 5)."""
+    min_joins: int = 8
+    """A revisit is a place seen again, many of its lines at once: with fewer tracks joined
+    (a line lost for a while and found again) the first solution stands, and its second solve
+    is not paid for."""
     min_gap_frames: int = 30
     """The later track begins at least this many frames after the earlier one ends."""
     max_angle_deg: float = 1.0
@@ -54,6 +60,8 @@ class RevisitOptions:
     def __post_init__(self) -> None:
         if self.min_gap_frames < 1:
             raise ValueError(f"min_gap_frames must be >= 1, got {self.min_gap_frames!r}")
+        if self.min_joins < 1:
+            raise ValueError(f"min_joins must be >= 1, got {self.min_joins!r}")
         for name in ("max_angle_deg", "max_offset_deg", "max_drift"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)!r}")
@@ -184,3 +192,13 @@ def join_revisits(tracks: LineTracks, group: np.ndarray) -> tuple[LineTracks, np
         obs_offset=None if tracks.obs_offset is None else tracks.obs_offset[order])
     return joined, merged_of
 
+
+
+def revisit_groups(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArray, p: FloatArray,
+                   used: np.ndarray, options: RevisitOptions) -> np.ndarray | None:
+    """:func:`groups_of` the :func:`revisit_pairs` of a solution, or None where fewer than
+    ``options.min_joins`` tracks would be joined (no place seen again: a line found again
+    after a while is not worth solving the problem twice)."""
+    group = groups_of(tracks, revisit_pairs(tracks, R, c, d, p, used, options))
+    joins = tracks.num_tracks - len(np.unique(group))
+    return group if joins >= options.min_joins else None
