@@ -211,42 +211,43 @@ static void pair_means(const double *Hm, const uint8_t *fr, double iso[4])
     }
 }
 
-/* Solve the 4x4 system A x = b by Gaussian elimination with partial pivoting (A, b
- * overwritten); 0 where a pivot is exactly zero (numpy.linalg.solve raises there). */
-static int solve4(double A[16], double b[4], double x[4])
+/* Solve the n x n system A x = b (A row-major; a line's 4x4, a pose's 6x6) by Gaussian
+ * elimination with partial pivoting (A, b overwritten); 0 where a pivot is exactly zero
+ * (numpy.linalg.solve raises there). */
+static int solve_small(int n, double *A, double *b, double *x)
 {
-    for (int col = 0; col < 4; col++) {
+    for (int col = 0; col < n; col++) {
         int piv = col;
-        double best = fabs(A[4 * col + col]);
-        for (int r = col + 1; r < 4; r++)
-            if (fabs(A[4 * r + col]) > best) {
-                best = fabs(A[4 * r + col]);
+        double best = fabs(A[n * col + col]);
+        for (int r = col + 1; r < n; r++)
+            if (fabs(A[n * r + col]) > best) {
+                best = fabs(A[n * r + col]);
                 piv = r;
             }
-        if (A[4 * piv + col] == 0.0)
+        if (A[n * piv + col] == 0.0)
             return 0;
         if (piv != col) {
-            for (int j = 0; j < 4; j++) {
-                double tmp = A[4 * col + j];
-                A[4 * col + j] = A[4 * piv + j];
-                A[4 * piv + j] = tmp;
+            for (int j = 0; j < n; j++) {
+                double tmp = A[n * col + j];
+                A[n * col + j] = A[n * piv + j];
+                A[n * piv + j] = tmp;
             }
             double tmp = b[col];
             b[col] = b[piv];
             b[piv] = tmp;
         }
-        for (int r = col + 1; r < 4; r++) {
-            double m = A[4 * r + col] / A[4 * col + col];
-            for (int j = col; j < 4; j++)
-                A[4 * r + j] -= m * A[4 * col + j];
+        for (int r = col + 1; r < n; r++) {
+            double m = A[n * r + col] / A[n * col + col];
+            for (int j = col; j < n; j++)
+                A[n * r + j] -= m * A[n * col + j];
             b[r] -= m * b[col];
         }
     }
-    for (int r = 3; r >= 0; r--) {
+    for (int r = n - 1; r >= 0; r--) {
         double s = b[r];
-        for (int j = r + 1; j < 4; j++)
-            s -= A[4 * r + j] * x[j];
-        x[r] = s / A[4 * r + r];
+        for (int j = r + 1; j < n; j++)
+            s -= A[n * r + j] * x[j];
+        x[r] = s / A[n * r + r];
     }
     return 1;
 }
@@ -336,7 +337,7 @@ WIDE_LOOPS static int refit(const Refit *q)
                 Am[5 * a] = fr[a] ? Am[5 * a] + mu[m] * (dg > floor_ ? dg : floor_) : 1.0;
                 bm[a] = g[4 * m + a];
             }
-            if (!solve4(Am, bm, x)) {
+            if (!solve_small(4, Am, bm, x)) {
                 singular = 1;
                 break;
             }
@@ -1375,46 +1376,6 @@ static PyObject *py_chol_solve(PyObject *Py_UNUSED(self), PyObject *args)
 
 /* ---- one camera's pose from lines held (bundle.resect_pose) -------------------------------- */
 
-/* x = A^-1 b for a 6x6 A (Gaussian elimination, partial pivoting: numpy.linalg.solve's LU);
-   0 where a pivot is exactly zero (numpy's LinAlgError) */
-static int solve6(double A[36], double b[6], double x[6])
-{
-    for (int col = 0; col < 6; col++) {
-        int piv = col;
-        double best = fabs(A[6 * col + col]);
-        for (int r = col + 1; r < 6; r++)
-            if (fabs(A[6 * r + col]) > best) {
-                best = fabs(A[6 * r + col]);
-                piv = r;
-            }
-        if (A[6 * piv + col] == 0.0)
-            return 0;
-        if (piv != col) {
-            for (int j = 0; j < 6; j++) {
-                double tmp = A[6 * col + j];
-                A[6 * col + j] = A[6 * piv + j];
-                A[6 * piv + j] = tmp;
-            }
-            double tmp = b[col];
-            b[col] = b[piv];
-            b[piv] = tmp;
-        }
-        for (int r = col + 1; r < 6; r++) {
-            double m = A[6 * r + col] / A[6 * col + col];
-            for (int j = col; j < 6; j++)
-                A[6 * r + j] -= m * A[6 * col + j];
-            b[r] -= m * b[col];
-        }
-    }
-    for (int r = 5; r >= 0; r--) {
-        double s = b[r];
-        for (int j = r + 1; j < 6; j++)
-            s -= A[6 * r + j] * x[j];
-        x[r] = s / A[6 * r + r];
-    }
-    return 1;
-}
-
 /* R <- R exp([w]x) (geometry.rotvec_to_matrix: the unit axis, normalised twice, and
    I + sin(t) K + (1 - cos(t)) K^2) */
 static void rotate_by(const double R[9], const double w[3], double out[9])
@@ -1548,7 +1509,7 @@ static int resect(const Pose *q, double R[9], double c[3], int iterations, doubl
                 A[7 * i] = H[7 * i] + lam * dg[i / 3];
                 b[i] = g[i];
             }
-            if (!solve6(A, b, x)) {
+            if (!solve_small(6, A, b, x)) {
                 lam *= 10.0;
                 continue;
             }
