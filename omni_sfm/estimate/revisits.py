@@ -6,14 +6,20 @@ the two visits the walk's small drift stays in the result. After a global soluti
 of tracks that do not share a frame is a candidate when
 
 - their 3D lines point the same way (within ``max_angle_deg``),
-- they lie on each other: their perpendicular offset is within ``max_offset_deg`` seen from
-  the later track's cameras plus ``max_drift`` of the path walked between the two visits (the
-  drift a solution gathers grows with it),
+- they lie on each other: their perpendicular offset (across their mean direction) is within
+  ``max_offset_deg`` seen from the cameras of the track farther from its line plus
+  ``max_drift`` of the path walked between the two visits (the drift a solution gathers
+  grows with it),
 - their seen parts overlap along the line (the extents the observations' rays mark on it,
-  within a tenth of the later track's distance), and
-- the later track has no second candidate nearly as close (``ambiguity``) on another line
-  (tracks of the best candidate's line do not count): of two parallel edges a few centimetres
-  apart (a door frame's), neither is joined where drift makes them indistinguishable.
+  within a tenth of that distance),
+- neither has a second candidate nearly as close (``ambiguity``) on another line (tracks of
+  the best candidate's line do not count): of two parallel edges a few centimetres apart (a
+  door frame's), neither is joined where drift makes them indistinguishable, and
+- each is the other's best candidate (the later track's among the tracks before it, the
+  earlier's among those after it).
+
+Every measure is the same for the pair whichever track comes first, so the frames reversed
+give the same joins.
 
 The joins are made only where the later track begins at least ``min_gap_frames`` after the
 earlier one ends (a revisit, not the front end losing a line for a moment), and never between
@@ -29,7 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from omni_sfm.geometry import FloatArray
+from omni_sfm.geometry import FloatArray, normalize
 from omni_sfm.lines.tracks import LineTracks
 
 
@@ -106,48 +112,84 @@ def revisit_pairs(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArra
                   p: FloatArray, used: np.ndarray, options: RevisitOptions
                   ) -> list[tuple[int, int]]:
     """``(earlier, later)`` track pairs that are one line seen on two visits (module
-    docstring), each later track at most once, in the order of the later track."""
+    docstring), in the order of the later track: each the other's best match, the later
+    track's among the tracks before it and the earlier's among those after it (:func:`_best`),
+    and every measure symmetric in the two tracks, so that the same pairs are found whichever
+    way the frames run."""
     lo, hi, depth = line_extents(tracks, R, c, d, p)
     first, last = tracks.frame_spans()
     step = np.linalg.norm(np.diff(c, axis=0), axis=1)
     walked = np.r_[0.0, np.cumsum(np.where(np.isfinite(step), step, 0.0))]
     good = used & np.isfinite(lo) & np.isfinite(depth)
     idx = np.flatnonzero(good)
-    cos_max = np.cos(np.radians(options.max_angle_deg))
-    tan_off = np.tan(np.radians(options.max_offset_deg))
+    lines = _Lines(d, p, lo, hi, depth, walked, first, last, options)
     pairs = []
     for b in idx[np.argsort(first[idx], kind="stable")]:
-        cand = idx[last[idx] + options.min_gap_frames <= first[b]]
-        if len(cand) == 0:
-            continue
-        cos = d[cand] @ d[b]
-        cand, cos = cand[np.abs(cos) >= cos_max], cos[np.abs(cos) >= cos_max]
-        if len(cand) == 0:
-            continue
-        da = d[cand] * np.sign(cos)[:, None]  # each earlier line's direction, turned to b's
-        gap = p[b] - p[cand]
-        offset = np.linalg.norm(gap - np.einsum("ki,ki->k", gap, da)[:, None] * da, axis=1)
-        # b's seen part, on each earlier line (its parameter along d[cand])
-        t0 = np.einsum("ki,ki->k", p[b] + lo[b] * d[b] - p[cand], d[cand])
-        t1 = np.einsum("ki,ki->k", p[b] + hi[b] * d[b] - p[cand], d[cand])
-        margin = 0.1 * depth[b]
-        overlap = np.flatnonzero((np.maximum(t0, t1) >= lo[cand] - margin)
-                                 & (np.minimum(t0, t1) <= hi[cand] + margin))
-        if len(overlap) == 0:
-            continue
-        best = overlap[np.argmin(offset[overlap])]
-        reach = tan_off * depth[b] + options.max_drift * (walked[first[b]]
-                                                          - walked[last[cand[best]]])
-        # the other lines there (not the best's line again, as a track of its own: within the
-        # angle, the earlier tracks being solved together)
-        gap = p[cand[overlap]] - p[cand[best]]
-        apart = np.linalg.norm(gap - np.outer(gap @ da[best], da[best]), axis=1) > \
-            tan_off * depth[b]
-        rest = offset[overlap[apart]]
-        if offset[best] > reach or (len(rest) and rest.min() < options.ambiguity * offset[best]):
-            continue
-        pairs.append((int(cand[best]), int(b)))
+        a = lines.best(int(b), idx[last[idx] + options.min_gap_frames <= first[b]])
+        if a is not None and \
+                lines.best(a, idx[first[idx] >= last[a] + options.min_gap_frames]) == b:
+            pairs.append((a, int(b)))
     return pairs
+
+
+@dataclass(frozen=True)
+class _Lines:
+    """The solution's lines (``d, p``), their seen parts (``lo, hi``) and depths, the path
+    walked to each frame and each track's frame span: what :meth:`best` measures pairs on."""
+
+    d: FloatArray
+    p: FloatArray
+    lo: FloatArray
+    hi: FloatArray
+    depth: FloatArray
+    walked: FloatArray
+    first: np.ndarray
+    last: np.ndarray
+    options: RevisitOptions
+
+    def best(self, b: int, cand: np.ndarray) -> int | None:
+        """The track of ``cand`` that is ``b``'s line seen on another visit, or None: the
+        candidate within the angle whose seen part overlaps ``b``'s with the least offset,
+        within the reach (the angle at the deeper track's depth plus the drift over the path
+        walked between the visits), and no other line within ``ambiguity`` times that offset.
+        Offsets are measured across the two lines' mean direction, parts and margins along
+        it: the same for the pair whichever track is ``b``."""
+        o = self.options
+        d, p = self.d, self.p
+        cos = d[cand] @ d[b]
+        keep = np.abs(cos) >= np.cos(np.radians(o.max_angle_deg))
+        cand, sign = cand[keep], np.sign(cos[keep])
+        if len(cand) == 0:
+            return None
+        mean = normalize(d[cand] * sign[:, None] + d[b])  # the pair's direction, b's way
+        gap = p[cand] - p[b]
+        along = np.einsum("ki,ki->k", gap, mean)
+        offset = np.linalg.norm(gap - along[:, None] * mean, axis=1)
+        deep = np.maximum(self.depth[cand], self.depth[b])
+        tan_off = np.tan(np.radians(o.max_offset_deg))
+        # the seen parts along the pair's direction (from b's point; each line's own parameter
+        # scaled by its direction's share of it)
+        da, db = np.einsum("ki,ki->k", d[cand], mean), mean @ d[b]
+        c0, c1 = along + self.lo[cand] * da, along + self.hi[cand] * da
+        b0, b1 = self.lo[b] * db, self.hi[b] * db
+        margin = 0.1 * deep
+        overlap = np.flatnonzero((np.maximum(c0, c1) >= np.minimum(b0, b1) - margin)
+                                 & (np.minimum(c0, c1) <= np.maximum(b0, b1) + margin))
+        if len(overlap) == 0:
+            return None
+        best = overlap[np.argmin(offset[overlap])]
+        a = int(cand[best])
+        earlier, later = (a, b) if self.first[a] < self.first[b] else (b, a)
+        between = abs(self.walked[self.first[later]] - self.walked[self.last[earlier]])
+        reach = tan_off * deep[best] + o.max_drift * between
+        # the other lines there (not the best's line again, as a track of its own)
+        gap = p[cand[overlap]] - p[a]
+        apart = np.linalg.norm(gap - np.outer(gap @ mean[best], mean[best]), axis=1) > \
+            tan_off * deep[best]
+        rest = offset[overlap[apart]]
+        if offset[best] > reach or (len(rest) and rest.min() < o.ambiguity * offset[best]):
+            return None
+        return a
 
 
 def groups_of(tracks: LineTracks, pairs: list[tuple[int, int]]) -> np.ndarray:
