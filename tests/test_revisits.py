@@ -192,7 +192,7 @@ def test_the_same_pairs_whichever_way_the_frames_run() -> None:
     tracks, line_of = _tracks(R, c, d, p)
     dt, pt = _true_lines(d, p, line_of)
     used = np.ones(tracks.num_tracks, bool)
-    # 3 cm off (the one-sided rule this replaced found other pairs reversed on seeds 1, 2)
+    # 3 cm off: where the later track alone chooses, seeds 1 and 2 give other pairs reversed
     moved = [pt + np.random.default_rng(s).normal(size=pt.shape) * [0.03, 0.03, 0.0]
              for s in range(3)]
     for lines in (pt, *moved):

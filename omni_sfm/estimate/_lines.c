@@ -1475,7 +1475,7 @@ static void pose_normal_equations(const Pose *q, const double R[9], const double
     }
 }
 
-/* Levenberg-Marquardt over the pose (solver.levenberg_marquardt with _PoseProblem: the first
+/* Levenberg-Marquardt over the pose (solver.levenberg_marquardt's loop on this problem: the first
    damping 1e-4, the diagonal of each 3-vector its mean, twelve tries a step each ten times
    more damped, the damping a tenth after an accepted step, stops on a relative decrease below
    ``tolerance``); R, c updated in place, e, u at the result; returns the iterations run, -1

@@ -113,7 +113,7 @@ def revisit_pairs(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatArra
                   ) -> list[tuple[int, int]]:
     """``(earlier, later)`` track pairs that are one line seen on two visits (module
     docstring), in the order of the later track: each the other's best match, the later
-    track's among the tracks before it and the earlier's among those after it (:func:`_best`),
+    track's among the tracks before it and the earlier's among those after it (:meth:`_Lines.best`),
     and every measure symmetric in the two tracks, so that the same pairs are found whichever
     way the frames run."""
     lo, hi, depth = line_extents(tracks, R, c, d, p)
