@@ -335,6 +335,8 @@ class StageReport(_StageInput, JsonReport):
 
     input: StageInput = field(default_factory=StageInput)
     parallel_family: FamilyReport | None = absent()
+    rig: RigScaleRecord | None = absent()
+    """A rig camera's poses: their metric scale (init, dense)."""
 
     @property
     def family_direction(self) -> list[float] | None:
@@ -924,8 +926,8 @@ class RefineReport(_StageInput, JsonReport):
 @dataclass(frozen=True)
 class ScaleReport(JsonReport):
     """Dense's ``scale``: where the output unit comes from (``source``: ``known_distance``,
-    ``camera_height`` or ``poses``), the source's figures, and ``factor``, the output units per
-    pose unit."""
+    ``camera_height``, ``rig``: a rig's lens offsets, or ``poses``), the source's figures, and
+    ``factor``, the output units per pose unit."""
 
     source: str
     unit: str
@@ -1044,6 +1046,8 @@ class DenseReport(_StageInput, JsonReport):
     warnings: list[str]
     backend: BackendReport
     note: str
+    rig: RigScaleRecord | None = absent()
+    """A rig camera: the metres of one unit of this folder's poses (its lens offsets)."""
     input: DenseInputRecord | None = absent()
     """Written first; None before the map is written."""
 

@@ -226,7 +226,4 @@ def test_export_colmap_writes_the_rig_and_other_commands_refuse_it(
                  str(tmp_path / "refined")]) == 2
     _one_line_error(capsys, "omni-sfm refine does not take rig cameras",
                     "omni-sfm export colmap")
-    assert main(["dense", "--input", str(init), "--images", str(frames_dir), "--output",
-                 str(tmp_path / "dense")]) == 2
-    _one_line_error(capsys, "omni-sfm dense does not take rig cameras")
-    assert not (tmp_path / "refined").exists() and not (tmp_path / "dense").exists()
+    assert not (tmp_path / "refined").exists()

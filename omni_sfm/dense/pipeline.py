@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from omni_sfm.cameras import CameraModel, write_camera_yaml
+from omni_sfm.cameras import CameraModel, RigCamera, write_camera_yaml
 from omni_sfm.dense.fusion import TsdfFusion
 from omni_sfm.dense.relpose import (
     Features,
@@ -45,7 +45,7 @@ from omni_sfm.dense.views import (
     view_geometry,
 )
 from omni_sfm.errors import OmniSfmError
-from omni_sfm.export.colmap_lenses import refuse_rig
+from omni_sfm.export.colmap_lenses import rig_metres_per_unit
 from omni_sfm.fileio import (
     atomic_output_dir,
     check_output_dir,
@@ -73,6 +73,7 @@ from omni_sfm.reports import (
     DenseReport,
     PairPoseCheck,
     PairPoseSummary,
+    RigScaleRecord,
     ScaleReport,
     ViewsReport,
 )
@@ -124,6 +125,9 @@ class DenseInput:
         frames: the image folder or video.
         image_names: the name of each pose's frame in ``frames``, in trajectory order.
         lines: the 3D lines of the poses folder (``lines3d.json``), or None.
+        metres_per_unit: for a rig camera, the metres in one pose unit (the poses folder's
+            ``report.json`` ``rig.metres_per_unit``): where each lens's centre lies in the
+            poses' units; None for a central camera.
     """
 
     trajectory: Trajectory
@@ -131,6 +135,7 @@ class DenseInput:
     frames: FrameStore
     image_names: tuple[str, ...]
     lines: LineSegments3D | None
+    metres_per_unit: float | None = None
 
 
 @dataclass(frozen=True)
@@ -207,31 +212,62 @@ def read_dense_input(poses_dir: Path, images: Path | None = None,
     if not tum.is_file():
         raise OmniSfmError(f"{tum}: no trajectory (need the output folder of init or refine)")
     art = StageFolder(poses_dir).load_stage(camera=camera_file is None)
-    if art.camera is not None:
-        refuse_rig(art.camera, "dense", art.folder / art.folder.CAMERA)
     traj = art.trajectory
     if len(traj) < 3:
         raise OmniSfmError(f"{tum}: {len(traj)} poses, dense mapping needs at least 3")
     source = images_for(poses_dir, images)
     if camera_file is not None:  # a file, or equirectangular from the frame size
         camera = camera_for_frames(camera_file, source)
-        refuse_rig(camera, "dense", camera_file)
     elif art.camera is None:
         raise OmniSfmError(f"{art.folder / art.folder.CAMERA}: camera file not found (give "
                            "--camera FILE)")
     else:
         camera = art.camera
+    # a rig's lenses sit at their offsets (metres) from the rig's centre: the scale says where
+    scale = rig_metres_per_unit(poses_dir) if isinstance(camera, RigCamera) else None
     frames = FrameStore(source)
     chosen = pose_frame_names(poses_dir, traj, frames)
-    return DenseInput(traj, camera, frames, tuple(chosen), art.lines3d)
+    return DenseInput(traj, camera, frames, tuple(chosen), art.lines3d, scale)
+
+
+@dataclass(frozen=True)
+class _Lens:
+    """One lens of the frames: its model, its poses (world_from_lens, pose units) and the
+    frame pixel of its top-left pixel (a central camera: the whole frame, the poses as given)."""
+
+    camera: CameraModel
+    trajectory: Trajectory
+    corner: tuple[int, int]
+
+
+def _lenses(inp: DenseInput) -> list[_Lens]:
+    """The lenses of ``inp``'s camera: each lens of a rig at its place in the rig (its centre
+    ``rig_from_lens`` metres from the rig's, ``inp.metres_per_unit`` to pose units); a central
+    camera is one lens."""
+    cam, traj = inp.camera, inp.trajectory
+    if not isinstance(cam, RigCamera):
+        return [_Lens(cam, traj, (0, 0))]
+    if inp.metres_per_unit is None or not inp.metres_per_unit > 0:
+        raise OmniSfmError("a rig camera needs the poses' scale (report.json rig.metres_per_unit)"
+                           " to place its lenses")
+    out = []
+    for k, lens in enumerate(cam.lenses):
+        T = cam.rig_from_lens[k]
+        R = traj.rotations @ T[:3, :3]
+        c = traj.positions + traj.rotations @ (T[:3, 3] / inp.metres_per_unit)
+        x, y = (int(v) for v in cam.corners[k])
+        out.append(_Lens(lens, Trajectory(traj.timestamps.copy(), R, c), (x, y)))
+    return out
 
 
 class _Frames:
-    """Images by pose index, read on demand (RGB uint8), a few kept."""
+    """Images of one lens by pose index, read on demand (RGB uint8, the lens's part of the
+    frame), a few kept."""
 
-    def __init__(self, inp: DenseInput) -> None:
+    def __init__(self, inp: DenseInput, lens: _Lens) -> None:
         self.inp = inp
         self.camera = inp.camera
+        self.lens = lens
         self._cache: dict[int, np.ndarray] = {}
 
     def __call__(self, k: int) -> np.ndarray:
@@ -245,7 +281,8 @@ class _Frames:
                     f"{self.camera.width}x{self.camera.height}"))
             if len(self._cache) > 24:
                 self._cache.pop(next(iter(self._cache)))
-            self._cache[k] = np.ascontiguousarray(img[:, :, ::-1])
+            (x, y), lc = self.lens.corner, self.lens.camera
+            self._cache[k] = np.ascontiguousarray(img[y:y + lc.height, x:x + lc.width, ::-1])
         return self._cache[k]
 
 
@@ -259,19 +296,20 @@ class _PairDepth:
 
 
 class _Matcher:
-    """Stereo of frame pairs through rectified rigs."""
+    """Stereo of frame pairs of one lens through rectified rigs."""
 
-    def __init__(self, inp: DenseInput, geometry: ViewGeometry, num_disparities: int,
-                 opts: StereoOptions, pose_opts: PairPoseOptions) -> None:
+    def __init__(self, inp: DenseInput, lens: _Lens, geometry: ViewGeometry,
+                 num_disparities: int, opts: StereoOptions, pose_opts: PairPoseOptions) -> None:
         import cv2
 
         self.inp = inp
+        self.lens = lens
         self.geometry = geometry
         self.num_disparities = num_disparities
         self.opts = opts
         self.pose_opts = pose_opts
-        self.frames = _Frames(inp)
-        self.valid = inp.camera.valid_mask()
+        self.frames = _Frames(inp, lens)
+        self.valid = lens.camera.valid_mask()
         self._sift_mask = cv2.erode(self.valid.astype(np.uint8) * 255, np.ones((7, 7), np.uint8))
         self._features: dict[int, Features] = {}
         self._cv2 = cv2
@@ -280,12 +318,12 @@ class _Matcher:
         if k not in self._features:
             if len(self._features) > 24:
                 self._features.pop(next(iter(self._features)))
-            self._features[k] = frame_features(self.frames(k), self.inp.camera,
+            self._features[k] = frame_features(self.frames(k), self.lens.camera,
                                                self._sift_mask, self.pose_opts)
         return self._features[k]
 
     def pair(self, ref: int, src: int) -> _PairDepth:
-        traj, cam, cv2 = self.inp.trajectory, self.inp.camera, self._cv2
+        traj, cam, cv2 = self.lens.trajectory, self.lens.camera, self._cv2
         if self.pose_opts.enabled:
             pose = pair_pose(self.features(ref), self.features(src), traj.rotations[ref],
                              traj.positions[ref], traj.rotations[src], traj.positions[src],
@@ -336,7 +374,7 @@ class BaselineCalibration:
 def calibrate_baseline(matcher: _Matcher, opts: DenseOptions) -> BaselineCalibration:
     """Stereo on the middle frame with frame offsets 1, 2, 4, ... until the median disparity
     reaches the target parallax; OmniSfmError when no offset gives depth (no baseline)."""
-    traj = matcher.inp.trajectory
+    traj = matcher.lens.trajectory
     n = len(traj)
     m = n // 2
     f = matcher.geometry.focal
@@ -452,39 +490,50 @@ def check_options(opts: DenseOptions) -> None:
         raise OmniSfmError(f"resolution_scale must be > 0, got {opts.resolution_scale}")
 
 
-def _keyframe_depth(matcher: _Matcher, traj: Trajectory, k: int, baseline: float,
-                    fusion: TsdfFusion, frame_rays: FloatArray, opts: DenseOptions
+def _keyframe_depth(matchers: list[_Matcher], traj: Trajectory, k: int, baseline: float,
+                    fusion: TsdfFusion, frame_rays: list[FloatArray], opts: DenseOptions
                     ) -> KeyframeStats | None:
-    """Checked depth of keyframe ``k`` from its two stereo pairs, fused; None when fewer than
-    two frames lie at the stereo baseline."""
+    """Checked depth of keyframe ``k`` from its two stereo pairs in each lens (``matchers``,
+    ``frame_rays`` each lens's), fused; None when fewer than two frames lie at the stereo
+    baseline (``traj``: the poses, whose frames the lenses share)."""
     srcs = _sources(traj, k, baseline)
     if len(srcs) < 2:
         return None
-    t1 = time.perf_counter()
-    pa, pb = (matcher.pair(k, j) for j, _ in srcs)
-    ok_a = consistent(pa.rig, pa.depth, pb.rig, pb.depth, opts.stereo)
-    ok_b = consistent(pb.rig, pb.depth, pa.rig, pa.depth, opts.stereo)
-    da = np.where(ok_a, pa.depth, np.nan)
-    db = np.where(ok_b, pb.depth, np.nan)
-    t2 = time.perf_counter()
-    for pd, d in ((pa, da), (pb, db)):
-        fusion.integrate_rig(pd.rig, d, pd.colors, traj.positions[k])
-    t3 = time.perf_counter()
-    view_px = int(pa.valid.sum() + pb.valid.sum())
-    rays = traj.rotations[k] @ frame_rays.T
-    has = np.isfinite(depth_along(pa.rig, da, rays.T)[0])
-    has |= np.isfinite(depth_along(pb.rig, db, rays.T)[0])
+    seconds = [0.0, 0.0]
+    view_px = depth_px = 0
+    has, poses = [], []
+    for matcher, rays_cam in zip(matchers, frame_rays, strict=True):
+        lens = matcher.lens.trajectory
+        t1 = time.perf_counter()
+        pa, pb = (matcher.pair(k, j) for j, _ in srcs)
+        ok_a = consistent(pa.rig, pa.depth, pb.rig, pb.depth, opts.stereo)
+        ok_b = consistent(pb.rig, pb.depth, pa.rig, pa.depth, opts.stereo)
+        da = np.where(ok_a, pa.depth, np.nan)
+        db = np.where(ok_b, pb.depth, np.nan)
+        t2 = time.perf_counter()
+        for pd, d in ((pa, da), (pb, db)):
+            fusion.integrate_rig(pd.rig, d, pd.colors, lens.positions[k])
+        seconds[0] += t2 - t1
+        seconds[1] += time.perf_counter() - t2
+        view_px += int(pa.valid.sum() + pb.valid.sum())
+        depth_px += int(ok_a.sum() + ok_b.sum())
+        rays = (lens.rotations[k] @ rays_cam.T).T
+        has.append(np.isfinite(depth_along(pa.rig, da, rays)[0]) |
+                   np.isfinite(depth_along(pb.rig, db, rays)[0]))
+        poses += [pa.pose, pb.pose]
     return KeyframeStats(frame=k, sources=tuple(j for j, _ in srcs),
-                         baselines=tuple(b for _, b in srcs), depth_share=float(has.mean()),
-                         view_pixels=view_px, depth_pixels=int(ok_a.sum() + ok_b.sum()),
-                         seconds_depth=t2 - t1, seconds_fusion=t3 - t2,
-                         pair_poses=(pa.pose, pb.pose))
+                         baselines=tuple(b for _, b in srcs),
+                         depth_share=float(np.concatenate(has).mean()),
+                         view_pixels=view_px, depth_pixels=depth_px,
+                         seconds_depth=seconds[0], seconds_fusion=seconds[1],
+                         pair_poses=tuple(poses))
 
 
 def _output_scale(points: FloatArray, traj: Trajectory, cam: CameraModel, voxel: float,
-                  opts: DenseOptions) -> ScaleReport:
+                  opts: DenseOptions, metres_per_unit: float | None = None) -> ScaleReport:
     """Output units per pose unit (``factor``) and where they come from (``report.json``
-    ``scale``)."""
+    ``scale``): a known distance or the camera's height when given, else a rig's lens offsets
+    (``metres_per_unit``), else the poses' own unit."""
     if opts.known_distance is not None:
         first_last = float(np.linalg.norm(traj.positions[-1] - traj.positions[0]))
         if not first_last > 0:
@@ -497,6 +546,9 @@ def _output_scale(points: FloatArray, traj: Trajectory, cam: CameraModel, voxel:
                             ((0.0, 0.0, 1.0) if cam.model == "hyperboloid" else (0.0, -1.0, 0.0)),
                             dtype=np.float64)
         return _floor_scale(points, traj, normalize(up_cam), opts.camera_height, voxel)
+    if metres_per_unit is not None:
+        return ScaleReport(source="rig", unit="metres (from the rig's lens offsets)",
+                           factor=metres_per_unit)
     return ScaleReport(source="poses", unit="pose units (arbitrary scale of the input poses)",
                        factor=1.0)
 
@@ -509,10 +561,14 @@ def dense_map(inp: DenseInput, opts: DenseOptions | None = None, *,
     opts = opts or DenseOptions()
     check_options(opts)
     traj, cam = inp.trajectory, inp.camera
-    geometry = view_geometry(cam, resolution_scale=opts.resolution_scale,
-                             fov_along_deg=opts.fov_along_deg)
-    matcher = _Matcher(inp, geometry, _num_disparities(geometry, opts), opts.stereo,
-                       opts.pair_pose)
+    lenses = _lenses(inp)
+    # one view geometry for every lens: the finest lens's pixels
+    geometry = max((view_geometry(lens.camera, resolution_scale=opts.resolution_scale,
+                                  fov_along_deg=opts.fov_along_deg) for lens in lenses),
+                   key=lambda g: g.focal)
+    matchers = [_Matcher(inp, lens, geometry, _num_disparities(geometry, opts), opts.stereo,
+                         opts.pair_pose) for lens in lenses]
+    matcher = matchers[0]
     t0 = time.perf_counter()
     calib = calibrate_baseline(matcher, opts)
     t_calib = time.perf_counter() - t0
@@ -521,11 +577,13 @@ def dense_map(inp: DenseInput, opts: DenseOptions | None = None, *,
     fusion = TsdfFusion(voxel, max_depth=opts.max_depth_ratio * calib.median_depth)
     stats: list[KeyframeStats] = []
     warnings: list[str] = []
-    grid = cam.pixel_grid_rays()[::2, ::2].reshape(-1, 3)   # every 4th pixel: enough for a share
-    frame_rays = grid[np.isfinite(grid[:, 0])]
+    frame_rays = []
+    for lens in lenses:  # every 4th pixel: enough for a share
+        grid = lens.camera.pixel_grid_rays()[::2, ::2].reshape(-1, 3)
+        frame_rays.append(grid[np.isfinite(grid[:, 0])])
     for k in tqdm(range(0, len(traj), step), desc="dense", unit="keyframe",
                   disable=None if progress else True, leave=False):
-        st = _keyframe_depth(matcher, traj, k, calib.baseline, fusion, frame_rays, opts)
+        st = _keyframe_depth(matchers, traj, k, calib.baseline, fusion, frame_rays, opts)
         if st is None:
             warnings.append(f"frame {k}: fewer than two frames with enough baseline, skipped")
         else:
@@ -540,7 +598,7 @@ def dense_map(inp: DenseInput, opts: DenseOptions | None = None, *,
         raise OmniSfmError(f"stereo gave {points.shape[0]} surface points confirmed by enough "
                            "views: too little texture or baseline for stereo, or poses that do "
                            "not fit the images")
-    scale_info = _output_scale(points, traj, cam, voxel, opts)
+    scale_info = _output_scale(points, traj, cam, voxel, opts, inp.metres_per_unit)
     scale = scale_info.factor
     points = points * scale
     mesh.scale(scale, center=np.zeros(3))
@@ -552,6 +610,10 @@ def dense_map(inp: DenseInput, opts: DenseOptions | None = None, *,
     report = _dense_report(inp, stats, calib, geometry, matcher, opts, scale, scale_info, voxel,
                            step, points, mesh, warnings, {"calibration": t_calib,
                                                           "extraction": t_extract})
+    if inp.metres_per_unit is not None:  # the lens offsets in the output's unit
+        report = replace(report, rig=RigScaleRecord(
+            metres_per_unit=inp.metres_per_unit / scale,
+            note="the input poses folder's, in this folder's unit"))
     return DenseResult(points=points, colors=colors, mesh=mesh, trajectory=out_traj, scale=scale,
                        median_depth=calib.median_depth * scale, voxel_size=voxel * scale,
                        keyframes=tuple(stats), report=report)

@@ -51,13 +51,17 @@ def rig_metres_per_unit(folder: Path | str, *, shown_as: Path | str | None = Non
     from the lens baseline (the lens centres of ``camera.yaml``, metres, are observed in the
     lines) and records it in the init folder's ``report.json`` as
     ``"rig": {"metres_per_unit": <float>}`` (:class:`~omni_sfm.reports.RigScaleRecord`).
-    Nothing else guesses it: without it (an initializer plugin's folder, lines too far for the
-    baseline to fix it) this is a one-line OmniSfmError, naming the folder ``shown_as`` (the
-    output a temporary folder becomes) when given."""
-    from omni_sfm.folders import InitFolder
+    A dense folder records it in its own unit (docs/dense.md). Nothing else guesses it: without
+    it (an initializer plugin's folder, lines too far for the baseline to fix it) this is a
+    one-line OmniSfmError, naming the folder ``shown_as`` (the output a temporary folder
+    becomes) when given."""
+    from omni_sfm.folders import StageFolder
 
-    report = InitFolder(Path(folder)).read_report()
-    path = Path(shown_as if shown_as is not None else folder) / InitFolder.REPORT
+    stage = StageFolder(Path(folder))
+    path = Path(shown_as if shown_as is not None else folder) / stage.REPORT
+    report = stage.read_stage_report()
+    if report is None:
+        raise OmniSfmError(f"{path}: report not found")
     value = None if report.rig is None else report.rig.metres_per_unit
     if value is None:
         raise OmniSfmError(f"{path}: no metric scale for the rig's lens offsets (key "
