@@ -431,10 +431,12 @@ class RigScaleRecord(JsonReport):
     """An init report's ``rig`` (a rig of lenses, docs/estimator.md "Rigs"): the metres that
     one unit of the trajectory spans, the metric scale the baseline between the lenses fixes;
     where the lines are too far for it, a rough one (the offsets too small to matter either),
-    or null; ``note`` says which."""
+    or null; ``note`` says which, ``fixed`` whether the baseline fixes it (absent in older
+    reports)."""
 
     metres_per_unit: float | None
     note: str
+    fixed: bool | None = absent()
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -320,7 +320,7 @@ def _write_rig_poses(room: Path, d: Path) -> Path:
     write_tum(d / "trajectory.tum", _similar(read_tum(room / "groundtruth.tum"), SCALE))
     shutil.copyfile(room / "camera.yaml", d / "camera.yaml")
     (d / "report.json").write_text(json.dumps({
-        "num_frames": 20, "rig": {"metres_per_unit": 1 / SCALE, "note": "test"}}))
+        "num_frames": 20, "rig": {"metres_per_unit": 1 / SCALE, "note": "test", "fixed": True}}))
     return d
 
 
@@ -351,8 +351,17 @@ def test_each_lens_of_a_rig_sits_at_its_offset(dual_room: Path, tmp_path: Path) 
         crop = _Frames(inp, lens)(7)
         assert crop.shape[:2] == (lens.camera.height, lens.camera.width)
         assert np.array_equal(crop, full[y:y + lens.camera.height, x:x + lens.camera.width])
+    assert inp.metric
+    # a rough scale (init's where the lens baseline does not fix it) places the lenses but
+    # does not make the map metric
+    report = tmp_path / "poses" / "report.json"
+    doc = json.loads(report.read_text())
+    doc["rig"]["fixed"] = False
+    report.write_text(json.dumps(doc))
+    rough = read_dense_input(tmp_path / "poses", dual_room / "images")
+    assert rough.metres_per_unit == inp.metres_per_unit and not rough.metric
     # a rig's poses without their metric scale: one line, nothing written
-    (tmp_path / "poses" / "report.json").unlink()
+    report.unlink()
     with pytest.raises(OmniSfmError, match="report"):
         read_dense_input(tmp_path / "poses", dual_room / "images")
 

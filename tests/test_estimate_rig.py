@@ -90,6 +90,7 @@ def test_lens_offsets_make_a_dual_fisheye_exact_where_one_centre_is_not() -> Non
     # the adjustment in metres: the baseline between the lenses gives the metric scale
     span = float(np.linalg.norm(gt.positions[-1] - gt.positions[0]))  # type: ignore[attr-defined]
     assert abs(rig.report.rig.metres_per_unit / span - 1.0) < 0.01
+    assert rig.report.rig.fixed is True
     assert central.report.rig is None
     assert rig.report.estimator_choice == "asked for"
 

@@ -128,6 +128,8 @@ class DenseInput:
         metres_per_unit: for a rig camera, the metres in one pose unit (the poses folder's
             ``report.json`` ``rig.metres_per_unit``): where each lens's centre lies in the
             poses' units; None for a central camera.
+        metric: the lenses' baseline fixes ``metres_per_unit`` (``rig.fixed``), so it makes
+            the map metric; else it only places the lenses (a rough scale).
     """
 
     trajectory: Trajectory
@@ -136,6 +138,7 @@ class DenseInput:
     image_names: tuple[str, ...]
     lines: LineSegments3D | None
     metres_per_unit: float | None = None
+    metric: bool = False
 
 
 @dataclass(frozen=True)
@@ -225,9 +228,11 @@ def read_dense_input(poses_dir: Path, images: Path | None = None,
         camera = art.camera
     # a rig's lenses sit at their offsets (metres) from the rig's centre: the scale says where
     scale = rig_metres_per_unit(poses_dir) if isinstance(camera, RigCamera) else None
+    rig = None if art.report is None else art.report.rig
     frames = FrameStore(source)
     chosen = pose_frame_names(poses_dir, traj, frames)
-    return DenseInput(traj, camera, frames, tuple(chosen), art.lines3d, scale)
+    return DenseInput(traj, camera, frames, tuple(chosen), art.lines3d, scale,
+                      scale is not None and rig is not None and rig.fixed is True)
 
 
 @dataclass(frozen=True)
@@ -577,6 +582,9 @@ def dense_map(inp: DenseInput, opts: DenseOptions | None = None, *,
     fusion = TsdfFusion(voxel, max_depth=opts.max_depth_ratio * calib.median_depth)
     stats: list[KeyframeStats] = []
     warnings: list[str] = []
+    if inp.metres_per_unit is not None and not inp.metric:
+        warnings.append("the rig's metric scale is a rough one (the lenses' baseline did not fix "
+                        "it): the map is in the poses' unit")
     frame_rays = []
     for lens in lenses:  # every 4th pixel: enough for a share
         grid = lens.camera.pixel_grid_rays()[::2, ::2].reshape(-1, 3)
@@ -598,7 +606,8 @@ def dense_map(inp: DenseInput, opts: DenseOptions | None = None, *,
         raise OmniSfmError(f"stereo gave {points.shape[0]} surface points confirmed by enough "
                            "views: too little texture or baseline for stereo, or poses that do "
                            "not fit the images")
-    scale_info = _output_scale(points, traj, cam, voxel, opts, inp.metres_per_unit)
+    scale_info = _output_scale(points, traj, cam, voxel, opts,
+                               inp.metres_per_unit if inp.metric else None)
     scale = scale_info.factor
     points = points * scale
     mesh.scale(scale, center=np.zeros(3))
@@ -613,7 +622,7 @@ def dense_map(inp: DenseInput, opts: DenseOptions | None = None, *,
     if inp.metres_per_unit is not None:  # the lens offsets in the output's unit
         report = replace(report, rig=RigScaleRecord(
             metres_per_unit=inp.metres_per_unit / scale,
-            note="the input poses folder's, in this folder's unit"))
+            note="the input poses folder's, in this folder's unit", fixed=inp.metric))
     return DenseResult(points=points, colors=colors, mesh=mesh, trajectory=out_traj, scale=scale,
                        median_depth=calib.median_depth * scale, voxel_size=voxel * scale,
                        keyframes=tuple(stats), report=report)

@@ -831,16 +831,16 @@ def _rig_record(sol: GlobalSolution, frames: np.ndarray) -> RigScaleRecord | Non
     if not scale.scale > 0:
         return RigScaleRecord(metres_per_unit=None, note=(
             "the lines are too far for the lenses' baseline to give a metric scale (and for "
-            "their offsets to matter): the lenses taken as one centre"))
+            "their offsets to matter): the lenses taken as one centre"), fixed=False)
     idx = np.flatnonzero(frames)
     span = float(np.linalg.norm(sol.positions[idx[-1]] - sol.positions[idx[0]]))
     if not scale.fixed:
         return RigScaleRecord(metres_per_unit=span / scale.scale, note=(
             "a rough metric scale: the lines are too far for the lenses' baseline to fix it "
-            "(or for their offsets to matter), the lenses taken as one centre"))
+            "(or for their offsets to matter), the lenses taken as one centre"), fixed=False)
     return RigScaleRecord(metres_per_unit=span, note=(
         "metric scale from the baseline between the lenses (the adjustment in metres, docs/"
-        "estimator.md \"Rigs\")"))
+        "estimator.md \"Rigs\")"), fixed=True)
 
 
 def start_workers(options: EstimationOptions) -> int:
