@@ -173,7 +173,7 @@ def test_a_place_seen_again_is_joined_a_line_found_again_is_not() -> None:
     assert tracks.num_tracks - len(np.unique(group)) >= RevisitOptions().min_joins
     np.testing.assert_array_equal(
         group, groups_of(tracks, revisit_pairs(tracks, R, c, dt, pt, used, RevisitOptions())))
-    # only the first revisited line's tracks left: one join, under the default's 8
+    # only the first revisited line's tracks left: one join, under the default's 16
     again = np.r_[False, line_of[1:] == line_of[:-1]]  # a line's second track and on
     keep = ~again | (line_of == line_of[np.flatnonzero(again)[0]])
     one = tracks.keep_observations(keep[tracks.obs_track])
