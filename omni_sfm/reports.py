@@ -431,8 +431,8 @@ class RigScaleRecord(JsonReport):
     """An init report's ``rig`` (a rig of lenses, docs/estimator.md "Rigs"): the metres that
     one unit of the trajectory spans, the metric scale the baseline between the lenses fixes;
     where the lines are too far for it, a rough one (the offsets too small to matter either),
-    or null; ``note`` says which, ``fixed`` whether the baseline fixes it (absent in older
-    reports)."""
+    or null; ``note`` says which, ``fixed`` whether the baseline fixes it (None where the
+    writer does not say: only a fixed scale makes a dense map metric)."""
 
     metres_per_unit: float | None
     note: str

@@ -227,12 +227,14 @@ def read_dense_input(poses_dir: Path, images: Path | None = None,
     else:
         camera = art.camera
     # a rig's lenses sit at their offsets (metres) from the rig's centre: the scale says where
-    scale = rig_metres_per_unit(poses_dir) if isinstance(camera, RigCamera) else None
-    rig = None if art.report is None else art.report.rig
+    scale, metric = None, False
+    if isinstance(camera, RigCamera):
+        scale = rig_metres_per_unit(poses_dir)  # one line when the report lacks it
+        metric = art.report is not None and art.report.rig is not None and \
+            art.report.rig.fixed is True
     frames = FrameStore(source)
     chosen = pose_frame_names(poses_dir, traj, frames)
-    return DenseInput(traj, camera, frames, tuple(chosen), art.lines3d, scale,
-                      scale is not None and rig is not None and rig.fixed is True)
+    return DenseInput(traj, camera, frames, tuple(chosen), art.lines3d, scale, metric)
 
 
 @dataclass(frozen=True)

@@ -52,8 +52,8 @@ class RevisitOptions:
     """A revisit is a place seen again, many of its lines at once: with fewer tracks joined
     (a line lost for a while and found again) the first solution stands, and its second solve
     is not paid for. The loops around a block join 24-86; the 2,000-frame office walk, which
-    never comes back, 8 forward and 11 reversed (solved again, they cost 46 s and left the two
-    orders 0.32 deg apart)."""
+    never comes back, 8 forward and 11 reversed (solving those again costs 46 s and puts the
+    two orders 0.32 deg apart)."""
     min_gap_frames: int = 30
     """The later track begins at least this many frames after the earlier one ends."""
     max_angle_deg: float = 1.0
