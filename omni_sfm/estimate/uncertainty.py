@@ -283,7 +283,8 @@ def pose_spread(tracks: LineTracks, rotations: FloatArray, positions: FloatArray
     of ``held_directions`` keep their direction, as the adjustment held it. ``cache`` keeps
     each window's figures between calls with the same solution and noise (the flags'
     rounds): a window whose aligned frames and reference errors have not changed is not
-    computed again."""
+    computed again, and a window's inverse information, which does not depend on them, is
+    computed once."""
     F = tracks.num_frames
     rot, pos = np.full(F, np.nan), np.full(F, np.nan)
     posed = np.flatnonzero(frames)
@@ -309,11 +310,14 @@ def pose_spread(tracks: LineTracks, rotations: FloatArray, positions: FloatArray
         if isinstance(kept, tuple) and kept[0] == key:
             idx, r, q = kept[1]
         else:
-            idx, r, q = _window_spread(rotations, _window_inverse(
+            # the inverse does not depend on the aligned frames: computed once a window
+            inv = kept[2] if isinstance(kept, tuple) else _window_inverse(
                 tracks, rotations, positions, line_directions, line_points, sel, used_tracks,
-                sigma_rad, held_directions), sigma_rad, aligned, carried, a == starts[at])
+                sigma_rad, held_directions)
+            idx, r, q = _window_spread(rotations, inv, sigma_rad, aligned, carried,
+                                       a == starts[at])
             if cache is not None:
-                cache[a] = (key, (idx, r, q))
+                cache[a] = (key, (idx, r, q), inv)
         new = np.isnan(carried[idx])
         carried[idx[new]] = np.square(r[new])
         k = np.arange(len(idx))
