@@ -184,7 +184,7 @@ def _one_line_error(capsys: pytest.CaptureFixture[str], *words: str) -> None:
         assert w in err, err
 
 
-def test_export_colmap_writes_the_rig_and_other_commands_refuse_it(
+def test_export_colmap_writes_the_rig_and_the_commands_without_rigs_refuse_it(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     camera = dual_fisheye_camera(192, 96)
     traj = _trajectory(3, 6)
@@ -218,7 +218,7 @@ def test_export_colmap_writes_the_rig_and_other_commands_refuse_it(
     for im in rec.images.values():
         assert np.allclose(_matrix(built.find_image_with_name(im.name).cam_from_world()),
                            _matrix(im.cam_from_world()), atol=1e-12)
-    for fmt in ("nerfstudio", "limap", "colmap-rig"):
+    for fmt in ("limap", "colmap-rig"):
         assert main(["export", "--input", str(init), "--images", str(frames_dir), "--format",
                      fmt, "--output", str(tmp_path / fmt)]) == 2
         _one_line_error(capsys, "does not take rig cameras", "omni-sfm export colmap")
@@ -227,3 +227,62 @@ def test_export_colmap_writes_the_rig_and_other_commands_refuse_it(
     _one_line_error(capsys, "omni-sfm refine does not take rig cameras",
                     "omni-sfm export colmap")
     assert not (tmp_path / "refined").exists()
+
+
+def test_nerfstudio_views_of_each_lens_see_the_world_where_the_lens_does(tmp_path: Path) -> None:
+    """``export --format nerfstudio`` of a rig: pinhole views rendered from each lens's part of
+    the frames, each posed at its lens (the lens's rotation and centre at its offset, in the
+    poses' units) turned by the view's rotation: a world point 0.5 m from a view's centre,
+    through one of its pixels, is where the lens images it (the view's remap table there,
+    float32: to 1e-3 px)."""
+    from omni_sfm.export.nerfstudio import opencv_poses, read_transforms
+    from omni_sfm.export.perspective import view_layout
+    from omni_sfm.poses import write_tum
+
+    camera = _tilted_rig()
+    traj = _trajectory(2, 11)
+    names = ["000000.png", "000001.png"]
+    frames_dir = tmp_path / "frames"
+    frames_dir.mkdir()
+    rng = np.random.default_rng(2)
+    frames = [rng.integers(0, 256, size=(96, 192, 3), dtype=np.uint8) for _ in names]
+    for n, f in zip(names, frames, strict=True):
+        cv2.imwrite(str(frames_dir / n), f)
+    init = _init_folder(tmp_path / "init", camera, traj, names)
+    write_tum(init / "trajectory.tum", traj)
+    out = tmp_path / "ns"
+    assert main(["export", "--input", str(init), "--images", str(frames_dir), "--format",
+                 "nerfstudio", "--no-up", "--output", str(out)]) == 0
+    doc, entries = read_transforms(out / "transforms.json")
+    assert doc["camera_model"] == "OPENCV"
+    report = json.loads((out / "report.json").read_text())
+    lenses = report["views"]["lenses"]
+    assert [lens["lens"] for lens in lenses] == [0, 1]
+    poses = opencv_poses(np.asarray([m for _, m in entries]))
+    K = np.array([[doc["fl_x"], 0.0, doc["cx"] - 0.5], [0.0, doc["fl_y"], doc["cy"] - 0.5],
+                  [0.0, 0.0, 1.0]])
+    r = 0
+    for k, name in enumerate(names):
+        for lens_k, lens_json in enumerate(lenses):
+            lens = camera.lenses[lens_k]
+            T = camera.rig_from_lens[lens_k]
+            R_lens = traj.rotations[k] @ T[:3, :3]
+            c_lens = traj.positions[k] + traj.rotations[k] @ T[:3, 3] / METRES_PER_UNIT
+            # --no-up: the rig's mount axis (-y) is up; each lens lays its views out by it
+            layout = view_layout(lens, T[:3, :3].T @ np.array([0.0, -1.0, 0.0]), "overlapping")
+            views, _ = layout.render(camera.lens_image(frames[k], lens_k), lens.valid_mask())
+            for v, view in enumerate(lens_json["views"]):
+                assert entries[r][0] == f"images/lens{lens_k}/{view['name']}/{name}"
+                # the view is rendered from this lens's part of the frame
+                assert np.array_equal(cv2.imread(str(out / entries[r][0])), views[v])
+                R_view = R_lens @ np.asarray(view["cam_from_view"])
+                np.testing.assert_allclose(poses.rotations[r], R_view, atol=1e-12)
+                np.testing.assert_allclose(poses.positions[r], c_lens, atol=1e-12)
+                ok = np.argwhere(layout.valid[v])
+                py, px = ok[len(ok) // 2]
+                X = c_lens + 0.5 / METRES_PER_UNIT * R_view @ np.linalg.solve(
+                    K, [float(px), float(py), 1.0])
+                seen = lens.pixels_from_rays((R_lens.T @ (X - c_lens))[None])[0]
+                np.testing.assert_allclose(seen, layout.tables[v][py, px], atol=1e-3)
+                r += 1
+    assert r == len(entries)

@@ -139,6 +139,12 @@ def test_mount_axis_finds_the_vertical_when_it_is_not_the_largest_family():
     assert _angle_deg(up.vertical, world_from_scene[:, 2]) < 1e-9
     assert up.family == 2
     np.testing.assert_allclose(up.up_from_world @ up.vertical, [0.0, 0.0, 1.0], atol=1e-12)
+    # a rig held upright: its frame's -y is the mount axis, so up is up, not down
+    from omni_sfm.synth.render import dual_fisheye_camera
+
+    up = find_up(traj, dual_fisheye_camera(64, 32), lines, None)
+    assert up.family == 2 and up.vertical is not None
+    assert _angle_deg(up.vertical, world_from_scene[:, 2]) < 1e-9
     # a camera model without a mount axis: the family most nearly perpendicular to the motion,
     # the largest of those (z here, x is along the motion)
     lines = _manhattan_lines(world_from_scene, (30, 10, 12))

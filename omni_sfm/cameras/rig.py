@@ -127,6 +127,21 @@ class RigCamera(CameraModel):
         out[1:, axis] = np.cumsum(sizes)[:-1]
         return out
 
+    def lens_image(self, frame: np.ndarray, k: int) -> np.ndarray:
+        """Lens ``k``'s part of ``frame`` (``H x W[ x C]``, the rig's size): its own image."""
+        x0, y0 = (int(v) for v in self.corners[k])
+        lens = self.lenses[k]
+        return frame[y0:y0 + lens.height, x0:x0 + lens.width]
+
+    def lens_poses(self, rotations: FloatArray, positions: FloatArray, k: int,
+                   metres_per_unit: float) -> tuple[FloatArray, FloatArray]:
+        """``(R, c)`` world_from_lens of lens ``k`` for the rig poses world_from_rig
+        (``rotations`` ``(N, 3, 3)``, centres ``positions`` ``(N, 3)`` in units of
+        ``metres_per_unit`` metres): its rotation and its centre at its offset."""
+        T = self.rig_from_lens[k]
+        return (np.asarray(rotations) @ T[:3, :3],
+                np.asarray(positions) + np.asarray(rotations) @ (T[:3, 3] / metres_per_unit))
+
     @property
     def rotations(self) -> FloatArray:
         """``(L, 3, 3)`` rig_from_lens rotations."""

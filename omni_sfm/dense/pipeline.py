@@ -259,9 +259,7 @@ def _lenses(inp: DenseInput) -> list[_Lens]:
                            " to place its lenses")
     out = []
     for k, lens in enumerate(cam.lenses):
-        T = cam.rig_from_lens[k]
-        R = traj.rotations @ T[:3, :3]
-        c = traj.positions + traj.rotations @ (T[:3, 3] / inp.metres_per_unit)
+        R, c = cam.lens_poses(traj.rotations, traj.positions, k, inp.metres_per_unit)
         x, y = (int(v) for v in cam.corners[k])
         out.append(_Lens(lens, Trajectory(traj.timestamps.copy(), R, c), (x, y)))
     return out

@@ -118,10 +118,8 @@ class LensExports:
         cam = self.camera
         if img.ndim not in (2, 3) or img.shape[:2] != (cam.height, cam.width):
             raise ValueError(f"frame must be ({cam.height}, {cam.width}[, C]), got {img.shape=}")
-        out = []
-        for (x0, y0), lens, export in zip(cam.corners, cam.lenses, self.exports, strict=True):
-            out.append(export.image_to_colmap(img[y0:y0 + lens.height, x0:x0 + lens.width]))
-        return out
+        return [export.image_to_colmap(cam.lens_image(img, k))
+                for k, export in enumerate(self.exports)]
 
     def colmap_lens_from_rig(self, metres_per_unit: float) -> FloatArray:
         """``(L, 4, 4)`` each lens's COLMAP camera frame from our rig frame, the translation in

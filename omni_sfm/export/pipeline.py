@@ -50,9 +50,10 @@ FORMATS: dict[str, bool] = {
 }
 """Every format, and whether it turns the world gravity-up by default (``--up``)."""
 
-RIG_FORMATS = ("tum", "kitti", "colmap")
+RIG_FORMATS = ("tum", "kitti", "colmap", "nerfstudio")
 """The formats that take a rig camera (``colmap`` writes it as a COLMAP rig,
-:mod:`omni_sfm.export.colmap_lenses`); the others refuse it with one line."""
+:mod:`omni_sfm.export.colmap_lenses`; ``nerfstudio`` the perspective views of each lens); the
+others refuse it with one line."""
 
 SPARSE_DIR = ExportFolder.SPARSE
 IMAGES_DIR = ExportFolder.IMAGES
@@ -354,20 +355,20 @@ def _image_ids(rec: Any, src: _Source) -> list[int]:
 
 def _export_nerfstudio(src: _Source, out: Path, opts: ExportOptions, progress: bool
                        ) -> NerfstudioWritten:
+    from omni_sfm.cameras import RigCamera
     from omni_sfm.export.nerfstudio import (
         TRANSFORMS_FILE,
         camera_intrinsics,
         frame_entry,
         transform_matrices,
         transforms_document,
-        view_intrinsics,
     )
 
     fr = src.frames(required=True)
     assert fr is not None
     store, names = fr
     traj = src.traj_out
-    intr = camera_intrinsics(src.camera)
+    intr = None if isinstance(src.camera, RigCamera) else camera_intrinsics(src.camera)
     entries = []
     layout_json: dict[str, Any] | None = None
     if intr is not None:
@@ -378,29 +379,11 @@ def _export_nerfstudio(src: _Source, out: Path, opts: ExportOptions, progress: b
             entries.append(frame_entry(rel, c2w[k], timestamp=float(traj.timestamps[k])))
         images = f"the frames themselves ({intr['camera_model']})"
     else:
-        from omni_sfm.export.perspective import view_layout
-
-        layout = view_layout(src.camera, src.up_in_cam(), opts.views)
-        g = layout.geometry
-        intr = view_intrinsics(g.width, g.height, g.focal, g.cx, g.cy)
-        valid = src.camera.valid_mask()
-        # nerfstudio takes a mask for every image or for none
-        masked = not bool(layout.valid.all())
-        for k, name in enumerate(_progress(names, "export", progress)):
-            views, ok = layout.render(src.read(store, name), valid)
-            R = traj.rotations[k][None] @ layout.cam_from_views
-            c2w = transform_matrices(R, np.repeat(traj.positions[k][None], len(R), axis=0))
-            for v, view in enumerate(layout.names):
-                rel = f"{IMAGES_DIR}/{view}/{png_name(name)}"
-                _write_png(out / rel, views[v])
-                mask = None
-                if masked:
-                    mask = f"{MASKS_DIR}/{view}/{png_name(name)}"
-                    _write_png(out / mask, np.where(ok[v], 255, 0).astype(np.uint8))
-                entries.append(frame_entry(rel, c2w[v], mask_path=mask,
-                                           timestamp=float(traj.timestamps[k]), view=view))
-        images = f"perspective views ({opts.views}: {len(layout.names)} per frame)"
-        layout_json = layout.to_json()
+        intr, entries, layout_json = _perspective_views(src, out, opts, store, names,
+                                                        progress)
+        per = len(entries) // max(len(names), 1)
+        images = f"perspective views ({opts.views}: {per} per frame" + (
+            f", each lens's in {IMAGES_DIR}/lensK/VIEW/)" if "lenses" in layout_json else ")")
     doc = transforms_document(intr, entries, src.up.matrix() if src.up.vertical is not None
                               else None)
     points, said = _sparse_points(src), None
@@ -416,6 +399,84 @@ def _export_nerfstudio(src: _Source, out: Path, opts: ExportOptions, progress: b
         said = f"{PLY_FILE}: {len(points[0])} points of the folder's COLMAP model"
     atomic_write_text(out / TRANSFORMS_FILE, dumps_json(doc))
     return NerfstudioWritten(images=images, views=layout_json, points=said, num_images=len(entries))
+
+
+@dataclass(frozen=True)
+class _ViewSource:
+    """One camera whose frames the perspective views are rendered from: a central camera, or
+    one lens of a rig (its part of each frame, its poses world_from_lens)."""
+
+    camera: Any
+    rotations: np.ndarray
+    positions: np.ndarray
+    prefix: str
+    lens: int | None = None
+
+
+def _view_sources(src: _Source) -> list[_ViewSource]:
+    """The central camera with the export's poses, or each lens of a rig at its place in it
+    (its centre ``rig_from_lens`` metres from the rig's, the folder's ``rig.metres_per_unit``
+    to pose units: :meth:`~omni_sfm.cameras.rig.RigCamera.lens_poses`)."""
+    from omni_sfm.cameras import RigCamera
+
+    traj = src.traj_out
+    if not isinstance(src.camera, RigCamera):
+        return [_ViewSource(src.camera, traj.rotations, traj.positions, "")]
+    from omni_sfm.export.colmap_lenses import rig_metres_per_unit
+
+    scale = rig_metres_per_unit(src.path)
+    return [_ViewSource(lens, *src.camera.lens_poses(traj.rotations, traj.positions, k, scale),
+                        prefix=f"lens{k}/", lens=k)
+            for k, lens in enumerate(src.camera.lenses)]
+
+
+def _perspective_views(src: _Source, out: Path, opts: ExportOptions, store: Any,
+                       names: list[str], progress: bool
+                       ) -> tuple[dict[str, Any], list[dict[str, Any]], dict[str, Any]]:
+    """nerfstudio's pinhole views rendered from the frames of a camera it has no model of
+    (:mod:`omni_sfm.export.perspective`), from each lens of a rig: ``(intrinsics, frame
+    entries, the layout's JSON)``. The intrinsics are shared where every lens's views have one
+    geometry, else each entry carries its own (nerfstudio reads them per frame then)."""
+    from omni_sfm.cameras import RigCamera
+    from omni_sfm.export.nerfstudio import frame_entry, transform_matrices, view_intrinsics
+    from omni_sfm.export.perspective import view_layout
+
+    sources = _view_sources(src)
+    up = src.up_in_cam()
+    rig = src.camera if isinstance(src.camera, RigCamera) else None
+    layouts = [view_layout(s.camera, up if rig is None or s.lens is None else
+                           rig.rotations[s.lens].T @ up, opts.views) for s in sources]
+    own = [view_intrinsics(g.width, g.height, g.focal, g.cx, g.cy)
+           for g in (layout.geometry for layout in layouts)]
+    shared = all(i == own[0] for i in own)
+    # nerfstudio takes a mask for every image or for none
+    masked = not all(bool(layout.valid.all()) for layout in layouts)
+    valid = [s.camera.valid_mask() for s in sources]
+    entries = []
+    for k, name in enumerate(_progress(names, "export", progress)):
+        frame = src.read(store, name)
+        for s, layout, ok_cam, intr in zip(sources, layouts, valid, own, strict=True):
+            img = frame if rig is None or s.lens is None else rig.lens_image(frame, s.lens)
+            views, ok = layout.render(np.ascontiguousarray(img), ok_cam)
+            R = s.rotations[k][None] @ layout.cam_from_views
+            c2w = transform_matrices(R, np.repeat(s.positions[k][None], len(R), axis=0))
+            for v, view in enumerate(layout.names):
+                rel = f"{IMAGES_DIR}/{s.prefix}{view}/{png_name(name)}"
+                _write_png(out / rel, views[v])
+                mask = None
+                if masked:
+                    mask = f"{MASKS_DIR}/{s.prefix}{view}/{png_name(name)}"
+                    _write_png(out / mask, np.where(ok[v], 255, 0).astype(np.uint8))
+                extra = {} if shared else {k2: v2 for k2, v2 in intr.items()
+                                           if k2 != "camera_model"}
+                entries.append(frame_entry(rel, c2w[v], mask_path=mask,
+                                           timestamp=float(src.traj_out.timestamps[k]),
+                                           view=f"{s.prefix}{view}", **extra))
+    intr_doc = own[0] if shared else {"camera_model": own[0]["camera_model"]}
+    if rig is None:
+        return intr_doc, entries, layouts[0].to_json()
+    return intr_doc, entries, {"lenses": [{"lens": s.lens, **layout.to_json()}
+                                          for s, layout in zip(sources, layouts, strict=True)]}
 
 
 def _sparse_points(src: _Source) -> tuple[np.ndarray, np.ndarray] | None:

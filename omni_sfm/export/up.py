@@ -48,8 +48,10 @@ MOUNT_UP_AXIS: dict[str, tuple[float, float, float]] = {
     "hyperboloid": (0.0, 0.0, 1.0),
     "equirectangular": (0.0, -1.0, 0.0),
     "opencv_fisheye": (0.0, -1.0, 0.0),
+    "rig": (0.0, -1.0, 0.0),
 }
-"""The camera-frame axis that points up when the camera is mounted as intended, per model."""
+"""The camera-frame axis that points up when the camera is mounted as intended, per model (a
+rig: its frame's -y, docs/cameras.md)."""
 
 AXES = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}
 MIN_FAMILY_SEGMENTS = 3
