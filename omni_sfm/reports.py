@@ -1124,7 +1124,8 @@ class NerfstudioWritten(ExportWritten):
 
     images: str = field(default="", kw_only=True)
     views: dict[str, Any] | None = field(default=None, metadata={_OMIT: True}, kw_only=True)
-    """:meth:`omni_sfm.export.perspective.ViewLayout.to_json`."""
+    """:meth:`omni_sfm.export.perspective.ViewLayout.to_json` (a rig camera: ``{"lenses":
+    [{"lens": k, ...}, ...]}``, each lens's)."""
     points: str | None = field(default=None, metadata={_OMIT: True}, kw_only=True)
     num_images: int = field(default=0, kw_only=True)
 
@@ -1141,7 +1142,8 @@ class RigWritten(ExportWritten):
     num_images: int = field(default=0, kw_only=True)
     num_frames: int = field(default=0, kw_only=True)
     views: dict[str, Any] = field(default_factory=dict, kw_only=True)
-    """:meth:`omni_sfm.export.perspective.ViewLayout.to_json`."""
+    """:meth:`omni_sfm.export.perspective.ViewLayout.to_json` (a rig camera: ``{"lenses":
+    [{"lens": k, ...}, ...]}``, each lens's)."""
     images: str = field(default="", kw_only=True)
     masks: str = field(default="", kw_only=True)
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import shutil
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -218,10 +219,9 @@ def test_export_colmap_writes_the_rig_and_the_commands_without_rigs_refuse_it(
     for im in rec.images.values():
         assert np.allclose(_matrix(built.find_image_with_name(im.name).cam_from_world()),
                            _matrix(im.cam_from_world()), atol=1e-12)
-    for fmt in ("limap", "colmap-rig"):
-        assert main(["export", "--input", str(init), "--images", str(frames_dir), "--format",
-                     fmt, "--output", str(tmp_path / fmt)]) == 2
-        _one_line_error(capsys, "does not take rig cameras", "omni-sfm export colmap")
+    assert main(["export", "--input", str(init), "--images", str(frames_dir), "--format",
+                 "limap", "--output", str(tmp_path / "limap")]) == 2
+    _one_line_error(capsys, "does not take rig cameras", "omni-sfm export colmap")
     assert main(["refine", "--input", str(init), "--images", str(frames_dir), "--output",
                  str(tmp_path / "refined")]) == 2
     _one_line_error(capsys, "omni-sfm refine does not take rig cameras",
@@ -229,14 +229,10 @@ def test_export_colmap_writes_the_rig_and_the_commands_without_rigs_refuse_it(
     assert not (tmp_path / "refined").exists()
 
 
-def test_nerfstudio_views_of_each_lens_see_the_world_where_the_lens_does(tmp_path: Path) -> None:
-    """``export --format nerfstudio`` of a rig: pinhole views rendered from each lens's part of
-    the frames, each posed at its lens (the lens's rotation and centre at its offset, in the
-    poses' units) turned by the view's rotation: a world point 0.5 m from a view's centre,
-    through one of its pixels, is where the lens images it (the view's remap table there,
-    float32: to 1e-3 px)."""
-    from omni_sfm.export.nerfstudio import opencv_poses, read_transforms
-    from omni_sfm.export.perspective import view_layout
+def _rig_export(tmp_path: Path, fmt: str) -> tuple[RigCamera, Trajectory, list[str],
+                                                   list[np.ndarray], Path]:
+    """A tilted rig's init folder of two random frames exported as ``fmt`` (``--no-up``):
+    ``(camera, poses, frame names, frames, export folder)``."""
     from omni_sfm.poses import write_tum
 
     camera = _tilted_rig()
@@ -250,9 +246,41 @@ def test_nerfstudio_views_of_each_lens_see_the_world_where_the_lens_does(tmp_pat
         cv2.imwrite(str(frames_dir / n), f)
     init = _init_folder(tmp_path / "init", camera, traj, names)
     write_tum(init / "trajectory.tum", traj)
-    out = tmp_path / "ns"
-    assert main(["export", "--input", str(init), "--images", str(frames_dir), "--format",
-                 "nerfstudio", "--no-up", "--output", str(out)]) == 0
+    out = tmp_path / fmt
+    assert main(["export", "--input", str(init), "--images", str(frames_dir), "--format", fmt,
+                 "--no-up", "--output", str(out)]) == 0
+    return camera, traj, names, frames, out
+
+
+def _lens_views(camera: RigCamera, lens_k: int, frame: np.ndarray) -> tuple[Any, np.ndarray]:
+    """Lens ``lens_k``'s view layout (``--no-up``: the rig's mount axis -y is up, each lens
+    lays its views out by it) and its views of ``frame``."""
+    from omni_sfm.export.perspective import view_layout
+
+    lens = camera.lenses[lens_k]
+    layout = view_layout(lens, camera.rig_from_lens[lens_k, :3, :3].T @ np.array([0.0, -1.0, 0.0]),
+                         "overlapping")
+    views, _ = layout.render(camera.lens_image(frame, lens_k), lens.valid_mask())
+    return layout, views
+
+
+def _lens_pose(camera: RigCamera, traj: Trajectory, k: int, lens_k: int
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """world_from_lens of ``lens_k`` at pose ``k``, its centre at its offset in pose units."""
+    T = camera.rig_from_lens[lens_k]
+    return (traj.rotations[k] @ T[:3, :3],
+            traj.positions[k] + traj.rotations[k] @ T[:3, 3] / METRES_PER_UNIT)
+
+
+def test_nerfstudio_views_of_each_lens_see_the_world_where_the_lens_does(tmp_path: Path) -> None:
+    """``export --format nerfstudio`` of a rig: pinhole views rendered from each lens's part of
+    the frames, each posed at its lens (the lens's rotation and centre at its offset, in the
+    poses' units) turned by the view's rotation: a world point 0.5 m from a view's centre,
+    through one of its pixels, is where the lens images it (the view's remap table there,
+    float32: to 1e-3 px)."""
+    from omni_sfm.export.nerfstudio import opencv_poses, read_transforms
+
+    camera, traj, names, frames, out = _rig_export(tmp_path, "nerfstudio")
     doc, entries = read_transforms(out / "transforms.json")
     assert doc["camera_model"] == "OPENCV"
     report = json.loads((out / "report.json").read_text())
@@ -265,12 +293,8 @@ def test_nerfstudio_views_of_each_lens_see_the_world_where_the_lens_does(tmp_pat
     for k, name in enumerate(names):
         for lens_k, lens_json in enumerate(lenses):
             lens = camera.lenses[lens_k]
-            T = camera.rig_from_lens[lens_k]
-            R_lens = traj.rotations[k] @ T[:3, :3]
-            c_lens = traj.positions[k] + traj.rotations[k] @ T[:3, 3] / METRES_PER_UNIT
-            # --no-up: the rig's mount axis (-y) is up; each lens lays its views out by it
-            layout = view_layout(lens, T[:3, :3].T @ np.array([0.0, -1.0, 0.0]), "overlapping")
-            views, _ = layout.render(camera.lens_image(frames[k], lens_k), lens.valid_mask())
+            R_lens, c_lens = _lens_pose(camera, traj, k, lens_k)
+            layout, views = _lens_views(camera, lens_k, frames[k])
             for v, view in enumerate(lens_json["views"]):
                 assert entries[r][0] == f"images/lens{lens_k}/{view['name']}/{name}"
                 # the view is rendered from this lens's part of the frame
@@ -286,3 +310,28 @@ def test_nerfstudio_views_of_each_lens_see_the_world_where_the_lens_does(tmp_pat
                 np.testing.assert_allclose(seen, layout.tables[v][py, px], atol=1e-3)
                 r += 1
     assert r == len(entries)
+
+
+def test_colmap_rig_of_a_rig_holds_every_lens_view_at_its_lens(tmp_path: Path) -> None:
+    """``export --format colmap-rig`` of a rig: one COLMAP rig whose sensors are the views of
+    both lenses, each image's cam_from_world the inverse of its lens's pose turned by the
+    view (1e-9), its image the view rendered from that lens's part of the frame."""
+    camera, traj, names, frames, out = _rig_export(tmp_path, "colmap-rig")
+    rec = pycolmap.Reconstruction(str(out / "sparse"))
+    report = json.loads((out / "report.json").read_text())
+    lenses = report["views"]["lenses"]
+    per_frame = sum(len(lens["views"]) for lens in lenses)
+    assert rec.num_rigs() == 1 and rec.num_frames() == 2
+    assert rec.num_images() == 2 * per_frame
+    for k, name in enumerate(names):
+        for lens_k, lens_json in enumerate(lenses):
+            layout, views = _lens_views(camera, lens_k, frames[k])
+            R_lens, c_lens = _lens_pose(camera, traj, k, lens_k)
+            for v, view in enumerate(lens_json["views"]):
+                im = rec.find_image_with_name(f"lens{lens_k}/{view['name']}/{name}")
+                R_view = R_lens @ layout.cam_from_views[v]
+                want = np.eye(4)
+                want[:3, :3], want[:3, 3] = R_view.T, -R_view.T @ c_lens
+                np.testing.assert_allclose(_matrix(im.cam_from_world()), want, atol=1e-9)
+                got = cv2.imread(str(out / "images" / im.name))
+                assert np.array_equal(got, views[v])

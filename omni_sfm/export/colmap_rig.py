@@ -1,11 +1,12 @@
 """A COLMAP 4.2 rig of perspective views rendered from the omni frames (``colmap-rig``).
 
 One rig (``rigs.bin``): one sensor per view of the layout (:mod:`omni_sfm.export.perspective`),
-camera ``k + 1`` for view ``k`` (all PINHOLE with the same intrinsics), the first view the
-reference sensor and every other one at ``sensor_from_rig = view_k_from_view_0`` (a rotation:
-the views share the omni camera's centre). One frame per pose (``frames.bin``) with
-``rig_from_world = view_0_from_world``, holding the frame's images, ``VIEW/NAME.png``
-(``images.bin``). COLMAP's rig documentation: https://colmap.github.io/rigs.html.
+camera ``k + 1`` for view ``k`` (PINHOLE), the first view the reference sensor and every other
+one at ``sensor_from_rig = view_k_from_view_0`` (a rotation: the views share the omni
+camera's centre; for a rig camera, the views of every lens, each lens's at its centre). One
+frame per pose (``frames.bin``) with ``rig_from_world = view_0_from_world``, holding the frame's
+images, ``VIEW/NAME.png`` (``lensK/VIEW/NAME.png`` for a rig camera; ``images.bin``).
+COLMAP's rig documentation: https://colmap.github.io/rigs.html.
 """
 
 from __future__ import annotations
@@ -74,17 +75,32 @@ def sensor_rig_reconstruction(cameras: Sequence[Any], sensor_from_rig: FloatArra
     return rec
 
 
-def build_rig_reconstruction(layout: ViewLayout, traj: Trajectory,
-                             frame_names: Sequence[str]) -> Any:
+def build_rig_reconstruction(layouts: Sequence[ViewLayout], traj: Trajectory,
+                             frame_names: Sequence[str],
+                             body_from_cams: FloatArray | None = None,
+                             prefixes: Sequence[str] | None = None) -> Any:
     """The ``pycolmap.Reconstruction`` of the views' rig (:func:`sensor_rig_reconstruction`):
-    image id ``k * V + v + 1`` is view ``v`` of pose ``k``."""
-    views = len(layout.names)
-    sensor_from_rig = np.repeat(np.eye(4)[None], views, axis=0)
-    # view_v_from_view_0 (the views share the camera's centre)
-    sensor_from_rig[:, :3, :3] = np.swapaxes(layout.cam_from_views, 1, 2) @ \
-        layout.cam_from_views[0]
+    the views of each camera ``c`` fixed to the body the poses ``traj`` are of
+    (``layouts[c]``, the camera at ``body_from_cams[c]``, ``(C, 4, 4)`` with the centre in the
+    poses' units; default: one camera, the body's own), its images named ``prefixes[c]`` +
+    view; image id ``k * S + s + 1`` is sensor ``s`` (the cameras' views in order) of pose
+    ``k``. The first view of the first camera is the reference sensor."""
+    C = len(layouts)
+    B = np.repeat(np.eye(4)[None], C, axis=0) if body_from_cams is None else \
+        np.asarray(body_from_cams, dtype=np.float64)
+    pre = [""] * C if prefixes is None else list(prefixes)
+    body_from_views = []
+    for layout, T in zip(layouts, B, strict=True):
+        for R_cv in layout.cam_from_views:
+            V = np.eye(4)
+            V[:3, :3] = R_cv
+            body_from_views.append(T @ V)
+    ref = body_from_views[0]
+    inv = [np.linalg.inv(T) for T in body_from_views]
+    sensor_from_rig = np.asarray([Ti @ ref for Ti in inv])  # view_s_from_view_0
     sensor_from_rig[0] = np.eye(4)
-    names = [[view_image_name(view, name) for view in layout.names] for name in frame_names]
-    return sensor_rig_reconstruction(
-        [layout.pycolmap_camera(v + 1) for v in range(views)], sensor_from_rig,
-        sensor_from_world(layout.cam_from_views[0].T, traj), names)
+    names = [[view_image_name(p + view, name) for layout, p in zip(layouts, pre, strict=True)
+              for view in layout.names] for name in frame_names]
+    cameras = [layout.pycolmap_camera(1) for layout in layouts for _ in layout.names]
+    return sensor_rig_reconstruction(cameras, sensor_from_rig, sensor_from_world(inv[0], traj),
+                                     names)

@@ -50,10 +50,10 @@ FORMATS: dict[str, bool] = {
 }
 """Every format, and whether it turns the world gravity-up by default (``--up``)."""
 
-RIG_FORMATS = ("tum", "kitti", "colmap", "nerfstudio")
+RIG_FORMATS = ("tum", "kitti", "colmap", "nerfstudio", "colmap-rig")
 """The formats that take a rig camera (``colmap`` writes it as a COLMAP rig,
-:mod:`omni_sfm.export.colmap_lenses`; ``nerfstudio`` the perspective views of each lens); the
-others refuse it with one line."""
+:mod:`omni_sfm.export.colmap_lenses`; ``nerfstudio`` and ``colmap-rig`` the perspective views
+of each lens); ``limap`` refuses it with one line."""
 
 SPARSE_DIR = ExportFolder.SPARSE
 IMAGES_DIR = ExportFolder.IMAGES
@@ -404,30 +404,47 @@ def _export_nerfstudio(src: _Source, out: Path, opts: ExportOptions, progress: b
 @dataclass(frozen=True)
 class _ViewSource:
     """One camera whose frames the perspective views are rendered from: a central camera, or
-    one lens of a rig (its part of each frame, its poses world_from_lens)."""
+    one lens of a rig (its part of each frame), fixed to the body the poses are of at
+    ``body_from_cam`` (``(4, 4)``, the centre in the poses' units)."""
 
     camera: Any
-    rotations: np.ndarray
-    positions: np.ndarray
+    body_from_cam: np.ndarray
     prefix: str
     lens: int | None = None
 
+    def poses(self, traj: Trajectory) -> tuple[np.ndarray, np.ndarray]:
+        """``(R, c)`` world_from_cam of this camera at each pose of ``traj``."""
+        T = self.body_from_cam
+        return traj.rotations @ T[:3, :3], traj.positions + traj.rotations @ T[:3, 3]
 
-def _view_sources(src: _Source) -> list[_ViewSource]:
-    """The central camera with the export's poses, or each lens of a rig at its place in it
-    (its centre ``rig_from_lens`` metres from the rig's, the folder's ``rig.metres_per_unit``
-    to pose units: :meth:`~omni_sfm.cameras.rig.RigCamera.lens_poses`)."""
+
+def _view_sources(src: _Source, opts: ExportOptions) -> list[tuple[_ViewSource, Any]]:
+    """The central camera, or each lens of a rig at its place in it (its centre
+    ``rig_from_lens`` metres from the rig's, the folder's ``rig.metres_per_unit`` to pose
+    units: :meth:`~omni_sfm.cameras.rig.RigCamera.rig_from_lens_in`), each with its
+    perspective views' layout (:mod:`omni_sfm.export.perspective`) about its own level frame."""
     from omni_sfm.cameras import RigCamera
+    from omni_sfm.export.perspective import view_layout
 
-    traj = src.traj_out
+    up = src.up_in_cam()
     if not isinstance(src.camera, RigCamera):
-        return [_ViewSource(src.camera, traj.rotations, traj.positions, "")]
+        return [(_ViewSource(src.camera, np.eye(4), ""), view_layout(src.camera, up,
+                                                                      opts.views))]
     from omni_sfm.export.colmap_lenses import rig_metres_per_unit
 
-    scale = rig_metres_per_unit(src.path)
-    return [_ViewSource(lens, *src.camera.lens_poses(traj.rotations, traj.positions, k, scale),
-                        prefix=f"lens{k}/", lens=k)
-            for k, lens in enumerate(src.camera.lenses)]
+    rig, scale = src.camera, rig_metres_per_unit(src.path)
+    return [(_ViewSource(lens, rig.rig_from_lens_in(k, scale), f"lens{k}/", k),
+             view_layout(lens, rig.rotations[k].T @ up, opts.views))
+            for k, lens in enumerate(rig.lenses)]
+
+
+def _source_frame(src: _Source, s: _ViewSource, frame: np.ndarray) -> np.ndarray:
+    """The camera's own image of a frame: the frame, or the lens's part of it."""
+    from omni_sfm.cameras import RigCamera
+
+    if s.lens is None or not isinstance(src.camera, RigCamera):
+        return frame
+    return np.ascontiguousarray(src.camera.lens_image(frame, s.lens))
 
 
 def _perspective_views(src: _Source, out: Path, opts: ExportOptions, store: Any,
@@ -437,29 +454,23 @@ def _perspective_views(src: _Source, out: Path, opts: ExportOptions, store: Any,
     (:mod:`omni_sfm.export.perspective`), from each lens of a rig: ``(intrinsics, frame
     entries, the layout's JSON)``. The intrinsics are shared where every lens's views have one
     geometry, else each entry carries its own (nerfstudio reads them per frame then)."""
-    from omni_sfm.cameras import RigCamera
     from omni_sfm.export.nerfstudio import frame_entry, transform_matrices, view_intrinsics
-    from omni_sfm.export.perspective import view_layout
 
-    sources = _view_sources(src)
-    up = src.up_in_cam()
-    rig = src.camera if isinstance(src.camera, RigCamera) else None
-    layouts = [view_layout(s.camera, up if rig is None or s.lens is None else
-                           rig.rotations[s.lens].T @ up, opts.views) for s in sources]
+    sources = _view_sources(src, opts)
     own = [view_intrinsics(g.width, g.height, g.focal, g.cx, g.cy)
-           for g in (layout.geometry for layout in layouts)]
+           for g in (layout.geometry for _, layout in sources)]
     shared = all(i == own[0] for i in own)
     # nerfstudio takes a mask for every image or for none
-    masked = not all(bool(layout.valid.all()) for layout in layouts)
-    valid = [s.camera.valid_mask() for s in sources]
+    masked = not all(bool(layout.valid.all()) for _, layout in sources)
+    poses = [s.poses(src.traj_out) for s, _ in sources]
+    valid = [s.camera.valid_mask() for s, _ in sources]
     entries = []
     for k, name in enumerate(_progress(names, "export", progress)):
         frame = src.read(store, name)
-        for s, layout, ok_cam, intr in zip(sources, layouts, valid, own, strict=True):
-            img = frame if rig is None or s.lens is None else rig.lens_image(frame, s.lens)
-            views, ok = layout.render(np.ascontiguousarray(img), ok_cam)
-            R = s.rotations[k][None] @ layout.cam_from_views
-            c2w = transform_matrices(R, np.repeat(s.positions[k][None], len(R), axis=0))
+        for (s, layout), (Rs, cs), ok_cam, intr in zip(sources, poses, valid, own, strict=True):
+            views, ok = layout.render(_source_frame(src, s, frame), ok_cam)
+            R = Rs[k][None] @ layout.cam_from_views
+            c2w = transform_matrices(R, np.repeat(cs[k][None], len(R), axis=0))
             for v, view in enumerate(layout.names):
                 rel = f"{IMAGES_DIR}/{s.prefix}{view}/{png_name(name)}"
                 _write_png(out / rel, views[v])
@@ -467,17 +478,16 @@ def _perspective_views(src: _Source, out: Path, opts: ExportOptions, store: Any,
                 if masked:
                     mask = f"{MASKS_DIR}/{s.prefix}{view}/{png_name(name)}"
                     _write_png(out / mask, np.where(ok[v], 255, 0).astype(np.uint8))
-                extra = {} if shared else {k2: v2 for k2, v2 in intr.items()
-                                           if k2 != "camera_model"}
+                extra = {} if shared else {key: value for key, value in intr.items()
+                                           if key != "camera_model"}
                 entries.append(frame_entry(rel, c2w[v], mask_path=mask,
                                            timestamp=float(src.traj_out.timestamps[k]),
                                            view=f"{s.prefix}{view}", **extra))
     intr_doc = own[0] if shared else {"camera_model": own[0]["camera_model"]}
-    if rig is None:
-        return intr_doc, entries, layouts[0].to_json()
+    if sources[0][0].lens is None:
+        return intr_doc, entries, sources[0][1].to_json()
     return intr_doc, entries, {"lenses": [{"lens": s.lens, **layout.to_json()}
-                                          for s, layout in zip(sources, layouts, strict=True)]}
-
+                                          for s, layout in sources]}
 
 def _sparse_points(src: _Source) -> tuple[np.ndarray, np.ndarray] | None:
     """``(N, 3)`` points and ``(N, 3)`` RGB in [0, 1] of the folder's COLMAP model (refine's
@@ -501,29 +511,36 @@ def _sparse_points(src: _Source) -> tuple[np.ndarray, np.ndarray] | None:
 def _export_colmap_rig(src: _Source, out: Path, opts: ExportOptions, progress: bool
                        ) -> RigWritten:
     from omni_sfm.export.colmap_rig import build_rig_reconstruction, view_image_name
-    from omni_sfm.export.perspective import view_layout
 
     fr = src.frames(required=True)
     assert fr is not None
     store, names = fr
-    layout = view_layout(src.camera, src.up_in_cam(), opts.views)
-    rec = build_rig_reconstruction(layout, src.traj_out, names)
+    sources = _view_sources(src, opts)
+    rec = build_rig_reconstruction([layout for _, layout in sources], src.traj_out, names,
+                                   np.asarray([s.body_from_cam for s, _ in sources]),
+                                   [s.prefix for s, _ in sources])
     (out / SPARSE_DIR).mkdir(parents=True, exist_ok=True)
     rec.write_binary(str(out / SPARSE_DIR))
-    valid = src.camera.valid_mask()
+    valid = [s.camera.valid_mask() for s, _ in sources]
     for name in _progress(names, "export", progress):
-        views, ok = layout.render(src.read(store, name), valid)
-        for v, view in enumerate(layout.names):
-            rel = view_image_name(view, name)
-            _write_png(out / IMAGES_DIR / rel, views[v])
-            if not layout.valid[v].all():
-                # COLMAP's mask of image I is MASK_PATH/I.png (0: no features)
-                _write_png(out / MASKS_DIR / f"{rel}.png",
-                           np.where(ok[v], 255, 0).astype(np.uint8))
+        frame = src.read(store, name)
+        for (s, layout), ok_cam in zip(sources, valid, strict=True):
+            views, ok = layout.render(_source_frame(src, s, frame), ok_cam)
+            for v, view in enumerate(layout.names):
+                rel = view_image_name(s.prefix + view, name)
+                _write_png(out / IMAGES_DIR / rel, views[v])
+                if not layout.valid[v].all():
+                    # COLMAP's mask of image I is MASK_PATH/I.png (0: no features)
+                    _write_png(out / MASKS_DIR / f"{rel}.png",
+                               np.where(ok[v], 255, 0).astype(np.uint8))
+    rig = sources[0][0].lens is not None
+    views_json = sources[0][1].to_json() if not rig else {
+        "lenses": [{"lens": s.lens, **layout.to_json()} for s, layout in sources]}
     return RigWritten(num_images=rec.num_images(), num_frames=rec.num_frames(),
-                      views=layout.to_json(), images=f"{IMAGES_DIR}/VIEW/NAME.png",
-                      masks=f"{MASKS_DIR}/VIEW/NAME.png.png where a view is not all covered")
-
+                      views=views_json,
+                      images=f"{IMAGES_DIR}/{'lensK/' if rig else ''}VIEW/NAME.png",
+                      masks=f"{MASKS_DIR}/{'lensK/' if rig else ''}VIEW/NAME.png.png where a "
+                            "view is not all covered")
 
 WRITERS: dict[str, Callable[[_Source, Path, ExportOptions, bool], ExportWritten]] = {
     "tum": _export_trajectory, "kitti": _export_trajectory, "colmap": _export_colmap,
