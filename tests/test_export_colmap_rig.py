@@ -185,7 +185,7 @@ def _one_line_error(capsys: pytest.CaptureFixture[str], *words: str) -> None:
         assert w in err, err
 
 
-def test_export_colmap_writes_the_rig_and_the_commands_without_rigs_refuse_it(
+def test_export_colmap_writes_the_rig_and_refine_refuses_it(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     camera = dual_fisheye_camera(192, 96)
     traj = _trajectory(3, 6)
@@ -219,9 +219,6 @@ def test_export_colmap_writes_the_rig_and_the_commands_without_rigs_refuse_it(
     for im in rec.images.values():
         assert np.allclose(_matrix(built.find_image_with_name(im.name).cam_from_world()),
                            _matrix(im.cam_from_world()), atol=1e-12)
-    assert main(["export", "--input", str(init), "--images", str(frames_dir), "--format",
-                 "limap", "--output", str(tmp_path / "limap")]) == 2
-    _one_line_error(capsys, "does not take rig cameras", "omni-sfm export colmap")
     assert main(["refine", "--input", str(init), "--images", str(frames_dir), "--output",
                  str(tmp_path / "refined")]) == 2
     _one_line_error(capsys, "omni-sfm refine does not take rig cameras",
@@ -229,10 +226,12 @@ def test_export_colmap_writes_the_rig_and_the_commands_without_rigs_refuse_it(
     assert not (tmp_path / "refined").exists()
 
 
-def _rig_export(tmp_path: Path, fmt: str) -> tuple[RigCamera, Trajectory, list[str],
-                                                   list[np.ndarray], Path]:
-    """A tilted rig's init folder of two random frames exported as ``fmt`` (``--no-up``):
-    ``(camera, poses, frame names, frames, export folder)``."""
+def _rig_export(tmp_path: Path, fmt: str, lines: Any = None
+                ) -> tuple[RigCamera, Trajectory, list[str], list[np.ndarray], Path]:
+    """A tilted rig's init folder of two random frames (and ``lines``, its lines3d.json)
+    exported as ``fmt`` (``--no-up``): ``(camera, poses, frame names, frames, export
+    folder)``."""
+    from omni_sfm.lines3d import write_lines3d
     from omni_sfm.poses import write_tum
 
     camera = _tilted_rig()
@@ -246,6 +245,8 @@ def _rig_export(tmp_path: Path, fmt: str) -> tuple[RigCamera, Trajectory, list[s
         cv2.imwrite(str(frames_dir / n), f)
     init = _init_folder(tmp_path / "init", camera, traj, names)
     write_tum(init / "trajectory.tum", traj)
+    if lines is not None:
+        write_lines3d(init / "lines3d.json", lines)
     out = tmp_path / fmt
     assert main(["export", "--input", str(init), "--images", str(frames_dir), "--format", fmt,
                  "--no-up", "--output", str(out)]) == 0
@@ -335,3 +336,38 @@ def test_colmap_rig_of_a_rig_holds_every_lens_view_at_its_lens(tmp_path: Path) -
                 np.testing.assert_allclose(_matrix(im.cam_from_world()), want, atol=1e-9)
                 got = cv2.imread(str(out / "images" / im.name))
                 assert np.array_equal(got, views[v])
+
+
+def test_limap_tracks_of_a_rig_lie_in_each_lens_image_that_sees_them(tmp_path: Path) -> None:
+    """``export --format limap`` of a rig: the COLMAP rig model and LIMAP line tracks whose
+    2D segments are in the lens images (``lensK/NAME``) of the poses, where COLMAP's model of
+    that lens at its place projects the segment's ends (1e-4 px); segments seen by both
+    lenses of a frame have both images."""
+    from omni_sfm.export.limap import read_track
+    from omni_sfm.lines3d import LineSegments3D
+
+    rng = np.random.default_rng(5)
+    starts = rng.uniform(-3.0, 3.0, size=(60, 3))
+    dirs = rng.normal(size=(60, 3))
+    ends = starts + dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
+    lines = LineSegments3D(starts, ends, np.zeros(60, int), np.array([[1.0, 0.0, 0.0]]),
+                           ("test",) * 60, frame="poses' world")
+    _, _, _, _, out = _rig_export(tmp_path, "limap", lines)
+    rec = pycolmap.Reconstruction(str(out / "sparse"))
+    lenses_seen: set[str] = set()
+    both = 0
+    for k in range(len(lines)):
+        tr = read_track(out / "finaltracks" / f"track_{k}.txt")
+        np.testing.assert_allclose(tr["line"], [starts[k], ends[k]], atol=1e-8)
+        frames_of = []
+        for image_id, seg in zip(tr["image_ids"], tr["line2d"], strict=True):
+            image = rec.images[image_id]
+            cam = rec.cameras[image.camera_id]
+            T = np.asarray(image.cam_from_world().matrix())
+            uv = np.asarray(cam.img_from_cam(np.stack([starts[k], ends[k]]) @ T[:, :3].T
+                                             + T[:, 3]))
+            np.testing.assert_allclose(seg, uv.ravel(), atol=1e-4)
+            lenses_seen.add(image.name.split("/")[0])
+            frames_of.append(image.frame_id)
+        both += len(frames_of) != len(set(frames_of))
+    assert lenses_seen == {"lens0", "lens1"} and both > 0

@@ -9,7 +9,8 @@ them (``sparse/``, :mod:`omni_sfm.export.colmap`), the 2D segments are the proje
 3D segment's endpoints by the exported COLMAP camera (COLMAP's pixel convention) in each image
 whose valid region both endpoints project into and where COLMAP's model projects them too (no
 occlusion test; a line of an omnidirectional image is a curve, of which the two ends are
-given), and the line id is the track's number.
+given), and the line id is the track's number. A rig camera's images are its lenses' (the
+COLMAP rig model's ``lensK/NAME``), each lens projecting the segments at its own pose.
 
 LIMAP has no file of parallel families; ``line_families.json`` (omni-sfm's) lists each family's
 direction and its tracks, in the same world.
@@ -56,19 +57,27 @@ def _project(camera: CameraModel, traj: Trajectory, x: np.ndarray
 
 
 def line_tracks(camera: CameraModel, traj: Trajectory, lines: LineSegments3D,
-                image_ids: Sequence[int] | None = None) -> list[dict[str, Any]]:
+                image_ids: Sequence[int] | None = None,
+                more: Sequence[tuple[CameraModel, Trajectory, Sequence[int]]] = ()
+                ) -> list[dict[str, Any]]:
     """Per segment: ``line`` ``(2, 3)``, ``image_ids`` (the COLMAP image id of each pose,
     ``image_ids[k]``, 0: none; default ``k + 1``) and ``line2d`` ``(M, 4)``: COLMAP pixels of
-    the two ends in each supporting image."""
+    the two ends in each supporting image. ``more``: further cameras (the other lenses of a
+    rig: each its model, its poses world_from_lens and its images' ids), whose supporting
+    images follow the first camera's."""
     ids = np.arange(1, len(traj) + 1) if image_ids is None else np.asarray(image_ids, int)
-    uv_s, ok_s = _project(camera, traj, lines.starts)
-    uv_e, ok_e = _project(camera, traj, lines.ends)
+    views = [(camera, traj, ids)] + [(c, t, np.asarray(i, int)) for c, t, i in more]
+    proj = [(*_project(c, t, lines.starts), *_project(c, t, lines.ends), i) for c, t, i in views]
     out = []
-    for i in range(len(lines)):
-        rows = np.flatnonzero(ok_s[:, i] & ok_e[:, i] & (ids > 0))
-        out.append({"line": np.stack([lines.starts[i], lines.ends[i]]),
-                    "image_ids": ids[rows].tolist(),
-                    "line2d": np.hstack([uv_s[rows, i], uv_e[rows, i]])})
+    for n in range(len(lines)):
+        image_list: list[int] = []
+        segs = []
+        for uv_s, ok_s, uv_e, ok_e, i in proj:
+            rows = np.flatnonzero(ok_s[:, n] & ok_e[:, n] & (i > 0))
+            image_list += i[rows].tolist()
+            segs.append(np.hstack([uv_s[rows, n], uv_e[rows, n]]))
+        out.append({"line": np.stack([lines.starts[n], lines.ends[n]]),
+                    "image_ids": image_list, "line2d": np.vstack(segs)})
     return out
 
 
@@ -99,12 +108,14 @@ def alltracks_text(tracks: list[dict[str, Any]]) -> str:
 
 
 def write_limap_tracks(directory: Path, camera: CameraModel, traj: Trajectory,
-                       lines: LineSegments3D, image_ids: Sequence[int] | None = None
+                       lines: LineSegments3D, image_ids: Sequence[int] | None = None,
+                       more: Sequence[tuple[CameraModel, Trajectory, Sequence[int]]] = ()
                        ) -> dict[str, Any]:
     """Write ``finaltracks/``, ``alltracks.txt`` and ``line_families.json`` in ``directory``
-    (poses and lines in the same world); returns counts for the report."""
+    (poses and lines in the same world; ``more``: :func:`line_tracks`); returns counts for the
+    report."""
     directory = Path(directory)
-    tracks = line_tracks(camera, traj, lines, image_ids)
+    tracks = line_tracks(camera, traj, lines, image_ids, more)
     (directory / TRACKS_DIR).mkdir(parents=True, exist_ok=True)
     for k, t in enumerate(tracks):
         (directory / TRACKS_DIR / f"track_{k}.txt").write_text(track_text(t, k), encoding="utf-8")

@@ -15,6 +15,7 @@ import sys
 import time
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, replace
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -49,11 +50,6 @@ FORMATS: dict[str, bool] = {
     "nerfstudio": True, "limap": True, "colmap-rig": True,
 }
 """Every format, and whether it turns the world gravity-up by default (``--up``)."""
-
-RIG_FORMATS = ("tum", "kitti", "colmap", "nerfstudio", "colmap-rig")
-"""The formats that take a rig camera (``colmap`` writes it as a COLMAP rig,
-:mod:`omni_sfm.export.colmap_lenses`; ``nerfstudio`` and ``colmap-rig`` the perspective views
-of each lens); ``limap`` refuses it with one line."""
 
 SPARSE_DIR = ExportFolder.SPARSE
 IMAGES_DIR = ExportFolder.IMAGES
@@ -98,10 +94,6 @@ class _Source:
         art = owner.load_stage()
         if art.camera is None:
             raise OmniSfmError(f"{owner / owner.CAMERA}: camera file not found")
-        if opts.fmt not in RIG_FORMATS:
-            from omni_sfm.export.colmap_lenses import refuse_rig
-
-            refuse_rig(art.camera, f"export --format {opts.fmt}", owner / owner.CAMERA)
         self.traj, self.camera, self.lines, self.report = (art.trajectory, art.camera,
                                                            art.lines3d, art.report)
         self.images_arg = images
@@ -338,19 +330,33 @@ def _export_limap(src: _Source, out: Path, opts: ExportOptions, progress: bool
 
     if src.lines_out is None or not len(src.lines_out):
         raise OmniSfmError(f"{src.owner / src.owner.LINES3D}: no 3D lines to export for LIMAP")
+    from omni_sfm.cameras import RigCamera
+
     rec, _, info = _colmap_model(src, out)
     # the LIMAP tracks' image ids are the model's: pose row k is image k + 1 when the model was
     # built from the poses or is the init's; a refine model is matched by name
-    return replace(info, limap=write_limap_tracks(out, src.camera, src.traj_out, src.lines_out,
-                                                  image_ids=_image_ids(rec, src)))
+    if not isinstance(src.camera, RigCamera):
+        return replace(info, limap=write_limap_tracks(
+            out, src.camera, src.traj_out, src.lines_out, image_ids=_image_ids(rec, src)))
+    from omni_sfm.export.colmap_lenses import lens_image_name, rig_metres_per_unit
+
+    rig, scale = src.camera, rig_metres_per_unit(src.path)
+    lenses = []
+    for k, lens in enumerate(rig.lenses):
+        R, c = rig.lens_poses(src.traj_out.rotations, src.traj_out.positions, k, scale)
+        lenses.append((lens, Trajectory(src.traj_out.timestamps, R, c),
+                       _image_ids(rec, src, partial(lens_image_name, k))))
+    return replace(info, limap=write_limap_tracks(out, *lenses[0][:2], src.lines_out,
+                                                  image_ids=lenses[0][2], more=lenses[1:]))
 
 
-def _image_ids(rec: Any, src: _Source) -> list[int]:
-    """The model's image id of every pose, by name (pose order); 0 where it has none."""
+def _image_ids(rec: Any, src: _Source, image_name: Callable[[str], str] = str) -> list[int]:
+    """The model's image id of every pose, by name (pose order; ``image_name``: the model's
+    name of a frame's image); 0 where it has none."""
     frames = src.frames(required=False)
     names = frames[1] if frames is not None else src.default_names()
     by_name = {im.name: im.image_id for im in rec.images.values()}
-    return [int(by_name.get(n, 0)) for n in names]
+    return [int(by_name.get(image_name(n), 0)) for n in names]
 
 
 def _export_nerfstudio(src: _Source, out: Path, opts: ExportOptions, progress: bool
