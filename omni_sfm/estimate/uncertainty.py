@@ -269,6 +269,27 @@ def _path_unit(c: FloatArray) -> float:
     return unit if np.isfinite(unit) and unit > 0.0 else 1.0
 
 
+_INVERSE_CACHE_BYTES = 256 * 2**20
+"""The windows' inverse information kept between the flags' rounds at most (a window of 300
+frames holds 26 MB; kept for every window of a 20,000-frame walk they took 3.5 GB)."""
+
+
+def _kept_inverse(cache: dict[int, object], a: int, inv: _WindowInverse) -> bool:
+    """Whether the window at ``a`` keeps its inverse ``inv`` in ``cache``: one it kept already,
+    or a new one while the kept ones stay within :data:`_INVERSE_CACHE_BYTES` (their total
+    under key -1). Which windows keep theirs changes the time a round takes, not its result."""
+    kept = cache.get(a)
+    if isinstance(kept, tuple) and kept[2] is inv:
+        return True
+    size = 0 if inv.C is None else int(inv.C.nbytes)
+    used = cache.get(-1, 0)
+    assert isinstance(used, int)
+    if used + size > _INVERSE_CACHE_BYTES:
+        return False
+    cache[-1] = used + size
+    return True
+
+
 def pose_spread(tracks: LineTracks, rotations: FloatArray, positions: FloatArray,
                 line_directions: FloatArray, line_points: FloatArray, frames: np.ndarray,
                 used_tracks: np.ndarray, sigma_rad: float, window: int = 300,
@@ -284,7 +305,7 @@ def pose_spread(tracks: LineTracks, rotations: FloatArray, positions: FloatArray
     each window's figures between calls with the same solution and noise (the flags'
     rounds): a window whose aligned frames and reference errors have not changed is not
     computed again, and a window's inverse information, which does not depend on them, is
-    computed once."""
+    computed once where the memory allows (:func:`_kept_inverse`)."""
     F = tracks.num_frames
     rot, pos = np.full(F, np.nan), np.full(F, np.nan)
     posed = np.flatnonzero(frames)
@@ -310,14 +331,15 @@ def pose_spread(tracks: LineTracks, rotations: FloatArray, positions: FloatArray
         if isinstance(kept, tuple) and kept[0] == key:
             idx, r, q = kept[1]
         else:
-            # the inverse does not depend on the aligned frames: computed once a window
-            inv = kept[2] if isinstance(kept, tuple) else _window_inverse(
-                tracks, rotations, positions, line_directions, line_points, sel, used_tracks,
-                sigma_rad, held_directions)
+            # the inverse does not depend on the aligned frames: kept for the next round
+            # where the memory allows (:data:`_INVERSE_CACHE_BYTES`)
+            inv = kept[2] if isinstance(kept, tuple) and kept[2] is not None else \
+                _window_inverse(tracks, rotations, positions, line_directions, line_points,
+                                sel, used_tracks, sigma_rad, held_directions)
             idx, r, q = _window_spread(rotations, inv, sigma_rad, aligned, carried,
                                        a == starts[at])
             if cache is not None:
-                cache[a] = (key, (idx, r, q), inv)
+                cache[a] = (key, (idx, r, q), inv if _kept_inverse(cache, a, inv) else None)
         new = np.isnan(carried[idx])
         carried[idx[new]] = np.square(r[new])
         k = np.arange(len(idx))
