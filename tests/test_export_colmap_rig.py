@@ -185,17 +185,23 @@ def _one_line_error(capsys: pytest.CaptureFixture[str], *words: str) -> None:
         assert w in err, err
 
 
+def _random_frames(folder: Path, names: list[str], seed: int
+                   ) -> tuple[Path, list[np.ndarray]]:
+    """Random 192 x 96 frames (the test rigs' size) written as ``names`` in ``folder``."""
+    folder.mkdir()
+    rng = np.random.default_rng(seed)
+    frames = [rng.integers(0, 256, size=(96, 192, 3), dtype=np.uint8) for _ in names]
+    for n, f in zip(names, frames, strict=True):
+        cv2.imwrite(str(folder / n), f)
+    return folder, frames
+
+
 def test_export_colmap_writes_the_rig_and_refine_refuses_it(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     camera = dual_fisheye_camera(192, 96)
     traj = _trajectory(3, 6)
     names = ["000000.png", "000001.png", "000002.png"]
-    frames_dir = tmp_path / "frames"
-    frames_dir.mkdir()
-    rng = np.random.default_rng(7)
-    frames = [rng.integers(0, 256, size=(96, 192, 3), dtype=np.uint8) for _ in names]
-    for n, f in zip(names, frames, strict=True):
-        cv2.imwrite(str(frames_dir / n), f)
+    frames_dir, frames = _random_frames(tmp_path / "frames", names, 7)
     init = _init_folder(tmp_path / "init", camera, traj, names)
     from omni_sfm.poses import write_tum
 
@@ -237,12 +243,7 @@ def _rig_export(tmp_path: Path, fmt: str, lines: Any = None
     camera = _tilted_rig()
     traj = _trajectory(2, 11)
     names = ["000000.png", "000001.png"]
-    frames_dir = tmp_path / "frames"
-    frames_dir.mkdir()
-    rng = np.random.default_rng(2)
-    frames = [rng.integers(0, 256, size=(96, 192, 3), dtype=np.uint8) for _ in names]
-    for n, f in zip(names, frames, strict=True):
-        cv2.imwrite(str(frames_dir / n), f)
+    frames_dir, frames = _random_frames(tmp_path / "frames", names, 2)
     init = _init_folder(tmp_path / "init", camera, traj, names)
     write_tum(init / "trajectory.tum", traj)
     if lines is not None:
