@@ -29,7 +29,10 @@ lines along the walk in most frames), whose spread is infinite too.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
+from typing import Any
 
 import numpy as np
 import scipy.linalg
@@ -274,6 +277,24 @@ _INVERSE_CACHE_BYTES = 256 * 2**20
 frames holds 26 MB; kept for every window of a 20,000-frame walk they took 3.5 GB)."""
 
 
+def _cached_window(cache: dict[int, object] | None, a: int, key: tuple[Any, ...],
+                   inverse: Callable[[], _WindowInverse],
+                   spread: Callable[[_WindowInverse], tuple[np.ndarray, FloatArray, FloatArray]]
+                   ) -> tuple[np.ndarray, FloatArray, FloatArray]:
+    """The window at ``a``'s figures (``spread`` of its ``inverse``): kept in ``cache`` from an
+    earlier round where its ``key`` (aligned frames, reference errors) is the same; its
+    inverse, which does not depend on them, kept where the memory allows
+    (:func:`_kept_inverse`)."""
+    kept = cache.get(a) if cache is not None else None
+    if isinstance(kept, tuple) and kept[0] == key:
+        return kept[1]
+    inv = kept[2] if isinstance(kept, tuple) and kept[2] is not None else inverse()
+    out = spread(inv)
+    if cache is not None:
+        cache[a] = (key, out, inv if _kept_inverse(cache, a, inv) else None)
+    return out
+
+
 def _kept_inverse(cache: dict[int, object], a: int, inv: _WindowInverse) -> bool:
     """Whether the window at ``a`` keeps its inverse ``inv`` in ``cache``: one it kept already,
     or a new one while the kept ones stay within :data:`_INVERSE_CACHE_BYTES` (their total
@@ -327,19 +348,12 @@ def pose_spread(tracks: LineTracks, rotations: FloatArray, positions: FloatArray
         sel = np.zeros(F, bool)
         sel[members] = True
         key = (aligned[members].tobytes(), carried[members].tobytes(), a == starts[at])
-        kept = cache.get(a) if cache is not None else None
-        if isinstance(kept, tuple) and kept[0] == key:
-            idx, r, q = kept[1]
-        else:
-            # the inverse does not depend on the aligned frames: kept for the next round
-            # where the memory allows (:data:`_INVERSE_CACHE_BYTES`)
-            inv = kept[2] if isinstance(kept, tuple) and kept[2] is not None else \
-                _window_inverse(tracks, rotations, positions, line_directions, line_points,
-                                sel, used_tracks, sigma_rad, held_directions)
-            idx, r, q = _window_spread(rotations, inv, sigma_rad, aligned, carried,
-                                       a == starts[at])
-            if cache is not None:
-                cache[a] = (key, (idx, r, q), inv if _kept_inverse(cache, a, inv) else None)
+        idx, r, q = _cached_window(
+            cache, a, key, partial(_window_inverse, tracks, rotations, positions,
+                                   line_directions, line_points, sel, used_tracks, sigma_rad,
+                                   held_directions),
+            partial(_window_spread, rotations, sigma=sigma_rad, aligned=aligned,
+                    carried=carried, origin=a == starts[at]))
         new = np.isnan(carried[idx])
         carried[idx[new]] = np.square(r[new])
         k = np.arange(len(idx))
