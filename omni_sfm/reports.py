@@ -601,8 +601,8 @@ class InitializerInfo(JsonReport):
     also ``family_tracks``, ``frames_without_vpv``); ``lines``: ``tracks``,
     ``parallel_tracks``, ``residual_rms_deg``, ``reflection``; ``colmap``: ``features``,
     ``verified_pairs``, ``models``, ``mapper``, ``database_s``, ``mapper_s``, ``points3D``,
-    ``registered``; ``lines+refine``: ``init_frames``, ``refined_frames``,
-    ``added_by_mapper``, ``kept_input_for_all``."""
+    ``registered`` (``metres_per_unit`` for a rig camera); ``lines+refine``: ``init_frames``,
+    ``refined_frames``, ``added_by_mapper``, ``kept_input_for_all``."""
 
     observations: int | None = absent()
     tracks: int | None = absent()
@@ -627,6 +627,9 @@ class InitializerInfo(JsonReport):
     added_by_mapper: int | None = absent()
     kept_input_for_all: str | None = absent()
     """Why refine kept every input pose (absent when it refined some)."""
+    metres_per_unit: float | None = absent()
+    """``colmap`` of a rig camera: the metres one unit of its trajectory spans (1: the lens
+    offsets, held in metres, fix its scale)."""
 
 
 @dataclass(frozen=True)
@@ -643,6 +646,9 @@ class PluginInitReport(JsonReport):
     frames_not_estimated_names: list[str]
     wall_time_s: dict[str, float]
     scale_convention: str
+    rig: RigScaleRecord | None = absent()
+    """A rig camera's poses: their metric scale, where the initializer gives its poses in
+    metres (``info.metres_per_unit``)."""
 
 
 @dataclass(frozen=True)

@@ -136,3 +136,38 @@ def test_lines_on_texture_poor_corridor(small_corridor) -> None:
     e = trajectory_errors(res.trajectory, read_tum(small_corridor.output / "groundtruth.tum"))
     assert e.rot_max_deg <= 0.5, e.as_dict()
     assert e.ate_rel <= 0.01, e.as_dict()
+
+
+def test_colmap_of_a_rig_gives_the_rigs_poses_in_metres() -> None:
+    """The ``colmap`` initializer on a rig camera reads COLMAP's rig model back as the rig's
+    poses (world_from_rig, metres: the lens offsets are held in metres): a model posed at known
+    rig poses (:func:`~omni_sfm.export.colmap_lenses.build_lens_rig`, a tilted rig) comes back
+    as those poses to 1e-9, and ``init --initializer colmap`` records the scale that survives
+    its normalisation (the first-to-last distance in metres). Measured with COLMAP itself
+    (``scripts/check_footage.py`` on a rendered dual-fisheye corridor): docs/comparison.md."""
+    from types import SimpleNamespace
+
+    from omni_sfm_plugins.initializers.colmap import _rig_trajectory
+
+    from omni_sfm.export.colmap_lenses import LensExports, build_lens_rig
+    from omni_sfm.pipelines.init import _plugin_rig_scale
+    from omni_sfm.poses import Trajectory
+    from tests.test_export_colmap_rig import _tilted_rig
+
+    camera = _tilted_rig()
+    rng = np.random.default_rng(4)
+    traj = Trajectory(np.arange(5, dtype=float), rotvec_to_matrix(0.5 * rng.normal(size=(5, 3))),
+                      rng.normal(size=(5, 3)))
+    names = [f"{k:06d}.png" for k in range(5)]
+    rec = build_lens_rig(camera, traj, names, 1.0).reconstruction
+    got, n = _rig_trajectory(rec, LensExports.of(camera), 10.0 * np.arange(5))
+    assert n == 5
+    np.testing.assert_allclose(got.timestamps, 10.0 * np.arange(5))
+    np.testing.assert_allclose(got.rotations, traj.rotations, atol=1e-9)
+    np.testing.assert_allclose(got.positions, traj.positions, atol=1e-9)
+    res = SimpleNamespace(trajectory=traj, info={"metres_per_unit": 1.0})
+    scale = _plugin_rig_scale(camera, res, "colmap")
+    assert scale is not None and scale.fixed
+    assert scale.metres_per_unit == pytest.approx(
+        float(np.linalg.norm(traj.positions[-1] - traj.positions[0])), rel=1e-12)
+    assert _plugin_rig_scale(camera, SimpleNamespace(trajectory=traj, info={}), "x") is None

@@ -54,6 +54,7 @@ from omni_sfm.reports import (
     InitReport,
     PluginInitInput,
     PluginInitReport,
+    RigScaleRecord,
 )
 from omni_sfm.transforms import paper_normalised_positions
 
@@ -518,6 +519,21 @@ def _camera_entry(given: Path | str | CameraModel | None, camera: CameraModel,
     return camera.model
 
 
+def _plugin_rig_scale(cam: CameraModel, res: Any, name: str) -> RigScaleRecord | None:
+    """A rig camera's metric scale after :func:`normalised_trajectory`, where the initializer
+    gives its poses' (``info.metres_per_unit``: ``colmap`` holds the lens offsets in metres);
+    None otherwise (the rig's COLMAP side then needs one, and says so)."""
+    from omni_sfm.cameras import RigCamera
+
+    m = res.info.get("metres_per_unit")
+    if not isinstance(cam, RigCamera) or not isinstance(m, int | float) or not m > 0:
+        return None
+    p = res.trajectory.positions
+    return RigScaleRecord(metres_per_unit=float(np.linalg.norm(p[-1] - p[0])) * float(m),
+                          note=f"{name}: its poses in metres, the lens offsets held",
+                          fixed=True)
+
+
 def init_with_initializer(images: Path | str, camera: Path | str | CameraModel | None,
                           output: Path | str, name: str, *,
                           options: dict[str, Any] | None = None,
@@ -559,7 +575,8 @@ def init_with_initializer(images: Path | str, camera: Path | str | CameraModel |
         num_frames=seq.num_frames, num_frames_estimated=len(traj),
         frames_not_estimated_names=[seq.images.names[k] for k in missing],
         wall_time_s={"initializer": seconds},
-        scale_convention="world = first estimated camera, first-to-last distance = 1")
+        scale_convention="world = first estimated camera, first-to-last distance = 1",
+        rig=_plugin_rig_scale(cam, res, name))
     with atomic_output_dir(output, overwrite=overwrite, inputs=(Path(images),)) as tmp:
         report.write(tmp / InitFolder.REPORT)
         write_init_model(tmp, cam, traj, names, metres_per_unit=_rig_scale(tmp, cam, output))

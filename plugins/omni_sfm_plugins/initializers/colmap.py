@@ -8,7 +8,10 @@ single-threaded RANSAC, so that runs are reproducible) and
 ``pycolmap.incremental_mapping`` with the intrinsics held fixed. Poses of the largest model
 come back to omni-sfm's ray frame: ``cam_from_world = colmap_cam_from_cam^T @
 cam_from_world_colmap``. A simulated sequence gives its point observations as keypoints (pixels
-of the sequence's camera) and its tracks as matches.
+of the sequence's camera) and its tracks as matches. A rig camera (raw dual-fisheye frames)
+goes to COLMAP as its rig (:mod:`omni_sfm.export.colmap_lenses`): each lens's images, camera
+and mask, the lens offsets held (metres, so the poses come back metric), the poses those of
+the rig's frame.
 
 Options: ``max_features`` (4000), ``overlap`` (sequential matching, 10), ``init_min_tri_angle``
 (degrees, COLMAP's default 16), ``seed`` (0), ``threads`` (1); ``mapper``: ``incremental``
@@ -56,6 +59,7 @@ def _incremental_options(options: Mapping[str, Any]) -> Any:
     opts.ba_refine_focal_length = False
     opts.ba_refine_principal_point = False
     opts.ba_refine_extra_params = False
+    opts.ba_refine_sensor_from_rig = False
     opts.random_seed = int(options.get("seed", 0))
     opts.num_threads = int(options.get("threads", 1))
     if "init_min_tri_angle" in options:
@@ -76,6 +80,7 @@ def _global_options(options: Mapping[str, Any]) -> Any:
     m.bundle_adjustment.refine_focal_length = False
     m.bundle_adjustment.refine_principal_point = False
     m.bundle_adjustment.refine_extra_params = False
+    m.bundle_adjustment.refine_sensor_from_rig = False
     m.bundle_adjustment.ceres.use_gpu = False
     m.global_positioning.use_gpu = False
     return opts
@@ -152,12 +157,105 @@ def _database_from_images(db_path: Path, work: Path, seq: SequenceInput, export:
                      verification=_verification(options))
 
 
+def _rig_database_from_images(db_path: Path, work: Path, seq: SequenceInput,
+                              options: Mapping[str, Any]) -> Any:
+    """A rig camera's frames as COLMAP's rig (:mod:`omni_sfm.export.colmap_lenses`): each
+    lens's part of every frame (``lensK/NAME``, mirrored where its export says so), COLMAP
+    SIFT with the lens's mask and exact camera, the rig (lens 0 the reference sensor, the
+    others at their offsets in metres) applied to the database as ``rig_configurator`` does,
+    then sequential matching. Returns the lenses' exports."""
+    import cv2
+    import pycolmap
+
+    from omni_sfm.cameras import RigCamera
+    from omni_sfm.export.colmap_lenses import (
+        LensExports,
+        build_lens_rig,
+        lens_image_name,
+        lens_mask_name,
+        write_lens_masks,
+        write_rig_config,
+    )
+    from omni_sfm.refine.database import extract_features, match_sequential
+
+    camera = seq.camera
+    assert isinstance(camera, RigCamera)
+    lenses = LensExports.of(camera)
+    img_dir = work / "images"
+    names = [_frame_name(k) for k in range(seq.num_frames)]
+    for k, name in enumerate(names):
+        for lens, img in enumerate(lenses.images(seq.read_image(k))):
+            path = img_dir / lens_image_name(lens, name)
+            path.parent.mkdir(parents=True, exist_ok=True)
+            cv2.imwrite(str(path), img)
+    write_lens_masks(work, lenses)
+    threads = int(options.get("threads", 1))
+    for lens in range(lenses.num_lenses):
+        extract_features(db_path, img_dir, work / lens_mask_name(lens),
+                         [lens_image_name(lens, n) for n in names], lenses.exports[lens],
+                         max_features=int(options.get("max_features", 4000)),
+                         num_threads=threads, extractor="colmap")
+    one = Trajectory(np.zeros(1), np.eye(3)[None], np.zeros((1, 3)))
+    write_rig_config(work, build_lens_rig(camera, one, ["rig.png"], 1.0).reconstruction)
+    with pycolmap.Database.open(str(db_path)) as db:
+        pycolmap.apply_rig_config(pycolmap.read_rig_config(str(work / "rig_config.json")), db)
+    match_sequential(db_path, overlap=int(options.get("overlap", 10)), num_threads=threads,
+                     verification=_verification(options))
+    return lenses
+
+
+def _trajectory(best: Any, export: Any, timestamps: np.ndarray) -> tuple[Trajectory, int]:
+    """The poses of the frames the model poses (omni-sfm's ray frame:
+    ``colmap_cam_from_cam^T`` after COLMAP's), and their number."""
+    C = np.asarray(export.colmap_cam_from_cam)
+    frames, Rs, cs = [], [], []
+    for im in best.images.values():
+        if not im.has_pose:
+            continue
+        cw = im.cam_from_world()
+        R_cw = np.asarray(cw.rotation.matrix())
+        frames.append(int(Path(im.name).stem))
+        Rs.append(R_cw.T @ C)
+        cs.append(-R_cw.T @ np.asarray(cw.translation, float))
+    order = np.argsort(frames)
+    fr = np.asarray(frames, dtype=np.int64)[order]
+    return Trajectory(timestamps[fr].copy(), np.asarray(Rs).reshape(-1, 3, 3)[order],
+                      np.asarray(cs).reshape(-1, 3)[order]), len(fr)
+
+
+def _rig_trajectory(best: Any, lenses: Any, timestamps: np.ndarray) -> tuple[Trajectory, int]:
+    """The rig's poses world_from_rig (metres: the lens offsets fix COLMAP's scale) of the
+    frames whose lens 0 image the model poses, and their number."""
+    from omni_sfm.export.colmap_lenses import lens_image_name
+
+    L0 = lenses.colmap_lens_from_rig(1.0)[0]
+    prefix = lens_image_name(0, "")
+    frames, Rs, cs = [], [], []
+    for im in best.images.values():
+        if not im.has_pose or not im.name.startswith(prefix):
+            continue
+        T = np.eye(4)
+        T[:3] = np.asarray(im.cam_from_world().matrix())
+        world_from_rig = np.linalg.inv(np.linalg.inv(L0) @ T)
+        frames.append(int(Path(im.name).stem))
+        Rs.append(world_from_rig[:3, :3])
+        cs.append(world_from_rig[:3, 3])
+    order = np.argsort(frames)
+    fr = np.asarray(frames, dtype=np.int64)[order]
+    return Trajectory(timestamps[fr].copy(), np.asarray(Rs).reshape(-1, 3, 3)[order],
+                      np.asarray(cs).reshape(-1, 3)[order]), len(fr)
+
+
 def colmap(sequence: SequenceInput, options: Mapping[str, Any]) -> InitializerResult:
     """The ``colmap`` initializer (module docstring)."""
     import pycolmap
 
-    export = sequence.camera.colmap_export()
-    C = np.asarray(export.colmap_cam_from_cam)
+    from omni_sfm.cameras import RigCamera
+
+    rig = isinstance(sequence.camera, RigCamera)
+    if rig and sequence.images is None:
+        return failed("a rig camera needs the frames themselves")
+    export = None if rig else sequence.camera.colmap_export()
     prev_level = pycolmap.logging.minloglevel
     # the mapper's own errors ("Failed to create any sparse model") become this result's
     # reason; COLMAP's log is for --verbose
@@ -169,7 +267,11 @@ def colmap(sequence: SequenceInput, options: Mapping[str, Any]) -> InitializerRe
             db_path = Path(options["database"]) if options.get("database") else \
                 work / "database.db"
             t0 = time.perf_counter()
-            if sequence.images is not None:
+            lenses = None
+            if rig:
+                lenses = _rig_database_from_images(db_path, work, sequence, options)
+                source = "COLMAP SIFT, each lens of the rig"
+            elif sequence.images is not None:
                 _database_from_images(db_path, work, sequence, export, options)
                 source = "COLMAP SIFT"
             elif sequence.points is not None:
@@ -205,24 +307,13 @@ def colmap(sequence: SequenceInput, options: Mapping[str, Any]) -> InitializerRe
     if best is None or best.num_reg_images() == 0:
         return failed(f"COLMAP's mapper built no model ({verified} verified image pairs)",
                       **info)
-    frames, Rs, cs = [], [], []
-    for im in best.images.values():
-        if not im.has_pose:
-            continue
-        k = int(Path(im.name).stem)
-        cw = im.cam_from_world()
-        R_cw = np.asarray(cw.rotation.matrix())
-        t_cw = np.asarray(cw.translation, float)
-        frames.append(k)
-        Rs.append(R_cw.T @ C)
-        cs.append(-R_cw.T @ t_cw)
-    order = np.argsort(frames)
-    fr = np.asarray(frames)[order]
-    traj = Trajectory(sequence.timestamps[fr].copy(), np.asarray(Rs)[order],
-                      np.asarray(cs)[order])
-    info.update({"points3D": int(best.num_points3D()), "registered": int(len(fr))})
-    if len(fr) < 3:
-        return InitializerResult(traj, "failed", f"COLMAP registered {len(fr)} frames", info=info)
-    reason = "" if len(fr) == sequence.num_frames else \
-        f"COLMAP registered {len(fr)} of {sequence.num_frames} frames"
+    traj, n = _rig_trajectory(best, lenses, sequence.timestamps) if lenses is not None else \
+        _trajectory(best, export, sequence.timestamps)
+    info.update({"points3D": int(best.num_points3D()), "registered": n})
+    if lenses is not None:
+        info["metres_per_unit"] = 1.0
+    if n < 3:
+        return InitializerResult(traj, "failed", f"COLMAP registered {n} frames", info=info)
+    reason = "" if n == sequence.num_frames else \
+        f"COLMAP registered {n} of {sequence.num_frames} frames"
     return InitializerResult(traj, "ok", reason, info=info)
