@@ -9,6 +9,10 @@ without rays the positions are known only up to that reflection, the result says
 ``reflection_ambiguous`` and the comparison evaluates the branch nearer the ground truth,
 saying so.
 
+The result holds the frames ``init`` writes to ``trajectory.tum``: those the data fix, without
+the ones its report lists as uncertain (``frames_uncertain``); where fewer than 3 are fixed it
+fails, saying so (``init`` then writes every pose and tells the user not to trust them).
+
 Options: ``refine`` (True: the line bundle adjustment after the paper's method).
 """
 
@@ -46,5 +50,13 @@ def lines(sequence: SequenceInput, options: Mapping[str, Any]) -> InitializerRes
                             "parallel_tracks": int(np.count_nonzero(res.parallel)),
                             "residual_rms_deg": float(res.residual_rms_final_deg),
                             "reflection": res.report.reflection}
-    return InitializerResult(res.trajectory, "ok", reflection_ambiguous=tracks.obs_ray is None,
-                             info=info)
+    # what init presents: the frames the data fix (trajectory.tum), not those it flags
+    flagged = {int(k) for k in res.report.frames_uncertain or {}}
+    fixed = ~np.isin(np.flatnonzero(res.estimated), sorted(flagged))
+    if fixed.sum() < 3:
+        return failed(f"the data fix {int(fixed.sum())} of the {len(fixed)} frames it poses "
+                      "(init lists the others as uncertain); need 3", **info)
+    reason = "" if fixed.all() else \
+        f"{int((~fixed).sum())} frames posed but uncertain (init's frames_uncertain), left out"
+    return InitializerResult(res.trajectory.subset(fixed), "ok", reason,
+                             reflection_ambiguous=tracks.obs_ray is None, info=info)
