@@ -52,6 +52,13 @@ class Trajectory:
         """Sum of distances between consecutive camera centres."""
         return float(np.linalg.norm(np.diff(self.positions, axis=0), axis=1).sum())
 
+    def fixed_camera(self, body_from_cam: FloatArray) -> Trajectory:
+        """The poses world_from_cam of a camera fixed to the body these poses are of, at
+        ``body_from_cam`` (``(4, 4)``, its centre in these poses' units): a lens of a rig."""
+        T = np.asarray(body_from_cam, dtype=np.float64)
+        return Trajectory(self.timestamps.copy(), self.rotations @ T[:3, :3],
+                          self.positions + self.rotations @ T[:3, 3])
+
     def subset(self, index: np.ndarray) -> Trajectory:
         """The poses at ``index`` (integer array or boolean mask)."""
         return Trajectory(self.timestamps[index], self.rotations[index], self.positions[index])

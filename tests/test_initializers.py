@@ -11,7 +11,7 @@ import pytest
 from omni_sfm.compare import run_initializer
 from omni_sfm.evaluate import trajectory_errors
 from omni_sfm.geometry import normalize, rotvec_to_matrix
-from omni_sfm.plugin_contract import PointObservations, SequenceInput
+from omni_sfm.plugin_contract import InitializerResult, PointObservations, SequenceInput
 from omni_sfm.poses import read_tum
 from omni_sfm.registry import INITIALIZERS, available, load
 
@@ -145,8 +145,6 @@ def test_colmap_of_a_rig_gives_the_rigs_poses_in_metres() -> None:
     as those poses to 1e-9, and ``init --initializer colmap`` records the scale that survives
     its normalisation (the first-to-last distance in metres). Measured with COLMAP itself
     (``scripts/check_footage.py`` on a rendered dual-fisheye corridor): docs/comparison.md."""
-    from types import SimpleNamespace
-
     from omni_sfm_plugins.initializers.colmap import _rig_trajectory
 
     from omni_sfm.export.colmap_lenses import LensExports, build_lens_rig
@@ -165,9 +163,9 @@ def test_colmap_of_a_rig_gives_the_rigs_poses_in_metres() -> None:
     np.testing.assert_allclose(got.timestamps, 10.0 * np.arange(5))
     np.testing.assert_allclose(got.rotations, traj.rotations, atol=1e-9)
     np.testing.assert_allclose(got.positions, traj.positions, atol=1e-9)
-    res = SimpleNamespace(trajectory=traj, info={"metres_per_unit": 1.0})
+    res = InitializerResult(traj, info={"metres_per_unit": 1.0})
     scale = _plugin_rig_scale(camera, res, "colmap")
     assert scale is not None and scale.fixed
     assert scale.metres_per_unit == pytest.approx(
         float(np.linalg.norm(traj.positions[-1] - traj.positions[0])), rel=1e-12)
-    assert _plugin_rig_scale(camera, SimpleNamespace(trajectory=traj, info={}), "x") is None
+    assert _plugin_rig_scale(camera, InitializerResult(traj), "x") is None

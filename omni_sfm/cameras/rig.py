@@ -135,19 +135,11 @@ class RigCamera(CameraModel):
 
     def rig_from_lens_in(self, k: int, metres_per_unit: float) -> FloatArray:
         """``(4, 4)`` rig_from_lens of lens ``k`` with its centre in units of
-        ``metres_per_unit`` metres (the poses' units)."""
+        ``metres_per_unit`` metres (the poses' units; the lens's poses:
+        :meth:`omni_sfm.poses.Trajectory.fixed_camera`)."""
         T = self.rig_from_lens[k].copy()
         T[:3, 3] /= metres_per_unit
         return T
-
-    def lens_poses(self, rotations: FloatArray, positions: FloatArray, k: int,
-                   metres_per_unit: float) -> tuple[FloatArray, FloatArray]:
-        """``(R, c)`` world_from_lens of lens ``k`` for the rig poses world_from_rig
-        (``rotations`` ``(N, 3, 3)``, centres ``positions`` ``(N, 3)`` in units of
-        ``metres_per_unit`` metres): its rotation and its centre at its offset."""
-        T = self.rig_from_lens_in(k, metres_per_unit)
-        return (np.asarray(rotations) @ T[:3, :3],
-                np.asarray(positions) + np.asarray(rotations) @ T[:3, 3])
 
     @property
     def rotations(self) -> FloatArray:

@@ -259,9 +259,9 @@ def _lenses(inp: DenseInput) -> list[_Lens]:
                            " to place its lenses")
     out = []
     for k, lens in enumerate(cam.lenses):
-        R, c = cam.lens_poses(traj.rotations, traj.positions, k, inp.metres_per_unit)
         x, y = (int(v) for v in cam.corners[k])
-        out.append(_Lens(lens, Trajectory(traj.timestamps.copy(), R, c), (x, y)))
+        out.append(_Lens(lens, traj.fixed_camera(cam.rig_from_lens_in(k, inp.metres_per_unit)),
+                         (x, y)))
     return out
 
 

@@ -964,13 +964,18 @@ def _report(tracks: LineTracks, frames: np.ndarray, members: np.ndarray, directi
     )
 
 
-def trusted(result: EstimationResult) -> np.ndarray:
+def fixed_by_data(result: EstimationResult) -> np.ndarray:
     """``(N,)`` bool over ``result.trajectory``'s poses: those of frames the report does not
-    flag as uncertain (``frames_uncertain``), where at least 3 are; else all."""
+    flag as uncertain (``frames_uncertain``)."""
     idx = np.flatnonzero(result.estimated)
-    flagged = [int(k) for k in result.report.frames_uncertain or {}]
-    keep = ~np.isin(idx, flagged)
-    return keep if keep.sum() >= 3 else np.ones(len(idx), bool)
+    return ~np.isin(idx, [int(k) for k in result.report.frames_uncertain or {}])
+
+
+def trusted(result: EstimationResult) -> np.ndarray:
+    """``(N,)`` bool over ``result.trajectory``'s poses: those the data fix
+    (:func:`fixed_by_data`), where at least 3 are; else all."""
+    keep = fixed_by_data(result)
+    return keep if keep.sum() >= 3 else np.ones(len(keep), bool)
 
 
 def write_init_outputs(directory: Path, result: EstimationResult,

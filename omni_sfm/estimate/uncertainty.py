@@ -274,7 +274,7 @@ def _path_unit(c: FloatArray) -> float:
 
 _INVERSE_CACHE_BYTES = 256 * 2**20
 """The windows' inverse information kept between the flags' rounds at most (a window of 300
-frames holds 26 MB; kept for every window of a 20,000-frame walk they took 3.5 GB)."""
+frames holds 26 MB: every window of a 20,000-frame walk would hold 3.5 GB)."""
 
 
 def _cached_window(cache: dict[int, object] | None, a: int, key: tuple[Any, ...],

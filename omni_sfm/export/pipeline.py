@@ -343,8 +343,7 @@ def _export_limap(src: _Source, out: Path, opts: ExportOptions, progress: bool
     rig, scale = src.camera, rig_metres_per_unit(src.path)
     lenses = []
     for k, lens in enumerate(rig.lenses):
-        R, c = rig.lens_poses(src.traj_out.rotations, src.traj_out.positions, k, scale)
-        lenses.append((lens, Trajectory(src.traj_out.timestamps, R, c),
+        lenses.append((lens, src.traj_out.fixed_camera(rig.rig_from_lens_in(k, scale)),
                        _image_ids(rec, src, partial(lens_image_name, k))))
     return replace(info, limap=write_limap_tracks(out, *lenses[0][:2], src.lines_out,
                                                   image_ids=lenses[0][2], more=lenses[1:]))
@@ -418,10 +417,6 @@ class _ViewSource:
     prefix: str
     lens: int | None = None
 
-    def poses(self, traj: Trajectory) -> tuple[np.ndarray, np.ndarray]:
-        """``(R, c)`` world_from_cam of this camera at each pose of ``traj``."""
-        T = self.body_from_cam
-        return traj.rotations @ T[:3, :3], traj.positions + traj.rotations @ T[:3, 3]
 
 
 def _view_sources(src: _Source, opts: ExportOptions) -> list[tuple[_ViewSource, Any]]:
@@ -468,15 +463,15 @@ def _perspective_views(src: _Source, out: Path, opts: ExportOptions, store: Any,
     shared = all(i == own[0] for i in own)
     # nerfstudio takes a mask for every image or for none
     masked = not all(bool(layout.valid.all()) for _, layout in sources)
-    poses = [s.poses(src.traj_out) for s, _ in sources]
+    poses = [src.traj_out.fixed_camera(s.body_from_cam) for s, _ in sources]
     valid = [s.camera.valid_mask() for s, _ in sources]
     entries = []
     for k, name in enumerate(_progress(names, "export", progress)):
         frame = src.read(store, name)
-        for (s, layout), (Rs, cs), ok_cam, intr in zip(sources, poses, valid, own, strict=True):
+        for (s, layout), pose, ok_cam, intr in zip(sources, poses, valid, own, strict=True):
             views, ok = layout.render(_source_frame(src, s, frame), ok_cam)
-            R = Rs[k][None] @ layout.cam_from_views
-            c2w = transform_matrices(R, np.repeat(cs[k][None], len(R), axis=0))
+            R = pose.rotations[k][None] @ layout.cam_from_views
+            c2w = transform_matrices(R, np.repeat(pose.positions[k][None], len(R), axis=0))
             for v, view in enumerate(layout.names):
                 rel = f"{IMAGES_DIR}/{s.prefix}{view}/{png_name(name)}"
                 _write_png(out / rel, views[v])

@@ -62,6 +62,7 @@ if TYPE_CHECKING:
     from omni_sfm.export.colmap import ColmapImages
     from omni_sfm.lines.debug import KeptFrames
     from omni_sfm.lines.tracks import LineTracks
+    from omni_sfm.plugin_contract import InitializerResult
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -519,7 +520,8 @@ def _camera_entry(given: Path | str | CameraModel | None, camera: CameraModel,
     return camera.model
 
 
-def _plugin_rig_scale(cam: CameraModel, res: Any, name: str) -> RigScaleRecord | None:
+def _plugin_rig_scale(cam: CameraModel, res: InitializerResult, name: str
+                      ) -> RigScaleRecord | None:
     """A rig camera's metric scale after :func:`normalised_trajectory`, where the initializer
     gives its poses' (``info.metres_per_unit``: ``colmap`` holds the lens offsets in metres);
     None otherwise (the rig's COLMAP side then needs one, and says so)."""
@@ -527,6 +529,8 @@ def _plugin_rig_scale(cam: CameraModel, res: Any, name: str) -> RigScaleRecord |
 
     m = res.info.get("metres_per_unit")
     if not isinstance(cam, RigCamera) or not isinstance(m, int | float) or not m > 0:
+        return None
+    if res.trajectory is None:
         return None
     p = res.trajectory.positions
     return RigScaleRecord(metres_per_unit=float(np.linalg.norm(p[-1] - p[0])) * float(m),

@@ -29,7 +29,7 @@ from omni_sfm.plugin_contract import InitializerResult, SequenceInput, failed
 def lines(sequence: SequenceInput, options: Mapping[str, Any]) -> InitializerResult:
     """The ``lines`` initializer (module docstring)."""
     from omni_sfm.errors import OmniSfmError
-    from omni_sfm.estimate.pipeline import EstimationOptions, estimate_poses
+    from omni_sfm.estimate.pipeline import EstimationOptions, estimate_poses, fixed_by_data
 
     if sequence.images is not None:
         from omni_sfm.lines.frontend import FrontEndOptions, track_lines
@@ -51,8 +51,7 @@ def lines(sequence: SequenceInput, options: Mapping[str, Any]) -> InitializerRes
                             "residual_rms_deg": float(res.residual_rms_final_deg),
                             "reflection": res.report.reflection}
     # what init presents: the frames the data fix (trajectory.tum), not those it flags
-    flagged = {int(k) for k in res.report.frames_uncertain or {}}
-    fixed = ~np.isin(np.flatnonzero(res.estimated), sorted(flagged))
+    fixed = fixed_by_data(res)
     if fixed.sum() < 3:
         return failed(f"the data fix {int(fixed.sum())} of the {len(fixed)} frames it poses "
                       "(init lists the others as uncertain); need 3", **info)
