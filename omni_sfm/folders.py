@@ -300,6 +300,26 @@ class InitArtifacts:
         path = self.folder / self.folder.REPORT
         return InitReport.read(path) if path.is_file() else None
 
+    def uncertain_rows(self) -> np.ndarray:
+        """``(N,)`` bool over ``trajectory.tum``'s poses: those of frames ``report.json`` lists
+        as not fixed by the data (``frames_uncertain``) and that ``trajectory.tum`` holds all
+        the same (``init`` writes them there where the data fix fewer than 3 frames, or with
+        ``--keep-uncertain``). All False without such a report (a plugin's folder has none).
+        The poses are those of the frames not in ``frames_not_estimated``, in frame order; a
+        one-line OmniSfmError when the report does not fit ``trajectory.tum``."""
+        path = self.folder / self.folder.REPORT
+        n = len(self.trajectory)
+        raw = read_json(path, "report") if path.is_file() else {}
+        flags = raw.get("frames_uncertain") if isinstance(raw, dict) else None
+        if not flags or raw.get("uncertain_poses"):
+            return np.zeros(n, bool)
+        missing = set(raw.get("frames_not_estimated") or ())
+        posed = [k for k in range(int(raw.get("num_frames", 0))) if k not in missing]
+        if len(posed) != n:
+            raise OmniSfmError(f"{path}: {len(posed)} frames estimated but "
+                               f"{self.folder / self.folder.TRAJECTORY} holds {n} poses")
+        return np.isin(posed, [int(k) for k in flags])
+
 
 @dataclass(frozen=True)
 class RefineFolder(StageFolder):

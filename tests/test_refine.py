@@ -20,6 +20,7 @@ from helpers import assert_every_key_declared, assert_one_line_error, refine_per
 
 from omni_sfm.cameras import load_camera
 from omni_sfm.cli import main
+from omni_sfm.errors import OmniSfmError
 from omni_sfm.evaluate import trajectory_errors
 from omni_sfm.export.colmap import (
     projection_centres,
@@ -341,3 +342,54 @@ def test_bad_input_camera_without_exact_colmap_model(tiny_init, capsys):
     shutil.copy(EXAMPLES / "double_sphere.yaml", tiny_init / "init" / "camera.yaml")
     err = _refine_cli(tiny_init, capsys)
     assert "camera.yaml" in err and "no exact COLMAP model" in err
+
+
+def _flag(init: Path, uncertain: dict[int, str], num_frames: int,
+          not_estimated: tuple[int, ...] = ()) -> None:
+    """Give the init folder ``init`` a ``report.json`` that flags ``uncertain`` (frame index ->
+    reason) with their poses in ``trajectory.tum``, as ``init`` writes it where the data fix
+    fewer than 3 frames or with ``--keep-uncertain``."""
+    (init / InitFolder.REPORT).write_text(dumps_json({
+        "num_frames": num_frames, "frames_not_estimated": list(not_estimated),
+        "frames_uncertain": {str(k): v for k, v in uncertain.items()}}), encoding="utf-8")
+
+
+def test_poses_the_data_do_not_fix_do_not_seed_colmap(tiny_init, tmp_path):
+    from omni_sfm.refine.pipeline import _seed_without_uncertain
+
+    init_dir = tiny_init / "init"
+    # frame 1 of 4 not estimated: the three poses are frames 0, 2, 3; frame 2 flagged
+    _flag(init_dir, {2: "the adjustment moved it"}, 4, not_estimated=(1,))
+    init = read_init_model(init_dir)
+    np.testing.assert_array_equal(init.artifacts.uncertain_rows(), [False, True, False])
+    with pytest.raises(OmniSfmError, match="the data fix 2 of the 3 poses"):
+        _seed_without_uncertain(init, init_dir, tmp_path / "scratch")
+    # written to trajectory_uncertain.tum instead (uncertain_poses): nothing to leave out
+    report = read_json(init_dir / InitFolder.REPORT)
+    (init_dir / InitFolder.REPORT).write_text(dumps_json(
+        {**report, "uncertain_poses": InitFolder.UNCERTAIN_TRAJECTORY}), encoding="utf-8")
+    assert not init.artifacts.uncertain_rows().any()
+    # a report that does not fit the poses is refused in one line
+    _flag(init_dir, {2: "x"}, 5, not_estimated=(1,))
+    with pytest.raises(OmniSfmError, match="4 frames estimated but .* holds 3 poses"):
+        init.artifacts.uncertain_rows()
+
+
+def test_refine_leaves_flagged_poses_to_the_mapper(room, tmp_path):
+    write_perturbed_init(room, tmp_path / "init", seed=2)
+    _flag(tmp_path / "init", {4: "a", 11: "b"}, 20)
+    res = refine(tmp_path / "init", room / "images", tmp_path / "out", RefineOptions(overlap=5),
+                 progress=False)
+    r = res.report
+    assert r.frames["input_poses"] == 18 and r.frames["input_poses_uncertain"] == 2
+    assert sorted(r.mapper_added) == ["000004.png", "000011.png"]
+    # registered from the images (measured: 20 of 20, 0.23 deg at most, 0.18 % ATE)
+    e = trajectory_errors(res.trajectory, read_tum(room / "groundtruth.tum"))
+    assert e.num_common == 20 and e.rot_max_deg < 0.5 and e.ate_rel < 0.005
+
+
+def test_refine_refuses_an_init_whose_data_fix_fewer_than_3_poses(tiny_init, capsys):
+    # init writes every pose to trajectory.tum where the data fix fewer than 3 frames
+    _flag(tiny_init / "init", {0: "a", 1: "b"}, 3)
+    err = _refine_cli(tiny_init, capsys)
+    assert "the data fix 1 of the 3 poses" in err and "--initializer colmap" in err

@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import shutil
 import sys
+import tempfile
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -96,6 +97,7 @@ from omni_sfm.refine.joint_model import (
     adjusted_segments,
     read_line_evidence,
 )
+from omni_sfm.refine.synthetic import write_init_without
 from omni_sfm.refine.triangulation import triangulate_seeded
 from omni_sfm.reports import (
     AdjustmentRound,
@@ -402,7 +404,11 @@ def refine(init_dir: Path, images: Path | None, output: Path,
         database: a COLMAP database to use and keep (created if missing); features and matches
             it holds are reused.
 
-    Raises OmniSfmError (one line) for a bad init directory or image folder.
+    Poses of ``init_dir``'s ``trajectory.tum`` that its report flags as not fixed by the data
+    (``frames_uncertain``) do not seed COLMAP: their frames are left to the mapper.
+
+    Raises OmniSfmError (one line) for a bad init directory or image folder, or where the data
+    fix fewer than 3 of the init's poses.
     """
     o = options or RefineOptions()
     if o.mapper not in MAPPERS:
@@ -419,6 +425,34 @@ def refine(init_dir: Path, images: Path | None, output: Path,
     frames = FrameStore(images_dir)
     all_names = list(frames.names)
     check_image_names(images_dir, all_names, init.image_names, init_dir / InitFolder.SPARSE)
+    with tempfile.TemporaryDirectory(prefix="omni_sfm_refine_") as scratch:
+        init, uncertain = _seed_without_uncertain(init, init_dir, Path(scratch))
+        return _refine(o, init, init_dir, images_dir, output, frames, all_names, uncertain,
+                       database, overwrite=overwrite, progress=progress, verbose=verbose)
+
+
+def _seed_without_uncertain(init: InitModel, init_dir: Path, scratch: Path
+                            ) -> tuple[InitModel, int]:
+    """The init model without the poses its report lists as not fixed by the data (they are
+    left to the mapper, as frames the init did not pose) and how many those are; a one-line
+    OmniSfmError when fewer than 3 poses are left to seed COLMAP with."""
+    flagged = init.artifacts.uncertain_rows()
+    if not flagged.any():
+        return init, 0
+    if (~flagged).sum() < 3:
+        raise OmniSfmError(
+            f"{init_dir}: the data fix {int((~flagged).sum())} of the {len(flagged)} poses in "
+            f"{InitFolder.TRAJECTORY} (report.json frames_uncertain); refine needs 3 to seed "
+            "COLMAP with (omni-sfm init --initializer colmap starts from the images alone)")
+    drop = [n for n, f in zip(init.image_names, flagged, strict=True) if f]
+    return read_init_model(write_init_without(init_dir, scratch / "init", drop)), len(drop)
+
+
+def _refine(o: RefineOptions, init: InitModel, init_dir: Path, images_dir: Path, output: Path,
+            frames: FrameStore, all_names: list[str], uncertain: int, database: Path | None, *,
+            overwrite: bool, progress: bool, verbose: bool) -> RefineResult:
+    """:func:`refine` once its inputs are read and checked (``uncertain``: the input poses left
+    to the mapper because the init's report flags them)."""
     posed = set(init.image_names)
     unposed = [n for n in all_names if n not in posed]
     stages = _Stages(["images", "features", "matching", "triangulation", "mapper",
@@ -432,7 +466,7 @@ def refine(init_dir: Path, images: Path | None, output: Path,
         camera=RefineCamera(model=init.camera.model, colmap_model=export.camera.model_name,
                             image_mirrored_for_colmap=export.flip_u),
         frames={"input_poses": len(init.trajectory), "images_in_folder": len(all_names),
-                "unposed_in_folder": len(unposed)},
+                "unposed_in_folder": len(unposed), "input_poses_uncertain": uncertain},
         options=RefineSettings(**asdict(o)))
     try:
         with library_logging(verbose), atomic_output_dir(output, overwrite=overwrite,

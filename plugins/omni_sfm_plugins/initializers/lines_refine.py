@@ -3,8 +3,10 @@
 The frames go through :func:`omni_sfm.pipelines.init.init_from_images` exactly as ``init`` runs
 (the ``lines`` initializer's result) and the init folder through :func:`omni_sfm.refine.refine`
 (COLMAP features, triangulation on the line-based poses, the mapper for the frames lines
-missed, bundle adjustment, never worse than its input: docs/colmap.md). Needs images; the work
-folders are temporary.
+missed, bundle adjustment, never worse than its input: docs/colmap.md). Refine does not seed
+COLMAP with the poses init flags as not fixed by the data (the mapper registers those frames)
+and stops where fewer than 3 are left: the result is then a failure with refine's reason, not
+init's poses. Needs images; the work folders are temporary.
 
 Options: ``threads`` (pycolmap threads, default 1 so that parallel comparisons stay
 deterministic and do not oversubscribe), ``verbose`` (COLMAP's log).
