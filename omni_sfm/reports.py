@@ -904,11 +904,13 @@ class RefineReport(_StageInput, JsonReport):
     joint_adjustment: JointAdjustmentNote | None = absent()
     """Why the joint adjustment of lines and points was skipped or failed; absent otherwise."""
     lines3d: str | None = absent()
+    rig: RigScaleRecord | None = absent()
+    """A rig camera: the metres of one unit of this folder's poses (its lens offsets)."""
 
     _ORDER = ("input", "camera", "frames", "options", "features", "matching_guided",
               "matching", "triangulation", "mapper", "joint_adjustment", "bundle_adjustment",
               "kept_input_for_all", "refined_frames", "kept_frames", "alignment_to_input",
-              "pose_changes", "model", "summary", "lines3d", "carried_from_input",
+              "pose_changes", "model", "summary", "lines3d", "rig", "carried_from_input",
               "trajectory_frames", "timings_s")
 
     def to_json(self) -> dict[str, Any]:

@@ -138,6 +138,18 @@ def corridor(rendered: Callable[[Any], Any]) -> Path:
 
 
 @pytest.fixture(scope="session")
+def dual_room(rendered: Callable[[Any], Any]) -> Path:
+    """The textured room in raw dual-fisheye frames: two 200 deg lenses of 320 x 320 side by
+    side, 4 cm apart, 20 frames, seed 3 (the session's read-only render)."""
+    from omni_sfm.synth.render import RenderOptions
+
+    out: Path = rendered(RenderOptions(camera="dual-fisheye", width=640, height=320,
+                                       supersample=1, preset="small", seed=3, scene="room",
+                                       frames=20, textured=True)).output
+    return out
+
+
+@pytest.fixture(scope="session")
 def room(rendered: Callable[[Any], Any]) -> Path:
     """The textured room: hyperboloid 400 x 300, small preset without supersampling, 20
     frames, seed 3 (the session's read-only render)."""

@@ -9,9 +9,7 @@ from __future__ import annotations
 
 import json
 import shutil
-from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
 import cv2
 import numpy as np
@@ -308,18 +306,6 @@ def test_existing_output_refused(room: Path, poses: Path, dense_out: Path,
     assert cli_main(["dense", "-i", str(poses), "--images", str(room / "images"), "-o",
                      str(dense_out)]) == 2
     assert_one_line_error(capsys, "--overwrite")
-
-
-@pytest.fixture(scope="module")
-def dual_room(rendered: Callable[[Any], Any]) -> Path:
-    """The textured room in raw dual-fisheye frames: two 200 deg lenses of 320 x 320 side by
-    side, 4 cm apart, 20 frames, seed 3 (the session's read-only render)."""
-    from omni_sfm.synth.render import RenderOptions
-
-    out: Path = rendered(RenderOptions(camera="dual-fisheye", width=640, height=320,
-                                       supersample=1, preset="small", seed=3, scene="room",
-                                       frames=20, textured=True)).output
-    return out
 
 
 def _write_rig_poses(room: Path, d: Path) -> Path:

@@ -145,11 +145,10 @@ def test_colmap_of_a_rig_gives_the_rigs_poses_in_metres() -> None:
     as those poses to 1e-9, and ``init --initializer colmap`` records the scale that survives
     its normalisation (the first-to-last distance in metres). Measured with COLMAP itself
     (``scripts/check_footage.py`` on a rendered dual-fisheye corridor): docs/comparison.md."""
-    from omni_sfm_plugins.initializers.colmap import _rig_trajectory
-
-    from omni_sfm.export.colmap_lenses import LensExports, build_lens_rig
+    from omni_sfm.export.colmap_lenses import build_lens_rig
     from omni_sfm.pipelines.init import _plugin_rig_scale
     from omni_sfm.poses import Trajectory
+    from omni_sfm.refine.rig import rig_trajectory
     from tests.test_export_colmap_rig import _tilted_rig
 
     camera = _tilted_rig()
@@ -158,8 +157,8 @@ def test_colmap_of_a_rig_gives_the_rigs_poses_in_metres() -> None:
                       rng.normal(size=(5, 3)))
     names = [f"{k:06d}.png" for k in range(5)]
     rec = build_lens_rig(camera, traj, names, 1.0).reconstruction
-    got, n = _rig_trajectory(rec, LensExports.of(camera), 10.0 * np.arange(5))
-    assert n == 5
+    got, posed = rig_trajectory(rec, camera, names, 10.0 * np.arange(5))
+    assert posed.all()
     np.testing.assert_allclose(got.timestamps, 10.0 * np.arange(5))
     np.testing.assert_allclose(got.rotations, traj.rotations, atol=1e-9)
     np.testing.assert_allclose(got.positions, traj.positions, atol=1e-9)

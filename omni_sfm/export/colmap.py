@@ -292,6 +292,7 @@ def write_init_model(directory: Path, camera: CameraModel, traj: Trajectory,
     from omni_sfm.cameras.rig import RigCamera
     from omni_sfm.export.colmap_lenses import (
         build_lens_rig,
+        rig_manifest,
         rig_metres_per_unit,
         write_lens_masks,
         write_rig_config,
@@ -310,15 +311,7 @@ def write_init_model(directory: Path, camera: CameraModel, traj: Trajectory,
         seed = build_lens_rig(camera, traj, names, scale)
         write_lens_masks(directory, seed.lenses)
         write_rig_config(directory, seed.reconstruction)
-        manifest: dict[str, Any] = {
-            "image_names": names,
-            "timestamps": traj.timestamps,
-            "camera_model": camera.model,
-            "lenses": seed.lenses.manifest(),
-            "metres_per_unit": seed.metres_per_unit,
-            "note": "frame k+1 in sparse/ is row k of trajectory.tum, its image of lens L "
-                    "images_colmap/lensL/<name> (image id k*lenses+L+1)",
-        }
+        manifest: dict[str, Any] = rig_manifest(seed, traj)
     else:
         seed = build_reconstruction(camera, traj, names)
         write_colmap_mask(directory / InitFolder.COLMAP_MASK, camera)

@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from omni_sfm.cameras.base import CameraModel, ColmapExport
+from omni_sfm.cameras.base import ColmapExport
 from omni_sfm.cameras.rig import RigCamera
 from omni_sfm.errors import OmniSfmError
 from omni_sfm.export.colmap import sensor_from_world, write_colmap_mask
@@ -70,13 +70,6 @@ def rig_metres_per_unit(folder: Path | str, *, shown_as: Path | str | None = Non
         raise OmniSfmError(f"{path}: rig.metres_per_unit must be a positive number, got "
                            f"{value!r}")
     return float(value)
-
-
-def refuse_rig(camera: CameraModel, command: str, where: Path | str) -> None:
-    """OmniSfmError (one line) when ``camera`` is a rig, which ``command`` does not take."""
-    if isinstance(camera, RigCamera):
-        raise OmniSfmError(f"{where}: omni-sfm {command} does not take rig cameras yet; "
-                           "'omni-sfm export colmap' writes the rig for COLMAP's own tools")
 
 
 @dataclass(frozen=True)
@@ -177,6 +170,22 @@ def build_lens_rig(camera: RigCamera, traj: Trajectory, frame_names: Sequence[st
         sensor_from_world(lens_from_rig[0], traj),
         [lenses.image_names(str(n)) for n in frame_names])
     return LensRigSeed(rec, lenses, float(metres_per_unit), tuple(str(n) for n in frame_names))
+
+
+def rig_manifest(seed: LensRigSeed, traj: Trajectory, note: str | None = None
+                 ) -> dict[str, Any]:
+    """``colmap.json`` of a lens rig's model posed at ``traj``: the frame names and timestamps,
+    the lenses (:meth:`LensExports.manifest`) and the scale of their offsets; ``note`` how the
+    model's ids follow the trajectory (default: as :func:`build_lens_rig` numbers them)."""
+    return {
+        "image_names": list(seed.image_names),
+        "timestamps": traj.timestamps,
+        "camera_model": seed.lenses.camera.model,
+        "lenses": seed.lenses.manifest(),
+        "metres_per_unit": seed.metres_per_unit,
+        "note": note or ("frame k+1 in sparse/ is row k of trajectory.tum, its image of lens "
+                         "L images_colmap/lensL/<name> (image id k*lenses+L+1)"),
+    }
 
 
 RIG_CONFIG_FILE = "rig_config.json"

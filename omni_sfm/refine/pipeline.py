@@ -44,7 +44,7 @@ import shutil
 import sys
 import tempfile
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
@@ -290,7 +290,7 @@ def _position_priors(rec: Any, image_ids: list[int], inp: Trajectory,
     return priors
 
 
-def _bundle_adjust(rec: Any, fixed_frames: set[int], priors: list[Any],
+def _bundle_adjust(rec: Any, fixed_frames: set[int], priors: list[Any] | None,
                    opts: RefineOptions) -> list[AdjustmentRound]:
     """Rounds of BA (poses and points free, intrinsics and ``fixed_frames`` fixed) each followed
     by removing observations with large errors or small triangulation angles (the reported
@@ -299,7 +299,8 @@ def _bundle_adjust(rec: Any, fixed_frames: set[int], priors: list[Any],
     The gauge (position, rotation, scale) is fixed by the input's camera centres as position
     priors (COLMAP's pose-prior bundle adjuster); COLMAP's ``TWO_CAMS_FROM_WORLD`` gauge fixes
     one coordinate of the second image's centre, which for neighbouring video frames leaves the
-    scale nearly free (it collapsed on the 100-frame room)."""
+    scale nearly free (it collapsed on the 100-frame room). ``priors`` None: no priors (a rig,
+    whose lens offsets fix the scale, with a frame of ``fixed_frames`` held for the rest)."""
     import pycolmap
 
     rounds = []
@@ -324,8 +325,9 @@ def _bundle_adjust(rec: Any, fixed_frames: set[int], priors: list[Any],
         ba.ceres.solver_options.num_threads = opts.num_threads
         rec.update_point_3d_errors()
         before = float(rec.compute_mean_reprojection_error())
-        adjuster = pycolmap.create_pose_prior_bundle_adjuster(
-            ba, pycolmap.PosePriorBundleAdjustmentOptions(), config, priors, rec)
+        adjuster = pycolmap.create_default_bundle_adjuster(ba, config, rec) if priors is None \
+            else pycolmap.create_pose_prior_bundle_adjuster(
+                ba, pycolmap.PosePriorBundleAdjustmentOptions(), config, priors, rec)
         summary = adjuster.solve()
         rec.update_point_3d_errors()
         # a few points end up where the camera model does not image them (error ~1e150):
@@ -374,14 +376,12 @@ def _frame_timestamps(all_names: list[str], init: InitModel) -> tuple[FloatArray
     return ts, "affine in the frame index"
 
 
-def _refuse_rig(init_dir: Path) -> None:
-    """A one-line OmniSfmError when the init folder's camera is a rig (not refined yet)."""
-    from omni_sfm.cameras import load_camera
-    from omni_sfm.export.colmap_lenses import refuse_rig
+def _is_rig(init_dir: Path) -> bool:
+    """The init folder's camera is a rig of lenses (refined by :mod:`.rig_pipeline`)."""
+    from omni_sfm.cameras import RigCamera, load_camera
 
     path = init_dir / InitFolder.CAMERA
-    if path.is_file():
-        refuse_rig(load_camera(path), "refine", path)
+    return path.is_file() and isinstance(load_camera(path), RigCamera)
 
 
 def refine(init_dir: Path, images: Path | None, output: Path,
@@ -418,9 +418,13 @@ def refine(init_dir: Path, images: Path | None, output: Path,
                            f"{', '.join(FEATURE_SOURCES)})")
     init_dir, output = Path(init_dir), Path(output)
     check_output_dir(output, overwrite=overwrite, inputs=(init_dir, images, database))
-    _refuse_rig(init_dir)
     images_dir = images_for(init_dir, images)
     check_output_dir(output, overwrite=overwrite, inputs=(images_dir,))
+    if _is_rig(init_dir):
+        from omni_sfm.refine.rig_pipeline import refine_rig
+
+        return refine_rig(init_dir, images_dir, output, o, database=database,
+                          overwrite=overwrite, progress=progress, verbose=verbose)
     init = read_init_model(init_dir)
     frames = FrameStore(images_dir)
     all_names = list(frames.names)
@@ -852,20 +856,36 @@ def _accept(rec: Any, export: Any, init: InitModel, image_ids: list[int], obs0: 
     ``lines_too``: the adjustment used the lines, which fix every frame, so a frame with few
     point observations is not held to its input pose for that."""
     inp = init.trajectory
+    why = _untrusted_model(rec, trusted_model, o)
+    if why is not None:
+        return Acceptance(inp, np.zeros(len(inp), dtype=bool), kept_input_for_all=why)
+    ref, ok = trajectory_from_reconstruction(rec, export, init.image_names, inp.timestamps)
+    return accept_poses(inp, init.image_names, ref, ok, obs0, _observations(rec, image_ids),
+                        _frame_errors(rec, image_ids), o, path_length, lines_too=lines_too)
+
+
+def _untrusted_model(rec: Any, trusted_model: bool, o: RefineOptions) -> str | None:
+    """Why the adjusted model is not trusted at all (every input pose kept), or None."""
+    ba_mean = float(rec.compute_mean_reprojection_error())
+    if not trusted_model:
+        return "too few points or well-observed frames for a trustworthy adjustment"
+    if ba_mean > o.max_mean_reprojection_error_px:
+        return f"mean reprojection error {ba_mean:.2f} px > {o.max_mean_reprojection_error_px}"
+    return None
+
+
+def accept_poses(inp: Trajectory, names: Sequence[str], ref: Trajectory, ok: np.ndarray,
+                 obs0: np.ndarray, obs: np.ndarray, err: np.ndarray, o: RefineOptions,
+                 path_length: float, *, lines_too: bool = False) -> Acceptance:
+    """:func:`_accept` once the model is trusted, for any camera: ``ref`` the adjusted poses of
+    the frames ``ok`` (``(N,)`` over the input frames ``names``), ``obs0`` / ``obs`` each
+    frame's point observations before and after the adjustment, ``err`` its mean reprojection
+    error (px)."""
     n = len(inp)
     reasons: dict[str, str] = {}
-    ba_mean = float(rec.compute_mean_reprojection_error())
-    if not trusted_model or ba_mean > o.max_mean_reprojection_error_px:
-        why = ("too few points or well-observed frames for a trustworthy adjustment"
-               if not trusted_model else
-               f"mean reprojection error {ba_mean:.2f} px > {o.max_mean_reprojection_error_px}")
-        return Acceptance(inp, np.zeros(n, dtype=bool), kept_input_for_all=why)
-    ref, ok = trajectory_from_reconstruction(rec, export, init.image_names, inp.timestamps)
     full_R, full_c = inp.rotations.copy(), inp.positions.copy()
     full_R[ok], full_c[ok] = ref.rotations, ref.positions
     adjusted = Trajectory(inp.timestamps.copy(), full_R, full_c)
-    obs = _observations(rec, image_ids)
-    err = _frame_errors(rec, image_ids)
     cand = ok if lines_too else ok & (obs0 >= o.min_observations) & (obs >= o.min_observations)
     # a change beyond the plausible bounds stands only where the frame's own observations
     # (at least min_observations of them) fit it to a small error: 6 pose parameters against
@@ -896,7 +916,7 @@ def _accept(rec: Any, export: Any, init: InitModel, image_ids: list[int], obs0: 
             "changed plausibly)"))
     use = small | (cand & strong)
     aligned = Similarity(R, t, s).apply(adjusted)
-    for k, name in enumerate(init.image_names):
+    for k, name in enumerate(names):
         if use[k]:
             continue
         if not ok[k]:
@@ -916,10 +936,10 @@ def _accept(rec: Any, export: Any, init: InitModel, image_ids: list[int], obs0: 
     traj = Trajectory(inp.timestamps.copy(), rot, pos)
     changes = PoseChanges(
         large_changes_backed_by_images={
-            init.image_names[k]: FrameChange(rotation_deg=float(rot_change[k]),
-                                             position_fraction_of_path=float(pos_change[k]),
-                                             observations=int(obs[k]),
-                                             mean_reprojection_error_px=float(err[k]))
+            names[int(k)]: FrameChange(rotation_deg=float(rot_change[k]),
+                                       position_fraction_of_path=float(pos_change[k]),
+                                       observations=int(obs[k]),
+                                       mean_reprojection_error_px=float(err[k]))
             for k in np.flatnonzero(large)},
         rotation_deg_median=float(np.median(rot_change[use])),
         rotation_deg_max=float(rot_change[use].max()),

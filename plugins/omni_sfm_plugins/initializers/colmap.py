@@ -159,49 +159,24 @@ def _database_from_images(db_path: Path, work: Path, seq: SequenceInput, export:
 
 def _rig_database_from_images(db_path: Path, work: Path, seq: SequenceInput,
                               options: Mapping[str, Any]) -> Any:
-    """A rig camera's frames as COLMAP's rig (:mod:`omni_sfm.export.colmap_lenses`): each
-    lens's part of every frame (``lensK/NAME``, mirrored where its export says so), COLMAP
-    SIFT with the lens's mask and exact camera, the rig (lens 0 the reference sensor, the
-    others at their offsets in metres) applied to the database as ``rig_configurator`` does,
-    then sequential matching. Returns the lenses' exports."""
-    import cv2
-    import pycolmap
-
+    """A rig camera's frames as COLMAP's rig (:func:`omni_sfm.refine.rig.rig_database`): each
+    lens's part of every frame (``lensK/NAME``), COLMAP SIFT with the lens's mask and exact
+    camera, the rig applied to the database, then sequential matching. Returns the lenses'
+    exports."""
     from omni_sfm.cameras import RigCamera
-    from omni_sfm.export.colmap_lenses import (
-        LensExports,
-        build_lens_rig,
-        lens_image_name,
-        lens_mask_name,
-        write_lens_masks,
-        write_rig_config,
-    )
-    from omni_sfm.refine.database import extract_features, match_sequential
+    from omni_sfm.export.colmap_lenses import LensExports
+    from omni_sfm.refine.rig import rig_database, write_lens_images
 
     camera = seq.camera
     assert isinstance(camera, RigCamera)
-    lenses = LensExports.of(camera)
-    img_dir = work / "images"
     names = [_frame_name(k) for k in range(seq.num_frames)]
-    for k, name in enumerate(names):
-        for lens, img in enumerate(lenses.images(seq.read_image(k))):
-            path = img_dir / lens_image_name(lens, name)
-            path.parent.mkdir(parents=True, exist_ok=True)
-            cv2.imwrite(str(path), img)
-    write_lens_masks(work, lenses)
-    threads = int(options.get("threads", 1))
-    for lens in range(lenses.num_lenses):
-        extract_features(db_path, img_dir, work / lens_mask_name(lens),
-                         [lens_image_name(lens, n) for n in names], lenses.exports[lens],
-                         max_features=int(options.get("max_features", 4000)),
-                         num_threads=threads, extractor="colmap")
-    one = Trajectory(np.zeros(1), np.eye(3)[None], np.zeros((1, 3)))
-    write_rig_config(work, build_lens_rig(camera, one, ["rig.png"], 1.0).reconstruction)
-    with pycolmap.Database.open(str(db_path)) as db:
-        pycolmap.apply_rig_config(pycolmap.read_rig_config(str(work / "rig_config.json")), db)
-    match_sequential(db_path, overlap=int(options.get("overlap", 10)), num_threads=threads,
-                     verification=_verification(options))
-    return lenses
+    write_lens_images(work / "images", LensExports.of(camera),
+                      ((n, seq.read_image(k)) for k, n in enumerate(names)))
+    return rig_database(db_path, work, work / "images", camera, names,
+                        max_features=int(options.get("max_features", 4000)),
+                        num_threads=int(options.get("threads", 1)),
+                        overlap=int(options.get("overlap", 10)), extractor="colmap",
+                        verification=_verification(options)).lenses
 
 
 def _trajectory(best: Any, export: Any, timestamps: np.ndarray) -> tuple[Trajectory, int]:
@@ -217,29 +192,6 @@ def _trajectory(best: Any, export: Any, timestamps: np.ndarray) -> tuple[Traject
         frames.append(int(Path(im.name).stem))
         Rs.append(R_cw.T @ C)
         cs.append(-R_cw.T @ np.asarray(cw.translation, float))
-    order = np.argsort(frames)
-    fr = np.asarray(frames, dtype=np.int64)[order]
-    return Trajectory(timestamps[fr].copy(), np.asarray(Rs).reshape(-1, 3, 3)[order],
-                      np.asarray(cs).reshape(-1, 3)[order]), len(fr)
-
-
-def _rig_trajectory(best: Any, lenses: Any, timestamps: np.ndarray) -> tuple[Trajectory, int]:
-    """The rig's poses world_from_rig (metres: the lens offsets fix COLMAP's scale) of the
-    frames whose lens 0 image the model poses, and their number."""
-    from omni_sfm.export.colmap_lenses import lens_image_name
-
-    L0 = lenses.colmap_lens_from_rig(1.0)[0]
-    prefix = lens_image_name(0, "")
-    frames, Rs, cs = [], [], []
-    for im in best.images.values():
-        if not im.has_pose or not im.name.startswith(prefix):
-            continue
-        T = np.eye(4)
-        T[:3] = np.asarray(im.cam_from_world().matrix())
-        world_from_rig = np.linalg.inv(np.linalg.inv(L0) @ T)
-        frames.append(int(Path(im.name).stem))
-        Rs.append(world_from_rig[:3, :3])
-        cs.append(world_from_rig[:3, 3])
     order = np.argsort(frames)
     fr = np.asarray(frames, dtype=np.int64)[order]
     return Trajectory(timestamps[fr].copy(), np.asarray(Rs).reshape(-1, 3, 3)[order],
@@ -307,8 +259,14 @@ def colmap(sequence: SequenceInput, options: Mapping[str, Any]) -> InitializerRe
     if best is None or best.num_reg_images() == 0:
         return failed(f"COLMAP's mapper built no model ({verified} verified image pairs)",
                       **info)
-    traj, n = _rig_trajectory(best, lenses, sequence.timestamps) if lenses is not None else \
-        _trajectory(best, export, sequence.timestamps)
+    if lenses is not None:
+        from omni_sfm.refine.rig import rig_trajectory
+
+        traj, posed = rig_trajectory(best, lenses.camera, [_frame_name(k) for k in range(
+            sequence.num_frames)], sequence.timestamps)
+        n = int(posed.sum())
+    else:
+        traj, n = _trajectory(best, export, sequence.timestamps)
     info.update({"points3D": int(best.num_points3D()), "registered": n})
     if lenses is not None:
         info["metres_per_unit"] = 1.0
