@@ -27,6 +27,7 @@ BODY = RenderOptions(camera="hyperboloid", width=400, height=300, frames=12,
 SMALL = RenderOptions(camera="hyperboloid", width=400, height=300, frames=12)
 
 
+@pytest.mark.filterwarnings("error::RuntimeWarning")  # no numpy warning reaches the user
 def test_turning_in_place_gives_every_rotation(rendered, tmp_path: Path,
                                                capsys: pytest.CaptureFixture[str]) -> None:
     seq = rendered(TURN).output

@@ -374,6 +374,8 @@ def _reweighted(g: _Geometry, x: FloatArray, options: GlobalPositionOptions
     ``options.loss_scale`` times the angles' robust spread) and that spread (radians)."""
     depth = g.depths(x)
     ang = (g.A @ x) / depth
+    if ang.size == 0:  # no plane row (a camera that only turned): nothing to weigh
+        return np.ones(0), 1e-12
     sigma = max(float(1.4826 * np.median(np.abs(ang))), 1e-12)
     return 1.0 / depth**2 / (1.0 + (ang / (options.loss_scale * sigma)) ** 2), sigma
 
