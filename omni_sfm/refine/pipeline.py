@@ -1,7 +1,8 @@
 """``omni-sfm refine``: COLMAP refinement seeded by the line-based poses, never worse than them.
 
 Stages (pycolmap's features, matching, mapper and bundle adjustment; the triangulation and the
-joint adjustment are omni-sfm's own; docs/colmap.md):
+joint adjustment are omni-sfm's own; docs/colmap.md) for one camera; a rig camera's folder is
+refined as a COLMAP rig (:mod:`omni_sfm.refine.rig_pipeline`):
 
 1. images: the frames as COLMAP must see them (``images_colmap/``, mirrored where the camera
    export says so) and the camera's valid mask as COLMAP's camera mask;
