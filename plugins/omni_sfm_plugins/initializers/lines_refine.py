@@ -41,8 +41,9 @@ def lines_refine(sequence: SequenceInput, options: Mapping[str, Any]) -> Initial
         try:
             res = refine(work / "init", sequence.images.path, work / "refined", ropts,
                          progress=False, verbose=bool(options.get("verbose", False)))
-        except OmniSfmError as exc:
-            return failed(f"refine: {exc}")
+        except OmniSfmError as exc:  # its temporary folders named as the chain's steps
+            return failed("refine: " + str(exc).replace(f"{work / 'init'}", "init")
+                          .replace(f"{work / 'refined'}", "refined"))
     r = res.report
     info: dict[str, Any] = {
         "init_frames": len(init.image_names),
