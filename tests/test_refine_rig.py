@@ -27,7 +27,6 @@ from omni_sfm.poses import Trajectory, read_tum, write_tum
 from omni_sfm.refine.synthetic import perturb
 from omni_sfm.reports import RefineReport
 
-
 POSED = 16
 """The init poses the render's first 16 frames; the other 4 are in the folder without a pose."""
 
