@@ -232,7 +232,7 @@ class RefineResult:
     report: RefineReport
 
 
-class _Stages:
+class Stages:
     """Per-stage wall time and a stage-level progress bar (pycolmap's calls report nothing)."""
 
     def __init__(self, names: list[str], progress: bool) -> None:
@@ -270,7 +270,8 @@ def model_statistics(rec: Any) -> ModelStatistics:
     )
 
 
-def _observations(rec: Any, image_ids: list[int]) -> np.ndarray:
+def observation_counts(rec: Any, image_ids: list[int]) -> np.ndarray:
+    """``(N,)`` each image's observations of triangulated points (0 for an image not posed)."""
     return np.asarray([rec.images[i].num_points3D if i in rec.images and
                        rec.images[i].has_pose else 0 for i in image_ids], dtype=np.int64)
 
@@ -291,8 +292,8 @@ def _position_priors(rec: Any, image_ids: list[int], inp: Trajectory,
     return priors
 
 
-def _bundle_adjust(rec: Any, fixed_frames: set[int], priors: list[Any] | None,
-                   opts: RefineOptions) -> list[AdjustmentRound]:
+def colmap_bundle_adjust(rec: Any, fixed_frames: set[int], priors: list[Any] | None,
+                         opts: RefineOptions) -> list[AdjustmentRound]:
     """Rounds of BA (poses and points free, intrinsics and ``fixed_frames`` fixed) each followed
     by removing observations with large errors or small triangulation angles (the reported
     error after a round is after that filtering).
@@ -358,13 +359,15 @@ def _align_to_input(ref: Trajectory, inp: Trajectory) -> tuple[FloatArray, Float
     return sim.rotation, sim.translation, sim.scale
 
 
-def _frame_timestamps(all_names: list[str], init: InitModel) -> tuple[FloatArray | None, str]:
-    """Timestamps for every image of the folder, when the input's timestamps are an affine
-    function of the image's position in the sorted folder (frame index or constant frame rate);
-    otherwise None and the reason."""
+def frame_timestamps(all_names: Sequence[str], image_names: Sequence[str],
+                     timestamps: FloatArray) -> tuple[FloatArray | None, str]:
+    """Timestamps for every image of the folder (``all_names``, sorted), when the input's
+    ``timestamps`` (of its frames ``image_names``) are an affine function of the image's
+    position in the folder (frame index or constant frame rate); otherwise None and the
+    reason."""
     index = {n: k for k, n in enumerate(all_names)}
-    x = np.asarray([index[n] for n in init.image_names], dtype=np.float64)
-    y = init.trajectory.timestamps
+    x = np.asarray([index[n] for n in image_names], dtype=np.float64)
+    y = np.asarray(timestamps, dtype=np.float64)
     if len(x) < 2:
         return None, "fewer than two input poses"
     A = np.stack([x, np.ones_like(x)], 1)
@@ -460,10 +463,10 @@ def _refine(o: RefineOptions, init: InitModel, init_dir: Path, images_dir: Path,
     to the mapper because the init's report flags them)."""
     posed = set(init.image_names)
     unposed = [n for n in all_names if n not in posed]
-    stages = _Stages(["images", "features", "matching", "triangulation", "mapper",
+    stages = Stages(["images", "features", "matching", "triangulation", "mapper",
                       "bundle adjustment", "acceptance and output"], progress)
     export = init.camera.colmap_export()
-    parts = _Sections(
+    parts = Sections(
         input=RefineInput(init=stored_path(init_dir, output),
                           images=stored_path(images_dir, output),
                           database=stored_path(database, output) if database
@@ -491,7 +494,7 @@ def _refine(o: RefineOptions, init: InitModel, init_dir: Path, images_dir: Path,
 
 
 @dataclass
-class _Sections:
+class Sections:
     """The sections of refine's :class:`~omni_sfm.reports.RefineReport`, as the steps of
     :class:`_Run` add them."""
 
@@ -544,8 +547,8 @@ class _Run:
     unposed: list[str]
     tmp: Path
     db_path: Path
-    stages: _Stages
-    report: _Sections
+    stages: Stages
+    report: Sections
     progress: bool
     joint: bool = False
     """The model was adjusted with the lines (:meth:`_joint`)."""
@@ -624,8 +627,8 @@ class _Run:
                                                  str(images))
                 report.mapper = got.report()
             else:
-                rec, report.mapper = _register_missing(rec, self.register, self.unposed, db,
-                                                       images, o)
+                rec, report.mapper = register_unposed(rec, self.register, self.unposed, db,
+                                                      images, o)
         shutil.rmtree(work, ignore_errors=True)
         return rec, seed, image_ids
 
@@ -633,7 +636,7 @@ class _Run:
         """Adjust when the model is strong enough; the seeded frames' observation counts
         before it and whether the model is trusted."""
         o, inp = self.o, self.init.trajectory
-        obs0 = _observations(rec, image_ids)
+        obs0 = observation_counts(rec, image_ids)
         weak = obs0 < o.min_observations
         fixed = {rec.images[i].frame_id for i, w in zip(image_ids, weak, strict=True) if w}
         need_points = max(o.min_points, int(np.ceil(o.min_points_per_frame * len(image_ids))))
@@ -648,7 +651,7 @@ class _Run:
             elif trusted:
                 priors = _position_priors(rec, image_ids, inp,
                                           o.prior_position_sigma * max(inp.path_length(), 1e-9))
-                rounds = _bundle_adjust(rec, fixed, priors, o)
+                rounds = colmap_bundle_adjust(rec, fixed, priors, o)
                 self.report.bundle_adjustment = BundleAdjustmentReport(
                     rounds=rounds, held_fixed_frames=int(len(fixed)),
                     after=model_statistics(rec))
@@ -702,7 +705,8 @@ class _Run:
     def registered(self, rec: Any) -> tuple[list[str], FloatArray | None]:
         """The frames without an input pose that the mapper posed, and their timestamps
         (none where the folder's frames have no timestamps: they cannot be placed)."""
-        ts_all, _ = _frame_timestamps(self.all_names, self.init)
+        ts_all, _ = frame_timestamps(self.all_names, self.init.image_names,
+                                     self.init.trajectory.timestamps)
         added = [n for n in self.unposed if (im := rec.find_image_with_name(n)) is not None
                  and im.has_pose]
         if ts_all is None or not added:
@@ -719,13 +723,14 @@ class _Run:
                       init.trajectory.path_length(), lines_too=self.joint)
         report.acceptance = acc
         traj, refined = acc.trajectory, acc.refined
-        _, ts_why = _frame_timestamps(self.all_names, init)
+        _, ts_why = frame_timestamps(self.all_names, init.image_names,
+                                    init.trajectory.timestamps)
         added, ts = self.registered(rec)
         if acc.alignment is None or ts is None:
             added = []  # without the alignment or timestamps they cannot be placed
         else:
             new, _ = trajectory_from_reconstruction(rec, seed.export, added, ts)
-            traj, refined = _merge(traj, refined, acc.alignment.apply(new))
+            traj, refined = merge_poses(traj, refined, acc.alignment.apply(new))
         if self.register and report.mapper is not None:
             report.mapper = replace(
                 report.mapper, added_to_trajectory=added,
@@ -749,7 +754,7 @@ class _Run:
         return traj, refined
 
 
-def _register_missing(rec: Any, register: bool, unposed: list[str], db_path: Path,
+def register_unposed(rec: Any, register: bool, unposed: list[str], db_path: Path,
                       image_dir: Path, o: RefineOptions) -> tuple[Any, MapperReport]:
     """COLMAP's registration of the frames ``unposed`` into ``rec`` (in place), the seeded
     frames held: the incremental mapper's next-image loop (absolute pose, triangulation of the
@@ -792,7 +797,7 @@ def _register_missing(rec: Any, register: bool, unposed: list[str], db_path: Pat
                              not_registered=[n for n in unposed if n not in names])
 
 
-def _merge(traj: Trajectory, refined: np.ndarray, new: Trajectory
+def merge_poses(traj: Trajectory, refined: np.ndarray, new: Trajectory
            ) -> tuple[Trajectory, np.ndarray]:
     ts = np.concatenate([traj.timestamps, new.timestamps])
     order = np.argsort(ts, kind="stable")
@@ -801,7 +806,7 @@ def _merge(traj: Trajectory, refined: np.ndarray, new: Trajectory
     return merged, np.concatenate([refined, np.ones(len(new), dtype=bool)])[order]
 
 
-def _frame_errors(rec: Any, image_ids: list[int]) -> np.ndarray:
+def frame_errors(rec: Any, image_ids: list[int]) -> np.ndarray:
     """``(N,)`` mean reprojection error (px) of each image's triangulated observations
     (inf for an image without any)."""
     out = np.full(len(image_ids), np.inf)
@@ -857,15 +862,15 @@ def _accept(rec: Any, export: Any, init: InitModel, image_ids: list[int], obs0: 
     ``lines_too``: the adjustment used the lines, which fix every frame, so a frame with few
     point observations is not held to its input pose for that."""
     inp = init.trajectory
-    why = _untrusted_model(rec, trusted_model, o)
+    why = untrusted_model(rec, trusted_model, o)
     if why is not None:
         return Acceptance(inp, np.zeros(len(inp), dtype=bool), kept_input_for_all=why)
     ref, ok = trajectory_from_reconstruction(rec, export, init.image_names, inp.timestamps)
-    return accept_poses(inp, init.image_names, ref, ok, obs0, _observations(rec, image_ids),
-                        _frame_errors(rec, image_ids), o, path_length, lines_too=lines_too)
+    return accept_poses(inp, init.image_names, ref, ok, obs0, observation_counts(rec, image_ids),
+                        frame_errors(rec, image_ids), o, path_length, lines_too=lines_too)
 
 
-def _untrusted_model(rec: Any, trusted_model: bool, o: RefineOptions) -> str | None:
+def untrusted_model(rec: Any, trusted_model: bool, o: RefineOptions) -> str | None:
     """Why the adjusted model is not trusted at all (every input pose kept), or None."""
     ba_mean = float(rec.compute_mean_reprojection_error())
     if not trusted_model:
