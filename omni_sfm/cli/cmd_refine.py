@@ -55,7 +55,8 @@ def add_parser(sub: Any) -> None:
     p.add_argument("--max-corners", type=int, default=d.max_corners,
                    help="KLT corners tracked at most (default: %(default)s)")
     p.add_argument("--no-mapper", action="store_true",
-                   help="do not try to register frames the init did not pose")
+                   help="do not try to register frames without an input pose (those the init "
+                        "did not pose or flags as not fixed by the data)")
     p.add_argument("--mapper", choices=["incremental", "global"], default=d.mapper,
                    help="how the frames the init missed are registered: COLMAP's incremental "
                         "mapper from the triangulated model, or COLMAP's rotation averaging "
@@ -99,7 +100,9 @@ def run(args: argparse.Namespace) -> int:
           f"({r.model.points} points, {r.model.observations} observations{err}) "
           f"into {res.output}")
     if r.mapper_added:
-        print(f"COLMAP's mapper registered {len(r.mapper_added)} frames the init did not pose")
+        flagged = r.frames.get("input_poses_uncertain", 0)
+        print(f"COLMAP's mapper registered {len(r.mapper_added)} frames without an input pose"
+              + (f" (the init flagged {flagged} as not fixed by the data)" if flagged else ""))
     if r.kept_input_for_all:
         print(f"kept every input pose: {r.kept_input_for_all}")
     elif r.kept_frames:
