@@ -307,18 +307,17 @@ class InitArtifacts:
         ``--keep-uncertain``). All False without such a report (a plugin's folder has none).
         The poses are those of the frames not in ``frames_not_estimated``, in frame order; a
         one-line OmniSfmError when the report does not fit ``trajectory.tum``."""
-        path = self.folder / self.folder.REPORT
         n = len(self.trajectory)
-        raw = read_json(path, "report") if path.is_file() else {}
-        flags = raw.get("frames_uncertain") if isinstance(raw, dict) else None
-        if not flags or raw.get("uncertain_poses"):
+        report = self.read_report()
+        if report is None or not report.frames_uncertain or report.uncertain_poses:
             return np.zeros(n, bool)
-        missing = set(raw.get("frames_not_estimated") or ())
-        posed = [k for k in range(int(raw.get("num_frames", 0))) if k not in missing]
+        missing = set(report.frames_not_estimated or ())
+        posed = [k for k in range(report.num_frames) if k not in missing]
         if len(posed) != n:
-            raise OmniSfmError(f"{path}: {len(posed)} frames estimated but "
-                               f"{self.folder / self.folder.TRAJECTORY} holds {n} poses")
-        return np.isin(posed, [int(k) for k in flags])
+            raise OmniSfmError(f"{self.folder / self.folder.REPORT}: {len(posed)} frames "
+                               f"estimated but {self.folder / self.folder.TRAJECTORY} holds "
+                               f"{n} poses")
+        return np.isin(posed, [int(k) for k in report.frames_uncertain])
 
 
 @dataclass(frozen=True)

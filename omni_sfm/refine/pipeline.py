@@ -70,6 +70,7 @@ from omni_sfm.fileio import (
     stored_path,
 )
 from omni_sfm.folders import (
+    InitArtifacts,
     InitFolder,
     RefineFolder,
     carry_forward,
@@ -439,19 +440,27 @@ def refine(init_dir: Path, images: Path | None, output: Path,
                        database, overwrite=overwrite, progress=progress, verbose=verbose)
 
 
-def _seed_without_uncertain(init: InitModel, init_dir: Path, scratch: Path
-                            ) -> tuple[InitModel, int]:
-    """The init model without the poses its report lists as not fixed by the data (they are
-    left to the mapper, as frames the init did not pose) and how many those are; a one-line
-    OmniSfmError when fewer than 3 poses are left to seed COLMAP with."""
-    flagged = init.artifacts.uncertain_rows()
-    if not flagged.any():
-        return init, 0
+def flagged_seed_poses(artifacts: InitArtifacts, init_dir: Path) -> np.ndarray:
+    """``(N,)`` bool over the init's poses: those its report flags as not fixed by the data
+    (:meth:`~omni_sfm.folders.InitArtifacts.uncertain_rows`), which do not seed COLMAP; a
+    one-line OmniSfmError when fewer than 3 poses are left to seed it with."""
+    flagged = artifacts.uncertain_rows()
     if (~flagged).sum() < 3:
         raise OmniSfmError(
             f"{init_dir}: the data fix {int((~flagged).sum())} of the {len(flagged)} poses in "
             f"{InitFolder.TRAJECTORY} (report.json frames_uncertain); refine needs 3 to seed "
             "COLMAP with (omni-sfm init --initializer colmap starts from the images alone)")
+    return flagged
+
+
+def _seed_without_uncertain(init: InitModel, init_dir: Path, scratch: Path
+                            ) -> tuple[InitModel, int]:
+    """The init model without the poses its report lists as not fixed by the data (they are
+    left to the mapper, as frames the init did not pose) and how many those are; a one-line
+    OmniSfmError when fewer than 3 poses are left to seed COLMAP with."""
+    flagged = flagged_seed_poses(init.artifacts, init_dir)
+    if not flagged.any():
+        return init, 0
     drop = [n for n, f in zip(init.image_names, flagged, strict=True) if f]
     return read_init_model(write_init_without(init_dir, scratch / "init", drop)), len(drop)
 
@@ -464,7 +473,7 @@ def _refine(o: RefineOptions, init: InitModel, init_dir: Path, images_dir: Path,
     posed = set(init.image_names)
     unposed = [n for n in all_names if n not in posed]
     stages = Stages(["images", "features", "matching", "triangulation", "mapper",
-                      "bundle adjustment", "acceptance and output"], progress)
+                     "bundle adjustment", "acceptance and output"], progress)
     export = init.camera.colmap_export()
     parts = Sections(
         input=RefineInput(init=stored_path(init_dir, output),
@@ -755,7 +764,7 @@ class _Run:
 
 
 def register_unposed(rec: Any, register: bool, unposed: list[str], db_path: Path,
-                      image_dir: Path, o: RefineOptions) -> tuple[Any, MapperReport]:
+                     image_dir: Path, o: RefineOptions) -> tuple[Any, MapperReport]:
     """COLMAP's registration of the frames ``unposed`` into ``rec`` (in place), the seeded
     frames held: the incremental mapper's next-image loop (absolute pose, triangulation of the
     new frame's observations, local adjustments around it) without its global refinements,
@@ -798,7 +807,9 @@ def register_unposed(rec: Any, register: bool, unposed: list[str], db_path: Path
 
 
 def merge_poses(traj: Trajectory, refined: np.ndarray, new: Trajectory
-           ) -> tuple[Trajectory, np.ndarray]:
+                ) -> tuple[Trajectory, np.ndarray]:
+    """``traj`` and the poses ``new`` in one trajectory in timestamp order, and which of them
+    the images refined (``refined``, then every one of ``new``)."""
     ts = np.concatenate([traj.timestamps, new.timestamps])
     order = np.argsort(ts, kind="stable")
     merged = Trajectory(ts[order], np.concatenate([traj.rotations, new.rotations])[order],

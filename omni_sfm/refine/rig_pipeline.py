@@ -53,6 +53,7 @@ from omni_sfm.refine.pipeline import (
     Stages,
     accept_poses,
     colmap_bundle_adjust,
+    flagged_seed_poses,
     frame_errors,
     frame_timestamps,
     merge_poses,
@@ -90,11 +91,7 @@ def refine_rig(init_dir: Path, images_dir: Path, output: Path, o: RefineOptions,
     if o.features != "sift":
         raise OmniSfmError(f"{init_dir}: a rig camera is refined with SIFT features "
                            f"(--features {o.features} takes one camera)")
-    flagged = art.uncertain_rows()
-    if (~flagged).sum() < 3:
-        raise OmniSfmError(
-            f"{init_dir}: the data fix {int((~flagged).sum())} of the {len(flagged)} poses in "
-            f"{InitFolder.TRAJECTORY} (report.json frames_uncertain); refine needs 3")
+    flagged = flagged_seed_poses(art, init_dir)
     metres = _init_scale(init_dir, art.trajectory)
     frames = FrameStore(images_dir)
     names = [n for n, f in zip(pose_frame_names(init_dir, art.trajectory, frames), flagged,
@@ -122,10 +119,9 @@ def refine_rig(init_dir: Path, images_dir: Path, output: Path, o: RefineOptions,
     try:
         with library_logging(verbose), atomic_output_dir(
                 output, overwrite=overwrite, inputs=(init_dir, images_dir, database)) as tmp:
-            run = _RigRun(o, camera, inp, names, metres, tmp,
+            run = _RigRun(o, camera, inp, names, list(frames.names),
+                          unposed if register else [], metres, tmp,
                           Path(database) if database else tmp / RefineFolder.DATABASE, parts)
-            run.all_names = list(frames.names)
-            run.unposed = unposed if register else []
             used = run.all_names if register else names
             with stages.stage("images"):
                 write_lens_images(tmp / RefineFolder.COLMAP_IMAGES, run.lenses,
@@ -154,18 +150,19 @@ class _RigRun:
     """One rig refinement's state, its steps in the order :func:`refine_rig` calls them."""
 
     def __init__(self, o: RefineOptions, camera: RigCamera, inp: Trajectory, names: list[str],
-                 metres_per_unit: float, tmp: Path, db: Path, report: Sections) -> None:
+                 all_names: list[str], unposed: list[str], metres_per_unit: float, tmp: Path,
+                 db: Path, report: Sections) -> None:
+        """``names``: the frames of the input poses ``inp``; ``all_names``: every frame of the
+        folder, in order; ``unposed``: the frames without an input pose the mapper is to
+        register."""
         from omni_sfm.export.colmap_lenses import LensExports
 
         self.o, self.camera, self.inp, self.names = o, camera, inp, names
+        self.all_names, self.unposed = all_names, unposed
         self.metres_per_unit, self.tmp, self.db, self.report = metres_per_unit, tmp, db, report
         self.lenses = LensExports.of(camera)
         self.parallax_px = 0.0
         """The lens baseline's median parallax at the points (:func:`baseline_parallax_px`)."""
-        self.all_names: list[str] = list(names)
-        """Every frame of the folder, in order."""
-        self.unposed: list[str] = []
-        """The frames without an input pose the mapper is to register."""
 
     def database(self, names: list[str]) -> None:
         """Features, the rig and the matches of the frames ``names``
