@@ -97,3 +97,24 @@ def test_frames_the_adjustment_moves_far_from_the_linear_positions_are_flagged()
     moved = SimpleNamespace(frames=ba.frames, positions=apart)
     assert len(_moved_far(c, moved, settings(GlobalOptions()), {})) >= 10
     assert _moved_far(c, moved, settings(GlobalOptions()), tied) == {}
+
+
+def test_a_few_trusted_frames_between_many_flagged_ones_are_flagged() -> None:
+    """A stretch of fewer than ``min_trusted_run`` trusted frames with more flagged frames
+    around it rests on them and is flagged; a flagged frame or two beside a long trusted
+    stretch, frames not posed, and a video with nothing flagged change nothing."""
+    from omni_sfm.estimate.global_estimator import _islands
+
+    posed = np.ones(60, bool)
+    flagged = {*range(0, 20), *range(23, 45), *range(50, 52)}
+    got = _islands(posed, flagged, 10)
+    # 20-22 (3 trusted between 42 flagged) and 45-49 (5 between 24); 52-59 (8 beside 2) stay
+    assert sorted(got) == [20, 21, 22, 45, 46, 47, 48, 49]
+    assert "one of 3 trusted frames (20-22) between 42 flagged ones" in got[20]
+    assert _islands(posed, set(), 10) == {}
+    assert _islands(posed, {30}, 10) == {}
+    # frames not posed are skipped: they neither end a stretch nor count in it
+    posed[21] = False
+    assert sorted(_islands(posed, flagged, 10)) == [20, 22, 45, 46, 47, 48, 49]
+    # every frame trusted but a few: nothing is an island
+    assert _islands(np.ones(8, bool), {0, 1}, 10) == {}
