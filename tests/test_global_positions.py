@@ -111,6 +111,8 @@ def test_a_few_trusted_frames_between_many_flagged_ones_are_flagged() -> None:
     # 20-22 (3 trusted between 42 flagged) and 45-49 (5 between 24); 52-59 (8 beside 2) stay
     assert sorted(got) == [20, 21, 22, 45, 46, 47, 48, 49]
     assert "one of 3 trusted frames (20-22) between 42 flagged ones" in got[20]
+    assert "a trusted frame alone between 6 flagged ones" in \
+        _islands(np.ones(9, bool), {0, 1, 2, 4, 5, 6}, 10)[3]
     assert _islands(posed, set(), 10) == {}
     assert _islands(posed, {30}, 10) == {}
     # frames not posed are skipped: they neither end a stretch nor count in it

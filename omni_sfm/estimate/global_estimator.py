@@ -185,8 +185,8 @@ class Settings(GlobalOptions):
     """Posed frames a window of the covariance takes at most
     (:func:`~omni_sfm.estimate.uncertainty.pose_spread`)."""
     min_trusted_run: int = 10
-    """A stretch of fewer trusted frames than this between flagged ones is flagged too
-    (:func:`_islands`)."""
+    """A stretch of fewer trusted frames than this, with more flagged frames than its own
+    around it, is flagged too (:func:`_islands`)."""
 
 
 def settings(options: GlobalOptions, **fixed: Any) -> Settings:
@@ -1187,9 +1187,11 @@ def _islands(posed: np.ndarray, flagged: Collection[int], min_run: int) -> dict[
         around = sum(d - c for c, d in runs[max(r - 1, 0):r + 2] if bad[c])
         if around <= b - a:
             continue
+        what = f"one of {b - a} trusted frames ({idx[a]}-{idx[b - 1]})" if b - a > 1 else \
+            "a trusted frame alone"
         for k in idx[a:b]:
-            out[int(k)] = (f"one of {b - a} trusted frames ({idx[a]}-{idx[b - 1]}) between "
-                           f"{around} flagged ones: they rest on the flagged frames around them")
+            out[int(k)] = (f"{what} between {around} flagged ones: the poses of so few rest on "
+                           f"the flagged frames around them")
     return out
 
 
