@@ -37,13 +37,15 @@ from omni_sfm.poses import Trajectory, read_tum  # noqa: E402
 from scripts.benchlib import add_log_arguments, write_log  # noqa: E402
 
 
-def _perturbed(tracks: LineTracks, seed: int, size: float = 1e-9) -> LineTracks:
+def perturbed(tracks: LineTracks, seed: int, size: float = 1e-9) -> LineTracks:
+    """``tracks`` with ``size`` (normal draws of generator ``seed``) added to every normal."""
     rng = np.random.default_rng(seed)
     n = tracks.obs_normal + size * rng.normal(size=tracks.obs_normal.shape)
     return replace(tracks, obs_normal=normalize(n))
 
 
-def _reversed(tracks: LineTracks) -> LineTracks:
+def reversed_order(tracks: LineTracks) -> LineTracks:
+    """``tracks`` in reversed frame order, each frame keeping its timestamp."""
     return replace(reversed_frames(tracks), timestamps=tracks.timestamps[::-1].copy())
 
 
@@ -53,11 +55,11 @@ def _without(tracks: LineTracks, first: int) -> LineTracks:
 
 def variants(tracks: LineTracks) -> list[tuple[str, LineTracks]]:
     """The variants of the module docstring, by name."""
-    out = [("as they are", tracks), ("reversed", _reversed(tracks))]
+    out = [("as they are", tracks), ("reversed", reversed_order(tracks))]
     out += [(f"first {k} dropped", _without(tracks, k)) for k in (10, 25, 50, 100)]
-    out += [(f"1e-9 noise, seed {s}", _perturbed(tracks, s)) for s in (1, 2, 3)]
-    out.append(("reversed, first 50 dropped", _reversed(_without(tracks, 50))))
-    out.append(("first 25 dropped, 1e-9 noise", _perturbed(_without(tracks, 25), 4)))
+    out += [(f"1e-9 noise, seed {s}", perturbed(tracks, s)) for s in (1, 2, 3)]
+    out.append(("reversed, first 50 dropped", reversed_order(_without(tracks, 50))))
+    out.append(("first 25 dropped, 1e-9 noise", perturbed(_without(tracks, 25), 4)))
     return out
 
 
