@@ -35,12 +35,13 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 from omni_sfm.estimate.pipeline import EstimationOptions, estimate_poses  # noqa: E402
 from omni_sfm.evaluate import flag_honesty  # noqa: E402
 from omni_sfm.lines.tracks import LineTracks  # noqa: E402
+from omni_sfm.poses import Trajectory  # noqa: E402
 from omni_sfm.synth.simulate import SimulationOptions, simulate, weak_stretches  # noqa: E402
 from scripts.benchlib import add_log_arguments, write_log  # noqa: E402
 from scripts.eval.variants import perturbed, reversed_order  # noqa: E402
 
 
-def _walk(seed: int, views: int, stretches: bool) -> tuple[LineTracks, object]:
+def _walk(seed: int, views: int, stretches: bool) -> tuple[LineTracks, Trajectory]:
     sim = simulate(SimulationOptions(num_views=views, world="manhattan",
                                      path_length=0.05 * (views - 1), noise_deg=0.1, seed=seed))
     along = (int(0.30 * views), int(0.42 * views))
@@ -48,13 +49,13 @@ def _walk(seed: int, views: int, stretches: bool) -> tuple[LineTracks, object]:
     return (weak_stretches(sim, along, two) if stretches else sim.tracks), sim.groundtruth
 
 
-def _counts(tracks: LineTracks, g: object, label: str) -> tuple[list[object], float]:
+def _counts(tracks: LineTracks, g: Trajectory, label: str) -> tuple[list[object], float]:
     """``([posed, trusted, flagged, trusted off, flagged within, share], wall)`` of one run; the
     flagged frames by their timestamps (reversed tracks keep theirs)."""
     t0 = time.perf_counter()
     res = estimate_poses(tracks, EstimationOptions())
     wall = time.perf_counter() - t0
-    h = flag_honesty(res.trajectory, g,  # type: ignore[arg-type]
+    h = flag_honesty(res.trajectory, g,
                      tracks.timestamps[[int(k) for k in res.report.frames_uncertain or {}]])
     share = 100.0 * h.flagged_fine / h.flagged if h.flagged else 0.0
     posed = f"{int(res.estimated.sum())}/{tracks.num_frames}"
