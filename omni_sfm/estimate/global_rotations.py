@@ -301,7 +301,7 @@ def solve_rotations(tracks: LineTracks, frames: np.ndarray, R0: FloatArray,
     # another world (another frame first) could reach another minimum; starts that differ
     # at the gauge frame and reach one minimum give one solution
     R = np.einsum("ji,fjk->fik", R0[prob.gauge], R0)
-    d = group_directions(tracks, R, frames, group)
+    d = group_directions(tracks, R, frames, solved)
     r = prob.residuals(R, d)
     sigma = max(_robust_sigma(r), 1e-9)
     scale = options.loss_scale * sigma
