@@ -11,11 +11,13 @@ from omni_sfm.lines.tracks import LineTracks, make_tracks
 from omni_sfm.synth.simulate import Simulation, SimulationOptions, simulate
 from omni_sfm.vanishing import (
     VanishingOptions,
+    _groups,
     chain_signs,
     detect_parallel_families,
     detect_parallel_family,
 )
-from omni_sfm.vanishing._groups import SortedMultiset
+from omni_sfm.vanishing._groups import SortedMultiset, connected_parts
+from omni_sfm.vanishing._observations import ObsIndex
 from omni_sfm.vanishing._triples import triple_eigs
 
 
@@ -115,6 +117,59 @@ def test_two_families() -> None:
     assert len(fams) == 2
     np.testing.assert_array_equal(fams[0].members, np.arange(M) < 8)
     np.testing.assert_array_equal(fams[1].members, np.arange(M) >= 8)
+
+
+def test_connected_parts_are_the_members_seen_together() -> None:
+    """Members seen in one frame are in one part, and so are chains of them; a part is never
+    joined through a track that is not a member. Largest part (observations) first."""
+    spans = {0: (0, 5), 1: (3, 8), 2: (10, 20), 3: (12, 14), 4: (7, 11), 5: (30, 31)}
+    tt = np.concatenate([np.full(b - a, m) for m, (a, b) in spans.items()])
+    ff = np.concatenate([np.arange(a, b) for a, b in spans.values()])
+    rng = np.random.default_rng(0)
+    n = rng.normal(size=(len(tt), 3))
+    tracks = make_tracks(32, np.arange(6), tt, ff, n / np.linalg.norm(n, axis=1, keepdims=True))
+    idx = ObsIndex.from_tracks(tracks)
+    members = np.array([True, True, True, True, False, True])
+    parts = connected_parts(idx, members)
+    assert [np.flatnonzero(p).tolist() for p in parts] == [[2, 3], [0, 1], [5]]
+    members[4] = True                                 # track 4 links frames 7 and 10
+    assert [np.flatnonzero(p).tolist() for p in connected_parts(idx, members)] == \
+        [[0, 1, 2, 3, 4], [5]]
+    assert connected_parts(idx, np.zeros(6, bool)) == []
+
+
+def test_a_family_is_one_part(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A group grown into lines of one direction before a turn and of another after it, with
+    no frame that sees both (a group grows through frames where two nearly coplanar lines leave
+    its VPV free), comes back as two families: nothing relates the parts' directions."""
+    rng = np.random.default_rng(3)
+    F, per = 40, 6
+    dirs = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0]])
+    tt, ff, nn = [], [], []
+    for m in range(2 * per):
+        d = dirs[m // per]
+        frames = np.arange(0, F // 2) if m < per else np.arange(F // 2, F)
+        p = rng.uniform(-3, 3, 3)
+        c = np.stack([0.05 * frames, np.zeros_like(frames), np.zeros_like(frames)], axis=1)
+        n = np.cross(p - c, d)
+        tt += [np.full(len(frames), m)]
+        ff += [frames]
+        nn += [n / np.linalg.norm(n, axis=1, keepdims=True)]
+    tracks = make_tracks(F, np.arange(2 * per), np.concatenate(tt), np.concatenate(ff),
+                         np.concatenate(nn))
+    grow = _groups.refine_state
+
+    def across(state: _groups.GroupState, allowed: np.ndarray, noise: float
+               ) -> tuple[_groups.GroupState, bool]:
+        state, stable = grow(state, allowed, noise)
+        state.add(np.flatnonzero(allowed & ~state.members))   # the group grown past the turn
+        return state, stable
+
+    monkeypatch.setattr("omni_sfm.vanishing.refine_state", across)
+    fams = detect_parallel_families(tracks)
+    assert len(fams) == 2
+    for fam in fams:
+        assert np.ptp(np.flatnonzero(fam.members) // per) == 0
 
 
 def test_too_few_parallel_lines_raise() -> None:

@@ -31,6 +31,7 @@ from omni_sfm.lines.tracks import LineTracks
 from omni_sfm.vanishing._groups import (
     GroupState,
     StateCache,
+    connected_parts,
     family_arrays,
     merge_groups,
     refine_state,
@@ -218,13 +219,18 @@ def detect_parallel_families(tracks: LineTracks,
         if opts.max_refine_iter > 0:
             state = refine_state(GroupState.of(idx, opts, members), ~taken, noise)[0]
             members = state.members.copy()
+            parts = connected_parts(idx, members)
+            if len(parts) > 1:  # the rest is free to seed groups of its own
+                members = parts[0]
+                state.remove(np.flatnonzero(state.members & ~members))
         if members.sum() < opts.min_family_size:
             continue
         if state is not None:
             cache.put(state)
         groups.append(members)
         taken |= members
-    groups = merge_groups(idx, groups, opts, noise, cache)
+    groups = [part for g in merge_groups(idx, groups, opts, noise, cache)
+              for part in connected_parts(idx, g) if part.sum() >= opts.min_family_size]
     families = [_family(cache.state_of(g)) for g in groups]
     families.sort(key=lambda f: f.size, reverse=True)
     return families[:opts.max_families]

@@ -12,6 +12,8 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 
 from omni_sfm.geometry import FloatArray, smallest_eigenvector_3x3
 from omni_sfm.vanishing._observations import IntArray, ObsIndex
@@ -318,6 +320,33 @@ class StateCache:
         state = self.state_of(a).copy()
         state.add(np.flatnonzero(b & ~a))
         return state
+
+
+def connected_parts(idx: ObsIndex, members: np.ndarray) -> list[np.ndarray]:
+    """The parts of a group (``members`` ``(M,)`` bool) that are seen together: two members are
+    in one part where a chain of members links them, each pair of the chain seen in one frame.
+    Nothing relates the directions of two parts (a group grown through a frame where its VPV
+    rests on two lines can end as the lines of one direction before a turn and of another
+    after it). Largest part (most observations) first; ties in track order."""
+    tracks = np.flatnonzero(members)
+    if tracks.size == 0:
+        return []
+    obs, pos = idx.of_tracks(tracks)
+    frames, col = np.unique(idx.frame[obs], return_inverse=True)
+    n = tracks.size + frames.size
+    graph = coo_matrix((np.ones(obs.size), (pos, tracks.size + col)), shape=(n, n))
+    _, label = connected_components(graph, directed=False)
+    part = label[:tracks.size]
+    size = np.bincount(part, weights=idx.lengths[tracks])
+    first = np.full(size.size, tracks.size)
+    np.minimum.at(first, part, np.arange(tracks.size))
+    order = sorted(np.unique(part), key=lambda p: (-size[p], first[p]))
+    out = []
+    for p in order:
+        m = np.zeros_like(members)
+        m[tracks[part == p]] = True
+        out.append(m)
+    return out
 
 
 def _shared_frames(count_a: IntArray, count_b: IntArray) -> int:
