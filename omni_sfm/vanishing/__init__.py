@@ -6,8 +6,9 @@ in one frame are coplanar and orthogonal to the family's direction ``v_k`` in th
 eigenvalue of ``sum n n^T`` is ``min_|v|=1 sum (n . v)^2`` (eq. 5-6), averaged over the shared
 frames. The passing triples (below ``p_th`` and a noise-adaptive threshold), best first, seed
 groups: each group is trimmed of tracks that do not fit its per-frame VPV and grown by tracks that
-do (noise-normalised leave-one-out residuals), until stable; the largest group is the parallel
-family, and the others (Manhattan scenes) are returned too. Its VPV is then
+do (noise-normalised leave-one-out residuals), until stable, and kept as one part (members
+linked by frames that see two of them: ``_groups.connected_parts``); the largest group is the
+parallel family, and the others (Manhattan scenes) are returned too. Its VPV is then
 recomputed in every frame from all the members seen there (eq. 5) and its sign chained through
 time, so that ``v_k`` points the same way in the world in every frame.
 
