@@ -172,6 +172,47 @@ def test_a_family_is_one_part(monkeypatch: pytest.MonkeyPatch) -> None:
         assert np.ptp(np.flatnonzero(fam.members) // per) == 0
 
 
+def _lines_seen(points: np.ndarray, direction: np.ndarray, frames: np.ndarray,
+                centres: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """``(len(frames), 3)`` unit normals of the line through ``points`` along ``direction`` seen
+    from ``centres[frames]`` (identity rotations), with 0.05 deg of noise."""
+    n = np.cross(points - centres[frames], direction)
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    n += np.radians(0.05) * rng.normal(size=n.shape)
+    return n / np.linalg.norm(n, axis=1, keepdims=True)
+
+
+def test_a_family_does_not_pass_to_another_direction_through_lines_along_the_walk() -> None:
+    """A walk along y: vertical lines in its first half, lines along y at the sides in its
+    second, and two lines along y right overhead all the way (their planes, constant, hold the
+    vertical as well as y). Where only the overhead lines are seen with the lines at the sides,
+    their planes nearly coincide and leave the VPV free: the family of the verticals must not
+    grow into the lines at the sides there (its VPV would turn from the vertical to y)."""
+    rng = np.random.default_rng(5)
+    F = 60
+    centres = np.stack([np.zeros(F), 0.05 * np.arange(F), np.zeros(F)], axis=1)
+    y, z = np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0])
+    first, second, every = np.arange(30), np.arange(30, F), np.arange(F)
+    lines = [(np.array([x, yy, 0.0]), z, first)
+             for x, yy in ((-1.5, 0.4), (1.4, 0.9), (-1.6, 1.3), (1.5, 0.2), (2.0, 1.6))]
+    lines += [(np.array([x, 0.0, h]), y, second)
+              for x, h in ((-1.5, 1.0), (1.5, 1.1), (-1.5, -1.2), (1.5, -1.3), (-1.2, 1.4))]
+    lines += [(np.array([x, 0.0, 1.2]), y, every) for x in (0.0, 0.03)]
+    tt = np.concatenate([np.full(len(f), m) for m, (_, _, f) in enumerate(lines)])
+    ff = np.concatenate([f for _, _, f in lines])
+    nn = np.concatenate([_lines_seen(p, d, f, centres, rng) for p, d, f in lines])
+    tracks = make_tracks(F, np.arange(len(lines)), tt, ff, nn)
+    truth = np.array([2] * 5 + [1] * 5 + [1] * 2)       # the axis of each line's direction
+    fams = detect_parallel_families(tracks)
+    assert fams
+    for fam in fams:
+        ok = np.isfinite(fam.vpv).all(axis=1)
+        axes = np.argmax(np.abs(fam.vpv[ok]), axis=1)
+        assert np.ptp(axes) == 0, f"a family's VPV turns from one axis to another: {axes}"
+    vertical = next(f for f in fams if np.all(truth[np.asarray(f.members, bool)][:5] == 2))
+    assert not np.any(np.asarray(vertical.members, bool)[5:10])
+
+
 def test_too_few_parallel_lines_raise() -> None:
     """Noise-free, so p_th can be tight: three non-parallel lines whose NVs stay within ~1 deg of
     a plane over a short path (seed 3 has such a triple) would pass the default p_th, which is

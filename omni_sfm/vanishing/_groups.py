@@ -130,7 +130,12 @@ class GroupState:
     ``1 + n^T S^+ n`` (``S = sum n n^T`` of the lines defining ``v``, ``S^+`` its inverse across
     ``v``): the variance that ``v``'s own error adds, large where ``v`` rests on 2 nearby
     normals. Every normalised residual then has the same variance (that of ``n . v_true``).
-    An observation is usable where at least 2 other members define the VPV.
+    An observation is usable where at least 2 other members define the VPV, and, for a track
+    that is not a member, where their planes are distinct (the middle eigenvalue of their
+    scatter at least ``min_spread``, as for a triple): where the members' planes nearly
+    coincide (lines along the walk, their planes constant, seen overhead), every line whose
+    plane holds their common line fits, and a group grown there passes from one direction to
+    another.
 
     :meth:`add` and :meth:`remove` recompute only the frames the changed tracks are seen in
     (from scratch there, so the state depends on the members only, not on their history).
@@ -203,6 +208,9 @@ class GroupState:
         self.count[frames] = count
         # every observation there, against the VPV of the other members
         usable = count[loc] - own >= 2
+        joining = usable & ~own  # a track joins only where the members' planes are distinct
+        if np.any(joining):
+            usable[joining] = np.linalg.eigvalsh(S[loc[joining]])[:, 1] >= self.opts.min_spread
         res = np.zeros(fobs.size)
         if np.any(usable):
             res[usable] = _loo_residuals(S[loc[usable]], n[usable], own[usable])
@@ -395,6 +403,23 @@ def _vpvs_disagree(idx: ObsIndex, ga: np.ndarray, gb: np.ndarray, count_a: IntAr
     return bool(np.median(1.0 - cos ** 2) > MAX_VPV_SIN2)
 
 
+def _vpv_turns(state: GroupState) -> bool:
+    """Whether a group's VPV turns by more than 30 deg (:data:`MAX_VPV_SIN2`) between two
+    consecutive frames where it is well determined: the camera does not turn that fast between
+    frames of a video, a group of lines of two directions does (two groups that meet only
+    through lines whose planes nearly coincide: lines along the walk seen overhead, whose
+    planes hold the vertical and the walk's direction alike; refined together, one group's
+    lines are never judged against the other's VPV)."""
+    firm = np.flatnonzero(state.count >= 2)
+    if firm.size:
+        firm = firm[np.linalg.eigvalsh(state.S[firm])[:, 1] >= state.opts.min_spread]
+    if firm.size < 2:
+        return False
+    v = smallest_eigenvector_3x3(state.S[firm])
+    cos = np.einsum("ki,ki->k", v[:-1], v[1:])
+    return bool(np.any(1.0 - cos ** 2 > MAX_VPV_SIN2))
+
+
 def merge_groups(idx: ObsIndex, groups: list[np.ndarray], opts: VanishingOptions,
                  noise: float, cache: StateCache | None = None) -> list[np.ndarray]:
     """Merge groups of one direction that grew apart (partial tracks: two seeds in different
@@ -409,10 +434,11 @@ def merge_groups(idx: ObsIndex, groups: list[np.ndarray], opts: VanishingOptions
     frames are emptied by the refinement (the few tracks that met were trimmed: two
     directions that only touch). A union still trimming after
     ``max_refine_iter`` rounds (more misfits than rounds: two large families) does not merge
-    either, however few of its tracks were trimmed by then; groups whose VPVs clearly point
-    apart are not refined together at all (:data:`MAX_VPV_SIN2`). The outcome of a pair is
-    remembered: after a merge the scan starts again, and pairs left unchanged are not
-    refined twice.
+    either, however few of its tracks were trimmed by then, nor one whose VPV turns by more than
+    30 deg from a frame to the next (:func:`_vpv_turns`); groups whose VPVs clearly point
+    apart are not refined together at all (:data:`MAX_VPV_SIN2`).
+    The outcome of a pair is remembered: after a merge the scan starts again, and pairs left
+    unchanged are not refined twice.
     """
     cache = cache or StateCache(idx, opts)
     groups = list(groups)
@@ -437,7 +463,7 @@ def merge_groups(idx: ObsIndex, groups: list[np.ndarray], opts: VanishingOptions
                 not _vpvs_disagree(idx, ga, gb, ca, cb, opts):
             state, stable = refine_state(cache.union(ga, gb), union, noise)
             kept = state.members
-            if stable and kept.sum() >= 0.9 * union.sum() and \
+            if stable and kept.sum() >= 0.9 * union.sum() and not _vpv_turns(state) and \
                     _shared_frames(count_of(kept & ga), count_of(kept & gb)) >= \
                     opts.min_shared_frames:
                 return state
