@@ -202,15 +202,16 @@ def test_a_family_does_not_pass_to_another_direction_through_lines_along_the_wal
     ff = np.concatenate([f for _, _, f in lines])
     nn = np.concatenate([_lines_seen(p, d, f, centres, rng) for p, d, f in lines])
     tracks = make_tracks(F, np.arange(len(lines)), tt, ff, nn)
-    truth = np.array([2] * 5 + [1] * 5 + [1] * 2)       # the axis of each line's direction
+    truth = np.array([2] * 5 + [1] * 5)     # the axis of the first 10 lines' direction
     fams = detect_parallel_families(tracks)
     assert fams
     for fam in fams:
         ok = np.isfinite(fam.vpv).all(axis=1)
         axes = np.argmax(np.abs(fam.vpv[ok]), axis=1)
         assert np.ptp(axes) == 0, f"a family's VPV turns from one axis to another: {axes}"
-    vertical = next(f for f in fams if np.all(truth[np.asarray(f.members, bool)][:5] == 2))
-    assert not np.any(np.asarray(vertical.members, bool)[5:10])
+    for fam in fams:                                  # no family holds verticals and lines
+        axes = set(truth[np.asarray(fam.members, bool)[:10]])          # at the sides at once
+        assert len(axes) <= 1, np.flatnonzero(fam.members)
 
 
 def test_too_few_parallel_lines_raise() -> None:

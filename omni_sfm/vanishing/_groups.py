@@ -242,6 +242,16 @@ class GroupState:
         med = self.member_res.median() / 0.455 if self.member_res.size else 0.0
         return max(med, np.radians(self.opts.min_noise_deg) ** 2)
 
+    def firm(self) -> np.ndarray:
+        """``(F,)`` whether the members' VPV is well determined in each frame: the middle
+        eigenvalue of their scatter is at least ``min_spread`` (their planes are distinct, as
+        in a triple's test)."""
+        firm = np.zeros(self.idx.num_frames, dtype=bool)
+        ok = np.flatnonzero(self.count >= 2)
+        if ok.size:
+            firm[ok] = np.linalg.eigvalsh(self.S[ok])[:, 1] >= self.opts.min_spread
+        return firm
+
     def vpv(self) -> FloatArray:
         """``(F, 3)`` VPV of all members per frame (arbitrary sign; NaN where fewer than 2)."""
         v = np.full((self.idx.num_frames, 3), np.nan)
@@ -410,9 +420,7 @@ def _vpv_turns(state: GroupState) -> bool:
     through lines whose planes nearly coincide: lines along the walk seen overhead, whose
     planes hold the vertical and the walk's direction alike; refined together, one group's
     lines are never judged against the other's VPV)."""
-    firm = np.flatnonzero(state.count >= 2)
-    if firm.size:
-        firm = firm[np.linalg.eigvalsh(state.S[firm])[:, 1] >= state.opts.min_spread]
+    firm = np.flatnonzero(state.firm())
     if firm.size < 2:
         return False
     v = smallest_eigenvector_3x3(state.S[firm])
@@ -496,15 +504,11 @@ def family_arrays(state: GroupState) -> tuple[FloatArray, FloatArray, FloatArray
                                                 np.ndarray]:
     """The VPV per frame ``(F, 3)`` (sign unchained), each track's mean residual ``(M,)``, each
     frame's mean ``(n . v)^2`` over the members seen there ``(F,)``, their count ``(F,)``, and
-    whether the VPV is well determined there ``(F,)``: the middle eigenvalue of the members'
-    scatter is at least ``min_spread`` (their planes are distinct, as in a triple's test)."""
+    whether the VPV is well determined there ``(F,)`` (:meth:`GroupState.firm`)."""
     idx = state.idx
     v = state.vpv()
     count = state.count.copy()
-    firm = np.zeros(idx.num_frames, dtype=bool)
-    ok = count >= 2
-    if np.any(ok):
-        firm[ok] = np.linalg.eigvalsh(state.S[ok])[:, 1] >= state.opts.min_spread
+    firm = state.firm()
     obs, _ = idx.of_tracks(np.flatnonzero(state.members))
     f = idx.frame[obs]
     r = np.einsum("ki,ki->k", idx.normal[obs], np.nan_to_num(v[f])) ** 2
