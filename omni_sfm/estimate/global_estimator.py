@@ -76,7 +76,7 @@ from omni_sfm.estimate.revisits import (
 )
 from omni_sfm.estimate.rig_scale import OffsetScale, facing_lines, offset_scale
 from omni_sfm.estimate.segments import runs
-from omni_sfm.estimate.uncertainty import observation_noise, pose_spread
+from omni_sfm.estimate.uncertainty import SpreadCache, observation_noise, pose_spread
 from omni_sfm.estimate.windows import window_starts
 from omni_sfm.forked import run_all
 from omni_sfm.geometry import (
@@ -981,7 +981,7 @@ def _uncertain(tracks: LineTracks, rot: GlobalRotations, pos: GlobalPositions,
 
 def _spread(tracks: LineTracks, ba: BundleResult, flagged: dict[int, str],
             options: Settings, held: np.ndarray | None = None,
-            cache: dict[int, object] | None = None) -> tuple[FloatArray, FloatArray]:
+            cache: SpreadCache | None = None) -> tuple[FloatArray, FloatArray]:
     """``(rotation_deg, path)`` ``(F,)`` the RMS error the adjustment's covariance expects of
     each posed frame (degrees; fraction of the path length of the frames not ``flagged``), the
     frames not ``flagged`` aligned to the truth (:func:`~omni_sfm.estimate.uncertainty.
@@ -1145,7 +1145,7 @@ def _flags(tracks: LineTracks, rot: GlobalRotations, pos: GlobalPositions, c: Fl
     uncertain = _uncertain(tracks, rot, pos, ba, options)
     used, seen = _used_observations(tracks, ba)
     free: set[int] = set()
-    cache: dict[int, object] = {}
+    cache = SpreadCache()
     while True:
         spread_deg, spread_path = _spread(tracks, ba, uncertain, options, held, cache)
         weak = _spread_flags(spread_deg, spread_path, options, listed=list(uncertain))

@@ -30,9 +30,8 @@ lines along the walk in most frames), whose spread is infinite too.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from functools import partial
-from typing import Any
 
 import numpy as np
 import scipy.linalg
@@ -198,18 +197,53 @@ def _window_inverse(tracks: LineTracks, R: FloatArray, c: FloatArray, d: FloatAr
     return _WindowInverse(idx, G, C, moves)
 
 
-def _window_spread(R: FloatArray, inv: _WindowInverse, sigma: float, aligned: np.ndarray,
-                   carried: FloatArray, origin: bool
-                   ) -> tuple[np.ndarray, FloatArray, FloatArray]:
-    """``(idx, rotation (n,) rad, position (n,))`` the RMS error to expect of each posed frame of
-    a window (``inv``: :func:`_window_inverse`; the root of its covariance block's trace), the
-    ``aligned`` frames (``(F,)``; all where fewer than 3 of them are posed) aligned as the
-    trajectory's error is measured (module docstring)."""
-    idx, G, C, moves = inv.idx, inv.G, inv.C, inv.moves
+def _window_free(inv: _WindowInverse) -> np.ndarray:
+    """``(n,)`` the window's frames that its free directions leave free: a free direction that
+    moves a few frames leaves those free; one that moves most of them is a split of the window
+    into parts whose relative pose nothing fixes, which the spread cannot attribute to a part
+    (the caller's ties between parts judge it), unless it moves frames by much: then the
+    frames' own parameters are free (lines along the walk that leave the motion along them free
+    in most frames), whatever their number."""
+    n = len(inv.idx)
+    free = np.zeros(n, bool)
+    if inv.moves is not None:
+        moved = inv.moves > 1e-12
+        free = (moved if moved.sum() <= n // 2 else False) | (inv.moves >= _FREE_TRACE)
+    return free
+
+
+def _window_aligned(idx: np.ndarray, aligned: np.ndarray) -> np.ndarray:
+    """``(n,)`` the window's frames aligned to the truth: the ``aligned`` ones (``(F,)``), all
+    where fewer than 3 of them are posed in it."""
+    on = aligned[idx]
+    return on if on.sum() >= 3 else np.ones(len(idx), bool)
+
+
+def _reference(idx: np.ndarray, free: np.ndarray, on: np.ndarray, carried: FloatArray,
+               origin: bool) -> int | None:
+    """The window's frame its rotations' errors are counted from: of those whose own error
+    from the gauge (``carried``) the windows before it give, the least known; in the
+    ``origin`` window, where none is, its first aligned frame (``on``) not ``free``; None
+    where there is no such frame."""
+    known = np.flatnonzero(np.isfinite(carried[idx]) & ~free)
+    if origin and len(known) == 0:
+        # the first aligned frame's pose is free: the errors are counted from the next one
+        known = np.flatnonzero(on & ~free)[:1]
+    if len(known) == 0:
+        return None
+    return int(known[np.argmin(np.nan_to_num(carried[idx][known]))])
+
+
+def _window_variances(R: FloatArray, inv: _WindowInverse, sigma: float, on: np.ndarray,
+                      ref: int | None) -> tuple[FloatArray, FloatArray]:
+    """``(rotation (n,) rad^2, position (n,))`` the variances to expect of each posed frame of
+    a window (``inv``: :func:`_window_inverse`; its covariance block's trace), the ``on``
+    frames aligned as the trajectory's error is measured (module docstring), the rotations
+    counted from the frame ``ref`` (its own error from the gauge not added; inf where None)."""
+    idx, G, C = inv.idx, inv.G, inv.C
     n = len(idx)
     if C is None:
-        return idx, np.full(n, np.inf), np.full(n, np.inf)
-    on = aligned[idx] if aligned[idx].sum() >= 3 else np.ones(n, bool)
+        return np.full(n, np.inf), np.full(n, np.inf)
     # the alignment: the similarity that best fits the aligned frames' centres (their
     # rotations, weighted 1e-6, only settle the turn about a straight walk)
     weight = (on[:, None] * np.r_[np.full(3, 1e-6), np.ones(3)]).ravel()
@@ -218,31 +252,14 @@ def _window_spread(R: FloatArray, inv: _WindowInverse, sigma: float, aligned: np
     CA = C @ Amap.T
     Y = (C - G @ CA.T - CA @ G.T + G @ (Amap @ CA) @ G.T).reshape(n, 6, n, 6)
     pos = sigma**2 * np.einsum("kiki->k", Y[:, 3:, :, 3:])
-    # a free direction that moves a few frames leaves those free; one that moves most of
-    # them is a split of the window into parts whose relative pose nothing fixes, which the
-    # spread cannot attribute to a part (the caller's ties between parts judge it), unless it
-    # moves frames by much: then the frames' own parameters are free (lines along the walk
-    # that leave the motion along them free in most frames), whatever their number
-    free = np.zeros(n, bool)
-    if moves is not None:
-        moved = moves > 1e-12
-        free = (moved if moved.sum() <= n // 2 else False) | (moves >= _FREE_TRACE)
-    # the rotations' errors in the world counted from those of the reference frame (the one
-    # whose own error from the gauge, ``carried``, is the least known: the traces of the
-    # world-frame blocks R_k Y_kj R_j^T), plus the reference's own
-    known = np.flatnonzero(np.isfinite(carried[idx]) & ~free)
-    if origin and len(known) == 0:
-        # the first aligned frame's pose is free: the errors are counted from the next one
-        known = np.flatnonzero(on & ~free)[:1]
-    if len(known) == 0:
-        return idx, np.full(n, np.inf), np.where(free, np.inf, np.sqrt(np.maximum(pos, 0.0)))
-    ref = int(known[np.argmin(np.nan_to_num(carried[idx][known]))])
+    if ref is None:
+        return np.full(n, np.inf), pos
+    # the rotations' errors in the world counted from those of the reference frame: the
+    # traces of the world-frame blocks R_k Y_kj R_j^T
     Yr = Y[:, :3, ref, :3]
     tr = np.einsum("kab,kbc,ac->k", R[idx], Yr, R[idx[ref]])
     diag = np.einsum("kab,kbc,kac->k", R[idx], Y[np.arange(n), :3, np.arange(n), :3], R[idx])
-    rot = sigma**2 * (diag - 2.0 * tr + diag[ref]) + np.nan_to_num(carried[idx[ref]])
-    rot[free], pos[free] = np.inf, np.inf
-    return idx, np.sqrt(np.maximum(rot, 0.0)), np.sqrt(np.maximum(pos, 0.0))
+    return sigma**2 * (diag - 2.0 * tr + diag[ref]), pos
 
 
 def observation_noise(residual_sigma: float, tracks: LineTracks, frames: np.ndarray,
@@ -277,38 +294,91 @@ _INVERSE_CACHE_BYTES = 256 * 2**20
 frames holds 26 MB: every window of a 20,000-frame walk would hold 3.5 GB)."""
 
 
-def _cached_window(cache: dict[int, object] | None, a: int, key: tuple[Any, ...],
-                   inverse: Callable[[], _WindowInverse],
-                   spread: Callable[[_WindowInverse], tuple[np.ndarray, FloatArray, FloatArray]]
-                   ) -> tuple[np.ndarray, FloatArray, FloatArray]:
-    """The window at ``a``'s figures (``spread`` of its ``inverse``): kept in ``cache`` from an
-    earlier round where its ``key`` (aligned frames, reference errors) is the same; its
-    inverse, which does not depend on them, kept where the memory allows
-    (:func:`_kept_inverse`)."""
-    kept = cache.get(a) if cache is not None else None
-    if isinstance(kept, tuple) and kept[0] == key:
-        return kept[1]
-    inv = kept[2] if isinstance(kept, tuple) and kept[2] is not None else inverse()
-    out = spread(inv)
-    if cache is not None:
-        cache[a] = (key, out, inv if _kept_inverse(cache, a, inv) else None)
-    return out
+@dataclass(frozen=True)
+class _KeptWindow:
+    """A window's figures kept between the flags' rounds (:func:`_window_figures`): its frames
+    and those its free directions leave free (which depend on the solution alone), the
+    variances for the aligned frames and reference in ``key``, and its inverse information
+    where the memory allows (:class:`SpreadCache`)."""
+
+    idx: np.ndarray
+    free: np.ndarray
+    key: tuple[bytes, int | None]
+    variances: tuple[FloatArray, FloatArray]
+    inv: _WindowInverse | None
 
 
-def _kept_inverse(cache: dict[int, object], a: int, inv: _WindowInverse) -> bool:
-    """Whether the window at ``a`` keeps its inverse ``inv`` in ``cache``: one it kept already,
-    or a new one while the kept ones stay within :data:`_INVERSE_CACHE_BYTES` (their total
-    under key -1). Which windows keep theirs changes the time a round takes, not its result."""
-    kept = cache.get(a)
-    if isinstance(kept, tuple) and kept[2] is inv:
-        return True
-    size = 0 if inv.C is None else int(inv.C.nbytes)
-    used = cache.get(-1, 0)
-    assert isinstance(used, int)
-    if used + size > _INVERSE_CACHE_BYTES:
-        return False
-    cache[-1] = used + size
-    return True
+@dataclass
+class SpreadCache:
+    """Each window's figures kept between calls of :func:`pose_spread` with the same solution
+    and noise (the flags' rounds), and the inverse information of the windows used most
+    recently, within :data:`_INVERSE_CACHE_BYTES` (which windows keep theirs changes the time a
+    round takes, not its result)."""
+
+    windows: dict[int, _KeptWindow] = field(default_factory=dict)
+    recent: list[int] = field(default_factory=list)
+    """The windows holding their inverse, the least recently used first."""
+    size: int = 0
+    """Their inverses' bytes."""
+
+    def keep(self, a: int, kept: _KeptWindow) -> None:
+        """Keep the window at ``a``'s figures, and its inverse (``kept.inv``) as the most
+        recently used, those used least recently given up for it where the memory needs."""
+        inv = kept.inv
+        if a in self.recent:
+            self.recent.remove(a)
+            self.size -= _inverse_bytes(self.windows[a].inv)
+        nbytes = _inverse_bytes(inv)
+        while self.recent and self.size + nbytes > _INVERSE_CACHE_BYTES:
+            old = self.recent.pop(0)
+            self.size -= _inverse_bytes(self.windows[old].inv)
+            self.windows[old] = replace(self.windows[old], inv=None)
+        if inv is not None and self.size + nbytes <= _INVERSE_CACHE_BYTES:
+            self.recent.append(a)
+            self.size += nbytes
+        else:
+            kept = replace(kept, inv=None)
+        self.windows[a] = kept
+
+
+def _inverse_bytes(inv: _WindowInverse | None) -> int:
+    return 0 if inv is None or inv.C is None else int(inv.C.nbytes)
+
+
+def _window_figures(R: FloatArray, cache: SpreadCache | None, a: int,
+                    inverse: Callable[[], _WindowInverse], sigma: float, aligned: np.ndarray,
+                    carried: FloatArray, origin: bool
+                    ) -> tuple[np.ndarray, FloatArray, FloatArray]:
+    """``(idx, rotation (n,) rad, position (n,))`` the RMS error to expect of each posed frame
+    of the window at ``a`` (its ``inverse``: :func:`_window_inverse`), the ``aligned`` frames
+    aligned (:func:`_window_aligned`), its rotations counted from its reference frame
+    (:func:`_reference`) plus that frame's own error from the gauge (``carried``; the variances
+    before it are kept in ``cache`` from an earlier round where its aligned frames and its
+    reference are the same: a change of the errors carried from the windows before it adds a
+    constant; its inverse, which depends on neither, is kept where the memory allows:
+    :class:`SpreadCache`)."""
+    kept = cache.windows.get(a) if cache is not None else None
+    inv = kept.inv if kept is not None else None
+    if kept is None:
+        inv = inverse()
+        idx, free = inv.idx, _window_free(inv)
+    else:
+        idx, free = kept.idx, kept.free
+    on = _window_aligned(idx, aligned)
+    ref = _reference(idx, free, on, carried, origin)
+    key = (on.tobytes(), ref)
+    if kept is not None and kept.key == key:
+        rot, pos = kept.variances
+    else:
+        inv = inv if inv is not None else inverse()
+        rot, pos = _window_variances(R, inv, sigma, on, ref)
+        if cache is not None:
+            cache.keep(a, _KeptWindow(idx, free, key, (rot, pos), inv))
+    if ref is not None:
+        rot = rot + np.nan_to_num(carried[idx[ref]])
+    rot, pos = rot.copy(), pos.copy()
+    rot[free], pos[free] = np.inf, np.inf
+    return idx, np.sqrt(np.maximum(rot, 0.0)), np.sqrt(np.maximum(pos, 0.0))
 
 
 def pose_spread(tracks: LineTracks, rotations: FloatArray, positions: FloatArray,
@@ -316,7 +386,7 @@ def pose_spread(tracks: LineTracks, rotations: FloatArray, positions: FloatArray
                 used_tracks: np.ndarray, sigma_rad: float, window: int = 300,
                 aligned: np.ndarray | None = None,
                 held_directions: np.ndarray | None = None,
-                cache: dict[int, object] | None = None) -> PoseSpread:
+                cache: SpreadCache | None = None) -> PoseSpread:
     """Each posed frame's pose spread (module docstring) at the adjustment's solution
     (``rotations``, ``positions`` world_from_cam; the lines; ``frames`` posed; the
     ``used_tracks``), the observations' noise ``sigma_rad`` (radians, per axis), with the
@@ -324,9 +394,10 @@ def pose_spread(tracks: LineTracks, rotations: FloatArray, positions: FloatArray
     still tie the lines together, but their errors do not count in the alignment. The lines
     of ``held_directions`` keep their direction, as the adjustment held it. ``cache`` keeps
     each window's figures between calls with the same solution and noise (the flags'
-    rounds): a window whose aligned frames and reference errors have not changed is not
-    computed again, and a window's inverse information, which does not depend on them, is
-    computed once where the memory allows (:func:`_kept_inverse`)."""
+    rounds): a window whose aligned frames and reference frame have not changed is not
+    computed again (the errors carried from the windows before it add a constant), and a
+    window's inverse information, which does not depend on them, is computed once where the
+    memory allows (:class:`SpreadCache`)."""
     F = tracks.num_frames
     rot, pos = np.full(F, np.nan), np.full(F, np.nan)
     posed = np.flatnonzero(frames)
@@ -347,13 +418,11 @@ def pose_spread(tracks: LineTracks, rotations: FloatArray, positions: FloatArray
         members = posed[a:a + window]
         sel = np.zeros(F, bool)
         sel[members] = True
-        key = (aligned[members].tobytes(), carried[members].tobytes(), a == starts[at])
-        idx, r, q = _cached_window(
-            cache, a, key, partial(_window_inverse, tracks, rotations, positions,
-                                   line_directions, line_points, sel, used_tracks, sigma_rad,
-                                   held_directions),
-            partial(_window_spread, rotations, sigma=sigma_rad, aligned=aligned,
-                    carried=carried, origin=a == starts[at]))
+        idx, r, q = _window_figures(
+            rotations, cache, a, partial(_window_inverse, tracks, rotations, positions,
+                                         line_directions, line_points, sel, used_tracks,
+                                         sigma_rad, held_directions),
+            sigma_rad, aligned, carried, a == starts[at])
         new = np.isnan(carried[idx])
         carried[idx[new]] = np.square(r[new])
         k = np.arange(len(idx))
